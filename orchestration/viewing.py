@@ -1,0 +1,82 @@
+"""Load a motion for looking at or exporting: a ``.npy`` of joints or features, or a clip of a
+raw corpus in HumanML3D's layout (with its captions and, for the synthetic corpus, its actions)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from m2d2m.representation import features_to_joints
+from m2d2m.skeleton import SKELETONS, Skeleton
+from orchestration.errors import UserError
+
+
+@dataclass
+class LoadedMotion:
+    joints: np.ndarray
+    skeleton: Skeleton
+    segments: list[tuple[int, int, str]]
+    caption: str | None
+
+
+def _as_joints(array: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray:
+    if array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3):
+        return array.astype(np.float32)
+    if array.ndim == 2 and array.shape[1] == skeleton.feature_dim:
+        return features_to_joints(array.astype(np.float32), skeleton)
+    raise UserError(
+        f"{origin}: shape {array.shape} is neither joints (T, {skeleton.num_joints}, 3) nor "
+        f"{skeleton.feature_dim}-d features of skeleton {skeleton.name!r} (see --skeleton)"
+    )
+
+
+def _load_npy(path: Path) -> np.ndarray:
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as error:
+        raise UserError(f"{path}: not a readable .npy file ({error})") from error
+
+
+def _first_caption(text_file: Path) -> str | None:
+    if not text_file.exists():
+        return None
+    lines = text_file.read_text(encoding="utf-8", errors="replace").splitlines()
+    return lines[0].split("#", 1)[0].strip() if lines else None
+
+
+def _segments_of(corpus: Path, clip_id: str) -> list[tuple[int, int, str]]:
+    """Action segments from the synthetic corpus's annotations (other corpora have none)."""
+    annotations = corpus / "annotations.jsonl"
+    if not annotations.exists():
+        return []
+    with annotations.open(encoding="utf-8") as lines:
+        for line in lines:
+            record = json.loads(line)
+            if record["id"] == clip_id:
+                return [(a["start"], a["end"], a["text"]) for a in record["actions"]]
+    return []
+
+
+def load_motion(source: str | Path, clip_id: str | None = None, skeleton: str = "t2m") -> LoadedMotion:
+    """Joints and captions of ``source``: a ``.npy`` file, or a corpus directory with ``clip_id``."""
+    if skeleton not in SKELETONS:
+        raise UserError(f"unknown skeleton {skeleton!r}; choose one of {', '.join(SKELETONS)}")
+    skel = SKELETONS[skeleton]
+    path = Path(source)
+    if not path.exists():
+        raise UserError(f"{path}: no such file or directory")
+    if path.is_file():
+        return LoadedMotion(_as_joints(_load_npy(path), skel, str(path)), skel, [], None)
+    if clip_id is None:
+        raise UserError(f"{path} is a directory: name the clip with --id (e.g. --id 000000)")
+    for folder in ("joints", "new_joint_vecs"):
+        clip = path / folder / f"{clip_id}.npy"
+        if clip.exists():
+            joints = _as_joints(_load_npy(clip), skel, str(clip))
+            return LoadedMotion(
+                joints, skel, _segments_of(path, clip_id), _first_caption(path / "texts" / f"{clip_id}.txt")
+            )
+    raise UserError(f"{path}: no clip {clip_id!r} under joints/ or new_joint_vecs/")

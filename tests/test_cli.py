@@ -1,0 +1,46 @@
+"""The command line: user errors end in one line on stderr and exit status 2."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from orchestration.cli import main
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "orchestration.cli", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["render", "no/such/file.npy", "--out", "x.gif"], "no such file or directory"),
+        (["synthesize", "--clips", "0"], "must be a positive integer"),
+        (["synthesize", "--families", "walk,moonwalk"], "unknown family moonwalk"),
+        (["render", "{tmp}", "--out", "x.gif"], "name the clip with --id"),
+        (["render", "{tmp}", "--id", "000123", "--out", "x.gif"], "no clip '000123'"),
+        (["render", "{tmp}/bad.npy", "--out", "x.gif"], "neither joints"),
+        (["render", "{tmp}/joints.npy", "--out", "x.png"], "use .gif or .mp4"),
+        (["export", "{tmp}/joints.npy", "--out", "{tmp}/x.fbx"], "writes .bvh or .npy"),
+        (["render", "{tmp}/corrupt.npy", "--out", "x.gif"], "not a readable .npy"),
+    ],
+)
+def test_user_errors_exit_2_with_one_line(tmp_path, args, message):
+    np.save(tmp_path / "bad.npy", np.zeros((10, 7), dtype=np.float32))
+    np.save(tmp_path / "joints.npy", np.zeros((10, 22, 3), dtype=np.float32))
+    (tmp_path / "corrupt.npy").write_bytes(b"\x93NUMPY garbage")
+    result = run_cli(*[a.replace("{tmp}", str(tmp_path)) for a in args])
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert message in lines[-1]
+    assert "Traceback" not in result.stderr
+
+
+def test_no_verb_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main([])
+    assert exit_info.value.code == 2
