@@ -12,6 +12,12 @@ HUMANML3D_SAMPLE = PROJECT_ROOT.parent / "shared" / "data" / "humanml3d-sample"
 
 
 @pytest.fixture(scope="session")
+def humanml3d_sample() -> Path:
+    """The directory of real HumanML3D files (one clip, Mean.npy, Std.npy)."""
+    return HUMANML3D_SAMPLE
+
+
+@pytest.fixture(scope="session")
 def sample_joints() -> np.ndarray:
     """HumanML3D's processed joints of clip 012314, float32 (170, 22, 3)."""
     return np.load(HUMANML3D_SAMPLE / "new_joints" / "012314.npy")
