@@ -122,14 +122,7 @@ def joints_to_features(
     ``target_offsets`` (J, 3) overrides the skeleton's default target bone lengths (for KIT-ML,
     the corpus's own reference skeleton). Computation runs in float64, vectorised over frames.
     """
-    joints = np.asarray(joints)
-    if joints.ndim != 3 or joints.shape[1:] != (skeleton.num_joints, 3):
-        raise ValueError(
-            f"expected joints of shape (T, {skeleton.num_joints}, 3) for skeleton "
-            f"{skeleton.name!r}, got {joints.shape}"
-        )
-    if len(joints) < 2:
-        raise ValueError(f"need at least 2 frames to compute velocities, got {len(joints)}")
+    skeleton.check_joints(joints, min_frames=2)  # velocities need two frames
     positions = canonicalize(joints, skeleton, target_offsets)
     num_frames = len(positions)
 

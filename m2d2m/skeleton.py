@@ -96,6 +96,20 @@ class Skeleton:
         perm[list(self.right_joints)] = self.left_joints
         return perm
 
+    def check_joints(self, joints: np.ndarray, min_frames: int = 1) -> np.ndarray:
+        """Float64 joint positions (T, J, 3) of this skeleton, or a ValueError saying what is off."""
+        joints = np.asarray(joints, dtype=np.float64)
+        if joints.ndim != 3 or joints.shape[1:] != (self.num_joints, 3):
+            raise ValueError(
+                f"expected joints of shape (T, {self.num_joints}, 3) for skeleton {self.name!r}, "
+                f"got {joints.shape}"
+            )
+        if len(joints) < min_frames:
+            raise ValueError(f"need at least {min_frames} frame(s), got {len(joints)}")
+        if not np.isfinite(joints).all():
+            raise ValueError("joints contain NaN or infinite values")
+        return joints
+
     def offsets(self, bone_lengths: np.ndarray | None = None) -> np.ndarray:
         """Rest-pose offsets (J, 3): raw direction × bone length (the defaults when not given)."""
         lengths = self.bone_lengths if bone_lengths is None else np.asarray(bone_lengths)

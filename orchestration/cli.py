@@ -46,6 +46,52 @@ def _synthesize(args: argparse.Namespace) -> None:
     print(f"wrote {args.clips} clips to {out} in {time.perf_counter() - started:.1f} s")
 
 
+def _check_data(directory: Path) -> None:
+    from pipelines.dataset import check_dataset
+
+    problems = check_dataset(directory)
+    for problem in problems:
+        print(problem)
+    if problems:
+        raise UserError(f"{directory}: {len(problems)} problem(s) against its manifest")
+    print(f"{directory}: OK (counts, checksums and schema match the manifest)")
+
+
+def _data(args: argparse.Namespace) -> None:
+    if args.check:
+        _check_data(Path(args.check))
+        return
+    from pipelines.corpora import CORPUS_SKELETONS
+    from pipelines.features import DataConfig, build_dataset, print_summary
+
+    if args.dataset not in CORPUS_SKELETONS:
+        raise UserError(f"unknown dataset {args.dataset!r}; choose one of {', '.join(CORPUS_SKELETONS)}")
+    raw = Path(args.raw or f"data/raw/{args.dataset}")
+    out = Path(args.out or f"data/{args.dataset}")
+    if not raw.exists():
+        if args.dataset != "synthetic":
+            raise UserError(f"{raw}: no such corpus; pass --raw /path/to/{args.dataset} (HumanML3D layout)")
+        _synthesize(argparse.Namespace(out=str(raw), clips=2000, seed=0, families=None, workers=args.workers, force=False))
+    config = DataConfig(
+        dataset=args.dataset, raw=str(raw), out=str(out), samples_per_shard=args.samples_per_shard,
+        min_frames=args.min_frames, max_frames=args.max_frames, workers=args.workers, ray_address=args.ray_address,
+    )
+    manifest_path = out / "manifest.json"
+    if manifest_path.exists() and not args.force:
+        existing = json.loads(manifest_path.read_text(encoding="utf-8"))
+        if existing.get("config") == config.recorded():
+            print(f"{out}: already built from {raw} with this config; reusing it (--force rebuilds)")
+            print_summary(existing, out)
+            return
+        print(f"{out}: built with another config; rebuilding")
+    try:
+        manifest = build_dataset(config)
+    except (FileNotFoundError, ValueError) as error:
+        raise UserError(str(error)) from error
+    print_summary(manifest, out)
+    print(f"wrote {out} ({sum(len(v) for v in manifest['shards'].values())} shards); verify with: m2d2m data --check {out}")
+
+
 def _render(args: argparse.Namespace) -> None:
     from m2d2m.render import render_motion
     from orchestration.viewing import load_motion
@@ -55,10 +101,13 @@ def _render(args: argparse.Namespace) -> None:
         raise UserError(f"{out}: the animation format comes from the suffix; use .gif or .mp4")
     motion = load_motion(args.source, args.id, args.skeleton)
     out.parent.mkdir(parents=True, exist_ok=True)
-    render_motion(
-        motion.joints, out, skeleton=motion.skeleton, fps=args.fps, segments=motion.segments or None,
-        title=motion.caption,
-    )
+    try:
+        render_motion(
+            motion.joints, out, skeleton=motion.skeleton, fps=args.fps, segments=motion.segments or None,
+            title=motion.caption,
+        )
+    except RuntimeError as error:  # no MP4 encoder on this machine, or the encoder failed
+        raise UserError(str(error)) from error
     print(f"wrote {out}")
 
 
@@ -100,6 +149,19 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--workers", type=_positive_int, default=2, help="processes to generate with")
     synth.add_argument("--force", action="store_true", help="rebuild even if the corpus exists")
     synth.set_defaults(run=_synthesize)
+
+    data = verbs.add_parser("data", help="preprocess a corpus into WebDataset shards with Ray Data")
+    data.add_argument("--dataset", default="synthetic", help="synthetic, humanml3d or kit")
+    data.add_argument("--raw", help="raw corpus directory (default data/raw/<dataset>)")
+    data.add_argument("--out", help="output directory (default data/<dataset>)")
+    data.add_argument("--workers", type=_positive_int, default=2, help="Ray tasks in parallel")
+    data.add_argument("--ray-address", help="join a Ray cluster (default: a local Ray; also RAY_ADDRESS)")
+    data.add_argument("--samples-per-shard", type=_positive_int, default=500)
+    data.add_argument("--min-frames", type=_positive_int, help="keep clips with at least this many feature frames")
+    data.add_argument("--max-frames", type=_positive_int, help="keep clips with fewer feature frames than this")
+    data.add_argument("--force", action="store_true", help="rebuild even if an identical dataset exists")
+    data.add_argument("--check", metavar="DIR", help="verify a processed dataset against its manifest and exit")
+    data.set_defaults(run=_data)
 
     render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
     _add_motion_source(render)

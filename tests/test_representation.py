@@ -12,8 +12,9 @@ from m2d2m.representation import (
     mirror_caption,
     mirror_joints,
 )
-from m2d2m.rotations import qnormalize, qrot, quat_from_axis_angle
+from m2d2m.rotations import qrot, quat_from_axis_angle
 from m2d2m.skeleton import KIT, T2M
+from tests.helpers import pose_clip
 
 # The sample's joints are HumanML3D's own output, one frame shorter than the clip its features
 # were computed from. The heading is smoothed with sigma 20 (kernel radius 80): feature row t
@@ -51,46 +52,27 @@ def test_features_to_joints_on_torch_batches_matches_numpy_and_is_differentiable
     assert torch.isfinite(batch.grad).all() and batch.grad.abs().sum() > 0
 
 
-def random_pose_clip(skeleton, frames: int, seed: int, lengths: np.ndarray | None = None) -> np.ndarray:
-    """A moving, turning body built by forward kinematics with smooth random joint rotations."""
-    rng = np.random.default_rng(seed)
-    t = np.linspace(0.0, 1.0, frames)[:, None, None]
-    axes = rng.normal(size=(1, skeleton.num_joints, 3))
-    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
-    angles = 0.4 * np.sin(2 * np.pi * (t[..., 0] * rng.uniform(0.5, 2.0, skeleton.num_joints)))
-    local = quat_from_axis_angle(axes, angles)
-    yaw = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), 1.5 * t[:, 0, 0])
-    local[:, 0] = yaw
-    scale = skeleton.leg_length(skeleton.bone_lengths)
-    root = np.stack(
-        [scale * np.sin(3 * t[:, 0, 0]), np.full(frames, 1.1 * scale), 2.0 * scale * t[:, 0, 0]],
-        axis=-1,
-    )
-    offsets = skeleton.offsets(lengths)
-    return skeleton.forward_kinematics(qnormalize(local), root, offsets).astype(np.float32)
-
-
 def test_round_trip_preserves_canonical_positions():
-    joints = random_pose_clip(T2M, 120, seed=1)
+    joints = pose_clip(T2M, 120, seed=1)
     recovered = features_to_joints(joints_to_features(joints))
     np.testing.assert_allclose(recovered, canonicalize(joints)[:-1], atol=1e-5)
 
 
 def test_bone_lengths_become_the_target_skeleton():
-    joints = random_pose_clip(T2M, 60, seed=2) * 1.3  # a taller person
+    joints = pose_clip(T2M, 60, seed=2) * 1.3  # a taller person
     recovered = features_to_joints(joints_to_features(joints)).astype(np.float64)
     np.testing.assert_allclose(T2M.bone_lengths_of(recovered), np.broadcast_to(T2M.bone_lengths, (59, 22)), atol=1e-5)
 
 
 def test_custom_target_offsets_are_used():
-    joints = random_pose_clip(T2M, 40, seed=3)
+    joints = pose_clip(T2M, 40, seed=3)
     target = T2M.offsets(T2M.bone_lengths * 0.9)
     recovered = features_to_joints(joints_to_features(joints, target_offsets=target))
     np.testing.assert_allclose(T2M.bone_lengths_of(recovered.astype(np.float64))[0], T2M.bone_lengths * 0.9, atol=1e-5)
 
 
 def test_features_ignore_where_the_clip_starts_and_faces():
-    joints = random_pose_clip(T2M, 80, seed=4).astype(np.float64)
+    joints = pose_clip(T2M, 80, seed=4).astype(np.float64)
     turn = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), 2.1)
     moved = qrot(turn, joints) + np.array([3.0, 0.5, -7.0])
     np.testing.assert_allclose(joints_to_features(moved), joints_to_features(joints), atol=1e-5)
@@ -104,7 +86,7 @@ def test_mirroring_negates_the_turning_and_sideways_motion():
     left, right = list(T2M.left_joints), list(T2M.right_joints)
     lengths[left] = lengths[right] = 0.5 * (lengths[left] + lengths[right])
     target = T2M.offsets(lengths)
-    joints = random_pose_clip(T2M, 80, seed=5, lengths=lengths)
+    joints = pose_clip(T2M, 80, seed=5, lengths=lengths)
     features = joints_to_features(joints, target_offsets=target)
     mirrored = joints_to_features(mirror_joints(joints), target_offsets=target)
     np.testing.assert_allclose(mirrored[:, 0], -features[:, 0], atol=1e-5)
@@ -120,7 +102,7 @@ def test_mirroring_twice_is_the_identity(sample_joints):
 
 
 def test_a_body_standing_still_has_all_feet_in_contact_and_no_velocity():
-    pose = random_pose_clip(T2M, 2, seed=6)[:1]
+    pose = pose_clip(T2M, 2, seed=6)[:1]
     features = joints_to_features(np.repeat(pose, 30, axis=0))
     np.testing.assert_array_equal(features[:, 259:], 1.0)
     np.testing.assert_allclose(features[:, :3], 0.0, atol=1e-7)
@@ -128,7 +110,7 @@ def test_a_body_standing_still_has_all_feet_in_contact_and_no_velocity():
 
 
 def test_kit_skeleton_gives_251_dimensions_and_round_trips():
-    joints = random_pose_clip(KIT, 50, seed=7)
+    joints = pose_clip(KIT, 50, seed=7)
     features = joints_to_features(joints, skeleton=KIT)
     assert features.shape == (49, 251) and KIT.feature_dim == 251
     recovered = features_to_joints(features, skeleton=KIT)
@@ -138,7 +120,7 @@ def test_kit_skeleton_gives_251_dimensions_and_round_trips():
 def test_wrong_shapes_are_rejected_with_a_clear_message():
     with pytest.raises(ValueError, match=r"\(T, 22, 3\)"):
         joints_to_features(np.zeros((10, 21, 3)))
-    with pytest.raises(ValueError, match="at least 2 frames"):
+    with pytest.raises(ValueError, match="at least 2 frame"):
         joints_to_features(np.zeros((1, 22, 3)))
     with pytest.raises(ValueError, match="263-d"):
         features_to_joints(np.zeros((10, 251), dtype=np.float32))

@@ -1,0 +1,225 @@
+"""Export of joint positions for tools outside M2D2M: BVH for animation software, and ``.npy``
+with a JSON sidecar that states every convention (users ask for both; see users.md §3.3).
+
+Joint positions carry no twist about a bone, so BVH rotations are reconstructed by inverse
+kinematics: a joint with one child gets the swing that turns the rest bone onto the actual bone,
+measured in its parent's frame (so a limb inherits its parent's twist and the choice stays
+continuous, flipping only when a bone points exactly opposite to its rest direction relative to
+its parent); a joint with several children (T2M's pelvis and upper spine) gets the best-fit
+(Kabsch) rotation of its rest child offsets onto the actual ones.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Literal, TextIO
+
+import numpy as np
+
+from m2d2m.rotations import matrix_to_euler, qbetween, quat_to_matrix
+from m2d2m.skeleton import T2M, Skeleton
+
+EULER_ORDER = "ZYX"  # BVH channels Zrotation Yrotation Xrotation: R = Rz · Ry · Rx
+_UNITS = {"t2m": "metre", "kit": "KIT-ML units (about 640 per metre)"}
+_PROCRUSTES_ITERATIONS = 3
+
+
+def save_bvh(
+    path: str | Path,
+    joints: np.ndarray,
+    skeleton: Skeleton = T2M,
+    fps: float | None = None,
+    bone_lengths: np.ndarray | None = None,
+    rest_pose: Literal["fitted", "tpose"] = "fitted",
+) -> Path:
+    """Write joint positions (T, J, 3) as a BVH file and return its path.
+
+    Positions (root channels and OFFSETs) are in the clip's units — metres for T2M, so import
+    into Blender at scale 1 — with +Y up; the character faces +Z (Blender's importer converts
+    to its Z-up axes). The frame time is ``1 / fps`` (default: the skeleton's, 20 fps for T2M).
+    Rotations are in degrees, channels ``Zrotation Yrotation Xrotation`` on every joint.
+
+    The rest pose is the skeleton's raw directions × ``bone_lengths`` (default: the clip's own
+    lengths averaged over frames). Bodies built by forward kinematics from that T-pose are
+    reproduced exactly. Real (SMPL-derived) pelvis and chest shapes are rigid but not a T-pose
+    — the hips sit below the pelvis — so ``rest_pose="fitted"`` (default) replaces the child
+    offsets of joints with several children by the clip's own rigid shape, turned as close to
+    the T-pose as it goes, and FK of the file then reproduces the clip; ``"tpose"`` keeps the
+    pure T-pose (simpler retargeting) at the cost of errors of several cm for real data.
+    Twist about bones is not recoverable from positions: it is inherited from the parent.
+    """
+    joints = skeleton.check_joints(joints)
+    if rest_pose not in ("fitted", "tpose"):
+        raise ValueError(f"rest_pose must be 'fitted' or 'tpose', got {rest_pose!r}")
+    fps = float(skeleton.fps if fps is None else fps)
+    if bone_lengths is None:
+        bone_lengths = skeleton.bone_lengths_of(joints).mean(axis=0)
+    offsets = skeleton.offsets(np.asarray(bone_lengths, dtype=np.float64))
+    if rest_pose == "fitted":
+        offsets = _fit_rigid_branches(joints, skeleton, offsets)
+
+    local = _local_rotations(joints, skeleton, offsets)
+    angles = np.degrees(matrix_to_euler(local, EULER_ORDER))
+    angles = np.unwrap(angles, axis=0, period=360.0)  # continuous curves for interpolation
+    order = _depth_first(skeleton)
+    motion = np.concatenate([joints[:, 0, :], angles[:, order].reshape(len(joints), -1)], axis=1)
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w") as f:
+        f.write("HIERARCHY\n")
+        _write_joint(f, skeleton, _children(skeleton), offsets, joint=order[0], depth=0)
+        f.write(f"MOTION\nFrames: {len(joints)}\nFrame Time: {1.0 / fps:.8f}\n")
+        np.savetxt(f, motion, fmt="%.6f")
+    return path
+
+
+def save_motion_npy(
+    path: str | Path,
+    joints: np.ndarray,
+    fps: float | None = None,
+    skeleton: Skeleton = T2M,
+    segments: Sequence[tuple[int, int, str]] | None = None,
+) -> Path:
+    """Write ``<name>.npy`` (float32, T × J × 3) and a ``<name>.json`` sidecar beside it stating
+    joint names and order, units, axes, fps and the ``(start, end, text)`` segments (``end``
+    exclusive); return the ``.npy`` path."""
+    joints = skeleton.check_joints(joints).astype(np.float32)
+    fps = float(skeleton.fps if fps is None else fps)
+    n_frames = len(joints)
+    segments = list(segments or [])
+    for start, end, _ in segments:
+        if not 0 <= start < end <= n_frames:
+            raise ValueError(
+                f"segment ({start}, {end}) must satisfy 0 <= start < end <= {n_frames}"
+            )
+    npy = Path(path).with_suffix(".npy")
+    npy.parent.mkdir(parents=True, exist_ok=True)
+    np.save(npy, joints)
+    sidecar = {
+        "file": npy.name,
+        "shape": list(joints.shape),
+        "dtype": "float32",
+        "skeleton": skeleton.name,
+        "joint_names": list(skeleton.joint_names),
+        "parents": skeleton.parents.tolist(),
+        "units": _UNITS.get(skeleton.name, "unknown"),
+        "axes": {"up": "+Y", "forward": "+Z (facing at frame 0)", "left": "+X"},
+        "fps": fps,
+        "num_frames": n_frames,
+        "duration_s": n_frames / fps,
+        "segments": [
+            {"start_frame": int(s), "end_frame": int(e), "text": str(text)}
+            for s, e, text in segments
+        ],
+        "segments_end": "exclusive",
+    }
+    npy.with_suffix(".json").write_text(json.dumps(sidecar, indent=2, ensure_ascii=False) + "\n")
+    return npy
+
+
+def best_fit_rotation(rest: np.ndarray, actual: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) minimising Σ‖R·rest_n − actual_n‖² (Kabsch, via SVD)
+    for point sets rest (N, 3) and actual (..., N, 3) without translation (both are offsets)."""
+    cov = np.einsum("ni,...nj->...ij", rest, actual)
+    u, _, vt = np.linalg.svd(cov)
+    v, ut = np.swapaxes(vt, -1, -2), np.swapaxes(u, -1, -2)
+    reflect = np.where(np.linalg.det(v @ ut) < 0, -1.0, 1.0)  # keep a proper rotation
+    v[..., :, 2] *= reflect[..., None]
+    return v @ ut
+
+
+def _children(skeleton: Skeleton) -> list[list[int]]:
+    return [np.flatnonzero(skeleton.parents == j).tolist() for j in range(skeleton.num_joints)]
+
+
+def _topological(skeleton: Skeleton) -> list[int]:
+    """Root first, then every joint after its parent."""
+    return [int(np.flatnonzero(skeleton.parents < 0)[0])] + skeleton.bones.tolist()
+
+
+def _depth_first(skeleton: Skeleton) -> list[int]:
+    """Joints in the order BVH lists them (and their channels)."""
+    children = _children(skeleton)
+    order, stack = [], [_topological(skeleton)[0]]
+    while stack:
+        joint = stack.pop()
+        order.append(joint)
+        stack.extend(reversed(children[joint]))
+    return order
+
+
+def _fit_rigid_branches(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray) -> np.ndarray:
+    """Offsets whose children of branching joints form the clip's rigid shape of that part.
+
+    Generalised Procrustes: alternate the per-frame best-fit rotation and the mean shape in the
+    part's frame (one round is exact for rigid parts), then turn the shape onto the T-pose.
+    """
+    offsets = offsets.copy()
+    for joint, kids in enumerate(_children(skeleton)):
+        if len(kids) < 2:
+            continue
+        actual = joints[:, kids] - joints[:, [joint]]
+        shape = offsets[kids]
+        for _ in range(_PROCRUSTES_ITERATIONS):
+            rot = best_fit_rotation(shape, actual)
+            shape = np.einsum("tji,tnj->ni", rot, actual) / len(joints)
+        offsets[kids] = shape @ best_fit_rotation(offsets[kids], shape)
+    return offsets
+
+
+def _local_rotations(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray) -> np.ndarray:
+    """BVH rotation matrices (T, J, 3, 3) of every joint relative to its parent joint."""
+    n_frames, n_joints = joints.shape[:2]
+    children = _children(skeleton)
+    world = np.empty((n_frames, n_joints, 3, 3))
+    local = np.empty_like(world)
+    identity = np.broadcast_to(np.eye(3), (n_frames, 3, 3))
+    for joint in _topological(skeleton):
+        parent = skeleton.parents[joint]
+        parent_world = identity if parent < 0 else world[:, parent]
+        kids = children[joint]
+        if len(kids) > 1:
+            world[:, joint] = best_fit_rotation(offsets[kids], joints[:, kids] - joints[:, [joint]])
+            local[:, joint] = np.swapaxes(parent_world, -1, -2) @ world[:, joint]
+        elif len(kids) == 1:
+            bone = joints[:, kids[0]] - joints[:, joint]
+            in_parent = np.einsum("tji,tj->ti", parent_world, bone)
+            local[:, joint] = quat_to_matrix(qbetween(offsets[kids[0]], in_parent))
+            world[:, joint] = parent_world @ local[:, joint]
+        else:  # a leaf: nothing below it to turn, so it follows its parent
+            local[:, joint] = np.eye(3)
+            world[:, joint] = parent_world
+    return local
+
+
+def _write_joint(
+    f: TextIO, skeleton: Skeleton, children: list[list[int]], offsets: np.ndarray, joint: int,
+    depth: int,
+) -> None:
+    """Write one joint's HIERARCHY block and, recursively, its descendants'."""
+    pad = "\t" * depth
+    name = skeleton.joint_names[joint]
+    if skeleton.parents[joint] < 0:
+        f.write(f"{pad}ROOT {name}\n{pad}{{\n{pad}\tOFFSET 0.000000 0.000000 0.000000\n")
+        f.write(f"{pad}\tCHANNELS 6 Xposition Yposition Zposition {_rotation_channels()}\n")
+    else:
+        f.write(f"{pad}JOINT {name}\n{pad}{{\n{pad}\tOFFSET {_triple(offsets[joint])}\n")
+        f.write(f"{pad}\tCHANNELS 3 {_rotation_channels()}\n")
+    kids = children[joint]
+    for kid in kids:
+        _write_joint(f, skeleton, children, offsets, kid, depth + 1)
+    if not kids:  # End Site: half the last bone again, so the leaf bone shows its direction
+        end = _triple(0.5 * offsets[joint])
+        f.write(f"{pad}\tEnd Site\n{pad}\t{{\n{pad}\t\tOFFSET {end}\n{pad}\t}}\n")
+    f.write(f"{pad}}}\n")
+
+
+def _rotation_channels() -> str:
+    return " ".join(f"{axis}rotation" for axis in EULER_ORDER)
+
+
+def _triple(v: np.ndarray) -> str:
+    return " ".join(f"{x:.6f}" for x in v)

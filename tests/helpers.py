@@ -1,0 +1,58 @@
+"""Builders of test inputs shared by several test files."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from m2d2m.rotations import qnormalize, quat_from_axis_angle
+from m2d2m.skeleton import Skeleton
+
+
+def pose_clip(skeleton: Skeleton, frames: int, seed: int, lengths: np.ndarray | None = None) -> np.ndarray:
+    """A moving, turning body built by forward kinematics with smooth random joint rotations."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 1.0, frames)[:, None, None]
+    axes = rng.normal(size=(1, skeleton.num_joints, 3))
+    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+    angles = 0.4 * np.sin(2 * np.pi * (t[..., 0] * rng.uniform(0.5, 2.0, skeleton.num_joints)))
+    local = quat_from_axis_angle(axes, angles)
+    yaw = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), 1.5 * t[:, 0, 0])
+    local[:, 0] = yaw
+    scale = skeleton.leg_length(skeleton.bone_lengths)
+    root = np.stack(
+        [scale * np.sin(3 * t[:, 0, 0]), np.full(frames, 1.1 * scale), 2.0 * scale * t[:, 0, 0]],
+        axis=-1,
+    )
+    offsets = skeleton.offsets(lengths)
+    return skeleton.forward_kinematics(qnormalize(local), root, offsets).astype(np.float32)
+
+
+CAPTIONS = (
+    "a person walks forward and then turns left#a/DET person/NOUN walk/VERB forward/ADV and/CCONJ then/ADV turn/VERB left/ADV#0.0#0.0",
+    "someone jumps on the spot#someone/PRON jump/VERB on/ADP the/DET spot/NOUN#0.0#0.0",
+    "a man waves his right hand#a/DET man/NOUN wave/VERB his/PRON right/ADJ hand/NOUN#0.5#2.0",
+)
+
+
+def write_corpus(root, splits: dict[str, int], skeleton, kind: str = "joints", seed: int = 0) -> dict[str, list[str]]:
+    """A small corpus in HumanML3D's layout: valid clips of 60–120 frames with three tagged
+    captions each. Returns the ids per split."""
+    from m2d2m.representation import joints_to_features
+
+    folder = root / ("joints" if kind == "joints" else "new_joint_vecs")
+    folder.mkdir(parents=True, exist_ok=True)
+    (root / "texts").mkdir(exist_ok=True)
+    ids: dict[str, list[str]] = {}
+    index = 0
+    for split, count in splits.items():
+        ids[split] = []
+        for _ in range(count):
+            motion_id = f"{index:06d}"
+            joints = pose_clip(skeleton, 61 + (index * 7) % 60, seed=seed + index)
+            motion = joints if kind == "joints" else joints_to_features(joints, skeleton)
+            np.save(folder / f"{motion_id}.npy", motion)
+            (root / "texts" / f"{motion_id}.txt").write_text("\n".join(CAPTIONS) + "\n", encoding="utf-8")
+            ids[split].append(motion_id)
+            index += 1
+        (root / f"{split}.txt").write_text("".join(f"{i}\n" for i in ids[split]), encoding="utf-8")
+    return ids
