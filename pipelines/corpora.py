@@ -1,0 +1,143 @@
+"""Readers for the corpora in HumanML3D's layout (HumanML3D, KIT-ML, the synthetic corpus) and
+the validation every input passes before it becomes a sample.
+
+A corpus directory holds ``joints/<id>.npy`` (T, J, 3) or ``new_joint_vecs/<id>.npy`` (T, D),
+``texts/<id>.txt`` and the split files ``train.txt``, ``val.txt``, ``test.txt``. Every problem
+with an input is raised as :class:`Rejected` with the stage and a reason a person can act on;
+the pipeline turns it into a line of ``quarantine.jsonl``, so nothing is dropped silently.
+"""
+
+from __future__ import annotations
+
+import math
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from m2d2m.skeleton import KIT, T2M, Skeleton
+
+SPLITS = ("train", "val", "test")
+CORPUS_SKELETONS: dict[str, Skeleton] = {"synthetic": T2M, "humanml3d": T2M, "kit": KIT}
+# HumanML3D's loaders keep 40 ≤ T < 200 feature frames; KIT-ML's keep 24 ≤ T < 200.
+DEFAULT_FRAME_BOUNDS: dict[str, tuple[int, int]] = {"synthetic": (40, 200), "humanml3d": (40, 200), "kit": (24, 200)}
+
+
+class Rejected(Exception):
+    """An input that cannot become a sample: where it failed and why."""
+
+    def __init__(self, stage: str, reason: str) -> None:
+        super().__init__(f"{stage}: {reason}")
+        self.stage = stage
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class FrameBounds:
+    minimum: int
+    maximum: int  # exclusive
+
+    def check(self, frames: int) -> None:
+        if frames < self.minimum:
+            raise Rejected("validate", f"too few frames: {frames} < {self.minimum}")
+        if frames >= self.maximum:
+            raise Rejected("validate", f"too many frames: {frames} >= {self.maximum}")
+
+
+def list_corpus(raw: str | Path) -> list[dict[str, Any]]:
+    """One row per id of the split files, in split then file order: the id, its split, where
+    its motion and text should be, and whether the motion is raw joints or processed features.
+
+    An id with no motion file keeps ``motion_path = None``; validation rejects it.
+    """
+    raw = Path(raw).resolve()
+    missing = [f"{s}.txt" for s in SPLITS if not (raw / f"{s}.txt").exists()]
+    if missing:
+        raise FileNotFoundError(f"{raw}: missing split file(s) {', '.join(missing)}")
+    rows: list[dict[str, Any]] = []
+    seen: set[str] = set()
+    for split in SPLITS:
+        for line in (raw / f"{split}.txt").read_text(encoding="utf-8").splitlines():
+            motion_id = line.strip()
+            if not motion_id or motion_id in seen:
+                continue
+            seen.add(motion_id)
+            rows.append({"id": motion_id, "split": split, **_motion_location(raw, motion_id),
+                         "text_path": str(raw / "texts" / f"{motion_id}.txt")})
+    return rows
+
+
+def _motion_location(raw: Path, motion_id: str) -> dict[str, Any]:
+    for folder, kind in (("joints", "joints"), ("new_joint_vecs", "features")):
+        path = raw / folder / f"{motion_id}.npy"
+        if path.exists():
+            return {"motion_path": str(path), "kind": kind}
+    return {"motion_path": None, "kind": None}
+
+
+def corpus_ships_mirrors(rows: list[dict[str, Any]]) -> bool:
+    """HumanML3D's releases list each mirror ``M<id>`` beside its original in the split files."""
+    ids = {row["id"] for row in rows}
+    return any(i.startswith("M") and i[1:] in ids for i in ids)
+
+
+def load_motion(row: dict[str, Any], skeleton: Skeleton) -> np.ndarray:
+    """The motion array of a row, checked for readability, dtype, shape and finiteness."""
+    if row["motion_path"] is None:
+        raise Rejected("read", "no motion file (listed in a split file, absent from joints/ and new_joint_vecs/)")
+    try:
+        array = np.load(row["motion_path"], allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        raise Rejected("read", f"unreadable or truncated .npy ({error})") from error
+    if not np.issubdtype(array.dtype, np.floating):
+        raise Rejected("validate", f"wrong dtype {array.dtype}, expected float")
+    expected = (skeleton.num_joints, 3) if row["kind"] == "joints" else (skeleton.feature_dim,)
+    if array.ndim != len(expected) + 1 or array.shape[1:] != expected:
+        raise Rejected("validate", f"wrong shape {array.shape}, expected (T, {', '.join(map(str, expected))})")
+    if not np.isfinite(array).all():
+        raise Rejected("validate", "NaN or Inf values")
+    return array.astype(np.float32)
+
+
+def _seconds(text: str) -> float:
+    """A start/end field; HumanML3D's loaders read NaN as 0 (whole clip)."""
+    value = float(text)
+    return 0.0 if math.isnan(value) else value
+
+
+def parse_caption_line(line: str) -> dict[str, Any]:
+    """``caption#word/POS ...#start#end`` → {text, tokens, start, end}."""
+    fields = line.split("#")
+    if len(fields) != 4:
+        raise ValueError(f"expected 4 '#'-separated fields, got {len(fields)}: {line!r}")
+    text, tokens, start, end = fields
+    if not text.strip():
+        raise ValueError(f"empty caption: {line!r}")
+    try:
+        start_s, end_s = _seconds(start), _seconds(end)
+    except ValueError as error:
+        raise ValueError(f"start/end are not numbers: {line!r}") from error
+    return {"text": text.strip(), "tokens": tokens.split(), "start": start_s, "end": end_s}
+
+
+def load_captions(row: dict[str, Any]) -> list[dict[str, Any]]:
+    """Every caption of a row's text file; any unreadable or malformed line rejects the input."""
+    path = Path(row["text_path"])
+    if not path.exists():
+        raise Rejected("read", "no text file")
+    try:
+        content = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise Rejected("validate", f"text is not UTF-8 ({error.reason} at byte {error.start})") from error
+    lines = [line for line in content.splitlines() if line.strip()]
+    if not lines:
+        raise Rejected("validate", "empty text")
+    captions = []
+    for number, line in enumerate(lines, start=1):
+        try:
+            captions.append(parse_caption_line(line))
+        except ValueError as error:
+            raise Rejected("validate", f"caption line {number}: {error}") from error
+    return captions

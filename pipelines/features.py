@@ -1,0 +1,270 @@
+"""The Ray Data job behind ``m2d2m data``: a raw corpus in, ``data/<name>/`` out.
+
+Stages: read (list the corpus) → validate → features (+ mirror) → language (verb decomposition)
+→ stats → write. The per-motion stages are one function of rows, run by Ray Data tasks, so the
+same code runs on a laptop (``ray.init()`` locally) and on a cluster (``--ray-address``). The
+driver consumes the results in input order and writes the shards, the statistics and, last, the
+manifest; the same input and config therefore give byte-identical shards.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import subprocess
+from collections import Counter
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Iterable
+
+import numpy as np
+
+import m2d2m
+from m2d2m.normalization import Normalizer, RunningMoments, group_averaged_std
+from m2d2m.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
+from m2d2m.skeleton import Skeleton
+from pipelines.corpora import (
+    CORPUS_SKELETONS,
+    DEFAULT_FRAME_BOUNDS,
+    SPLITS,
+    FrameBounds,
+    Rejected,
+    corpus_ships_mirrors,
+    list_corpus,
+    load_captions,
+    load_motion,
+)
+from pipelines.dataset import MANIFEST, QUARANTINE, SHARDS, STATS, encode_sample, reason_kind, summary_table
+from pipelines.language import decompose, parse_tagged_tokens
+from pipelines.shards import SCHEMA_VERSION, ShardWriter, shard_records, write_json_atomically
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Everything that decides the bytes of a processed dataset (recorded in its manifest)."""
+
+    dataset: str
+    raw: str
+    out: str
+    samples_per_shard: int = 500
+    min_frames: int | None = None
+    max_frames: int | None = None
+    feat_bias: float = 5.0
+    workers: int = 2
+    batch_size: int = 16
+    ray_address: str | None = None
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return CORPUS_SKELETONS[self.dataset]
+
+    @property
+    def bounds(self) -> FrameBounds:
+        low, high = DEFAULT_FRAME_BOUNDS[self.dataset]
+        return FrameBounds(self.min_frames or low, self.max_frames or high)
+
+    def recorded(self) -> dict[str, Any]:
+        """The config as the manifest stores it: what determines the output, not where it ran."""
+        record = asdict(self)
+        for key in ("out", "workers", "ray_address", "batch_size"):
+            record.pop(key)
+        record["raw"] = str(Path(self.raw).resolve())
+        record["min_frames"], record["max_frames"] = self.bounds.minimum, self.bounds.maximum
+        return record
+
+
+def code_version() -> str:
+    """Package version plus the git commit when run from a checkout."""
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
+            cwd=Path(__file__).resolve().parent,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return f"{m2d2m.__version__}+{commit}" if commit else m2d2m.__version__
+
+
+def _language(caption: dict[str, Any]) -> dict[str, Any]:
+    decomposition = decompose(caption["text"], tagged=parse_tagged_tokens(" ".join(caption["tokens"])))
+    return {**caption, "actions": list(decomposition.actions), "verbs": list(decomposition.verbs)}
+
+
+def _mirrored_caption(caption: dict[str, Any]) -> dict[str, Any]:
+    return {**caption, "text": mirror_caption(caption["text"]), "tokens": [mirror_caption(t) for t in caption["tokens"]]}
+
+
+def _sample(key: str, source: str, split: str, features: np.ndarray, captions: list[dict], fps: float, mirrored: bool) -> dict[str, Any]:
+    meta = {"id": key, "source": source, "fps": fps, "frames": len(features), "mirrored": mirrored,
+            "captions": [_language(c) for c in captions]}
+    return {"key": key, "split": split, "status": "ok", "stage": "", "reason": "", **encode_sample(features, meta)}
+
+
+def _to_features(motion: np.ndarray, kind: str, skeleton: Skeleton, bounds: FrameBounds) -> np.ndarray:
+    features = joints_to_features(motion, skeleton) if kind == "joints" else motion
+    if not np.isfinite(features).all():
+        raise Rejected("features", "features are not finite (degenerate joints, e.g. a zero-length bone)")
+    bounds.check(len(features))
+    return features
+
+
+def process_motion(row: dict[str, Any], skeleton: Skeleton, bounds: FrameBounds, make_mirror: bool) -> list[dict[str, Any]]:
+    """One corpus row → its sample (and mirror), or one quarantine record saying why not."""
+    try:
+        motion = load_motion(row, skeleton)
+        features = _to_features(motion, row["kind"], skeleton, bounds)
+        captions = load_captions(row)
+        samples = [_sample(row["id"], row["id"], row["split"], features, captions, skeleton.fps, False)]
+        if make_mirror:
+            joints = motion if row["kind"] == "joints" else features_to_joints(motion, skeleton)
+            mirrored = _to_features(mirror_joints(joints, skeleton), "joints", skeleton, bounds)
+            samples.append(_sample(f"M{row['id']}", row["id"], row["split"], mirrored,
+                                   [_mirrored_caption(c) for c in captions], skeleton.fps, True))
+        return samples
+    except Rejected as rejected:
+        return [{"key": row["id"], "split": row["split"], "status": "quarantined", "stage": rejected.stage,
+                 "reason": rejected.reason, "motion.npy": b"", "meta.json": b""}]
+
+
+def _process_batch(batch: dict[str, np.ndarray], dataset: str, bounds: FrameBounds, make_mirror: bool) -> dict[str, list]:
+    """Ray Data ``map_batches`` function: columns in, columns out (one or two rows per input)."""
+    skeleton = CORPUS_SKELETONS[dataset]
+    rows = [dict(zip(batch, values)) for values in zip(*batch.values())]
+    records = [r for row in rows for r in process_motion(row, skeleton, bounds, make_mirror)]
+    return {column: [r[column] for r in records] for column in records[0]}
+
+
+def _init_ray(address: str | None, workers: int) -> None:
+    import ray
+
+    if ray.is_initialized():
+        return
+    address = address or os.environ.get("RAY_ADDRESS")
+    ray.data.DataContext.get_current().execution_options.preserve_order = True
+    if address:
+        ray.init(address=address, logging_level="ERROR")
+    else:
+        # "local" ignores a stale cluster file that a killed `ray start --head` can leave behind.
+        ray.init(address="local", num_cpus=workers, include_dashboard=False, logging_level="ERROR")
+
+
+def run_stages(config: DataConfig, rows: list[dict[str, Any]], make_mirror: bool) -> Iterable[dict[str, Any]]:
+    """Records of every processed row, in input order, computed by Ray Data tasks."""
+    import ray
+
+    _init_ray(config.ray_address, config.workers)
+    dataset = ray.data.from_items(rows).map_batches(
+        _process_batch,
+        fn_kwargs={"dataset": config.dataset, "bounds": config.bounds, "make_mirror": make_mirror},
+        batch_size=config.batch_size,
+        batch_format="numpy",
+        compute=ray.data.TaskPoolStrategy(size=config.workers),
+        num_cpus=1,
+    )
+    for batch in dataset.iter_batches(batch_size=256, batch_format="numpy"):
+        for values in zip(*batch.values()):
+            yield dict(zip(batch, values))
+
+
+@dataclass
+class _SplitCounts:
+    inputs_seen: int = 0
+    originals: int = 0
+    mirrors: int = 0
+    quarantined: int = 0
+    frames: int = 0
+    captions: int = 0
+    single_verb_captions: int = 0
+
+    @property
+    def samples_written(self) -> int:
+        return self.originals + self.mirrors
+
+
+def _corpus_statistics(raw: Path, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray] | None:
+    """The corpus's own Mean.npy / Std.npy when it ships them with the right shape."""
+    mean_path, std_path = raw / "Mean.npy", raw / "Std.npy"
+    if not (mean_path.exists() and std_path.exists()):
+        return None
+    mean, std = np.load(mean_path), np.load(std_path)
+    if mean.shape != (skeleton.feature_dim,) or std.shape != (skeleton.feature_dim,):
+        raise ValueError(f"{raw}: Mean.npy/Std.npy are not ({skeleton.feature_dim},)")
+    return mean, std
+
+
+def build_dataset(config: DataConfig) -> dict[str, Any]:
+    """Run every stage and write ``config.out``; returns the manifest."""
+    skeleton, raw, out = config.skeleton, Path(config.raw).resolve(), Path(config.out).resolve()
+    rows = list_corpus(raw)
+    make_mirror = not corpus_ships_mirrors(rows)
+    (out / MANIFEST).unlink(missing_ok=True)  # the dataset is invalid until the new manifest lands
+    shutil.rmtree(out / SHARDS, ignore_errors=True)
+    out.mkdir(parents=True, exist_ok=True)
+
+    counts = {split: _SplitCounts() for split in SPLITS}
+    writers = {split: ShardWriter(out / SHARDS, split, config.samples_per_shard) for split in SPLITS}
+    moments = RunningMoments(skeleton.feature_dim)
+    quarantine: list[dict[str, Any]] = []
+    try:
+        for record in run_stages(config, rows, make_mirror):
+            split = str(record["split"])
+            c = counts[split]
+            if record["status"] == "quarantined":
+                c.inputs_seen += 1
+                c.quarantined += 1
+                quarantine.append({"id": str(record["key"]), "split": split, "stage": str(record["stage"]), "reason": str(record["reason"])})
+                continue
+            meta = json.loads(bytes(record["meta.json"]))
+            if meta["mirrored"]:
+                c.mirrors += 1
+            else:
+                c.inputs_seen += 1
+                c.originals += 1
+            c.frames += meta["frames"]
+            c.captions += len(meta["captions"])
+            c.single_verb_captions += sum(len(caption["verbs"]) == 1 for caption in meta["captions"])
+            writers[split].write(meta["id"], {"motion.npy": bytes(record["motion.npy"]), "meta.json": bytes(record["meta.json"])})
+            if split == "train":
+                moments.add(np.load(io.BytesIO(bytes(record["motion.npy"]))))
+    except BaseException:
+        for writer in writers.values():
+            writer.abort()
+        raise
+    shards = {split: shard_records(writers[split].close()) for split in SPLITS}
+
+    with (out / (QUARANTINE + ".partial")).open("w", encoding="utf-8") as handle:
+        for line in quarantine:
+            handle.write(json.dumps(line, sort_keys=True) + "\n")
+    (out / (QUARANTINE + ".partial")).replace(out / QUARANTINE)
+
+    provided = _corpus_statistics(raw, skeleton)
+    if provided is None and moments.count == 0:
+        raise ValueError(f"{raw}: no valid training motion to compute statistics from (see {out / QUARANTINE})")
+    mean, std = provided if provided is not None else (moments.mean(), group_averaged_std(moments.std(), skeleton))
+    Normalizer(mean, std, config.feat_bias).save(out / STATS)
+
+    manifest = {
+        "schema_version": SCHEMA_VERSION,
+        "dataset": config.dataset,
+        "skeleton": skeleton.name,
+        "fps": skeleton.fps,
+        "feature_dim": skeleton.feature_dim,
+        "joints": skeleton.num_joints,
+        "mirrors_made_by_pipeline": make_mirror,
+        "stats_source": "corpus Mean.npy/Std.npy" if provided is not None else "train split",
+        "splits": {split: {**asdict(counts[split]), "samples_written": counts[split].samples_written} for split in SPLITS},
+        "quarantine_reasons": dict(Counter(f"{q['stage']}: {reason_kind(q['reason'])}" for q in quarantine)),
+        "shards": shards,
+        "config": config.recorded(),
+        "code_version": code_version(),
+    }
+    write_json_atomically(out / MANIFEST, manifest)
+    return manifest
+
+
+def print_summary(manifest: dict[str, Any], out: str | Path) -> None:
+    quarantine_path = Path(out) / QUARANTINE
+    quarantine = [json.loads(line) for line in quarantine_path.read_text(encoding="utf-8").splitlines()]
+    print(summary_table(manifest, quarantine))

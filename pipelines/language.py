@@ -1,0 +1,637 @@
+"""Verb decomposition of captions into action sentences (M2D2M's action-sentence conditioning).
+
+M2D2M conditions its denoiser on *action sentences*: a caption is split at its action verbs and each
+piece is rewritten with a neutral subject ("a person walks forward and then sits down" ->
+"a person walks forward", "a person sits down"). The same function serves the dataset pipeline,
+where HumanML3D / KIT-ML ship spaCy ``en_core_web_sm`` tags with every caption
+(``caption#word/UPOS ...#start#end``, ``reference/humanml3d.md`` §3.1), and free-text prompts at
+generation time, where a :class:`Tagger` supplies the tags: ``en_core_web_sm`` when it is
+installed, otherwise a small spaCy pipeline trained here on the corpus's own tagged captions.
+
+No dependency parse is available (the trained pipeline only tags and lemmatises), so clauses are
+found with part-of-speech rules. What counts as an action verb:
+
+* every ``VERB`` token, except
+* catenative / aspectual verbs followed by another verb ("starts to walk", "begins walking",
+  "keeps walking", "tries to", "goes to sit", "appears to be walking"): the action is the second
+  verb, the first is dropped;
+* "appear" and "seem" (never actions; "a person seems happy" has no action verb);
+* a verb used as a noun modifier or object: after a determiner, possessive, adjective or number
+  ("the standing person", "does some stretching"), after "do"/"perform"/"make"
+  ("does jumping jacks"), the gerund after "stop"/"finish" ("stops walking"), and a verb right
+  after the noun of a with-phrase ("walks with his arms raised");
+* a verb in a relative clause ("walks back to where he started", "the man who is walking");
+* the words "left" and "right" (directions that taggers mislabel as verbs).
+
+``AUX`` tokens are never actions: "is walking" -> "a person walks", "is pushed" -> "a person is
+pushed" (passive kept), "does not move" -> "a person does not move". A caption with no action verb
+gives one action: the caption itself, its leading subject replaced by the neutral one when it has
+a recognisable one. A clause introduced by "after" ("sits down after walking") is moved before
+the clause it follows, and a leading "before" clause after the one that follows it, so that the
+actions are in temporal order.
+"""
+
+from __future__ import annotations
+
+import random
+import re
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from functools import lru_cache
+from itertools import pairwise
+from pathlib import Path
+from typing import NamedTuple
+
+import spacy
+from spacy.language import Language
+from spacy.tokens import Doc
+from spacy.training import Example
+from spacy.util import fix_random_seed, minibatch
+
+NEUTRAL_SUBJECT = "a person"
+SMALL_MODEL = "en_core_web_sm"
+LEMMA_TABLE = "m2d2m_corpus_lemmas"  # "<UPOS> <surface>" -> the corpus's lemma, in the saved vocab
+
+UPOS_TAGS = frozenset(
+    {"ADJ", "ADP", "ADV", "AUX", "CCONJ", "DET", "INTJ", "NOUN", "NUM", "PART", "PRON", "PROPN"}
+    | {"PUNCT", "SCONJ", "SYM", "VERB", "X"}
+)
+_LEMMATISED_POS = ("NOUN", "VERB")  # HumanML3D writes these as lemmas (except the word "left")
+
+# Verbs whose action is the verb that follows them.
+_CATENATIVE = frozenset(
+    {"start", "begin", "continue", "proceed", "keep", "resume", "go", "try", "attempt"}
+    | {"prepare", "appear", "seem", "tend", "manage"}
+)
+_STATIVE = frozenset({"appear", "seem"})
+_LIGHT = frozenset({"do", "perform", "make"})  # "does jumping jacks": the gerund is the object
+_STOP = frozenset({"stop", "finish", "quit", "cease"})  # "stops walking": one action, "stop"
+_DIRECTIONS = frozenset({"left", "right"})
+_POSSESSIVES = frozenset({"his", "her", "their", "its", "my", "your", "our"})
+_MODIFIER_BEFORE = frozenset({"DET", "ADJ", "NUM"})
+
+_SEPARATOR_PUNCT = frozenset(",;.:!?")
+_SEQUENCE_ADVERBS = frozenset(
+    {"then", "afterwards", "afterward", "finally", "next", "later", "subsequently", "eventually"}
+    | {"first", "firstly", "lastly", "also"}
+)
+_ORDER_WORDS = frozenset({"before", "after", "until", "till", "when", "while", "as"})
+_ANAPHORS = frozenset({"that", "this", "which"})  # "after that" is a plain sequence marker
+_RELATIVES = frozenset({"where", "who", "which", "whom", "whose", "what"})
+_NEGATIONS = frozenset({"not", "n't"})
+_PASSIVE_AUX = frozenset(
+    {"is", "are", "was", "were", "be", "been", "being", "get", "gets", "got", "getting"}
+)
+_NP_POS = frozenset({"DET", "NOUN", "PROPN", "PRON", "ADJ", "NUM"})
+_SUBJECTS = frozenset(
+    {"person", "man", "woman", "figure", "human", "someone", "somebody", "guy", "boy", "girl"}
+    | {"individual", "character", "he", "she", "they", "people", "child", "kid", "lady"}
+    | {"gentleman", "male", "female", "adult", "dancer", "player", "athlete", "actor", "subject"}
+    | {"stickman"}
+)
+_NO_SPACE_BEFORE = re.compile(r"^(?:[,;.:!?)\]]|'|n't$)")
+
+
+@dataclass(frozen=True)
+class Decomposition:
+    """A caption's action sentences in temporal order, and the lemmas of their verbs.
+
+    ``verbs[i]`` is the verb of ``actions[i]``; a caption without an action verb has one action
+    and no verbs (so ``len(verbs) == 1`` selects M2D2M's single-action captions).
+    """
+
+    actions: tuple[str, ...]
+    verbs: tuple[str, ...]
+
+
+class _Tok(NamedTuple):
+    text: str  # surface form, lower case, hyphens kept
+    lemma: str
+    pos: str
+    space: bool  # preceded by whitespace
+
+
+# ----------------------------------------------------------------------------------------- tags
+
+
+def parse_tagged_tokens(field: str) -> list[tuple[str, str]]:
+    """The (word, UPOS) pairs of a HumanML3D token field ``"a/DET person/NOUN ..."``.
+
+    An empty field gives ``[]``; a token that is not ``word/UPOS`` raises ``ValueError``, so the
+    data pipeline can quarantine the line instead of decomposing garbage.
+    """
+    pairs = []
+    for token in field.split():
+        word, slash, pos = token.rpartition("/")
+        if not slash or not word or pos not in UPOS_TAGS:
+            raise ValueError(
+                f"malformed tagged token {token!r} in {field!r}: expected word/UPOS with UPOS one "
+                f"of {' '.join(sorted(UPOS_TAGS))}"
+            )
+        pairs.append((word, pos))
+    return pairs
+
+
+def inflect_third_person(lemma: str) -> str:
+    """3rd person singular present of a verb lemma ("carry" -> "carries"), for action sentences."""
+    verb = lemma.strip().lower()
+    if not verb:
+        raise ValueError("cannot inflect an empty verb")
+    irregular = {"be": "is", "have": "has"}
+    if verb in irregular:
+        return irregular[verb]
+    if verb.endswith(("s", "x", "z", "ch", "sh")):
+        return verb + "es"
+    if len(verb) > 1 and verb[-1] in "yo" and verb[-2] not in "aeiou":
+        return verb[:-1] + "ies" if verb[-1] == "y" else verb + "es"
+    return verb + "s"
+
+
+@lru_cache(maxsize=1)
+def _tokenizer() -> spacy.tokenizer.Tokenizer:
+    """spaCy's English rule tokenizer: the same rules as en_core_web_sm, no model needed."""
+    return spacy.blank("en").tokenizer
+
+
+def _normalise(caption: str) -> tuple[str, list[int]]:
+    """The caption as HumanML3D tagged it (lower case, '-' removed, whitespace collapsed), and for
+    each of its characters the index in ``caption.lower()``, to recover surfaces with hyphens."""
+    chars: list[str] = []
+    index: list[int] = []
+    for i, ch in enumerate(caption.lower()):
+        if ch == "-" or (ch.isspace() and (not chars or chars[-1] == " ")):
+            continue
+        chars.append(" " if ch.isspace() else ch)
+        index.append(i)
+    if chars and chars[-1] == " ":
+        chars.pop()
+        index.pop()
+    return "".join(chars), index
+
+
+def _spans(text: str, words: Sequence[str]) -> list[tuple[int, int]] | None:
+    """Character spans of consecutive ``words`` in ``text``, or None if they are not in order."""
+    spans, at = [], 0
+    for word in words:
+        start = text.find(word, at)
+        if start < 0 or text[at:start].strip():
+            return None
+        spans.append((start, start + len(word)))
+        at = start + len(word)
+    return spans
+
+
+def _surface_tokens(caption: str, words: Sequence[str]) -> list[tuple[str, bool]] | None:
+    """(surface, preceded-by-space) for tokens ``words`` of the normalised caption."""
+    norm, index = _normalise(caption)
+    spans = _spans(norm, words)
+    if spans is None:
+        return None
+    lowered = caption.lower()
+    return [(lowered[index[a] : index[b - 1] + 1], a > 0 and norm[a - 1] == " ") for a, b in spans]
+
+
+def _align(norm: str, tagged: Sequence[tuple[str, str]]) -> list[_Tok] | None:
+    """Every spaCy token of the normalised caption with its lemma and UPOS from HumanML3D tags.
+
+    HumanML3D kept only alphabetic tokens, so these must match the tags one to one, and every
+    word that was not lemmatised must equal its token; other tokens become NUM / PUNCT / X.
+    Returns None when the caption and its tags do not line up.
+    """
+    tokens = list(_tokenizer()(norm))
+    alpha = [t for t in tokens if t.text.isalpha()]
+    if len(alpha) != len(tagged):
+        return None
+    tags = {}
+    for token, (word, pos) in zip(alpha, tagged, strict=True):
+        word = word.lower()
+        lemmatised = pos in _LEMMATISED_POS and word != "left"
+        if not lemmatised and word != token.text:
+            return None
+        tags[token.i] = (word if lemmatised else token.text, pos)
+    out = []
+    for t in tokens:
+        lemma, pos = tags.get(t.i) or (
+            t.text,
+            "NUM" if t.like_num else "PUNCT" if t.is_punct else "X",
+        )
+        out.append(_Tok(t.text, lemma, pos, t.idx > 0 and norm[t.idx - 1] == " "))
+    return out
+
+
+def _tokens_from_tags(caption: str, tagged: Sequence[tuple[str, str]]) -> list[_Tok]:
+    """Tokens with the corpus tags, surfaces taken from the caption when the two align (else the
+    tagged words themselves, lemmas included)."""
+    aligned = _align(_normalise(caption)[0], tagged)
+    if aligned is not None:
+        surfaces = _surface_tokens(caption, [t.text for t in aligned])
+        if surfaces is not None:
+            return [
+                t._replace(text=s, space=sp) for t, (s, sp) in zip(aligned, surfaces, strict=True)
+            ]
+    return [_Tok(w.lower(), w.lower(), pos, i > 0) for i, (w, pos) in enumerate(tagged)]
+
+
+def _tokens_from_tagger(caption: str, tagger: Tagger) -> list[_Tok]:
+    """Tokens tagged by ``tagger``; surfaces (with hyphens) from the caption where possible."""
+    norm, _ = _normalise(caption)
+    tagged = tagger.tag(norm)
+    surfaces = _surface_tokens(caption, [w for w, _, _ in tagged])
+    if surfaces is None:
+        surfaces = [(w.lower(), i > 0) for i, (w, _, _) in enumerate(tagged)]
+    return [
+        _Tok(s, lemma.lower(), pos, sp)
+        for (s, sp), (_, lemma, pos) in zip(surfaces, tagged, strict=True)
+    ]
+
+
+# ---------------------------------------------------------------------------- decomposition rules
+
+
+def _past_or_participle(tok: _Tok) -> bool:
+    """A verb form that is neither base, 3rd person present nor gerund ("raised", "held")."""
+    return tok.text not in (tok.lemma, inflect_third_person(tok.lemma)) and not tok.text.endswith(
+        "ing"
+    )
+
+
+def _is_separator(toks: Sequence[_Tok], i: int, dropped: set[int]) -> bool:
+    """Whether token ``i`` can end one clause and introduce the next."""
+    t = toks[i]
+    return (
+        t.text in _SEPARATOR_PUNCT
+        or t.pos in ("CCONJ", "SCONJ")
+        or t.text in _SEQUENCE_ADVERBS
+        or t.text in _ORDER_WORDS
+        or (t.text == "to" and i not in dropped)
+        or (t.text in _ANAPHORS and i > 0 and toks[i - 1].text in ("after", "before"))
+    )
+
+
+def _in_with_phrase(toks: Sequence[_Tok], i: int) -> bool:
+    """Whether token ``i`` follows "with"/"without" with no verb or separator in between."""
+    for j in range(i - 1, -1, -1):
+        if toks[j].text in ("with", "without"):
+            return True
+        if toks[j].pos == "VERB" or toks[j].text in _SEPARATOR_PUNCT or toks[j].pos == "CCONJ":
+            return False
+    return False
+
+
+def _in_relative_clause(toks: Sequence[_Tok], i: int) -> bool:
+    """Whether token ``i`` follows a relative word ("to where he started", "the man who is
+    walking") with only pronouns, auxiliaries and adverbs in between."""
+    for j in range(i - 1, -1, -1):
+        if toks[j].text in _RELATIVES:
+            return True
+        if toks[j].pos not in ("PRON", "AUX", "ADV", "PART"):
+            return False
+    return False
+
+
+def _is_modifier(toks: Sequence[_Tok], i: int) -> bool:
+    """Whether VERB token ``i`` modifies a noun, is an object or sits in a relative clause,
+    rather than being an action."""
+    if i == 0:
+        return False
+    prev = toks[i - 1]
+    return (
+        _in_relative_clause(toks, i)
+        or prev.pos in _MODIFIER_BEFORE
+        or prev.text in _POSSESSIVES
+        or (prev.pos == "VERB" and prev.lemma in _LIGHT)
+        or (prev.pos == "VERB" and prev.lemma in _STOP and toks[i].text.endswith("ing"))
+        or (prev.pos in ("NOUN", "PRON", "PROPN") and _in_with_phrase(toks, i))
+    )
+
+
+def _find_actions(toks: Sequence[_Tok]) -> tuple[list[int], set[int]]:
+    """Indices of the action verbs, and of the catenative words ("starts to") to drop."""
+    candidates = [
+        i
+        for i, t in enumerate(toks)
+        if t.pos == "VERB" and t.text not in _DIRECTIONS and not _is_modifier(toks, i)
+    ]
+    verbs = set(candidates)
+    dropped: set[int] = set()
+    for i in candidates:
+        if toks[i].lemma not in _CATENATIVE:
+            continue
+        j = i + 1
+        has_to = j < len(toks) and toks[j].text == "to"
+        if has_to:
+            j += 1
+            while j < len(toks) and toks[j].pos == "ADV":
+                j += 1
+        if j < len(toks) and toks[j].pos == "AUX" and toks[j].text in _PASSIVE_AUX:
+            j += 1
+        if j in verbs:
+            dropped.update({i, i + 1} if has_to else {i})
+    actions = [i for i in candidates if i not in dropped and toks[i].lemma not in _STATIVE]
+    return actions, dropped
+
+
+def _split(toks: Sequence[_Tok], prev_verb: int, verb: int, dropped: set[int]) -> int:
+    """Where the clause of ``prev_verb`` ends: the separators, subject and pre-verbal words
+    (adverbs, auxiliaries, catenatives) between the two verbs belong to the next clause."""
+
+    def preverbal(i: int) -> bool:
+        return toks[i].pos in ("ADV", "AUX", "PART") or i in dropped
+
+    j = verb
+    while j - 1 > prev_verb and preverbal(j - 1) and not _is_separator(toks, j - 1, dropped):
+        j -= 1
+    while (
+        j - 1 > prev_verb and toks[j - 1].pos in _NP_POS and not _is_separator(toks, j - 1, dropped)
+    ):
+        j -= 1
+    separators_end = j
+    while j - 1 > prev_verb and _is_separator(toks, j - 1, dropped):
+        j -= 1
+    if j < separators_end:
+        return j
+    # A run-on ("walks forward turns around"): only auxiliaries go to the next clause.
+    j = verb
+    while j - 1 > prev_verb and (toks[j - 1].pos in ("AUX", "PART") or j - 1 in dropped):
+        j -= 1
+    return j
+
+
+def _render_words(toks: Sequence[_Tok]) -> str:
+    """Tokens joined with the caption's spacing."""
+    out = ""
+    for t in toks:
+        glue = t.space and out and not _NO_SPACE_BEFORE.match(t.text)
+        out += (" " if glue else "") + t.text
+    return out
+
+
+def _is_punct(tok: _Tok) -> bool:
+    """Punctuation by its text, since a tagger may mislabel a final period."""
+    return not any(ch.isalnum() for ch in tok.text)
+
+
+def _trim(toks: list[_Tok]) -> list[_Tok]:
+    """Drop punctuation, conjunctions and sequence adverbs left at the end of a clause."""
+    while toks and (
+        _is_punct(toks[-1])
+        or toks[-1].pos in ("CCONJ", "SCONJ")
+        or toks[-1].text in _SEQUENCE_ADVERBS
+    ):
+        toks.pop()
+    return toks
+
+
+def _action_sentence(lead_in: Sequence[_Tok], verb: _Tok, rest: list[_Tok]) -> str:
+    """ "a person <adverbs> <verb, 3rd person> <rest of the clause>"."""
+    preverbal: list[_Tok] = []
+    for t in reversed(lead_in):  # the adverbs and auxiliaries right before the verb
+        if t.pos not in ("ADV", "AUX", "PART") or t.text in _SEQUENCE_ADVERBS:
+            break
+        preverbal.insert(0, t)
+    adverbs = [t.text for t in preverbal if t.pos == "ADV" and t.text not in _NEGATIONS]
+    negated = any(t.text in _NEGATIONS for t in preverbal)
+    passive = _past_or_participle(verb) and any(
+        t.pos == "AUX" and t.text in _PASSIVE_AUX for t in preverbal
+    )
+    if passive:
+        verb_words = ["is not" if negated else "is", verb.text]
+    elif negated:
+        verb_words = ["does not", verb.lemma]
+    else:
+        verb_words = [inflect_third_person(verb.lemma)]
+    tail = _render_words(_trim(rest))
+    words = [NEUTRAL_SUBJECT, *adverbs, *verb_words]
+    return " ".join(words) + ((" " if rest and rest[0].space else "") + tail if tail else "")
+
+
+def _order_marker(toks: Sequence[_Tok], start: int, end: int) -> str | None:
+    """ "after" / "before" when it introduces the clause in toks[start:end] (not "after that")."""
+    for i in range(start, end):
+        if toks[i].text in ("after", "before") and not (
+            i + 1 < len(toks) and toks[i + 1].text in _ANAPHORS
+        ):
+            return toks[i].text
+    return None
+
+
+def _neutral_subject(toks: Sequence[_Tok]) -> str:
+    """The words themselves, a leading subject ("the man", "someone") made neutral."""
+    toks = _trim(list(toks))
+    for i, t in enumerate(toks):
+        if t.text in _SUBJECTS and t.pos in ("NOUN", "PRON", "PROPN"):
+            rest = toks[i + 1 :]
+            tail = _render_words(rest)
+            return NEUTRAL_SUBJECT + ((" " if rest[0].space else "") + tail if rest else "")
+        if t.pos not in ("DET", "ADJ", "NUM"):
+            break
+    return _render_words(toks)
+
+
+def _possessive_subject(lead_in: Sequence[_Tok]) -> bool:
+    """Whether the subject is a body part ("a person's arms", "his legs"): then the caption's own
+    words are kept, since "a person" cannot take its verb."""
+    return any(t.text in ("'s", "'") for t in lead_in) or (
+        bool(lead_in) and lead_in[0].text in _POSSESSIVES
+    )
+
+
+def _decompose_tokens(toks: Sequence[_Tok]) -> Decomposition:
+    actions, dropped = _find_actions(toks)
+    if not actions:
+        return Decomposition(actions=(_neutral_subject(toks) or _render_words(toks),), verbs=())
+    starts = [0, *(_split(toks, a, b, dropped) for a, b in pairwise(actions))]
+    ends = [*starts[1:], len(toks)]
+    sentences: list[tuple[str, str]] = []
+    previous_at = 0
+    for k, (verb, start, end) in enumerate(zip(actions, starts, ends, strict=True)):
+        rest = [t for i, t in enumerate(toks[verb + 1 : end], verb + 1) if i not in dropped]
+        if k == 0 and _possessive_subject(toks[:verb]):
+            text = _neutral_subject(toks[:end])
+        else:
+            text = _action_sentence(toks[start:verb], toks[verb], rest)
+        sentence = (text, toks[verb].lemma)
+        marker = _order_marker(toks, start, verb)
+        at = previous_at if k > 0 and marker == "after" else len(sentences)
+        sentences.insert(at, sentence)
+        previous_at = at
+    if len(sentences) > 1 and _order_marker(toks, 0, actions[0]) == "before":
+        sentences.insert(1, sentences.pop(0))
+    return Decomposition(
+        actions=tuple(s for s, _ in sentences), verbs=tuple(v for _, v in sentences)
+    )
+
+
+def decompose(
+    caption: str,
+    tagged: Sequence[tuple[str, str]] | None = None,
+    tagger: Tagger | None = None,
+) -> Decomposition:
+    """Split a caption at its action verbs into action sentences with a neutral subject.
+
+    ``tagged`` are the corpus's (word, UPOS) pairs (:func:`parse_tagged_tokens`); without them
+    ``tagger`` tags the caption (free-text prompts).
+    """
+    if not caption.strip():
+        raise ValueError("cannot decompose an empty caption")
+    if tagged is not None:
+        toks = _tokens_from_tags(caption, tagged)
+    elif tagger is not None:
+        toks = _tokens_from_tagger(caption, tagger)
+    else:
+        raise ValueError("decompose needs the caption's tagged tokens or a Tagger")
+    if not toks:  # an empty tag field that cannot align: the caption as it is
+        return Decomposition(
+            actions=(" ".join(caption.lower().split()).rstrip(".,;:!? "),), verbs=()
+        )
+    return _decompose_tokens(toks)
+
+
+# ---------------------------------------------------------------------------------------- tagger
+
+
+class Tagger:
+    """UPOS tags and lemmas for untagged text (prompts), from a spaCy pipeline.
+
+    A pipeline trained by :func:`train_tagger` carries the corpus's own NOUN/VERB lemmas as a
+    lookup table; they take precedence over the learnt lemmatizer, which serves unseen words.
+    """
+
+    def __init__(self, nlp: Language) -> None:
+        self.nlp = nlp
+        lookups = nlp.vocab.lookups
+        self._lemmas = lookups.get_table(LEMMA_TABLE) if lookups.has_table(LEMMA_TABLE) else {}
+
+    def _triples(self, doc: Doc) -> list[tuple[str, str, str]]:
+        return [
+            (
+                t.text,
+                self._lemmas.get(f"{t.pos_} {t.lower_}") or t.lemma_ or t.lower_,
+                t.pos_ or "X",
+            )
+            for t in doc
+            if not t.is_space
+        ]
+
+    def tag(self, text: str) -> list[tuple[str, str, str]]:
+        """(surface, lemma, UPOS) for each token of ``text``."""
+        return self._triples(self.nlp(text))
+
+    def tag_many(
+        self, texts: Iterable[str], batch_size: int = 256
+    ) -> list[list[tuple[str, str, str]]]:
+        """:meth:`tag` for many texts, batched through ``nlp.pipe``."""
+        return [self._triples(doc) for doc in self.nlp.pipe(texts, batch_size=batch_size)]
+
+
+def _training_pipeline(width: int = 64) -> Language:
+    """Blank English + shared hash-embedding CNN + morphologizer (UPOS) + edit-tree lemmatizer.
+
+    Small (width 64, depth 2) so that training takes seconds; built-in spaCy components only, so
+    the saved pipeline loads with nothing but spaCy.
+    """
+    nlp = spacy.blank("en")
+    nlp.add_pipe(
+        "tok2vec",
+        config={
+            "model": {
+                "@architectures": "spacy.HashEmbedCNN.v2",
+                "pretrained_vectors": None,
+                "width": width,
+                "depth": 2,
+                "embed_size": 2000,
+                "window_size": 1,
+                "maxout_pieces": 3,
+                "subword_features": True,
+            }
+        },
+    )
+    listener = {"@architectures": "spacy.Tok2VecListener.v1", "width": width, "upstream": "*"}
+    tagger_model = {"@architectures": "spacy.Tagger.v2", "nO": None, "tok2vec": listener}
+    nlp.add_pipe("morphologizer", config={"model": tagger_model})
+    nlp.add_pipe(
+        "trainable_lemmatizer",
+        name="lemmatizer",
+        config={"model": tagger_model, "min_tree_freq": 1, "backoff": "orth"},
+    )
+    return nlp
+
+
+def train_tagger(
+    tagged_captions: Iterable[tuple[str, Sequence[tuple[str, str]]]],
+    out_dir: str | Path,
+    seed: int = 0,
+    epochs: int = 6,
+) -> Tagger:
+    """Train a UPOS tagger + lemmatizer on (caption, corpus tags) pairs and save it to ``out_dir``.
+
+    Distils the corpus's ``en_core_web_sm`` tags into a pipeline that needs no download. Captions
+    whose tags do not align with their text are skipped. Lemmas come from the tags too, since
+    HumanML3D's NOUN and VERB words are the lemmas of the caption's words: an edit-tree
+    lemmatizer learns them for unseen words, and a (UPOS, surface) -> lemma table saved in the
+    pipeline's vocabulary makes the corpus's own words exact. Deterministic for a given ``seed``
+    (same data, same thread count).
+    """
+    fix_random_seed(seed)
+    nlp = _training_pipeline()
+    examples = []
+    lemma_counts: Counter[tuple[str, str]] = Counter()
+    seen = 0
+    for caption, tagged in tagged_captions:
+        seen += 1
+        aligned = _align(_normalise(caption)[0], tagged)
+        if aligned is None:
+            continue
+        words = [t.text for t in aligned]
+        spaces = [t.space for t in aligned[1:]] + [False]
+        reference = Doc(
+            nlp.vocab,
+            words=words,
+            spaces=spaces,
+            pos=[t.pos for t in aligned],
+            lemmas=[t.lemma for t in aligned],
+        )
+        examples.append(Example(Doc(nlp.vocab, words=words, spaces=spaces), reference))
+        lemma_counts.update(
+            (f"{t.pos} {t.text}", t.lemma) for t in aligned if t.pos in _LEMMATISED_POS
+        )
+    if not examples:
+        raise ValueError(
+            f"none of the {seen} tagged captions aligns with its text: nothing to train"
+        )
+    optimizer = nlp.initialize(lambda: examples)
+    order = random.Random(seed)
+    for _ in range(epochs):
+        order.shuffle(examples)
+        for batch in minibatch(examples, size=32):
+            nlp.update(batch, sgd=optimizer, drop=0.1)
+    lemmas: dict[str, str] = {}
+    for (key, lemma), _ in sorted(lemma_counts.items(), key=lambda kv: (-kv[1], kv[0])):
+        lemmas.setdefault(key, lemma)  # the most frequent lemma of each (UPOS, surface)
+    nlp.vocab.lookups.add_table(LEMMA_TABLE, lemmas)
+    nlp.meta["name"] = "m2d2m_tagger"
+    nlp.meta["description"] = "UPOS tagger + lemmatizer distilled from corpus caption tags"
+    nlp.meta["m2d2m"] = {
+        "captions": seen,
+        "trained_on": len(examples),
+        "seed": seed,
+        "epochs": epochs,
+    }
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    nlp.to_disk(out)
+    return Tagger(nlp)
+
+
+def load_tagger(path: str | Path | None = None) -> Tagger:
+    """The installed ``en_core_web_sm`` if there is one, else the pipeline trained at ``path``."""
+    if spacy.util.is_package(SMALL_MODEL):
+        return Tagger(spacy.load(SMALL_MODEL, exclude=["parser", "ner", "senter"]))
+    if path is not None and (Path(path) / "config.cfg").is_file():
+        return Tagger(spacy.load(path))
+    where = f"at {path}" if path is not None else "(no path given)"
+    raise FileNotFoundError(
+        f"no spaCy tagger: {SMALL_MODEL} is not installed and there is no trained tagger {where}; "
+        "run `m2d2m data` first, which trains one into data/<name>/nlp/"
+    )
