@@ -23,6 +23,7 @@ MANIFEST = "manifest.json"
 QUARANTINE = "quarantine.jsonl"
 STATS = "stats.npz"
 SHARDS = "shards"
+NLP = "nlp"
 META_KEYS = {"id", "source", "fps", "frames", "mirrored", "captions"}
 CAPTION_KEYS = {"text", "tokens", "start", "end", "actions", "verbs"}
 

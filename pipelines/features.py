@@ -36,8 +36,8 @@ from pipelines.corpora import (
     load_captions,
     load_motion,
 )
-from pipelines.dataset import MANIFEST, QUARANTINE, SHARDS, STATS, encode_sample, reason_kind, summary_table
-from pipelines.language import decompose, parse_tagged_tokens
+from pipelines.dataset import MANIFEST, NLP, QUARANTINE, SHARDS, STATS, encode_sample, reason_kind, summary_table
+from pipelines.language import SMALL_MODEL, decompose, parse_tagged_tokens, train_tagger
 from pipelines.shards import SCHEMA_VERSION, ShardWriter, shard_records, write_json_atomically
 
 
@@ -54,6 +54,8 @@ class DataConfig:
     feat_bias: float = 5.0
     workers: int = 2
     batch_size: int = 16
+    tagger_captions: int = 6000  # a tagger trains in ~30 s on 6,000 captions (2 cores)
+    seed: int = 0
     ray_address: str | None = None
 
     @property
@@ -194,6 +196,21 @@ def _corpus_statistics(raw: Path, skeleton: Skeleton) -> tuple[np.ndarray, np.nd
     return mean, std
 
 
+def prepare_tagger(captions: list[tuple[str, list[tuple[str, str]]]], out: Path, config: DataConfig) -> str:
+    """The tagger free-text prompts will use: an installed spaCy English pipeline when there is
+    one, else one trained on (a seeded subsample of) the train split's own tagged captions."""
+    import spacy
+
+    if spacy.util.is_package(SMALL_MODEL):
+        return f"installed {SMALL_MODEL}"
+    if len(captions) > config.tagger_captions:
+        chosen = np.random.default_rng(config.seed).choice(len(captions), config.tagger_captions, replace=False)
+        captions = [captions[i] for i in sorted(chosen)]
+    shutil.rmtree(out / NLP, ignore_errors=True)
+    train_tagger(captions, out / NLP, seed=config.seed)
+    return f"trained on {len(captions)} train captions"
+
+
 def build_dataset(config: DataConfig) -> dict[str, Any]:
     """Run every stage and write ``config.out``; returns the manifest."""
     skeleton, raw, out = config.skeleton, Path(config.raw).resolve(), Path(config.out).resolve()
@@ -207,6 +224,7 @@ def build_dataset(config: DataConfig) -> dict[str, Any]:
     writers = {split: ShardWriter(out / SHARDS, split, config.samples_per_shard) for split in SPLITS}
     moments = RunningMoments(skeleton.feature_dim)
     quarantine: list[dict[str, Any]] = []
+    tagged_captions: list[tuple[str, list[tuple[str, str]]]] = []
     try:
         for record in run_stages(config, rows, make_mirror):
             split = str(record["split"])
@@ -228,6 +246,8 @@ def build_dataset(config: DataConfig) -> dict[str, Any]:
             writers[split].write(meta["id"], {"motion.npy": bytes(record["motion.npy"]), "meta.json": bytes(record["meta.json"])})
             if split == "train":
                 moments.add(np.load(io.BytesIO(bytes(record["motion.npy"]))))
+                if not meta["mirrored"]:
+                    tagged_captions += [(c["text"], parse_tagged_tokens(" ".join(c["tokens"]))) for c in meta["captions"]]
     except BaseException:
         for writer in writers.values():
             writer.abort()
@@ -244,6 +264,7 @@ def build_dataset(config: DataConfig) -> dict[str, Any]:
         raise ValueError(f"{raw}: no valid training motion to compute statistics from (see {out / QUARANTINE})")
     mean, std = provided if provided is not None else (moments.mean(), group_averaged_std(moments.std(), skeleton))
     Normalizer(mean, std, config.feat_bias).save(out / STATS)
+    tagger = prepare_tagger(tagged_captions, out, config)
 
     manifest = {
         "schema_version": SCHEMA_VERSION,
@@ -254,6 +275,7 @@ def build_dataset(config: DataConfig) -> dict[str, Any]:
         "joints": skeleton.num_joints,
         "mirrors_made_by_pipeline": make_mirror,
         "stats_source": "corpus Mean.npy/Std.npy" if provided is not None else "train split",
+        "tagger": tagger,
         "splits": {split: {**asdict(counts[split]), "samples_written": counts[split].samples_written} for split in SPLITS},
         "quarantine_reasons": dict(Counter(f"{q['stage']}: {reason_kind(q['reason'])}" for q in quarantine)),
         "shards": shards,

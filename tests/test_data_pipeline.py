@@ -119,6 +119,15 @@ def test_bad_inputs_are_quarantined_with_their_reasons_and_nothing_else_is(built
     assert train["originals"] == train["mirrors"] == len(ids["train"]) and train["quarantined"] == len(bad)
 
 
+def test_a_tagger_for_free_text_prompts_is_trained_from_the_corpus(built):
+    from pipelines.language import decompose, load_tagger
+
+    root, raw, ids, bad, config, manifest = built
+    assert manifest["tagger"] == f"trained on {3 * len(ids['train'])} train captions"
+    tagger = load_tagger(root / "out" / "nlp")
+    assert decompose("a man walks forward and then turns left", tagger=tagger).verbs == ("walk", "turn")
+
+
 def test_stats_come_from_the_train_split(built):
     root, raw, ids, *_ = built
     stats = Normalizer.load(root / "out" / "stats.npz")
