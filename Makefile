@@ -30,11 +30,13 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)  ## create .venv with the project and its test tools
 
 demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus (stages built so far)
-	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)
-	$(M2D2M) render $(RAW) --id 000000 --out $(DEMO)/000000.gif
-	$(M2D2M) export $(RAW) --id 000000 --out $(DEMO)/000000.bvh
-	@echo "Look at $(DEMO)/000000.gif; import $(DEMO)/000000.bvh into Blender (scale 1 = metres)."
-	@echo "Later stages (data, train-vq, train-diffusion, eval, sweep) are not built yet."
+	$(M2D2M) synthesize --out data/raw/synthetic --clips $(CLIPS) --seed $(SEED)
+	$(M2D2M) render data/raw/synthetic --id 000000 --out $(DEMO)/000000.gif
+	$(M2D2M) export data/raw/synthetic --id 000000 --out $(DEMO)/000000.bvh
+	$(M2D2M) data --dataset synthetic --raw data/raw/synthetic
+	@echo "Look at $(DEMO)/000000.gif; import $(DEMO)/000000.bvh into Blender (scale 1 = metres);"
+	@echo "the processed dataset is data/synthetic (check it: .venv/bin/m2d2m data --check data/synthetic)."
+	@echo "Later stages (train-vq, train-diffusion, eval, sweep) are not built yet."
 
 test: $(STAMP)  ## run the test suite (slow end-to-end tests excluded)
 	$(BIN)/pytest -m "not slow"
@@ -44,11 +46,15 @@ test-all: $(STAMP)  ## run every test, slow end-to-end ones included
 
 bench: $(STAMP)  ## measure speed; results go to BENCHMARKS.md by hand
 	$(BIN)/python bench/representation.py
+	$(BIN)/python bench/pipeline.py
 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic
 	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)
 
-data train-vq tokens train-diffusion testset eval generate sweep ui:
+data: $(STAMP)  ## preprocess a corpus into WebDataset shards (DATASET=synthetic|humanml3d|kit, RAW=dir)
+	$(M2D2M) data --dataset $(DATASET) --raw $(RAW)
+
+train-vq tokens train-diffusion testset eval generate sweep ui:
 	@echo "make $@: not built yet (see the open issues); 'make demo' shows what works today." >&2
 	@exit 2
 

@@ -27,6 +27,9 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
         (["render", "{tmp}/joints.npy", "--out", "x.png"], "use .gif or .mp4"),
         (["export", "{tmp}/joints.npy", "--out", "{tmp}/x.fbx"], "writes .bvh or .npy"),
         (["render", "{tmp}/corrupt.npy", "--out", "x.gif"], "not a readable .npy"),
+        (["data", "--dataset", "humanml3d", "--raw", "{tmp}/nowhere"], "pass --raw /path/to/humanml3d"),
+        (["data", "--dataset", "amass"], "unknown dataset 'amass'"),
+        (["data", "--check", "{tmp}"], "problem(s) against its manifest"),
     ],
 )
 def test_user_errors_exit_2_with_one_line(tmp_path, args, message):

@@ -186,3 +186,15 @@ def test_cli_reuses_a_complete_dataset_and_checks_it(built, capsys, tmp_path):
     assert main(["data", "--check", str(out)]) == 0
     (out / "manifest.json").unlink()
     assert main(["data", "--check", str(out)]) == 2
+
+
+def test_kit_layout_gives_251_dimensional_samples_at_12_5_fps(tmp_path, ray_local):
+    from m2d2m.skeleton import KIT
+
+    raw = tmp_path / "raw"
+    write_corpus(raw, {"train": 2, "val": 1, "test": 1}, KIT)
+    manifest = build_dataset(DataConfig(dataset="kit", raw=str(raw), out=str(tmp_path / "out")))
+    assert manifest["feature_dim"] == 251 and manifest["fps"] == 12.5 and manifest["config"]["min_frames"] == 24
+    sample = read_split(tmp_path / "out", "train")[0]
+    assert sample["motion.npy"].shape[1] == 251 and sample["meta.json"]["fps"] == 12.5
+    assert check_dataset(tmp_path / "out") == []
