@@ -267,9 +267,13 @@ class _Panel:
         self.wrap = max(16, int(size * 0.92 / (caption_points * _DPI / 72 * 0.5)))
         lw = _points(size, 3.2)
 
+        title_points = _points(size, 13, smallest=8)
+        if title:  # long captions wrap instead of running off the picture
+            title = textwrap.fill(title, max(16, int(size * 0.92 / (title_points * _DPI / 72 * 0.58))))
+        title_lines = title.count("\n") + 1 if title else 0
         ax.set_axis_off()
-        pixels_per_unit = self._fit_limits(ax, top=0.2 if (title or timeline.segments) else 0.06,
-                                           bottom=0.08)
+        top = 0.14 + 0.06 * title_lines if (title or timeline.segments) else 0.06
+        pixels_per_unit = self._fit_limits(ax, top=top, bottom=0.08)
         self.ground = Polygon(np.zeros((4, 2)), closed=True, facecolor="#eef0f2",
                               edgecolor="#b8bec6", lw=lw / 3, zorder=0)
         ax.add_patch(self.ground)
@@ -293,8 +297,8 @@ class _Panel:
         y_caption = 0.97
         if title:
             ax.text(0.5, 0.975, title, transform=ax.transAxes, ha="center", va="top",
-                    fontsize=_points(size, 13, smallest=8), weight="bold")
-            y_caption = 0.905
+                    fontsize=title_points, weight="bold", linespacing=1.15)
+            y_caption = 0.975 - 0.07 * title_lines
         self.caption = ax.text(
             0.5, y_caption, "", transform=ax.transAxes, ha="center", va="top",
             fontsize=caption_points, linespacing=1.2,
