@@ -48,6 +48,16 @@ class RunningMoments:
         self.total += other.total
         self.total_sq += other.total_sq
 
+    def state(self) -> list:
+        """JSON-able sums, to send partial statistics from a worker to the driver."""
+        return [self.count, self.total.tolist(), self.total_sq.tolist()]
+
+    @classmethod
+    def from_state(cls, state: list) -> "RunningMoments":
+        moments = cls(len(state[1]))
+        moments.count, moments.total, moments.total_sq = state[0], np.array(state[1]), np.array(state[2])
+        return moments
+
     def mean(self) -> np.ndarray:
         return self.total / self.count
 

@@ -17,7 +17,7 @@ import subprocess
 from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -53,7 +53,6 @@ class DataConfig:
     max_frames: int | None = None
     feat_bias: float = 5.0
     workers: int = 2
-    batch_size: int = 16
     tagger_captions: int = 6000  # a tagger trains in ~30 s on 6,000 captions (2 cores)
     seed: int = 0
     ray_address: str | None = None
@@ -70,7 +69,7 @@ class DataConfig:
     def recorded(self) -> dict[str, Any]:
         """The config as the manifest stores it: what determines the output, not where it ran."""
         record = asdict(self)
-        for key in ("out", "workers", "ray_address", "batch_size"):
+        for key in ("out", "workers", "ray_address"):
             record.pop(key)
         record["raw"] = str(Path(self.raw).resolve())
         record["min_frames"], record["max_frames"] = self.bounds.minimum, self.bounds.maximum
@@ -98,10 +97,10 @@ def _mirrored_caption(caption: dict[str, Any]) -> dict[str, Any]:
     return {**caption, "text": mirror_caption(caption["text"]), "tokens": [mirror_caption(t) for t in caption["tokens"]]}
 
 
-def _sample(key: str, source: str, split: str, features: np.ndarray, captions: list[dict], fps: float, mirrored: bool) -> dict[str, Any]:
+def _sample(key: str, source: str, features: np.ndarray, captions: list[dict], fps: float, mirrored: bool) -> dict[str, Any]:
     meta = {"id": key, "source": source, "fps": fps, "frames": len(features), "mirrored": mirrored,
             "captions": [_language(c) for c in captions]}
-    return {"key": key, "split": split, "status": "ok", "stage": "", "reason": "", **encode_sample(features, meta)}
+    return {"key": key, "status": "ok", **encode_sample(features, meta)}
 
 
 def _to_features(motion: np.ndarray, kind: str, skeleton: Skeleton, bounds: FrameBounds) -> np.ndarray:
@@ -118,24 +117,15 @@ def process_motion(row: dict[str, Any], skeleton: Skeleton, bounds: FrameBounds,
         motion = load_motion(row, skeleton)
         features = _to_features(motion, row["kind"], skeleton, bounds)
         captions = load_captions(row)
-        samples = [_sample(row["id"], row["id"], row["split"], features, captions, skeleton.fps, False)]
+        samples = [_sample(row["id"], row["id"], features, captions, skeleton.fps, False)]
         if make_mirror:
             joints = motion if row["kind"] == "joints" else features_to_joints(motion, skeleton)
             mirrored = _to_features(mirror_joints(joints, skeleton), "joints", skeleton, bounds)
-            samples.append(_sample(f"M{row['id']}", row["id"], row["split"], mirrored,
+            samples.append(_sample(f"M{row['id']}", row["id"], mirrored,
                                    [_mirrored_caption(c) for c in captions], skeleton.fps, True))
         return samples
     except Rejected as rejected:
-        return [{"key": row["id"], "split": row["split"], "status": "quarantined", "stage": rejected.stage,
-                 "reason": rejected.reason, "motion.npy": b"", "meta.json": b""}]
-
-
-def _process_batch(batch: dict[str, np.ndarray], dataset: str, bounds: FrameBounds, make_mirror: bool) -> dict[str, list]:
-    """Ray Data ``map_batches`` function: columns in, columns out (one or two rows per input)."""
-    skeleton = CORPUS_SKELETONS[dataset]
-    rows = [dict(zip(batch, values)) for values in zip(*batch.values())]
-    records = [r for row in rows for r in process_motion(row, skeleton, bounds, make_mirror)]
-    return {column: [r[column] for r in records] for column in records[0]}
+        return [{"key": row["id"], "status": "quarantined", "stage": rejected.stage, "reason": rejected.reason}]
 
 
 def _init_ray(address: str | None, workers: int) -> None:
@@ -144,7 +134,6 @@ def _init_ray(address: str | None, workers: int) -> None:
     if ray.is_initialized():
         return
     address = address or os.environ.get("RAY_ADDRESS")
-    ray.data.DataContext.get_current().execution_options.preserve_order = True
     if address:
         ray.init(address=address, logging_level="ERROR")
     else:
@@ -152,26 +141,8 @@ def _init_ray(address: str | None, workers: int) -> None:
         ray.init(address="local", num_cpus=workers, include_dashboard=False, logging_level="ERROR")
 
 
-def run_stages(config: DataConfig, rows: list[dict[str, Any]], make_mirror: bool) -> Iterable[dict[str, Any]]:
-    """Records of every processed row, in input order, computed by Ray Data tasks."""
-    import ray
-
-    _init_ray(config.ray_address, config.workers)
-    dataset = ray.data.from_items(rows).map_batches(
-        _process_batch,
-        fn_kwargs={"dataset": config.dataset, "bounds": config.bounds, "make_mirror": make_mirror},
-        batch_size=config.batch_size,
-        batch_format="numpy",
-        compute=ray.data.TaskPoolStrategy(size=config.workers),
-        num_cpus=1,
-    )
-    for batch in dataset.iter_batches(batch_size=256, batch_format="numpy"):
-        for values in zip(*batch.values()):
-            yield dict(zip(batch, values))
-
-
 @dataclass
-class _SplitCounts:
+class SplitCounts:
     inputs_seen: int = 0
     originals: int = 0
     mirrors: int = 0
@@ -183,6 +154,86 @@ class _SplitCounts:
     @property
     def samples_written(self) -> int:
         return self.originals + self.mirrors
+
+    def add(self, other: "SplitCounts") -> None:
+        for name, value in asdict(other).items():
+            setattr(self, name, getattr(self, name) + value)
+
+
+def plan_shards(rows: list[dict[str, Any]], samples_per_shard: int, make_mirror: bool) -> list[dict[str, Any]]:
+    """Cut each split's rows, in order, into the inputs of one shard each: a shard can never
+    exceed ``samples_per_shard`` (an input gives two samples when the pipeline mirrors), and the
+    plan depends only on the corpus and the config, never on how many workers run it."""
+    inputs_per_shard = max(1, samples_per_shard // (2 if make_mirror else 1))
+    tasks = []
+    for split in SPLITS:
+        split_rows = [row for row in rows if row["split"] == split]
+        for index, first in enumerate(range(0, len(split_rows), inputs_per_shard)):
+            tasks.append({"split": split, "index": index, "rows": split_rows[first : first + inputs_per_shard]})
+    return tasks
+
+
+def write_shard(task: dict[str, Any], config: DataConfig, make_mirror: bool) -> dict[str, Any]:
+    """Process one shard's inputs and write the shard (a Ray task): returns only what the driver
+    needs — the shard's record, counts, partial train statistics, quarantine and tagged captions."""
+    skeleton, bounds = config.skeleton, config.bounds
+    split = task["split"]
+    counts = SplitCounts()
+    moments = RunningMoments(skeleton.feature_dim)
+    quarantine, tagged = [], []
+    writer = ShardWriter(Path(config.out).resolve() / SHARDS, split, config.samples_per_shard, first_index=task["index"])
+    with writer:
+        for row in task["rows"]:
+            counts.inputs_seen += 1
+            for record in process_motion(row, skeleton, bounds, make_mirror):
+                if record["status"] == "quarantined":
+                    counts.quarantined += 1
+                    quarantine.append({"id": record["key"], "split": split, "stage": record["stage"], "reason": record["reason"]})
+                    continue
+                meta = json.loads(record["meta.json"])
+                counts.mirrors += meta["mirrored"]
+                counts.originals += not meta["mirrored"]
+                counts.frames += meta["frames"]
+                counts.captions += len(meta["captions"])
+                counts.single_verb_captions += sum(len(c["verbs"]) == 1 for c in meta["captions"])
+                writer.write(record["key"], {"motion.npy": record["motion.npy"], "meta.json": record["meta.json"]})
+                if split == "train":
+                    moments.add(np.load(io.BytesIO(record["motion.npy"])))
+                    if not meta["mirrored"]:
+                        tagged += [[c["text"], c["tokens"]] for c in meta["captions"]]
+    return {
+        "split": split,
+        "index": task["index"],
+        "shards": shard_records(writer.shards),
+        "counts": asdict(counts),
+        "moments": moments.state(),
+        "quarantine": quarantine,
+        "tagged": tagged,
+    }
+
+
+def _write_shard_batch(batch: dict[str, np.ndarray], config: DataConfig, make_mirror: bool) -> dict[str, list]:
+    """Ray Data ``map_batches`` adapter: one planned shard (as JSON) in, its result (as JSON) out."""
+    return {"result": [json.dumps(write_shard(json.loads(task), config, make_mirror)) for task in batch["task"]]}
+
+
+def run_shard_tasks(config: DataConfig, tasks: list[dict[str, Any]], make_mirror: bool) -> list[dict[str, Any]]:
+    """Write every planned shard with Ray Data tasks; returns their results in plan order
+    (whatever order the tasks finished in)."""
+    import ray
+
+    _init_ray(config.ray_address, config.workers)
+    items = [{"task": json.dumps(task)} for task in tasks]
+    results = ray.data.from_items(items, override_num_blocks=max(1, len(items))).map_batches(
+        _write_shard_batch,
+        fn_kwargs={"config": config, "make_mirror": make_mirror},
+        batch_size=1,
+        batch_format="numpy",
+        compute=ray.data.TaskPoolStrategy(size=config.workers),
+        num_cpus=1,
+    )
+    finished = [json.loads(row["result"]) for row in results.iter_rows()]
+    return sorted(finished, key=lambda result: (SPLITS.index(result["split"]), result["index"]))
 
 
 def _corpus_statistics(raw: Path, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray] | None:
@@ -220,39 +271,18 @@ def build_dataset(config: DataConfig) -> dict[str, Any]:
     shutil.rmtree(out / SHARDS, ignore_errors=True)
     out.mkdir(parents=True, exist_ok=True)
 
-    counts = {split: _SplitCounts() for split in SPLITS}
-    writers = {split: ShardWriter(out / SHARDS, split, config.samples_per_shard) for split in SPLITS}
+    counts = {split: SplitCounts() for split in SPLITS}
+    shards: dict[str, list[dict[str, Any]]] = {split: [] for split in SPLITS}
     moments = RunningMoments(skeleton.feature_dim)
     quarantine: list[dict[str, Any]] = []
     tagged_captions: list[tuple[str, list[tuple[str, str]]]] = []
-    try:
-        for record in run_stages(config, rows, make_mirror):
-            split = str(record["split"])
-            c = counts[split]
-            if record["status"] == "quarantined":
-                c.inputs_seen += 1
-                c.quarantined += 1
-                quarantine.append({"id": str(record["key"]), "split": split, "stage": str(record["stage"]), "reason": str(record["reason"])})
-                continue
-            meta = json.loads(bytes(record["meta.json"]))
-            if meta["mirrored"]:
-                c.mirrors += 1
-            else:
-                c.inputs_seen += 1
-                c.originals += 1
-            c.frames += meta["frames"]
-            c.captions += len(meta["captions"])
-            c.single_verb_captions += sum(len(caption["verbs"]) == 1 for caption in meta["captions"])
-            writers[split].write(meta["id"], {"motion.npy": bytes(record["motion.npy"]), "meta.json": bytes(record["meta.json"])})
-            if split == "train":
-                moments.add(np.load(io.BytesIO(bytes(record["motion.npy"]))))
-                if not meta["mirrored"]:
-                    tagged_captions += [(c["text"], parse_tagged_tokens(" ".join(c["tokens"]))) for c in meta["captions"]]
-    except BaseException:
-        for writer in writers.values():
-            writer.abort()
-        raise
-    shards = {split: shard_records(writers[split].close()) for split in SPLITS}
+    for result in run_shard_tasks(config, plan_shards(rows, config.samples_per_shard, make_mirror), make_mirror):
+        split = result["split"]
+        counts[split].add(SplitCounts(**result["counts"]))
+        shards[split] += result["shards"]
+        moments.merge(RunningMoments.from_state(result["moments"]))
+        quarantine += result["quarantine"]
+        tagged_captions += [(text, parse_tagged_tokens(" ".join(tokens))) for text, tokens in result["tagged"]]
 
     with (out / (QUARANTINE + ".partial")).open("w", encoding="utf-8") as handle:
         for line in quarantine:

@@ -54,22 +54,24 @@ def sha256_of(path: Path) -> str:
 
 class ShardWriter:
     """Writes samples to ``<directory>/<prefix>-000000.tar``, ``-000001.tar``, … with at most
-    ``samples_per_shard`` samples each. A shard is written as ``<name>.partial`` and renamed
+    ``samples_per_shard`` samples each; numbering starts at ``first_index`` so that parallel
+    writers can each own a range of names. A shard is written as ``<name>.partial`` and renamed
     only when complete; if writing fails, the partial file is removed."""
 
-    def __init__(self, directory: str | Path, prefix: str, samples_per_shard: int) -> None:
+    def __init__(self, directory: str | Path, prefix: str, samples_per_shard: int, first_index: int = 0) -> None:
         if samples_per_shard <= 0:
             raise ValueError(f"samples_per_shard must be positive, got {samples_per_shard}")
         self.directory = Path(directory)
         self.prefix = prefix
         self.samples_per_shard = samples_per_shard
+        self.first_index = first_index
         self.shards: list[ShardInfo] = []
         self._stream: io.BufferedWriter | None = None
         self._tar: wds.TarWriter | None = None
         self._count = 0
 
     def _partial_path(self) -> Path:
-        return self.directory / f"{self.prefix}-{len(self.shards):06d}.tar{PARTIAL_SUFFIX}"
+        return self.directory / f"{self.prefix}-{self.first_index + len(self.shards):06d}.tar{PARTIAL_SUFFIX}"
 
     def _open(self) -> None:
         self.directory.mkdir(parents=True, exist_ok=True)

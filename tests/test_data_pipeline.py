@@ -12,7 +12,8 @@ from m2d2m.representation import joints_to_features
 from m2d2m.skeleton import T2M
 from orchestration.cli import main
 from pipelines.dataset import check_dataset, sample_problems, shard_urls
-from pipelines.features import DataConfig, build_dataset
+from pipelines.corpora import list_corpus
+from pipelines.features import DataConfig, build_dataset, plan_shards
 from tests.helpers import pose_clip, write_corpus
 
 
@@ -136,9 +137,9 @@ def test_stats_come_from_the_train_split(built):
     assert stats.feat_bias == 5.0
 
 
-def test_rebuild_gives_identical_bytes_and_check_passes(built, tmp_path):
+def test_rebuild_with_another_worker_count_gives_identical_bytes_and_check_passes(built, tmp_path):
     root, raw, ids, bad, config, manifest = built
-    again = build_dataset(DataConfig(**{**config.__dict__, "out": str(tmp_path / "again")}))
+    again = build_dataset(DataConfig(**{**config.__dict__, "out": str(tmp_path / "again"), "workers": 1}))
     assert again["shards"] == manifest["shards"]
     for shard in manifest["shards"]["train"]:
         name = shard["name"]
@@ -153,6 +154,14 @@ def test_check_reports_a_damaged_dataset(built, tmp_path):
     (copy / "shards" / "val-000000.tar").write_bytes(b"")
     problems = check_dataset(copy)
     assert any("val-000000.tar: sha256 differs" in p for p in problems)
+
+
+def test_shard_plan_never_exceeds_the_shard_size(built):
+    root, raw, ids, bad, config, manifest = built
+    assert all(s["samples"] <= config.samples_per_shard for split in manifest["shards"].values() for s in split)
+    plan = plan_shards(list_corpus(raw), samples_per_shard=5, make_mirror=True)
+    assert [(t["split"], t["index"], len(t["rows"])) for t in plan][:3] == [("train", 0, 2), ("train", 1, 2), ("train", 2, 2)]
+    assert sum(len(t["rows"]) for t in plan) == len(list_corpus(raw))
 
 
 def test_sample_schema_rejects_wrong_members():
