@@ -107,6 +107,20 @@ def reason_kind(reason: str) -> str:
     return reason.split(":")[0].split(" (")[0]
 
 
+def stage_counts(manifest: dict[str, Any]) -> str:
+    """One line of what each stage passed on or rejected, in stage order."""
+    splits = manifest["splits"].values()
+    rejected = Counter()
+    for key, count in manifest["quarantine_reasons"].items():
+        rejected[key.split(":")[0]] += count
+    seen = sum(c["inputs_seen"] for c in splits)
+    originals, mirrors = sum(c["originals"] for c in splits), sum(c["mirrors"] for c in splits)
+    shards = sum(len(v) for v in manifest["shards"].values())
+    return (f"read {seen} inputs ({rejected['read']} rejected) · validate {rejected['validate']} rejected · "
+            f"features {originals} motions + {mirrors} mirrors ({rejected['features']} rejected) · "
+            f"language {sum(c['captions'] for c in splits)} captions · write {shards} shards")
+
+
 def summary_table(manifest: dict[str, Any], quarantine: list[dict[str, Any]]) -> str:
     """Per split: motions, mirrors, frames, hours, captions, single-verb captions, quarantined
     by reason — the table ``m2d2m data`` prints at the end."""

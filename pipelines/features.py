@@ -36,7 +36,7 @@ from pipelines.corpora import (
     load_captions,
     load_motion,
 )
-from pipelines.dataset import MANIFEST, NLP, QUARANTINE, SHARDS, STATS, encode_sample, reason_kind, summary_table
+from pipelines.dataset import MANIFEST, NLP, QUARANTINE, SHARDS, STATS, encode_sample, reason_kind, stage_counts, summary_table
 from pipelines.language import SMALL_MODEL, decompose, parse_tagged_tokens, train_tagger
 from pipelines.shards import SCHEMA_VERSION, ShardWriter, shard_records, write_json_atomically
 
@@ -319,4 +319,5 @@ def build_dataset(config: DataConfig) -> dict[str, Any]:
 def print_summary(manifest: dict[str, Any], out: str | Path) -> None:
     quarantine_path = Path(out) / QUARANTINE
     quarantine = [json.loads(line) for line in quarantine_path.read_text(encoding="utf-8").splitlines()]
+    print(stage_counts(manifest))
     print(summary_table(manifest, quarantine))

@@ -48,8 +48,10 @@ def plant_bad_inputs(raw, train_ids):
     np.save(joints / "900006.npy", clip[:11])
     bad["900006"] = "too few frames"
     bad["900007"] = "no motion file"
+    np.save(joints / "900008.npy", (clip * 100).astype(np.int32))
+    bad["900008"] = "wrong dtype"
     texts = raw / "texts"
-    for motion_id in ("900001", "900002", "900003", "900006", "900007"):
+    for motion_id in ("900001", "900002", "900003", "900006", "900007", "900008"):
         shutil.copy(texts / f"{train_ids[0]}.txt", texts / f"{motion_id}.txt")
     (texts / "900004.txt").write_text("\n", encoding="utf-8")
     (texts / "900005.txt").write_bytes("a person walks#a/DET person/NOUN walk/VERB#0.0#0.0".encode("utf-16"))
@@ -190,6 +192,9 @@ def test_cli_reuses_a_complete_dataset_and_checks_it(built, capsys, tmp_path):
     root, raw, *_ = built
     out = tmp_path / "cli"
     assert main(["data", "--dataset", "synthetic", "--raw", str(raw), "--out", str(out), "--samples-per-shard", "5"]) == 0
+    first = capsys.readouterr().out
+    assert "read 21 inputs (2 rejected) · validate 6 rejected · features 13 motions + 13 mirrors" in first
+    assert "train  8        8" in first  # the summary table: motions and mirrors per split
     assert main(["data", "--dataset", "synthetic", "--raw", str(raw), "--out", str(out), "--samples-per-shard", "5"]) == 0
     assert "reusing it" in capsys.readouterr().out
     assert main(["data", "--check", str(out)]) == 0
