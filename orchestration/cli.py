@@ -42,8 +42,13 @@ def _synthesize(args: argparse.Namespace) -> None:
     summary = generate_corpus(
         out, clips=args.clips, seed=args.seed, families=families, workers=args.workers, progress=True
     )
-    print(json.dumps(summary, indent=2))
-    print(f"wrote {args.clips} clips to {out} in {time.perf_counter() - started:.1f} s")
+    splits = summary["splits"]
+    print(
+        f"wrote {summary['clips']} clips to {out} in {time.perf_counter() - started:.1f} s: "
+        f"{splits['train']}/{splits['val']}/{splits['test']} train/val/test, {summary['captions']} captions "
+        f"({summary['multi_verb_share']:.0%} with several verbs), {summary['hours']:.2f} h of motion, "
+        f"{len(summary['families'])} action families"
+    )
 
 
 def _check_data(directory: Path) -> None:
