@@ -16,14 +16,10 @@ from typing import Any
 
 import numpy as np
 
+from m2d2m.layout import MANIFEST, QUARANTINE, SHARDS, STATS
 from pipelines.corpora import SPLITS
 from pipelines.shards import json_bytes, npy_bytes, verify_shards
 
-MANIFEST = "manifest.json"
-QUARANTINE = "quarantine.jsonl"
-STATS = "stats.npz"
-SHARDS = "shards"
-NLP = "nlp"
 META_KEYS = {"id", "source", "fps", "frames", "mirrored", "captions"}
 CAPTION_KEYS = {"text", "tokens", "start", "end", "actions", "verbs"}
 
@@ -56,13 +52,6 @@ def sample_problems(key: str, members: dict[str, bytes], feature_dim: int) -> li
     if not meta["captions"] or any(set(c) != CAPTION_KEYS for c in meta["captions"]):
         problems.append("captions missing or without the keys " + ", ".join(sorted(CAPTION_KEYS)))
     return problems
-
-
-def shard_urls(directory: str | Path, split: str) -> list[str]:
-    """Absolute paths of a split's shards, from the manifest (the only trusted listing)."""
-    directory = Path(directory).resolve()
-    manifest = json.loads((directory / MANIFEST).read_text(encoding="utf-8"))
-    return [str(directory / SHARDS / s["name"]) for s in manifest["shards"][split]]
 
 
 def check_dataset(directory: str | Path) -> list[str]:

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 import m2d2m
+from m2d2m.layout import MANIFEST, NLP, QUARANTINE, SHARDS, STATS
 from m2d2m.normalization import Normalizer, RunningMoments, group_averaged_std
 from m2d2m.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
 from m2d2m.skeleton import Skeleton
@@ -36,7 +37,7 @@ from pipelines.corpora import (
     load_captions,
     load_motion,
 )
-from pipelines.dataset import MANIFEST, NLP, QUARANTINE, SHARDS, STATS, encode_sample, reason_kind, stage_counts, summary_table
+from pipelines.dataset import encode_sample, reason_kind, stage_counts, summary_table
 from pipelines.language import SMALL_MODEL, decompose, parse_tagged_tokens, train_tagger
 from pipelines.shards import SCHEMA_VERSION, ShardWriter, shard_records, write_json_atomically
 

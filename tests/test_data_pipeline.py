@@ -11,7 +11,8 @@ from m2d2m.normalization import Normalizer
 from m2d2m.representation import joints_to_features
 from m2d2m.skeleton import T2M
 from orchestration.cli import main
-from pipelines.dataset import check_dataset, sample_problems, shard_urls
+from m2d2m.layout import shard_urls
+from pipelines.dataset import check_dataset, sample_problems
 from pipelines.corpora import list_corpus
 from pipelines.features import DataConfig, build_dataset, plan_shards
 from tests.helpers import pose_clip, write_corpus

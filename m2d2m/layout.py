@@ -1,0 +1,29 @@
+"""The on-disk layout of a processed dataset (DESIGN.md's data contract), shared by the pipelines
+that write it and the training that reads it, which must not import each other."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+MANIFEST = "manifest.json"
+QUARANTINE = "quarantine.jsonl"
+STATS = "stats.npz"
+SHARDS = "shards"
+NLP = "nlp"
+TOKENS = "tokens"
+
+
+def read_manifest(directory: str | Path) -> dict[str, Any]:
+    """The manifest of a dataset (or token set); its absence means the directory is incomplete."""
+    path = Path(directory) / MANIFEST
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: missing; the dataset is incomplete or was never built (run `m2d2m data`)")
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def shard_urls(directory: str | Path, split: str) -> list[str]:
+    """Absolute paths of a split's shards, from the manifest (the only trusted listing)."""
+    directory = Path(directory).resolve()
+    return [str(directory / SHARDS / shard["name"]) for shard in read_manifest(directory)["shards"][split]]
