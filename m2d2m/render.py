@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+import itertools
 import textwrap
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -59,6 +60,44 @@ def render_motion(
     MP4 needs an ``ffmpeg`` binary (on PATH, or the one bundled with ``imageio-ffmpeg``); without
     one a ``RuntimeError`` is raised before anything is written.
     """
+    joints = skeleton.check_joints(joints)
+    fps = float(skeleton.fps if fps is None else fps)
+    size = int(size) + int(size) % 2  # H.264 wants even sizes
+    fig = Figure(figsize=(size / _DPI, size / _DPI), dpi=_DPI)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
+    panel = _Panel(ax, _View(joints, skeleton, fps), _Timeline(segments, len(joints)), size,
+                   title=title, with_legend=True)
+    return _animate(fig, [panel], len(joints), path, fps)
+
+
+def render_comparison(
+    motions: Sequence[np.ndarray],
+    labels: Sequence[str],
+    path: str | Path,
+    skeleton: Skeleton = T2M,
+    fps: float | None = None,
+    size: int = 360,
+) -> Path:
+    """Several motions side by side, played in sync, one labelled panel each — e.g. ground truth
+    beside a reconstruction. A shorter motion holds its last frame."""
+    if len(motions) != len(labels) or not motions:
+        raise ValueError("give one label per motion, and at least one motion")
+    checked = [skeleton.check_joints(m) for m in motions]
+    fps = float(skeleton.fps if fps is None else fps)
+    size = int(size) + int(size) % 2
+    n_frames = max(len(m) for m in checked)
+    fig = Figure(figsize=(len(checked) * size / _DPI, size / _DPI), dpi=_DPI)
+    panels = []
+    for n, (joints, label) in enumerate(zip(checked, labels)):
+        ax = fig.add_axes((n / len(checked), 0.0, 1.0 / len(checked), 1.0))
+        held = np.concatenate([joints, np.repeat(joints[-1:], n_frames - len(joints), axis=0)])
+        panels.append(_Panel(ax, _View(held, skeleton, fps), _Timeline(None, n_frames), size,
+                             title=label, with_legend=n == 0))
+    return _animate(fig, panels, n_frames, path, fps)
+
+
+def _animate(fig: Figure, panels: Sequence["_Panel"], n_frames: int, path: str | Path, fps: float) -> Path:
+    """Draw every frame of the panels and encode them as GIF or MP4 (by the path's suffix)."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".gif", ".mp4"):
@@ -68,20 +107,12 @@ def render_motion(
         raise RuntimeError(
             "cannot write .mp4: no ffmpeg found; pip install imageio-ffmpeg or use .gif"
         )
-    joints = skeleton.check_joints(joints)
-    fps = float(skeleton.fps if fps is None else fps)
-    size = int(size) + int(size) % 2  # H.264 wants even sizes
-    view = _View(joints, skeleton, fps)
-    timeline = _Timeline(segments, len(joints))
-
-    fig = Figure(figsize=(size / _DPI, size / _DPI), dpi=_DPI)
     canvas = FigureCanvasAgg(fig)
-    ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-    panel = _Panel(ax, view, timeline, size, title=title, with_legend=True)
 
     def frames() -> Iterator[np.ndarray]:
-        for t in range(len(joints)):
-            panel.draw(t)
+        for t in range(n_frames):
+            for panel in panels:
+                panel.draw(t)
             canvas.draw()
             yield np.asarray(canvas.buffer_rgba())[..., :3]
 
@@ -89,7 +120,7 @@ def render_motion(
     if ffmpeg is None:
         _write_gif(frames(), path, fps)
     else:
-        _write_mp4(frames(), path, fps, size, ffmpeg)
+        _write_mp4(frames(), path, fps, ffmpeg)
     return path
 
 
@@ -395,13 +426,15 @@ def _write_gif(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
                    loop=0, optimize=False)
 
 
-def _write_mp4(
-    frames: Iterator[np.ndarray], path: Path, fps: float, size: int, ffmpeg: str
-) -> None:
+def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, ffmpeg: str) -> None:
     """H.264 MP4 by piping raw RGB frames to ffmpeg; a failed encode leaves no file behind."""
+    frames = iter(frames)
+    first = next(frames)
+    height, width = first.shape[:2]
+    frames = itertools.chain([first], frames)
     command = [
         ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
-        "-s", f"{size}x{size}", "-r", f"{fps:g}", "-i", "-",
+        "-s", f"{width}x{height}", "-r", f"{fps:g}", "-i", "-",
         "-c:v", "libx264", "-pix_fmt", "yuv420p", str(path),
     ]
     process = subprocess.Popen(command, stdin=subprocess.PIPE, stderr=subprocess.PIPE)

@@ -39,6 +39,7 @@ class Skeleton:
     contact_threshold: float
     left_joints: tuple[int, ...]
     right_joints: tuple[int, ...]
+    metres_per_unit: float = 1.0
 
     @property
     def num_joints(self) -> int:
@@ -237,6 +238,7 @@ KIT = Skeleton(
     contact_threshold=0.05,
     left_joints=(5, 6, 7, 11, 12, 13, 14, 15),
     right_joints=(8, 9, 10, 16, 17, 18, 19, 20),
+    metres_per_unit=1.0 / 640.0,
 )
 
 SKELETONS: dict[str, Skeleton] = {s.name: s for s in (T2M, KIT)}

@@ -9,7 +9,7 @@ import pytest
 from PIL import Image, ImageSequence
 
 from m2d2m import render
-from m2d2m.render import render_frames, render_motion
+from m2d2m.render import render_comparison, render_frames, render_motion
 from m2d2m.skeleton import KIT, T2M
 
 
@@ -110,3 +110,12 @@ def test_contact_sheet(tmp_path: Path, clip: np.ndarray) -> None:
     assert pixels.std() > 10
     with pytest.raises(ValueError, match="frames"):
         render_frames(clip, tmp_path / "bad.png", frames=[len(clip)])
+
+
+def test_comparison_plays_motions_side_by_side(tmp_path, sample_joints):
+    path = render_comparison([sample_joints[:30], sample_joints[:20] + 0.1], ["ground truth", "reconstruction"],
+                             tmp_path / "pair.gif", size=160)
+    with Image.open(path) as gif:
+        assert gif.n_frames == 30 and gif.size == (320, 160)
+    with pytest.raises(ValueError, match="one label per motion"):
+        render_comparison([sample_joints], ["a", "b"], tmp_path / "bad.gif")

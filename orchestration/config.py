@@ -1,0 +1,84 @@
+"""Stage configs: a YAML file under ``configs/<stage>/`` plus ``--set key.sub=value`` overrides.
+
+Every config is checked against its file's own keys, so a typo in an override is an error that
+names the key instead of a setting that silently does nothing.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from orchestration.errors import UserError
+
+CONFIG_ROOT = Path("configs")
+
+
+def resolve_config_path(stage: str, name_or_path: str) -> Path:
+    """``demo`` → ``configs/<stage>/demo.yaml``; an existing path is taken as it is."""
+    path = Path(name_or_path)
+    if path.suffix in (".yaml", ".yml") and path.exists():
+        return path
+    candidate = CONFIG_ROOT / stage / f"{name_or_path}.yaml"
+    if candidate.exists():
+        return candidate
+    available = sorted(p.stem for p in (CONFIG_ROOT / stage).glob("*.yaml"))
+    raise UserError(f"no config {name_or_path!r} for {stage}; available: {', '.join(available) or 'none'}")
+
+
+def _parse_override(text: str) -> tuple[list[str], Any]:
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise UserError(f"--set {text!r}: expected key.sub=value")
+    try:
+        parsed = yaml.safe_load(value) if value.strip() else ""
+    except yaml.YAMLError as error:
+        raise UserError(f"--set {text!r}: the value is not valid YAML ({error})") from error
+    return key.strip().split("."), parsed
+
+
+def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """A copy of ``config`` with each ``key.sub=value`` applied; unknown keys are errors."""
+    result = copy.deepcopy(config)
+    for text in overrides:
+        path, value = _parse_override(text)
+        node = result
+        for depth, key in enumerate(path):
+            if not isinstance(node, dict) or key not in node:
+                where = ".".join(path[:depth]) or "the top level"
+                known = ", ".join(sorted(node)) if isinstance(node, dict) else "none (not a section)"
+                raise UserError(f"--set {text!r}: no key {key!r} in {where}; known keys: {known}")
+            if depth == len(path) - 1:
+                if isinstance(node[key], dict):
+                    raise UserError(f"--set {text!r}: {'.'.join(path)} is a section; set one of its keys")
+                node[key] = value
+            else:
+                node = node[key]
+    return result
+
+
+def load_config(stage: str, name_or_path: str, overrides: list[str] | None = None) -> dict[str, Any]:
+    """The resolved config of a stage: the YAML file with the overrides applied."""
+    path = resolve_config_path(stage, name_or_path)
+    try:
+        config = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as error:
+        raise UserError(f"{path}: not valid YAML ({error})") from error
+    if not isinstance(config, dict):
+        raise UserError(f"{path}: expected a mapping of settings at the top level")
+    return apply_overrides(config, overrides or [])
+
+
+def flatten(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"a": {"b": 1}}`` → ``{"a.b": 1}``: one MLflow param per knob."""
+    flat: dict[str, Any] = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat.update(flatten(value, f"{name}."))
+        else:
+            flat[name] = value
+    return flat

@@ -1,0 +1,82 @@
+"""Run directories: ``runs/<dataset>/<stage>/<run-id>/`` holds a stage's checkpoints, resolved
+config and MLflow run id; ``runs/<dataset>/<stage>/latest`` names the newest successful run, so
+the next stage finds its input without arguments."""
+
+from __future__ import annotations
+
+import json
+import secrets
+import time
+from pathlib import Path
+from typing import Any
+
+from orchestration.errors import UserError
+
+RUNS_ROOT = Path("runs")
+RUN_FILE = "run.json"
+LATEST = "latest"
+
+
+def stage_dir(dataset: str, stage: str) -> Path:
+    return RUNS_ROOT / dataset / stage
+
+
+def new_run_dir(dataset: str, stage: str) -> Path:
+    """A fresh, sortable run directory: ``<UTC time>-<random>``."""
+    name = f"{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}-{secrets.token_hex(2)}"
+    path = stage_dir(dataset, stage) / name
+    path.mkdir(parents=True)
+    return path
+
+
+def write_run_info(run_dir: Path, **info: Any) -> dict[str, Any]:
+    """Merge ``info`` into the run's ``run.json`` (status, MLflow run id, config, outputs)."""
+    path = run_dir / RUN_FILE
+    current = json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
+    current.update(info)
+    temporary = path.with_name(RUN_FILE + ".partial")
+    temporary.write_text(json.dumps(current, indent=2, sort_keys=True, default=str) + "\n", encoding="utf-8")
+    temporary.replace(path)
+    return current
+
+
+def read_run_info(run_dir: Path) -> dict[str, Any]:
+    path = run_dir / RUN_FILE
+    if not path.exists():
+        raise UserError(f"{run_dir}: not a run directory (no {RUN_FILE})")
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def mark_latest(run_dir: Path) -> None:
+    (run_dir.parent / LATEST).write_text(run_dir.name + "\n", encoding="utf-8")
+
+
+def latest_run(dataset: str, stage: str, made_by: str) -> Path:
+    """The newest successful run of a stage, or a one-line error naming ``made_by``, the command
+    that makes one."""
+    marker = stage_dir(dataset, stage) / LATEST
+    if not marker.exists():
+        raise UserError(f"no finished {stage} run for dataset {dataset!r} yet; run `{made_by}` first")
+    return marker.parent / marker.read_text(encoding="utf-8").strip()
+
+
+def newest_run(dataset: str, stage: str) -> Path:
+    """The most recently started run of a stage, finished or not (what ``--resume`` continues)."""
+    runs = sorted(p for p in stage_dir(dataset, stage).glob("*-*") if (p / RUN_FILE).exists())
+    if not runs:
+        raise UserError(f"nothing to resume: no {stage} run for dataset {dataset!r} under {stage_dir(dataset, stage)}")
+    return runs[-1]
+
+
+def find_run(reference: str, dataset: str, stage: str) -> Path:
+    """A run given as a directory, a run-id folder name, or an MLflow run id."""
+    as_path = Path(reference)
+    if (as_path / RUN_FILE).exists():
+        return as_path
+    candidate = stage_dir(dataset, stage) / reference
+    if (candidate / RUN_FILE).exists():
+        return candidate
+    for run_file in stage_dir(dataset, stage).glob(f"*/{RUN_FILE}"):
+        if json.loads(run_file.read_text(encoding="utf-8")).get("mlflow_run_id") == reference:
+            return run_file.parent
+    raise UserError(f"no {stage} run {reference!r} for dataset {dataset!r} (a run directory, its name, or its MLflow run id)")

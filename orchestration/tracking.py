@@ -1,0 +1,40 @@
+"""MLflow tracking: where the store is, and experiments named ``<dataset>/<stage>``.
+
+Default store: ``sqlite:///<project>/mlflow.db`` with artifacts in ``<project>/mlruns``, where the
+project is the working directory the command runs in (the Makefile runs from the repository
+root). ``MLFLOW_TRACKING_URI`` points everything at a server instead. Paths are absolute because
+Ray workers and Tune trials run in other directories.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def tracking_uri() -> str:
+    uri = os.environ.get("MLFLOW_TRACKING_URI")
+    return uri if uri else f"sqlite:///{(Path.cwd() / 'mlflow.db').resolve()}"
+
+
+def artifact_location(experiment: str) -> str | None:
+    """Where a new experiment keeps its artifacts: beside the SQLite store by default; a tracking
+    server decides for itself."""
+    if os.environ.get("MLFLOW_TRACKING_URI"):
+        return None
+    return (Path.cwd() / "mlruns" / experiment.replace("/", "-")).resolve().as_uri()
+
+
+def experiment_name(dataset: str, stage: str) -> str:
+    return f"{dataset}/{stage}"
+
+
+def ensure_experiment(name: str) -> str:
+    """Create the experiment once (from the driver, before any worker logs to it) and return its id."""
+    import mlflow
+
+    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
+    existing = client.get_experiment_by_name(name)
+    if existing is not None:
+        return existing.experiment_id
+    return client.create_experiment(name, artifact_location=artifact_location(name))
