@@ -8,6 +8,7 @@ STAMP  := $(VENV)/.installed
 M2D2M  := $(BIN)/m2d2m
 
 DATASET ?= synthetic
+SET     ?=
 CLIPS   ?= 2000
 SEED    ?= 0
 RAW     ?= data/raw/$(DATASET)
@@ -54,7 +55,14 @@ corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into d
 data: $(STAMP)  ## preprocess a corpus into WebDataset shards (DATASET=synthetic|humanml3d|kit, RAW=dir)
 	$(M2D2M) data --dataset $(DATASET) --raw $(RAW)
 
-train-vq tokens train-diffusion testset eval generate sweep ui:
+VQ_CONFIG ?= demo
+train-vq: $(STAMP)  ## train the motion VQ-VAE (VQ_CONFIG=demo|humanml3d|kit, SET="key=value ...")
+	$(M2D2M) train-vq --config $(VQ_CONFIG) $(foreach s,$(SET),--set $(s))
+
+tokens: $(STAMP)  ## encode every motion with the latest VQ-VAE into token shards
+	$(M2D2M) tokenize --dataset $(DATASET)
+
+train-diffusion testset eval generate sweep ui:
 	@echo "make $@: not built yet (see the open issues); 'make demo' shows what works today." >&2
 	@exit 2
 

@@ -97,6 +97,50 @@ def _data(args: argparse.Namespace) -> None:
     print(f"wrote {out} ({sum(len(v) for v in manifest['shards'].values())} shards); verify with: m2d2m data --check {out}")
 
 
+def _train_vq(args: argparse.Namespace) -> None:
+    from orchestration.train import train_vq
+
+    run_dir = train_vq(args.config, args.set, args.resume)
+    print(f"finished {run_dir}; model file {run_dir / 'vq.pt'}; see it with `make ui`")
+
+
+def _resolve_vq(reference: str | None, dataset: str) -> Path:
+    """A VQ model file from a path (vq.pt, a checkpoint or a run directory), a run name or an
+    MLflow run id; by default the dataset's latest VQ run."""
+    from orchestration.runs import find_run, latest_run
+    from orchestration.train import VQ_FILE, VQ_STAGE
+
+    if reference is None:
+        run_dir = latest_run(dataset, VQ_STAGE, "make train-vq")
+    elif Path(reference).suffix == ".pt" and Path(reference).is_file():
+        return Path(reference)
+    elif Path(reference).suffix == ".ckpt" and Path(reference).is_file():
+        run_dir = Path(reference).resolve().parent.parent  # <run>/checkpoints/<name>.ckpt
+    else:
+        run_dir = find_run(reference, dataset, VQ_STAGE)
+    if not (run_dir / VQ_FILE).exists():
+        raise UserError(f"{run_dir} has no {VQ_FILE}: the run did not finish (resume it with `m2d2m train-vq --resume`)")
+    return run_dir / VQ_FILE
+
+
+def _tokenize(args: argparse.Namespace) -> None:
+    import torch
+
+    from m2d2m.layout import TOKENS
+    from pipelines.tokenize import tokenize_dataset
+
+    vq_path = _resolve_vq(args.vq, args.dataset)
+    extra = torch.load(vq_path, map_location="cpu", weights_only=True).get("extra", {})
+    data_dir = Path(args.data or extra.get("data_dir") or f"data/{args.dataset}")
+    out = data_dir / TOKENS / extra.get("run", vq_path.parent.name)
+    try:
+        manifest = tokenize_dataset(data_dir, vq_path, out, workers=args.workers, ray_address=args.ray_address)
+    except (FileNotFoundError, ValueError) as error:
+        raise UserError(str(error)) from error
+    counts = ", ".join(f"{split} {c['samples']}" for split, c in manifest["splits"].items())
+    print(f"tokens of {data_dir} with {vq_path}: {out} ({counts} sequences)")
+
+
 def _render(args: argparse.Namespace) -> None:
     from m2d2m.render import render_motion
     from orchestration.viewing import load_motion
@@ -167,6 +211,21 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--force", action="store_true", help="rebuild even if an identical dataset exists")
     data.add_argument("--check", metavar="DIR", help="verify a processed dataset against its manifest and exit")
     data.set_defaults(run=_data)
+
+    train_vq = verbs.add_parser("train-vq", help="train the motion VQ-VAE (Lightning, tracked in MLflow)")
+    train_vq.add_argument("--config", default="demo", help="configs/vq/<name>.yaml or a path (default demo)")
+    train_vq.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                          help="override a config value, e.g. --set optim.lr=1e-4 (repeatable)")
+    train_vq.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
+    train_vq.set_defaults(run=_train_vq)
+
+    tokenize = verbs.add_parser("tokenize", help="encode every motion into VQ tokens (Ray Data)")
+    tokenize.add_argument("--vq", help="vq.pt, a checkpoint, a run directory or name, or an MLflow run id (default: latest)")
+    tokenize.add_argument("--dataset", default="synthetic", help="whose latest VQ run to use by default")
+    tokenize.add_argument("--data", help="processed dataset directory (default: the one the VQ-VAE was trained on)")
+    tokenize.add_argument("--workers", type=_positive_int, default=2)
+    tokenize.add_argument("--ray-address", help="join a Ray cluster (default: a local Ray; also RAY_ADDRESS)")
+    tokenize.set_defaults(run=_tokenize)
 
     render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
     _add_motion_source(render)

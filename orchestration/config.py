@@ -37,6 +37,11 @@ def _parse_override(text: str) -> tuple[list[str], Any]:
         parsed = yaml.safe_load(value) if value.strip() else ""
     except yaml.YAMLError as error:
         raise UserError(f"--set {text!r}: the value is not valid YAML ({error})") from error
+    if isinstance(parsed, str):
+        try:  # YAML 1.1 reads 1e-3 (no dot) as a string; people mean the number
+            parsed = float(parsed)
+        except ValueError:
+            pass
     return key.strip().split("."), parsed
 
 

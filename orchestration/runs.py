@@ -23,9 +23,11 @@ def stage_dir(dataset: str, stage: str) -> Path:
 
 def new_run_dir(dataset: str, stage: str) -> Path:
     """A fresh, sortable run directory: ``<UTC time>-<random>``."""
-    name = f"{time.strftime('%Y%m%d-%H%M%S', time.gmtime())}-{secrets.token_hex(2)}"
+    started = time.time()
+    name = f"{time.strftime('%Y%m%d-%H%M%S', time.gmtime(started))}-{secrets.token_hex(2)}"
     path = stage_dir(dataset, stage) / name
     path.mkdir(parents=True)
+    write_run_info(path, started=started)
     return path
 
 
@@ -62,10 +64,10 @@ def latest_run(dataset: str, stage: str, made_by: str) -> Path:
 
 def newest_run(dataset: str, stage: str) -> Path:
     """The most recently started run of a stage, finished or not (what ``--resume`` continues)."""
-    runs = sorted(p for p in stage_dir(dataset, stage).glob("*-*") if (p / RUN_FILE).exists())
+    runs = [p for p in stage_dir(dataset, stage).iterdir() if (p / RUN_FILE).exists()] if stage_dir(dataset, stage).exists() else []
     if not runs:
         raise UserError(f"nothing to resume: no {stage} run for dataset {dataset!r} under {stage_dir(dataset, stage)}")
-    return runs[-1]
+    return max(runs, key=lambda p: read_run_info(p).get("started", 0.0))
 
 
 def find_run(reference: str, dataset: str, stage: str) -> Path:

@@ -1,0 +1,110 @@
+"""The motion VQ-VAE as a LightningModule: T2M-GPT's losses, optimiser and schedule, and the
+validation metrics that say whether the codebook is good enough for the denoiser."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import lightning.pytorch as pl
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from m2d2m.normalization import Normalizer
+from m2d2m.representation import features_to_joints
+from m2d2m.skeleton import SKELETONS
+from m2d2m.vqvae import MotionVQVAE, VQConfig
+
+
+class NonFiniteLossError(FloatingPointError):
+    """The loss became NaN or infinite; raised before the optimiser step, so the weights and the
+    last checkpoint on disk are still the last good ones."""
+
+
+def warmup_step_decay(warmup_steps: int, milestones: list[int], gamma: float):
+    """Learning-rate factor of step s: linear warm-up to 1, then × gamma at each milestone."""
+
+    def factor(step: int) -> float:
+        if step < warmup_steps:
+            return (step + 1) / (warmup_steps + 1)
+        return gamma ** sum(step >= m for m in milestones)
+
+    return factor
+
+
+class VQVAEModule(pl.LightningModule):
+    """Smooth-L1 reconstruction + ``joint`` × smooth-L1 on the root-relative joint positions
+    (T2M-GPT's "velocity" term, which is really positions) + ``commit`` × commitment, AdamW with
+    linear warm-up and step decay. Validation reconstructs whole clips and reports the feature
+    error, the joint error in millimetres (MPJPE after ``features_to_joints``) and how many codes
+    the validation set uses."""
+
+    def __init__(self, model: dict[str, Any], optim: dict[str, Any], loss: dict[str, Any], feature_dim: int, skeleton: str) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.model = MotionVQVAE(VQConfig.from_dict({**model, "feature_dim": feature_dim}))
+        self.skeleton = SKELETONS[skeleton]
+        j = self.skeleton.num_joints
+        self.positions = slice(4, 4 + 3 * (j - 1))
+        # The normalisation travels inside the checkpoint, so a checkpoint alone can decode.
+        self.register_buffer("feature_mean", torch.zeros(feature_dim))
+        self.register_buffer("feature_scale", torch.ones(feature_dim))
+        self.preview: tuple[np.ndarray, np.ndarray] | None = None
+        self._val_codes: list[torch.Tensor] = []
+
+    def set_normalizer(self, normalizer: Normalizer) -> None:
+        self.feature_mean.copy_(torch.as_tensor(np.asarray(normalizer.mean), dtype=torch.float32))
+        self.feature_scale.copy_(torch.as_tensor(normalizer.scale, dtype=torch.float32))
+
+    def _losses(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        out = self.model(x)
+        recon = F.smooth_l1_loss(out.reconstruction, x)
+        joint = F.smooth_l1_loss(out.reconstruction[..., self.positions], x[..., self.positions])
+        weights = self.hparams.loss
+        total = weights["recon"] * recon + weights["joint"] * joint + weights["commit"] * out.commit_loss
+        return {"loss": total, "recon": recon, "joint": joint, "commit": out.commit_loss,
+                "perplexity": out.perplexity, "active_codes": torch.as_tensor(float(out.active_codes))}
+
+    def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        losses = self._losses(batch["motion"])
+        if not torch.isfinite(losses["loss"]):
+            raise NonFiniteLossError(f"the training loss is {losses['loss'].item()} at step {self.global_step}")
+        batch_size = len(batch["motion"])
+        for name, value in losses.items():
+            self.log(f"train/{name}", value, batch_size=batch_size, prog_bar=name == "loss")
+        return losses["loss"]
+
+    def _joints(self, normalized: torch.Tensor) -> torch.Tensor:
+        features = normalized.float() * self.feature_scale + self.feature_mean
+        return features_to_joints(features, self.skeleton)
+
+    def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
+        # Clips are reconstructed one by one at their own length: padding would leak into the
+        # convolutions' context at the end of shorter clips.
+        for n, length in enumerate(batch["lengths"].tolist()):
+            x = batch["motion"][n : n + 1, :length]
+            out = self.model(x)
+            error = F.smooth_l1_loss(out.reconstruction, x)
+            truth, reconstruction = self._joints(x)[0], self._joints(out.reconstruction)[0]
+            mpjpe = (truth - reconstruction).norm(dim=-1).mean() * self.skeleton.metres_per_unit * 1000.0
+            self.log("val/recon_loss", error, batch_size=1, sync_dist=True)
+            self.log("val/feature_l1", (out.reconstruction - x).abs().mean(), batch_size=1, sync_dist=True)
+            self.log("val/mpjpe_mm", mpjpe, batch_size=1, sync_dist=True, prog_bar=True)
+            self._val_codes.append(out.tokens.flatten())
+            if batch_idx == 0 and n == 0:
+                self.preview = (truth.cpu().numpy(), reconstruction.cpu().numpy())
+
+    def on_validation_epoch_end(self) -> None:
+        if self._val_codes:
+            used = torch.unique(torch.cat(self._val_codes)).numel()
+            self.log("val/active_codes", float(used), sync_dist=True)
+        self._val_codes.clear()
+
+    def configure_optimizers(self):
+        optim = self.hparams.optim
+        optimizer = torch.optim.AdamW(self.parameters(), lr=optim["lr"], betas=tuple(optim["betas"]),
+                                      weight_decay=optim["weight_decay"])
+        schedule = torch.optim.lr_scheduler.LambdaLR(
+            optimizer, warmup_step_decay(optim["warmup_steps"], list(optim["milestones"]), optim["gamma"])
+        )
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
