@@ -48,6 +48,7 @@ test-all: $(STAMP)  ## run every test, slow end-to-end ones included
 bench: $(STAMP)  ## measure speed; results go to BENCHMARKS.md by hand
 	$(BIN)/python bench/representation.py
 	$(BIN)/python bench/pipeline.py
+	$(BIN)/python bench/train_vq.py
 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic
 	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)
@@ -62,7 +63,12 @@ train-vq: $(STAMP)  ## train the motion VQ-VAE (VQ_CONFIG=demo|humanml3d|kit, SE
 tokens: $(STAMP)  ## encode every motion with the latest VQ-VAE into token shards
 	$(M2D2M) tokenize --dataset $(DATASET)
 
-train-diffusion testset eval generate sweep ui:
+UI_PORT ?= 5000
+ui: $(STAMP)  ## the MLflow UI on the project's tracking store (UI_PORT=5000)
+	@echo "MLflow UI: http://127.0.0.1:$(UI_PORT)  (Ctrl-C stops it)"
+	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --host 127.0.0.1 --port $(UI_PORT)
+
+train-diffusion testset eval generate sweep:
 	@echo "make $@: not built yet (see the open issues); 'make demo' shows what works today." >&2
 	@exit 2
 

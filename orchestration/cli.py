@@ -127,13 +127,15 @@ def _tokenize(args: argparse.Namespace) -> None:
     import torch
 
     from m2d2m.layout import TOKENS
-    from pipelines.tokenize import tokenize_dataset
+    from pipelines.tokenize import current_tokens, tokenize_dataset
 
     vq_path = _resolve_vq(args.vq, args.dataset)
     extra = torch.load(vq_path, map_location="cpu", weights_only=True).get("extra", {})
     data_dir = Path(args.data or extra.get("data_dir") or f"data/{args.dataset}")
     out = data_dir / TOKENS / extra.get("run", vq_path.parent.name)
     try:
+        if current_tokens(data_dir, vq_path, out) is not None:
+            print(f"{out}: tokens of this dataset with this VQ-VAE are already there; reusing them")
         manifest = tokenize_dataset(data_dir, vq_path, out, workers=args.workers, ray_address=args.ray_address)
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error

@@ -90,7 +90,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     if run_id is None:
         logger.log_hyperparams(flatten(config))
 
-    checkpoints = ModelCheckpoint(dirpath=run_dir / "checkpoints", filename="best", monitor="val/mpjpe_mm",
+    checkpoints = ModelCheckpoint(dirpath=run_dir / "checkpoints", filename="best", monitor="val/recon_loss",
                                   mode="min", save_last=True, save_top_k=1)
     trainer = pl.Trainer(
         max_steps=trainer_cfg["max_steps"],
@@ -117,13 +117,14 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
 
     best = torch.load(checkpoints.best_model_path, map_location="cpu", weights_only=True)
     module.load_state_dict(best["state_dict"])
-    score = float(checkpoints.best_model_score)
+    final = {name: float(value) for name, value in trainer.callback_metrics.items() if name.startswith("val/")}
     save_vq(run_dir / VQ_FILE, module.model, datamodule.normalizer, datamodule.skeleton,
             extra={"run": run_dir.name, "mlflow_run_id": logger.run_id, "dataset": config["dataset"],
-                   "data_dir": str(Path(data["dir"]).resolve()), "val_mpjpe_mm": score})
+                   "data_dir": str(Path(data["dir"]).resolve()),
+                   "best_val_recon_loss": float(checkpoints.best_model_score)})
     for path in (run_dir / VQ_FILE, Path(checkpoints.best_model_path), last, run_dir / "config.yaml",
                  Path(data["dir"]) / "stats.npz"):
         logger.experiment.log_artifact(logger.run_id, str(path), artifact_path="model")
-    write_run_info(run_dir, status="finished", best_val_mpjpe_mm=score, vq=str((run_dir / VQ_FILE).resolve()))
+    write_run_info(run_dir, status="finished", final_validation=final, vq=str((run_dir / VQ_FILE).resolve()))
     mark_latest(run_dir)
     return run_dir

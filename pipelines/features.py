@@ -17,7 +17,7 @@ import subprocess
 from collections import Counter
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -213,28 +213,36 @@ def write_shard(task: dict[str, Any], config: DataConfig, make_mirror: bool) -> 
     }
 
 
-def _write_shard_batch(batch: dict[str, np.ndarray], config: DataConfig, make_mirror: bool) -> dict[str, list]:
-    """Ray Data ``map_batches`` adapter: one planned shard (as JSON) in, its result (as JSON) out."""
-    return {"result": [json.dumps(write_shard(json.loads(task), config, make_mirror)) for task in batch["task"]]}
+def _run_json_batch(batch: dict[str, np.ndarray], fn: Callable[..., dict[str, Any]], fn_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """Ray Data ``map_batches`` adapter: one planned task (as JSON) in, its result (as JSON) out."""
+    return {"position": batch["position"],
+            "result": [json.dumps(fn(json.loads(task), **fn_kwargs)) for task in batch["task"]]}
+
+
+def run_json_tasks(fn: Callable[..., dict[str, Any]], tasks: list[dict[str, Any]], workers: int,
+                   ray_address: str | None = None, **fn_kwargs: Any) -> list[dict[str, Any]]:
+    """``fn(task, **fn_kwargs)`` for every JSON-able planned task, as Ray Data tasks of one CPU
+    each (at most ``workers`` at a time); returns the JSON-able results in plan order, whatever
+    order the tasks finished in, so the driver's output never depends on scheduling."""
+    import ray
+
+    _init_ray(ray_address, workers)
+    items = [{"position": position, "task": json.dumps(task)} for position, task in enumerate(tasks)]
+    results = ray.data.from_items(items, override_num_blocks=max(1, len(items))).map_batches(
+        _run_json_batch,
+        fn_kwargs={"fn": fn, "fn_kwargs": fn_kwargs},
+        batch_size=1,
+        batch_format="numpy",
+        compute=ray.data.TaskPoolStrategy(size=workers),
+        num_cpus=1,
+    )
+    finished = sorted(results.iter_rows(), key=lambda row: row["position"])
+    return [json.loads(row["result"]) for row in finished]
 
 
 def run_shard_tasks(config: DataConfig, tasks: list[dict[str, Any]], make_mirror: bool) -> list[dict[str, Any]]:
-    """Write every planned shard with Ray Data tasks; returns their results in plan order
-    (whatever order the tasks finished in)."""
-    import ray
-
-    _init_ray(config.ray_address, config.workers)
-    items = [{"task": json.dumps(task)} for task in tasks]
-    results = ray.data.from_items(items, override_num_blocks=max(1, len(items))).map_batches(
-        _write_shard_batch,
-        fn_kwargs={"config": config, "make_mirror": make_mirror},
-        batch_size=1,
-        batch_format="numpy",
-        compute=ray.data.TaskPoolStrategy(size=config.workers),
-        num_cpus=1,
-    )
-    finished = [json.loads(row["result"]) for row in results.iter_rows()]
-    return sorted(finished, key=lambda result: (SPLITS.index(result["split"]), result["index"]))
+    """Write every planned shard with Ray Data tasks; returns their results in plan order."""
+    return run_json_tasks(write_shard, tasks, config.workers, config.ray_address, config=config, make_mirror=make_mirror)
 
 
 def _corpus_statistics(raw: Path, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray] | None:

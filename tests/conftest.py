@@ -27,3 +27,13 @@ def sample_joints() -> np.ndarray:
 def sample_features() -> np.ndarray:
     """HumanML3D's 263-d features of clip 012314, float32 (170, 263)."""
     return np.load(HUMANML3D_SAMPLE / "new_joint_vecs" / "012314.npy")
+
+
+@pytest.fixture(scope="session")
+def ray_local():
+    """One local Ray (2 CPUs) for the whole session: starting Ray costs seconds."""
+    ray = pytest.importorskip("ray")
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="ERROR")
+    ray.data.DataContext.get_current().enable_progress_bars = False
+    yield
+    ray.shutdown()

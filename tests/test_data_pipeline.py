@@ -18,15 +18,6 @@ from pipelines.features import DataConfig, build_dataset, plan_shards
 from tests.helpers import pose_clip, write_corpus
 
 
-@pytest.fixture(scope="module")
-def ray_local():
-    ray = pytest.importorskip("ray")
-    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="ERROR")
-    ray.data.DataContext.get_current().enable_progress_bars = False
-    yield
-    ray.shutdown()
-
-
 def plant_bad_inputs(raw, train_ids):
     """One input per failure the validator must catch; returns {id: expected reason fragment}."""
     joints = raw / "joints"

@@ -86,10 +86,14 @@ class VQVAEModule(pl.LightningModule):
             out = self.model(x)
             error = F.smooth_l1_loss(out.reconstruction, x)
             truth, reconstruction = self._joints(x)[0], self._joints(out.reconstruction)[0]
-            mpjpe = (truth - reconstruction).norm(dim=-1).mean() * self.skeleton.metres_per_unit * 1000.0
+            to_mm = self.skeleton.metres_per_unit * 1000.0
+            mpjpe = (truth - reconstruction).norm(dim=-1).mean() * to_mm
+            # The global error integrates root drift over the clip; the root-aligned one is the pose.
+            aligned = ((truth - truth[:, :1]) - (reconstruction - reconstruction[:, :1])).norm(dim=-1).mean() * to_mm
             self.log("val/recon_loss", error, batch_size=1, sync_dist=True)
             self.log("val/feature_l1", (out.reconstruction - x).abs().mean(), batch_size=1, sync_dist=True)
             self.log("val/mpjpe_mm", mpjpe, batch_size=1, sync_dist=True, prog_bar=True)
+            self.log("val/mpjpe_root_aligned_mm", aligned, batch_size=1, sync_dist=True, prog_bar=True)
             self._val_codes.append(out.tokens.flatten())
             if batch_idx == 0 and n == 0:
                 self.preview = (truth.cpu().numpy(), reconstruction.cpu().numpy())

@@ -1,0 +1,372 @@
+"""The motion VQ-VAE of T2M-GPT (``reference/anchors.md`` §1), re-implemented device-agnostically.
+
+Features ``(B, T, D)`` are encoded by a strided 1-D convolution stack into one latent per
+``2**down_t`` frames, each latent is replaced by its nearest code in an EMA codebook with dead-code
+reset, and a mirror-image decoder with nearest-neighbour upsampling maps the codes back to frames.
+The codebook is also what the denoiser builds its distance-aware transitions from.
+
+Differences from the reference code, each on purpose: no hard-coded CUDA; any ``T`` (padded at the
+end by repeating the last frame, the reconstruction cropped back); ``decode`` works for any batch
+size; the quantizer computes in float32 even under autocast; dead codes are selected with
+``torch.where`` so a long-dead code whose EMA count underflowed to 0 cannot turn into NaN; under
+``torch.distributed`` the codebook statistics are all-reduced so every replica keeps the same
+codebook.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn.functional as F
+from torch import nn
+
+from m2d2m.normalization import Normalizer
+
+FORMAT = "m2d2m-vq/1"
+
+_ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "silu": nn.SiLU, "gelu": nn.GELU}
+
+
+@dataclass(frozen=True)
+class VQConfig:
+    """Architecture of the VQ-VAE; the defaults are T2M-GPT's published ones (HumanML3D, 263-d)."""
+
+    feature_dim: int = 263
+    width: int = 512
+    depth: int = 3
+    dilation_growth: int = 3
+    down_t: int = 2
+    code_dim: int = 512
+    codebook_size: int = 512
+    ema_decay: float = 0.99
+    activation: str = "relu"
+
+    def __post_init__(self) -> None:
+        for name in ("feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise ValueError(f"VQConfig.{name} must be a positive integer, got {getattr(self, name)!r}")
+        if not isinstance(self.down_t, int) or self.down_t < 0:
+            raise ValueError(f"VQConfig.down_t must be a non-negative integer, got {self.down_t!r}")
+        if not 0.0 < self.ema_decay < 1.0:
+            raise ValueError(f"VQConfig.ema_decay must lie in (0, 1), got {self.ema_decay!r}")
+        if self.activation not in _ACTIVATIONS:
+            raise ValueError(f"VQConfig.activation must be one of {sorted(_ACTIVATIONS)}, "
+                             f"got {self.activation!r}")
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "VQConfig":
+        """Build from a config mapping; unknown keys are an error so a typo never goes unnoticed."""
+        unknown = sorted(set(values) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown VQConfig keys: {', '.join(unknown)}")
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+# --------------------------------------------------------------------------------------------------
+# Quantizer
+
+
+@dataclass
+class Quantized:
+    """What the quantizer returns. ``quantized`` has the input's shape and dtype and carries the
+    straight-through gradient; ``perplexity`` and ``active_codes`` describe this batch's code
+    histogram (summed over ranks in distributed training)."""
+
+    quantized: torch.Tensor
+    indices: torch.Tensor
+    commit_loss: torch.Tensor
+    perplexity: torch.Tensor
+    active_codes: torch.Tensor
+
+
+def _distributed() -> bool:
+    return dist.is_available() and dist.is_initialized()
+
+
+class EMACodebook(nn.Module):
+    """Nearest-neighbour codebook updated by exponential moving averages, with dead-code reset
+    (T2M-GPT's ``QuantizeEMAReset``).
+
+    The codebook and its EMA statistics are buffers, not parameters: the optimiser never sees
+    them and the only loss term is the commitment loss. A code whose EMA count falls below 1 is
+    dead; its codebook row is replaced by an encoder output of the current batch. As in the
+    reference, its EMA statistics are not reset: it stays dead (and is re-drawn every step) until
+    its count climbs back to 1, i.e. until it averages more than one vector per batch, so batches
+    need several encoder outputs per code.
+    """
+
+    def __init__(self, codebook_size: int, code_dim: int, decay: float = 0.99) -> None:
+        super().__init__()
+        self.codebook_size = codebook_size
+        self.code_dim = code_dim
+        self.decay = decay
+        self.register_buffer("codebook", torch.zeros(codebook_size, code_dim))
+        self.register_buffer("code_sum", torch.zeros(codebook_size, code_dim))
+        self.register_buffer("code_count", torch.zeros(codebook_size))
+        self.register_buffer("initialised", torch.tensor(False))
+
+    def _sample(self, vectors: torch.Tensor) -> torch.Tensor:
+        """``codebook_size`` rows drawn from ``vectors`` without replacement; when there are
+        fewer vectors than codes they are tiled and jittered (std 0.01/√D) so copies differ."""
+        n = vectors.shape[0]
+        if n < self.codebook_size:
+            vectors = vectors.repeat(math.ceil(self.codebook_size / n), 1)
+            vectors = vectors + torch.randn_like(vectors) * (0.01 / math.sqrt(self.code_dim))
+        order = torch.randperm(vectors.shape[0], device=vectors.device)[: self.codebook_size]
+        sample = vectors[order].contiguous()
+        if _distributed():
+            dist.broadcast(sample, src=0)
+        return sample
+
+    @torch.no_grad()
+    def initialise(self, vectors: torch.Tensor) -> None:
+        """Fill the codebook from data (N, code_dim) so no code starts far from the encoder's
+        outputs; EMA sums start at the codes with a count of one."""
+        sample = self._sample(vectors.detach().float())
+        self.codebook.copy_(sample)
+        self.code_sum.copy_(sample)
+        self.code_count.fill_(1.0)
+        self.initialised.fill_(True)
+
+    def nearest(self, vectors: torch.Tensor) -> torch.Tensor:
+        """Index of the nearest code (squared L2) for each row of ``vectors`` (N, code_dim)."""
+        with torch.autocast(device_type=vectors.device.type, enabled=False):
+            codebook = self.codebook.float()
+            # ‖x‖² is the same for every code, so it is left out of the argmin.
+            distance = codebook.pow(2).sum(1) - 2.0 * vectors.float() @ codebook.t()
+            return distance.argmin(1)
+
+    @torch.no_grad()
+    def _update(self, vectors: torch.Tensor, indices: torch.Tensor, counts: torch.Tensor) -> None:
+        sums = torch.zeros_like(self.code_sum, dtype=torch.float32).index_add_(0, indices, vectors)
+        if _distributed():
+            dist.all_reduce(sums)
+        mu = self.decay
+        self.code_sum.mul_(mu).add_(sums, alpha=1.0 - mu)
+        self.code_count.mul_(mu).add_(counts, alpha=1.0 - mu)
+        count = self.code_count.unsqueeze(1)
+        live = count >= 1.0
+        mean = self.code_sum / count.clamp_min(1.0)
+        self.codebook.copy_(torch.where(live, mean, self._sample(vectors)))
+
+    def forward(self, x: torch.Tensor) -> Quantized:
+        """Quantize ``x`` (..., code_dim). In training mode the first call initialises the
+        codebook from ``x`` and every call updates it; in eval mode the buffers are untouched."""
+        shape, dtype = x.shape, x.dtype
+        with torch.autocast(device_type=x.device.type, enabled=False):
+            flat = x.reshape(-1, self.code_dim).float()
+            if self.training and not bool(self.initialised):
+                self.initialise(flat)
+            indices = self.nearest(flat)
+            counts = torch.bincount(indices, minlength=self.codebook_size).float()
+            if self.training:
+                if _distributed():
+                    dist.all_reduce(counts)
+                self._update(flat.detach(), indices, counts)
+            codes = F.embedding(indices, self.codebook.float())
+            commit_loss = F.mse_loss(flat, codes.detach())
+            # Straight-through: the value is exactly the code, the gradient is the identity to x.
+            quantized = codes.detach() + (flat - flat.detach())
+            probs = counts / counts.sum()
+            perplexity = torch.exp(-torch.special.xlogy(probs, probs).sum())
+        return Quantized(
+            quantized=quantized.reshape(shape).to(dtype),
+            indices=indices.reshape(shape[:-1]),
+            commit_loss=commit_loss,
+            perplexity=perplexity,
+            active_codes=(counts > 0).sum(),
+        )
+
+
+# --------------------------------------------------------------------------------------------------
+# Encoder and decoder
+
+
+class ResBlock(nn.Module):
+    """Pre-activation residual block: act → dilated conv k3 → act → conv k1, plus the input."""
+
+    def __init__(self, width: int, dilation: int, activation: str) -> None:
+        super().__init__()
+        self.body = nn.Sequential(
+            _ACTIVATIONS[activation](),
+            nn.Conv1d(width, width, 3, padding=dilation, dilation=dilation),
+            _ACTIVATIONS[activation](),
+            nn.Conv1d(width, width, 1),
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.body(x)
+
+
+def resnet1d(width: int, depth: int, growth: int, activation: str) -> nn.Sequential:
+    """``depth`` residual blocks with dilations growth**i in reverse order (9, 3, 1), as T2M-GPT
+    runs them in both encoder and decoder."""
+    dilations = [growth**i for i in range(depth)][::-1]
+    return nn.Sequential(*(ResBlock(width, d, activation) for d in dilations))
+
+
+def _encoder(c: VQConfig) -> nn.Sequential:
+    layers: list[nn.Module] = [nn.Conv1d(c.feature_dim, c.width, 3, padding=1), _ACTIVATIONS[c.activation]()]
+    for _ in range(c.down_t):
+        layers += [nn.Conv1d(c.width, c.width, 4, stride=2, padding=1),
+                   resnet1d(c.width, c.depth, c.dilation_growth, c.activation)]
+    layers.append(nn.Conv1d(c.width, c.code_dim, 3, padding=1))
+    return nn.Sequential(*layers)
+
+
+def _decoder(c: VQConfig) -> nn.Sequential:
+    layers: list[nn.Module] = [nn.Conv1d(c.code_dim, c.width, 3, padding=1), _ACTIVATIONS[c.activation]()]
+    for _ in range(c.down_t):
+        layers += [resnet1d(c.width, c.depth, c.dilation_growth, c.activation),
+                   nn.Upsample(scale_factor=2, mode="nearest"),
+                   nn.Conv1d(c.width, c.width, 3, padding=1)]
+    layers += [nn.Conv1d(c.width, c.width, 3, padding=1), _ACTIVATIONS[c.activation](),
+               nn.Conv1d(c.width, c.feature_dim, 3, padding=1)]
+    return nn.Sequential(*layers)
+
+
+# --------------------------------------------------------------------------------------------------
+# The model
+
+
+@dataclass
+class VQOutput:
+    """Result of :meth:`MotionVQVAE.forward`: the reconstruction (B, T, D) in normalised feature
+    space, the commitment loss, the tokens (B, ceil(T / frames_per_token)) and codebook usage."""
+
+    reconstruction: torch.Tensor
+    commit_loss: torch.Tensor
+    tokens: torch.Tensor
+    perplexity: torch.Tensor
+    active_codes: torch.Tensor
+
+
+class MotionVQVAE(nn.Module):
+    """Encoder → EMA codebook → decoder on normalised motion features (B, T, D)."""
+
+    def __init__(self, config: VQConfig | None = None) -> None:
+        super().__init__()
+        self.config = config or VQConfig()
+        self.encoder = _encoder(self.config)
+        self.quantizer = EMACodebook(self.config.codebook_size, self.config.code_dim, self.config.ema_decay)
+        self.decoder = _decoder(self.config)
+
+    @property
+    def frames_per_token(self) -> int:
+        return 2**self.config.down_t
+
+    @property
+    def codebook(self) -> torch.Tensor:
+        """The (K, code_dim) code vectors (a buffer, so never part of a gradient)."""
+        return self.quantizer.codebook
+
+    def _latents(self, x: torch.Tensor) -> torch.Tensor:
+        """Encoder outputs (B, L, code_dim); ``x`` is padded at the end to a whole number of
+        tokens by repeating its last frame, which keeps the padding on the motion's manifold."""
+        if x.ndim != 3 or x.shape[-1] != self.config.feature_dim or x.shape[1] < 1:
+            raise ValueError(f"expected features (B, T >= 1, {self.config.feature_dim}), "
+                             f"got {tuple(x.shape)}")
+        missing = -x.shape[1] % self.frames_per_token
+        if missing:
+            x = torch.cat([x, x[:, -1:].expand(-1, missing, -1)], dim=1)
+        return self.encoder(x.transpose(1, 2)).transpose(1, 2)
+
+    def _decode_latents(self, latents: torch.Tensor) -> torch.Tensor:
+        return self.decoder(latents.transpose(1, 2)).transpose(1, 2)
+
+    def forward(self, x: torch.Tensor) -> VQOutput:
+        frames = x.shape[1]
+        quantized = self.quantizer(self._latents(x))
+        return VQOutput(
+            reconstruction=self._decode_latents(quantized.quantized)[:, :frames],
+            commit_loss=quantized.commit_loss,
+            tokens=quantized.indices,
+            perplexity=quantized.perplexity,
+            active_codes=quantized.active_codes,
+        )
+
+    @torch.no_grad()
+    def encode(self, x: torch.Tensor) -> torch.Tensor:
+        """Token indices (B, ceil(T / frames_per_token)), long; never updates the codebook."""
+        latents = self._latents(x)
+        return self.quantizer.nearest(latents.reshape(-1, self.config.code_dim)).reshape(latents.shape[:2])
+
+    def decode(self, tokens: torch.Tensor) -> torch.Tensor:
+        """Features (B, frames_per_token · L, D) for token indices (B, L)."""
+        if tokens.ndim != 2:
+            raise ValueError(f"expected tokens (B, L), got {tuple(tokens.shape)}")
+        return self._decode_latents(F.embedding(tokens.long(), self.codebook))
+
+
+# --------------------------------------------------------------------------------------------------
+# Model files
+
+
+def _check_plain(value: Any, where: str = "extra") -> None:
+    """Reject what ``torch.load(weights_only=True)`` could not read back, at save time."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, (str, int)):
+                raise TypeError(f"{where}: keys must be str or int, got {type(key).__name__}")
+            _check_plain(item, f"{where}[{key!r}]")
+    elif isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_plain(item, f"{where}[{i}]")
+    # Exact types: NumPy scalars subclass float but are not loadable with weights_only.
+    elif not (value is None or type(value) in (str, int, float, bool) or isinstance(value, torch.Tensor)):
+        raise TypeError(f"{where}: {type(value).__name__} cannot be stored in a VQ model file "
+                        "(use plain Python values or tensors)")
+
+
+def save_vq(path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skeleton: str,
+            extra: dict | None = None) -> None:
+    """Write the model, its normalisation and its skeleton name as one self-contained torch file
+    (written atomically), the hand-over from VQ training to tokenizing and the denoiser."""
+    extra = {} if extra is None else extra
+    _check_plain(extra)
+    payload = {
+        "format": FORMAT,
+        "config": model.config.to_dict(),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "mean": torch.as_tensor(np.asarray(normalizer.mean, dtype=np.float32)),
+        "std": torch.as_tensor(np.asarray(normalizer.std, dtype=np.float32)),
+        "feat_bias": float(normalizer.feat_bias),
+        "skeleton": str(skeleton),
+        "extra": extra,
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    torch.save(payload, partial)
+    os.replace(partial, path)
+
+
+def load_vq(path: str | Path,
+            map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
+    """Read a file written by :func:`save_vq`: the model (eval mode, on ``map_location``), its
+    normaliser, and ``{"skeleton", "extra"}``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no VQ model file at {path}")
+    try:
+        payload = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as error:  # any unreadable file is, for the caller, simply not a VQ model
+        raise ValueError(f"{path} is not an m2d2m VQ model file ({type(error).__name__}: {error})") from error
+    found = payload.get("format") if isinstance(payload, dict) else None
+    if found != FORMAT:
+        raise ValueError(f"{path} is not an m2d2m VQ model file (format {found!r}, expected {FORMAT!r})")
+    model = MotionVQVAE(VQConfig.from_dict(payload["config"]))
+    model.load_state_dict(payload["state_dict"])
+    model.to(map_location).eval()
+    normalizer = Normalizer(payload["mean"].cpu().numpy(), payload["std"].cpu().numpy(), payload["feat_bias"])
+    return model, normalizer, {"skeleton": payload["skeleton"], "extra": payload["extra"]}
