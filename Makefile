@@ -35,9 +35,11 @@ demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus (stages built
 	$(M2D2M) render data/raw/synthetic --id 000000 --out $(DEMO)/000000.gif
 	$(M2D2M) export data/raw/synthetic --id 000000 --out $(DEMO)/000000.bvh
 	$(M2D2M) data --dataset synthetic --raw data/raw/synthetic
-	@echo "Look at $(DEMO)/000000.gif; import $(DEMO)/000000.bvh into Blender (scale 1 = metres);"
-	@echo "the processed dataset is data/synthetic (check it: .venv/bin/m2d2m data --check data/synthetic)."
-	@echo "Later stages (train-vq, train-diffusion, eval, sweep) are not built yet."
+	$(M2D2M) train-vq --config demo
+	$(M2D2M) tokenize --dataset synthetic
+	@echo "Look at $(DEMO)/000000.gif; import $(DEMO)/000000.bvh into Blender (scale 1 = metres)."
+	@echo "The VQ-VAE run, its metrics and its ground-truth/reconstruction GIFs: make ui"
+	@echo "Later stages (train-diffusion, eval, sweep) are not built yet."
 
 test: $(STAMP)  ## run the test suite (slow end-to-end tests excluded)
 	$(BIN)/pytest -m "not slow"

@@ -69,15 +69,16 @@ def main() -> None:
     torch.set_num_threads(2)
     batch = 256 if gpu else 32
     workers = min(8, os.cpu_count() or 1) if gpu else 2
-    datamodule = MotionWindowDataModule(DATA, window=64, batch_size=batch, num_workers=workers, steps_per_epoch=10_000)
-    loader = loader_throughput(datamodule, batches=100)
-    training = training_throughput(datamodule, gpu)
     device = torch.cuda.get_device_name() if gpu else f"CPU, {os.cpu_count()} cores, 2 torch threads"
-    print(f"device: {device}; batch {batch}, window 64, {workers} loader workers; paper-size VQ-VAE "
+    print(f"device: {device}; batch {batch}, window 64; paper-size VQ-VAE "
           f"(width {VQConfig().width}, {VQConfig().codebook_size} codes)")
     print("| measurement | samples/s |\n| --- | --- |")
-    print(f"| training, Lightning loop with the WebDataset loader | {training:.1f} |")
-    print(f"| data loader alone | {loader:.0f} ({loader / training:.1f}× what training consumes) |")
+    for num_workers in sorted({0, workers}):
+        datamodule = MotionWindowDataModule(DATA, window=64, batch_size=batch, num_workers=num_workers, steps_per_epoch=10_000)
+        training = training_throughput(datamodule, gpu)
+        loader = loader_throughput(datamodule, batches=100)
+        print(f"| training, Lightning loop with the WebDataset loader, {num_workers} loader workers | {training:.1f} |")
+        print(f"| data loader alone, {num_workers} workers | {loader:.0f} ({loader / training:.0f}× what training consumes) |")
 
 
 if __name__ == "__main__":

@@ -30,6 +30,11 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
         (["data", "--dataset", "humanml3d", "--raw", "{tmp}/nowhere"], "pass --raw /path/to/humanml3d"),
         (["data", "--dataset", "amass"], "unknown dataset 'amass'"),
         (["data", "--check", "{tmp}"], "problem(s) against its manifest"),
+        (["train-vq", "--config", "nope"], "no config 'nope' for vq; available: demo, humanml3d, kit"),
+        (["train-vq", "--set", "model.widht=3"], "no key 'widht' in model"),
+        (["train-vq", "--set", "optim.lr"], "expected key.sub=value"),
+        (["tokenize", "--vq", "nope", "--dataset", "zzz"], "no vq run 'nope' for dataset 'zzz'"),
+        (["tokenize", "--dataset", "zzz"], "no finished vq run for dataset 'zzz' yet; run `make train-vq` first"),
     ],
 )
 def test_user_errors_exit_2_with_one_line(tmp_path, args, message):
