@@ -51,15 +51,18 @@ def _synthesize(args: argparse.Namespace) -> None:
     )
 
 
-def _check_data(directory: Path) -> None:
-    from pipelines.dataset import check_dataset
-
-    problems = check_dataset(directory)
+def _report_problems(directory: Path, problems: list[str], what: str) -> None:
     for problem in problems:
         print(problem)
     if problems:
         raise UserError(f"{directory}: {len(problems)} problem(s) against its manifest")
-    print(f"{directory}: OK (counts, checksums and schema match the manifest)")
+    print(f"{directory}: OK ({what} match the manifest)")
+
+
+def _check_data(directory: Path) -> None:
+    from pipelines.dataset import check_dataset
+
+    _report_problems(directory, check_dataset(directory), "counts, checksums and schema")
 
 
 def _data(args: argparse.Namespace) -> None:
@@ -124,6 +127,11 @@ def _resolve_vq(reference: str | None, dataset: str) -> Path:
 
 
 def _tokenize(args: argparse.Namespace) -> None:
+    if args.check:
+        from pipelines.tokenize import check_tokens
+
+        _report_problems(Path(args.check), check_tokens(args.check), "counts, checksums, schema and codebook")
+        return
     import torch
 
     from m2d2m.layout import TOKENS
@@ -227,6 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     tokenize.add_argument("--data", help="processed dataset directory (default: the one the VQ-VAE was trained on)")
     tokenize.add_argument("--workers", type=_positive_int, default=2)
     tokenize.add_argument("--ray-address", help="join a Ray cluster (default: a local Ray; also RAY_ADDRESS)")
+    tokenize.add_argument("--check", metavar="DIR", help="verify a token set against its manifest and exit")
     tokenize.set_defaults(run=_tokenize)
 
     render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")

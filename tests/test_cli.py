@@ -34,6 +34,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
         (["train-vq", "--set", "model.widht=3"], "no key 'widht' in model"),
         (["train-vq", "--set", "optim.lr"], "expected key.sub=value"),
         (["tokenize", "--vq", "nope", "--dataset", "zzz"], "no vq run 'nope' for dataset 'zzz'"),
+        (["tokenize", "--check", "{tmp}"], "problem(s) against its manifest"),
         (["tokenize", "--dataset", "zzz"], "no finished vq run for dataset 'zzz' yet; run `make train-vq` first"),
     ],
 )
