@@ -79,7 +79,8 @@ def render_comparison(
     size: int = 360,
 ) -> Path:
     """Several motions side by side, played in sync, one labelled panel each — e.g. ground truth
-    beside a reconstruction. A shorter motion holds its last frame."""
+    beside a reconstruction. All panels share the first motion's camera, so a drifting root shows
+    as drift. A shorter motion holds its last frame."""
     if len(motions) != len(labels) or not motions:
         raise ValueError("give one label per motion, and at least one motion")
     checked = [skeleton.check_joints(m) for m in motions]
@@ -87,12 +88,12 @@ def render_comparison(
     size = int(size) + int(size) % 2
     n_frames = max(len(m) for m in checked)
     fig = Figure(figsize=(len(checked) * size / _DPI, size / _DPI), dpi=_DPI)
-    panels = []
+    panels: list[_Panel] = []
     for n, (joints, label) in enumerate(zip(checked, labels)):
         ax = fig.add_axes((n / len(checked), 0.0, 1.0 / len(checked), 1.0))
         held = np.concatenate([joints, np.repeat(joints[-1:], n_frames - len(joints), axis=0)])
-        panels.append(_Panel(ax, _View(held, skeleton, fps), _Timeline(None, n_frames), size,
-                             title=label, with_legend=n == 0))
+        view = _View(held, skeleton, fps, follow=panels[0].view.target if panels else None)
+        panels.append(_Panel(ax, view, _Timeline(None, n_frames), size, title=label, with_legend=n == 0))
     return _animate(fig, panels, n_frames, path, fps)
 
 
@@ -195,7 +196,10 @@ class _View:
     """Camera and scene geometry of one clip: a perspective camera with fixed orientation that
     looks at the smoothed root, and axis limits that contain the figure in every frame."""
 
-    def __init__(self, joints: np.ndarray, skeleton: Skeleton, fps: float) -> None:
+    def __init__(self, joints: np.ndarray, skeleton: Skeleton, fps: float,
+                 follow: np.ndarray | None = None) -> None:
+        """``follow`` (T, 3) overrides the point the camera tracks, so that several panels can
+        share one camera and show where their motions part ways."""
         self.joints = joints
         self.skeleton = skeleton
         self.fps = fps
@@ -211,9 +215,11 @@ class _View:
         right /= np.linalg.norm(right)
         self.basis = np.stack([right, np.cross(back, right), back])  # rows: screen x, y, depth
 
-        centre_y = 0.5 * (min(joints[..., 1].min(), 0.0) + joints[..., 1].max())
-        follow = _smooth(joints[:, 0, [0, 2]], _FOLLOW_SIGMA_S * fps)
-        self.target = np.stack([follow[:, 0], np.full(len(joints), centre_y), follow[:, 1]], 1)
+        if follow is None:
+            centre_y = 0.5 * (min(joints[..., 1].min(), 0.0) + joints[..., 1].max())
+            root = _smooth(joints[:, 0, [0, 2]], _FOLLOW_SIGMA_S * fps)
+            follow = np.stack([root[:, 0], np.full(len(joints), centre_y), root[:, 1]], 1)
+        self.target = follow
 
         screen = self.project(joints, np.arange(len(joints))[:, None])
         self.bounds = np.concatenate([screen.min(axis=(0, 1)), screen.max(axis=(0, 1))])
