@@ -1,0 +1,199 @@
+"""The denoising transformer: shapes, padding invariance, the null condition, extrapolation, size."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+import torch
+
+from m2d2m.denoiser import DenoiserConfig, MotionDenoiser, guided_logits, relative_position_bucket
+
+SMALL = DenoiserConfig(codebook_size=16, layers=2, heads=4, width=32, ffn=64, text_dim=24, steps=10,
+                       max_distance=16, num_buckets=8)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """These models are tiny: extra intra-op threads only contend with other work on the machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def small_model(seed: int = 0) -> MotionDenoiser:
+    torch.manual_seed(seed)
+    return MotionDenoiser(SMALL).eval()
+
+
+def inputs(batch: int = 3, length: int = 10, text_length: int = 5, seed: int = 1):
+    generator = torch.Generator().manual_seed(seed)
+    tokens = torch.randint(0, SMALL.codebook_size + 1, (batch, length), generator=generator)
+    mask = torch.ones(batch, length, dtype=torch.bool)
+    t = torch.randint(1, SMALL.steps + 1, (batch,), generator=generator)
+    text = torch.randn(batch, text_length, SMALL.text_dim, generator=generator)
+    text_mask = torch.ones(batch, text_length, dtype=torch.bool)
+    return tokens, mask, t, text, text_mask
+
+
+def test_config_round_trip_and_rejects_unknown_keys():
+    assert DenoiserConfig.from_dict(SMALL.to_dict()) == SMALL
+    with pytest.raises(ValueError, match="unknown DenoiserConfig keys: layer"):
+        DenoiserConfig.from_dict({"layer": 3})
+    with pytest.raises(ValueError, match="divisible"):
+        DenoiserConfig(width=30, heads=4)
+
+
+def test_output_shape_excludes_the_mask_class():
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    logits = model(tokens, mask, t, text, text_mask)
+    assert logits.shape == (3, 10, SMALL.codebook_size)
+    assert torch.isfinite(logits).all()
+
+
+def test_appended_motion_padding_does_not_change_real_positions():
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    reference = model(tokens, mask, t, text, text_mask)
+    padded_tokens = torch.cat([tokens, torch.randint(0, SMALL.codebook_size + 1, (3, 7))], dim=1)
+    padded_mask = torch.cat([mask, torch.zeros(3, 7, dtype=torch.bool)], dim=1)
+    padded = model(padded_tokens, padded_mask, t, text, text_mask)
+    torch.testing.assert_close(padded[:, :10], reference, atol=1e-5, rtol=0)
+
+
+def test_ragged_batch_matches_each_sample_alone():
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    mask[1, 6:] = False
+    together = model(tokens, mask, t, text, text_mask)
+    alone = model(tokens[1:2, :6], None, t[1:2], text[1:2], text_mask[1:2])
+    torch.testing.assert_close(together[1:2, :6], alone, atol=1e-5, rtol=0)
+
+
+def test_appended_text_padding_does_not_change_logits():
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    reference = model(tokens, mask, t, text, text_mask)
+    padded_text = torch.cat([text, torch.randn(3, 4, SMALL.text_dim)], dim=1)
+    padded_mask = torch.cat([text_mask, torch.zeros(3, 4, dtype=torch.bool)], dim=1)
+    torch.testing.assert_close(model(tokens, mask, t, padded_text, padded_mask), reference, atol=1e-5, rtol=0)
+
+
+def test_text_none_is_the_learned_null_condition():
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    null_text, null_mask = model.null_condition(3)
+    unconditional = model(tokens, mask, t)
+    torch.testing.assert_close(unconditional, model(tokens, mask, t, null_text, null_mask))
+    assert not torch.allclose(unconditional, model(tokens, mask, t, text, text_mask))
+    unconditional.sum().backward()
+    assert model.null_text.grad is not None and model.null_text.grad.abs().sum() > 0
+
+
+def test_drop_condition_with_p_one_is_null_for_every_sample_and_p_zero_for_none():
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    generator = torch.Generator().manual_seed(0)
+    kept_text, kept_mask = model.drop_condition(text, text_mask, 0.0, generator)
+    assert torch.equal(kept_text, text) and torch.equal(kept_mask, text_mask)
+    dropped_text, dropped_mask = model.drop_condition(text, text_mask, 1.0, generator)
+    assert dropped_text.shape == text.shape
+    assert dropped_mask[:, 0].all() and not dropped_mask[:, 1:].any()
+    torch.testing.assert_close(model(tokens, mask, t, dropped_text, dropped_mask), model(tokens, mask, t),
+                               atol=1e-5, rtol=0)
+
+
+def test_drop_condition_rate_and_generator_reproducibility():
+    model = small_model()
+    text = torch.randn(4000, 2, SMALL.text_dim)
+    text_mask = torch.ones(4000, 2, dtype=torch.bool)
+    first = model.drop_condition(text, text_mask, 0.1, torch.Generator().manual_seed(5))[1]
+    second = model.drop_condition(text, text_mask, 0.1, torch.Generator().manual_seed(5))[1]
+    assert torch.equal(first, second)
+    rate = (~first[:, 1]).float().mean().item()
+    assert 0.08 < rate < 0.12
+
+
+def test_relative_buckets_saturate_beyond_max_distance():
+    offsets = torch.tensor([-10_000, -SMALL.max_distance, 0, 1, SMALL.max_distance - 1, SMALL.max_distance,
+                            10_000])
+    buckets = relative_position_bucket(offsets, SMALL.num_buckets, SMALL.max_distance).tolist()
+    half = SMALL.num_buckets // 2
+    assert buckets[0] == buckets[1] == half - 1
+    assert buckets[2] == 0 and buckets[3] == half + 1
+    assert buckets[5] == buckets[6] == SMALL.num_buckets - 1
+    forward = relative_position_bucket(torch.arange(0, 300), SMALL.num_buckets, SMALL.max_distance)
+    assert (forward.diff() >= 0).all() and forward.min() == 0 and forward.max() == SMALL.num_buckets - 1
+    assert len(forward.unique()) == SMALL.num_buckets // 2  # offset 0, then half + 1 ... num_buckets - 1
+
+
+def test_runs_on_four_times_the_training_length():
+    model = small_model()
+    train_length = 12
+    tokens, mask, t, text, text_mask = inputs(batch=2, length=4 * train_length)
+    logits = model(tokens, mask, t, text, text_mask)
+    assert logits.shape == (2, 4 * train_length, SMALL.codebook_size)
+    assert torch.isfinite(logits).all()
+    # Far apart pairs all read the last bucket's bias, so the model never meets an unseen position.
+    bias = model.relative_position_bias(4 * train_length, torch.device("cpu"))
+    torch.testing.assert_close(bias[:, 0, SMALL.max_distance:], model.relative_bias.weight[-1][:, None].expand(
+        -1, 4 * train_length - SMALL.max_distance))
+
+
+def test_guided_logits_is_log_space_guidance():
+    cond = torch.randn(2, 5, 7)
+    uncond = torch.randn(2, 5, 7)
+    torch.testing.assert_close(guided_logits(cond, uncond, 1.0), torch.log_softmax(cond, -1))
+    torch.testing.assert_close(guided_logits(cond, uncond, 0.0), torch.log_softmax(uncond, -1))
+    expected = torch.log_softmax(uncond + 3.0 * (cond - uncond), -1)
+    torch.testing.assert_close(guided_logits(cond + 4.0, uncond - 2.0, 3.0), expected)
+    assert torch.allclose(guided_logits(cond, uncond, 3.0).exp().sum(-1), torch.ones(2, 5))
+
+
+def test_eval_mode_is_deterministic_and_dropout_trains_stochastically():
+    torch.manual_seed(0)
+    model = MotionDenoiser(DenoiserConfig.from_dict({**SMALL.to_dict(), "dropout": 0.3})).eval()
+    tokens, mask, t, text, text_mask = inputs()
+    assert torch.equal(model(tokens, mask, t, text, text_mask), model(tokens, mask, t, text, text_mask))
+    model.train()
+    assert not torch.equal(model(tokens, mask, t, text, text_mask), model(tokens, mask, t, text, text_mask))
+
+
+def test_timestep_changes_the_output():
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    early = model(tokens, mask, torch.ones_like(t), text, text_mask)
+    late = model(tokens, mask, torch.full_like(t, SMALL.steps), text, text_mask)
+    assert not torch.allclose(early, late)
+
+
+def test_bf16_autocast_gives_finite_logits_with_padding():
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    mask[0, 4:] = False
+    text_mask[0, 2:] = False
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        logits = model(tokens, mask, t, text, text_mask)
+    assert torch.isfinite(logits.float()).all()
+    torch.testing.assert_close(logits.float(), model(tokens, mask, t, text, text_mask), atol=0.1, rtol=0.1)
+
+
+def test_paper_size_parameter_count_and_forward(capsys):
+    torch.set_num_threads(4)
+    torch.manual_seed(0)
+    model = MotionDenoiser(DenoiserConfig()).eval()
+    count = sum(p.numel() for p in model.parameters())
+    assert 60_000_000 < count < 70_000_000
+    tokens = torch.randint(0, 513, (2, 49))
+    text = torch.randn(2, 77, 512)
+    text_mask = torch.ones(2, 77, dtype=torch.bool)
+    text_mask[1, 20:] = False
+    with torch.no_grad():
+        start = time.perf_counter()
+        logits = model(tokens, None, torch.tensor([1, 100]), text, text_mask)
+        elapsed = time.perf_counter() - start
+    assert logits.shape == (2, 49, 512) and torch.isfinite(logits).all()
+    with capsys.disabled():
+        print(f"\npaper-size denoiser: {count:,} parameters, forward (2, 49) on CPU {elapsed * 1000:.0f} ms")
