@@ -13,6 +13,8 @@ STATS = "stats.npz"
 SHARDS = "shards"
 NLP = "nlp"
 TOKENS = "tokens"
+TOKENS_KIND = "tokens"  # the manifest "kind" of a token set
+VQ_FILE = "vq.pt"  # the plain VQ-VAE model file, in a run directory and beside its tokens
 
 
 def read_manifest(directory: str | Path) -> dict[str, Any]:

@@ -104,14 +104,15 @@ def _train_vq(args: argparse.Namespace) -> None:
     from orchestration.train import train_vq
 
     run_dir = train_vq(args.config, args.set, args.resume)
-    print(f"finished {run_dir}; model file {run_dir / 'vq.pt'}; see it with `make ui`")
+    print(f"finished {run_dir}; model file {run_dir / 'vq.pt'}; see its metrics and previews with `make ui`")
 
 
 def _resolve_vq(reference: str | None, dataset: str) -> Path:
     """A VQ model file from a path (vq.pt, a checkpoint or a run directory), a run name or an
     MLflow run id; by default the dataset's latest VQ run."""
+    from m2d2m.layout import VQ_FILE
     from orchestration.runs import find_run, latest_run
-    from orchestration.train import VQ_FILE, VQ_STAGE
+    from orchestration.train import VQ_STAGE
 
     if reference is None:
         run_dir = latest_run(dataset, VQ_STAGE, "make train-vq")

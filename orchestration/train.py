@@ -13,13 +13,13 @@ from typing import Any
 import torch
 import yaml
 
+from m2d2m.layout import VQ_FILE
 from orchestration.config import flatten, load_config
 from orchestration.errors import UserError
 from orchestration.runs import mark_latest, new_run_dir, newest_run, read_run_info, write_run_info
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
 VQ_STAGE = "vq"
-VQ_FILE = "vq.pt"
 
 
 def _precision(setting: str) -> str:

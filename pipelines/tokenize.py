@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from m2d2m.layout import MANIFEST, SHARDS, STATS, read_manifest
+from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, SHARDS, STATS, read_manifest
 from m2d2m.normalization import Normalizer
 from m2d2m.vqvae import MotionVQVAE, load_vq
 from pipelines.corpora import SPLITS
@@ -41,8 +41,6 @@ from pipelines.shards import (
     write_json_atomically,
 )
 
-KIND = "tokens"
-VQ_FILE = "vq.pt"
 CODEBOOK = "codebook.npy"
 TOKEN_MEMBERS = {"tokens.npy", "meta.json"}
 MAX_CODEBOOK_SIZE = 2**15  # tokens are stored as int16
@@ -70,7 +68,7 @@ def current_tokens(data_dir: str | Path, vq_path: str | Path, out_dir: str | Pat
     _require_vq_file(vq_path)
     existing = json.loads(manifest_path.read_text(encoding="utf-8"))
     wanted = {
-        "kind": KIND,
+        "kind": TOKENS_KIND,
         "source_shards": _source_shards(read_manifest(data_dir)),
         "vq_sha256": sha256_of(vq_path),
         "samples_per_shard": samples_per_shard,
@@ -178,7 +176,7 @@ def tokenize_dataset(data_dir: str | Path, vq_path: str | Path, out_dir: str | P
 
     manifest = {
         "schema_version": SCHEMA_VERSION,
-        "kind": KIND,
+        "kind": TOKENS_KIND,
         "dataset": dataset_manifest["dataset"],
         "source_dir": str(data_dir),
         "source_shards": _source_shards(dataset_manifest),

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
-import numpy as np
+import io
 
+import numpy as np
+import torch
+
+from m2d2m.normalization import Normalizer
 from m2d2m.rotations import qnormalize, quat_from_axis_angle
 from m2d2m.skeleton import Skeleton
+from m2d2m.vqvae import MotionVQVAE, VQConfig, save_vq
+from pipelines.shards import iter_tar_samples
+
+TINY_VQ = VQConfig(width=32, code_dim=16, codebook_size=32, depth=1)
 
 
 def pose_clip(skeleton: Skeleton, frames: int, seed: int, lengths: np.ndarray | None = None) -> np.ndarray:
@@ -56,3 +64,18 @@ def write_corpus(root, splits: dict[str, int], skeleton, kind: str = "joints", s
             index += 1
         (root / f"{split}.txt").write_text("".join(f"{i}\n" for i in ids[split]), encoding="utf-8")
     return ids
+
+
+def random_vq(path, data_dir, seed):
+    """A random tiny VQ-VAE whose codebook is initialised from encoder outputs of real motions
+    (one training-mode forward), so tokens use many codes rather than all being code 0."""
+    torch.manual_seed(seed)
+    model = MotionVQVAE(TINY_VQ)
+    normalizer = Normalizer.load(data_dir / "stats.npz")
+    _, members = next(iter_tar_samples(data_dir / "shards" / "train-000000.tar"))
+    motion = np.load(io.BytesIO(members["motion.npy"]))
+    model.train()
+    model(torch.from_numpy(normalizer.normalize(motion))[None])
+    model.eval()
+    save_vq(path, model, normalizer, skeleton="t2m")
+    return model, normalizer

@@ -271,7 +271,7 @@ def test_root_travel_matches_the_feet(motions, annotations):
 def _single(family: str, count: int = 8, seed: int = 11):
     for i in range(count):
         clip = syn.make_clip(i, seed, (family,), max_actions=1)
-        (name, params), (start, end) = clip.plan[0], clip.segments[0]
+        (_, params), (start, end) = clip.plan[0], clip.segments[0]
         yield params, clip.joints.astype(np.float64), start, end
 
 

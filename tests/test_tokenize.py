@@ -15,28 +15,12 @@ from m2d2m.vqvae import MotionVQVAE, VQConfig, load_vq, save_vq
 from pipelines.features import DataConfig, build_dataset
 from pipelines.shards import ShardWriter, iter_tar_samples, npy_bytes
 from pipelines.tokenize import check_tokens, tokenize_dataset
-from tests.helpers import write_corpus
+from tests.helpers import random_vq, write_corpus
 
-TINY = VQConfig(width=32, code_dim=16, codebook_size=32, depth=1)
 
 
 def load_npy(data: bytes) -> np.ndarray:
     return np.load(io.BytesIO(data), allow_pickle=False)
-
-
-def random_vq(path, data_dir, seed):
-    """A random tiny VQ-VAE whose codebook is initialised from encoder outputs of real motions
-    (one training-mode forward), so tokens use many codes rather than all being code 0."""
-    torch.manual_seed(seed)
-    model = MotionVQVAE(TINY)
-    normalizer = Normalizer.load(data_dir / "stats.npz")
-    _, members = next(iter_tar_samples(data_dir / "shards" / "train-000000.tar"))
-    motion = load_npy(members["motion.npy"])
-    model.train()
-    model(torch.from_numpy(normalizer.normalize(motion))[None])
-    model.eval()
-    save_vq(path, model, normalizer, skeleton="t2m")
-    return model, normalizer
 
 
 @pytest.fixture(scope="module")

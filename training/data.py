@@ -4,15 +4,17 @@ Training streams resampled shards split by rank and worker and cuts every epoch 
 of batches, so no DDP rank waits on another (``reference/ecosystem.md`` §3); validation and test
 read each clip once, in shard order, the ranks sharing them clip by clip. The shards, ``stats.npz``
 and the manifest are all this shares with the pipelines that wrote them (through ``m2d2m.layout``).
+Two feeds: motion windows for the VQ-VAE, and captioned token sequences for the denoiser.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import tarfile
 from functools import cached_property, partial
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import lightning.pytorch as pl
 import numpy as np
@@ -20,22 +22,40 @@ import torch
 import webdataset as wds
 from lightning.pytorch.utilities import rank_zero_info
 
-from m2d2m.layout import STATS, read_manifest, shard_urls
+from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls
 from m2d2m.normalization import Normalizer
 
 Sample = dict[str, Any]
+# A token set's manifest kind and model file, as ``pipelines/tokenize.py`` writes them (no import across).
 
 
-def clip_lengths(urls: list[str]) -> list[int]:
-    """The frame count of every clip in local shards, from the small ``meta.json`` members alone:
-    the tar headers let the motion arrays be skipped instead of read."""
-    lengths = []
+def clip_metas(urls: list[str]) -> Iterator[dict[str, Any]]:
+    """The ``meta.json`` of every clip in local shards, in order, from those small members alone:
+    the tar headers let the motion or token arrays be skipped instead of read."""
     for url in urls:
         with tarfile.open(url) as archive:
             for member in archive:
                 if member.name.endswith(".meta.json"):
-                    lengths.append(json.loads(archive.extractfile(member).read())["frames"])
-    return lengths
+                    yield json.loads(archive.extractfile(member).read())
+
+
+def clip_lengths(urls: list[str]) -> list[int]:
+    """The frame count of every clip in local shards."""
+    return [meta["frames"] for meta in clip_metas(urls)]
+
+
+def require_positive(**values: int) -> None:
+    """Refuse a zero or negative size, which would otherwise stall or empty a stream."""
+    for name, value in values.items():
+        if value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value}")
+
+
+def worker_generator(seed: int, rank: int) -> np.random.Generator:
+    """A Generator seeded from (seed, rank, DataLoader worker id): draws differ between workers and
+    ranks, and never depend on global random state. Call it inside the worker, on first use."""
+    worker = torch.utils.data.get_worker_info()
+    return np.random.default_rng([seed, rank, 0 if worker is None else worker.id])
 
 
 def random_window(motion: np.ndarray, window: int, rng: np.random.Generator) -> np.ndarray | None:
@@ -48,13 +68,14 @@ def random_window(motion: np.ndarray, window: int, rng: np.random.Generator) -> 
     return motion[start:start + window]
 
 
-def pad_clips(motions: list[np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Clips of different lengths as one zero-padded float32 (B, T_max, D) tensor and their
-    lengths (B,) long, from which ``valid_frames`` rebuilds the mask."""
-    lengths = torch.tensor([len(motion) for motion in motions], dtype=torch.long)
-    batch = torch.zeros(len(motions), int(lengths.max()), motions[0].shape[1], dtype=torch.float32)
-    for row, motion in zip(batch, motions):
-        row[:len(motion)] = torch.from_numpy(motion)
+def pad_clips(clips: list[np.ndarray], dtype: torch.dtype = torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sequences of different lengths (T_i, ...) — motions (T, D) or tokens (L,) — as one
+    zero-padded (B, T_max, ...) tensor of ``dtype`` and their lengths (B,) long, from which
+    ``valid_frames`` rebuilds the mask."""
+    lengths = torch.tensor([len(clip) for clip in clips], dtype=torch.long)
+    batch = torch.zeros(len(clips), int(lengths.max()), *clips[0].shape[1:], dtype=dtype)
+    for row, clip in zip(batch, clips):
+        row[:len(clip)] = torch.from_numpy(clip)
     return batch, lengths
 
 
@@ -106,10 +127,51 @@ class WindowCropper:
 
     def __call__(self, sample: Sample) -> Sample | None:
         if self.rng is None:
-            worker = torch.utils.data.get_worker_info()
-            self.rng = np.random.default_rng([self.seed, self.rank, 0 if worker is None else worker.id])
+            self.rng = worker_generator(self.seed, self.rank)
         crop = random_window(sample["motion.npy"], self.window, self.rng)
         return None if crop is None else {"motion": self.normalizer.normalize(crop)}
+
+
+def rank_and_world_size(trainer: pl.Trainer | None) -> tuple[int, int]:
+    """The trainer's rank and world size when attached, else what webdataset's node splitter sees
+    (env RANK and WORLD_SIZE, then torch.distributed)."""
+    if trainer is not None:
+        return trainer.global_rank, trainer.world_size
+    rank, world_size, _, _ = wds.utils.pytorch_worker_info()
+    return rank, world_size
+
+
+def resampled_batches(urls: list[str], prepare: Callable[[Sample], Sample | None], collate: Callable[[list[Sample]], Any],
+                      batch_size: int, steps: int, shuffle_buffer: int, num_workers: int, seed: int) -> wds.WebLoader:
+    """Endless resampled shards split by rank and worker, cut to ``steps`` full batches an epoch,
+    so every DDP rank runs the same number of steps whatever its shards hold."""
+    # seed= only spares WebDataset a draw from the global random module: resampled mode ignores it.
+    dataset = (
+        wds.WebDataset(urls, resampled=True, shardshuffle=False, nodesplitter=wds.split_by_node,
+                       workersplitter=wds.split_by_worker, empty_check=False, seed=seed)
+        .shuffle(shuffle_buffer)
+        .decode()
+        .map(prepare)
+        .batched(batch_size, collation_fn=collate, partial=False)
+    )
+    loader = wds.WebLoader(dataset, batch_size=None, num_workers=num_workers, persistent_workers=num_workers > 0)
+    return loader.with_epoch(steps).with_length(steps, silent=True)  # __len__ for progress bars and schedulers
+
+
+def split_pass(urls: list[str], sizes: list[int], trainer: pl.Trainer | None, prepare: Callable[[Sample], Sample],
+               collate: Callable[[list[Sample]], Any], batch_size: int, num_workers: int) -> wds.WebLoader:
+    """One deterministic pass over a split whose shards hold ``sizes`` clips. Ranks share it clip
+    by clip, not shard by shard (``rank_share``); the workers of a rank share its shards."""
+    offsets = dict(zip(urls, np.cumsum([0] + sizes[:-1]).tolist()))
+    rank, world_size = rank_and_world_size(trainer)
+    dataset = (
+        wds.WebDataset(urls, shardshuffle=False, nodesplitter=None, empty_check=False)
+        .compose(partial(rank_share, offsets=offsets, rank=rank, world_size=world_size))
+        .decode()
+        .map(prepare)
+        .batched(batch_size, collation_fn=collate, partial=True)
+    )
+    return wds.WebLoader(dataset, batch_size=None, num_workers=num_workers)
 
 
 class MotionWindowDataModule(pl.LightningDataModule):
@@ -128,10 +190,8 @@ class MotionWindowDataModule(pl.LightningDataModule):
         seed: int = 0,
     ) -> None:
         super().__init__()
-        for name, value in (("window", window), ("batch_size", batch_size), ("val_batch_size", val_batch_size),
-                            ("steps_per_epoch", 1 if steps_per_epoch is None else steps_per_epoch)):
-            if value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value}")
+        require_positive(window=window, batch_size=batch_size, val_batch_size=val_batch_size,
+                         steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch)
         self.data_dir = Path(data_dir).resolve()
         self.manifest = read_manifest(self.data_dir)
         stats = self.data_dir / STATS
@@ -184,32 +244,12 @@ class MotionWindowDataModule(pl.LightningDataModule):
         usable = self.train_clips  # counted, and checked, even when the steps are given
         if self._steps_per_epoch is not None:
             return self._steps_per_epoch
-        return max(1, usable // (self.batch_size * self._rank_and_world_size()[1]))
-
-    def _rank_and_world_size(self) -> tuple[int, int]:
-        """The trainer's when attached, else what webdataset's node splitter sees (env RANK and
-        WORLD_SIZE, then torch.distributed)."""
-        if self.trainer is not None:
-            return self.trainer.global_rank, self.trainer.world_size
-        rank, world_size, _, _ = wds.utils.pytorch_worker_info()
-        return rank, world_size
+        return max(1, usable // (self.batch_size * rank_and_world_size(self.trainer)[1]))
 
     def train_dataloader(self) -> wds.WebLoader:
-        steps = self.steps_per_epoch
-        crop = WindowCropper(self.window, self.normalizer, self.seed, self._rank_and_world_size()[0])
-        # seed= only spares WebDataset a draw from the global random module: resampled mode ignores it.
-        dataset = (
-            wds.WebDataset(shard_urls(self.data_dir, "train"), resampled=True, shardshuffle=False,
-                           nodesplitter=wds.split_by_node, workersplitter=wds.split_by_worker,
-                           empty_check=False, seed=self.seed)
-            .shuffle(self.shuffle_buffer)
-            .decode()
-            .map(crop)
-            .batched(self.batch_size, collation_fn=stack_windows, partial=False)
-        )
-        loader = wds.WebLoader(dataset, batch_size=None, num_workers=self.num_workers,
-                               persistent_workers=self.num_workers > 0)
-        return loader.with_epoch(steps).with_length(steps, silent=True)  # __len__ for progress bars and schedulers
+        crop = WindowCropper(self.window, self.normalizer, self.seed, rank_and_world_size(self.trainer)[0])
+        return resampled_batches(shard_urls(self.data_dir, "train"), crop, stack_windows, self.batch_size,
+                                 self.steps_per_epoch, self.shuffle_buffer, self.num_workers, self.seed)
 
     def val_dataloader(self) -> wds.WebLoader:
         return self._whole_clips("val")
@@ -218,17 +258,185 @@ class MotionWindowDataModule(pl.LightningDataModule):
         return self._whole_clips("test")
 
     def _whole_clips(self, split: str) -> wds.WebLoader:
-        """One deterministic pass over a split. Ranks share it clip by clip, not shard by shard
-        (``rank_share``); the workers of a rank share its shards."""
-        urls = shard_urls(self.data_dir, split)
         sizes = [shard["samples"] for shard in self.manifest["shards"][split]]
-        offsets = dict(zip(urls, np.cumsum([0] + sizes[:-1]).tolist()))
-        rank, world_size = self._rank_and_world_size()
-        dataset = (
-            wds.WebDataset(urls, shardshuffle=False, nodesplitter=None, empty_check=False)
-            .compose(partial(rank_share, offsets=offsets, rank=rank, world_size=world_size))
-            .decode()
-            .map(partial(normalized_clip, normalizer=self.normalizer))
-            .batched(self.val_batch_size, collation_fn=collate_clips, partial=True)
-        )
-        return wds.WebLoader(dataset, batch_size=None, num_workers=self.num_workers)
+        return split_pass(shard_urls(self.data_dir, split), sizes, self.trainer,
+                          partial(normalized_clip, normalizer=self.normalizer), collate_clips,
+                          self.val_batch_size, self.num_workers)
+
+
+# Captioned token sequences for the denoiser.
+
+def caption_span(caption: dict[str, Any], num_tokens: int, fps: float, frames_per_token: int) -> tuple[int, int] | None:
+    """The tokens [first, last) a caption describes. ``start``/``end`` (seconds, both 0 = whole clip)
+    are cut with T2M-GPT's rule ``int(second · fps / frames_per_token)``, widened to at least one
+    token; None when nothing of the clip is left (a segment past its end, or end ≤ start)."""
+    start, end = caption["start"], caption["end"]
+    if start == 0 and end == 0:
+        return 0, num_tokens
+    if end <= start:
+        return None
+    first = int(start * fps / frames_per_token)
+    last = min(max(int(end * fps / frames_per_token), first + 1), num_tokens)
+    return (first, last) if first < last else None
+
+
+def captioned_tokens(tokens: np.ndarray, meta: dict[str, Any], caption: dict[str, Any], frames_per_token: int) -> Sample:
+    """{"tokens": the caption's segment (the whole clip when its segment is empty), "actions": its
+    action sentences — the denoiser's condition concatenates their features — or, for a caption
+    with none, the caption itself, "text"}."""
+    span = caption_span(caption, len(tokens), meta["fps"], frames_per_token) or (0, len(tokens))
+    return {"tokens": tokens[span[0]:span[1]], "actions": list(caption["actions"]) or [caption["text"]],
+            "text": caption["text"]}
+
+
+def first_caption_tokens(sample: Sample, frames_per_token: int) -> Sample:
+    """A decoded token sample with its first caption: the deterministic choice for evaluation."""
+    meta = sample["meta.json"]
+    return captioned_tokens(sample["tokens.npy"], meta, meta["captions"][0], frames_per_token)
+
+
+class CaptionSampler:
+    """Turns a decoded token sample into one of its captions, drawn at random every time the clip
+    is seen, with that caption's tokens, randomly cropped to ``max_tokens`` when longer (memory).
+    Its Generator comes from ``worker_generator`` on first use inside each DataLoader worker."""
+
+    def __init__(self, frames_per_token: int, max_tokens: int | None, seed: int, rank: int) -> None:
+        self.frames_per_token, self.max_tokens, self.seed, self.rank = frames_per_token, max_tokens, seed, rank
+        self.rng: np.random.Generator | None = None
+
+    def __call__(self, sample: Sample) -> Sample:
+        if self.rng is None:
+            self.rng = worker_generator(self.seed, self.rank)
+        meta = sample["meta.json"]
+        caption = meta["captions"][int(self.rng.integers(len(meta["captions"])))]
+        chosen = captioned_tokens(sample["tokens.npy"], meta, caption, self.frames_per_token)
+        if self.max_tokens is not None and len(chosen["tokens"]) > self.max_tokens:
+            chosen["tokens"] = random_window(chosen["tokens"], self.max_tokens, self.rng)
+        return chosen
+
+
+def collate_captioned_tokens(samples: list[Sample]) -> dict[str, Any]:
+    """{"tokens": (B, L_max) long padded with 0, "padding_mask": (B, L_max) bool, True on real
+    tokens, "lengths": (B,) long, "actions": per sample its action sentences, "text", "keys"}."""
+    tokens, lengths = pad_clips([sample["tokens"] for sample in samples], dtype=torch.long)
+    return {"tokens": tokens, "padding_mask": valid_frames(lengths), "lengths": lengths,
+            "actions": [sample["actions"] for sample in samples], "text": [sample["text"] for sample in samples],
+            "keys": [sample["__key__"] for sample in samples]}
+
+
+def read_token_manifest(tokens_dir: Path) -> dict[str, Any]:
+    """A token set's manifest, refusing a missing one or a directory that is not a token set (a
+    processed dataset, say), with what to run instead."""
+    path = tokens_dir / MANIFEST
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: missing; no token set here (make one with `m2d2m tokenize` or `make tokens`)")
+    manifest = read_manifest(tokens_dir)
+    if manifest.get("kind") != TOKENS_KIND:
+        raise ValueError(f"{path}: kind {manifest.get('kind')!r}, not a token set ({TOKENS_KIND!r}); pass the "
+                         "directory `m2d2m tokenize` wrote (data/<name>/tokens/<vq-run>/)")
+    return manifest
+
+
+class TokenDataModule(pl.LightningDataModule):
+    """Captioned VQ token sequences (``data/<name>/tokens/<vq-run>/``) for the discrete-diffusion
+    denoiser: in training, one random caption per clip and epoch with its segment of the tokens;
+    in validation and test, every clip once with its first caption."""
+
+    def __init__(
+        self,
+        tokens_dir: str | Path,
+        batch_size: int = 64,
+        num_workers: int = 2,
+        steps_per_epoch: int | None = None,
+        val_batch_size: int = 64,
+        shuffle_buffer: int = 1000,
+        max_tokens: int | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        require_positive(batch_size=batch_size, val_batch_size=val_batch_size,
+                         steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch,
+                         max_tokens=1 if max_tokens is None else max_tokens)
+        self.tokens_dir = Path(tokens_dir).resolve()
+        self.manifest = read_token_manifest(self.tokens_dir)
+        self.batch_size, self.num_workers, self.val_batch_size = batch_size, num_workers, val_batch_size
+        self.shuffle_buffer, self.max_tokens, self.seed = shuffle_buffer, max_tokens, seed
+        self._steps_per_epoch = steps_per_epoch
+
+    @property
+    def codebook_size(self) -> int:
+        return int(self.manifest["codebook_size"])
+
+    @property
+    def frames_per_token(self) -> int:
+        return int(self.manifest["frames_per_token"])
+
+    @property
+    def vq_file(self) -> Path:
+        """The VQ model that made the tokens: its codebook builds the transitions, its decoder
+        turns samples back into motion."""
+        return self.tokens_dir / VQ_FILE
+
+    def urls(self, split: str) -> list[str]:
+        """A split's token shards, which sit in the token directory itself (no ``shards/``)."""
+        return [str(self.tokens_dir / shard["name"]) for shard in self.manifest["shards"][split]]
+
+    def _sizes(self, split: str) -> list[int]:
+        return [shard["samples"] for shard in self.manifest["shards"][split]]
+
+    @cached_property
+    def _train_captions(self) -> tuple[float, int, int]:
+        """(fps, train captions, those whose segment is empty), read once from the train clips'
+        ``meta.json``; refuses a token set without train clips (the resampled stream would never
+        yield a batch)."""
+        metas = list(clip_metas(self.urls("train")))
+        if not metas:
+            raise ValueError(f"{self.tokens_dir}: the token set holds no train clips")
+        captions = empty = 0
+        for meta in metas:
+            num_tokens = math.ceil(meta["frames"] / self.frames_per_token)
+            captions += len(meta["captions"])
+            empty += sum(caption_span(c, num_tokens, meta["fps"], self.frames_per_token) is None
+                         for c in meta["captions"])
+        return float(metas[0]["fps"]), captions, empty
+
+    @property
+    def fps(self) -> float:
+        return self._train_captions[0]
+
+    @property
+    def empty_segments(self) -> int:
+        """Train captions whose segment cuts no token, which fall back to their whole clip."""
+        return self._train_captions[2]
+
+    @property
+    def train_clips(self) -> int:
+        return sum(self._sizes("train"))
+
+    @property
+    def steps_per_epoch(self) -> int:
+        """Batches per epoch on every rank: as given, else one pass over the train clips shared
+        among the ranks (at least one)."""
+        if self._steps_per_epoch is not None:
+            return self._steps_per_epoch
+        return max(1, self.train_clips // (self.batch_size * rank_and_world_size(self.trainer)[1]))
+
+    def train_dataloader(self) -> wds.WebLoader:
+        _, captions, empty = self._train_captions
+        if empty:
+            rank_zero_info(f"{self.tokens_dir}: {empty} of {captions} train captions have a start/end segment "
+                           "with no tokens of their clip; they train on the whole clip")
+        sampler = CaptionSampler(self.frames_per_token, self.max_tokens, self.seed, rank_and_world_size(self.trainer)[0])
+        return resampled_batches(self.urls("train"), sampler, collate_captioned_tokens, self.batch_size,
+                                 self.steps_per_epoch, self.shuffle_buffer, self.num_workers, self.seed)
+
+    def val_dataloader(self) -> wds.WebLoader:
+        return self._first_captions("val")
+
+    def test_dataloader(self) -> wds.WebLoader:
+        return self._first_captions("test")
+
+    def _first_captions(self, split: str) -> wds.WebLoader:
+        return split_pass(self.urls(split), self._sizes(split), self.trainer,
+                          partial(first_caption_tokens, frames_per_token=self.frames_per_token),
+                          collate_captioned_tokens, self.val_batch_size, self.num_workers)
