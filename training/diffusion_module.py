@@ -1,0 +1,190 @@
+"""The M2D2M denoiser as a LightningModule: discrete-diffusion training on VQ tokens with a text
+condition (classifier-free guidance by condition dropout), deterministic validation metrics, and
+a guided sampler used for preview GIFs during training."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import lightning.pytorch as pl
+import numpy as np
+import torch
+
+from m2d2m.denoiser import DenoiserConfig, MotionDenoiser, guided_logits
+from m2d2m.diffusion import TimestepSampler, TransitionSchedule, diffusion_loss
+from m2d2m.text import build_text_encoder, encode_actions
+from training.vq_module import NonFiniteLossError, warmup_step_decay
+
+# keys of the ``diffusion`` mapping that build the transition schedule
+_SCHEDULE_KEYS = ("steps", "kind", "eta", "distance", "schedule")
+T_BUCKETS = 4
+
+
+class DiffusionModule(pl.LightningModule):
+    """L_vlb + λ·aux on tokens of the frozen VQ codebook, AdamW with warm-up and step decay.
+
+    The codebook is a buffer (not a hyper-parameter), so a checkpoint carries it and the transition
+    schedule is rebuilt from it whenever a state dict is loaded. The schedule itself is a plain
+    object and follows the module's device lazily (see :meth:`schedule_on_device`).
+    """
+
+    def __init__(self, denoiser: dict[str, Any], text: dict[str, Any], diffusion: dict[str, Any],
+                 optim: dict[str, Any], codebook: torch.Tensor | np.ndarray,
+                 vocabulary: list[str] | None = None) -> None:
+        super().__init__()
+        self.save_hyperparameters(ignore=["codebook"])
+        codebook = torch.as_tensor(np.asarray(codebook) if not torch.is_tensor(codebook) else codebook)
+        codebook = codebook.detach().to(torch.float32).cpu()
+        if codebook.dim() != 2:
+            raise ValueError(f"codebook must have shape (K, code_dim), got {tuple(codebook.shape)}")
+        self.register_buffer("codebook", codebook)
+        num_codes = codebook.shape[0]
+        steps = int(diffusion.get("steps", 100))
+
+        text_options = {k: v for k, v in text.items() if k != "kind"}
+        kind = text.get("kind", "learned")
+        if kind == "learned":
+            if vocabulary is None:
+                raise ValueError("a 'learned' text encoder needs a vocabulary "
+                                 "(LearnedTextEncoder.build_vocabulary over the training captions)")
+            text_options["vocabulary"] = list(vocabulary)
+        self.text_encoder = build_text_encoder(kind, **text_options)
+
+        config = {**denoiser, "codebook_size": num_codes, "steps": steps, "text_dim": self.text_encoder.dim}
+        if "text_dim" in denoiser and denoiser["text_dim"] != self.text_encoder.dim:
+            raise ValueError(f"denoiser text_dim ({denoiser['text_dim']}) differs from the text encoder's "
+                             f"dim ({self.text_encoder.dim})")
+        if "steps" in denoiser and denoiser["steps"] != steps:
+            raise ValueError(f"denoiser steps ({denoiser['steps']}) differ from diffusion steps ({steps})")
+        self.denoiser = MotionDenoiser(DenoiserConfig.from_dict(config))
+        self.aux_weight = float(diffusion.get("aux_weight", 5e-4))
+        self.timesteps = TimestepSampler(steps, diffusion.get("timestep_sampling", "uniform"))
+        self.schedule: TransitionSchedule = self._build_schedule()
+        # a loaded checkpoint brings its own codebook: rebuild the schedule from it
+        self.register_load_state_dict_post_hook(lambda module, keys: module._rebuild_schedule())
+
+    # ----------------------------------------------------------------------------------- schedule
+    def _build_schedule(self) -> TransitionSchedule:
+        options = {k: self.hparams.diffusion[k] for k in _SCHEDULE_KEYS if k in self.hparams.diffusion}
+        options["steps"] = int(options.get("steps", 100))
+        return TransitionSchedule.build(self.codebook.detach().double(), **options)
+
+    def _rebuild_schedule(self) -> None:
+        self.schedule = self._build_schedule()
+
+    def schedule_on_device(self) -> TransitionSchedule:
+        """The schedule, moved to the module's device if it is elsewhere."""
+        if self.schedule.device != self.codebook.device:
+            self.schedule.to(self.codebook.device)
+        return self.schedule
+
+    @property
+    def steps(self) -> int:
+        return self.schedule.steps
+
+    # ----------------------------------------------------------------------------------- training
+    def _condition(self, actions: list[list[str]]) -> tuple[torch.Tensor, torch.Tensor]:
+        text, text_mask = encode_actions(self.text_encoder, actions)
+        return text.to(self.codebook.device), text_mask.to(self.codebook.device)
+
+    def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
+        schedule = self.schedule_on_device()
+        z0, valid = batch["tokens"].long(), batch["padding_mask"].bool()
+        batch_size = z0.shape[0]
+        t, pt = self.timesteps.sample(batch_size)
+        t, pt = t.to(z0.device), pt.to(z0.device)
+        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None]).masked_fill(~valid, schedule.mask_index)
+        text, text_mask = self._condition(batch["actions"])
+        text, text_mask = self.denoiser.drop_condition(text, text_mask, self.denoiser.config.condition_drop)
+        logits = self.denoiser(z_t, valid, t, text, text_mask)
+        out = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt)
+        if not torch.isfinite(out.loss):
+            raise NonFiniteLossError(f"the training loss is {out.loss.item()} at step {self.global_step}")
+        self.log("train/loss", out.loss, batch_size=batch_size, prog_bar=True)
+        self.log("train/vlb", out.vlb.mean(), batch_size=batch_size)
+        self.log("train/aux", out.aux.mean(), batch_size=batch_size)
+        # bucket b (1..4) holds t in ((b−1)·T/4, b·T/4]
+        buckets = torch.ceil(t.double() * T_BUCKETS / self.steps).long().clamp(1, T_BUCKETS)
+        for b in range(1, T_BUCKETS + 1):
+            chosen = buckets == b
+            if chosen.any():
+                self.log(f"train/vlb_t{b}", out.vlb[chosen].mean(), batch_size=int(chosen.sum()))
+        self.timesteps.update(t, out.vlb)
+        return out.loss
+
+    def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
+        """A fixed t and z_t per row, drawn from a generator seeded with ``batch_idx``: every
+        validation pass scores the same noisy inputs, so the numbers are comparable across steps."""
+        schedule = self.schedule_on_device()
+        z0, valid = batch["tokens"].long(), batch["padding_mask"].bool()
+        batch_size = z0.shape[0]
+        generator = torch.Generator(device=z0.device).manual_seed(int(batch_idx))
+        t = torch.randint(1, self.steps + 1, (batch_size,), generator=generator, device=z0.device)
+        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None], generator=generator)
+        z_t = z_t.masked_fill(~valid, schedule.mask_index)
+        text, text_mask = self._condition(batch["actions"])
+        logits = self.denoiser(z_t, valid, t, text, text_mask)
+        out = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight)
+        self.log("val/loss", out.loss, batch_size=batch_size, sync_dist=True, prog_bar=True)
+        self.log("val/vlb", out.vlb.mean(), batch_size=batch_size, sync_dist=True)
+        # accuracy on the positions the model has to restore: masked or replaced ones
+        corrupted = valid & ((z_t == schedule.mask_index) | (z_t != z0))
+        total = int(corrupted.sum())
+        if total:
+            correct = ((logits.argmax(dim=-1) == z0) & corrupted).sum().float()
+            self.log("val/token_accuracy", correct / total, batch_size=total, sync_dist=True, prog_bar=True)
+
+    def configure_optimizers(self):
+        optim = self.hparams.optim
+        params = [p for p in [*self.denoiser.parameters(), *self.text_encoder.parameters()] if p.requires_grad]
+        decay = [p for p in params if p.ndim >= 2]
+        no_decay = [p for p in params if p.ndim < 2]
+        optimizer = torch.optim.AdamW(
+            [{"params": decay, "weight_decay": optim.get("weight_decay", 0.0)},
+             {"params": no_decay, "weight_decay": 0.0}],
+            lr=optim["lr"], betas=tuple(optim.get("betas", (0.9, 0.999))))
+        schedule = torch.optim.lr_scheduler.LambdaLR(
+            optimizer, warmup_step_decay(optim.get("warmup_steps", 0), list(optim.get("milestones", [])),
+                                         optim.get("gamma", 1.0)))
+        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+
+    # ----------------------------------------------------------------------------------- sampling
+    @torch.no_grad()
+    def sample(self, actions: list[list[str]], lengths: list[int], guidance: float = 4.0,
+               eta: float | None = None, generator: torch.Generator | None = None) -> list[torch.Tensor]:
+        """Guided ancestral sampling, one condition and length per row; tokens trimmed to each length.
+
+        z_T from the prior, then for t = T..2 z_{t−1} ~ p(z_{t−1} | z_t) (the posterior mixed over the
+        guided x0 probabilities); at t = 1 the final tokens are the argmax of the guided x0
+        probabilities (greedy last step, so no mask token survives). ``generator`` must live on the
+        module's device.
+        """
+        if len(actions) != len(lengths) or not lengths or min(lengths) < 1:
+            raise ValueError("need one positive length per caption")
+        schedule = self.schedule_on_device()
+        if eta is not None and float(eta) != schedule.config.eta:
+            schedule = schedule.with_eta(eta)
+        device = self.codebook.device
+        was_training = self.training
+        self.eval()
+        try:
+            batch, length = len(lengths), max(lengths)
+            valid = torch.arange(length, device=device)[None, :] < torch.tensor(lengths, device=device)[:, None]
+            text, text_mask = self._condition(actions)
+            z = schedule.sample_prior((batch, length), generator=generator)
+            for step in range(schedule.steps, 0, -1):
+                t = torch.full((batch,), step, dtype=torch.long, device=device)
+                cond = self.denoiser(z, valid, t, text, text_mask)
+                uncond = self.denoiser(z, valid, t, None, None)
+                x0 = guided_logits(cond, uncond, guidance).exp()
+                if step == 1:
+                    z = x0.argmax(dim=-1)
+                    break
+                probs = schedule.posterior_probs(z, x0, step).clamp_min(0.0).reshape(-1, schedule.num_codes + 1)
+                dead = probs.sum(dim=1) <= 0  # cannot happen in exact arithmetic; never crash on it
+                probs[dead, schedule.mask_index] = 1.0
+                z = torch.multinomial(probs, 1, generator=generator).reshape(batch, length)
+                z = z.masked_fill(~valid, schedule.mask_index)
+        finally:
+            self.train(was_training)
+        return [z[row, :n].clone() for row, n in enumerate(lengths)]
