@@ -107,6 +107,13 @@ def _train_vq(args: argparse.Namespace) -> None:
     print(f"finished {run_dir}; model file {run_dir / 'vq.pt'}; see its metrics and previews with `make ui`")
 
 
+def _train_diffusion(args: argparse.Namespace) -> None:
+    from orchestration.train import train_diffusion
+
+    run_dir = train_diffusion(args.config, args.set, args.resume)
+    print(f"finished {run_dir}; its checkpoints, metrics and sample GIFs: `make ui`")
+
+
 def _resolve_vq(reference: str | None, dataset: str) -> Path:
     """A VQ model file from a path (vq.pt, a checkpoint or a run directory), a run name or an
     MLflow run id; by default the dataset's latest VQ run."""
@@ -229,6 +236,13 @@ def build_parser() -> argparse.ArgumentParser:
                           help="override a config value, e.g. --set optim.lr=1e-4 (repeatable)")
     train_vq.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
     train_vq.set_defaults(run=_train_vq)
+
+    train_diffusion = verbs.add_parser("train-diffusion", help="train the discrete-diffusion denoiser on VQ tokens")
+    train_diffusion.add_argument("--config", default="demo", help="configs/diffusion/<name>.yaml or a path (default demo)")
+    train_diffusion.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                                 help="override a config value, e.g. --set diffusion.kind=uniform (repeatable)")
+    train_diffusion.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
+    train_diffusion.set_defaults(run=_train_diffusion)
 
     tokenize = verbs.add_parser("tokenize", help="encode every motion into VQ tokens (Ray Data)")
     tokenize.add_argument("--vq", help="vq.pt, a checkpoint, a run directory or name, or an MLflow run id (default: latest)")

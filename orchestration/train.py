@@ -7,6 +7,7 @@ the plain model file later stages read — and marks the run as the stage's ``la
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,10 +17,11 @@ import yaml
 from m2d2m.layout import VQ_FILE
 from orchestration.config import flatten, load_config
 from orchestration.errors import UserError
-from orchestration.runs import mark_latest, new_run_dir, newest_run, read_run_info, write_run_info
+from orchestration.runs import latest_run, mark_latest, new_run_dir, newest_run, read_run_info, write_run_info
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
 VQ_STAGE = "vq"
+DIFFUSION_STAGE = "diffusion"
 
 
 def _precision(setting: str) -> str:
@@ -58,39 +60,31 @@ def _mlflow_logger(dataset: str, stage: str, run_dir: Path, run_id: str | None):
     )
 
 
-def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
-             extra_callbacks: list | None = None) -> Path:
-    """Train the motion VQ-VAE; returns the run directory (with ``vq.pt`` on success).
-    ``extra_callbacks`` join the trainer's (a sweep's reporting callback, for instance)."""
+@dataclass
+class _Fitted:
+    trainer: Any
+    checkpoints: Any
+    logger: Any
+    last: Path
+
+
+def _fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, resume: bool, module, datamodule,
+         monitor: str, callbacks: list) -> _Fitted:
+    """What every training stage shares: the MLflow run, the resolved config and run.json, best
+    and last checkpoints, the trainer, resume, the NaN stop, and reloading the best weights."""
     import lightning.pytorch as pl
     from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 
-    from m2d2m.vqvae import save_vq
-    from training.callbacks import ReconstructionPreview
-    from training.data import MotionWindowDataModule
-    from training.vq_module import NonFiniteLossError, VQVAEModule
+    from training.vq_module import NonFiniteLossError
 
-    run_dir, config, run_id = _open_run(VQ_STAGE, config_name, overrides or [], resume)
-    data, trainer_cfg = config["data"], config["trainer"]
-    try:
-        datamodule = MotionWindowDataModule(
-            data["dir"], window=data["window"], batch_size=data["batch_size"], num_workers=data["num_workers"],
-            steps_per_epoch=trainer_cfg["val_every_steps"], seed=config["seed"],
-        )
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    pl.seed_everything(config["seed"], workers=True, verbose=False)
-    module = VQVAEModule(config["model"], config["optim"], config["loss"], datamodule.feature_dim, datamodule.skeleton)
-    module.set_normalizer(datamodule.normalizer)
-
-    logger = _mlflow_logger(config["dataset"], VQ_STAGE, run_dir, run_id)
+    trainer_cfg = config["trainer"]
+    logger = _mlflow_logger(config["dataset"], stage, run_dir, run_id)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
-    write_run_info(run_dir, stage=VQ_STAGE, dataset=config["dataset"], status="running",
+    write_run_info(run_dir, stage=stage, dataset=config["dataset"], status="running",
                    mlflow_run_id=logger.run_id, config=config)
     if run_id is None:
         logger.log_hyperparams(flatten(config))
-
-    checkpoints = ModelCheckpoint(dirpath=run_dir / "checkpoints", filename="best", monitor="val/recon_loss",
+    checkpoints = ModelCheckpoint(dirpath=run_dir / "checkpoints", filename="best", monitor=monitor,
                                   mode="min", save_last=True, save_top_k=1)
     trainer = pl.Trainer(
         max_steps=trainer_cfg["max_steps"],
@@ -98,9 +92,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
         devices=trainer_cfg["devices"],
         precision=_precision(trainer_cfg["precision"]),
         logger=logger,
-        callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"),
-                   ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]),
-                   *(extra_callbacks or [])],
+        callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"), *callbacks],
         gradient_clip_val=config["optim"]["grad_clip"],
         limit_val_batches=trainer_cfg["val_batches"],
         log_every_n_steps=min(50, trainer_cfg["val_every_steps"]),
@@ -114,17 +106,107 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
         write_run_info(run_dir, status="failed", error=str(error))
         raise UserError(f"{error}; training stopped. The last good checkpoint is {last} "
                         "(lower optim.lr or set optim.grad_clip, then start a new run)") from error
-
     best = torch.load(checkpoints.best_model_path, map_location="cpu", weights_only=True)
     module.load_state_dict(best["state_dict"])
-    final = {name: float(value) for name, value in trainer.callback_metrics.items() if name.startswith("val/")}
-    save_vq(run_dir / VQ_FILE, module.model, datamodule.normalizer, datamodule.skeleton,
-            extra={"run": run_dir.name, "mlflow_run_id": logger.run_id, "dataset": config["dataset"],
-                   "data_dir": str(Path(data["dir"]).resolve()),
-                   "best_val_recon_loss": float(checkpoints.best_model_score)})
-    for path in (run_dir / VQ_FILE, Path(checkpoints.best_model_path), last, run_dir / "config.yaml",
-                 Path(data["dir"]) / "stats.npz"):
-        logger.experiment.log_artifact(logger.run_id, str(path), artifact_path="model")
-    write_run_info(run_dir, status="finished", final_validation=final, vq=str((run_dir / VQ_FILE).resolve()))
+    return _Fitted(trainer, checkpoints, logger, last)
+
+
+def _finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -> None:
+    """Log the run's files to MLflow, record its final validation metrics, mark it ``latest``."""
+    for path in artifacts:
+        fitted.logger.experiment.log_artifact(fitted.logger.run_id, str(path), artifact_path="model")
+    final = {name: float(value) for name, value in fitted.trainer.callback_metrics.items() if name.startswith("val/")}
+    write_run_info(run_dir, status="finished", final_validation=final, **info)
     mark_latest(run_dir)
+
+
+def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+             extra_callbacks: list | None = None) -> Path:
+    """Train the motion VQ-VAE; returns the run directory (with ``vq.pt`` on success).
+    ``extra_callbacks`` join the trainer's (a sweep's reporting callback, for instance)."""
+    import lightning.pytorch as pl
+
+    from m2d2m.vqvae import save_vq
+    from training.callbacks import ReconstructionPreview
+    from training.data import MotionWindowDataModule
+    from training.vq_module import VQVAEModule
+
+    run_dir, config, run_id = _open_run(VQ_STAGE, config_name, overrides or [], resume)
+    data, trainer_cfg = config["data"], config["trainer"]
+    try:
+        datamodule = MotionWindowDataModule(
+            data["dir"], window=data["window"], batch_size=data["batch_size"], num_workers=data["num_workers"],
+            steps_per_epoch=trainer_cfg["val_every_steps"], seed=config["seed"],
+        )
+    except (FileNotFoundError, ValueError) as error:
+        raise UserError(str(error)) from error
+    pl.seed_everything(config["seed"], workers=True, verbose=False)
+    module = VQVAEModule(config["model"], config["optim"], config["loss"], datamodule.feature_dim, datamodule.skeleton)
+    module.set_normalizer(datamodule.normalizer)
+    fitted = _fit(VQ_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/recon_loss",
+                  [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])])
+    save_vq(run_dir / VQ_FILE, module.model, datamodule.normalizer, datamodule.skeleton,
+            extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
+                   "data_dir": str(Path(data["dir"]).resolve()),
+                   "best_val_recon_loss": float(fitted.checkpoints.best_model_score)})
+    _finish(run_dir, fitted, [run_dir / VQ_FILE, Path(fitted.checkpoints.best_model_path), fitted.last,
+                              run_dir / "config.yaml", Path(data["dir"]) / "stats.npz"],
+            vq=str((run_dir / VQ_FILE).resolve()))
+    return run_dir
+
+
+def _vq_file(config: dict[str, Any]) -> Path:
+    """The VQ-VAE the denoiser works with: ``vq: latest`` (the dataset's latest VQ run) or a path."""
+    if config["vq"] == "latest":
+        return latest_run(config["dataset"], VQ_STAGE, "make train-vq") / VQ_FILE
+    path = Path(config["vq"])
+    if not path.is_file():
+        raise UserError(f"{path}: no VQ model file; set vq: latest or the path of a vq.pt")
+    return path
+
+
+def train_diffusion(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+                    extra_callbacks: list | None = None) -> Path:
+    """Train the discrete-diffusion denoiser on the tokens of a VQ-VAE run, tokenizing first when
+    its tokens are missing or stale; returns the run directory."""
+    import lightning.pytorch as pl
+
+    from m2d2m.layout import TOKENS
+    from m2d2m.text import LearnedTextEncoder
+    from m2d2m.vqvae import load_vq
+    from pipelines.tokenize import current_tokens, tokenize_dataset
+    from training.callbacks import SamplePreview
+    from training.data import TokenDataModule, clip_metas
+    from training.diffusion_module import DiffusionModule
+
+    run_dir, config, run_id = _open_run(DIFFUSION_STAGE, config_name, overrides or [], resume)
+    vq_path = _vq_file(config)
+    vq, _, vq_meta = load_vq(vq_path)
+    data_dir = Path(vq_meta["extra"]["data_dir"])
+    tokens_dir = data_dir / TOKENS / vq_meta["extra"].get("run", vq_path.parent.name)
+    try:
+        if current_tokens(data_dir, vq_path, tokens_dir) is None:
+            print(f"tokenizing {data_dir} with {vq_path} first")
+            tokenize_dataset(data_dir, vq_path, tokens_dir)
+        data, trainer_cfg = config["data"], config["trainer"]
+        datamodule = TokenDataModule(tokens_dir, batch_size=data["batch_size"], num_workers=data["num_workers"],
+                                     steps_per_epoch=trainer_cfg["val_every_steps"], max_tokens=data["max_tokens"],
+                                     seed=config["seed"])
+    except (FileNotFoundError, ValueError) as error:
+        raise UserError(str(error)) from error
+    vocabulary = None
+    if config["text"]["kind"] == "learned":
+        sentences = (action for meta in clip_metas(datamodule.urls("train")) for caption in meta["captions"]
+                     for action in (caption["actions"] or [caption["text"]]))
+        vocabulary = LearnedTextEncoder.build_vocabulary(sentences)
+    pl.seed_everything(config["seed"], workers=True, verbose=False)
+    module = DiffusionModule(config["denoiser"], config["text"], config["diffusion"], config["optim"],
+                             codebook=vq.codebook, vocabulary=vocabulary)
+    preview = config["preview"]
+    fitted = _fit(DIFFUSION_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
+                  [SamplePreview(run_dir / "previews", vq_path, preview["prompts"], preview["seconds"],
+                                 guidance=preview["guidance"], every=trainer_cfg["gif_every"]),
+                   *(extra_callbacks or [])])
+    _finish(run_dir, fitted, [Path(fitted.checkpoints.best_model_path), fitted.last, run_dir / "config.yaml", vq_path],
+            vq=str(vq_path.resolve()), tokens=str(tokens_dir.resolve()))
     return run_dir

@@ -6,6 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
+
+from m2d2m.skeleton import T2M
+from pipelines.features import DataConfig, build_dataset
+from tests.helpers import TINY_VQ_RUN, write_corpus
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 HUMANML3D_SAMPLE = PROJECT_ROOT.parent / "shared" / "data" / "humanml3d-sample"
@@ -37,3 +42,21 @@ def ray_local():
     ray.data.DataContext.get_current().enable_progress_bars = False
     yield
     ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory, ray_local) -> Path:
+    root = tmp_path_factory.mktemp("vq-data")
+    write_corpus(root / "raw", {"train": 6, "val": 2, "test": 1}, T2M)
+    build_dataset(DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(root / "data"), samples_per_shard=4))
+    return root / "data"
+
+
+@pytest.fixture
+def project(tmp_path, tiny_data, monkeypatch) -> Path:
+    """A working directory with its own runs/ and MLflow store, and a tiny config file."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    config = {**TINY_VQ_RUN, "data": {**TINY_VQ_RUN["data"], "dir": str(tiny_data)}}
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    return tmp_path

@@ -79,3 +79,18 @@ def random_vq(path, data_dir, seed):
     model.eval()
     save_vq(path, model, normalizer, skeleton="t2m")
     return model, normalizer
+
+
+# A VQ-VAE training config small enough for tests (data.dir is filled in per test).
+TINY_VQ_RUN = {
+    "dataset": "tiny",
+    "seed": 1,
+    "data": {"dir": None, "window": 32, "batch_size": 4, "num_workers": 0},
+    "model": {"width": 16, "depth": 1, "dilation_growth": 3, "down_t": 2, "code_dim": 8,
+              "codebook_size": 16, "ema_decay": 0.99},
+    "loss": {"recon": 1.0, "joint": 0.5, "commit": 0.02},
+    "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 2,
+              "milestones": [100], "gamma": 0.05, "grad_clip": None},
+    "trainer": {"max_steps": 6, "val_every_steps": 3, "val_batches": 1, "gif_every": 1,
+                "accelerator": "cpu", "devices": 1, "precision": "auto"},
+}

@@ -7,47 +7,11 @@ import lightning.pytorch as pl
 import mlflow
 import pytest
 import torch
-import yaml
 
-from m2d2m.skeleton import T2M
 from m2d2m.vqvae import load_vq
 from orchestration.errors import UserError
 from orchestration.runs import latest_run, read_run_info
 from orchestration.train import train_vq
-from pipelines.features import DataConfig, build_dataset
-from tests.helpers import write_corpus
-
-TINY = {
-    "dataset": "tiny",
-    "seed": 1,
-    "data": {"dir": None, "window": 32, "batch_size": 4, "num_workers": 0},
-    "model": {"width": 16, "depth": 1, "dilation_growth": 3, "down_t": 2, "code_dim": 8,
-              "codebook_size": 16, "ema_decay": 0.99},
-    "loss": {"recon": 1.0, "joint": 0.5, "commit": 0.02},
-    "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 2,
-              "milestones": [100], "gamma": 0.05, "grad_clip": None},
-    "trainer": {"max_steps": 6, "val_every_steps": 3, "val_batches": 1, "gif_every": 1,
-                "accelerator": "cpu", "devices": 1, "precision": "auto"},
-}
-
-
-@pytest.fixture(scope="module")
-def tiny_data(tmp_path_factory, ray_local) -> Path:
-    root = tmp_path_factory.mktemp("vq-data")
-    write_corpus(root / "raw", {"train": 6, "val": 2, "test": 1}, T2M)
-    build_dataset(DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(root / "data"), samples_per_shard=4))
-    return root / "data"
-
-
-@pytest.fixture
-def project(tmp_path, tiny_data, monkeypatch) -> Path:
-    """A working directory with its own runs/ and MLflow store, and a tiny config file."""
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
-    config = {**TINY, "data": {**TINY["data"], "dir": str(tiny_data)}}
-    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
-    return tmp_path
-
 
 class KillAt(pl.Callback):
     """Stands in for a killed process: fails hard in the middle of training."""

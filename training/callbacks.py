@@ -5,9 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import lightning.pytorch as pl
+import torch
 from lightning.pytorch.loggers import MLFlowLogger
 
-from m2d2m.render import render_comparison
+from m2d2m.render import render_comparison, render_motion
+from m2d2m.representation import features_to_joints
+from m2d2m.skeleton import SKELETONS
+from m2d2m.vqvae import load_vq
 
 
 class ReconstructionPreview(pl.Callback):
@@ -31,3 +35,38 @@ class ReconstructionPreview(pl.Callback):
                                  skeleton=module.skeleton, size=240)
         if isinstance(trainer.logger, MLFlowLogger):
             trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="previews")
+
+
+class SamplePreview(pl.Callback):
+    """Every ``every`` validations, one GIF per fixed prompt: tokens sampled by the denoiser,
+    decoded by the VQ-VAE into motion, drawn, and logged as MLflow artifacts — what a person
+    looks at to judge whether samples follow their text."""
+
+    def __init__(self, directory: str | Path, vq_file: str | Path, prompts: list[str], seconds: list[float],
+                 guidance: float = 4.0, every: int = 1, seed: int = 0) -> None:
+        if len(prompts) != len(seconds):
+            raise ValueError("give one duration in seconds per preview prompt")
+        self.directory, self.vq_file = Path(directory), Path(vq_file)
+        self.prompts, self.seconds, self.guidance = prompts, seconds, guidance
+        self.every, self.seed = max(1, every), seed
+        self.validations = 0
+
+    def on_validation_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        if trainer.sanity_checking or not trainer.is_global_zero:
+            return
+        self.validations += 1
+        if (self.validations - 1) % self.every:
+            return
+        vq, normalizer, meta = load_vq(self.vq_file)
+        skeleton = SKELETONS[meta["skeleton"]]
+        lengths = [max(1, round(s * skeleton.fps / vq.frames_per_token)) for s in self.seconds]
+        generator = torch.Generator(device=module.device).manual_seed(self.seed)
+        sampled = module.sample([[prompt] for prompt in self.prompts], lengths, guidance=self.guidance, generator=generator)
+        for n, (prompt, tokens) in enumerate(zip(self.prompts, sampled)):
+            with torch.no_grad():
+                features = vq.decode(tokens[None].cpu())[0].numpy()
+            joints = features_to_joints(normalizer.denormalize(features), skeleton)
+            path = render_motion(joints, self.directory / f"step-{trainer.global_step:07d}-{n}.gif",
+                                 skeleton=skeleton, title=prompt, size=240)
+            if isinstance(trainer.logger, MLFlowLogger):
+                trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="samples")
