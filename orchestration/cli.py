@@ -204,6 +204,16 @@ def _add_motion_source(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output file; its suffix chooses the format")
 
 
+def _add_training_verb(verbs, name: str, stage: str, description: str, example: str, run) -> None:
+    """The options every training stage takes: a config, overrides, and resuming."""
+    parser = verbs.add_parser(name, help=description)
+    parser.add_argument("--config", default="demo", help=f"configs/{stage}/<name>.yaml or a path (default demo)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"override a config value, e.g. --set {example} (repeatable)")
+    parser.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
+    parser.set_defaults(run=run)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="m2d2m", description=__doc__.splitlines()[0])
     verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
@@ -230,19 +240,10 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--check", metavar="DIR", help="verify a processed dataset against its manifest and exit")
     data.set_defaults(run=_data)
 
-    train_vq = verbs.add_parser("train-vq", help="train the motion VQ-VAE (Lightning, tracked in MLflow)")
-    train_vq.add_argument("--config", default="demo", help="configs/vq/<name>.yaml or a path (default demo)")
-    train_vq.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                          help="override a config value, e.g. --set optim.lr=1e-4 (repeatable)")
-    train_vq.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
-    train_vq.set_defaults(run=_train_vq)
-
-    train_diffusion = verbs.add_parser("train-diffusion", help="train the discrete-diffusion denoiser on VQ tokens")
-    train_diffusion.add_argument("--config", default="demo", help="configs/diffusion/<name>.yaml or a path (default demo)")
-    train_diffusion.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                                 help="override a config value, e.g. --set diffusion.kind=uniform (repeatable)")
-    train_diffusion.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
-    train_diffusion.set_defaults(run=_train_diffusion)
+    _add_training_verb(verbs, "train-vq", "vq", "train the motion VQ-VAE (Lightning, tracked in MLflow)",
+                       "optim.lr=1e-4", _train_vq)
+    _add_training_verb(verbs, "train-diffusion", "diffusion", "train the discrete-diffusion denoiser on VQ tokens",
+                       "diffusion.kind=uniform", _train_diffusion)
 
     tokenize = verbs.add_parser("tokenize", help="encode every motion into VQ tokens (Ray Data)")
     tokenize.add_argument("--vq", help="vq.pt, a checkpoint, a run directory or name, or an MLflow run id (default: latest)")

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from m2d2m.skeleton import T2M
@@ -32,6 +33,15 @@ def sample_joints() -> np.ndarray:
 def sample_features() -> np.ndarray:
     """HumanML3D's 263-d features of clip 012314, float32 (170, 263)."""
     return np.load(HUMANML3D_SAMPLE / "new_joint_vecs" / "012314.npy")
+
+
+@pytest.fixture
+def one_torch_thread():
+    """For tiny models: extra intra-op threads only contend with other work on the machine."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="session")

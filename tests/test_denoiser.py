@@ -13,13 +13,7 @@ SMALL = DenoiserConfig(codebook_size=16, layers=2, heads=4, width=32, ffn=64, te
                        max_distance=16, num_buckets=8)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """These models are tiny: extra intra-op threads only contend with other work on the machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def small_model(seed: int = 0) -> MotionDenoiser:

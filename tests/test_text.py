@@ -14,13 +14,7 @@ from m2d2m.text import (CLIPTextEncoder, LearnedTextEncoder, TextEncoder, build_
 CORPUS = ["A person walks forward.", "a person runs in a circle", "someone waves, then walks"]
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """These models are tiny: extra intra-op threads only contend with other work on the machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def learned(seed: int = 0, **options) -> LearnedTextEncoder:

@@ -15,13 +15,7 @@ from m2d2m.vqvae import EMACodebook, MotionVQVAE, VQConfig, load_vq, save_vq
 
 SMALL = VQConfig(feature_dim=12, width=32, depth=2, code_dim=16, codebook_size=32)
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """These models are tiny: extra intra-op threads only contend with other work on the machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 CORNERS = torch.tensor([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
