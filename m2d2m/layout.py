@@ -15,6 +15,7 @@ NLP = "nlp"
 TOKENS = "tokens"
 TOKENS_KIND = "tokens"  # the manifest "kind" of a token set
 VQ_FILE = "vq.pt"  # the plain VQ-VAE model file, in a run directory and beside its tokens
+MODEL_FILE = "model.pt"  # a denoiser run's self-contained checkpoint (m2d2m.checkpoint)
 
 
 def read_manifest(directory: str | Path) -> dict[str, Any]:

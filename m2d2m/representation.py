@@ -60,6 +60,12 @@ def _heading_forward(joints: np.ndarray, hip_a: int, hip_b: int, skeleton: Skele
     return cross(_UP, normalize(across))
 
 
+def facing_direction(joints: np.ndarray, skeleton: Skeleton = T2M) -> np.ndarray:
+    """The body's horizontal forward direction (..., 3), unit length, from hips and shoulders."""
+    r_hip, l_hip = skeleton.face_joints[0], skeleton.face_joints[1]
+    return normalize(_heading_forward(joints, r_hip, l_hip, skeleton))
+
+
 def retarget(joints: np.ndarray, skeleton: Skeleton, bone_lengths: np.ndarray) -> np.ndarray:
     """Keep every bone's direction, give it the target length, and scale the root trajectory by
     the ratio of leg lengths (HumanML3D's ``uniform_skeleton``, whose IK→FK does exactly this)."""
@@ -87,9 +93,7 @@ def canonicalize(
     positions = retarget(positions, skeleton, lengths)
     positions[..., 1] -= positions[..., 1].min()
     positions -= positions[0, 0] * np.array([1.0, 0.0, 1.0])
-    r_hip, l_hip = skeleton.face_joints[0], skeleton.face_joints[1]
-    forward = _heading_forward(positions[0], r_hip, l_hip, skeleton)
-    face_z = qbetween(normalize(forward), _FORWARD)
+    face_z = qbetween(facing_direction(positions[0], skeleton), _FORWARD)
     return qrot(face_z, positions)
 
 

@@ -87,6 +87,22 @@ def qbetween(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return q / norm[..., None]
 
 
+def qslerp(a: np.ndarray, b: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Spherical interpolation from unit quaternions ``a`` to ``b`` at ``weight`` (0 → a, 1 → b),
+    along the shorter arc; nearly equal rotations fall back to normalised linear interpolation."""
+    weight = np.asarray(weight, dtype=np.float64)[..., None]
+    cosine = dot(a, b)[..., None]
+    b = np.where(cosine < 0.0, -b, b)  # q and −q are one rotation: take the short way
+    cosine = np.abs(cosine)
+    angle = np.arccos(np.clip(cosine, -1.0, 1.0))
+    sine = np.sin(angle)
+    close = sine < 1e-6
+    safe = np.where(close, 1.0, sine)
+    wa = np.where(close, 1.0 - weight, np.sin((1.0 - weight) * angle) / safe)
+    wb = np.where(close, weight, np.sin(weight * angle) / safe)
+    return qnormalize(wa * a + wb * b)
+
+
 def quat_from_axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Rotation by ``angle`` radians about the unit ``axis`` (broadcast against each other)."""
     axis = np.asarray(axis, dtype=np.float64)

@@ -16,7 +16,6 @@ codebook.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -27,6 +26,7 @@ import torch.distributed as dist
 import torch.nn.functional as F
 from torch import nn
 
+from m2d2m.model_files import cpu_state, read_model_file, write_model_file
 from m2d2m.normalization import Normalizer
 
 FORMAT = "m2d2m-vq/1"
@@ -312,59 +312,33 @@ class MotionVQVAE(nn.Module):
 # Model files
 
 
-def _check_plain(value: Any, where: str = "extra") -> None:
-    """Reject what ``torch.load(weights_only=True)`` could not read back, at save time."""
-    if isinstance(value, dict):
-        for key, item in value.items():
-            if not isinstance(key, (str, int)):
-                raise TypeError(f"{where}: keys must be str or int, got {type(key).__name__}")
-            _check_plain(item, f"{where}[{key!r}]")
-    elif isinstance(value, (list, tuple)):
-        for i, item in enumerate(value):
-            _check_plain(item, f"{where}[{i}]")
-    # Exact types: NumPy scalars subclass float but are not loadable with weights_only.
-    elif not (value is None or type(value) in (str, int, float, bool) or isinstance(value, torch.Tensor)):
-        raise TypeError(f"{where}: {type(value).__name__} cannot be stored in a VQ model file "
-                        "(use plain Python values or tensors)")
-
-
 def save_vq(path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skeleton: str,
             extra: dict | None = None) -> None:
     """Write the model, its normalisation and its skeleton name as one self-contained torch file
     (written atomically), the hand-over from VQ training to tokenizing and the denoiser."""
-    extra = {} if extra is None else extra
-    _check_plain(extra)
     payload = {
         "format": FORMAT,
         "config": model.config.to_dict(),
-        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "state_dict": cpu_state(model),
         "mean": torch.as_tensor(np.asarray(normalizer.mean, dtype=np.float32)),
         "std": torch.as_tensor(np.asarray(normalizer.std, dtype=np.float32)),
         "feat_bias": float(normalizer.feat_bias),
         "skeleton": str(skeleton),
-        "extra": extra,
+        "extra": {} if extra is None else extra,
     }
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    torch.save(payload, partial)
-    os.replace(partial, path)
+    write_model_file(path, payload)
 
 
 def load_vq(path: str | Path,
             map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
     """Read a file written by :func:`save_vq`: the model (eval mode, on ``map_location``), its
     normaliser, and ``{"skeleton", "extra"}``."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no VQ model file at {path}")
-    try:
-        payload = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as error:  # any unreadable file is, for the caller, simply not a VQ model
-        raise ValueError(f"{path} is not an m2d2m VQ model file ({type(error).__name__}: {error})") from error
-    found = payload.get("format") if isinstance(payload, dict) else None
-    if found != FORMAT:
-        raise ValueError(f"{path} is not an m2d2m VQ model file (format {found!r}, expected {FORMAT!r})")
+    return vq_from_payload(read_model_file(path, FORMAT, "m2d2m VQ model file", map_location), map_location)
+
+
+def vq_from_payload(payload: dict, map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
+    """The model, normaliser and ``{"skeleton", "extra"}`` of a VQ file's contents — also used
+    when a denoiser checkpoint carries its VQ-VAE inside it."""
     model = MotionVQVAE(VQConfig.from_dict(payload["config"]))
     model.load_state_dict(payload["state_dict"])
     model.to(map_location).eval()

@@ -196,6 +196,29 @@ def _export(args: argparse.Namespace) -> None:
     print(f"wrote {out}")
 
 
+def _generate(args: argparse.Namespace) -> None:
+    from orchestration.generate import GENERATE_STAGE, Generator, log_generation
+    from orchestration.runs import new_run_dir
+
+    if not args.prompts:
+        raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
+    generator = Generator.from_checkpoint(args.checkpoint, args.dataset)
+    motion = generator.generate(args.prompts, seconds=args.seconds, method=args.method, ts=args.ts, eta=args.eta,
+                                guidance=args.guidance, seed=args.seed, truncation=args.truncation,
+                                split=not args.no_split)
+    out = Path(args.out) if args.out else new_run_dir(args.dataset, GENERATE_STAGE)
+    try:
+        files = motion.save(out, args.name, tuple(args.formats))
+    except (ValueError, RuntimeError) as error:  # an unknown format, or no MP4 encoder here
+        raise UserError(str(error)) from error
+    for text, (first, end) in zip(motion.actions, motion.ranges):
+        print(f"  {first / motion.fps:5.1f}–{end / motion.fps:5.1f} s  {text}")
+    print(f"wrote {', '.join(str(path) for path in files.values())} ({motion.seconds:.1f} s, {args.method})")
+    if not args.no_track:
+        run_id = log_generation(motion, args.prompts, files, args.dataset)
+        print(f"logged to MLflow run {run_id} (experiment {args.dataset}/{GENERATE_STAGE}); `make ui` to browse")
+
+
 def _add_motion_source(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
     parser.add_argument("--id", help="clip id when SOURCE is a corpus directory")
@@ -253,6 +276,26 @@ def build_parser() -> argparse.ArgumentParser:
     tokenize.add_argument("--ray-address", help="join a Ray cluster (default: a local Ray; also RAY_ADDRESS)")
     tokenize.add_argument("--check", metavar="DIR", help="verify a token set against its manifest and exit")
     tokenize.set_defaults(run=_tokenize)
+
+    generate = verbs.add_parser("generate", help="text to motion: one sequence doing the prompts in order")
+    generate.add_argument("prompts", nargs="*", help='one or more prompts, e.g. "a person walks forward" "a person jumps"')
+    generate.add_argument("--seconds", type=float, nargs="+",
+                          help="duration of each prompt, or one for all (default: the corpus's typical length per verb)")
+    generate.add_argument("--method", default="tps", help="tps (default), independent, handshake or slerp")
+    generate.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 % of T: 90 for T = 100)")
+    generate.add_argument("--eta", type=float, default=0.25, help="η of the dynamic transition at sampling (default 0.25)")
+    generate.add_argument("--guidance", type=float, default=2.0, help="classifier-free guidance scale s (default 2)")
+    generate.add_argument("--truncation", type=float, default=1.0, help="truncation rate r (default 1 = off)")
+    generate.add_argument("--seed", type=int, default=0)
+    generate.add_argument("--checkpoint", default="latest",
+                          help="model.pt, a diffusion run directory or name, or an MLflow run id (default: latest)")
+    generate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
+    generate.add_argument("--out", help="output directory (default runs/<dataset>/generate/<new run>)")
+    generate.add_argument("--name", default="motion", help="file name stem (default motion)")
+    generate.add_argument("--formats", nargs="+", default=["npy", "bvh", "gif"], help="any of npy bvh gif mp4")
+    generate.add_argument("--no-split", action="store_true", help="keep each prompt one action even with several verbs")
+    generate.add_argument("--no-track", action="store_true", help="do not log this generation to MLflow")
+    generate.set_defaults(run=_generate)
 
     render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
     _add_motion_source(render)

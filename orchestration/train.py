@@ -171,12 +171,13 @@ def train_diffusion(config_name: str = "demo", overrides: list[str] | None = Non
     its tokens are missing or stale; returns the run directory."""
     import lightning.pytorch as pl
 
-    from m2d2m.layout import TOKENS
+    from m2d2m.checkpoint import save_checkpoint
+    from m2d2m.layout import MODEL_FILE, TOKENS
     from m2d2m.text import LearnedTextEncoder
     from m2d2m.vqvae import load_vq
     from pipelines.tokenize import current_tokens, tokenize_dataset
     from training.callbacks import SamplePreview
-    from training.data import TokenDataModule, clip_metas
+    from training.data import TokenDataModule, clip_metas, length_prior
     from training.diffusion_module import DiffusionModule
 
     run_dir, config, run_id = _open_run(DIFFUSION_STAGE, config_name, overrides or [], resume)
@@ -207,6 +208,13 @@ def train_diffusion(config_name: str = "demo", overrides: list[str] | None = Non
                   [SamplePreview(run_dir / "previews", vq_path, preview["prompts"], preview["seconds"],
                                  guidance=preview["guidance"], every=trainer_cfg["gif_every"]),
                    *(extra_callbacks or [])])
-    _finish(run_dir, fitted, [Path(fitted.checkpoints.best_model_path), fitted.last, run_dir / "config.yaml", vq_path],
-            vq=str(vq_path.resolve()), tokens=str(tokens_dir.resolve()))
+    lengths = length_prior(datamodule.urls("train"), datamodule.frames_per_token)
+    save_checkpoint(run_dir / MODEL_FILE, module.denoiser, module.text_encoder, config["text"], config["diffusion"],
+                    module.codebook, vq_path, lengths,
+                    extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
+                           "data_dir": str(data_dir.resolve()), "tokens": str(tokens_dir.resolve()),
+                           "best_val_loss": float(fitted.checkpoints.best_model_score)})
+    _finish(run_dir, fitted, [run_dir / MODEL_FILE, Path(fitted.checkpoints.best_model_path), fitted.last,
+                              run_dir / "config.yaml"],
+            model=str((run_dir / MODEL_FILE).resolve()), vq=str(vq_path.resolve()), tokens=str(tokens_dir.resolve()))
     return run_dir

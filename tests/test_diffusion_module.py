@@ -6,6 +6,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
+from m2d2m.sampling import Request, SamplingOptions
 from m2d2m.text import LearnedTextEncoder
 from training.diffusion_module import DiffusionModule
 from training.vq_module import NonFiniteLossError
@@ -113,14 +114,13 @@ def test_validation_is_deterministic(monkeypatch):
     assert values[0] == values[1]
 
 
-@pytest.mark.parametrize("eta", [None, 0.25])
-def test_sample_lengths_range_and_determinism(eta):
+def test_sampler_uses_the_modules_parts_and_restores_the_mode():
     module = make_module()
-    actions, lengths = [[SENTENCES[0]], [SENTENCES[1], SENTENCES[2]]], [7, 3]
-    first = module.sample(actions, lengths, guidance=3.0, eta=eta, generator=torch.Generator().manual_seed(5))
-    second = module.sample(actions, lengths, guidance=3.0, eta=eta, generator=torch.Generator().manual_seed(5))
-    assert [len(x) for x in first] == lengths
-    for a, b in zip(first, second):
+    requests = [Request([[SENTENCES[0]]], [7], seed=5), Request([[SENTENCES[1], SENTENCES[2]]], [3], seed=6)]
+    first = module.sampler().sample(requests, SamplingOptions(guidance=3.0, ts=0), eta=0.25)
+    second = module.sampler().sample(requests, SamplingOptions(guidance=3.0, ts=0), eta=0.25)
+    assert [len(x[0]) for x in first] == [7, 3]
+    for (a,), (b,) in zip(first, second):
         assert a.dtype == torch.long and int(a.min()) >= 0 and int(a.max()) < K
         assert torch.equal(a, b)
     assert module.training  # sampling restores the mode
@@ -132,7 +132,8 @@ def test_other_schedules_and_importance_sampling(monkeypatch, options):
     monkeypatch.setattr(module, "log", lambda *a, **k: None)
     for _ in range(3):
         assert torch.isfinite(module.training_step(make_batch(), 0))
-    assert [len(x) for x in module.sample([[SENTENCES[0]]], [5], guidance=1.0)] == [5]
+    tokens = module.sampler().sample([Request([[SENTENCES[0]]], [5])], SamplingOptions(guidance=1.0, ts=0))
+    assert len(tokens[0][0]) == 5
 
 
 def test_non_finite_loss_raises(monkeypatch):

@@ -2,6 +2,7 @@
 
 from pathlib import Path
 
+import lightning.pytorch as pl
 import mlflow
 import pytest
 import torch
@@ -10,6 +11,7 @@ import yaml
 from orchestration.errors import UserError
 from orchestration.runs import latest_run, read_run_info
 from orchestration.train import train_diffusion, train_vq
+from tests.test_train_vq import KillAt, RecordStart
 
 TINY_DIFFUSION = {
     "dataset": "tiny",
@@ -43,6 +45,7 @@ def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, ti
     assert checkpoint["state_dict"]["codebook"].shape == (16, 8)  # the VQ codebook travels with it
     assert checkpoint["hyper_parameters"]["diffusion"]["kind"] == "dynamic"
     assert any(run_dir.joinpath("previews").glob("*.gif"))
+    assert info["model"] == str((run_dir / "model.pt").resolve())
 
     mlflow.set_tracking_uri(f"sqlite:///{project / 'mlflow.db'}")
     run = mlflow.get_run(info["mlflow_run_id"])
@@ -51,6 +54,43 @@ def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, ti
     assert run.data.params["diffusion.kind"] == "dynamic" and run.data.tags["stage"] == "diffusion"
     samples = mlflow.MlflowClient().list_artifacts(run.info.run_id, "samples")
     assert samples and all(a.path.endswith(".gif") for a in samples)
+    model_files = {Path(a.path).name for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, "model")}
+    assert {"model.pt", "best.ckpt", "last.ckpt", "config.yaml"} <= model_files
 
     ablation = train_diffusion(str(project / "diffusion.yaml"), overrides=["diffusion.kind=uniform"])
     assert read_run_info(ablation)["config"]["diffusion"]["kind"] == "uniform"
+
+
+def test_resume_after_a_kill_continues_at_the_same_step(project):
+    (project / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
+    train_vq(str(project / "tiny.yaml"))
+    with pytest.raises(RuntimeError, match="killed"):
+        train_diffusion(str(project / "diffusion.yaml"), extra_callbacks=[KillAt(step=3)])
+    run_dir = next((project / "runs" / "tiny" / "diffusion").iterdir())
+    assert torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["global_step"] == 2
+    started = RecordStart()
+    resumed = train_diffusion(str(project / "diffusion.yaml"), resume=True, extra_callbacks=[started])
+    assert resumed.resolve() == run_dir.resolve() and started.step == 2
+    assert read_run_info(run_dir)["status"] == "finished" and (run_dir / "model.pt").exists()
+
+
+class PoisonWeightsAt(pl.Callback):
+    def __init__(self, step: int) -> None:
+        self.step = step
+
+    def on_train_batch_start(self, trainer, module, batch, batch_idx) -> None:
+        if trainer.global_step == self.step:
+            with torch.no_grad():
+                module.denoiser.head.bias.fill_(float("nan"))
+
+
+def test_a_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(project):
+    (project / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
+    train_vq(str(project / "tiny.yaml"))
+    with pytest.raises(UserError, match=r"the training loss is nan at step 3.*last good checkpoint"):
+        train_diffusion(str(project / "diffusion.yaml"), extra_callbacks=[PoisonWeightsAt(step=3)])
+    run_dir = next((project / "runs" / "tiny" / "diffusion").iterdir())
+    assert read_run_info(run_dir)["status"] == "failed"
+    last = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    assert last["global_step"] == 2
+    assert all(torch.isfinite(v).all() for v in last["state_dict"].values() if torch.is_tensor(v) and v.is_floating_point())

@@ -10,6 +10,7 @@ from lightning.pytorch.loggers import MLFlowLogger
 
 from m2d2m.render import render_comparison, render_motion
 from m2d2m.representation import features_to_joints
+from m2d2m.sampling import Request, SamplingOptions
 from m2d2m.skeleton import SKELETONS
 from m2d2m.vqvae import load_vq
 
@@ -59,10 +60,10 @@ class SamplePreview(pl.Callback):
             return
         vq, normalizer, meta = load_vq(self.vq_file)
         skeleton = SKELETONS[meta["skeleton"]]
-        lengths = [max(1, round(s * skeleton.fps / vq.frames_per_token)) for s in self.seconds]
-        generator = torch.Generator(device=module.device).manual_seed(self.seed)
-        sampled = module.sample([[prompt] for prompt in self.prompts], lengths, guidance=self.guidance, generator=generator)
-        for n, (prompt, tokens) in enumerate(zip(self.prompts, sampled)):
+        requests = [Request([[prompt]], [max(1, round(s * skeleton.fps / vq.frames_per_token))], seed=self.seed)
+                    for prompt, s in zip(self.prompts, self.seconds)]
+        sampled = module.sampler().sample(requests, SamplingOptions(guidance=self.guidance, ts=0))
+        for n, (prompt, (tokens,)) in enumerate(zip(self.prompts, sampled)):
             with torch.no_grad():
                 features = vq.decode(tokens[None].cpu())[0].numpy()
             joints = features_to_joints(normalizer.denormalize(features), skeleton)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import tarfile
+from collections import defaultdict
 from functools import cached_property, partial
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -22,6 +23,7 @@ import torch
 import webdataset as wds
 from lightning.pytorch.utilities import rank_zero_info
 
+from m2d2m.checkpoint import LengthPrior
 from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls
 from m2d2m.normalization import Normalizer
 
@@ -278,6 +280,26 @@ def caption_span(caption: dict[str, Any], num_tokens: int, fps: float, frames_pe
     first = int(start * fps / frames_per_token)
     last = min(max(int(end * fps / frames_per_token), first + 1), num_tokens)
     return (first, last) if first < last else None
+
+
+def length_prior(urls: list[str], frames_per_token: int) -> LengthPrior:
+    """Token lengths of the single-action captions (exactly one verb) of the clips in ``urls``: the
+    median per verb and overall, and the longest clip — what generation falls back on when a
+    prompt comes without a duration."""
+    per_verb: dict[str, list[int]] = defaultdict(list)
+    longest = 0
+    for meta in clip_metas(urls):
+        num_tokens = math.ceil(meta["frames"] / frames_per_token)
+        longest = max(longest, num_tokens)
+        for caption in meta["captions"]:
+            span = caption_span(caption, num_tokens, meta["fps"], frames_per_token)
+            if span is not None and len(caption.get("verbs", [])) == 1:
+                per_verb[caption["verbs"][0]].append(span[1] - span[0])
+    if not per_verb:
+        raise ValueError("no single-action captions to estimate action lengths from")
+    every = [n for lengths in per_verb.values() for n in lengths]
+    return LengthPrior({verb: int(np.median(lengths)) for verb, lengths in sorted(per_verb.items())},
+                       int(np.median(every)), longest)
 
 
 def captioned_tokens(tokens: np.ndarray, meta: dict[str, Any], caption: dict[str, Any], frames_per_token: int) -> Sample:

@@ -1,6 +1,5 @@
 """The M2D2M denoiser as a LightningModule: discrete-diffusion training on VQ tokens with a text
-condition (classifier-free guidance by condition dropout), deterministic validation metrics, and
-a guided sampler used for preview GIFs during training."""
+condition (classifier-free guidance by condition dropout) and deterministic validation metrics."""
 
 from __future__ import annotations
 
@@ -10,13 +9,13 @@ import lightning.pytorch as pl
 import numpy as np
 import torch
 
-from m2d2m.denoiser import DenoiserConfig, MotionDenoiser, guided_logits
+from m2d2m.checkpoint import SCHEDULE_KEYS
+from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.diffusion import TimestepSampler, TransitionSchedule, diffusion_loss
+from m2d2m.sampling import TokenSampler
 from m2d2m.text import build_text_encoder, encode_actions
 from training.vq_module import NonFiniteLossError, warmup_step_decay
 
-# keys of the ``diffusion`` mapping that build the transition schedule
-_SCHEDULE_KEYS = ("steps", "kind", "eta", "distance", "schedule")
 T_BUCKETS = 4
 
 
@@ -65,7 +64,7 @@ class DiffusionModule(pl.LightningModule):
 
     # ----------------------------------------------------------------------------------- schedule
     def _build_schedule(self) -> TransitionSchedule:
-        options = {k: self.hparams.diffusion[k] for k in _SCHEDULE_KEYS if k in self.hparams.diffusion}
+        options = {k: self.hparams.diffusion[k] for k in SCHEDULE_KEYS if k in self.hparams.diffusion}
         options["steps"] = int(options.get("steps", 100))
         return TransitionSchedule.build(self.codebook.detach().double(), **options)
 
@@ -149,42 +148,6 @@ class DiffusionModule(pl.LightningModule):
         return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
 
     # ----------------------------------------------------------------------------------- sampling
-    @torch.no_grad()
-    def sample(self, actions: list[list[str]], lengths: list[int], guidance: float = 4.0,
-               eta: float | None = None, generator: torch.Generator | None = None) -> list[torch.Tensor]:
-        """Guided ancestral sampling, one condition and length per row; tokens trimmed to each length.
-
-        z_T from the prior, then for t = T..2 z_{t−1} ~ p(z_{t−1} | z_t) (the posterior mixed over the
-        guided x0 probabilities); at t = 1 the final tokens are the argmax of the guided x0
-        probabilities (greedy last step, so no mask token survives). ``generator`` must live on the
-        module's device.
-        """
-        if len(actions) != len(lengths) or not lengths or min(lengths) < 1:
-            raise ValueError("need one positive length per caption")
-        schedule = self.schedule_on_device()
-        if eta is not None and float(eta) != schedule.config.eta:
-            schedule = schedule.with_eta(eta)
-        device = self.codebook.device
-        was_training = self.training
-        self.eval()
-        try:
-            batch, length = len(lengths), max(lengths)
-            valid = torch.arange(length, device=device)[None, :] < torch.tensor(lengths, device=device)[:, None]
-            text, text_mask = self._condition(actions)
-            z = schedule.sample_prior((batch, length), generator=generator)
-            for step in range(schedule.steps, 0, -1):
-                t = torch.full((batch,), step, dtype=torch.long, device=device)
-                cond = self.denoiser(z, valid, t, text, text_mask)
-                uncond = self.denoiser(z, valid, t, None, None)
-                x0 = guided_logits(cond, uncond, guidance).exp()
-                if step == 1:
-                    z = x0.argmax(dim=-1)
-                    break
-                probs = schedule.posterior_probs(z, x0, step).clamp_min(0.0).reshape(-1, schedule.num_codes + 1)
-                dead = probs.sum(dim=1) <= 0  # cannot happen in exact arithmetic; never crash on it
-                probs[dead, schedule.mask_index] = 1.0
-                z = torch.multinomial(probs, 1, generator=generator).reshape(batch, length)
-                z = z.masked_fill(~valid, schedule.mask_index)
-        finally:
-            self.train(was_training)
-        return [z[row, :n].clone() for row, n in enumerate(lengths)]
+    def sampler(self) -> TokenSampler:
+        """The reverse process over this module's denoiser, text encoder and schedule (for previews)."""
+        return TokenSampler(self.denoiser, self.text_encoder, self.schedule_on_device())

@@ -1,0 +1,103 @@
+"""The denoiser checkpoint: everything sampling needs in one file.
+
+It holds the denoiser (config and weights), the text encoder (its kind and options; weights when
+it was trained, a path when it is the frozen CLIP tower), the transition settings and the codebook
+they are built from, the VQ-VAE that decodes tokens (embedded, with its normalisation and
+skeleton), and the corpus's length prior, so ``load_checkpoint(path)`` alone can turn text into
+motion on any machine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
+from m2d2m.diffusion import TransitionSchedule
+from m2d2m.model_files import cpu_state, read_model_file, write_model_file
+from m2d2m.normalization import Normalizer
+from m2d2m.skeleton import SKELETONS, Skeleton
+from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
+from m2d2m.vqvae import FORMAT as VQ_FORMAT
+from m2d2m.vqvae import MotionVQVAE, vq_from_payload
+
+FORMAT = "m2d2m-denoiser/1"
+SCHEDULE_KEYS = ("steps", "kind", "eta", "distance", "schedule")
+
+
+@dataclass
+class LengthPrior:
+    """Typical lengths in tokens: the median per verb over single-action training captions, and
+    the median over all of them for verbs never seen alone; ``longest`` is the longest clip."""
+
+    per_verb: dict[str, int]
+    median: int
+    longest: int
+
+    def tokens_for(self, verb: str | None) -> int:
+        return self.per_verb.get(verb or "", self.median)
+
+
+@dataclass
+class Checkpoint:
+    """A loaded checkpoint, on one device, in eval mode."""
+
+    denoiser: MotionDenoiser
+    text_encoder: TextEncoder
+    schedule: TransitionSchedule
+    vq: MotionVQVAE
+    normalizer: Normalizer
+    skeleton: Skeleton
+    lengths: LengthPrior
+    extra: dict[str, Any]
+
+    @property
+    def fps(self) -> float:
+        return self.skeleton.fps
+
+    @property
+    def frames_per_token(self) -> int:
+        return self.vq.frames_per_token
+
+
+def save_checkpoint(path: str | Path, denoiser: MotionDenoiser, text_encoder: TextEncoder, text: dict[str, Any],
+                    diffusion: dict[str, Any], codebook: torch.Tensor, vq_file: str | Path, lengths: LengthPrior,
+                    extra: dict[str, Any] | None = None) -> Path:
+    """Write a checkpoint; ``text`` and ``diffusion`` are the run's config sections."""
+    vq_payload = read_model_file(vq_file, VQ_FORMAT, "m2d2m VQ model file")
+    trained_text = cpu_state(text_encoder) if text_encoder.trainable else None
+    payload = {
+        "format": FORMAT,
+        "denoiser": {"config": denoiser.config.to_dict(),
+                     "state_dict": cpu_state(denoiser)},
+        "text": {"kind": text.get("kind", "learned"),
+                 "options": {k: v for k, v in text.items() if k != "kind"},
+                 "state_dict": trained_text},
+        "schedule": {k: diffusion[k] for k in SCHEDULE_KEYS if k in diffusion},
+        "codebook": codebook.detach().cpu().to(torch.float32),
+        "vq": vq_payload,
+        "lengths": {"per_verb": dict(lengths.per_verb), "median": int(lengths.median), "longest": int(lengths.longest)},
+        "extra": {} if extra is None else extra,
+    }
+    return write_model_file(path, payload)
+
+
+def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Checkpoint:
+    """Read a file written by :func:`save_checkpoint`, models in eval mode on ``device``."""
+    payload = read_model_file(path, FORMAT, "m2d2m denoiser checkpoint")
+    denoiser = MotionDenoiser(DenoiserConfig.from_dict(payload["denoiser"]["config"]))
+    denoiser.load_state_dict(payload["denoiser"]["state_dict"])
+    text = payload["text"]
+    if text["state_dict"] is not None and text["kind"] == "learned":
+        text_encoder: TextEncoder = LearnedTextEncoder.from_state_dict(text["state_dict"])
+    else:
+        text_encoder = build_text_encoder(text["kind"], **text["options"])
+    codebook = payload["codebook"].to(device)
+    schedule = TransitionSchedule.build(codebook.double(), **payload["schedule"])
+    vq, normalizer, vq_meta = vq_from_payload(payload["vq"], device)
+    lengths = LengthPrior(**payload["lengths"])
+    return Checkpoint(denoiser.to(device).eval(), text_encoder.to(device).eval(), schedule, vq, normalizer,
+                      SKELETONS[vq_meta["skeleton"]], lengths, payload["extra"])

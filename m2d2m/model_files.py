@@ -1,0 +1,61 @@
+"""Self-contained model files: one ``torch.save`` dict with a format tag, written atomically and
+read back with ``weights_only=True`` (so a file can never run code), shared by the VQ-VAE and
+the denoiser checkpoint."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+
+def check_plain(value: Any, where: str = "extra") -> None:
+    """Reject what ``torch.load(weights_only=True)`` could not read back, at save time."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, (str, int)):
+                raise TypeError(f"{where}: keys must be str or int, got {type(key).__name__}")
+            check_plain(item, f"{where}[{key!r}]")
+    elif isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            check_plain(item, f"{where}[{i}]")
+    # Exact types: NumPy scalars subclass float but are not loadable with weights_only.
+    elif not (value is None or type(value) in (str, int, float, bool) or isinstance(value, torch.Tensor)):
+        raise TypeError(f"{where}: {type(value).__name__} cannot be stored in a model file "
+                        "(use plain Python values or tensors)")
+
+
+def cpu_state(module: torch.nn.Module) -> dict[str, Any]:
+    """A module's state dict detached on the CPU; non-tensor extra state (a vocabulary) as it is."""
+    return {k: v.detach().cpu() if isinstance(v, torch.Tensor) else v for k, v in module.state_dict().items()}
+
+
+def write_model_file(path: str | Path, payload: dict[str, Any]) -> Path:
+    """Save ``payload`` to ``path`` through a temporary file, so readers never see half a file."""
+    check_plain(payload, "payload")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    torch.save(payload, partial)
+    os.replace(partial, path)
+    return path
+
+
+def read_model_file(path: str | Path, expected_format: str, what: str,
+                    map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """The payload of a file written by :func:`write_model_file` whose format is ``expected_format``;
+    FileNotFoundError or ValueError (naming ``what`` was expected) otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no {what} at {path}")
+    try:
+        payload = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as error:  # any unreadable file is, for the caller, simply not this kind of file
+        first_line = str(error).strip().splitlines()[0] if str(error).strip() else ""
+        raise ValueError(f"{path} is not an {what} ({type(error).__name__}: {first_line})") from error
+    found = payload.get("format") if isinstance(payload, dict) else None
+    if found != expected_format:
+        raise ValueError(f"{path} is not an {what} (format {found!r}, expected {expected_format!r})")
+    return payload

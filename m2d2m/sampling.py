@@ -1,0 +1,355 @@
+"""Token samplers of M2D2M: single actions, Two-Phase Sampling (paper Algorithm 1), the paper's
+multi-motion baselines on the same model, and editing by fixed tokens.
+
+Every sampler runs the same reverse step — guided x0 probabilities (classifier-free guidance s,
+VQ-Diffusion's truncation r), the posterior p(z_{t−1} | z_t) of the transition schedule, one
+categorical draw per position — over a batch of *rows*. What differs is how a request's actions
+are laid out as rows:
+
+- ``tps``: for t = T … T_s+1 one row per request, its actions concatenated and its conditions
+  concatenated (joint phase); for t = T_s … 1 one row per action (independent phase).
+- ``independent``: one row per action for all t (the paper's T2M-GPT baseline: tokens sampled
+  alone, concatenated before decoding). It is ``tps`` with T_s = T.
+- ``handshake``: one row per action, each action after the first extended by H tokens that it shares
+  with the end of the previous one; at every step the overlapping x0 probabilities are blended
+  with a linear ramp and the drawn tokens copied, so neighbours share one transition (DoubleTake's
+  first take, ``reference/anchors.md`` §6.1, in token space).
+- ``slerp``: one row per action, every action after the first shortened by the transition window;
+  the motion-level gap filling is :func:`m2d2m.transitions.bridge` (TEACH, §6.2).
+
+Randomness is per request: each request has its own generator and draws, at every step, one
+uniform per position of its actions in order, whatever the rows look like. Hence a request's
+result does not depend on what else is in the batch, and ``tps`` with T_s = T reproduces
+``independent`` draw for draw.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from m2d2m.denoiser import MotionDenoiser, guided_logits
+from m2d2m.diffusion import TransitionSchedule
+from m2d2m.text import TextEncoder, encode_actions
+
+METHODS = ("tps", "independent", "handshake", "slerp")
+FREE = -1  # a position of ``Request.given`` that the sampler fills
+
+
+@dataclass(frozen=True)
+class SamplingOptions:
+    """Knobs of the reverse process; the defaults are the paper's multi-action settings."""
+
+    method: str = "tps"
+    ts: int | None = None  # TPS switch: joint for t > ts, independent for t <= ts; None = 0.9·T (90 of 100)
+    guidance: float = 2.0  # classifier-free guidance scale s
+    truncation: float = 1.0  # keep the most probable codes holding this much x0 mass (1 = off)
+    handshake: int = 5  # shared tokens between neighbours (``handshake``); 5 tokens = 20 frames
+    slerp: int = 2  # tokens left out before each later action (``slerp``); 2 tokens = 8 frames
+
+    def check(self, steps: int) -> None:
+        """Raise ValueError naming the first setting a schedule of ``steps`` steps cannot run."""
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
+        if self.method == "tps" and self.ts is not None and not 0 <= self.ts <= steps:
+            raise ValueError(f"T_s must lie in 0..T = {steps}, got {self.ts}")
+        if self.guidance < 0:
+            raise ValueError(f"guidance scale s must be >= 0, got {self.guidance}")
+        if not 0.0 < self.truncation <= 1.0:
+            raise ValueError(f"truncation r must lie in (0, 1], got {self.truncation}")
+        if self.handshake < 1 or self.slerp < 0:
+            raise ValueError("handshake must be >= 1 token and slerp >= 0 tokens")
+
+
+@dataclass
+class Request:
+    """One sequence to generate: its actions in order, each action's length in tokens, a seed.
+
+    ``given`` (optional, Σ lengths long): tokens to keep (in-betweening, prefix or suffix
+    completion), :data:`FREE` where the sampler decides. ``actions[i]`` is one action's condition:
+    its sentence, or several sentences whose token features are concatenated.
+    """
+
+    actions: list[list[str]]
+    lengths: list[int]
+    seed: int = 0
+    given: Tensor | None = None
+
+    def __post_init__(self) -> None:
+        if not self.actions or len(self.actions) != len(self.lengths):
+            raise ValueError("a request needs one length per action and at least one action")
+        if any(not sentences for sentences in self.actions):
+            raise ValueError("every action needs at least one sentence")
+        if min(self.lengths) < 1:
+            raise ValueError(f"every action needs at least one token, got lengths {self.lengths}")
+        if self.given is not None and tuple(self.given.shape) != (sum(self.lengths),):
+            raise ValueError(f"given must hold {sum(self.lengths)} tokens, got shape {tuple(self.given.shape)}")
+
+
+@dataclass
+class _Row:
+    """A row of the batch: which request, which of its stream positions, which condition."""
+
+    request: int
+    stream: slice  # positions in the request's per-step uniform stream
+    condition: list[str]
+
+
+@dataclass
+class _Layout:
+    rows: list[_Row]
+    length: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.length = max(row.stream.stop - row.stream.start for row in self.rows)
+
+
+def switch_step(ts: int | None, steps: int) -> int:
+    """T_s, defaulting to the paper's 90 of 100 steps scaled to the schedule's T."""
+    return round(0.9 * steps) if ts is None else ts
+
+
+def truncate(probs: Tensor, rate: float) -> Tensor:
+    """VQ-Diffusion's truncation: keep the most probable codes until ``rate`` of the mass is covered
+    (the top code always stays), zero the rest and renormalise over the last dimension."""
+    if rate >= 1.0:
+        return probs
+    ordered, order = probs.sort(dim=-1, descending=True)
+    keep_sorted = (ordered.cumsum(dim=-1) - ordered) < rate
+    keep = torch.zeros_like(keep_sorted).scatter(-1, order, keep_sorted)
+    kept = probs * keep
+    return kept / kept.sum(dim=-1, keepdim=True)
+
+
+def categorical(probs: Tensor, uniforms: Tensor) -> Tensor:
+    """Inverse-CDF draw over the last dimension with given uniforms in [0, 1).
+
+    Counting the states whose CDF stays at or below u·total never picks a zero-probability state;
+    a row with no mass at all gets the last state (the mask), which the caller treats as undecided.
+    """
+    cdf = probs.cumsum(dim=-1)
+    chosen = (cdf <= uniforms.unsqueeze(-1).to(cdf.dtype) * cdf[..., -1:]).sum(dim=-1)
+    return chosen.clamp_max(probs.shape[-1] - 1)
+
+
+class TokenSampler:
+    """Reverse diffusion over motion tokens for a denoiser, its text encoder and its schedule.
+
+    Works on the device the denoiser is on; the schedule is moved there. ``eta`` rebuilds the
+    dynamic schedule's matrices for that η (a few hundred milliseconds at K = 512, T = 100).
+    """
+
+    def __init__(self, denoiser: MotionDenoiser, text_encoder: TextEncoder, schedule: TransitionSchedule) -> None:
+        self.denoiser = denoiser
+        self.text_encoder = text_encoder
+        self.schedule = schedule
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.denoiser.parameters()).device
+
+    def _schedule(self, eta: float | None) -> TransitionSchedule:
+        """The schedule at ``eta`` on the model's device; a ``uniform`` schedule has no η to change."""
+        if eta is not None and eta < 0:
+            raise ValueError(f"eta must be >= 0, got {eta}")
+        schedule = self.schedule
+        if eta is not None and schedule.config.kind == "dynamic" and float(eta) != schedule.config.eta:
+            schedule = schedule.with_eta(eta)
+        return schedule.to(self.device) if schedule.device != self.device else schedule
+
+    # ------------------------------------------------------------------------------------- public
+    @torch.no_grad()
+    def sample(self, requests: list[Request], options: SamplingOptions = SamplingOptions(),
+               eta: float | None = None, progress: Callable[[int], None] | None = None) -> list[list[Tensor]]:
+        """Tokens for each request, one (length,) long tensor per action (the *generated* tokens:
+        under ``slerp`` later actions are ``slerp`` tokens shorter; under ``handshake`` the
+        shared tokens belong to the earlier action). ``progress(t)`` is called after each step."""
+        schedule = self._schedule(eta)
+        options.check(schedule.steps)
+        if not requests:
+            return []
+        if options.method == "handshake" and min(n for r in requests for n in r.lengths) < options.handshake:
+            raise ValueError(f"handshake sampling needs every action to be at least {options.handshake} tokens long")
+        if options.method == "slerp":
+            requests = [_shortened(request, options.slerp) for request in requests]
+        was_training = self.denoiser.training
+        self.denoiser.eval()
+        self.text_encoder.eval()
+        try:
+            return self._run(requests, options, schedule, progress)
+        finally:
+            self.denoiser.train(was_training)
+            self.text_encoder.train(was_training)
+
+    # ----------------------------------------------------------------------------------- internals
+    def _run(self, requests: list[Request], options: SamplingOptions, schedule: TransitionSchedule,
+             progress: Callable[[int], None] | None) -> list[list[Tensor]]:
+        device = self.device
+        generators = [torch.Generator(device=device).manual_seed(int(r.seed)) for r in requests]
+        overlap = options.handshake if options.method == "handshake" else 0
+        streams = [sum(r.lengths) + overlap * (len(r.lengths) - 1) for r in requests]
+        # z_T, laid out as each request's stream (for handshake, the shared tokens appear twice)
+        state = [schedule.sample_prior((n,), generator=g) for n, g in zip(streams, generators)]
+        given = [_given_stream(r, overlap, device) for r in requests]
+        state = [torch.where(g >= 0, g, z) for g, z in zip(given, state)]
+        if overlap:
+            state = [_copy_shared(z, _extended_lengths(r.lengths, overlap), overlap) for z, r in zip(state, requests)]
+
+        joint_until = switch_step(options.ts, schedule.steps) if options.method == "tps" else schedule.steps
+        phases = [(schedule.steps, joint_until, _joint_layout(requests)),
+                  (joint_until, 0, _action_layout(requests, overlap))]
+        for start, stop, layout in phases:
+            if start > stop:
+                state = self._denoise(layout, state, given, generators, range(start, stop, -1), schedule,
+                                      options, overlap, requests, progress)
+        return [_split_actions(z, r.lengths, overlap) for z, r in zip(state, requests)]
+
+    def _denoise(self, layout: _Layout, state: list[Tensor], given: list[Tensor], generators: list[torch.Generator],
+                 steps: range, schedule: TransitionSchedule, options: SamplingOptions, overlap: int,
+                 requests: list[Request], progress: Callable[[int], None] | None) -> list[Tensor]:
+        """Run ``steps`` (descending t) on the rows of ``layout``; returns the requests' streams."""
+        device, mask = self.device, schedule.mask_index
+        rows, width = len(layout.rows), layout.length
+        lengths = torch.tensor([row.stream.stop - row.stream.start for row in layout.rows], device=device)
+        valid = torch.arange(width, device=device)[None, :] < lengths[:, None]
+        text, text_mask = encode_actions(self.text_encoder, [row.condition for row in layout.rows])
+        z = torch.full((rows, width), mask, dtype=torch.long, device=device)
+        fixed = torch.full_like(z, FREE)
+        for i, row in enumerate(layout.rows):
+            n = row.stream.stop - row.stream.start
+            z[i, :n] = state[row.request][row.stream]
+            fixed[i, :n] = given[row.request][row.stream]
+        for t in steps:
+            x0 = self._x0(z, valid, t, text, text_mask, options)
+            if overlap:
+                x0 = _blend_shared(x0, layout, overlap)
+            probs = schedule.posterior_probs(z, x0, t)
+            uniforms = torch.zeros(rows, width, dtype=torch.float64, device=device)
+            draws = [torch.rand(streams, generator=g, dtype=torch.float64, device=device)
+                     for streams, g in zip((s.numel() for s in state), generators)]
+            for i, row in enumerate(layout.rows):
+                uniforms[i, : row.stream.stop - row.stream.start] = draws[row.request][row.stream]
+            z = categorical(probs, uniforms)
+            if t == 1:  # no mask may survive the last step: a dead row takes the most likely code
+                z = torch.where(z == mask, x0.argmax(dim=-1), z)
+            z = torch.where(fixed >= 0, fixed, z).masked_fill(~valid, mask)
+            if overlap:
+                z = _copy_shared_rows(z, layout, overlap)
+            if progress is not None:
+                progress(t)
+        out = [s.clone() for s in state]
+        for i, row in enumerate(layout.rows):
+            out[row.request][row.stream] = z[i, : row.stream.stop - row.stream.start]
+        return out
+
+    def _x0(self, z: Tensor, valid: Tensor, t: int, text: Tensor, text_mask: Tensor,
+            options: SamplingOptions) -> Tensor:
+        """Guided, truncated p(z0 | z_t) (rows, width, K) in float64: one forward pass of the
+        conditional and null rows together."""
+        rows = z.shape[0]
+        steps = torch.full((rows,), t, dtype=torch.long, device=z.device)
+        if options.guidance == 1.0:
+            logits = torch.log_softmax(self.denoiser(z, valid, steps, text, text_mask).float(), dim=-1)
+        else:
+            null_text, null_mask = self.denoiser.null_condition(rows)
+            pad = text.shape[1] - null_text.shape[1]
+            null_text = torch.nn.functional.pad(null_text, (0, 0, 0, pad))
+            null_mask = torch.nn.functional.pad(null_mask, (0, pad), value=False)
+            both = self.denoiser(z.repeat(2, 1), valid.repeat(2, 1), steps.repeat(2),
+                                 torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
+            logits = guided_logits(both[:rows], both[rows:], options.guidance)
+        return truncate(logits.double().exp(), options.truncation)
+
+
+# --------------------------------------------------------------------------------------- layouts
+def _joint_layout(requests: list[Request]) -> _Layout:
+    """One row per request: its whole stream, its actions' sentences concatenated in order."""
+    return _Layout([_Row(i, slice(0, sum(r.lengths)), [s for sentences in r.actions for s in sentences])
+                    for i, r in enumerate(requests)])
+
+
+def _extended_lengths(lengths: list[int], overlap: int) -> list[int]:
+    """Row lengths under handshake: every action after the first also holds the shared tokens."""
+    return [n + (overlap if i else 0) for i, n in enumerate(lengths)]
+
+
+def _action_layout(requests: list[Request], overlap: int) -> _Layout:
+    """One row per action of every request, in order, each with its own sentences."""
+    rows = []
+    for i, r in enumerate(requests):
+        start = 0
+        for sentences, n in zip(r.actions, _extended_lengths(r.lengths, overlap)):
+            rows.append(_Row(i, slice(start, start + n), sentences))
+            start += n
+    return _Layout(rows)
+
+
+def _given_stream(request: Request, overlap: int, device: torch.device) -> Tensor:
+    """``given`` laid out as the request's stream (shared tokens repeated under handshake)."""
+    total = sum(request.lengths)
+    given = torch.full((total,), FREE, dtype=torch.long) if request.given is None else request.given.long().cpu()
+    if overlap:
+        pieces, start = [], 0
+        for i, n in enumerate(request.lengths):
+            if i:
+                pieces.append(given[start - overlap:start])
+            pieces.append(given[start:start + n])
+            start += n
+        given = torch.cat(pieces)
+    return given.to(device)
+
+
+def _copy_shared(stream: Tensor, lengths: list[int], overlap: int) -> Tensor:
+    """A stream whose shared copies (the start of every later action's row) repeat the end of the
+    action before."""
+    stream = stream.clone()
+    start = 0
+    for i, n in enumerate(lengths):
+        if i:
+            stream[start:start + overlap] = stream[start - overlap:start]
+        start += n
+    return stream
+
+
+def _row_pairs(layout: _Layout) -> list[tuple[int, int, int]]:
+    """(earlier row, later row, earlier row's length) for neighbouring actions of one request."""
+    return [(i - 1, i, layout.rows[i - 1].stream.stop - layout.rows[i - 1].stream.start)
+            for i in range(1, len(layout.rows)) if layout.rows[i - 1].request == layout.rows[i].request]
+
+
+def _blend_shared(x0: Tensor, layout: _Layout, overlap: int) -> Tensor:
+    """Both neighbours get (1 − a)·earlier + a·later on the shared tokens, a = 0, 1/H, …, (H−1)/H."""
+    x0 = x0.clone()
+    ramp = (torch.arange(overlap, dtype=x0.dtype, device=x0.device) / overlap)[:, None]
+    for earlier, later, end in _row_pairs(layout):
+        blended = (1 - ramp) * x0[earlier, end - overlap:end] + ramp * x0[later, :overlap]
+        x0[earlier, end - overlap:end] = blended
+        x0[later, :overlap] = blended
+    return x0
+
+
+def _copy_shared_rows(z: Tensor, layout: _Layout, overlap: int) -> Tensor:
+    for earlier, later, end in _row_pairs(layout):
+        z[later, :overlap] = z[earlier, end - overlap:end]
+    return z
+
+
+def _split_actions(stream: Tensor, lengths: list[int], overlap: int) -> list[Tensor]:
+    """Each action's tokens from a request's stream, the shared copies dropped."""
+    pieces, start = [], 0
+    for i, n in enumerate(lengths):
+        start += overlap if i else 0
+        pieces.append(stream[start:start + n].clone())
+        start += n
+    return pieces
+
+
+def _shortened(request: Request, window: int) -> Request:
+    """The request with every action after the first ``window`` tokens shorter (at least 1 left)."""
+    if request.given is not None:
+        raise ValueError("editing with given tokens is not supported by the slerp baseline")
+    lengths = [n if i == 0 else max(1, n - window) for i, n in enumerate(request.lengths)]
+    return Request(request.actions, lengths, request.seed)

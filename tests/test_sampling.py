@@ -1,0 +1,151 @@
+"""Samplers on a tiny, randomly initialised denoiser: the identities the paper's Algorithm 1 implies,
+batch independence, editing, and the baselines' token layouts."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
+from m2d2m.diffusion import TransitionSchedule
+from m2d2m.sampling import FREE, Request, SamplingOptions, TokenSampler, categorical, truncate
+from m2d2m.text import LearnedTextEncoder
+
+CODES, STEPS = 12, 10
+WALK, JUMP, SIT = ["a person walks forward"], ["a person jumps"], ["a person sits down"]
+
+
+@pytest.fixture(scope="module")
+def sampler() -> TokenSampler:
+    """Weights drawn wider than a real init (std 0.3), so outputs depend visibly on the condition."""
+    torch.manual_seed(0)
+    words = LearnedTextEncoder.build_vocabulary(WALK + JUMP + SIT)
+    text = LearnedTextEncoder(words, dim=16, layers=1, heads=2, dropout=0.0)
+    denoiser = MotionDenoiser(DenoiserConfig(codebook_size=CODES, layers=2, heads=2, width=32, ffn=64,
+                                             text_dim=16, steps=STEPS, max_distance=16, num_buckets=8))
+    with torch.no_grad():
+        for module in (text, denoiser):
+            for parameter in module.parameters():
+                parameter.normal_(0.0, 0.3)
+    schedule = TransitionSchedule.build(torch.randn(CODES, 4, generator=torch.Generator().manual_seed(1)),
+                                        steps=STEPS, kind="dynamic", eta=0.5)
+    return TokenSampler(denoiser, text, schedule)
+
+
+def run(sampler: TokenSampler, requests: list[Request], **options) -> list[list[torch.Tensor]]:
+    return sampler.sample(requests, SamplingOptions(**{"ts": 6, **options}))
+
+
+def flat(tokens: list[torch.Tensor]) -> torch.Tensor:
+    return torch.cat(tokens)
+
+
+def test_tps_with_ts_equal_to_T_is_independent_sampling(sampler):
+    request = Request([WALK, JUMP, SIT], [6, 5, 7], seed=3)
+    tps = run(sampler, [request], method="tps", ts=STEPS)[0]
+    independent = run(sampler, [request], method="independent")[0]
+    assert all(torch.equal(a, b) for a, b in zip(tps, independent))
+    assert [len(x) for x in tps] == [6, 5, 7]
+
+
+def test_tps_of_one_action_is_single_sampling(sampler):
+    request = Request([WALK], [9], seed=5)
+    results = [run(sampler, [request], method="tps", ts=ts)[0][0] for ts in (0, 4, STEPS)]
+    assert all(torch.equal(results[0], other) for other in results[1:])
+    assert results[0].min() >= 0 and results[0].max() < CODES
+
+
+def test_joint_phase_attends_across_the_boundary(sampler):
+    """Changing the second action's prompt changes the first action's tokens only under TPS."""
+    before = Request([WALK, JUMP], [8, 8], seed=11)
+    after = Request([WALK, SIT], [8, 8], seed=11)
+    independent = [run(sampler, [r], method="independent")[0][0] for r in (before, after)]
+    assert torch.equal(*independent)
+    tps = [run(sampler, [r], method="tps", ts=STEPS // 2)[0][0] for r in (before, after)]
+    assert not torch.equal(tps[0][-3:], tps[1][-3:])
+
+
+def test_batched_sampling_matches_one_by_one(sampler):
+    requests = [Request([WALK, JUMP], [5, 7], seed=1), Request([SIT], [4], seed=2),
+                Request([JUMP, SIT, WALK], [3, 6, 2], seed=3)]
+    for method in ("tps", "independent", "handshake", "slerp"):
+        extra = {"handshake": 2} if method == "handshake" else {}
+        batched = run(sampler, requests, method=method, ts=6, **extra)
+        alone = [run(sampler, [r], method=method, ts=6, **extra)[0] for r in requests]
+        for many, one in zip(batched, alone):
+            assert all(torch.equal(a, b) for a, b in zip(many, one)), method
+
+
+@pytest.mark.parametrize("method", ["tps", "independent", "handshake"])
+def test_editing_keeps_given_tokens(sampler, method):
+    lengths = [6, 6]
+    given = torch.full((12,), FREE)
+    given[:3] = torch.tensor([1, 2, 3])  # prefix
+    given[-2:] = torch.tensor([7, 0])  # suffix; the middle is in-betweened
+    tokens = flat(run(sampler, [Request([WALK, JUMP], lengths, seed=4, given=given)], method=method, ts=5,
+                      handshake=2)[0])
+    kept = given != FREE
+    assert torch.equal(tokens[kept], given[kept])
+    assert tokens.min() >= 0 and tokens.max() < CODES
+
+
+def test_handshake_and_slerp_lengths(sampler):
+    request = Request([WALK, JUMP, SIT], [6, 5, 7], seed=0)
+    handshake = run(sampler, [request], method="handshake", handshake=3)[0]
+    assert [len(x) for x in handshake] == [6, 5, 7]
+    slerp = run(sampler, [request], method="slerp", slerp=2)[0]
+    assert [len(x) for x in slerp] == [6, 3, 5]
+    with pytest.raises(ValueError, match="at least 6 tokens"):
+        run(sampler, [request], method="handshake", handshake=6)
+
+
+def test_seeds_matter_and_repeat(sampler):
+    first = run(sampler, [Request([WALK], [10], seed=0)])[0][0]
+    again = run(sampler, [Request([WALK], [10], seed=0)])[0][0]
+    other = run(sampler, [Request([WALK], [10], seed=1)])[0][0]
+    assert torch.equal(first, again) and not torch.equal(first, other)
+
+
+def test_eta_and_truncation_change_samples(sampler):
+    request = [Request([WALK, JUMP], [8, 8], seed=2)]
+    base = flat(run(sampler, request)[0])
+    assert not torch.equal(base, flat(sampler.sample(request, SamplingOptions(ts=6), eta=3.0)[0]))
+    assert not torch.equal(base, flat(run(sampler, request, truncation=0.3)[0]))
+    assert sampler.schedule.config.eta == 0.5  # a sampling-time η never changes the model's schedule
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"method": "blend"}, "unknown method"), ({"ts": STEPS + 1}, "T_s must lie"),
+    ({"guidance": -1.0}, "guidance"), ({"truncation": 0.0}, "truncation"),
+])
+def test_bad_options(sampler, options, message):
+    with pytest.raises(ValueError, match=message):
+        run(sampler, [Request([WALK], [4])], **options)
+    with pytest.raises(ValueError, match="eta"):
+        sampler.sample([Request([WALK], [4])], eta=-0.1)
+
+
+def test_bad_requests():
+    with pytest.raises(ValueError, match="one length per action"):
+        Request([WALK, JUMP], [4])
+    with pytest.raises(ValueError, match="at least one token"):
+        Request([WALK], [0])
+    with pytest.raises(ValueError, match="given must hold 4"):
+        Request([WALK], [4], given=torch.zeros(5, dtype=torch.long))
+
+
+def test_truncate_keeps_the_top_mass():
+    probs = torch.tensor([[0.1, 0.5, 0.3, 0.1]], dtype=torch.float64)
+    assert torch.allclose(truncate(probs, 0.7), torch.tensor([[0.0, 0.625, 0.375, 0.0]], dtype=torch.float64))
+    assert torch.allclose(truncate(probs, 0.4), torch.tensor([[0.0, 1.0, 0.0, 0.0]], dtype=torch.float64))
+    assert truncate(probs, 1.0) is probs
+
+
+def test_categorical_follows_probabilities_and_skips_zeros():
+    probs = torch.tensor([0.0, 0.2, 0.0, 0.8], dtype=torch.float64).expand(200_000, 4)
+    draws = categorical(probs, torch.rand(200_000, generator=torch.Generator().manual_seed(0), dtype=torch.float64))
+    counts = torch.bincount(draws, minlength=4).double() / 200_000
+    assert counts[0] == 0 and counts[2] == 0
+    assert abs(counts[1] - 0.2) < 0.005
+    edges = categorical(probs[:3], torch.tensor([0.0, 0.2, 0.999999], dtype=torch.float64))
+    assert edges.tolist() == [1, 3, 3]

@@ -1,0 +1,235 @@
+"""The text–motion evaluator as a LightningModule, and the DataModule of caption/motion pairs it
+trains on (``reference/anchors.md`` §7.3: Guo's ``Text2MotionDatasetV2`` and matching trainer).
+
+Pairs follow Guo's loader: a clip's caption is drawn afresh each time the clip is seen; a caption
+with a start/end segment pairs with that segment of the clip; only pairs of at least ``min_frames``
+are kept (Guo: 40); the motion is cut at a random place to a multiple of 4 frames, one unit shorter
+with probability 1/3. Motions stay un-normalised: the evaluator normalises them with the statistics
+it carries, so training and every later use see the same input. One deliberate difference: a pair
+longer than ``max_frames`` (Guo: 196) is cropped to it at random instead of dropped.
+
+The module trains all three encoders together with Guo's contrastive loss. Guo first pre-trains
+the movement encoder as an autoencoder and then freezes it, a stage left out here.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property, partial
+from pathlib import Path
+from typing import Any
+
+import lightning.pytorch as pl
+import numpy as np
+import torch
+import webdataset as wds
+from lightning.pytorch.utilities import rank_zero_info
+
+from m2d2m.evaluator import UNIT_LENGTH, EvaluatorConfig, TextMotionEvaluator, contrastive_loss
+from m2d2m.layout import STATS, read_manifest, shard_urls
+from m2d2m.normalization import Normalizer
+from training.data import (Sample, caption_span, clip_metas, pad_clips, random_window, rank_and_world_size,
+                           require_positive, resampled_batches, split_pass, worker_generator)
+from training.vq_module import NonFiniteLossError
+
+SHORTER_UNIT_CHANCE = 1 / 3  # Guo's "double" coin: one 4-frame unit less
+
+
+def usable_spans(meta: dict[str, Any], frames: int, min_frames: int) -> list[tuple[dict[str, Any], tuple[int, int]]]:
+    """Every caption of a ``frames``-frame clip with the frames [first, last) it describes — the
+    whole clip, or its start/end segment cut at ``int(second · fps)`` — when that is at least
+    ``min_frames`` long."""
+    spans = [(caption, caption_span(caption, frames, meta["fps"], 1)) for caption in meta["captions"]]
+    return [(caption, span) for caption, span in spans if span is not None and span[1] - span[0] >= min_frames]
+
+
+def caption_clips(motion: np.ndarray, meta: dict[str, Any], min_frames: int) -> list[tuple[dict[str, Any], np.ndarray]]:
+    """The (caption, motion frames) pairs of a clip, for its usable spans."""
+    return [(caption, motion[first:last]) for caption, (first, last) in usable_spans(meta, len(motion), min_frames)]
+
+
+def pair_sample(caption: dict[str, Any], motion: np.ndarray) -> Sample:
+    return {"motion": motion, "tokens": list(caption["tokens"]), "text": caption["text"]}
+
+
+class PairSampler:
+    """Turns a decoded train sample into a random caption/motion pair, or None (dropped) when no
+    caption describes ``min_frames`` frames. Its Generator comes from ``worker_generator`` on first
+    use inside each DataLoader worker."""
+
+    def __init__(self, min_frames: int, max_frames: int, seed: int, rank: int) -> None:
+        self.min_frames, self.max_frames, self.seed, self.rank = min_frames, max_frames, seed, rank
+        self.rng: np.random.Generator | None = None
+
+    def __call__(self, sample: Sample) -> Sample | None:
+        if self.rng is None:
+            self.rng = worker_generator(self.seed, self.rank)
+        pairs = caption_clips(sample["motion.npy"], sample["meta.json"], self.min_frames)
+        if not pairs:
+            return None
+        caption, motion = pairs[int(self.rng.integers(len(pairs)))]
+        units = min(len(motion), self.max_frames) // UNIT_LENGTH
+        if units > 1 and self.rng.random() < SHORTER_UNIT_CHANCE:
+            units -= 1
+        return pair_sample(caption, random_window(motion, units * UNIT_LENGTH, self.rng))
+
+
+def first_pair(sample: Sample, min_frames: int, max_frames: int) -> Sample | None:
+    """The deterministic pair for validation and test: the first caption long enough, its first
+    frames up to ``max_frames``, cut to a multiple of 4."""
+    pairs = caption_clips(sample["motion.npy"], sample["meta.json"], min_frames)
+    if not pairs:
+        return None
+    caption, motion = pairs[0]
+    return pair_sample(caption, motion[: min(len(motion), max_frames) // UNIT_LENGTH * UNIT_LENGTH])
+
+
+def collate_pairs(samples: list[Sample]) -> dict[str, Any]:
+    """{"motion": (B, T_max, D) un-normalised, zero-padded, "lengths": (B,) long, "tokens": per
+    sample its ``word/POS`` tokens, "text", "keys"}."""
+    motion, lengths = pad_clips([sample["motion"] for sample in samples])
+    return {"motion": motion, "lengths": lengths, "tokens": [sample["tokens"] for sample in samples],
+            "text": [sample["text"] for sample in samples], "keys": [sample["__key__"] for sample in samples]}
+
+
+class CaptionMotionDataModule(pl.LightningDataModule):
+    """Caption/motion pairs of a processed dataset for the evaluator: a random pair per clip and
+    epoch in training, each clip's first pair once in validation and test."""
+
+    def __init__(
+        self,
+        data_dir: str | Path,
+        batch_size: int = 32,
+        num_workers: int = 2,
+        steps_per_epoch: int | None = None,
+        val_batch_size: int = 32,
+        shuffle_buffer: int = 1000,
+        min_frames: int = 40,
+        max_frames: int = 196,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        require_positive(batch_size=batch_size, val_batch_size=val_batch_size,
+                         steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch)
+        if not UNIT_LENGTH <= min_frames <= max_frames:
+            raise ValueError(f"need {UNIT_LENGTH} <= min_frames <= max_frames, got {min_frames} and {max_frames}")
+        self.data_dir = Path(data_dir).resolve()
+        self.manifest = read_manifest(self.data_dir)
+        stats = self.data_dir / STATS
+        if not stats.exists():
+            raise FileNotFoundError(f"{stats}: missing; the dataset is incomplete (rebuild it with `m2d2m data`)")
+        self.normalizer = Normalizer.load(stats)
+        self.batch_size, self.num_workers, self.val_batch_size = batch_size, num_workers, val_batch_size
+        self.shuffle_buffer, self.min_frames, self.max_frames, self.seed = shuffle_buffer, min_frames, max_frames, seed
+        self._steps_per_epoch = steps_per_epoch
+
+    @property
+    def feature_dim(self) -> int:
+        return int(self.manifest["feature_dim"])
+
+    @cached_property
+    def _train_survey(self) -> tuple[list[list[str]], int]:
+        """(the tokens of every train caption, train clips with a caption of ``min_frames``), read
+        once from the clips' ``meta.json``; refuses a split where no clip has one (the resampled
+        stream would never yield a batch)."""
+        captions, usable, clips = [], 0, 0
+        for meta in clip_metas(shard_urls(self.data_dir, "train")):
+            clips += 1
+            captions += [list(caption["tokens"]) for caption in meta["captions"]]
+            usable += bool(usable_spans(meta, meta["frames"], self.min_frames))
+        if not usable:
+            raise ValueError(f"{self.data_dir}: none of the {clips} train clips has a caption describing "
+                             f"{self.min_frames} frames; lower min_frames")
+        rank_zero_info(f"{self.data_dir.name}: {clips - usable} of {clips} train clips have no caption describing "
+                       f"{self.min_frames} frames and are skipped")
+        return captions, usable
+
+    def train_captions(self) -> list[list[str]]:
+        """The ``word/POS`` tokens of every train caption: what a learned word table's vocabulary
+        is built from (``m2d2m.evaluator.learned_vocabulary``)."""
+        return self._train_survey[0]
+
+    @property
+    def train_clips(self) -> int:
+        """Train clips with at least one usable pair."""
+        return self._train_survey[1]
+
+    @property
+    def steps_per_epoch(self) -> int:
+        """Batches per epoch on every rank: as given, else one pass over the usable train clips
+        shared among the ranks (at least one)."""
+        usable = self.train_clips  # counted, and checked, even when the steps are given
+        if self._steps_per_epoch is not None:
+            return self._steps_per_epoch
+        return max(1, usable // (self.batch_size * rank_and_world_size(self.trainer)[1]))
+
+    def train_dataloader(self) -> wds.WebLoader:
+        sampler = PairSampler(self.min_frames, self.max_frames, self.seed, rank_and_world_size(self.trainer)[0])
+        return resampled_batches(shard_urls(self.data_dir, "train"), sampler, collate_pairs, self.batch_size,
+                                 self.steps_per_epoch, self.shuffle_buffer, self.num_workers, self.seed)
+
+    def val_dataloader(self) -> wds.WebLoader:
+        return self._first_pairs("val")
+
+    def test_dataloader(self) -> wds.WebLoader:
+        return self._first_pairs("test")
+
+    def _first_pairs(self, split: str) -> wds.WebLoader:
+        sizes = [shard["samples"] for shard in self.manifest["shards"][split]]
+        return split_pass(shard_urls(self.data_dir, split), sizes, self.trainer,
+                          partial(first_pair, min_frames=self.min_frames, max_frames=self.max_frames),
+                          collate_pairs, self.val_batch_size, self.num_workers)
+
+
+class EvaluatorModule(pl.LightningModule):
+    """Guo's text–motion matching: contrastive loss (margin ``loss["margin"]``, Guo 10) between
+    each caption and its motion and, as negatives, the motions of a random shift of the batch;
+    Adam(W) over the trainable weights (Guo: Adam 1e-4, gradient norm clipped to 0.5, which the
+    trainer applies). Validation scores a fixed shift of 1 and reports the batch's top-1
+    retrieval accuracy and mean matched distance (the matching score), for the best checkpoint.
+
+    ``model`` holds :class:`EvaluatorConfig` fields but ``feature_dim``; ``vocabulary`` and
+    ``word_vectors`` are as :class:`TextMotionEvaluator` takes them."""
+
+    def __init__(self, model: dict[str, Any], optim: dict[str, Any], loss: dict[str, Any], feature_dim: int,
+                 vocabulary: list[str], word_vectors: torch.Tensor | None = None) -> None:
+        super().__init__()
+        self.save_hyperparameters(ignore=["word_vectors"])
+        config = EvaluatorConfig.from_dict({**model, "feature_dim": feature_dim})
+        self.model = TextMotionEvaluator(config, vocabulary, word_vectors)
+
+    def set_normalizer(self, normalizer: Normalizer) -> None:
+        """The dataset's normalisation becomes the evaluator's own, carried in its weights."""
+        self.model.set_statistics(normalizer.mean, normalizer.scale)
+
+    def _embed(self, batch: dict[str, Any]) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.model.embed_text(batch["tokens"]), self.model.embed_motion(batch["motion"], batch["lengths"])
+
+    def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
+        text, motion = self._embed(batch)
+        batch_size = len(text)
+        terms = contrastive_loss(text, motion, int(torch.randint(1, batch_size, ())), self.hparams.loss["margin"])
+        if not torch.isfinite(terms.total):
+            raise NonFiniteLossError(f"the training loss is {terms.total.item()} at step {self.global_step}")
+        self.log("train/loss", terms.total, batch_size=batch_size, prog_bar=True)
+        self.log("train/positive", terms.positive, batch_size=batch_size)
+        self.log("train/negative", terms.negative, batch_size=batch_size)
+        return terms.total
+
+    def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
+        batch_size = len(batch["tokens"])
+        if batch_size < 2:  # a lone pair has no negative
+            return
+        text, motion = self._embed(batch)
+        terms = contrastive_loss(text, motion, 1, self.hparams.loss["margin"])
+        distances = torch.cdist(text.float(), motion.float())
+        top1 = (distances.argmin(dim=1) == torch.arange(batch_size, device=distances.device)).float().mean()
+        self.log("val/loss", terms.total, batch_size=batch_size, sync_dist=True, prog_bar=True)
+        self.log("val/positive", terms.positive, batch_size=batch_size, sync_dist=True)
+        self.log("val/negative", terms.negative, batch_size=batch_size, sync_dist=True)
+        self.log("val/top1", top1, batch_size=batch_size, sync_dist=True, prog_bar=True)
+        self.log("val/matching_score", distances.diagonal().mean(), batch_size=batch_size, sync_dist=True)
+
+    def configure_optimizers(self) -> torch.optim.Optimizer:
+        optim = self.hparams.optim
+        return torch.optim.AdamW([p for p in self.parameters() if p.requires_grad], lr=optim["lr"],
+                                 betas=tuple(optim["betas"]), weight_decay=optim["weight_decay"])
