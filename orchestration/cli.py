@@ -114,6 +114,13 @@ def _train_diffusion(args: argparse.Namespace) -> None:
     print(f"finished {run_dir}; its checkpoints, metrics and sample GIFs: `make ui`")
 
 
+def _train_evaluator(args: argparse.Namespace) -> None:
+    from orchestration.train import EVALUATOR_FILE, train_evaluator
+
+    run_dir = train_evaluator(args.config, args.set, args.resume)
+    print(f"finished {run_dir}; evaluator {run_dir / EVALUATOR_FILE}; its metrics: `make ui`")
+
+
 def _resolve_vq(reference: str | None, dataset: str) -> Path:
     """A VQ model file from a path (vq.pt, a checkpoint or a run directory), a run name or an
     MLflow run id; by default the dataset's latest VQ run."""
@@ -267,6 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "optim.lr=1e-4", _train_vq)
     _add_training_verb(verbs, "train-diffusion", "diffusion", "train the discrete-diffusion denoiser on VQ tokens",
                        "diffusion.kind=uniform", _train_diffusion)
+    _add_training_verb(verbs, "train-evaluator", "evaluator",
+                       "train the text-motion evaluator of Guo et al. for the paper's metrics", "optim.lr=1e-4",
+                       _train_evaluator)
 
     tokenize = verbs.add_parser("tokenize", help="encode every motion into VQ tokens (Ray Data)")
     tokenize.add_argument("--vq", help="vq.pt, a checkpoint, a run directory or name, or an MLflow run id (default: latest)")

@@ -22,6 +22,8 @@ from orchestration.tracking import artifact_location, ensure_experiment, experim
 
 VQ_STAGE = "vq"
 DIFFUSION_STAGE = "diffusion"
+EVALUATOR_STAGE = "evaluator"
+EVALUATOR_FILE = "evaluator.pt"
 
 
 def _precision(setting: str) -> str:
@@ -217,4 +219,39 @@ def train_diffusion(config_name: str = "demo", overrides: list[str] | None = Non
     _finish(run_dir, fitted, [run_dir / MODEL_FILE, Path(fitted.checkpoints.best_model_path), fitted.last,
                               run_dir / "config.yaml"],
             model=str((run_dir / MODEL_FILE).resolve()), vq=str(vq_path.resolve()), tokens=str(tokens_dir.resolve()))
+    return run_dir
+
+
+def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+                    extra_callbacks: list | None = None) -> Path:
+    """Train Guo et al.'s text–motion matching evaluator on the dataset's train split (best
+    checkpoint by validation loss); returns the run directory, with ``evaluator.pt`` on success."""
+    import lightning.pytorch as pl
+
+    from m2d2m.evaluator import learned_vocabulary, load_glove, save_evaluator
+    from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
+
+    run_dir, config, run_id = _open_run(EVALUATOR_STAGE, config_name, overrides or [], resume)
+    data, trainer_cfg, model = config["data"], config["trainer"], config["model"]
+    try:
+        datamodule = CaptionMotionDataModule(
+            data["dir"], batch_size=data["batch_size"], num_workers=data["num_workers"],
+            steps_per_epoch=trainer_cfg["val_every_steps"], min_frames=data["min_frames"],
+            max_frames=data["max_frames"], seed=config["seed"])
+        if model["word_features"] == "glove":
+            if not config.get("glove_dir"):
+                raise ValueError("model.word_features: glove needs glove_dir (Guo's glove/ directory)")
+            vocabulary, vectors = load_glove(config["glove_dir"])
+        else:
+            vocabulary, vectors = learned_vocabulary(datamodule.train_captions(), config["min_word_count"]), None
+    except (FileNotFoundError, ValueError) as error:
+        raise UserError(str(error)) from error
+    pl.seed_everything(config["seed"], workers=True, verbose=False)
+    module = EvaluatorModule(model, config["optim"], config["loss"], datamodule.feature_dim, vocabulary, vectors)
+    module.set_normalizer(datamodule.normalizer)
+    fitted = _fit(EVALUATOR_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
+                  list(extra_callbacks or []))
+    save_evaluator(run_dir / EVALUATOR_FILE, module.model)
+    _finish(run_dir, fitted, [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
+            evaluator=str((run_dir / EVALUATOR_FILE).resolve()))
     return run_dir

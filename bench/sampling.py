@@ -1,0 +1,83 @@
+"""Two-Phase Sampling wall time against the number of actions N (each 196 frames = 49 tokens),
+paper-size denoiser (12 × 512, 16 heads), K = 512, T = 100, T_s = 90, guidance on (two passes
+per step, batched).
+
+A step costs the same whatever T is, so each phase's step time is measured on a short schedule
+(joint phase: the N actions as one row; independent phase: N rows) and TPS at T = 100 is
+10 joint + 90 independent steps. For small N a full T = 100 run is also timed, which checks the
+sum. The fit of time against N says whether TPS grows linearly, and the fitted line gives the
+time for MMM's long-sequence figure (10.9 minutes of motion in 1.66 s on an RTX A5000).
+Prints Markdown.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import torch
+
+from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
+from m2d2m.diffusion import TransitionSchedule
+from m2d2m.sampling import Request, SamplingOptions, TokenSampler
+from m2d2m.text import LearnedTextEncoder
+
+CODES, STEPS, TS, TOKENS = 512, 100, 90, 49
+SHORT = 4  # steps of the short schedules used to time one step of each phase
+MMM_SECONDS, MMM_WALL = 10.9 * 60, 1.66  # MMM's long-sequence figure (RTX A5000)
+
+
+def sampler(steps: int, device: torch.device) -> TokenSampler:
+    torch.manual_seed(0)
+    words = LearnedTextEncoder.build_vocabulary(["a person walks forward and jumps"])
+    text = LearnedTextEncoder(words, dim=512, layers=2, heads=8, dropout=0.0)
+    denoiser = MotionDenoiser(DenoiserConfig(codebook_size=CODES, steps=steps, text_dim=512))
+    schedule = TransitionSchedule.build(torch.randn(CODES, 512, device=device), steps=steps)
+    return TokenSampler(denoiser.to(device), text.to(device), schedule)
+
+
+def timed(run, device: torch.device) -> float:
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    started = time.perf_counter()
+    run()
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    return time.perf_counter() - started
+
+
+def main() -> None:
+    gpu = torch.cuda.is_available()
+    device = torch.device("cuda" if gpu else "cpu")
+    torch.set_num_threads(2)
+    name = torch.cuda.get_device_name() if gpu else f"CPU, {os.cpu_count()} cores, 2 torch threads"
+    short, full = sampler(SHORT, device), sampler(STEPS, device)
+    autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=gpu)
+    counts = [1, 2, 4, 8, 16, 32]
+    print(f"device: {name}; {TOKENS} tokens (196 frames) per action, T = {STEPS}, T_s = {TS}, guidance 2")
+    print("| N actions | motion (s) | joint step (ms) | independent step (ms) | TPS, T = 100 (s) | measured full run (s) |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    totals = []
+    for n in counts:
+        request = [Request([["a person walks forward"]] * n, [TOKENS] * n, seed=0)]
+        with autocast:
+            short.sample(request, SamplingOptions(ts=0))  # warm-up
+            joint = min(timed(lambda: short.sample(request, SamplingOptions(ts=0)), device) for _ in range(2)) / SHORT
+            indep = min(timed(lambda: short.sample(request, SamplingOptions(ts=SHORT)), device) for _ in range(2)) / SHORT
+            measured = timed(lambda: full.sample(request, SamplingOptions(ts=TS)), device) if (gpu or n <= 2) else None
+        total = (STEPS - TS) * joint + TS * indep
+        totals.append(total)
+        shown = f"{measured:.1f}" if measured is not None else "–"
+        print(f"| {n} | {n * 196 / 20:.0f} | {1e3 * joint:.0f} | {1e3 * indep:.0f} | {total:.1f} | {shown} |")
+    slope, intercept = np.polyfit(counts, totals, 1)
+    predicted = slope * np.asarray(counts) + intercept
+    r2 = 1.0 - np.sum((np.asarray(totals) - predicted) ** 2) / np.sum((np.asarray(totals) - np.mean(totals)) ** 2)
+    actions = MMM_SECONDS / (196 / 20)
+    print(f"\nlinear fit: time = {slope:.3f} s × N + {intercept:.3f} s (R² = {r2:.4f})")
+    print(f"MMM's 10.9 min of motion = {actions:.0f} actions of 196 frames: {slope * actions + intercept:.1f} s here "
+          f"(MMM: {MMM_WALL} s on an RTX A5000)")
+
+
+if __name__ == "__main__":
+    main()
