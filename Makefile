@@ -88,7 +88,19 @@ ui: $(STAMP)  ## the MLflow UI on the project's tracking store (UI_PORT=5000)
 	@echo "MLflow UI: http://127.0.0.1:$(UI_PORT)  (Ctrl-C stops it)"
 	$(BIN)/mlflow ui --backend-store-uri sqlite:///$(CURDIR)/mlflow.db --host 127.0.0.1 --port $(UI_PORT)
 
-testset eval sweep:
+N       ?= 4
+MIRRORS ?= same
+testset: $(STAMP)  ## build the N-action test set of the multi-motion evaluation (N=4 SEED=0 MIRRORS=same|distinct|exclude)
+	$(M2D2M) testset --dataset $(DATASET) --n $(N) --seed $(SEED) --mirrors $(MIRRORS)
+
+METHODS   ?= tps,independent,handshake,slerp
+REPEATS   ?= 10
+RESUME    ?=
+EVAL_ARGS ?=
+eval: $(STAMP)  ## the paper's multi-motion table + Fig. 5 of the latest denoiser (METHODS=... REPEATS=10 EVAL_ARGS="--single", RESUME=<run>)
+	$(M2D2M) evaluate --dataset $(DATASET) $(if $(RESUME),--resume $(RESUME),--method $(METHODS) --repeats $(REPEATS)) $(EVAL_ARGS)
+
+sweep:
 	@echo "make $@: not built yet (see the open issues); 'make demo' shows what works today." >&2
 	@exit 2
 

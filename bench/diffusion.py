@@ -10,30 +10,15 @@ figures use 2 torch threads; on a GPU the step runs in bf16 autocast. Prints a M
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Callable
 
 import torch
 
 from m2d2m.denoiser import DenoiserConfig, MotionDenoiser, guided_logits
 from m2d2m.diffusion import TransitionSchedule, diffusion_loss
+from timing import best_time
 
 CODES, STEPS, TOKENS, TEXT_TOKENS, TEXT_DIM = 512, 100, 49, 32, 512
-
-
-def best_time(run: Callable[[], object], repeats: int, device: torch.device) -> float:
-    """Best wall time of ``repeats`` calls after one warm-up call, in seconds."""
-    run()
-    best = float("inf")
-    for _ in range(repeats):
-        if device.type == "cuda":
-            torch.cuda.synchronize()
-        started = time.perf_counter()
-        run()
-        if device.type == "cuda":
-            torch.cuda.synchronize()
-        best = min(best, time.perf_counter() - started)
-    return best
 
 
 class Bench:

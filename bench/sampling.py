@@ -13,7 +13,6 @@ Prints Markdown.
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
 import torch
@@ -22,6 +21,7 @@ from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.diffusion import TransitionSchedule
 from m2d2m.sampling import Request, SamplingOptions, TokenSampler
 from m2d2m.text import LearnedTextEncoder
+from timing import wall_time
 
 CODES, STEPS, TS, TOKENS = 512, 100, 90, 49
 SHORT = 4  # steps of the short schedules used to time one step of each phase
@@ -35,16 +35,6 @@ def sampler(steps: int, device: torch.device) -> TokenSampler:
     denoiser = MotionDenoiser(DenoiserConfig(codebook_size=CODES, steps=steps, text_dim=512))
     schedule = TransitionSchedule.build(torch.randn(CODES, 512, device=device), steps=steps)
     return TokenSampler(denoiser.to(device), text.to(device), schedule)
-
-
-def timed(run, device: torch.device) -> float:
-    if device.type == "cuda":
-        torch.cuda.synchronize()
-    started = time.perf_counter()
-    run()
-    if device.type == "cuda":
-        torch.cuda.synchronize()
-    return time.perf_counter() - started
 
 
 def main() -> None:
@@ -63,9 +53,9 @@ def main() -> None:
         request = [Request([["a person walks forward"]] * n, [TOKENS] * n, seed=0)]
         with autocast:
             short.sample(request, SamplingOptions(ts=0))  # warm-up
-            joint = min(timed(lambda: short.sample(request, SamplingOptions(ts=0)), device) for _ in range(2)) / SHORT
-            indep = min(timed(lambda: short.sample(request, SamplingOptions(ts=SHORT)), device) for _ in range(2)) / SHORT
-            measured = timed(lambda: full.sample(request, SamplingOptions(ts=TS)), device) if (gpu or n <= 2) else None
+            joint = min(wall_time(lambda: short.sample(request, SamplingOptions(ts=0)), device) for _ in range(2)) / SHORT
+            indep = min(wall_time(lambda: short.sample(request, SamplingOptions(ts=SHORT)), device) for _ in range(2)) / SHORT
+            measured = wall_time(lambda: full.sample(request, SamplingOptions(ts=TS)), device) if (gpu or n <= 2) else None
         total = (STEPS - TS) * joint + TS * indep
         totals.append(total)
         shown = f"{measured:.1f}" if measured is not None else "–"

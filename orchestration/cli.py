@@ -226,6 +226,32 @@ def _generate(args: argparse.Namespace) -> None:
         print(f"logged to MLflow run {run_id} (experiment {args.dataset}/{GENERATE_STAGE}); `make ui` to browse")
 
 
+def _testset(args: argparse.Namespace) -> None:
+    from orchestration.evaluate import TESTSET_STAGE, make_testset
+    from pipelines.testset import describe
+
+    summary = make_testset(args.data or f"data/{args.dataset}", args.dataset, args.n, args.seed, args.mirrors, args.force)
+    print(describe(summary))
+    print(f"logged to MLflow run {summary['mlflow_run_id']} (experiment {args.dataset}/{TESTSET_STAGE})")
+
+
+def _evaluate(args: argparse.Namespace) -> None:
+    from orchestration.evaluate import EVAL_STAGE, KNOBS, TABLE_MD, evaluate, new_settings, reopen
+
+    given = {knob: getattr(args, knob) for knob in KNOBS if getattr(args, knob) is not None}
+    if args.resume:
+        if given:
+            options = ", ".join("--method" if knob == "methods" else "--" + knob.replace("_", "-") for knob in given)
+            raise UserError(f"--resume continues {args.resume} with its own settings; drop {options}")
+        run_dir, settings = reopen(args.resume, args.dataset)
+    else:
+        run_dir, settings = None, new_settings(args.dataset, **given)
+    run_dir, _ = evaluate(settings, args.dataset, run_dir, args.batch_size)
+    print((run_dir / TABLE_MD).read_text(encoding="utf-8"))
+    print(f"wrote {run_dir} (table.md, table.json, fig5.png, results/); logged to MLflow "
+          f"(experiment {args.dataset}/{EVAL_STAGE}); `make ui` to browse")
+
+
 def _add_motion_source(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
     parser.add_argument("--id", help="clip id when SOURCE is a corpus directory")
@@ -306,6 +332,42 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--no-split", action="store_true", help="keep each prompt one action even with several verbs")
     generate.add_argument("--no-track", action="store_true", help="do not log this generation to MLflow")
     generate.set_defaults(run=_generate)
+
+    testset = verbs.add_parser("testset", help="build the N-action test set of the multi-motion evaluation")
+    testset.add_argument("--n", type=_positive_int, default=4, help="actions per instance (default 4, the paper's)")
+    testset.add_argument("--seed", type=int, default=0)
+    testset.add_argument("--dataset", default="synthetic", help="names the MLflow experiment <dataset>/testset")
+    testset.add_argument("--data", help="processed dataset directory (default data/<dataset>)")
+    testset.add_argument("--mirrors", default="same",
+                         help="a mirrored clip counts as its original (same, default), as its own motion "
+                              "(distinct), or is left out (exclude)")
+    testset.add_argument("--force", action="store_true", help="replace a test set built with other parameters")
+    testset.set_defaults(run=_testset)
+
+    evaluate = verbs.add_parser("evaluate", help="the paper's multi-motion (and single-motion) tables and Fig. 5")
+    evaluate.add_argument("--checkpoint", help="model.pt, a diffusion run directory or name, or an MLflow run id "
+                                               "(default: latest)")
+    evaluate.add_argument("--testset", help="test set directory (default: n4-seed0 of the checkpoint's dataset, "
+                                            "data/<dataset>/testsets/n4-seed0, built if missing)")
+    evaluate.add_argument("--evaluator", help="evaluator.pt, or an evaluator run directory, name or MLflow run id "
+                                              "(default: latest; `make train-evaluator` makes one)")
+    evaluate.add_argument("--guo-evaluator", metavar="CKPT_DIR",
+                          help="Guo et al.'s published evaluator (text_mot_match/), for published-comparable numbers")
+    evaluate.add_argument("--glove", metavar="DIR", help="Guo's glove/ directory (with --guo-evaluator)")
+    evaluate.add_argument("--meta", metavar="DIR", help="the evaluator's mean.npy/std.npy (default CKPT_DIR/meta)")
+    evaluate.add_argument("--method", dest="methods", action="append", metavar="METHOD",
+                          help="tps, independent, handshake, slerp; repeatable or a comma list (default tps)")
+    evaluate.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 %% of T)")
+    evaluate.add_argument("--eta", type=float, help="η of the dynamic transition at sampling (default 0.25)")
+    evaluate.add_argument("--guidance", type=float, help="classifier-free guidance scale s (default 2)")
+    evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
+    evaluate.add_argument("--single", action=argparse.BooleanOptionalAction,
+                          help="also the single-motion table (paper Table 3; s = 4, η = 0.5)")
+    evaluate.add_argument("--batch-size", type=_positive_int, default=32, help="sequences generated at once")
+    evaluate.add_argument("--resume", metavar="RUN", help="finish an evaluation run (directory, name or MLflow id) "
+                                                         "with its own settings")
+    evaluate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
+    evaluate.set_defaults(run=_evaluate)
 
     render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
     _add_motion_source(render)

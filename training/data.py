@@ -176,7 +176,80 @@ def split_pass(urls: list[str], sizes: list[int], trainer: pl.Trainer | None, pr
     return wds.WebLoader(dataset, batch_size=None, num_workers=num_workers)
 
 
-class MotionWindowDataModule(pl.LightningDataModule):
+class FeatureShardDataModule(pl.LightningDataModule):
+    """What the DataModules over a processed dataset's feature shards share: the manifest and
+    normalisation, a resampled training stream cut to ``steps_per_epoch`` batches on every rank,
+    and one pass over each clip for validation and test. Subclasses say how a clip becomes a
+    training sample (:meth:`_train_sample`) and an evaluation sample (:meth:`_eval_sample`)."""
+
+    def __init__(self, data_dir: str | Path, batch_size: int, num_workers: int, steps_per_epoch: int | None,
+                 val_batch_size: int, shuffle_buffer: int, seed: int) -> None:
+        super().__init__()
+        require_positive(batch_size=batch_size, val_batch_size=val_batch_size,
+                         steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch)
+        self.data_dir = Path(data_dir).resolve()
+        self.manifest = read_manifest(self.data_dir)
+        stats = self.data_dir / STATS
+        if not stats.exists():
+            raise FileNotFoundError(f"{stats}: missing; the dataset is incomplete (rebuild it with `m2d2m data`)")
+        self.normalizer = Normalizer.load(stats)
+        self.batch_size, self.num_workers, self.val_batch_size = batch_size, num_workers, val_batch_size
+        self.shuffle_buffer, self.seed = shuffle_buffer, seed
+        self._steps_per_epoch = steps_per_epoch
+
+    @property
+    def feature_dim(self) -> int:
+        return int(self.manifest["feature_dim"])
+
+    @property
+    def fps(self) -> float:
+        return float(self.manifest["fps"])
+
+    @property
+    def skeleton(self) -> str:
+        return str(self.manifest["skeleton"])
+
+    @property
+    def train_clips(self) -> int:
+        """Train clips that can give a training sample."""
+        raise NotImplementedError
+
+    def _train_sample(self, rank: int) -> tuple[Callable[[Sample], Sample | None], Callable[[list[Sample]], Any]]:
+        """(decoded clip → training sample or None to skip, collate) for the process of ``rank``."""
+        raise NotImplementedError
+
+    def _eval_sample(self) -> tuple[Callable[[Sample], Sample | None], Callable[[list[Sample]], Any]]:
+        """(decoded clip → validation/test sample, collate)."""
+        raise NotImplementedError
+
+    @property
+    def steps_per_epoch(self) -> int:
+        """Batches per epoch on every rank: as given, else one pass over the usable train clips
+        shared among the ranks (at least one)."""
+        usable = self.train_clips  # counted, and checked, even when the steps are given
+        if self._steps_per_epoch is not None:
+            return self._steps_per_epoch
+        return max(1, usable // (self.batch_size * rank_and_world_size(self.trainer)[1]))
+
+    def train_dataloader(self) -> wds.WebLoader:
+        prepare, collate = self._train_sample(rank_and_world_size(self.trainer)[0])
+        return resampled_batches(shard_urls(self.data_dir, "train"), prepare, collate, self.batch_size,
+                                 self.steps_per_epoch, self.shuffle_buffer, self.num_workers, self.seed)
+
+    def val_dataloader(self) -> wds.WebLoader:
+        return self._one_pass("val")
+
+    def test_dataloader(self) -> wds.WebLoader:
+        return self._one_pass("test")
+
+    def _one_pass(self, split: str) -> wds.WebLoader:
+        sizes = [shard["samples"] for shard in self.manifest["shards"][split]]
+        prepare, collate = self._eval_sample()
+        return split_pass(shard_urls(self.data_dir, split), sizes, self.trainer, prepare, collate,
+                          self.val_batch_size, self.num_workers)
+
+
+class MotionWindowDataModule(FeatureShardDataModule):
     """Random fixed-length windows of the train clips for the motion VQ-VAE; whole clips for
     validation and test. Every motion is normalised once, here, with the dataset's ``stats.npz``."""
 
@@ -191,30 +264,9 @@ class MotionWindowDataModule(pl.LightningDataModule):
         shuffle_buffer: int = 1000,
         seed: int = 0,
     ) -> None:
-        super().__init__()
-        require_positive(window=window, batch_size=batch_size, val_batch_size=val_batch_size,
-                         steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch)
-        self.data_dir = Path(data_dir).resolve()
-        self.manifest = read_manifest(self.data_dir)
-        stats = self.data_dir / STATS
-        if not stats.exists():
-            raise FileNotFoundError(f"{stats}: missing; the dataset is incomplete (rebuild it with `m2d2m data`)")
-        self.normalizer = Normalizer.load(stats)
-        self.window, self.batch_size, self.num_workers = window, batch_size, num_workers
-        self.val_batch_size, self.shuffle_buffer, self.seed = val_batch_size, shuffle_buffer, seed
-        self._steps_per_epoch = steps_per_epoch
-
-    @property
-    def feature_dim(self) -> int:
-        return int(self.manifest["feature_dim"])
-
-    @property
-    def fps(self) -> float:
-        return float(self.manifest["fps"])
-
-    @property
-    def skeleton(self) -> str:
-        return str(self.manifest["skeleton"])
+        require_positive(window=window)
+        super().__init__(data_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed)
+        self.window = window
 
     @cached_property
     def _train_counts(self) -> tuple[int, int]:
@@ -239,34 +291,12 @@ class MotionWindowDataModule(pl.LightningDataModule):
         """Train clips long enough to give a window."""
         return self._train_counts[0]
 
-    @property
-    def steps_per_epoch(self) -> int:
-        """Batches per epoch on every rank: as given, else one pass over the usable train clips
-        shared among the ranks (at least one)."""
-        usable = self.train_clips  # counted, and checked, even when the steps are given
-        if self._steps_per_epoch is not None:
-            return self._steps_per_epoch
-        return max(1, usable // (self.batch_size * rank_and_world_size(self.trainer)[1]))
+    def _train_sample(self, rank: int):
+        return WindowCropper(self.window, self.normalizer, self.seed, rank), stack_windows
 
-    def train_dataloader(self) -> wds.WebLoader:
-        crop = WindowCropper(self.window, self.normalizer, self.seed, rank_and_world_size(self.trainer)[0])
-        return resampled_batches(shard_urls(self.data_dir, "train"), crop, stack_windows, self.batch_size,
-                                 self.steps_per_epoch, self.shuffle_buffer, self.num_workers, self.seed)
+    def _eval_sample(self):
+        return partial(normalized_clip, normalizer=self.normalizer), collate_clips
 
-    def val_dataloader(self) -> wds.WebLoader:
-        return self._whole_clips("val")
-
-    def test_dataloader(self) -> wds.WebLoader:
-        return self._whole_clips("test")
-
-    def _whole_clips(self, split: str) -> wds.WebLoader:
-        sizes = [shard["samples"] for shard in self.manifest["shards"][split]]
-        return split_pass(shard_urls(self.data_dir, split), sizes, self.trainer,
-                          partial(normalized_clip, normalizer=self.normalizer), collate_clips,
-                          self.val_batch_size, self.num_workers)
-
-
-# Captioned token sequences for the denoiser.
 
 def caption_span(caption: dict[str, Any], num_tokens: int, fps: float, frames_per_token: int) -> tuple[int, int] | None:
     """The tokens [first, last) a caption describes. ``start``/``end`` (seconds, both 0 = whole clip)
