@@ -230,7 +230,8 @@ def _testset(args: argparse.Namespace) -> None:
     from orchestration.evaluate import TESTSET_STAGE, make_testset
     from pipelines.testset import describe
 
-    summary = make_testset(args.data or f"data/{args.dataset}", args.dataset, args.n, args.seed, args.mirrors, args.force)
+    data = args.data or f"data/{args.dataset}"
+    summary = make_testset(data, args.dataset, args.n, args.seed, args.mirrors, args.force)
     print(describe(summary))
     print(f"logged to MLflow run {summary['mlflow_run_id']} (experiment {args.dataset}/{TESTSET_STAGE})")
 
@@ -318,7 +319,7 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--seconds", type=float, nargs="+",
                           help="duration of each prompt, or one for all (default: the corpus's typical length per verb)")
     generate.add_argument("--method", default="tps", help="tps (default), independent, handshake or slerp")
-    generate.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 % of T: 90 for T = 100)")
+    generate.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 %% of T: 90 for T = 100)")
     generate.add_argument("--eta", type=float, default=0.25, help="η of the dynamic transition at sampling (default 0.25)")
     generate.add_argument("--guidance", type=float, default=2.0, help="classifier-free guidance scale s (default 2)")
     generate.add_argument("--truncation", type=float, default=1.0, help="truncation rate r (default 1 = off)")

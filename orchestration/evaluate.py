@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import time
 import zlib
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -50,7 +50,7 @@ from orchestration.runs import find_run, latest_run, mark_latest, new_run_dir, r
 from orchestration.tracking import ensure_experiment, experiment_name, tracking_uri
 from orchestration.train import EVALUATOR_FILE, EVALUATOR_STAGE
 from pipelines.shards import write_json_atomically
-from pipelines.testset import (INSTANCES, MOTIONS, TestSet, _split_metas, build_testset, check_testset, describe,
+from pipelines.testset import (INSTANCES, MOTIONS, TestSet, split_metas, build_testset, check_testset, describe,
                                load_testset, testset_dir)
 
 EVAL_STAGE = "eval"
@@ -141,7 +141,7 @@ def _caption_tokens(testset: TestSet) -> list[list[str]]:
     dataset: the corpus's own tags are what the evaluator was trained on. (The test set's own
     shard reader is reused: importing training's would load Lightning, seconds for nothing.)"""
     try:
-        metas = _split_metas(Path(testset.manifest["source"]["dir"]), testset.manifest["split"])
+        metas = split_metas(Path(testset.manifest["source"]["dir"]), testset.manifest["split"])
     except FileNotFoundError as error:
         raise UserError(f"{error}; the captions' word/POS tokens come from the test set's source dataset") from error
     wanted = {(item.key, item.caption_index) for instance in testset for item in instance.items}
@@ -291,9 +291,9 @@ def _embed_captions(evaluator: TextMotionEvaluator, captions: Sequence[Sequence[
 
 def transition_profiles(joints: np.ndarray, boundaries: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
     """Fig. 5's curves for each full ``WINDOW``-frame window around a boundary: the mean joint
-    speed per frame step (metres per frame, ``WINDOW − 1`` values) and the mean jerk magnitude normalised by
-    each joint's peak speed in the window (per frame², ``WINDOW − 3`` values). Clipped windows,
-    at a sequence's ends, are left out so that every curve has the same frames."""
+    speed per frame step (metres per frame, ``WINDOW − 1`` values) and the mean jerk magnitude
+    normalised by each joint's peak speed in the window (per frame², ``WINDOW − 3`` values).
+    Clipped windows, at a sequence's ends, are left out so that every curve has the same frames."""
     profiles = []
     for frames in transition_windows(joints, boundaries, WINDOW):
         if len(frames) < WINDOW:
@@ -339,10 +339,18 @@ class Reference:
     def items(self) -> int:
         return len(self.text)
 
+    @property
+    def rp_batch(self) -> int:
+        """R-precision's group size: Guo's 32, or every item of a smaller test set."""
+        return min(R_PRECISION_BATCH, self.items)
+
     @classmethod
     def build(cls, testset: TestSet, evaluator: TextMotionEvaluator, skeleton: Skeleton,
               frames_per_token: int) -> "Reference":
-        features = [[testset.features(instance.index, p) for p in range(len(instance.items))] for instance in testset]
+        tokens = [[max(1, n // frames_per_token) for n in instance.lengths] for instance in testset]
+        # each segment cut to the frames generated for it (whole tokens: a multiple of 4, as Guo's loader crops)
+        features = [[testset.features(instance.index, p)[:n * frames_per_token] for p, n in enumerate(lengths)]
+                    for instance, lengths in zip(testset, tokens)]
         flat = [clip for clips in features for clip in clips]
         middles = [transition_windows(clip, [len(clip) // 2], WINDOW)[0] for clip in flat]
         joints = [[features_to_joints(clip, skeleton) for clip in clips] for clips in features]
@@ -350,16 +358,16 @@ class Reference:
         concat = [_concatenated(clips, skeleton) for clips in joints]
         return cls(
             actions=[instance.actions for instance in testset],
-            tokens=[[max(1, n // frames_per_token) for n in instance.lengths] for instance in testset],
+            tokens=tokens,
             text=_embed_captions(evaluator, _caption_tokens(testset)),
             segments=_embed_clips(evaluator, flat), windows=_embed_clips(evaluator, middles),
             jerk_single=_nanmean(single), jerk_concat=_nanmean([jerk(j, JERK_FPS, b, WINDOW) for j, b in concat]),
             concat_profile=_mean_profile([p for j, b in concat for p in transition_profiles(j, b)]))
 
-    def measure(self, repeat: int, batch: int) -> dict[str, float]:
+    def measure(self, repeat: int) -> dict[str, float]:
         """The "ground truth (single)" row for one repeat (its shuffle and diversity draws)."""
         order = _rng(repeat, "order").permutation(self.items)
-        return {**_matching(self.text, self.segments, order, batch),
+        return {**_matching(self.text, self.segments, order, self.rp_batch),
                 "diversity": diversity(self.segments, _pairs(self.items), seed=repeat),
                 "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
                 "jerk": self.jerk_single}
@@ -386,7 +394,6 @@ class Evaluation:
         self.settings = settings
         self.batch_size = batch_size
         self.bar = bar
-        self.rp_batch = min(R_PRECISION_BATCH, reference.items)
 
     def _generate(self, actions: list[list[str]], tokens: list[list[int]], options: SamplingOptions, eta: float,
                   seeds: list[int]) -> Iterator[list[Motion]]:
@@ -406,13 +413,13 @@ class Evaluation:
         segments, windows, jerks, profiles = [], [], [], []
         for motions in self._generate(reference.actions, reference.tokens, options, settings.eta, seeds):
             segments.append(_embed_clips(self.evaluator, [m.features[a:b] for m in motions for a, b in m.ranges]))
-            windows.append(_embed_clips(self.evaluator, [w for m in motions
-                                                         for w in transition_windows(m.features, m.boundaries, WINDOW)]))
+            windows.append(_embed_clips(self.evaluator, [
+                w for m in motions for w in transition_windows(m.features, m.boundaries, WINDOW)]))
             jerks += [jerk(m.joints, JERK_FPS, m.boundaries, WINDOW) for m in motions]
             profiles += [p for m in motions for p in transition_profiles(m.joints, m.boundaries)]
         segment_emb, window_emb = np.concatenate(segments), np.concatenate(windows)
         order = _rng(repeat, "order").permutation(reference.items)
-        metrics = {**_matching(reference.text, segment_emb, order, self.rp_batch),
+        metrics = {**_matching(reference.text, segment_emb, order, reference.rp_batch),
                    "fid": fid(segment_emb, reference.segments),
                    "diversity": diversity(segment_emb, _pairs(len(segment_emb)), seed=repeat),
                    "transition_fid": fid(window_emb, reference.windows),
@@ -435,7 +442,7 @@ class Evaluation:
         repeated = [p for p in prompts for _ in range(MM_GENERATIONS)]
         again = self._embed_generated([actions[p] for p in repeated], [tokens[p] for p in repeated], options,
                                       _seeds(repeat, "mmodality", len(repeated)))
-        metrics = {**_matching(reference.text, embedded, order, self.rp_batch),
+        metrics = {**_matching(reference.text, embedded, order, reference.rp_batch),
                    "fid": fid(embedded, reference.segments),
                    "diversity": diversity(embedded, _pairs(len(embedded)), seed=repeat),
                    "mmodality": multimodality(again.reshape(len(prompts), MM_GENERATIONS, -1),
@@ -493,15 +500,15 @@ def render_table(table: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _notes(settings: EvalSettings, reference: Reference, rp_batch: int, steps: int) -> list[str]:
+def _notes(settings: EvalSettings, reference: Reference, steps: int) -> list[str]:
     notes = [f"sampling: T_s = {switch_step(settings.ts, steps)} of T = {steps}, η = {settings.eta:g}, "
              f"s = {settings.guidance:g}" + (f"; single-motion: s = {SINGLE_GUIDANCE:g}, η = {SINGLE_ETA:g}"
                                             if settings.single else ""),
              f"transition: the {WINDOW} frames around each boundary; ground truth (single) = the middle "
              f"{WINDOW} frames of every ground-truth item",
              "Jerk: paper eq. 10 averaged over joints and boundaries, time measured in frames (fps = 1)"]
-    if rp_batch < R_PRECISION_BATCH:
-        notes.append(f"R-precision over groups of {rp_batch}, not {R_PRECISION_BATCH}: the test set has only "
+    if reference.rp_batch < R_PRECISION_BATCH:
+        notes.append(f"R-precision over groups of {reference.rp_batch}, not {R_PRECISION_BATCH}: the test set has only "
                      f"{reference.items} items (not comparable with published R-Top numbers)")
     return notes
 
@@ -617,10 +624,10 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
     testset = _open_testset(settings.testset)
     evaluator = _load_evaluator(settings, generator.sampler.device)
     _check(settings, generator, testset, evaluator)
-    reference = Reference.build(testset, evaluator, generator.checkpoint.skeleton, generator.checkpoint.frames_per_token)
-    rp_batch = min(R_PRECISION_BATCH, reference.items)
+    checkpoint = generator.checkpoint
+    reference = Reference.build(testset, evaluator, checkpoint.skeleton, checkpoint.frames_per_token)
     if run_dir is None:
-        run_dir = _start(settings, dataset, generator, testset, rp_batch)
+        run_dir = _start(settings, dataset, generator, testset, reference.rp_batch)
     (run_dir / RESULTS).mkdir(exist_ok=True)
     jobs: list[tuple[str | None, int]] = [(m, r) for m in settings.methods for r in range(settings.repeats)]
     jobs += [(None, r) for r in range(settings.repeats)] if settings.single else []
@@ -636,7 +643,7 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
             for method, repeat in pending:
                 result = evaluation.multi(method, repeat) if method else evaluation.single(repeat)
                 write_json_atomically(_result_file(run_dir, method, repeat), result)
-        table = _finish(run_dir, settings, testset, reference, rp_batch, generator.checkpoint.schedule.config.steps)
+        table = _finish(run_dir, settings, testset, reference, checkpoint.schedule.config.steps)
     except BaseException:
         write_run_info(run_dir, status="failed")
         client.set_terminated(run_id, "FAILED")
@@ -651,18 +658,18 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
     return run_dir, table
 
 
-def _finish(run_dir: Path, settings: EvalSettings, testset: TestSet, reference: Reference, rp_batch: int,
+def _finish(run_dir: Path, settings: EvalSettings, testset: TestSet, reference: Reference,
             steps: int) -> dict[str, Any]:
     """table.json, table.md and fig5.png from the run's result files."""
     multi = {m: [_read(_result_file(run_dir, m, r)) for r in range(settings.repeats)] for m in settings.methods}
-    gt_single = [reference.measure(r, rp_batch) for r in range(settings.repeats)]
+    gt_single = [reference.measure(r) for r in range(settings.repeats)]
     per_row = {GT_SINGLE: gt_single, GT_CONCAT: [{"jerk": reference.jerk_concat}] * settings.repeats,
                **{m: [result["metrics"] for result in results] for m, results in multi.items()}}
     table: dict[str, Any] = {
         "settings": asdict(settings),
         "testset": {"path": str(testset.path), "n": testset.n, "instances": len(testset), "items": reference.items},
-        "r_precision_batch": rp_batch, "window": WINDOW, "jerk_fps": JERK_FPS,
-        "notes": _notes(settings, reference, rp_batch, steps), "multi": _rows(per_row)}
+        "r_precision_batch": reference.rp_batch, "window": WINDOW, "jerk_fps": JERK_FPS,
+        "notes": _notes(settings, reference, steps), "multi": _rows(per_row)}
     if settings.single:
         single = [_read(_result_file(run_dir, None, r))["metrics"] for r in range(settings.repeats)]
         columns = {metric for metric, _ in SINGLE_COLUMNS}

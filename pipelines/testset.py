@@ -146,7 +146,7 @@ def _iter_members(url: str, suffix: str) -> Iterator[tuple[str, bytes]]:
                     yield key, tar.extractfile(info).read()
 
 
-def _split_metas(data_dir: Path, split: str) -> list[dict[str, Any]]:
+def split_metas(data_dir: Path, split: str) -> list[dict[str, Any]]:
     return [json.loads(raw) for url in shard_urls(data_dir, split) for _, raw in _iter_members(url, "meta.json")]
 
 
@@ -173,7 +173,7 @@ def _resolve_min_frames(data_dir: Path, min_frames: int | None) -> int:
 def _scan_pool(data_dir: Path, split: str, min_frames: int, mirrors: str) -> tuple[list[PoolEntry], PoolCounts]:
     if mirrors not in MIRROR_RULES:
         raise ValueError(f"mirrors must be one of {', '.join(MIRROR_RULES)}, got {mirrors!r}")
-    metas = _split_metas(data_dir, split)
+    metas = split_metas(data_dir, split)
     keys = {meta["id"] for meta in metas}
     counts = PoolCounts(clips=len(metas))
     pool = []
