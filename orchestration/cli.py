@@ -231,7 +231,7 @@ def _testset(args: argparse.Namespace) -> None:
     from pipelines.testset import describe
 
     data = args.data or f"data/{args.dataset}"
-    summary = make_testset(data, args.dataset, args.n, args.seed, args.mirrors, args.force)
+    summary = make_testset(data, args.dataset, args.n, args.seed, args.mirrors, args.force, args.first)
     print(describe(summary))
     print(f"logged to MLflow run {summary['mlflow_run_id']} (experiment {args.dataset}/{TESTSET_STAGE})")
 
@@ -251,6 +251,32 @@ def _evaluate(args: argparse.Namespace) -> None:
     print((run_dir / TABLE_MD).read_text(encoding="utf-8"))
     print(f"wrote {run_dir} (table.md, table.json, fig5.png, results/); logged to MLflow "
           f"(experiment {args.dataset}/{EVAL_STAGE}); `make ui` to browse")
+
+
+def _sweep(args: argparse.Namespace) -> None:
+    from orchestration.sweep import SUMMARY_MD, sweep
+
+    sweep_dir = sweep(args.config, args.set, args.ray_address)
+    print((sweep_dir / SUMMARY_MD).read_text(encoding="utf-8"))
+    print(f"sweep {sweep_dir}: its trials are child runs of one MLflow parent run; compare them with `make ui`")
+
+
+def _ui(args: argparse.Namespace) -> None:
+    import os
+    import subprocess
+
+    from orchestration.tracking import tracking_uri, ui_command
+
+    if os.environ.get("MLFLOW_TRACKING_URI", "").startswith("http"):
+        print(f"the runs are on the tracking server {os.environ['MLFLOW_TRACKING_URI']}: open it in a browser")
+        return
+    print(f"MLflow UI on {tracking_uri()}: http://{args.host}:{args.port}  (Ctrl-C stops it)", flush=True)
+    try:
+        subprocess.run(ui_command(args.host, args.port), check=True)
+    except KeyboardInterrupt:
+        pass
+    except subprocess.CalledProcessError as error:
+        raise UserError(f"the MLflow UI stopped with status {error.returncode} (is port {args.port} free?)") from error
 
 
 def _add_motion_source(parser: argparse.ArgumentParser) -> None:
@@ -342,6 +368,8 @@ def build_parser() -> argparse.ArgumentParser:
     testset.add_argument("--mirrors", default="same",
                          help="a mirrored clip counts as its original (same, default), as its own motion "
                               "(distinct), or is left out (exclude)")
+    testset.add_argument("--first", type=_positive_int, metavar="K",
+                         help="keep only the first K instances: a quick-look subset for sweeps (not the paper's)")
     testset.add_argument("--force", action="store_true", help="replace a test set built with other parameters")
     testset.set_defaults(run=_testset)
 
@@ -369,6 +397,18 @@ def build_parser() -> argparse.ArgumentParser:
                                                          "with its own settings")
     evaluate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     evaluate.set_defaults(run=_evaluate)
+
+    sweep = verbs.add_parser("sweep", help="a Ray Tune sweep over sampling or training settings, tracked in MLflow")
+    sweep.add_argument("--config", default="demo", help="configs/sweep/<name>.yaml or a path (default demo)")
+    sweep.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                       help="override a config value, e.g. --set space.eta=[0.1,0.5] (repeatable)")
+    sweep.add_argument("--ray-address", help="join a Ray cluster (auto, or host:port; default: a local Ray; also RAY_ADDRESS)")
+    sweep.set_defaults(run=_sweep)
+
+    ui = verbs.add_parser("ui", help="the MLflow UI on the project's tracking store")
+    ui.add_argument("--port", type=int, default=5000)
+    ui.add_argument("--host", default="127.0.0.1", help="127.0.0.1 (default) keeps it on this machine")
+    ui.set_defaults(run=_ui)
 
     render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
     _add_motion_source(render)

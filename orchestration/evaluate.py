@@ -100,12 +100,12 @@ def _client() -> Any:
 
 
 def make_testset(data_dir: str | Path, dataset: str, n: int = DEFAULT_N, seed: int = DEFAULT_SEED,
-                 mirrors: str = "same", force: bool = False) -> dict[str, Any]:
+                 mirrors: str = "same", force: bool = False, limit: int | None = None) -> dict[str, Any]:
     """Build (or reuse) the N-action test set of a processed dataset and record it in MLflow
     (experiment ``<dataset>/testset``: its parameters, pool and instance counts, and its files,
     so an evaluation can name exactly what it ran on). Returns the summary with ``mlflow_run_id``."""
     try:
-        summary = build_testset(data_dir, n=n, seed=seed, mirrors=mirrors, force=force)
+        summary = build_testset(data_dir, n=n, seed=seed, mirrors=mirrors, force=force, limit=limit)
     except (FileNotFoundError, FileExistsError, ValueError) as error:
         raise UserError(str(error)) from error
     path = Path(summary["path"])
@@ -115,7 +115,7 @@ def make_testset(data_dir: str | Path, dataset: str, n: int = DEFAULT_N, seed: i
     run_id = run.info.run_id
     pool = summary["pool"]
     _log(client, run_id,
-         params={"n": n, "seed": seed, "mirrors": mirrors, "split": summary["split"],
+         params={"n": n, "seed": seed, "mirrors": mirrors, "limit": limit, "split": summary["split"],
                  "min_frames": summary["min_frames"], "data": summary["source"]["dir"], "path": path},
          metrics={"pool_captions": pool["entries"], "pool_motions": pool["motions"],
                   "instances": summary["instances"]})
@@ -565,13 +565,29 @@ def _read(path: Path) -> dict[str, Any]:
     return json.loads(path.read_text(encoding="utf-8"))
 
 
-def _start(settings: EvalSettings, dataset: str, generator: Generator, testset: TestSet, rp_batch: int) -> Path:
-    """A new run directory and its MLflow run (experiment ``<dataset>/eval``) with every knob."""
+@dataclass(frozen=True)
+class ParentRun:
+    """An MLflow run to nest an evaluation under (a sweep): its experiment, its id, the child's name."""
+
+    experiment_id: str
+    run_id: str
+    child_name: str
+
+
+def _start(settings: EvalSettings, dataset: str, generator: Generator, testset: TestSet, rp_batch: int,
+           parent: ParentRun | None = None) -> Path:
+    """A new run directory and its MLflow run (experiment ``<dataset>/eval``, or a child run of
+    ``parent`` in the parent's experiment) with every knob."""
     run_dir = new_run_dir(dataset, EVAL_STAGE)
     client = _client()
-    run = client.create_run(ensure_experiment(experiment_name(dataset, EVAL_STAGE)), run_name=run_dir.name,
-                            tags={"dataset": dataset, "stage": EVAL_STAGE, "methods": ",".join(settings.methods),
-                                  "run_dir": str(run_dir.resolve())})
+    tags = {"dataset": dataset, "stage": EVAL_STAGE, "methods": ",".join(settings.methods),
+            "run_dir": str(run_dir.resolve())}
+    if parent is None:
+        run = client.create_run(ensure_experiment(experiment_name(dataset, EVAL_STAGE)), run_name=run_dir.name,
+                                tags=tags)
+    else:
+        run = client.create_run(parent.experiment_id, run_name=parent.child_name,
+                                tags={**tags, "mlflow.parentRunId": parent.run_id})
     steps = generator.checkpoint.schedule.config.steps
     _log(client, run.info.run_id, params={
         **asdict(settings), "methods": ",".join(settings.methods), "ts": switch_step(settings.ts, steps),
@@ -612,8 +628,10 @@ def _check(settings: EvalSettings, generator: Generator, testset: TestSet, evalu
 
 
 def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path | None = None,
-             batch_size: int = 32) -> tuple[Path, dict[str, Any]]:
+             batch_size: int = 32, parent: ParentRun | None = None,
+             progress: bool = True) -> tuple[Path, dict[str, Any]]:
     """Run (or, given ``run_dir``, finish) an evaluation; returns the run directory and the table.
+    ``parent`` nests its MLflow run under a sweep's.
 
     Only the (method, repeat) pairs without a result file are computed, so a killed run resumes
     where it stopped and a finished one only rewrites its table, figure and MLflow record.
@@ -627,7 +645,7 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
     checkpoint = generator.checkpoint
     reference = Reference.build(testset, evaluator, checkpoint.skeleton, checkpoint.frames_per_token)
     if run_dir is None:
-        run_dir = _start(settings, dataset, generator, testset, reference.rp_batch)
+        run_dir = _start(settings, dataset, generator, testset, reference.rp_batch, parent)
     (run_dir / RESULTS).mkdir(exist_ok=True)
     jobs: list[tuple[str | None, int]] = [(m, r) for m in settings.methods for r in range(settings.repeats)]
     jobs += [(None, r) for r in range(settings.repeats)] if settings.single else []
@@ -638,7 +656,8 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
                "single": -(-reference.items // batch_size)
                + -(-min(MM_PROMPTS, reference.items) * MM_GENERATIONS // batch_size)}
     try:
-        with tqdm(total=sum(batches["multi" if m else "single"] for m, _ in pending), unit="batch") as bar:
+        with tqdm(total=sum(batches["multi" if m else "single"] for m, _ in pending), unit="batch",
+                  disable=not progress) as bar:
             evaluation = Evaluation(generator, evaluator, reference, settings, batch_size, bar)
             for method, repeat in pending:
                 result = evaluation.multi(method, repeat) if method else evaluation.single(repeat)

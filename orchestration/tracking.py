@@ -38,3 +38,13 @@ def ensure_experiment(name: str) -> str:
     if existing is not None:
         return existing.experiment_id
     return client.create_experiment(name, artifact_location=artifact_location(name))
+
+
+def ui_command(host: str, port: int) -> list[str]:
+    """The MLflow UI on the project's store (``mlflow server`` with the same backend as every run)."""
+    import shutil
+    import sys
+
+    mlflow = shutil.which("mlflow", path=str(Path(sys.executable).parent)) or "mlflow"
+    return [mlflow, "server", "--backend-store-uri", tracking_uri(), "--host", host, "--port", str(port),
+            "--workers", "1"]

@@ -129,7 +129,9 @@ def process_motion(row: dict[str, Any], skeleton: Skeleton, bounds: FrameBounds,
         return [{"key": row["id"], "status": "quarantined", "stage": rejected.stage, "reason": rejected.reason}]
 
 
-def _init_ray(address: str | None, workers: int) -> None:
+def init_ray(address: str | None, workers: int) -> None:
+    """Join the cluster at ``address`` (or ``RAY_ADDRESS``; ``auto`` finds one started on this
+    machine), saying which, or start a local Ray with ``workers`` CPUs."""
     import ray
 
     if ray.is_initialized():
@@ -137,6 +139,8 @@ def _init_ray(address: str | None, workers: int) -> None:
     address = address or os.environ.get("RAY_ADDRESS")
     if address:
         ray.init(address=address, logging_level="ERROR")
+        print(f"Ray: joined the cluster at {ray.get_runtime_context().gcs_address} "
+              f"({int(ray.cluster_resources().get('CPU', 0))} CPUs)", flush=True)
     else:
         # "local" ignores a stale cluster file that a killed `ray start --head` can leave behind.
         ray.init(address="local", num_cpus=workers, include_dashboard=False, logging_level="ERROR")
@@ -226,7 +230,7 @@ def run_json_tasks(fn: Callable[..., dict[str, Any]], tasks: list[dict[str, Any]
     order the tasks finished in, so the driver's output never depends on scheduling."""
     import ray
 
-    _init_ray(ray_address, workers)
+    init_ray(ray_address, workers)
     items = [{"position": position, "task": json.dumps(task)} for position, task in enumerate(tasks)]
     results = ray.data.from_items(items, override_num_blocks=max(1, len(items))).map_batches(
         _run_json_batch,

@@ -254,9 +254,10 @@ def _file_record(path: Path) -> dict[str, Any]:
     return {"bytes": path.stat().st_size, "sha256": sha256_of(path)}
 
 
-def _parameters(data_dir: Path, n: int, seed: int, split: str, min_frames: int, mirrors: str) -> dict[str, Any]:
+def _parameters(data_dir: Path, n: int, seed: int, split: str, min_frames: int, mirrors: str,
+                limit: int | None) -> dict[str, Any]:
     source = data_dir / MANIFEST
-    return {"n": n, "seed": seed, "split": split, "min_frames": min_frames, "mirrors": mirrors,
+    return {"n": n, "seed": seed, "split": split, "min_frames": min_frames, "mirrors": mirrors, "limit": limit,
             "source": {"dir": str(data_dir), "manifest_sha256": sha256_of(source)}}
 
 
@@ -264,26 +265,31 @@ def _same_parameters(manifest: dict[str, Any], parameters: dict[str, Any]) -> bo
     return all(manifest.get(name) == value for name, value in parameters.items())
 
 
-def testset_dir(data_dir: str | Path, n: int, seed: int, out: str | Path | None = None) -> Path:
-    """Where ``build_testset`` writes: ``<out or data_dir/testsets>/n<N>-seed<S>``."""
-    return Path(out if out is not None else Path(data_dir) / TESTSETS) / f"n{n}-seed{seed}"
+def testset_dir(data_dir: str | Path, n: int, seed: int, out: str | Path | None = None,
+                limit: int | None = None) -> Path:
+    """Where ``build_testset`` writes: ``<out or data_dir/testsets>/n<N>-seed<S>[-first<L>]``."""
+    name = f"n{n}-seed{seed}" + (f"-first{limit}" if limit is not None else "")
+    return Path(out if out is not None else Path(data_dir) / TESTSETS) / name
 
 
 def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Path | None = None,
                   min_frames: int | None = None, split: str = "test", mirrors: str = "same",
-                  force: bool = False) -> dict[str, Any]:
+                  force: bool = False, limit: int | None = None) -> dict[str, Any]:
     """Build (or reuse) the N-action test set of a processed dataset; returns its manifest plus
     ``path`` and ``reused``. An existing test set with the same parameters (and source dataset
     checksum) is reused when it checks clean; one with other parameters, or damaged, is an error
-    unless ``force`` replaces it."""
+    unless ``force`` replaces it. ``limit`` keeps only the first instances of the seed's draw: a
+    quick-look subset for sweeps, never the paper's table."""
     data_dir = Path(data_dir).resolve()
     min_frames = _resolve_min_frames(data_dir, min_frames)
     if mirrors not in MIRROR_RULES:
         raise ValueError(f"mirrors must be one of {', '.join(MIRROR_RULES)}, got {mirrors!r}")
     if n < 1:
         raise ValueError(f"n must be at least 1, got {n}")
-    target = testset_dir(data_dir, n, seed, out).resolve()
-    parameters = _parameters(data_dir, n, seed, split, min_frames, mirrors)
+    if limit is not None and limit < 2:
+        raise ValueError(f"limit must be at least 2 instances, got {limit}")
+    target = testset_dir(data_dir, n, seed, out, limit).resolve()
+    parameters = _parameters(data_dir, n, seed, split, min_frames, mirrors, limit)
     if (target / MANIFEST).exists() and not force:
         existing = json.loads((target / MANIFEST).read_text(encoding="utf-8"))
         if not _same_parameters(existing, parameters):
@@ -297,7 +303,7 @@ def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Pa
 
     source_manifest = read_manifest(data_dir)
     pool, counts = _scan_pool(data_dir, split, min_frames, mirrors)
-    instances = draw_instances(pool, n, seed)
+    instances = draw_instances(pool, n, seed)[:limit]
     if not instances:
         raise ValueError(f"{data_dir}: only {len({e.motion for e in pool})} distinct {split} motions have a "
                          f"usable single-verb caption, fewer than n = {n}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +12,8 @@ import yaml
 
 from m2d2m.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
-from tests.helpers import TINY_VQ_RUN, write_corpus
+from orchestration.train import train_diffusion, train_evaluator, train_vq
+from tests.helpers import TINY_DIFFUSION, TINY_EVALUATOR, TINY_VQ_RUN, write_corpus
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 HUMANML3D_SAMPLE = PROJECT_ROOT.parent / "shared" / "data" / "humanml3d-sample"
@@ -70,3 +72,48 @@ def project(tmp_path, tiny_data, monkeypatch) -> Path:
     config = {**TINY_VQ_RUN, "data": {**TINY_VQ_RUN["data"], "dir": str(tiny_data)}}
     (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
     return tmp_path
+
+
+TINY_EVALUATOR_RUN = {
+    "dataset": "tiny", "seed": 7,
+    "data": {"dir": None, "batch_size": 4, "num_workers": 0, "min_frames": 40, "max_frames": 196},
+    "model": {**TINY_EVALUATOR, "max_text_len": 20, "dropout": 0.0},
+    "glove_dir": None, "min_word_count": 1, "loss": {"margin": 10.0},
+    "optim": {"lr": 1e-3, "betas": [0.9, 0.999], "weight_decay": 0.0, "grad_clip": 0.5},
+    "trainer": {"max_steps": 4, "val_every_steps": 2, "val_batches": 1, "accelerator": "cpu", "devices": 1,
+                "precision": "32-true"},
+}
+
+
+@pytest.fixture(scope="module")
+def trained_project(tmp_path_factory, ray_local) -> Iterator[Path]:
+    """A project directory (the working directory while the module runs) with a tiny VQ-VAE,
+    denoiser and evaluator trained on a corpus whose test split has 8 clips (16 with mirrors:
+    8 two-action instances when mirrors are distinct)."""
+    root = tmp_path_factory.mktemp("trained")
+    write_corpus(root / "raw", {"train": 6, "val": 2, "test": 8}, T2M)
+    data = root / "data"
+    build_dataset(DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(data), samples_per_shard=4))
+    configs = {"vq": {**TINY_VQ_RUN, "data": {**TINY_VQ_RUN["data"], "dir": str(data)}},
+               "diffusion": TINY_DIFFUSION,
+               "evaluator": {**TINY_EVALUATOR_RUN, "data": {**TINY_EVALUATOR_RUN["data"], "dir": str(data)}}}
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # tiny models: more intra-op threads only contend
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(root)
+        patch.delenv("MLFLOW_TRACKING_URI", raising=False)
+        for name, config in configs.items():
+            (root / f"{name}.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+        train_vq(str(root / "vq.yaml"))
+        train_diffusion(str(root / "diffusion.yaml"))
+        train_evaluator(str(root / "evaluator.yaml"))
+        yield root
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def tiny_testset(trained_project) -> Path:
+    """Two-action instances of the trained project's test split."""
+    from orchestration.evaluate import make_testset
+
+    return Path(make_testset(trained_project / "data", "tiny", n=2, seed=0, mirrors="distinct")["path"])

@@ -4,93 +4,45 @@ the tables, Fig. 5, MLflow, resuming without recomputing, and one-line errors wi
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from pathlib import Path
 
 import mlflow
 import numpy as np
 import pytest
-import torch
-import yaml
 
 import tests.test_testset as handmade
-from m2d2m.skeleton import T2M
 from orchestration.cli import main
-from orchestration.evaluate import MULTI_COLUMNS, SINGLE_COLUMNS, make_testset
+from orchestration.evaluate import MULTI_COLUMNS, SINGLE_COLUMNS
 from orchestration.generate import Generator
-from orchestration.train import train_diffusion, train_evaluator, train_vq
-from pipelines.features import DataConfig, build_dataset
 from pipelines.testset import build_testset
-from tests.helpers import TINY_VQ_RUN, write_corpus
-from tests.test_evaluator import TINY
-from tests.test_train_diffusion import TINY_DIFFUSION
 
 METHODS = ("tps", "slerp")
-TINY_EVALUATOR_RUN = {
-    "dataset": "tiny", "seed": 7,
-    "data": {"dir": None, "batch_size": 4, "num_workers": 0, "min_frames": 40, "max_frames": 196},
-    "model": {**TINY, "max_text_len": 20, "dropout": 0.0},
-    "glove_dir": None, "min_word_count": 1, "loss": {"margin": 10.0},
-    "optim": {"lr": 1e-3, "betas": [0.9, 0.999], "weight_decay": 0.0, "grad_clip": 0.5},
-    "trainer": {"max_steps": 4, "val_every_steps": 2, "val_batches": 1, "accelerator": "cpu", "devices": 1,
-                "precision": "32-true"},
-}
 
 
 @pytest.fixture(scope="module")
-def project(tmp_path_factory, ray_local) -> Iterator[Path]:
-    """A project directory with a tiny VQ-VAE, denoiser and evaluator trained on a corpus whose
-    test split has 8 clips (16 with mirrors: 8 two-action instances when mirrors are distinct)."""
-    root = tmp_path_factory.mktemp("evaluate")
-    write_corpus(root / "raw", {"train": 6, "val": 2, "test": 8}, T2M)
-    data = root / "data"
-    build_dataset(DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(data), samples_per_shard=4))
-    configs = {"vq": {**TINY_VQ_RUN, "data": {**TINY_VQ_RUN["data"], "dir": str(data)}},
-               "diffusion": TINY_DIFFUSION,
-               "evaluator": {**TINY_EVALUATOR_RUN, "data": {**TINY_EVALUATOR_RUN["data"], "dir": str(data)}}}
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # tiny models: more intra-op threads only contend (conftest's one_torch_thread)
-    with pytest.MonkeyPatch.context() as patch:
-        patch.chdir(root)
-        patch.delenv("MLFLOW_TRACKING_URI", raising=False)
-        for name, config in configs.items():
-            (root / f"{name}.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
-        train_vq(str(root / "vq.yaml"))
-        train_diffusion(str(root / "diffusion.yaml"))
-        train_evaluator(str(root / "evaluator.yaml"))
-        yield root
-    torch.set_num_threads(threads)
-
-
-@pytest.fixture(scope="module")
-def testset(project) -> Path:
-    return Path(make_testset(project / "data", "tiny", n=2, seed=0, mirrors="distinct")["path"])
-
-
-@pytest.fixture(scope="module")
-def evaluated(project, testset) -> Path:
+def evaluated(trained_project, tiny_testset) -> Path:
     """The run directory of `m2d2m evaluate` with two methods, two repeats and the single table."""
-    arguments = ["evaluate", "--dataset", "tiny", "--testset", str(testset), "--method", "tps",
+    arguments = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--method", "tps",
                  "--method", "slerp", "--repeats", "2", "--ts", "4", "--single", "--batch-size", "4"]
     assert main(arguments) == 0
-    stage = project / "runs" / "tiny" / "eval"
+    stage = trained_project / "runs" / "tiny" / "eval"
     return stage / (stage / "latest").read_text(encoding="utf-8").strip()
 
 
-def mlflow_client(project: Path) -> mlflow.MlflowClient:
-    return mlflow.MlflowClient(tracking_uri=f"sqlite:///{project / 'mlflow.db'}")
+def mlflow_client(trained_project: Path) -> mlflow.MlflowClient:
+    return mlflow.MlflowClient(tracking_uri=f"sqlite:///{trained_project / 'mlflow.db'}")
 
 
-def test_the_testset_command_builds_and_logs_the_counts(project, capsys):
-    code = main(["testset", "--dataset", "tiny", "--data", str(project / "data"), "--n", "2", "--seed", "1",
+def test_the_testset_command_builds_and_logs_the_counts(trained_project, capsys):
+    code = main(["testset", "--dataset", "tiny", "--data", str(trained_project / "data"), "--n", "2", "--seed", "1",
                  "--mirrors", "distinct"])
     printed = capsys.readouterr().out
     assert code == 0 and "8 instances of 2 actions" in printed
-    run = mlflow_client(project).get_run(printed.split("logged to MLflow run ")[1].split()[0])
+    run = mlflow_client(trained_project).get_run(printed.split("logged to MLflow run ")[1].split()[0])
     assert run.data.metrics == {"pool_captions": 16.0, "pool_motions": 16.0, "instances": 8.0}
     assert run.data.params["n"] == "2" and run.data.params["mirrors"] == "distinct" and run.data.params["seed"] == "1"
     assert run.data.tags["stage"] == "testset"
-    files = {Path(a.path).name for a in mlflow_client(project).list_artifacts(run.info.run_id, "testset")}
+    files = {Path(a.path).name for a in mlflow_client(trained_project).list_artifacts(run.info.run_id, "testset")}
     assert files == {"manifest.json", "instances.jsonl", "motions.npz"}
 
 
@@ -115,8 +67,8 @@ def test_evaluate_writes_both_tables_and_fig5(evaluated):
     assert len(list((evaluated / "results").glob("single-*.json"))) == 2
 
 
-def test_evaluate_logs_every_metric_and_knob_to_mlflow(project, evaluated):
-    client = mlflow_client(project)
+def test_evaluate_logs_every_metric_and_knob_to_mlflow(trained_project, evaluated):
+    client = mlflow_client(trained_project)
     run = client.get_run(json.loads((evaluated / "run.json").read_text())["mlflow_run_id"])
     metrics, params = run.data.metrics, run.data.params
     for method in METHODS:
@@ -133,7 +85,7 @@ def test_evaluate_logs_every_metric_and_knob_to_mlflow(project, evaluated):
     assert {"table.md", "table.json", "fig5.png"} <= {a.path for a in client.list_artifacts(run.info.run_id)}
 
 
-def test_resume_recomputes_only_missing_results(project, evaluated, monkeypatch):
+def test_resume_recomputes_only_missing_results(trained_project, evaluated, monkeypatch):
     calls = []
     original = Generator.generate_tokens
 
@@ -178,16 +130,16 @@ def other_dim_testset(tmp_path_factory) -> Path:
     (["--resume", "some-run", "--repeats", "3"], "with its own settings; drop --repeats"),
     (["--resume", "no-such-run"], "no eval run 'no-such-run'"),
 ])
-def test_bad_input_is_one_line_and_exit_2(project, testset, other_dim_testset, capsys, arguments, message):
+def test_bad_input_is_one_line_and_exit_2(trained_project, tiny_testset, other_dim_testset, capsys, arguments, message):
     arguments = [a.replace("{other}", str(other_dim_testset)) for a in arguments]
-    given = [] if {"--testset", "--resume"} & set(arguments) else ["--testset", str(testset)]
+    given = [] if {"--testset", "--resume"} & set(arguments) else ["--testset", str(tiny_testset)]
     code = main(["evaluate", "--dataset", "tiny", *given, *arguments])
     err = capsys.readouterr().err.strip()
     assert code == 2 and message in err and len(err.splitlines()) == 1, err
 
 
-def test_a_missing_evaluator_says_what_to_run(project, tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)  # a project with no runs
-    model = next((project / "runs" / "tiny" / "diffusion").glob("*/model.pt"))
+def test_a_missing_evaluator_says_what_to_run(trained_project, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)  # a trained_project with no runs
+    model = next((trained_project / "runs" / "tiny" / "diffusion").glob("*/model.pt"))
     assert main(["evaluate", "--dataset", "tiny", "--checkpoint", str(model)]) == 2
     assert "run `make train-evaluator` first" in capsys.readouterr().err

@@ -13,18 +13,16 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 
 from m2d2m.evaluator import (POS_INDEX, EvaluatorConfig, TextMotionEvaluator, contrastive_loss, learned_vocabulary,
                              load_evaluator, load_guo_checkpoint, save_evaluator)
-from tests.helpers import CAPTIONS
+from tests.helpers import CAPTIONS, TINY_EVALUATOR
 from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
 
 D = 263
 TOKENS = [line.split("#")[1].split() for line in CAPTIONS]
-TINY = {"movement_hidden": 16, "movement_latent": 16, "motion_hidden": 24, "text_hidden": 16, "embedding_dim": 8,
-        "word_dim": 12, "word_features": "learned", "max_motion_length": 48}
 
 
 def tiny_evaluator(seed: int = 0, **sizes) -> TextMotionEvaluator:
     torch.manual_seed(seed)
-    config = EvaluatorConfig(feature_dim=D, **{**TINY, **sizes})
+    config = EvaluatorConfig(feature_dim=D, **{**TINY_EVALUATOR, **sizes})
     model = TextMotionEvaluator(config, learned_vocabulary(TOKENS))
     g = torch.Generator().manual_seed(seed)
     model.set_statistics(torch.randn(D, generator=g), torch.rand(D, generator=g) + 0.5)
@@ -215,7 +213,7 @@ def test_training_runs_end_to_end_on_a_tiny_dataset(tiny_data, tmp_path, one_tor
     batch = next(iter(datamodule.train_dataloader()))
     assert batch["motion"].shape[0] == 4 and all(int(n) % 4 == 0 and int(n) >= 36 for n in batch["lengths"])
     pl.seed_everything(0, verbose=False)
-    module = EvaluatorModule(model=dict(TINY), optim={"lr": 1e-3, "betas": [0.9, 0.999], "weight_decay": 0.0},
+    module = EvaluatorModule(model=dict(TINY_EVALUATOR), optim={"lr": 1e-3, "betas": [0.9, 0.999], "weight_decay": 0.0},
                              loss={"margin": 10.0}, feature_dim=datamodule.feature_dim,
                              vocabulary=learned_vocabulary(datamodule.train_captions()))
     module.set_normalizer(datamodule.normalizer)

@@ -15,8 +15,7 @@ from orchestration.cli import main
 from orchestration.errors import UserError
 from orchestration.generate import Generator
 from orchestration.train import train_diffusion, train_vq
-from tests.helpers import TINY_VQ_RUN
-from tests.test_train_diffusion import TINY_DIFFUSION
+from tests.helpers import TINY_DIFFUSION, TINY_VQ_RUN
 
 PROMPTS = ["a person walks forward", "a person jumps", "a person waves their right hand"]
 

@@ -11,24 +11,9 @@ import yaml
 from orchestration.errors import UserError
 from orchestration.runs import latest_run, read_run_info
 from orchestration.train import train_diffusion, train_vq
+from tests.helpers import TINY_DIFFUSION
 from tests.test_train_vq import KillAt, RecordStart
 
-TINY_DIFFUSION = {
-    "dataset": "tiny",
-    "seed": 1,
-    "vq": "latest",
-    "data": {"batch_size": 4, "num_workers": 0, "max_tokens": None},
-    "text": {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
-    "denoiser": {"layers": 1, "heads": 2, "width": 16, "ffn": 32, "dropout": 0.0, "max_distance": 16,
-                 "num_buckets": 8, "condition_drop": 0.1},
-    "diffusion": {"steps": 8, "kind": "dynamic", "eta": 0.5, "distance": "l2_rank", "schedule": "linear",
-                  "aux_weight": 5e-4, "timestep_sampling": "uniform"},
-    "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1, "milestones": [100],
-              "gamma": 0.1, "grad_clip": 1.0},
-    "trainer": {"max_steps": 4, "val_every_steps": 2, "val_batches": 1, "gif_every": 2, "accelerator": "cpu",
-                "devices": 1, "precision": "auto"},
-    "preview": {"prompts": ["a person walks forward"], "seconds": [1.0], "guidance": 2.0},
-}
 
 
 def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, tiny_data):

@@ -1,0 +1,222 @@
+"""Sweeps with Ray Tune: sampling-time (η, T_s, guidance on a trained checkpoint) or training-time
+(config overrides of the denoiser, each trial trained then evaluated), every trial an MLflow child
+run of one parent run per sweep.
+
+``m2d2m sweep --config configs/sweep/<name>.yaml [--ray-address ADDR]``. The driver resolves every
+path to an absolute one and creates the MLflow store, experiment and parent run before any trial
+starts (parallel trials would otherwise race on SQLite's schema migration); trials are Tune
+function trainables that chdir to the project, so relative defaults (``runs/``, ``data/``) mean
+what they mean for the driver. The Tune experiment lives in ``runs/<dataset>/sweep/<name>/tune``:
+re-running a sweep whose driver died restores it there (finished trials are kept, unfinished and
+errored ones run again) instead of starting over. The parent run gets a summary table and, for
+sampling sweeps, Jerk and FID against T_s for each η (the paper's Tables 5 and 7 as pictures).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from orchestration.config import load_config
+from orchestration.errors import UserError
+from orchestration.runs import stage_dir
+from orchestration.tracking import ensure_experiment, experiment_name, tracking_uri
+
+SWEEP_STAGE = "sweep"
+KINDS = ("sampling", "training")
+SAMPLING_KNOBS = ("eta", "ts", "guidance")
+SWEEP_FILE = "sweep.json"
+SUMMARY_MD, SUMMARY_JSON, SUMMARY_PNG = "summary.md", "summary.json", "jerk-fid-vs-ts.png"
+
+
+def trial_name(params: dict[str, Any]) -> str:
+    """A child run's name from its parameters, e.g. ``eta=0.25 ts=90``."""
+    return " ".join(f"{key}={value}" for key, value in params.items())
+
+
+def _check(config: dict[str, Any]) -> None:
+    if config["kind"] not in KINDS:
+        raise UserError(f"sweep kind must be one of {', '.join(KINDS)}, got {config['kind']!r}")
+    space = config["space"]
+    if not space or any(not isinstance(values, list) or not values for values in space.values()):
+        raise UserError("space: give every knob a non-empty list of values")
+    if config["kind"] == "sampling" and set(space) - set(SAMPLING_KNOBS):
+        raise UserError(f"a sampling sweep varies {', '.join(SAMPLING_KNOBS)}; "
+                        f"unknown: {', '.join(sorted(set(space) - set(SAMPLING_KNOBS)))}")
+    if config["search"] not in ("grid", "random"):
+        raise UserError(f"search must be grid or random, got {config['search']!r}")
+
+
+# ------------------------------------------------------------------------------------- trials
+def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, float]:
+    """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
+    returns the evaluation's metrics (the MLflow names, e.g. ``multi/tps/jerk``)."""
+    from orchestration.evaluate import ParentRun, evaluate, new_settings
+    from orchestration.train import train_diffusion
+
+    import torch
+
+    os.chdir(context["project"])
+    os.environ["MLFLOW_TRACKING_URI"] = context["tracking_uri"]
+    torch.set_num_threads(context["threads"])  # the trial's CPUs, not every core of the node
+    evaluation = dict(context["evaluation"])
+    checkpoint = evaluation.pop("checkpoint")
+    if context["kind"] == "training":
+        overrides = [f"{key}={value}" for key, value in params.items()]
+        checkpoint = str(train_diffusion(context["diffusion_config"], overrides) / "model.pt")
+    else:
+        evaluation.update(params)
+    settings = new_settings(context["dataset"], checkpoint=checkpoint, **evaluation)
+    parent = ParentRun(context["experiment_id"], context["parent_run_id"], trial_name(params))
+    _, table = evaluate(settings, context["dataset"], parent=parent, progress=False)
+    return flatten_table(table)
+
+
+def flatten_table(table: dict[str, Any]) -> dict[str, float]:
+    """The table's means as flat metrics: ``multi/<method>/<metric>``, ``single/<metric>``."""
+    metrics: dict[str, float] = {}
+    for row, values in table["multi"].items():
+        for metric, summary in values.items():
+            if summary and summary.get("mean") is not None:
+                metrics[f"multi/{row}/{metric}"] = float(summary["mean"])
+    for row, values in table.get("single", {}).items():
+        for metric, summary in values.items():
+            if summary and summary.get("mean") is not None:
+                metrics[f"single/{row}/{metric}"] = float(summary["mean"])
+    return metrics
+
+
+def _tune_trainable(config: dict[str, Any]) -> None:
+    """The Tune function trainable: the sampled parameters beside the shared context."""
+    from ray import tune
+
+    context = config["context"]
+    params = {key: config[key] for key in context["knobs"]}
+    tune.report(run_trial(params, context))
+
+
+# ------------------------------------------------------------------------------------- driver
+def _context(config: dict[str, Any], parent: tuple[str, str]) -> dict[str, Any]:
+    """What every trial needs, with absolute paths only."""
+    from orchestration.evaluate import new_settings
+
+    dataset = config["dataset"]
+    evaluation = {"testset": config["testset"], "evaluator": config["evaluator"], "methods": [config["method"]],
+                  "repeats": config["repeats"], "ts": None, "eta": 0.25, "guidance": 2.0}
+    if config["kind"] == "sampling":
+        resolved = new_settings(dataset, checkpoint=config["checkpoint"], testset=config["testset"],
+                                evaluator=config["evaluator"], methods=[config["method"]], repeats=config["repeats"])
+        evaluation.update(checkpoint=resolved.checkpoint, evaluator=resolved.evaluator, testset=resolved.testset)
+    else:
+        evaluation["checkpoint"] = None
+    return {"project": str(Path.cwd().resolve()), "tracking_uri": tracking_uri(), "dataset": dataset,
+            "kind": config["kind"], "knobs": list(config["space"]), "evaluation": evaluation,
+            "diffusion_config": config["diffusion_config"], "threads": max(1, int(config["resources"]["cpu"])),
+            "experiment_id": parent[0], "parent_run_id": parent[1]}
+
+
+def _parent_run(sweep_dir: Path, name: str, config: dict[str, Any]) -> tuple[str, str]:
+    """The sweep's MLflow parent run (experiment ``<dataset>/sweep``), reused when the sweep resumes."""
+    import mlflow
+
+    record = sweep_dir / SWEEP_FILE
+    if record.exists():
+        saved = json.loads(record.read_text(encoding="utf-8"))
+        return saved["experiment_id"], saved["parent_run_id"]
+    experiment_id = ensure_experiment(experiment_name(config["dataset"], SWEEP_STAGE))
+    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
+    run = client.create_run(experiment_id, run_name=name, tags={"dataset": config["dataset"], "stage": SWEEP_STAGE,
+                                                                "sweep_kind": config["kind"]})
+    params = {"kind": config["kind"], "method": config["method"], "repeats": config["repeats"],
+              "search": config["search"], **{f"space.{k}": json.dumps(v) for k, v in config["space"].items()}}
+    for key, value in params.items():
+        client.log_param(run.info.run_id, key, str(value))
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    record.write_text(json.dumps({"experiment_id": experiment_id, "parent_run_id": run.info.run_id,
+                                  "config": config}, indent=2), encoding="utf-8")
+    return experiment_id, run.info.run_id
+
+
+def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str | None = None) -> Path:
+    """Run (or resume) a sweep; returns its directory with the summary table and plot."""
+    from ray import tune
+
+    from pipelines.features import init_ray
+
+    config = load_config(SWEEP_STAGE, config_name, overrides or [])
+    _check(config)
+    name = Path(config_name).stem
+    sweep_dir = (stage_dir(config["dataset"], SWEEP_STAGE) / name).resolve()
+    parent = _parent_run(sweep_dir, name, config)
+    context = _context(config, parent)
+    init_ray(ray_address, os.cpu_count() or 1)
+    resources = {"cpu": config["resources"]["cpu"], "gpu": config["resources"]["gpu"]}
+    trainable = tune.with_resources(_tune_trainable, resources)
+    storage = sweep_dir / "tune"
+    if tune.Tuner.can_restore(str(storage / name)):
+        print(f"resuming the sweep in {storage / name}")
+        tuner = tune.Tuner.restore(str(storage / name), trainable, resume_errored=True)
+    else:
+        space = {key: (tune.grid_search(values) if config["search"] == "grid" else tune.choice(values))
+                 for key, values in config["space"].items()}
+        tuner = tune.Tuner(
+            trainable, param_space={**space, "context": context},
+            tune_config=tune.TuneConfig(num_samples=1 if config["search"] == "grid" else config["samples"],
+                                        max_concurrent_trials=config["max_concurrent"]),
+            run_config=tune.RunConfig(name=name, storage_path=str(storage), verbose=1,
+                                      failure_config=tune.FailureConfig(max_failures=config["max_failures"])))
+    results = tuner.fit()
+    failed = [result for result in results if result.error is not None]
+    rows = [{**{k: result.config[k] for k in context["knobs"]}, **result.metrics}
+            for result in results if result.error is None and result.metrics]
+    summarize(sweep_dir, rows, config, parent[1])
+    if failed:
+        raise UserError(f"{len(failed)} of {len(results)} trials failed after {config['max_failures']} retries; "
+                        f"see {storage / name}")
+    return sweep_dir
+
+
+def summarize(sweep_dir: Path, rows: list[dict[str, Any]], config: dict[str, Any], parent_run_id: str) -> None:
+    """summary.json / summary.md (one row per trial) and, for sampling sweeps, Jerk and FID
+    against T_s per η; logged to the parent run, which is then marked finished."""
+    import mlflow
+
+    knobs = list(config["space"])
+    metric_names = [f"multi/{config['method']}/{m}" for m in ("jerk", "fid", "r_top3", "transition_fid")]
+    kept = [{**{k: row[k] for k in knobs}, **{m: row.get(m) for m in metric_names}} for row in rows]
+    kept.sort(key=lambda row: tuple(row[k] for k in knobs))
+    (sweep_dir / SUMMARY_JSON).write_text(json.dumps(kept, indent=2), encoding="utf-8")
+    lines = ["| " + " | ".join(knobs + metric_names) + " |", "|" + " --- |" * (len(knobs) + len(metric_names))]
+    lines += ["| " + " | ".join(str(row[k]) for k in knobs) + " | "
+              + " | ".join("–" if row[m] is None else f"{row[m]:.3f}" for m in metric_names) + " |" for row in kept]
+    (sweep_dir / SUMMARY_MD).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
+    client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_MD))
+    client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_JSON))
+    if config["kind"] == "sampling" and "ts" in knobs:
+        plot_against_ts(sweep_dir / SUMMARY_PNG, kept, config["method"])
+        client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_PNG))
+    client.set_terminated(parent_run_id)
+
+
+def plot_against_ts(path: Path, rows: list[dict[str, Any]], method: str) -> Path:
+    """Jerk and FID of ``method`` against T_s, one line per η (other knobs: their first value)."""
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(9, 3.6), dpi=100)
+    for index, metric in enumerate(("jerk", "fid")):
+        axes = figure.add_subplot(1, 2, index + 1)
+        for eta in sorted({row.get("eta", 0.25) for row in rows}):
+            points = sorted((row["ts"], row[f"multi/{method}/{metric}"]) for row in rows
+                            if row.get("eta", 0.25) == eta and row[f"multi/{method}/{metric}"] is not None)
+            if points:
+                axes.plot(*zip(*points), marker="o", label=f"η = {eta}")
+        axes.set_xlabel("T_s (joint phase: t > T_s)")
+        axes.set_title(f"{'Jerk (transitions)' if metric == 'jerk' else 'FID (individual motions)'}")
+        axes.grid(alpha=0.3)
+        axes.legend()
+    figure.tight_layout()
+    figure.savefig(path)
+    return path

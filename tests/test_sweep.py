@@ -1,0 +1,69 @@
+"""`m2d2m sweep` end to end with real Ray Tune and a real MLflow SQLite store: two sampling trials
+on a tiny trained model become child runs of one parent with a summary table and plot, and
+re-running a sweep restores it instead of starting over."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mlflow
+import pytest
+import yaml
+
+from orchestration.cli import main
+from orchestration.sweep import SUMMARY_JSON, SUMMARY_MD, SUMMARY_PNG, sweep, trial_name
+
+
+def sweep_config(testset: Path, **changes) -> dict:
+    return {"dataset": "tiny", "kind": "sampling", "checkpoint": "latest", "diffusion_config": "unused",
+            "evaluator": "latest", "testset": str(testset), "method": "tps", "repeats": 1, "search": "grid",
+            "samples": 1, "space": {"eta": [0.25], "ts": [2, 4]}, "resources": {"cpu": 1, "gpu": 0},
+            "max_concurrent": 2, "max_failures": 1, **changes}
+
+
+def child_runs(trained_project: Path, parent_run_id: str) -> list:
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{trained_project / 'mlflow.db'}")
+    parent = client.get_run(parent_run_id)
+    runs = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent_run_id}'")
+    return sorted(runs, key=lambda run: run.info.run_name)
+
+
+def test_a_two_trial_sweep_nests_its_trials_under_one_parent_and_resumes(trained_project, tiny_testset, monkeypatch):
+    monkeypatch.chdir(trained_project)
+    (trained_project / "two.yaml").write_text(yaml.safe_dump(sweep_config(tiny_testset)), encoding="utf-8")
+    sweep_dir = sweep(str(trained_project / "two.yaml"))
+
+    summary = yaml.safe_load((sweep_dir / SUMMARY_JSON).read_text(encoding="utf-8"))
+    assert [(row["eta"], row["ts"]) for row in summary] == [(0.25, 2), (0.25, 4)]
+    assert all(row["multi/tps/jerk"] is not None and row["multi/tps/fid"] is not None for row in summary)
+    assert (sweep_dir / SUMMARY_PNG).stat().st_size > 0 and "multi/tps/jerk" in (sweep_dir / SUMMARY_MD).read_text()
+
+    parent_run_id = yaml.safe_load((sweep_dir / "sweep.json").read_text(encoding="utf-8"))["parent_run_id"]
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{trained_project / 'mlflow.db'}")
+    parent = client.get_run(parent_run_id)
+    assert parent.info.status == "FINISHED" and parent.data.tags["stage"] == "sweep"
+    artifacts = {Path(a.path).name for a in client.list_artifacts(parent_run_id)}
+    assert {SUMMARY_MD, SUMMARY_JSON, SUMMARY_PNG} <= artifacts
+    children = child_runs(trained_project, parent_run_id)
+    assert [run.info.run_name for run in children] == [trial_name({"eta": 0.25, "ts": 2}),
+                                                        trial_name({"eta": 0.25, "ts": 4})]
+    for run, ts in zip(children, (2, 4)):
+        assert run.data.params["ts"] == str(ts) and run.data.params["eta"] == "0.25"
+        assert "multi/tps/jerk" in run.data.metrics and run.data.tags["stage"] == "eval"
+
+    # the driver runs again (as after a crash): Tune restores the experiment, finished trials stay done
+    assert sweep(str(trained_project / "two.yaml")) == sweep_dir
+    assert len(child_runs(trained_project, parent_run_id)) == 2
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"kind": "inference"}, "sweep kind must be one of"),
+    ({"space": {"eta": []}}, "non-empty list"),
+    ({"space": {"width": [1, 2]}}, "unknown: width"),
+])
+def test_bad_sweep_configs_are_one_line_errors(trained_project, tiny_testset, capsys, monkeypatch, change, message):
+    monkeypatch.chdir(trained_project)
+    (trained_project / "bad.yaml").write_text(yaml.safe_dump(sweep_config(tiny_testset, **change)), encoding="utf-8")
+    assert main(["sweep", "--config", str(trained_project / "bad.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1
