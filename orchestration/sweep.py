@@ -110,7 +110,10 @@ def _context(config: dict[str, Any], parent: tuple[str, str]) -> dict[str, Any]:
                                 evaluator=config["evaluator"], methods=[config["method"]], repeats=config["repeats"])
         evaluation.update(checkpoint=resolved.checkpoint, evaluator=resolved.evaluator, testset=resolved.testset)
     else:
+        from orchestration.train import DIFFUSION_STAGE, ensure_tokens, vq_file
+
         evaluation["checkpoint"] = None
+        ensure_tokens(vq_file(load_config(DIFFUSION_STAGE, config["diffusion_config"], [])))
     return {"project": str(Path.cwd().resolve()), "tracking_uri": tracking_uri(), "dataset": dataset,
             "kind": config["kind"], "knobs": list(config["space"]), "evaluation": evaluation,
             "diffusion_config": config["diffusion_config"], "threads": max(1, int(config["resources"]["cpu"])),
@@ -149,9 +152,9 @@ def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str
     _check(config)
     name = Path(config_name).stem
     sweep_dir = (stage_dir(config["dataset"], SWEEP_STAGE) / name).resolve()
+    init_ray(ray_address, os.cpu_count() or 1)  # first: tokenizing for a training sweep joins the same Ray
     parent = _parent_run(sweep_dir, name, config)
     context = _context(config, parent)
-    init_ray(ray_address, os.cpu_count() or 1)
     resources = {"cpu": config["resources"]["cpu"], "gpu": config["resources"]["gpu"]}
     trainable = tune.with_resources(_tune_trainable, resources)
     storage = sweep_dir / "tune"

@@ -157,7 +157,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     return run_dir
 
 
-def _vq_file(config: dict[str, Any]) -> Path:
+def vq_file(config: dict[str, Any]) -> Path:
     """The VQ-VAE the denoiser works with: ``vq: latest`` (the dataset's latest VQ run) or a path."""
     if config["vq"] == "latest":
         return latest_run(config["dataset"], VQ_STAGE, "make train-vq") / VQ_FILE
@@ -167,6 +167,22 @@ def _vq_file(config: dict[str, Any]) -> Path:
     return path
 
 
+def ensure_tokens(vq_path: Path) -> Path:
+    """The token set of the VQ-VAE's dataset under this VQ-VAE, made first when it is missing or
+    stale (so a sweep's driver can make it once, before parallel trials would race to)."""
+    from m2d2m.layout import TOKENS
+    from m2d2m.vqvae import load_vq
+    from pipelines.tokenize import current_tokens, tokenize_dataset
+
+    _, _, vq_meta = load_vq(vq_path)
+    data_dir = Path(vq_meta["extra"]["data_dir"])
+    tokens_dir = data_dir / TOKENS / vq_meta["extra"].get("run", vq_path.parent.name)
+    if current_tokens(data_dir, vq_path, tokens_dir) is None:
+        print(f"tokenizing {data_dir} with {vq_path} first")
+        tokenize_dataset(data_dir, vq_path, tokens_dir)
+    return tokens_dir
+
+
 def train_diffusion(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
                     extra_callbacks: list | None = None) -> Path:
     """Train the discrete-diffusion denoiser on the tokens of a VQ-VAE run, tokenizing first when
@@ -174,23 +190,19 @@ def train_diffusion(config_name: str = "demo", overrides: list[str] | None = Non
     import lightning.pytorch as pl
 
     from m2d2m.checkpoint import save_checkpoint
-    from m2d2m.layout import MODEL_FILE, TOKENS
+    from m2d2m.layout import MODEL_FILE
     from m2d2m.text import LearnedTextEncoder
     from m2d2m.vqvae import load_vq
-    from pipelines.tokenize import current_tokens, tokenize_dataset
     from training.callbacks import SamplePreview
     from training.data import TokenDataModule, clip_metas, length_prior
     from training.diffusion_module import DiffusionModule
 
     run_dir, config, run_id = _open_run(DIFFUSION_STAGE, config_name, overrides or [], resume)
-    vq_path = _vq_file(config)
+    vq_path = vq_file(config)
     vq, _, vq_meta = load_vq(vq_path)
     data_dir = Path(vq_meta["extra"]["data_dir"])
-    tokens_dir = data_dir / TOKENS / vq_meta["extra"].get("run", vq_path.parent.name)
     try:
-        if current_tokens(data_dir, vq_path, tokens_dir) is None:
-            print(f"tokenizing {data_dir} with {vq_path} first")
-            tokenize_dataset(data_dir, vq_path, tokens_dir)
+        tokens_dir = ensure_tokens(vq_path)
         data, trainer_cfg = config["data"], config["trainer"]
         datamodule = TokenDataModule(tokens_dir, batch_size=data["batch_size"], num_workers=data["num_workers"],
                                      steps_per_epoch=trainer_cfg["val_every_steps"], max_tokens=data["max_tokens"],

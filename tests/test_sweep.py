@@ -67,3 +67,17 @@ def test_bad_sweep_configs_are_one_line_errors(trained_project, tiny_testset, ca
     assert main(["sweep", "--config", str(trained_project / "bad.yaml")]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
+
+
+def test_a_training_sweep_trains_each_trial_then_evaluates_it(trained_project, tiny_testset, monkeypatch):
+    monkeypatch.chdir(trained_project)
+    config = sweep_config(tiny_testset, kind="training", diffusion_config=str(trained_project / "diffusion.yaml"),
+                          space={"diffusion.kind": ["uniform", "dynamic"]})
+    (trained_project / "ablation.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    sweep_dir = sweep(str(trained_project / "ablation.yaml"))
+    summary = yaml.safe_load((sweep_dir / SUMMARY_JSON).read_text(encoding="utf-8"))
+    assert [row["diffusion.kind"] for row in summary] == ["dynamic", "uniform"]
+    assert all(row["multi/tps/jerk"] is not None for row in summary)
+    trained = [yaml.safe_load((run / "run.json").read_text())["config"]["diffusion"]["kind"]
+               for run in (trained_project / "runs" / "tiny" / "diffusion").iterdir() if (run / "run.json").exists()]
+    assert trained.count("uniform") == 1 and trained.count("dynamic") >= 2  # the fixture's run, and the trial's
