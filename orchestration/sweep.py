@@ -70,8 +70,22 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
         evaluation.update(params)
     settings = new_settings(context["dataset"], checkpoint=checkpoint, **evaluation)
     parent = ParentRun(context["experiment_id"], context["parent_run_id"], trial_name(params))
+    _mark_interrupted(parent)
     _, table = evaluate(settings, context["dataset"], parent=parent, progress=False)
     return flatten_table(table)
+
+
+def _mark_interrupted(parent: Any) -> None:
+    """A trial run again after its driver died: its earlier child run never finished; say so
+    (KILLED) rather than leave it looking alive beside the new one."""
+    import mlflow
+
+    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
+    earlier = client.search_runs([parent.experiment_id],
+                                 f"tags.mlflow.parentRunId = '{parent.run_id}' and attributes.status = 'RUNNING' "
+                                 f"and attributes.run_name = '{parent.child_name}'")
+    for run in earlier:
+        client.set_terminated(run.info.run_id, "KILLED")
 
 
 def flatten_table(table: dict[str, Any]) -> dict[str, float]:
