@@ -28,6 +28,13 @@ FORMAT = "m2d2m-denoiser/1"
 SCHEDULE_KEYS = ("steps", "kind", "eta", "distance", "schedule")
 
 
+def schedule_from_config(codebook: torch.Tensor, diffusion: dict[str, Any]) -> TransitionSchedule:
+    """The transition schedule a run's ``diffusion`` settings build from its codebook (float64)."""
+    options = {k: diffusion[k] for k in SCHEDULE_KEYS if k in diffusion}
+    options["steps"] = int(options.get("steps", 100))
+    return TransitionSchedule.build(codebook.detach().double(), **options)
+
+
 @dataclass
 class LengthPrior:
     """Typical lengths in tokens: the median per verb over single-action training captions, and
@@ -95,8 +102,7 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
         text_encoder: TextEncoder = LearnedTextEncoder.from_state_dict(text["state_dict"])
     else:
         text_encoder = build_text_encoder(text["kind"], **text["options"])
-    codebook = payload["codebook"].to(device)
-    schedule = TransitionSchedule.build(codebook.double(), **payload["schedule"])
+    schedule = schedule_from_config(payload["codebook"].to(device), payload["schedule"])
     vq, normalizer, vq_meta = vq_from_payload(payload["vq"], device)
     lengths = LengthPrior(**payload["lengths"])
     return Checkpoint(denoiser.to(device).eval(), text_encoder.to(device).eval(), schedule, vq, normalizer,

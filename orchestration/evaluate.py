@@ -12,7 +12,7 @@ tokens) and measured with the text–motion evaluator:
 
 Reference rows: "ground truth (single)" measures the ground-truth segments and their middle
 windows the same way; "ground truth (concat)" is the Jerk at the boundaries of each instance's
-ground-truth segments joined with :func:`m2d2m.transitions.align`. Every number is a mean ± 95 %
+ground-truth segments joined by :func:`m2d2m.transitions.slerp_join` with no window (aligned, not blended). Every number is a mean ± 95 %
 CI over the repeats. docs/evaluation.md explains each choice.
 
 Each finished (method, repeat) is a JSON file under the run's ``results/``, so ``--resume``
@@ -23,7 +23,6 @@ files at the end.
 from __future__ import annotations
 
 import json
-import time
 import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, fields, replace
@@ -43,11 +42,12 @@ from m2d2m.motion import Motion
 from m2d2m.representation import features_to_joints
 from m2d2m.sampling import METHODS, SamplingOptions, switch_step
 from m2d2m.skeleton import Skeleton
-from m2d2m.transitions import align
+from m2d2m.transitions import slerp_join
 from orchestration.errors import UserError
 from orchestration.generate import Generator, resolve_checkpoint
-from orchestration.runs import find_run, latest_run, mark_latest, new_run_dir, read_run_info, write_run_info
-from orchestration.tracking import ensure_experiment, experiment_name, tracking_uri
+from orchestration.runs import find_run, mark_latest, new_run_dir, read_run_info, run_file, write_run_info
+from orchestration.tracking import client as tracking_client
+from orchestration.tracking import ensure_experiment, experiment_name, log_batch
 from orchestration.train import EVALUATOR_FILE, EVALUATOR_STAGE
 from pipelines.shards import write_json_atomically
 from pipelines.testset import (INSTANCES, MOTIONS, TestSet, split_metas, build_testset, check_testset, describe,
@@ -80,22 +80,6 @@ ROW_TITLES = {GT_SINGLE: "Ground truth (single)", GT_CONCAT: "Ground truth (conc
 # ------------------------------------------------------------------------------------ MLflow
 
 
-def _log(client: Any, run_id: str, params: dict[str, Any] | None = None,
-         metrics: dict[str, float] | None = None) -> None:
-    """Params (as strings) and metrics of a run in one batch."""
-    from mlflow.entities import Metric, Param
-
-    now = int(time.time() * 1000)
-    client.log_batch(run_id, params=[Param(k, str(v)) for k, v in (params or {}).items()],
-                     metrics=[Metric(k, float(v), now, 0) for k, v in (metrics or {}).items()])
-
-
-def _client() -> Any:
-    import mlflow
-
-    return mlflow.MlflowClient(tracking_uri=tracking_uri())
-
-
 # ---------------------------------------------------------------------------------- test sets
 
 
@@ -109,12 +93,12 @@ def make_testset(data_dir: str | Path, dataset: str, n: int = DEFAULT_N, seed: i
     except (FileNotFoundError, FileExistsError, ValueError) as error:
         raise UserError(str(error)) from error
     path = Path(summary["path"])
-    client = _client()
+    client = tracking_client()
     run = client.create_run(ensure_experiment(experiment_name(dataset, TESTSET_STAGE)), run_name=path.name,
                             tags={"dataset": dataset, "stage": TESTSET_STAGE, "reused": str(summary["reused"])})
     run_id = run.info.run_id
     pool = summary["pool"]
-    _log(client, run_id,
+    log_batch(client, run_id,
          params={"n": n, "seed": seed, "mirrors": mirrors, "limit": limit, "split": summary["split"],
                  "min_frames": summary["min_frames"], "data": summary["source"]["dir"], "path": path},
          metrics={"pool_captions": pool["entries"], "pool_motions": pool["motions"],
@@ -188,19 +172,6 @@ def _methods(values: Sequence[str]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(methods))
 
 
-def _resolve_evaluator(reference: str, dataset: str) -> Path:
-    """An ``evaluator.pt`` from a path, a run directory or name, an MLflow run id, or ``latest``."""
-    if Path(reference).is_file():
-        return Path(reference)
-    if reference == "latest":
-        run_dir = latest_run(dataset, EVALUATOR_STAGE, "make train-evaluator")
-    else:
-        run_dir = find_run(reference, dataset, EVALUATOR_STAGE)
-    if not (run_dir / EVALUATOR_FILE).is_file():
-        raise UserError(f"{run_dir} has no {EVALUATOR_FILE}: the run did not finish (`m2d2m train-evaluator --resume`)")
-    return run_dir / EVALUATOR_FILE
-
-
 def new_settings(dataset: str, checkpoint: str = "latest", testset: str | None = None, evaluator: str | None = None,
                  guo_evaluator: str | None = None, glove: str | None = None, meta: str | None = None,
                  methods: Sequence[str] = ("tps",), ts: int | None = None, eta: float = 0.25, guidance: float = 2.0,
@@ -223,7 +194,8 @@ def new_settings(dataset: str, checkpoint: str = "latest", testset: str | None =
     else:
         if glove is not None or meta is not None:
             raise UserError("--glove and --meta go with --guo-evaluator")
-        evaluator_path = _resolve_evaluator(evaluator or "latest", dataset).resolve()
+        evaluator_path = run_file(evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE,
+                                  "make train-evaluator").resolve()
     return EvalSettings(
         checkpoint=str(resolve_checkpoint(checkpoint, dataset).resolve()),
         testset=None if testset is None else str(Path(testset).resolve()),
@@ -355,7 +327,9 @@ class Reference:
         middles = [transition_windows(clip, [len(clip) // 2], WINDOW)[0] for clip in flat]
         joints = [[features_to_joints(clip, skeleton) for clip in clips] for clips in features]
         single = [jerk(j, JERK_FPS, [len(j) // 2], WINDOW) for clips in joints for j in clips]
-        concat = [_concatenated(clips, skeleton) for clips in joints]
+        # joined with no transition window: each clip turned and moved to where the previous ended
+        concat = [(joined, [first for first, _ in ranges[1:]])
+                  for joined, ranges in (slerp_join(clips, 0, skeleton) for clips in joints)]
         return cls(
             actions=[instance.actions for instance in testset],
             tokens=tokens,
@@ -371,15 +345,6 @@ class Reference:
                 "diversity": diversity(self.segments, _pairs(self.items), seed=repeat),
                 "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
                 "jerk": self.jerk_single}
-
-
-def _concatenated(clips: list[np.ndarray], skeleton: Skeleton) -> tuple[np.ndarray, list[int]]:
-    """Ground-truth joints joined in order, each clip turned and moved to start where the previous
-    one ended (no blending: the real-motion jump Fig. 5 compares with), and its boundaries."""
-    pieces = [clips[0]]
-    for clip in clips[1:]:
-        pieces.append(align(clip, pieces[-1][-1], skeleton))
-    return np.concatenate(pieces), np.cumsum([len(p) for p in pieces])[:-1].tolist()
 
 
 class Evaluation:
@@ -536,7 +501,7 @@ def plot_fig5(path: Path, curves: dict[str, dict[str, Any]]) -> Path:
     return path
 
 
-def _mlflow_metrics(table: dict[str, Any]) -> dict[str, float]:
+def table_metrics(table: dict[str, Any]) -> dict[str, float]:
     """``multi/<method>/<metric>``, ``gt/<metric>_single``, ``gt/jerk_concat``, ``single/<metric>``,
     each with a ``_ci`` twin; undefined values are left out."""
     names = {}
@@ -579,7 +544,7 @@ def _start(settings: EvalSettings, dataset: str, generator: Generator, testset: 
     """A new run directory and its MLflow run (experiment ``<dataset>/eval``, or a child run of
     ``parent`` in the parent's experiment) with every knob."""
     run_dir = new_run_dir(dataset, EVAL_STAGE)
-    client = _client()
+    client = tracking_client()
     tags = {"dataset": dataset, "stage": EVAL_STAGE, "methods": ",".join(settings.methods),
             "run_dir": str(run_dir.resolve())}
     if parent is None:
@@ -589,7 +554,7 @@ def _start(settings: EvalSettings, dataset: str, generator: Generator, testset: 
         run = client.create_run(parent.experiment_id, run_name=parent.child_name,
                                 tags={**tags, "mlflow.parentRunId": parent.run_id})
     steps = generator.checkpoint.schedule.config.steps
-    _log(client, run.info.run_id, params={
+    log_batch(client, run.info.run_id, params={
         **asdict(settings), "methods": ",".join(settings.methods), "ts": switch_step(settings.ts, steps),
         "steps": steps, "n": testset.n, "instances": len(testset), "window": WINDOW, "jerk_fps": JERK_FPS,
         "r_precision_batch": rp_batch, "single_guidance": SINGLE_GUIDANCE, "single_eta": SINGLE_ETA})
@@ -651,7 +616,7 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
     jobs += [(None, r) for r in range(settings.repeats)] if settings.single else []
     pending = [job for job in jobs if not _result_file(run_dir, *job).exists()]
     run_id = read_run_info(run_dir)["mlflow_run_id"]
-    client = _client()
+    client = tracking_client()
     batches = {"multi": -(-len(reference.actions) // batch_size),
                "single": -(-reference.items // batch_size)
                + -(-min(MM_PROMPTS, reference.items) * MM_GENERATIONS // batch_size)}
@@ -667,7 +632,7 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
         write_run_info(run_dir, status="failed")
         client.set_terminated(run_id, "FAILED")
         raise
-    _log(client, run_id, metrics=_mlflow_metrics(table))
+    log_batch(client, run_id, metrics=table_metrics(table))
     for name in (TABLE_MD, TABLE_JSON, FIGURE):
         client.log_artifact(run_id, str(run_dir / name))
     client.log_artifacts(run_id, str(run_dir / RESULTS), artifact_path=RESULTS)

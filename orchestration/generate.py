@@ -24,8 +24,9 @@ from m2d2m.representation import features_to_joints, joints_to_features
 from m2d2m.sampling import FREE, Request, SamplingOptions, TokenSampler
 from m2d2m.transitions import slerp_join
 from orchestration.errors import UserError
-from orchestration.runs import find_run, latest_run
-from orchestration.tracking import ensure_experiment, experiment_name, tracking_uri
+from orchestration.runs import run_file
+from orchestration.tracking import client as tracking_client
+from orchestration.tracking import ensure_experiment, experiment_name, log_batch, tracking_uri
 
 GENERATE_STAGE = "generate"
 _MLFLOW_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -36,15 +37,10 @@ def resolve_checkpoint(reference: str | Path, dataset: str) -> Path:
     (downloaded from the tracking store when no local run has it)."""
     from orchestration.train import DIFFUSION_STAGE
 
-    path = Path(reference)
-    if path.is_file():
-        return path
-    if (path / MODEL_FILE).is_file():
-        return path / MODEL_FILE
-    if str(reference) == "latest":
-        return latest_run(dataset, DIFFUSION_STAGE, "make train-diffusion") / MODEL_FILE
+    if (Path(reference) / MODEL_FILE).is_file():  # a run directory, or a copy of one without run.json
+        return Path(reference) / MODEL_FILE
     try:
-        return find_run(str(reference), dataset, DIFFUSION_STAGE) / MODEL_FILE
+        return run_file(reference, dataset, DIFFUSION_STAGE, MODEL_FILE, "make train-diffusion")
     except UserError:
         if not _MLFLOW_ID.match(str(reference)):
             raise
@@ -224,17 +220,14 @@ def _share(total: int, typical: list[int]) -> list[int]:
 def log_generation(motion: Motion, prompts: Sequence[str], files: dict[str, Path], dataset: str) -> str:
     """Record one generation in MLflow (experiment ``<dataset>/generate``): prompts, actions,
     settings as params, the files as artifacts; returns the MLflow run id."""
-    import mlflow
-
-    experiment = experiment_name(dataset, GENERATE_STAGE)
-    experiment_id = ensure_experiment(experiment)
-    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
+    experiment_id = ensure_experiment(experiment_name(dataset, GENERATE_STAGE))
+    client = tracking_client()
     run = client.create_run(experiment_id, tags={"dataset": dataset, "stage": GENERATE_STAGE,
                                                  "method": str(motion.settings.get("method"))})
     run_id = run.info.run_id
     params = {**{k: str(v) for k, v in motion.settings.items()}, "prompts": " | ".join(prompts)[:500],
               "actions": " | ".join(motion.actions)[:500], "seconds": f"{motion.seconds:.2f}"}
-    client.log_batch(run_id, params=[mlflow.entities.Param(k, v) for k, v in params.items()])
+    log_batch(client, run_id, params=params)
     for path in files.values():
         client.log_artifact(run_id, str(path), artifact_path="motion")
     features = files.get("npy")

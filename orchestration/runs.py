@@ -82,3 +82,16 @@ def find_run(reference: str, dataset: str, stage: str) -> Path:
         if json.loads(run_file.read_text(encoding="utf-8")).get("mlflow_run_id") == reference:
             return run_file.parent
     raise UserError(f"no {stage} run {reference!r} for dataset {dataset!r} (a run directory, its name, or its MLflow run id)")
+
+
+def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by: str) -> Path:
+    """The file ``name`` of a run given as that file itself, ``latest``, a run directory, its name
+    or its MLflow run id; a run without the file did not finish, which is said in one line."""
+    path = Path(reference)
+    if path.is_file():
+        return path
+    run_dir = latest_run(dataset, stage, made_by) if str(reference) == "latest" else find_run(str(reference), dataset, stage)
+    if not (run_dir / name).is_file():
+        raise UserError(f"{run_dir} has no {name}: the run did not finish "
+                        f"(`m2d2m {made_by.split()[-1]} --resume` continues it)")
+    return run_dir / name

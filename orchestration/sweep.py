@@ -22,7 +22,8 @@ from typing import Any
 from orchestration.config import load_config
 from orchestration.errors import UserError
 from orchestration.runs import stage_dir
-from orchestration.tracking import ensure_experiment, experiment_name, tracking_uri
+from orchestration.tracking import client as tracking_client
+from orchestration.tracking import ensure_experiment, experiment_name, log_batch, tracking_uri
 
 SWEEP_STAGE = "sweep"
 KINDS = ("sampling", "training")
@@ -52,8 +53,8 @@ def _check(config: dict[str, Any]) -> None:
 # ------------------------------------------------------------------------------------- trials
 def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, float]:
     """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
-    returns the evaluation's metrics (the MLflow names, e.g. ``multi/tps/jerk``)."""
-    from orchestration.evaluate import ParentRun, evaluate, new_settings
+    returns the evaluation's metrics under their MLflow names (``multi/tps/jerk``, ``gt/jerk_concat``, ...)."""
+    from orchestration.evaluate import ParentRun, evaluate, new_settings, table_metrics
     from orchestration.train import train_diffusion
 
     import torch
@@ -72,34 +73,18 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     parent = ParentRun(context["experiment_id"], context["parent_run_id"], trial_name(params))
     _mark_interrupted(parent)
     _, table = evaluate(settings, context["dataset"], parent=parent, progress=False)
-    return flatten_table(table)
+    return table_metrics(table)
 
 
 def _mark_interrupted(parent: Any) -> None:
     """A trial run again after its driver died: its earlier child run never finished; say so
     (KILLED) rather than leave it looking alive beside the new one."""
-    import mlflow
-
-    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
-    earlier = client.search_runs([parent.experiment_id],
+    mlflow_client = tracking_client()
+    earlier = mlflow_client.search_runs([parent.experiment_id],
                                  f"tags.mlflow.parentRunId = '{parent.run_id}' and attributes.status = 'RUNNING' "
                                  f"and attributes.run_name = '{parent.child_name}'")
     for run in earlier:
-        client.set_terminated(run.info.run_id, "KILLED")
-
-
-def flatten_table(table: dict[str, Any]) -> dict[str, float]:
-    """The table's means as flat metrics: ``multi/<method>/<metric>``, ``single/<metric>``."""
-    metrics: dict[str, float] = {}
-    for row, values in table["multi"].items():
-        for metric, summary in values.items():
-            if summary and summary.get("mean") is not None:
-                metrics[f"multi/{row}/{metric}"] = float(summary["mean"])
-    for row, values in table.get("single", {}).items():
-        for metric, summary in values.items():
-            if summary and summary.get("mean") is not None:
-                metrics[f"single/{row}/{metric}"] = float(summary["mean"])
-    return metrics
+        mlflow_client.set_terminated(run.info.run_id, "KILLED")
 
 
 def _tune_trainable(config: dict[str, Any]) -> None:
@@ -136,20 +121,17 @@ def _context(config: dict[str, Any], parent: tuple[str, str]) -> dict[str, Any]:
 
 def _parent_run(sweep_dir: Path, name: str, config: dict[str, Any]) -> tuple[str, str]:
     """The sweep's MLflow parent run (experiment ``<dataset>/sweep``), reused when the sweep resumes."""
-    import mlflow
-
     record = sweep_dir / SWEEP_FILE
     if record.exists():
         saved = json.loads(record.read_text(encoding="utf-8"))
         return saved["experiment_id"], saved["parent_run_id"]
     experiment_id = ensure_experiment(experiment_name(config["dataset"], SWEEP_STAGE))
-    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
+    client = tracking_client()
     run = client.create_run(experiment_id, run_name=name, tags={"dataset": config["dataset"], "stage": SWEEP_STAGE,
                                                                 "sweep_kind": config["kind"]})
     params = {"kind": config["kind"], "method": config["method"], "repeats": config["repeats"],
               "search": config["search"], **{f"space.{k}": json.dumps(v) for k, v in config["space"].items()}}
-    for key, value in params.items():
-        client.log_param(run.info.run_id, key, str(value))
+    log_batch(client, run.info.run_id, params=params)
     sweep_dir.mkdir(parents=True, exist_ok=True)
     record.write_text(json.dumps({"experiment_id": experiment_id, "parent_run_id": run.info.run_id,
                                   "config": config}, indent=2), encoding="utf-8")
@@ -198,8 +180,6 @@ def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str
 def summarize(sweep_dir: Path, rows: list[dict[str, Any]], config: dict[str, Any], parent_run_id: str) -> None:
     """summary.json / summary.md (one row per trial) and, for sampling sweeps, Jerk and FID
     against T_s per η; logged to the parent run, which is then marked finished."""
-    import mlflow
-
     knobs = list(config["space"])
     metric_names = [f"multi/{config['method']}/{m}" for m in ("jerk", "fid", "r_top3", "transition_fid")]
     kept = [{**{k: row[k] for k in knobs}, **{m: row.get(m) for m in metric_names}} for row in rows]
@@ -209,7 +189,7 @@ def summarize(sweep_dir: Path, rows: list[dict[str, Any]], config: dict[str, Any
     lines += ["| " + " | ".join(str(row[k]) for k in knobs) + " | "
               + " | ".join("–" if row[m] is None else f"{row[m]:.3f}" for m in metric_names) + " |" for row in kept]
     (sweep_dir / SUMMARY_MD).write_text("\n".join(lines) + "\n", encoding="utf-8")
-    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
+    client = tracking_client()
     client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_MD))
     client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_JSON))
     if config["kind"] == "sampling" and "ts" in knobs:

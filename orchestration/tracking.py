@@ -29,15 +29,31 @@ def experiment_name(dataset: str, stage: str) -> str:
     return f"{dataset}/{stage}"
 
 
-def ensure_experiment(name: str) -> str:
-    """Create the experiment once (from the driver, before any worker logs to it) and return its id."""
+def client():
+    """An MLflow client on the project's store."""
     import mlflow
 
-    client = mlflow.MlflowClient(tracking_uri=tracking_uri())
-    existing = client.get_experiment_by_name(name)
+    return mlflow.MlflowClient(tracking_uri=tracking_uri())
+
+
+def log_batch(mlflow_client, run_id: str, params: dict | None = None, metrics: dict | None = None) -> None:
+    """Params (as strings) and metrics of a run in one request."""
+    import time
+
+    from mlflow.entities import Metric, Param
+
+    now = int(time.time() * 1000)
+    mlflow_client.log_batch(run_id, params=[Param(k, str(v)) for k, v in (params or {}).items()],
+                            metrics=[Metric(k, float(v), now, 0) for k, v in (metrics or {}).items()])
+
+
+def ensure_experiment(name: str) -> str:
+    """Create the experiment once (from the driver, before any worker logs to it) and return its id."""
+    client_ = client()
+    existing = client_.get_experiment_by_name(name)
     if existing is not None:
         return existing.experiment_id
-    return client.create_experiment(name, artifact_location=artifact_location(name))
+    return client_.create_experiment(name, artifact_location=artifact_location(name))
 
 
 def ui_command(host: str, port: int) -> list[str]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import socket
 
 import numpy as np
 import torch
@@ -117,3 +118,10 @@ TINY_DIFFUSION = {
 # Evaluator sizes small enough for tests (EvaluatorConfig fields).
 TINY_EVALUATOR = {"movement_hidden": 16, "movement_latent": 16, "motion_hidden": 24, "text_hidden": 16,
                   "embedding_dim": 8, "word_dim": 12, "word_features": "learned", "max_motion_length": 48}
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on right now, for servers a test starts."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]

@@ -9,7 +9,7 @@ import lightning.pytorch as pl
 import numpy as np
 import torch
 
-from m2d2m.checkpoint import SCHEDULE_KEYS
+from m2d2m.checkpoint import schedule_from_config
 from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.diffusion import TimestepSampler, TransitionSchedule, diffusion_loss
 from m2d2m.sampling import TokenSampler
@@ -64,9 +64,7 @@ class DiffusionModule(pl.LightningModule):
 
     # ----------------------------------------------------------------------------------- schedule
     def _build_schedule(self) -> TransitionSchedule:
-        options = {k: self.hparams.diffusion[k] for k in SCHEDULE_KEYS if k in self.hparams.diffusion}
-        options["steps"] = int(options.get("steps", 100))
-        return TransitionSchedule.build(self.codebook.detach().double(), **options)
+        return schedule_from_config(self.codebook, self.hparams.diffusion)
 
     def _rebuild_schedule(self) -> None:
         self.schedule = self._build_schedule()
