@@ -21,6 +21,10 @@ Randomness is per request: each request has its own generator and draws, at ever
 uniform per position of its actions in order, whatever the rows look like. Hence a request's
 result does not depend on what else is in the batch, and ``tps`` with T_s = T reproduces
 ``independent`` draw for draw.
+
+Rows of very different lengths are not padded to the longest: the denoiser runs once per group of
+rows of similar length (:func:`length_groups`), which on test sets of 10- to 50-token actions halves
+the work of a step. Padded positions never reach the posterior.
 """
 
 from __future__ import annotations
@@ -124,6 +128,23 @@ def truncate(probs: Tensor, rate: float) -> Tensor:
     return kept / kept.sum(dim=-1, keepdim=True)
 
 
+def length_groups(lengths: list[int], spread: float = 0.75) -> list[list[int]]:
+    """Row indices grouped for one forward pass each, longest rows first.
+
+    Every row of a group is at least ``spread`` times as long as the group's longest, so padding
+    stays under a quarter of a group's tokens (less attention, which grows with the square), while
+    the number of passes grows only with the logarithm of the longest-to-shortest ratio.
+    """
+    order = sorted(range(len(lengths)), key=lambda i: -lengths[i])
+    groups: list[list[int]] = []
+    for i in order:
+        if groups and lengths[i] >= spread * lengths[groups[-1][0]]:
+            groups[-1].append(i)
+        else:
+            groups.append([i])
+    return groups
+
+
 def categorical(probs: Tensor, uniforms: Tensor) -> Tensor:
     """Inverse-CDF draw over the last dimension with given uniforms in [0, 1).
 
@@ -211,10 +232,12 @@ class TokenSampler:
                  steps: range, schedule: TransitionSchedule, options: SamplingOptions, overlap: int,
                  requests: list[Request], progress: Callable[[int], None] | None) -> list[Tensor]:
         """Run ``steps`` (descending t) on the rows of ``layout``; returns the requests' streams."""
-        device, mask = self.device, schedule.mask_index
+        device, mask, codes = self.device, schedule.mask_index, schedule.num_codes
         rows, width = len(layout.rows), layout.length
-        lengths = torch.tensor([row.stream.stop - row.stream.start for row in layout.rows], device=device)
+        row_lengths = [row.stream.stop - row.stream.start for row in layout.rows]
+        lengths = torch.tensor(row_lengths, device=device)
         valid = torch.arange(width, device=device)[None, :] < lengths[:, None]
+        groups = [(torch.tensor(g, device=device), row_lengths[g[0]]) for g in length_groups(row_lengths)]
         text, text_mask = encode_actions(self.text_encoder, [row.condition for row in layout.rows])
         z = torch.full((rows, width), mask, dtype=torch.long, device=device)
         fixed = torch.full_like(z, FREE)
@@ -223,10 +246,13 @@ class TokenSampler:
             z[i, :n] = state[row.request][row.stream]
             fixed[i, :n] = given[row.request][row.stream]
         for t in steps:
-            x0 = self._x0(z, valid, t, text, text_mask, options)
+            x0 = torch.zeros(rows, width, codes, dtype=torch.float64, device=device)
+            for index, n in groups:
+                x0[index, :n] = self._x0(z[index, :n], valid[index, :n], t, text[index], text_mask[index], options)
             if overlap:
                 x0 = _blend_shared(x0, layout, overlap)
-            probs = schedule.posterior_probs(z, x0, t)
+            probs = torch.zeros(rows, width, codes + 1, dtype=torch.float64, device=device)
+            probs[valid] = schedule.posterior_probs(z[valid], x0[valid], t)
             uniforms = torch.zeros(rows, width, dtype=torch.float64, device=device)
             draws = [torch.rand(streams, generator=g, dtype=torch.float64, device=device)
                      for streams, g in zip((s.numel() for s in state), generators)]

@@ -392,7 +392,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
     evaluate.add_argument("--single", action=argparse.BooleanOptionalAction,
                           help="also the single-motion table (paper Table 3; s = 4, η = 0.5)")
-    evaluate.add_argument("--batch-size", type=_positive_int, default=32, help="sequences generated at once")
+    evaluate.add_argument("--batch-size", type=_positive_int, default=64,
+                          help="sequences generated at once (default 64)")
     evaluate.add_argument("--resume", metavar="RUN", help="finish an evaluation run (directory, name or MLflow id) "
                                                          "with its own settings")
     evaluate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")

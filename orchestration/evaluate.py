@@ -593,7 +593,7 @@ def _check(settings: EvalSettings, generator: Generator, testset: TestSet, evalu
 
 
 def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path | None = None,
-             batch_size: int = 32, parent: ParentRun | None = None,
+             batch_size: int = 64, parent: ParentRun | None = None,
              progress: bool = True) -> tuple[Path, dict[str, Any]]:
     """Run (or, given ``run_dir``, finish) an evaluation; returns the run directory and the table.
     ``parent`` nests its MLflow run under a sweep's.

@@ -8,7 +8,7 @@ import torch
 
 from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.diffusion import TransitionSchedule
-from m2d2m.sampling import FREE, Request, SamplingOptions, TokenSampler, categorical, truncate
+from m2d2m.sampling import FREE, Request, SamplingOptions, TokenSampler, categorical, length_groups, truncate
 from m2d2m.text import LearnedTextEncoder
 
 CODES, STEPS = 12, 10
@@ -63,6 +63,15 @@ def test_joint_phase_attends_across_the_boundary(sampler):
     assert torch.equal(*independent)
     tps = [run(sampler, [r], method="tps", ts=STEPS // 2)[0][0] for r in (before, after)]
     assert not torch.equal(tps[0][-3:], tps[1][-3:])
+
+
+def test_length_groups_cover_every_row_once_with_bounded_padding():
+    lengths = [49, 11, 23, 30, 12, 49, 37, 20, 15]
+    groups = length_groups(lengths)
+    assert sorted(i for g in groups for i in g) == list(range(len(lengths)))
+    assert groups == [[0, 5, 6], [3, 2], [7, 8], [4, 1]]  # 49 49 37 | 30 23 | 20 15 | 12 11
+    assert length_groups([5, 5, 5]) == [[0, 1, 2]] and length_groups([]) == []
+    assert all(lengths[i] >= 0.75 * lengths[g[0]] for g in groups for i in g)
 
 
 def test_batched_sampling_matches_one_by_one(sampler):
