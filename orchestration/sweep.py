@@ -48,6 +48,11 @@ def _check(config: dict[str, Any]) -> None:
                         f"unknown: {', '.join(sorted(set(space) - set(SAMPLING_KNOBS)))}")
     if config["search"] not in ("grid", "random"):
         raise UserError(f"search must be grid or random, got {config['search']!r}")
+    workers = config["resources"].get("workers", 0)
+    if not isinstance(workers, int) or workers < 0:
+        raise UserError(f"resources.workers must be a whole number >= 0, got {workers!r}")
+    if workers and config["kind"] != "training":
+        raise UserError("resources.workers (Ray Train workers) applies to training sweeps only")
 
 
 # ------------------------------------------------------------------------------------- trials
@@ -55,7 +60,7 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
     returns the evaluation's metrics under their MLflow names (``multi/tps/jerk``, ``gt/jerk_concat``, ...)."""
     from orchestration.evaluate import ParentRun, evaluate, new_settings, table_metrics
-    from orchestration.train import train_diffusion
+    from orchestration.train import train_diffusion, train_diffusion_on_workers
 
     import torch
 
@@ -66,7 +71,13 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     checkpoint = evaluation.pop("checkpoint")
     if context["kind"] == "training":
         overrides = [f"{key}={value}" for key, value in params.items()]
-        checkpoint = str(train_diffusion(context["diffusion_config"], overrides) / "model.pt")
+        workers = context["workers"]
+        if workers["count"]:
+            run_dir = train_diffusion_on_workers(context["diffusion_config"], overrides, workers["count"],
+                                                 workers["gpu"] > 0, workers["cpu"], Path(context["train_storage"]))
+        else:
+            run_dir = train_diffusion(context["diffusion_config"], overrides)
+        checkpoint = str(run_dir / "model.pt")
     else:
         evaluation.update(params)
     settings = new_settings(context["dataset"], checkpoint=checkpoint, **evaluation)
@@ -97,7 +108,7 @@ def _tune_trainable(config: dict[str, Any]) -> None:
 
 
 # ------------------------------------------------------------------------------------- driver
-def _context(config: dict[str, Any], parent: tuple[str, str]) -> dict[str, Any]:
+def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -> dict[str, Any]:
     """What every trial needs, with absolute paths only."""
     from orchestration.evaluate import new_settings
 
@@ -116,7 +127,18 @@ def _context(config: dict[str, Any], parent: tuple[str, str]) -> dict[str, Any]:
     return {"project": str(Path.cwd().resolve()), "tracking_uri": tracking_uri(), "dataset": dataset,
             "kind": config["kind"], "knobs": list(config["space"]), "evaluation": evaluation,
             "diffusion_config": config["diffusion_config"], "threads": max(1, int(config["resources"]["cpu"])),
+            "workers": {"count": config["resources"].get("workers", 0), "cpu": config["resources"]["cpu"],
+                        "gpu": config["resources"]["gpu"]},
+            "train_storage": str(sweep_dir / "train"),
             "experiment_id": parent[0], "parent_run_id": parent[1]}
+
+
+def _trial_resources(resources: dict[str, Any]) -> dict[str, float]:
+    """What a trial reserves: its CPUs and GPUs, or, when Ray Train workers train for it, one
+    CPU for the trial itself (it waits for the workers, then evaluates on what they trained)."""
+    if resources.get("workers", 0):
+        return {"cpu": 1, "gpu": 0}
+    return {"cpu": resources["cpu"], "gpu": resources["gpu"]}
 
 
 def _parent_run(sweep_dir: Path, name: str, config: dict[str, Any]) -> tuple[str, str]:
@@ -150,8 +172,8 @@ def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str
     sweep_dir = (stage_dir(config["dataset"], SWEEP_STAGE) / name).resolve()
     init_ray(ray_address, os.cpu_count() or 1)  # first: tokenizing for a training sweep joins the same Ray
     parent = _parent_run(sweep_dir, name, config)
-    context = _context(config, parent)
-    resources = {"cpu": config["resources"]["cpu"], "gpu": config["resources"]["gpu"]}
+    context = _context(config, parent, sweep_dir)
+    resources = _trial_resources(config["resources"])
     trainable = tune.with_resources(_tune_trainable, resources)
     storage = sweep_dir / "tune"
     if tune.Tuner.can_restore(str(storage / name)):

@@ -3,10 +3,19 @@
 ``train_vq`` is ``m2d2m train-vq``: it resolves the config, opens (or, with ``resume``, reopens)
 the run directory and the MLflow run, trains with Lightning, and on success exports ``vq.pt`` —
 the plain model file later stages read — and marks the run as the stage's ``latest``.
+
+Several processes may train one run (DDP). Lightning's own launcher (``trainer.devices: 2``, or
+more GPUs) starts every rank after the first by re-running the command; those processes find the
+run in :data:`JOIN_RUN` and join it instead of opening another. Ray Train workers
+(:func:`train_diffusion_on_workers`) are handed the run directory. Only global rank 0 writes run
+files, MLflow params and model files.
 """
 
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,6 +33,7 @@ VQ_STAGE = "vq"
 DIFFUSION_STAGE = "diffusion"
 EVALUATOR_STAGE = "evaluator"
 EVALUATOR_FILE = "evaluator.pt"
+JOIN_RUN = "M2D2M_JOIN_RUN"  # environment: the run directory a DDP rank started by Lightning joins
 
 
 def _precision(setting: str) -> str:
@@ -33,17 +43,28 @@ def _precision(setting: str) -> str:
     return "bf16-mixed" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "32-true"
 
 
-def _open_run(stage: str, config_name: str, overrides: list[str], resume: bool) -> tuple[Path, dict[str, Any], str | None]:
-    """The run directory, its config and its MLflow run id (None for a new run)."""
+def _open_run(stage: str, config_name: str, overrides: list[str], resume: bool,
+              join: Path | None = None) -> tuple[Path, dict[str, Any], str | None]:
+    """The run directory, its config and its MLflow run id (None for a new run). A new run's
+    config is written before training, so processes that ``join`` it (or find it in
+    :data:`JOIN_RUN`) train the same thing."""
+    join = join or (Path(os.environ[JOIN_RUN]) if os.environ.get(JOIN_RUN) else None)
+    if join is not None:
+        info = read_run_info(join)
+        return join, info["config"], info.get("mlflow_run_id")
     config = load_config(stage, config_name, overrides)
     if not resume:
-        return new_run_dir(config["dataset"], stage), config, None
+        run_dir = new_run_dir(config["dataset"], stage)
+        (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+        write_run_info(run_dir, stage=stage, dataset=config["dataset"], status="running", config=config)
+        return run_dir, config, None
     if overrides:
         raise UserError("--set cannot change a run being resumed; resume as it was, or start a new run")
     run_dir = newest_run(config["dataset"], stage)
     info = read_run_info(run_dir)
     if info.get("status") == "finished":
         raise UserError(f"{run_dir} already finished; start a new run instead of --resume")
+    write_run_info(run_dir, status="running")
     return run_dir, info["config"], info.get("mlflow_run_id")
 
 
@@ -69,11 +90,42 @@ class _Fitted:
     logger: Any
     last: Path
 
+    @property
+    def primary(self) -> bool:
+        """Global rank 0: the process that writes the run's files."""
+        return self.trainer.is_global_zero
+
+
+def _placement(trainer_cfg: dict[str, Any], ray_train: bool) -> dict[str, Any]:
+    """Trainer arguments that say where it runs: the config's accelerator and devices (several
+    devices mean DDP, Lightning launching the other ranks), or one device per Ray Train worker."""
+    if not ray_train:
+        return {"accelerator": trainer_cfg["accelerator"], "devices": trainer_cfg["devices"]}
+    from ray.train.lightning import RayDDPStrategy, RayLightningEnvironment
+
+    return {"accelerator": trainer_cfg["accelerator"], "devices": "auto", "strategy": RayDDPStrategy(),
+            "plugins": [RayLightningEnvironment()]}
+
+
+@contextlib.contextmanager
+def _joinable(run_dir: Path) -> Iterator[None]:
+    """While training, processes Lightning starts for the other DDP ranks inherit the run to join."""
+    before = os.environ.get(JOIN_RUN)
+    os.environ[JOIN_RUN] = str(run_dir.resolve())
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ[JOIN_RUN]
+        else:
+            os.environ[JOIN_RUN] = before
+
 
 def _fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, resume: bool, module, datamodule,
-         monitor: str, callbacks: list) -> _Fitted:
-    """What every training stage shares: the MLflow run, the resolved config and run.json, best
-    and last checkpoints, the trainer, resume, the NaN stop, and reloading the best weights."""
+         monitor: str, callbacks: list, ray_train: bool = False) -> _Fitted:
+    """What every training stage shares: the MLflow run and its params, best and last
+    checkpoints, the trainer (DDP when it has several devices or Ray Train workers), resume, the
+    NaN stop, and reloading the best weights."""
     import lightning.pytorch as pl
     from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 
@@ -81,17 +133,11 @@ def _fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, 
 
     trainer_cfg = config["trainer"]
     logger = _mlflow_logger(config["dataset"], stage, run_dir, run_id)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
-    write_run_info(run_dir, stage=stage, dataset=config["dataset"], status="running",
-                   mlflow_run_id=logger.run_id, config=config)
-    if run_id is None:
-        logger.log_hyperparams(flatten(config))
     checkpoints = ModelCheckpoint(dirpath=run_dir / "checkpoints", filename="best", monitor=monitor,
                                   mode="min", save_last=True, save_top_k=1)
     trainer = pl.Trainer(
+        **_placement(trainer_cfg, ray_train),
         max_steps=trainer_cfg["max_steps"],
-        accelerator=trainer_cfg["accelerator"],
-        devices=trainer_cfg["devices"],
         precision=_precision(trainer_cfg["precision"]),
         logger=logger,
         callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"), *callbacks],
@@ -101,16 +147,27 @@ def _fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, 
         default_root_dir=run_dir,
         num_sanity_val_steps=0,
     )
-    last = run_dir / "checkpoints" / "last.ckpt"
+    if ray_train:
+        from ray.train.lightning import prepare_trainer
+
+        trainer = prepare_trainer(trainer)
+    fitted = _Fitted(trainer, checkpoints, logger, run_dir / "checkpoints" / "last.ckpt")
+    if fitted.primary:
+        write_run_info(run_dir, mlflow_run_id=logger.run_id, world_size=trainer.world_size)
+        if run_id is None:
+            logger.log_hyperparams({**flatten(config), "world_size": trainer.world_size})
     try:
-        trainer.fit(module, datamodule=datamodule, ckpt_path=last if resume and last.exists() else None)
+        with _joinable(run_dir):
+            trainer.fit(module, datamodule=datamodule, ckpt_path=fitted.last if resume and fitted.last.exists() else None)
     except NonFiniteLossError as error:
-        write_run_info(run_dir, status="failed", error=str(error))
-        raise UserError(f"{error}; training stopped. The last good checkpoint is {last} "
+        if fitted.primary:
+            write_run_info(run_dir, status="failed", error=str(error))
+        raise UserError(f"{error}; training stopped. The last good checkpoint is {fitted.last} "
                         "(lower optim.lr or set optim.grad_clip, then start a new run)") from error
-    best = torch.load(checkpoints.best_model_path, map_location="cpu", weights_only=True)
-    module.load_state_dict(best["state_dict"])
-    return _Fitted(trainer, checkpoints, logger, last)
+    if fitted.primary:
+        best = torch.load(checkpoints.best_model_path, map_location="cpu", weights_only=True)
+        module.load_state_dict(best["state_dict"])
+    return fitted
 
 
 def _finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -> None:
@@ -147,6 +204,8 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     module.set_normalizer(datamodule.normalizer)
     fitted = _fit(VQ_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/recon_loss",
                   [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])])
+    if not fitted.primary:
+        return run_dir
     save_vq(run_dir / VQ_FILE, module.model, datamodule.normalizer, datamodule.skeleton,
             extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
                    "data_dir": str(Path(data["dir"]).resolve()),
@@ -184,9 +243,11 @@ def ensure_tokens(vq_path: Path) -> Path:
 
 
 def train_diffusion(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
-                    extra_callbacks: list | None = None) -> Path:
+                    extra_callbacks: list | None = None, join: Path | None = None, ray_train: bool = False) -> Path:
     """Train the discrete-diffusion denoiser on the tokens of a VQ-VAE run, tokenizing first when
-    its tokens are missing or stale; returns the run directory."""
+    its tokens are missing or stale; returns the run directory. ``join``: a run another process
+    opened (its config is used, ``config_name`` and ``overrides`` are not); ``ray_train``: this
+    process is a Ray Train worker."""
     import lightning.pytorch as pl
 
     from m2d2m.checkpoint import save_checkpoint
@@ -197,7 +258,7 @@ def train_diffusion(config_name: str = "demo", overrides: list[str] | None = Non
     from training.data import TokenDataModule, clip_metas, length_prior
     from training.diffusion_module import DiffusionModule
 
-    run_dir, config, run_id = _open_run(DIFFUSION_STAGE, config_name, overrides or [], resume)
+    run_dir, config, run_id = _open_run(DIFFUSION_STAGE, config_name, overrides or [], resume, join)
     vq_path = vq_file(config)
     vq, _, vq_meta = load_vq(vq_path)
     data_dir = Path(vq_meta["extra"]["data_dir"])
@@ -221,7 +282,9 @@ def train_diffusion(config_name: str = "demo", overrides: list[str] | None = Non
     fitted = _fit(DIFFUSION_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
                   [SamplePreview(run_dir / "previews", vq_path, preview["prompts"], preview["seconds"],
                                  guidance=preview["guidance"], every=trainer_cfg["gif_every"]),
-                   *(extra_callbacks or [])])
+                   *(extra_callbacks or [])], ray_train=ray_train)
+    if not fitted.primary:
+        return run_dir
     lengths = length_prior(datamodule.urls("train"), datamodule.frames_per_token)
     save_checkpoint(run_dir / MODEL_FILE, module.denoiser, module.text_encoder, config["text"], config["diffusion"],
                     module.codebook, vq_path, lengths,
@@ -232,6 +295,36 @@ def train_diffusion(config_name: str = "demo", overrides: list[str] | None = Non
                               run_dir / "config.yaml"],
             model=str((run_dir / MODEL_FILE).resolve()), vq=str(vq_path.resolve()), tokens=str(tokens_dir.resolve()))
     return run_dir
+
+
+def train_diffusion_on_workers(config_name: str, overrides: list[str], workers: int, use_gpu: bool,
+                               cpus_per_worker: float, storage: Path) -> Path:
+    """The denoiser trained in DDP by ``workers`` Ray Train workers, one device each (the GPUs of
+    one node or of several); returns the run directory, whose files rank 0 wrote. ``storage``, where
+    Ray Train keeps its state, and the project directory must be seen by every node alike."""
+    from ray.train import RunConfig, ScalingConfig
+    from ray.train.torch import TorchTrainer
+
+    run_dir, _, _ = _open_run(DIFFUSION_STAGE, config_name, overrides, resume=False)
+    trainer = TorchTrainer(
+        _ray_train_worker,
+        train_loop_config={"project": str(Path.cwd().resolve()), "run_dir": str(run_dir.resolve()),
+                           "tracking_uri": tracking_uri(), "threads": max(1, int(cpus_per_worker))},
+        scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu,
+                                     resources_per_worker={"CPU": cpus_per_worker}),
+        run_config=RunConfig(name=f"{DIFFUSION_STAGE}-{run_dir.name}", storage_path=str(storage.resolve())))
+    trainer.fit()
+    if read_run_info(run_dir).get("status") != "finished":
+        raise UserError(f"{run_dir}: the Ray Train workers stopped before rank 0 finished the run")
+    return run_dir
+
+
+def _ray_train_worker(config: dict[str, Any]) -> None:
+    """One Ray Train worker: joins the run in the project directory and trains its DDP rank."""
+    os.chdir(config["project"])
+    os.environ["MLFLOW_TRACKING_URI"] = config["tracking_uri"]
+    torch.set_num_threads(config["threads"])
+    train_diffusion(join=Path(config["run_dir"]), ray_train=True)
 
 
 def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
@@ -263,6 +356,8 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     module.set_normalizer(datamodule.normalizer)
     fitted = _fit(EVALUATOR_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
                   list(extra_callbacks or []))
+    if not fitted.primary:
+        return run_dir
     save_evaluator(run_dir / EVALUATOR_FILE, module.model)
     _finish(run_dir, fitted, [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
             evaluator=str((run_dir / EVALUATOR_FILE).resolve()))

@@ -81,3 +81,28 @@ def test_a_training_sweep_trains_each_trial_then_evaluates_it(trained_project, t
     trained = [yaml.safe_load((run / "run.json").read_text())["config"]["diffusion"]["kind"]
                for run in (trained_project / "runs" / "tiny" / "diffusion").iterdir() if (run / "run.json").exists()]
     assert trained.count("uniform") == 1 and trained.count("dynamic") >= 2  # the fixture's run, and the trial's
+
+
+def test_a_training_trial_can_train_on_two_ray_train_workers(trained_project, tiny_testset, monkeypatch):
+    """Ray Train's TorchTrainer, two CPU workers in DDP (gloo), inside a Tune trial: one run
+    trained by both ranks, its model evaluated by the trial."""
+    monkeypatch.chdir(trained_project)
+    config = sweep_config(tiny_testset, kind="training", diffusion_config=str(trained_project / "diffusion.yaml"),
+                          space={"diffusion.eta": [0.5]}, resources={"cpu": 0.5, "gpu": 0, "workers": 2})
+    (trained_project / "workers.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    before = set((trained_project / "runs" / "tiny" / "diffusion").iterdir())
+    sweep_dir = sweep(str(trained_project / "workers.yaml"))
+    summary = yaml.safe_load((sweep_dir / SUMMARY_JSON).read_text(encoding="utf-8"))
+    assert len(summary) == 1 and summary[0]["multi/tps/jerk"] is not None
+    (new_run,) = set((trained_project / "runs" / "tiny" / "diffusion").iterdir()) - before
+    info = yaml.safe_load((new_run / "run.json").read_text(encoding="utf-8"))
+    assert info["status"] == "finished" and info["world_size"] == 2
+    assert info["config"]["diffusion"]["eta"] == 0.5 and (new_run / "model.pt").is_file()
+
+
+def test_workers_are_for_training_sweeps(trained_project, tiny_testset, capsys, monkeypatch):
+    monkeypatch.chdir(trained_project)
+    config = sweep_config(tiny_testset, resources={"cpu": 1, "gpu": 0, "workers": 2})
+    (trained_project / "bad-workers.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    assert main(["sweep", "--config", str(trained_project / "bad-workers.yaml")]) == 2
+    assert "training sweeps only" in capsys.readouterr().err

@@ -1,0 +1,38 @@
+"""DDP on one machine, as Lightning runs it on a GPU node: it starts the second rank by re-running
+the command, and both ranks train one run (one directory, one MLflow run) whose files only rank 0
+writes. Two CPU processes with gloo stand in for two GPUs."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import mlflow
+
+from m2d2m.checkpoint import load_checkpoint
+
+
+def test_two_ddp_ranks_train_one_run(trained_project):
+    runs = trained_project / "runs" / "tiny" / "diffusion"
+    before = {path for path in runs.iterdir() if path.is_dir()}
+    env = {key: value for key, value in os.environ.items() if key != "MLFLOW_TRACKING_URI"}
+    command = [sys.executable, "-m", "orchestration.cli", "train-diffusion",
+               "--config", str(trained_project / "diffusion.yaml"),
+               "--set", "trainer.accelerator=cpu", "--set", "trainer.devices=2"]
+    result = subprocess.run(command, cwd=trained_project, env={**env, "OMP_NUM_THREADS": "1"},
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+
+    (run_dir,) = {path for path in runs.iterdir() if path.is_dir()} - before
+    info = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
+    assert info["status"] == "finished" and info["world_size"] == 2
+    assert load_checkpoint(run_dir / "model.pt").denoiser.config.width == 16
+    assert (runs / "latest").read_text(encoding="utf-8").strip() == run_dir.name
+
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{trained_project / 'mlflow.db'}")
+    experiment = client.get_experiment_by_name("tiny/diffusion")
+    (run,) = client.search_runs([experiment.experiment_id], f"attributes.run_name = '{run_dir.name}'")
+    assert run.info.run_id == info["mlflow_run_id"] and run.info.status == "FINISHED"
+    assert run.data.params["world_size"] == "2" and "val/loss" in run.data.metrics
