@@ -5,6 +5,7 @@ the next stage finds its input without arguments."""
 from __future__ import annotations
 
 import json
+import os
 import secrets
 import time
 from pathlib import Path
@@ -15,6 +16,17 @@ from orchestration.errors import UserError
 RUNS_ROOT = Path("runs")
 RUN_FILE = "run.json"
 LATEST = "latest"
+
+
+def enter_project(project: str, tracking_uri: str, cpus: float) -> None:
+    """Make a Ray process (a Tune trial, a Ray Train worker) work like the driver: in the project
+    directory, so relative ``runs/`` and ``data/`` mean the same, on the driver's MLflow store, with
+    as many torch threads as CPUs it reserved rather than every core of the node."""
+    import torch
+
+    os.chdir(project)
+    os.environ["MLFLOW_TRACKING_URI"] = tracking_uri
+    torch.set_num_threads(max(1, int(cpus)))
 
 
 def stage_dir(dataset: str, stage: str) -> Path:

@@ -21,7 +21,7 @@ from typing import Any
 
 from orchestration.config import load_config
 from orchestration.errors import UserError
-from orchestration.runs import stage_dir
+from orchestration.runs import enter_project, stage_dir
 from orchestration.tracking import client as tracking_client
 from orchestration.tracking import ensure_experiment, experiment_name, log_batch, tracking_uri
 
@@ -48,7 +48,7 @@ def _check(config: dict[str, Any]) -> None:
                         f"unknown: {', '.join(sorted(set(space) - set(SAMPLING_KNOBS)))}")
     if config["search"] not in ("grid", "random"):
         raise UserError(f"search must be grid or random, got {config['search']!r}")
-    workers = config["resources"].get("workers", 0)
+    workers = config["resources"]["workers"]
     if not isinstance(workers, int) or workers < 0:
         raise UserError(f"resources.workers must be a whole number >= 0, got {workers!r}")
     if workers and config["kind"] != "training":
@@ -62,19 +62,15 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     from orchestration.evaluate import ParentRun, evaluate, new_settings, table_metrics
     from orchestration.train import train_diffusion, train_diffusion_on_workers
 
-    import torch
-
-    os.chdir(context["project"])
-    os.environ["MLFLOW_TRACKING_URI"] = context["tracking_uri"]
-    torch.set_num_threads(context["threads"])  # the trial's CPUs, not every core of the node
+    resources = context["resources"]
+    enter_project(context["project"], context["tracking_uri"], resources["cpu"])
     evaluation = dict(context["evaluation"])
     checkpoint = evaluation.pop("checkpoint")
     if context["kind"] == "training":
         overrides = [f"{key}={value}" for key, value in params.items()]
-        workers = context["workers"]
-        if workers["count"]:
-            run_dir = train_diffusion_on_workers(context["diffusion_config"], overrides, workers["count"],
-                                                 workers["gpu"] > 0, workers["cpu"], Path(context["train_storage"]))
+        if resources["workers"]:
+            run_dir = train_diffusion_on_workers(context["diffusion_config"], overrides, resources["workers"],
+                                                 resources["gpu"] > 0, resources["cpu"], Path(context["train_storage"]))
         else:
             run_dir = train_diffusion(context["diffusion_config"], overrides)
         checkpoint = str(run_dir / "model.pt")
@@ -126,9 +122,7 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
         ensure_tokens(vq_file(load_config(DIFFUSION_STAGE, config["diffusion_config"], [])))
     return {"project": str(Path.cwd().resolve()), "tracking_uri": tracking_uri(), "dataset": dataset,
             "kind": config["kind"], "knobs": list(config["space"]), "evaluation": evaluation,
-            "diffusion_config": config["diffusion_config"], "threads": max(1, int(config["resources"]["cpu"])),
-            "workers": {"count": config["resources"].get("workers", 0), "cpu": config["resources"]["cpu"],
-                        "gpu": config["resources"]["gpu"]},
+            "diffusion_config": config["diffusion_config"], "resources": config["resources"],
             "train_storage": str(sweep_dir / "train"),
             "experiment_id": parent[0], "parent_run_id": parent[1]}
 
@@ -136,7 +130,7 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
 def _trial_resources(resources: dict[str, Any]) -> dict[str, float]:
     """What a trial reserves: its CPUs and GPUs, or, when Ray Train workers train for it, one
     CPU for the trial itself (it waits for the workers, then evaluates on what they trained)."""
-    if resources.get("workers", 0):
+    if resources["workers"]:
         return {"cpu": 1, "gpu": 0}
     return {"cpu": resources["cpu"], "gpu": resources["gpu"]}
 
@@ -167,6 +161,7 @@ def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str
     from pipelines.features import init_ray
 
     config = load_config(SWEEP_STAGE, config_name, overrides or [])
+    config["resources"].setdefault("workers", 0)  # configs written before Ray Train workers existed
     _check(config)
     name = Path(config_name).stem
     sweep_dir = (stage_dir(config["dataset"], SWEEP_STAGE) / name).resolve()

@@ -26,7 +26,8 @@ import yaml
 from m2d2m.layout import VQ_FILE
 from orchestration.config import flatten, load_config
 from orchestration.errors import UserError
-from orchestration.runs import latest_run, mark_latest, new_run_dir, newest_run, read_run_info, write_run_info
+from orchestration.runs import (enter_project, latest_run, mark_latest, new_run_dir, newest_run, read_run_info,
+                                 write_run_info)
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
 VQ_STAGE = "vq"
@@ -309,7 +310,7 @@ def train_diffusion_on_workers(config_name: str, overrides: list[str], workers: 
     trainer = TorchTrainer(
         _ray_train_worker,
         train_loop_config={"project": str(Path.cwd().resolve()), "run_dir": str(run_dir.resolve()),
-                           "tracking_uri": tracking_uri(), "threads": max(1, int(cpus_per_worker))},
+                           "tracking_uri": tracking_uri(), "cpus": cpus_per_worker},
         scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu,
                                      resources_per_worker={"CPU": cpus_per_worker}),
         run_config=RunConfig(name=f"{DIFFUSION_STAGE}-{run_dir.name}", storage_path=str(storage.resolve())))
@@ -321,9 +322,7 @@ def train_diffusion_on_workers(config_name: str, overrides: list[str], workers: 
 
 def _ray_train_worker(config: dict[str, Any]) -> None:
     """One Ray Train worker: joins the run in the project directory and trains its DDP rank."""
-    os.chdir(config["project"])
-    os.environ["MLFLOW_TRACKING_URI"] = config["tracking_uri"]
-    torch.set_num_threads(config["threads"])
+    enter_project(config["project"], config["tracking_uri"], config["cpus"])
     train_diffusion(join=Path(config["run_dir"]), ray_train=True)
 
 
