@@ -61,7 +61,7 @@ bench: $(STAMP)  ## measure speed; results go to BENCHMARKS.md by hand
 	$(BIN)/python bench/representation.py
 	$(BIN)/python bench/pipeline.py
 	$(BIN)/python bench/train_vq.py
-	$(BIN)/python bench/diffusion.py
+	$(BIN)/python bench/discrete_diffusion.py
 	$(BIN)/python bench/sampling.py
 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic

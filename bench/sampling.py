@@ -17,9 +17,9 @@ import os
 import numpy as np
 import torch
 
-from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.diffusion import TransitionSchedule
-from m2d2m.sampling import Request, SamplingOptions, TokenSampler
+from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions, TokenSampler
 from m2d2m.text import LearnedTextEncoder
 from timing import wall_time
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import lightning.pytorch as pl
 import torch
 
-from m2d2m.vqvae import VQConfig
+from m2d2m.networks.vqvae import VQConfig
 from training.data import MotionWindowDataModule
 from training.vq_module import VQVAEModule
 

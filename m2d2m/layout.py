@@ -1,4 +1,4 @@
-"""The on-disk layout of a processed dataset (DESIGN.md's data contract), shared by the pipelines
+"""The on-disk layout of a processed dataset (docs/data.md), shared by the pipelines
 that write it and the training that reads it, which must not import each other."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ NLP = "nlp"
 TOKENS = "tokens"
 TOKENS_KIND = "tokens"  # the manifest "kind" of a token set
 VQ_FILE = "vq.pt"  # the plain VQ-VAE model file, in a run directory and beside its tokens
-MODEL_FILE = "model.pt"  # a denoiser run's self-contained checkpoint (m2d2m.checkpoint)
+MODEL_FILE = "model.pt"  # a denoiser run's self-contained checkpoint (m2d2m.generators.m2d2m_checkpoint)
 
 
 def read_manifest(directory: str | Path) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Text encoders for the denoiser's condition, behind one interface (DESIGN.md "Text encoder").
+"""Text encoders for the denoiser's condition, behind one interface (docs/training.md, the text encoders).
 
 ``clip`` is the paper's: the frozen CLIP ViT-B/32 text tower, per-token features of the last
 hidden state. It is read only from a local directory or the user's Hugging Face cache

@@ -1,18 +1,22 @@
 """The ``m2d2m`` command line: one sub-command per stage of the flow.
 
 Every user error (bad path, bad value, missing file) ends in one line on stderr and exit
-status 2; anything else is a bug and keeps its traceback.
+status 2; anything else is a bug and keeps its traceback. Each verb is an ``_add_<verb>``
+function that declares its options beside a handler that parses nothing and decides nothing:
+the work is in the modules the handler calls. The training verbs of the generators' models come
+from the model registry, so a new model brings its own verb.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from orchestration.errors import UserError
+from orchestration.registry import models
 
 
 def _positive_int(text: str) -> int:
@@ -22,29 +26,34 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _option(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` of a sampling option, the value read as YAML (numbers, null, lists)."""
+    from orchestration.config import parse_override
+
+    path, value = parse_override(text)
+    return ".".join(path), value
+
+
+# ------------------------------------------------------------------------------------ handlers
 def _synthesize(args: argparse.Namespace) -> None:
-    from pipelines.synthetic import FAMILIES, generate_corpus
+    from pipelines.synthetic import FAMILIES, existing_corpus, generate_corpus
 
     families = args.families.split(",") if args.families else None
     unknown = sorted(set(families or ()) - set(FAMILIES))
     if unknown:
         raise UserError(f"unknown famil{'ies' if len(unknown) > 1 else 'y'} {', '.join(unknown)}; choose from {', '.join(FAMILIES)}")
-    out = Path(args.out)
-    marker = out / "corpus.json"
-    if marker.exists() and not args.force:
-        existing = json.loads(marker.read_text())
-        wanted = {"clips": args.clips, "seed": args.seed, "families": list(families or FAMILIES)}
-        if all(existing.get(key) == value for key, value in wanted.items()):
-            print(f"{out}: the corpus is already there (seed {args.seed}, {args.clips} clips); --force rebuilds it")
+    try:
+        if not args.force and existing_corpus(args.out, args.clips, args.seed, families):
+            print(f"{args.out}: the corpus is already there (seed {args.seed}, {args.clips} clips); --force rebuilds it")
             return
-        raise UserError(f"{out} holds a different corpus ({marker}); use another --out or --force")
+    except ValueError as error:
+        raise UserError(str(error)) from error
     started = time.perf_counter()
-    summary = generate_corpus(
-        out, clips=args.clips, seed=args.seed, families=families, workers=args.workers, progress=True
-    )
+    summary = generate_corpus(args.out, clips=args.clips, seed=args.seed, families=families, workers=args.workers,
+                              progress=True)
     splits = summary["splits"]
     print(
-        f"wrote {summary['clips']} clips to {out} in {time.perf_counter() - started:.1f} s: "
+        f"wrote {summary['clips']} clips to {args.out} in {time.perf_counter() - started:.1f} s: "
         f"{splits['train']}/{splits['val']}/{splits['test']} train/val/test, {summary['captions']} captions "
         f"({summary['multi_verb_share']:.0%} with several verbs), {summary['hours']:.2f} h of motion, "
         f"{len(summary['families'])} action families"
@@ -59,19 +68,14 @@ def _report_problems(directory: Path, problems: list[str], what: str) -> None:
     print(f"{directory}: OK ({what} match the manifest)")
 
 
-def _check_data(directory: Path) -> None:
-    from pipelines.dataset import check_dataset
-
-    _report_problems(directory, check_dataset(directory), "counts, checksums and schema")
-
-
 def _data(args: argparse.Namespace) -> None:
-    if args.check:
-        _check_data(Path(args.check))
-        return
     from pipelines.corpora import CORPUS_SKELETONS
-    from pipelines.features import DataConfig, build_dataset, print_summary
+    from pipelines.dataset import check_dataset
+    from pipelines.features import DataConfig, build_dataset, print_summary, reusable_dataset
 
+    if args.check:
+        _report_problems(Path(args.check), check_dataset(Path(args.check)), "counts, checksums and schema")
+        return
     if args.dataset not in CORPUS_SKELETONS:
         raise UserError(f"unknown dataset {args.dataset!r}; choose one of {', '.join(CORPUS_SKELETONS)}")
     raw = Path(args.raw or f"data/raw/{args.dataset}")
@@ -84,13 +88,12 @@ def _data(args: argparse.Namespace) -> None:
         dataset=args.dataset, raw=str(raw), out=str(out), samples_per_shard=args.samples_per_shard,
         min_frames=args.min_frames, max_frames=args.max_frames, workers=args.workers, ray_address=args.ray_address,
     )
-    manifest_path = out / "manifest.json"
-    if manifest_path.exists() and not args.force:
-        existing = json.loads(manifest_path.read_text(encoding="utf-8"))
-        if existing.get("config") == config.recorded():
-            print(f"{out}: already built from {raw} with this config; reusing it (--force rebuilds)")
-            print_summary(existing, out)
-            return
+    existing = None if args.force else reusable_dataset(config)
+    if existing is not None:
+        print(f"{out}: already built from {raw} with this config; reusing it (--force rebuilds)")
+        print_summary(existing, out)
+        return
+    if (out / "manifest.json").exists():
         print(f"{out}: built with another config; rebuilding")
     try:
         manifest = build_dataset(config)
@@ -107,10 +110,10 @@ def _train_vq(args: argparse.Namespace) -> None:
     print(f"finished {run_dir}; model file {run_dir / 'vq.pt'}; see its metrics and previews with `make ui`")
 
 
-def _train_diffusion(args: argparse.Namespace) -> None:
-    from orchestration.train import train_diffusion
+def _train_model(args: argparse.Namespace) -> None:
+    from orchestration.train import train_model
 
-    run_dir = train_diffusion(args.config, args.set, args.resume)
+    run_dir = train_model(args.model, args.config, args.set, args.resume)
     print(f"finished {run_dir}; its checkpoints, metrics and sample GIFs: `make ui`")
 
 
@@ -121,41 +124,15 @@ def _train_evaluator(args: argparse.Namespace) -> None:
     print(f"finished {run_dir}; evaluator {run_dir / EVALUATOR_FILE}; its metrics: `make ui`")
 
 
-def _resolve_vq(reference: str | None, dataset: str) -> Path:
-    """A VQ model file from a path (vq.pt, a checkpoint or a run directory), a run name or an
-    MLflow run id; by default the dataset's latest VQ run."""
-    from m2d2m.layout import VQ_FILE
-    from orchestration.runs import find_run, latest_run
-    from orchestration.train import VQ_STAGE
-
-    if reference is None:
-        run_dir = latest_run(dataset, VQ_STAGE, "make train-vq")
-    elif Path(reference).suffix == ".pt" and Path(reference).is_file():
-        return Path(reference)
-    elif Path(reference).suffix == ".ckpt" and Path(reference).is_file():
-        run_dir = Path(reference).resolve().parent.parent  # <run>/checkpoints/<name>.ckpt
-    else:
-        run_dir = find_run(reference, dataset, VQ_STAGE)
-    if not (run_dir / VQ_FILE).exists():
-        raise UserError(f"{run_dir} has no {VQ_FILE}: the run did not finish (resume it with `m2d2m train-vq --resume`)")
-    return run_dir / VQ_FILE
-
-
 def _tokenize(args: argparse.Namespace) -> None:
-    if args.check:
-        from pipelines.tokenize import check_tokens
+    from pipelines.tokenize import check_tokens, current_tokens, tokenize_dataset
+    from orchestration.train import token_set, vq_file
 
+    if args.check:
         _report_problems(Path(args.check), check_tokens(args.check), "counts, checksums, schema and codebook")
         return
-    import torch
-
-    from m2d2m.layout import TOKENS
-    from pipelines.tokenize import current_tokens, tokenize_dataset
-
-    vq_path = _resolve_vq(args.vq, args.dataset)
-    extra = torch.load(vq_path, map_location="cpu", weights_only=True).get("extra", {})
-    data_dir = Path(args.data or extra.get("data_dir") or f"data/{args.dataset}")
-    out = data_dir / TOKENS / extra.get("run", vq_path.parent.name)
+    vq_path = vq_file(args.vq or "latest", args.dataset)
+    data_dir, out = token_set(vq_path, args.data)
     try:
         if current_tokens(data_dir, vq_path, out) is not None:
             print(f"{out}: tokens of this dataset with this VQ-VAE are already there; reusing them")
@@ -167,7 +144,7 @@ def _tokenize(args: argparse.Namespace) -> None:
 
 
 def _render(args: argparse.Namespace) -> None:
-    from m2d2m.render import render_motion
+    from m2d2m.motion.render import render_motion
     from orchestration.viewing import load_motion
 
     out = Path(args.out)
@@ -186,7 +163,7 @@ def _render(args: argparse.Namespace) -> None:
 
 
 def _export(args: argparse.Namespace) -> None:
-    from m2d2m.export import save_bvh, save_motion_npy
+    from m2d2m.motion.export import save_bvh, save_motion_npy
     from orchestration.viewing import load_motion
 
     out = Path(args.out)
@@ -203,16 +180,27 @@ def _export(args: argparse.Namespace) -> None:
     print(f"wrote {out}")
 
 
+def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The sampling knobs given on the command line: the named shortcuts and every ``--option``."""
+    options = dict(args.option or [])
+    for knob in ("ts", "eta", "guidance", "truncation"):
+        if getattr(args, knob, None) is not None:
+            options[knob] = getattr(args, knob)
+    return options
+
+
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import GENERATE_STAGE, Generator, log_generation
+    from orchestration.generate import GENERATE_STAGE, generate, load_generator, log_generation
     from orchestration.runs import new_run_dir
 
     if not args.prompts:
         raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
-    generator = Generator.from_checkpoint(args.checkpoint, args.dataset)
-    motion = generator.generate(args.prompts, seconds=args.seconds, method=args.method, ts=args.ts, eta=args.eta,
-                                guidance=args.guidance, seed=args.seed, truncation=args.truncation,
-                                split=not args.no_split)
+    generator = load_generator(args.model, args.checkpoint, args.dataset)
+    options = _sampling_options(args)
+    if args.method is not None:
+        options["method"] = args.method
+    motion = generate(generator, args.prompts, seconds=args.seconds, seed=args.seed, split=not args.no_split,
+                      **options)
     out = Path(args.out) if args.out else new_run_dir(args.dataset, GENERATE_STAGE)
     try:
         files = motion.save(out, args.name, tuple(args.formats))
@@ -220,7 +208,8 @@ def _generate(args: argparse.Namespace) -> None:
         raise UserError(str(error)) from error
     for text, (first, end) in zip(motion.actions, motion.ranges):
         print(f"  {first / motion.fps:5.1f}–{end / motion.fps:5.1f} s  {text}")
-    print(f"wrote {', '.join(str(path) for path in files.values())} ({motion.seconds:.1f} s, {args.method})")
+    print(f"wrote {', '.join(str(path) for path in files.values())} ({motion.seconds:.1f} s, "
+          f"{motion.settings['method']})")
     if not args.no_track:
         run_id = log_generation(motion, args.prompts, files, args.dataset)
         print(f"logged to MLflow run {run_id} (experiment {args.dataset}/{GENERATE_STAGE}); `make ui` to browse")
@@ -237,16 +226,20 @@ def _testset(args: argparse.Namespace) -> None:
 
 
 def _evaluate(args: argparse.Namespace) -> None:
-    from orchestration.evaluate import EVAL_STAGE, KNOBS, TABLE_MD, evaluate, new_settings, reopen
+    from orchestration.evaluate import EVAL_STAGE, TABLE_MD, evaluate, new_settings, reopen
 
-    given = {knob: getattr(args, knob) for knob in KNOBS if getattr(args, knob) is not None}
+    options = _sampling_options(args)
+    given = {knob: getattr(args, knob) for knob in ("checkpoint", "testset", "evaluator", "guo_evaluator", "glove",
+                                                    "meta", "methods", "repeats", "single")
+             if getattr(args, knob) is not None}
     if args.resume:
-        if given:
-            options = ", ".join("--method" if knob == "methods" else "--" + knob.replace("_", "-") for knob in given)
-            raise UserError(f"--resume continues {args.resume} with its own settings; drop {options}")
+        if given or options or args.model is not None:
+            named = [*given, *options] + (["model"] if args.model is not None else [])
+            flags = ", ".join("--method" if knob == "methods" else "--" + knob.replace("_", "-") for knob in named)
+            raise UserError(f"--resume continues {args.resume} with its own settings; drop {flags}")
         run_dir, settings = reopen(args.resume, args.dataset)
     else:
-        run_dir, settings = None, new_settings(args.dataset, **given)
+        run_dir, settings = None, new_settings(args.dataset, args.model or "m2d2m", options=options, **given)
     run_dir, _ = evaluate(settings, args.dataset, run_dir, args.batch_size)
     print((run_dir / TABLE_MD).read_text(encoding="utf-8"))
     print(f"wrote {run_dir} (table.md, table.json, fig5.png, results/); logged to MLflow "
@@ -279,28 +272,8 @@ def _ui(args: argparse.Namespace) -> None:
         raise UserError(f"the MLflow UI stopped with status {error.returncode} (is port {args.port} free?)") from error
 
 
-def _add_motion_source(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
-    parser.add_argument("--id", help="clip id when SOURCE is a corpus directory")
-    parser.add_argument("--skeleton", default="t2m", choices=["t2m", "kit"])
-    parser.add_argument("--fps", type=float, help="frames per second (default: the skeleton's)")
-    parser.add_argument("--out", required=True, help="output file; its suffix chooses the format")
-
-
-def _add_training_verb(verbs, name: str, stage: str, description: str, example: str, run) -> None:
-    """The options every training stage takes: a config, overrides, and resuming."""
-    parser = verbs.add_parser(name, help=description)
-    parser.add_argument("--config", default="demo", help=f"configs/{stage}/<name>.yaml or a path (default demo)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help=f"override a config value, e.g. --set {example} (repeatable)")
-    parser.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
-    parser.set_defaults(run=run)
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="m2d2m", description=__doc__.splitlines()[0])
-    verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
-
+# ------------------------------------------------------------------------------------- parsers
+def _add_synthesize(verbs) -> None:
     synth = verbs.add_parser("synthesize", help="generate the embedded synthetic motion-language corpus")
     synth.add_argument("--out", default="data/raw/synthetic", help="corpus directory (HumanML3D raw layout)")
     synth.add_argument("--clips", type=_positive_int, default=2000)
@@ -310,12 +283,18 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--force", action="store_true", help="rebuild even if the corpus exists")
     synth.set_defaults(run=_synthesize)
 
+
+def _add_ray_address(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--ray-address", help="join a Ray cluster (default: a local Ray; also RAY_ADDRESS)")
+
+
+def _add_data(verbs) -> None:
     data = verbs.add_parser("data", help="preprocess a corpus into WebDataset shards with Ray Data")
     data.add_argument("--dataset", default="synthetic", help="synthetic, humanml3d or kit")
     data.add_argument("--raw", help="raw corpus directory (default data/raw/<dataset>)")
     data.add_argument("--out", help="output directory (default data/<dataset>)")
     data.add_argument("--workers", type=_positive_int, default=2, help="Ray tasks in parallel")
-    data.add_argument("--ray-address", help="join a Ray cluster (default: a local Ray; also RAY_ADDRESS)")
+    _add_ray_address(data)
     data.add_argument("--samples-per-shard", type=_positive_int, default=500)
     data.add_argument("--min-frames", type=_positive_int, help="keep clips with at least this many feature frames")
     data.add_argument("--max-frames", type=_positive_int, help="keep clips with fewer feature frames than this")
@@ -323,35 +302,66 @@ def build_parser() -> argparse.ArgumentParser:
     data.add_argument("--check", metavar="DIR", help="verify a processed dataset against its manifest and exit")
     data.set_defaults(run=_data)
 
+
+def _add_training_verb(verbs, name: str, configs: str, description: str, example: str, run, **defaults) -> None:
+    """The options every training stage takes: a config, overrides, and resuming."""
+    parser = verbs.add_parser(name, help=description)
+    parser.add_argument("--config", default="demo", help=f"configs/{configs}/<name>.yaml or a path (default demo)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"override a config value, e.g. --set {example} (repeatable)")
+    parser.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
+    parser.set_defaults(run=run, **defaults)
+
+
+def _add_training_verbs(verbs) -> None:
     _add_training_verb(verbs, "train-vq", "vq", "train the motion VQ-VAE (Lightning, tracked in MLflow)",
                        "optim.lr=1e-4", _train_vq)
-    _add_training_verb(verbs, "train-diffusion", "diffusion", "train the discrete-diffusion denoiser on VQ tokens",
-                       "diffusion.kind=uniform", _train_diffusion)
+    for entry in models().values():
+        _add_training_verb(verbs, entry.train_verb, entry.configs, f"train {entry.summary}", "optim.lr=1e-4",
+                           _train_model, model=entry.name)
     _add_training_verb(verbs, "train-evaluator", "evaluator",
                        "train the text-motion evaluator of Guo et al. for the paper's metrics", "optim.lr=1e-4",
                        _train_evaluator)
 
+
+def _add_tokenize(verbs) -> None:
     tokenize = verbs.add_parser("tokenize", help="encode every motion into VQ tokens (Ray Data)")
     tokenize.add_argument("--vq", help="vq.pt, a checkpoint, a run directory or name, or an MLflow run id (default: latest)")
     tokenize.add_argument("--dataset", default="synthetic", help="whose latest VQ run to use by default")
     tokenize.add_argument("--data", help="processed dataset directory (default: the one the VQ-VAE was trained on)")
     tokenize.add_argument("--workers", type=_positive_int, default=2)
-    tokenize.add_argument("--ray-address", help="join a Ray cluster (default: a local Ray; also RAY_ADDRESS)")
+    _add_ray_address(tokenize)
     tokenize.add_argument("--check", metavar="DIR", help="verify a token set against its manifest and exit")
     tokenize.set_defaults(run=_tokenize)
 
+
+def _add_model_choice(parser: argparse.ArgumentParser, default: str | None) -> None:
+    parser.add_argument("--model", default=default,
+                        help=f"a registered model: {', '.join(models())} (default m2d2m)")
+    parser.add_argument("--checkpoint", default="latest" if default else None,
+                        help="the model's file, a run directory or name, or an MLflow run id (default: latest)")
+
+
+def _add_sampling_knobs(parser: argparse.ArgumentParser) -> None:
+    """M2D2M's knobs by name, and any model's as ``--option KEY=VALUE``; unset ones keep the
+    model's multi-action preset (the paper's: T_s = 90 % of T, η = 0.25, s = 2)."""
+    parser.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 %% of T: 90 for T = 100)")
+    parser.add_argument("--eta", type=float, help="η of the dynamic transition at sampling (default 0.25)")
+    parser.add_argument("--guidance", type=float, help="classifier-free guidance scale s (default 2)")
+    parser.add_argument("--option", type=_option, action="append", metavar="KEY=VALUE",
+                        help="any sampling option of the model, e.g. --option truncation=0.9 (repeatable)")
+
+
+def _add_generate(verbs) -> None:
     generate = verbs.add_parser("generate", help="text to motion: one sequence doing the prompts in order")
     generate.add_argument("prompts", nargs="*", help='one or more prompts, e.g. "a person walks forward" "a person jumps"')
     generate.add_argument("--seconds", type=float, nargs="+",
                           help="duration of each prompt, or one for all (default: the corpus's typical length per verb)")
-    generate.add_argument("--method", default="tps", help="tps (default), independent, handshake or slerp")
-    generate.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 %% of T: 90 for T = 100)")
-    generate.add_argument("--eta", type=float, default=0.25, help="η of the dynamic transition at sampling (default 0.25)")
-    generate.add_argument("--guidance", type=float, default=2.0, help="classifier-free guidance scale s (default 2)")
-    generate.add_argument("--truncation", type=float, default=1.0, help="truncation rate r (default 1 = off)")
+    generate.add_argument("--method", help="the multi-action method (m2d2m: tps (default), independent, handshake, slerp)")
+    _add_sampling_knobs(generate)
+    generate.add_argument("--truncation", type=float, help="truncation rate r (default 1 = off)")
     generate.add_argument("--seed", type=int, default=0)
-    generate.add_argument("--checkpoint", default="latest",
-                          help="model.pt, a diffusion run directory or name, or an MLflow run id (default: latest)")
+    _add_model_choice(generate, "m2d2m")
     generate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     generate.add_argument("--out", help="output directory (default runs/<dataset>/generate/<new run>)")
     generate.add_argument("--name", default="motion", help="file name stem (default motion)")
@@ -360,6 +370,8 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--no-track", action="store_true", help="do not log this generation to MLflow")
     generate.set_defaults(run=_generate)
 
+
+def _add_testset(verbs) -> None:
     testset = verbs.add_parser("testset", help="build the N-action test set of the multi-motion evaluation")
     testset.add_argument("--n", type=_positive_int, default=4, help="actions per instance (default 4, the paper's)")
     testset.add_argument("--seed", type=int, default=0)
@@ -373,10 +385,11 @@ def build_parser() -> argparse.ArgumentParser:
     testset.add_argument("--force", action="store_true", help="replace a test set built with other parameters")
     testset.set_defaults(run=_testset)
 
+
+def _add_evaluate(verbs) -> None:
     evaluate = verbs.add_parser("evaluate", help="the paper's multi-motion (and single-motion) tables and Fig. 5")
-    evaluate.add_argument("--checkpoint", help="model.pt, a diffusion run directory or name, or an MLflow run id "
-                                               "(default: latest)")
-    evaluate.add_argument("--testset", help="test set directory (default: n4-seed0 of the checkpoint's dataset, "
+    _add_model_choice(evaluate, None)
+    evaluate.add_argument("--testset", help="test set directory (default: n4-seed0 of the model's dataset, "
                                             "data/<dataset>/testsets/n4-seed0, built if missing)")
     evaluate.add_argument("--evaluator", help="evaluator.pt, or an evaluator run directory, name or MLflow run id "
                                               "(default: latest; `make train-evaluator` makes one)")
@@ -385,13 +398,13 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--glove", metavar="DIR", help="Guo's glove/ directory (with --guo-evaluator)")
     evaluate.add_argument("--meta", metavar="DIR", help="the evaluator's mean.npy/std.npy (default CKPT_DIR/meta)")
     evaluate.add_argument("--method", dest="methods", action="append", metavar="METHOD",
-                          help="tps, independent, handshake, slerp; repeatable or a comma list (default tps)")
-    evaluate.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 %% of T)")
-    evaluate.add_argument("--eta", type=float, help="η of the dynamic transition at sampling (default 0.25)")
-    evaluate.add_argument("--guidance", type=float, help="classifier-free guidance scale s (default 2)")
+                          help="the model's multi-action methods (m2d2m: tps, independent, handshake, slerp); "
+                               "repeatable or a comma list (default: the model's first)")
+    _add_sampling_knobs(evaluate)
     evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
     evaluate.add_argument("--single", action=argparse.BooleanOptionalAction,
-                          help="also the single-motion table (paper Table 3; s = 4, η = 0.5)")
+                          help="also the single-motion table (paper Table 3; the model's single-action preset, "
+                               "for m2d2m s = 4, η = 0.5)")
     evaluate.add_argument("--batch-size", type=_positive_int, default=64,
                           help="sequences generated at once (default 64)")
     evaluate.add_argument("--resume", metavar="RUN", help="finish an evaluation run (directory, name or MLflow id) "
@@ -399,30 +412,52 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     evaluate.set_defaults(run=_evaluate)
 
+
+def _add_sweep(verbs) -> None:
     sweep = verbs.add_parser("sweep", help="a Ray Tune sweep over sampling or training settings, tracked in MLflow")
     sweep.add_argument("--config", default="demo", help="configs/sweep/<name>.yaml or a path (default demo)")
     sweep.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                        help="override a config value, e.g. --set space.eta=[0.1,0.5] (repeatable)")
-    sweep.add_argument("--ray-address", help="join a Ray cluster (auto, or host:port; default: a local Ray; also RAY_ADDRESS)")
+    _add_ray_address(sweep)
     sweep.set_defaults(run=_sweep)
 
+
+def _add_ui(verbs) -> None:
     ui = verbs.add_parser("ui", help="the MLflow UI on the project's tracking store")
     ui.add_argument("--port", type=int, default=5000)
     ui.add_argument("--host", default="127.0.0.1", help="127.0.0.1 (default) keeps it on this machine")
     ui.set_defaults(run=_ui)
 
-    render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
-    _add_motion_source(render)
-    render.set_defaults(run=_render)
 
-    export = verbs.add_parser("export", help="write a motion as BVH (for Blender, game engines) or npy + json")
-    _add_motion_source(export)
-    export.set_defaults(run=_export)
+def _add_viewers(verbs) -> None:
+    for name, description, run in (("render", "draw a motion as a stick-figure GIF or MP4", _render),
+                                   ("export", "write a motion as BVH (for Blender, game engines) or npy + json",
+                                    _export)):
+        parser = verbs.add_parser(name, help=description)
+        parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
+        parser.add_argument("--id", help="clip id when SOURCE is a corpus directory")
+        parser.add_argument("--skeleton", default="t2m", choices=["t2m", "kit"])
+        parser.add_argument("--fps", type=float, help="frames per second (default: the skeleton's)")
+        parser.add_argument("--out", required=True, help="output file; its suffix chooses the format")
+        parser.set_defaults(run=run)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="m2d2m", description=__doc__.splitlines()[0])
+    verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
+    for add in (_add_synthesize, _add_data, _add_training_verbs, _add_tokenize, _add_generate, _add_testset,
+                _add_evaluate, _add_sweep, _add_ui, _add_viewers):
+        add(verbs)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        parser = build_parser()  # imports the model plugins, which may fail
+    except UserError as error:
+        print(f"m2d2m: error: {error}", file=sys.stderr)
+        return 2
+    args = parser.parse_args(argv)
     try:
         args.run(args)
     except UserError as error:

@@ -29,7 +29,7 @@ def resolve_config_path(stage: str, name_or_path: str) -> Path:
     raise UserError(f"no config {name_or_path!r} for {stage}; available: {', '.join(available) or 'none'}")
 
 
-def _parse_override(text: str) -> tuple[list[str], Any]:
+def parse_override(text: str) -> tuple[list[str], Any]:
     key, sep, value = text.partition("=")
     if not sep or not key.strip():
         raise UserError(f"--set {text!r}: expected key.sub=value")
@@ -49,7 +49,7 @@ def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, A
     """A copy of ``config`` with each ``key.sub=value`` applied; unknown keys are errors."""
     result = copy.deepcopy(config)
     for text in overrides:
-        path, value = _parse_override(text)
+        path, value = parse_override(text)
         node = result
         for depth, key in enumerate(path):
             if not isinstance(node, dict) or key not in node:

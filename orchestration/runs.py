@@ -6,16 +6,19 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 import time
 from pathlib import Path
 from typing import Any
 
 from orchestration.errors import UserError
+from orchestration.tracking import download_model_file
 
 RUNS_ROOT = Path("runs")
 RUN_FILE = "run.json"
 LATEST = "latest"
+MLFLOW_ID = re.compile(r"^[0-9a-f]{32}$")
 
 
 def enter_project(project: str, tracking_uri: str, cpus: float) -> None:
@@ -65,13 +68,14 @@ def mark_latest(run_dir: Path) -> None:
     (run_dir.parent / LATEST).write_text(run_dir.name + "\n", encoding="utf-8")
 
 
-def latest_run(dataset: str, stage: str, made_by: str) -> Path:
+def latest_run(dataset: str, stage: str, made_by: str, legacy: tuple[str, ...] = ()) -> Path:
     """The newest successful run of a stage, or a one-line error naming ``made_by``, the command
-    that makes one."""
-    marker = stage_dir(dataset, stage) / LATEST
-    if not marker.exists():
-        raise UserError(f"no finished {stage} run for dataset {dataset!r} yet; run `{made_by}` first")
-    return marker.parent / marker.read_text(encoding="utf-8").strip()
+    that makes one. ``legacy``: older names of the stage's folder, read when it has no run yet."""
+    for name in (stage, *legacy):
+        marker = stage_dir(dataset, name) / LATEST
+        if marker.exists():
+            return marker.parent / marker.read_text(encoding="utf-8").strip()
+    raise UserError(f"no finished {stage} run for dataset {dataset!r} yet; run `{made_by}` first")
 
 
 def newest_run(dataset: str, stage: str) -> Path:
@@ -82,27 +86,40 @@ def newest_run(dataset: str, stage: str) -> Path:
     return max(runs, key=lambda p: read_run_info(p).get("started", 0.0))
 
 
-def find_run(reference: str, dataset: str, stage: str) -> Path:
-    """A run given as a directory, a run-id folder name, or an MLflow run id."""
+def find_run(reference: str, dataset: str, stage: str, legacy: tuple[str, ...] = ()) -> Path:
+    """A run given as a directory, a run-id folder name, or an MLflow run id (looked up in the
+    stage's folder and its ``legacy`` names)."""
     as_path = Path(reference)
     if (as_path / RUN_FILE).exists():
         return as_path
-    candidate = stage_dir(dataset, stage) / reference
-    if (candidate / RUN_FILE).exists():
-        return candidate
-    for run_file in stage_dir(dataset, stage).glob(f"*/{RUN_FILE}"):
-        if json.loads(run_file.read_text(encoding="utf-8")).get("mlflow_run_id") == reference:
-            return run_file.parent
+    for name in (stage, *legacy):
+        candidate = stage_dir(dataset, name) / reference
+        if (candidate / RUN_FILE).exists():
+            return candidate
+        for run_file in stage_dir(dataset, name).glob(f"*/{RUN_FILE}"):
+            if json.loads(run_file.read_text(encoding="utf-8")).get("mlflow_run_id") == reference:
+                return run_file.parent
     raise UserError(f"no {stage} run {reference!r} for dataset {dataset!r} (a run directory, its name, or its MLflow run id)")
 
 
-def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by: str) -> Path:
+def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by: str,
+             legacy: tuple[str, ...] = ()) -> Path:
     """The file ``name`` of a run given as that file itself, ``latest``, a run directory, its name
-    or its MLflow run id; a run without the file did not finish, which is said in one line."""
+    or its MLflow run id — downloaded from the tracking store (every stage logs its model files
+    under ``model/``) when no local run has that id; a run without the file did not finish,
+    which is said in one line."""
     path = Path(reference)
     if path.is_file():
         return path
-    run_dir = latest_run(dataset, stage, made_by) if str(reference) == "latest" else find_run(str(reference), dataset, stage)
+    if (path / name).is_file():  # a run directory, or a copy of one without run.json
+        return path / name
+    try:
+        run_dir = (latest_run(dataset, stage, made_by, legacy) if str(reference) == "latest"
+                   else find_run(str(reference), dataset, stage, legacy))
+    except UserError:
+        if not MLFLOW_ID.match(str(reference)):
+            raise
+        return download_model_file(str(reference), name)
     if not (run_dir / name).is_file():
         raise UserError(f"{run_dir} has no {name}: the run did not finish "
                         f"(`m2d2m {made_by.split()[-1]} --resume` continues it)")

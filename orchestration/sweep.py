@@ -1,6 +1,7 @@
-"""Sweeps with Ray Tune: sampling-time (η, T_s, guidance on a trained checkpoint) or training-time
-(config overrides of the denoiser, each trial trained then evaluated), every trial an MLflow child
-run of one parent run per sweep.
+"""Sweeps with Ray Tune over any registered model: sampling-time (the knobs of its generator's
+options on a trained model file, e.g. M2D2M's η, T_s, guidance) or training-time (overrides of its
+training config, each trial trained then evaluated), every trial an MLflow child run of one
+parent run per sweep.
 
 ``m2d2m sweep --config configs/sweep/<name>.yaml [--ray-address ADDR]``. The driver resolves every
 path to an absolute one and creates the MLflow store, experiment and parent run before any trial
@@ -9,7 +10,8 @@ function trainables that chdir to the project, so relative defaults (``runs/``, 
 what they mean for the driver. The Tune experiment lives in ``runs/<dataset>/sweep/<name>/tune``:
 re-running a sweep whose driver died restores it there (finished trials are kept, unfinished and
 errored ones run again) instead of starting over. The parent run gets a summary table and, for
-sampling sweeps, Jerk and FID against T_s for each η (the paper's Tables 5 and 7 as pictures).
+sampling sweeps, Jerk and FID against the space's last knob (for M2D2M's T_s per η: the paper's
+Tables 5 and 7 as pictures). A parent run whose sweep fails ends FAILED.
 """
 
 from __future__ import annotations
@@ -21,20 +23,35 @@ from typing import Any
 
 from orchestration.config import load_config
 from orchestration.errors import UserError
+from orchestration.registry import load_plugins, model, plugins_for_workers
 from orchestration.runs import enter_project, stage_dir
 from orchestration.tracking import client as tracking_client
-from orchestration.tracking import ensure_experiment, experiment_name, log_batch, tracking_uri
+from orchestration.tracking import experiment_name, finishing, start_run, tracking_uri
 
 SWEEP_STAGE = "sweep"
 KINDS = ("sampling", "training")
-SAMPLING_KNOBS = ("eta", "ts", "guidance")
 SWEEP_FILE = "sweep.json"
-SUMMARY_MD, SUMMARY_JSON, SUMMARY_PNG = "summary.md", "summary.json", "jerk-fid-vs-ts.png"
+SUMMARY_MD, SUMMARY_JSON = "summary.md", "summary.json"
+METRICS = ("jerk", "fid", "r_top3", "transition_fid")  # the summary's columns, per method
+
+
+def summary_plot(knob: str) -> str:
+    """The file name of a sampling sweep's picture of Jerk and FID against ``knob``."""
+    return f"jerk-fid-vs-{knob}.png"
 
 
 def trial_name(params: dict[str, Any]) -> str:
     """A child run's name from its parameters, e.g. ``eta=0.25 ts=90``."""
     return " ".join(f"{key}={value}" for key, value in params.items())
+
+
+def _upgrade(config: dict[str, Any]) -> dict[str, Any]:
+    """A sweep config written before the model registry: M2D2M, its config as ``diffusion_config``."""
+    config.setdefault("model", "m2d2m")
+    if "diffusion_config" in config:
+        config.setdefault("train_config", config.pop("diffusion_config"))
+    config["resources"].setdefault("workers", 0)  # configs written before Ray Train workers existed
+    return config
 
 
 def _check(config: dict[str, Any]) -> None:
@@ -43,9 +60,10 @@ def _check(config: dict[str, Any]) -> None:
     space = config["space"]
     if not space or any(not isinstance(values, list) or not values for values in space.values()):
         raise UserError("space: give every knob a non-empty list of values")
-    if config["kind"] == "sampling" and set(space) - set(SAMPLING_KNOBS):
-        raise UserError(f"a sampling sweep varies {', '.join(SAMPLING_KNOBS)}; "
-                        f"unknown: {', '.join(sorted(set(space) - set(SAMPLING_KNOBS)))}")
+    knobs = model(config["model"]).load("generator").knobs()
+    if config["kind"] == "sampling" and set(space) - set(knobs):
+        raise UserError(f"a sampling sweep of {config['model']} varies {', '.join(knobs)}; "
+                        f"unknown: {', '.join(sorted(set(space) - set(knobs)))}")
     if config["search"] not in ("grid", "random"):
         raise UserError(f"search must be grid or random, got {config['search']!r}")
     workers = config["resources"]["workers"]
@@ -60,23 +78,24 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
     returns the evaluation's metrics under their MLflow names (``multi/tps/jerk``, ``gt/jerk_concat``, ...)."""
     from orchestration.evaluate import ParentRun, evaluate, new_settings, table_metrics
-    from orchestration.train import train_diffusion, train_diffusion_on_workers
+    from orchestration.train import train_model, train_on_workers
 
     resources = context["resources"]
     enter_project(context["project"], context["tracking_uri"], resources["cpu"])
+    load_plugins(**context["plugins"])
     evaluation = dict(context["evaluation"])
-    checkpoint = evaluation.pop("checkpoint")
+    name = context["model"]
     if context["kind"] == "training":
         overrides = [f"{key}={value}" for key, value in params.items()]
         if resources["workers"]:
-            run_dir = train_diffusion_on_workers(context["diffusion_config"], overrides, resources["workers"],
-                                                 resources["gpu"] > 0, resources["cpu"], Path(context["train_storage"]))
+            run_dir = train_on_workers(name, context["train_config"], overrides, resources["workers"],
+                                       resources["gpu"] > 0, resources["cpu"], Path(context["train_storage"]))
         else:
-            run_dir = train_diffusion(context["diffusion_config"], overrides)
-        checkpoint = str(run_dir / "model.pt")
+            run_dir = train_model(name, context["train_config"], overrides)
+        evaluation["checkpoint"] = str(run_dir / model(name).model_file)
     else:
-        evaluation.update(params)
-    settings = new_settings(context["dataset"], checkpoint=checkpoint, **evaluation)
+        evaluation["options"] = params
+    settings = new_settings(context["dataset"], name, **evaluation)
     parent = ParentRun(context["experiment_id"], context["parent_run_id"], trial_name(params))
     _mark_interrupted(parent)
     _, table = evaluate(settings, context["dataset"], parent=parent, progress=False)
@@ -108,23 +127,18 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
     """What every trial needs, with absolute paths only."""
     from orchestration.evaluate import new_settings
 
-    dataset = config["dataset"]
+    dataset, entry = config["dataset"], model(config["model"])
     evaluation = {"testset": config["testset"], "evaluator": config["evaluator"], "methods": [config["method"]],
-                  "repeats": config["repeats"], "ts": None, "eta": 0.25, "guidance": 2.0}
+                  "repeats": config["repeats"]}
     if config["kind"] == "sampling":
-        resolved = new_settings(dataset, checkpoint=config["checkpoint"], testset=config["testset"],
-                                evaluator=config["evaluator"], methods=[config["method"]], repeats=config["repeats"])
+        resolved = new_settings(dataset, entry.name, checkpoint=config["checkpoint"], **evaluation)
         evaluation.update(checkpoint=resolved.checkpoint, evaluator=resolved.evaluator, testset=resolved.testset)
     else:
-        from orchestration.train import DIFFUSION_STAGE, ensure_tokens, vq_file
-
-        evaluation["checkpoint"] = None
-        ensure_tokens(vq_file(load_config(DIFFUSION_STAGE, config["diffusion_config"], [])))
+        entry.load("recipe").prepare(load_config(entry.configs, config["train_config"], []))
     return {"project": str(Path.cwd().resolve()), "tracking_uri": tracking_uri(), "dataset": dataset,
-            "kind": config["kind"], "knobs": list(config["space"]), "evaluation": evaluation,
-            "diffusion_config": config["diffusion_config"], "resources": config["resources"],
-            "train_storage": str(sweep_dir / "train"),
-            "experiment_id": parent[0], "parent_run_id": parent[1]}
+            "model": entry.name, "plugins": plugins_for_workers(), "kind": config["kind"], "knobs": list(config["space"]),
+            "evaluation": evaluation, "train_config": config["train_config"], "resources": config["resources"],
+            "train_storage": str(sweep_dir / "train"), "experiment_id": parent[0], "parent_run_id": parent[1]}
 
 
 def _trial_resources(resources: dict[str, Any]) -> dict[str, float]:
@@ -141,17 +155,16 @@ def _parent_run(sweep_dir: Path, name: str, config: dict[str, Any]) -> tuple[str
     if record.exists():
         saved = json.loads(record.read_text(encoding="utf-8"))
         return saved["experiment_id"], saved["parent_run_id"]
-    experiment_id = ensure_experiment(experiment_name(config["dataset"], SWEEP_STAGE))
-    client = tracking_client()
-    run = client.create_run(experiment_id, run_name=name, tags={"dataset": config["dataset"], "stage": SWEEP_STAGE,
-                                                                "sweep_kind": config["kind"]})
-    params = {"kind": config["kind"], "method": config["method"], "repeats": config["repeats"],
-              "search": config["search"], **{f"space.{k}": json.dumps(v) for k, v in config["space"].items()}}
-    log_batch(client, run.info.run_id, params=params)
+    params = {"model": config["model"], "kind": config["kind"], "method": config["method"],
+              "repeats": config["repeats"], "search": config["search"],
+              **{f"space.{k}": json.dumps(v) for k, v in config["space"].items()}}
+    run_id = start_run(experiment_name(config["dataset"], SWEEP_STAGE), name,
+                       {"dataset": config["dataset"], "stage": SWEEP_STAGE, "sweep_kind": config["kind"]}, params)
+    experiment_id = tracking_client().get_run(run_id).info.experiment_id
     sweep_dir.mkdir(parents=True, exist_ok=True)
-    record.write_text(json.dumps({"experiment_id": experiment_id, "parent_run_id": run.info.run_id,
+    record.write_text(json.dumps({"experiment_id": experiment_id, "parent_run_id": run_id,
                                   "config": config}, indent=2), encoding="utf-8")
-    return experiment_id, run.info.run_id
+    return experiment_id, run_id
 
 
 def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str | None = None) -> Path:
@@ -160,45 +173,45 @@ def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str
 
     from pipelines.features import init_ray
 
-    config = load_config(SWEEP_STAGE, config_name, overrides or [])
-    config["resources"].setdefault("workers", 0)  # configs written before Ray Train workers existed
+    config = _upgrade(load_config(SWEEP_STAGE, config_name, overrides or []))
     _check(config)
     name = Path(config_name).stem
     sweep_dir = (stage_dir(config["dataset"], SWEEP_STAGE) / name).resolve()
     init_ray(ray_address, os.cpu_count() or 1)  # first: tokenizing for a training sweep joins the same Ray
     parent = _parent_run(sweep_dir, name, config)
-    context = _context(config, parent, sweep_dir)
-    resources = _trial_resources(config["resources"])
-    trainable = tune.with_resources(_tune_trainable, resources)
-    storage = sweep_dir / "tune"
-    if tune.Tuner.can_restore(str(storage / name)):
-        print(f"resuming the sweep in {storage / name}")
-        tuner = tune.Tuner.restore(str(storage / name), trainable, resume_errored=True)
-    else:
-        space = {key: (tune.grid_search(values) if config["search"] == "grid" else tune.choice(values))
-                 for key, values in config["space"].items()}
-        tuner = tune.Tuner(
-            trainable, param_space={**space, "context": context},
-            tune_config=tune.TuneConfig(num_samples=1 if config["search"] == "grid" else config["samples"],
-                                        max_concurrent_trials=config["max_concurrent"]),
-            run_config=tune.RunConfig(name=name, storage_path=str(storage), verbose=1,
-                                      failure_config=tune.FailureConfig(max_failures=config["max_failures"])))
-    results = tuner.fit()
-    failed = [result for result in results if result.error is not None]
-    rows = [{**{k: result.config[k] for k in context["knobs"]}, **result.metrics}
-            for result in results if result.error is None and result.metrics]
-    summarize(sweep_dir, rows, config, parent[1])
-    if failed:
-        raise UserError(f"{len(failed)} of {len(results)} trials failed after {config['max_failures']} retries; "
-                        f"see {storage / name}")
+    with finishing(parent[1]):
+        context = _context(config, parent, sweep_dir)
+        trainable = tune.with_resources(_tune_trainable, _trial_resources(config["resources"]))
+        storage = sweep_dir / "tune"
+        if tune.Tuner.can_restore(str(storage / name)):
+            print(f"resuming the sweep in {storage / name}")
+            tuner = tune.Tuner.restore(str(storage / name), trainable, resume_errored=True)
+        else:
+            space = {key: (tune.grid_search(values) if config["search"] == "grid" else tune.choice(values))
+                     for key, values in config["space"].items()}
+            tuner = tune.Tuner(
+                trainable, param_space={**space, "context": context},
+                tune_config=tune.TuneConfig(num_samples=1 if config["search"] == "grid" else config["samples"],
+                                            max_concurrent_trials=config["max_concurrent"]),
+                run_config=tune.RunConfig(name=name, storage_path=str(storage), verbose=1,
+                                          failure_config=tune.FailureConfig(max_failures=config["max_failures"])))
+        results = tuner.fit()
+        failed = [result for result in results if result.error is not None]
+        rows = [{**{k: result.config[k] for k in context["knobs"]}, **result.metrics}
+                for result in results if result.error is None and result.metrics]
+        summarize(sweep_dir, rows, config, parent[1])
+        if failed:
+            raise UserError(f"{len(failed)} of {len(results)} trials failed after {config['max_failures']} retries; "
+                            f"see {storage / name}")
     return sweep_dir
 
 
 def summarize(sweep_dir: Path, rows: list[dict[str, Any]], config: dict[str, Any], parent_run_id: str) -> None:
     """summary.json / summary.md (one row per trial) and, for sampling sweeps, Jerk and FID
-    against T_s per η; logged to the parent run, which is then marked finished."""
+    against the last knob of the space, one line per value of the first (for M2D2M's demo: T_s,
+    per η); logged to the parent run."""
     knobs = list(config["space"])
-    metric_names = [f"multi/{config['method']}/{m}" for m in ("jerk", "fid", "r_top3", "transition_fid")]
+    metric_names = [f"multi/{config['method']}/{m}" for m in METRICS]
     kept = [{**{k: row[k] for k in knobs}, **{m: row.get(m) for m in metric_names}} for row in rows]
     kept.sort(key=lambda row: tuple(row[k] for k in knobs))
     (sweep_dir / SUMMARY_JSON).write_text(json.dumps(kept, indent=2), encoding="utf-8")
@@ -209,25 +222,25 @@ def summarize(sweep_dir: Path, rows: list[dict[str, Any]], config: dict[str, Any
     client = tracking_client()
     client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_MD))
     client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_JSON))
-    if config["kind"] == "sampling" and "ts" in knobs:
-        plot_against_ts(sweep_dir / SUMMARY_PNG, kept, config["method"])
-        client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_PNG))
-    client.set_terminated(parent_run_id)
+    if config["kind"] == "sampling":
+        x = knobs[-1]
+        path = plot_against(sweep_dir / summary_plot(x), kept, config["method"], x, knobs[0] if len(knobs) > 1 else None)
+        client.log_artifact(parent_run_id, str(path))
 
 
-def plot_against_ts(path: Path, rows: list[dict[str, Any]], method: str) -> Path:
-    """Jerk and FID of ``method`` against T_s, one line per η (other knobs: their first value)."""
+def plot_against(path: Path, rows: list[dict[str, Any]], method: str, x: str, line: str | None) -> Path:
+    """Jerk and FID of ``method`` against the knob ``x``, one curve per value of the knob ``line``."""
     from matplotlib.figure import Figure
 
     figure = Figure(figsize=(9, 3.6), dpi=100)
     for index, metric in enumerate(("jerk", "fid")):
         axes = figure.add_subplot(1, 2, index + 1)
-        for eta in sorted({row.get("eta", 0.25) for row in rows}):
-            points = sorted((row["ts"], row[f"multi/{method}/{metric}"]) for row in rows
-                            if row.get("eta", 0.25) == eta and row[f"multi/{method}/{metric}"] is not None)
+        for value in sorted({row[line] for row in rows}) if line else [None]:
+            points = sorted((row[x], row[f"multi/{method}/{metric}"]) for row in rows
+                            if (line is None or row[line] == value) and row[f"multi/{method}/{metric}"] is not None)
             if points:
-                axes.plot(*zip(*points), marker="o", label=f"η = {eta}")
-        axes.set_xlabel("T_s (joint phase: t > T_s)")
+                axes.plot(*zip(*points), marker="o", label=f"{line} = {value}" if line else method)
+        axes.set_xlabel(x)
         axes.set_title(f"{'Jerk (transitions)' if metric == 'jerk' else 'FID (individual motions)'}")
         axes.grid(alpha=0.3)
         axes.legend()

@@ -8,8 +8,11 @@ Ray workers and Tune trials run in other directories.
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 
 def tracking_uri() -> str:
@@ -54,6 +57,58 @@ def ensure_experiment(name: str) -> str:
     if existing is not None:
         return existing.experiment_id
     return client_.create_experiment(name, artifact_location=artifact_location(name))
+
+
+def start_run(experiment: str, run_name: str | None = None, tags: dict[str, str] | None = None,
+              params: dict[str, Any] | None = None, parent: tuple[str, str] | None = None) -> str:
+    """A new MLflow run in the experiment named ``experiment`` — or, given ``parent`` (experiment
+    id, run id), a child run of that run in its experiment — with its tags and params; its id."""
+    client_ = client()
+    tags = dict(tags or {})
+    if parent is None:
+        experiment_id = ensure_experiment(experiment)
+    else:
+        experiment_id, tags["mlflow.parentRunId"] = parent
+    run_id = client_.create_run(experiment_id, run_name=run_name, tags=tags).info.run_id
+    if params:
+        log_batch(client_, run_id, params=params)
+    return run_id
+
+
+@contextlib.contextmanager
+def finishing(run_id: str) -> Iterator[Any]:
+    """The client, for logging to ``run_id``; the run ends FINISHED when the block completes and
+    FAILED when it raises (a Ctrl-C included), never left RUNNING by an error."""
+    client_ = client()
+    try:
+        yield client_
+    except BaseException:
+        client_.set_terminated(run_id, "FAILED")
+        raise
+    client_.set_terminated(run_id)
+
+
+@contextlib.contextmanager
+def tracked_run(experiment: str, run_name: str | None = None, tags: dict[str, str] | None = None,
+                params: dict[str, Any] | None = None) -> Iterator[tuple[Any, str]]:
+    """:func:`start_run` and :func:`finishing` in one: the client and the new run's id."""
+    run_id = start_run(experiment, run_name, tags, params)
+    with finishing(run_id) as client_:
+        yield client_, run_id
+
+
+def download_model_file(run_id: str, name: str) -> Path:
+    """The model file ``name`` an MLflow run logged under ``model/``, downloaded from the store,
+    or a one-line error."""
+    import mlflow
+
+    from orchestration.errors import UserError
+
+    mlflow.set_tracking_uri(tracking_uri())
+    try:
+        return Path(mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=f"model/{name}"))
+    except Exception as error:  # an unknown id or a run without the file: one line for the user
+        raise UserError(f"MLflow run {run_id} has no model/{name} ({type(error).__name__})") from error
 
 
 def ui_command(host: str, port: int) -> list[str]:

@@ -2,13 +2,20 @@
 
 ``train_vq`` is ``m2d2m train-vq``: it resolves the config, opens (or, with ``resume``, reopens)
 the run directory and the MLflow run, trains with Lightning, and on success exports ``vq.pt`` —
-the plain model file later stages read — and marks the run as the stage's ``latest``.
+the plain model file later stages read — and marks the run as the stage's ``latest``. The
+generators' models train through :func:`train_model`: each registered model's *recipe* (a module
+under ``orchestration/recipes/``) has
+
+- ``train(config_name, overrides, resume, extra_callbacks, join=None, ray_train=False) -> Path``:
+  build its DataModule and LightningModule from the config, call :func:`open_run`, :func:`fit`
+  and :func:`finish`, and write its model file; returns the run directory;
+- ``prepare(config) -> None``: what must exist before trials train in parallel (M2D2M's tokens).
 
 Several processes may train one run (DDP). Lightning's own launcher (``trainer.devices: 2``, or
 more GPUs) starts every rank after the first by re-running the command; those processes find the
 run in :data:`JOIN_RUN` and join it instead of opening another. Ray Train workers
-(:func:`train_diffusion_on_workers`) are handed the run directory. Only global rank 0 writes run
-files, MLflow params and model files.
+(:func:`train_on_workers`) are handed the run directory. Only global rank 0 writes run files,
+MLflow params and model files.
 """
 
 from __future__ import annotations
@@ -26,12 +33,12 @@ import yaml
 from m2d2m.layout import VQ_FILE
 from orchestration.config import flatten, load_config
 from orchestration.errors import UserError
-from orchestration.runs import (enter_project, latest_run, mark_latest, new_run_dir, newest_run, read_run_info,
+from orchestration.registry import load_plugins, model, plugins_for_workers
+from orchestration.runs import (enter_project, mark_latest, new_run_dir, newest_run, read_run_info, run_file,
                                  write_run_info)
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
 VQ_STAGE = "vq"
-DIFFUSION_STAGE = "diffusion"
 EVALUATOR_STAGE = "evaluator"
 EVALUATOR_FILE = "evaluator.pt"
 JOIN_RUN = "M2D2M_JOIN_RUN"  # environment: the run directory a DDP rank started by Lightning joins
@@ -44,16 +51,17 @@ def _precision(setting: str) -> str:
     return "bf16-mixed" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "32-true"
 
 
-def _open_run(stage: str, config_name: str, overrides: list[str], resume: bool,
-              join: Path | None = None) -> tuple[Path, dict[str, Any], str | None]:
-    """The run directory, its config and its MLflow run id (None for a new run). A new run's
-    config is written before training, so processes that ``join`` it (or find it in
-    :data:`JOIN_RUN`) train the same thing."""
+def open_run(stage: str, configs: str, config_name: str, overrides: list[str], resume: bool,
+             join: Path | None = None) -> tuple[Path, dict[str, Any], str | None]:
+    """The run directory of ``stage``, its config (``configs/<configs>/<config_name>.yaml`` with
+    the overrides) and its MLflow run id (None for a new run). A new run's config is written
+    before training, so processes that ``join`` it (or find it in :data:`JOIN_RUN`) train the
+    same thing."""
     join = join or (Path(os.environ[JOIN_RUN]) if os.environ.get(JOIN_RUN) else None)
     if join is not None:
         info = read_run_info(join)
         return join, info["config"], info.get("mlflow_run_id")
-    config = load_config(stage, config_name, overrides)
+    config = load_config(configs, config_name, overrides)
     if not resume:
         run_dir = new_run_dir(config["dataset"], stage)
         (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
@@ -122,7 +130,7 @@ def _joinable(run_dir: Path) -> Iterator[None]:
             os.environ[JOIN_RUN] = before
 
 
-def _fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, resume: bool, module, datamodule,
+def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, resume: bool, module, datamodule,
          monitor: str, callbacks: list, ray_train: bool = False) -> _Fitted:
     """What every training stage shares: the MLflow run and its params, best and last
     checkpoints, the trainer (DDP when it has several devices or Ray Train workers), resume, the
@@ -171,7 +179,7 @@ def _fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, 
     return fitted
 
 
-def _finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -> None:
+def finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -> None:
     """Log the run's files to MLflow, record its final validation metrics, mark it ``latest``."""
     for path in artifacts:
         fitted.logger.experiment.log_artifact(fitted.logger.run_id, str(path), artifact_path="model")
@@ -186,12 +194,12 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     ``extra_callbacks`` join the trainer's (a sweep's reporting callback, for instance)."""
     import lightning.pytorch as pl
 
-    from m2d2m.vqvae import save_vq
+    from m2d2m.networks.vqvae import save_vq
     from training.callbacks import ReconstructionPreview
     from training.data import MotionWindowDataModule
     from training.vq_module import VQVAEModule
 
-    run_dir, config, run_id = _open_run(VQ_STAGE, config_name, overrides or [], resume)
+    run_dir, config, run_id = open_run(VQ_STAGE, VQ_STAGE, config_name, overrides or [], resume)
     data, trainer_cfg = config["data"], config["trainer"]
     try:
         datamodule = MotionWindowDataModule(
@@ -203,7 +211,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     pl.seed_everything(config["seed"], workers=True, verbose=False)
     module = VQVAEModule(config["model"], config["optim"], config["loss"], datamodule.feature_dim, datamodule.skeleton)
     module.set_normalizer(datamodule.normalizer)
-    fitted = _fit(VQ_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/recon_loss",
+    fitted = fit(VQ_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/recon_loss",
                   [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])])
     if not fitted.primary:
         return run_dir
@@ -211,109 +219,76 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
             extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
                    "data_dir": str(Path(data["dir"]).resolve()),
                    "best_val_recon_loss": float(fitted.checkpoints.best_model_score)})
-    _finish(run_dir, fitted, [run_dir / VQ_FILE, Path(fitted.checkpoints.best_model_path), fitted.last,
+    finish(run_dir, fitted, [run_dir / VQ_FILE, Path(fitted.checkpoints.best_model_path), fitted.last,
                               run_dir / "config.yaml", Path(data["dir"]) / "stats.npz"],
             vq=str((run_dir / VQ_FILE).resolve()))
     return run_dir
 
 
-def vq_file(config: dict[str, Any]) -> Path:
-    """The VQ-VAE the denoiser works with: ``vq: latest`` (the dataset's latest VQ run) or a path."""
-    if config["vq"] == "latest":
-        return latest_run(config["dataset"], VQ_STAGE, "make train-vq") / VQ_FILE
-    path = Path(config["vq"])
-    if not path.is_file():
-        raise UserError(f"{path}: no VQ model file; set vq: latest or the path of a vq.pt")
-    return path
+def vq_file(reference: str | Path, dataset: str) -> Path:
+    """A VQ model file from ``latest``, a ``vq.pt`` path, a Lightning checkpoint of a VQ run, or a
+    VQ run directory, name or MLflow run id (the one resolver of every stage that reads a VQ-VAE)."""
+    path = Path(reference)
+    if path.suffix == ".ckpt" and path.is_file():
+        reference = path.resolve().parent.parent  # <run>/checkpoints/<name>.ckpt
+    return run_file(reference, dataset, VQ_STAGE, VQ_FILE, "make train-vq")
+
+
+def token_set(vq_path: Path, data_dir: str | Path | None = None) -> tuple[Path, Path]:
+    """The dataset a VQ-VAE encodes (``data_dir``, else the one it was trained on) and the folder
+    of its tokens under that VQ-VAE: ``<data>/tokens/<VQ run>``."""
+    from m2d2m.layout import TOKENS
+    from m2d2m.model_files import read_model_file
+    from m2d2m.networks.vqvae import FORMAT
+
+    try:
+        extra = read_model_file(vq_path, FORMAT, "m2d2m VQ model file")["extra"]
+    except (FileNotFoundError, ValueError) as error:
+        raise UserError(str(error)) from error
+    data = data_dir or extra.get("data_dir")
+    if not data:
+        raise UserError(f"{vq_path} does not say which dataset it was trained on: pass the dataset directory")
+    return Path(data), Path(data) / TOKENS / extra.get("run", vq_path.parent.name)
 
 
 def ensure_tokens(vq_path: Path) -> Path:
     """The token set of the VQ-VAE's dataset under this VQ-VAE, made first when it is missing or
     stale (so a sweep's driver can make it once, before parallel trials would race to)."""
-    from m2d2m.layout import TOKENS
-    from m2d2m.vqvae import load_vq
     from pipelines.tokenize import current_tokens, tokenize_dataset
 
-    _, _, vq_meta = load_vq(vq_path)
-    data_dir = Path(vq_meta["extra"]["data_dir"])
-    tokens_dir = data_dir / TOKENS / vq_meta["extra"].get("run", vq_path.parent.name)
+    data_dir, tokens_dir = token_set(vq_path)
     if current_tokens(data_dir, vq_path, tokens_dir) is None:
         print(f"tokenizing {data_dir} with {vq_path} first")
         tokenize_dataset(data_dir, vq_path, tokens_dir)
     return tokens_dir
 
 
-def train_diffusion(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
-                    extra_callbacks: list | None = None, join: Path | None = None, ray_train: bool = False) -> Path:
-    """Train the discrete-diffusion denoiser on the tokens of a VQ-VAE run, tokenizing first when
-    its tokens are missing or stale; returns the run directory. ``join``: a run another process
-    opened (its config is used, ``config_name`` and ``overrides`` are not); ``ray_train``: this
-    process is a Ray Train worker."""
-    import lightning.pytorch as pl
-
-    from m2d2m.checkpoint import save_checkpoint
-    from m2d2m.layout import MODEL_FILE
-    from m2d2m.text import LearnedTextEncoder
-    from m2d2m.vqvae import load_vq
-    from training.callbacks import SamplePreview
-    from training.data import TokenDataModule, clip_metas, length_prior
-    from training.diffusion_module import DiffusionModule
-
-    run_dir, config, run_id = _open_run(DIFFUSION_STAGE, config_name, overrides or [], resume, join)
-    vq_path = vq_file(config)
-    vq, _, vq_meta = load_vq(vq_path)
-    data_dir = Path(vq_meta["extra"]["data_dir"])
-    try:
-        tokens_dir = ensure_tokens(vq_path)
-        data, trainer_cfg = config["data"], config["trainer"]
-        datamodule = TokenDataModule(tokens_dir, batch_size=data["batch_size"], num_workers=data["num_workers"],
-                                     steps_per_epoch=trainer_cfg["val_every_steps"], max_tokens=data["max_tokens"],
-                                     seed=config["seed"])
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    vocabulary = None
-    if config["text"]["kind"] == "learned":
-        sentences = (action for meta in clip_metas(datamodule.urls("train")) for caption in meta["captions"]
-                     for action in (caption["actions"] or [caption["text"]]))
-        vocabulary = LearnedTextEncoder.build_vocabulary(sentences)
-    pl.seed_everything(config["seed"], workers=True, verbose=False)
-    module = DiffusionModule(config["denoiser"], config["text"], config["diffusion"], config["optim"],
-                             codebook=vq.codebook, vocabulary=vocabulary)
-    preview = config["preview"]
-    fitted = _fit(DIFFUSION_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
-                  [SamplePreview(run_dir / "previews", vq_path, preview["prompts"], preview["seconds"],
-                                 guidance=preview["guidance"], every=trainer_cfg["gif_every"]),
-                   *(extra_callbacks or [])], ray_train=ray_train)
-    if not fitted.primary:
-        return run_dir
-    lengths = length_prior(datamodule.urls("train"), datamodule.frames_per_token)
-    save_checkpoint(run_dir / MODEL_FILE, module.denoiser, module.text_encoder, config["text"], config["diffusion"],
-                    module.codebook, vq_path, lengths,
-                    extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
-                           "data_dir": str(data_dir.resolve()), "tokens": str(tokens_dir.resolve()),
-                           "best_val_loss": float(fitted.checkpoints.best_model_score)})
-    _finish(run_dir, fitted, [run_dir / MODEL_FILE, Path(fitted.checkpoints.best_model_path), fitted.last,
-                              run_dir / "config.yaml"],
-            model=str((run_dir / MODEL_FILE).resolve()), vq=str(vq_path.resolve()), tokens=str(tokens_dir.resolve()))
-    return run_dir
+def train_model(name: str, config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+                extra_callbacks: list | None = None) -> Path:
+    """Train the registered model ``name`` (``m2d2m train-diffusion`` for M2D2M) with its recipe;
+    returns the run directory."""
+    return model(name).load("recipe").train(config_name, overrides or [], resume, extra_callbacks)
 
 
-def train_diffusion_on_workers(config_name: str, overrides: list[str], workers: int, use_gpu: bool,
-                               cpus_per_worker: float, storage: Path) -> Path:
-    """The denoiser trained in DDP by ``workers`` Ray Train workers, one device each (the GPUs of
-    one node or of several); returns the run directory, whose files rank 0 wrote. ``storage``, where
-    Ray Train keeps its state, and the project directory must be seen by every node alike."""
+def train_on_workers(name: str, config_name: str, overrides: list[str], workers: int, use_gpu: bool,
+                     cpus_per_worker: float, storage: Path) -> Path:
+    """A registered model trained in DDP by ``workers`` Ray Train workers, one device each (the
+    GPUs of one node or of several); returns the run directory, whose files rank 0 wrote.
+    ``storage``, where Ray Train keeps its state, and the project directory must be seen by every
+    node alike."""
     from ray.train import RunConfig, ScalingConfig
     from ray.train.torch import TorchTrainer
 
-    run_dir, _, _ = _open_run(DIFFUSION_STAGE, config_name, overrides, resume=False)
+    entry = model(name)
+    run_dir, _, _ = open_run(entry.stage, entry.configs, config_name, overrides, resume=False)
     trainer = TorchTrainer(
         _ray_train_worker,
         train_loop_config={"project": str(Path.cwd().resolve()), "run_dir": str(run_dir.resolve()),
-                           "tracking_uri": tracking_uri(), "cpus": cpus_per_worker},
+                           "tracking_uri": tracking_uri(), "cpus": cpus_per_worker, "model": name,
+                           "plugins": plugins_for_workers()},
         scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu,
                                      resources_per_worker={"CPU": cpus_per_worker}),
-        run_config=RunConfig(name=f"{DIFFUSION_STAGE}-{run_dir.name}", storage_path=str(storage.resolve())))
+        run_config=RunConfig(name=f"{entry.stage}-{run_dir.name}", storage_path=str(storage.resolve())))
     trainer.fit()
     if read_run_info(run_dir).get("status") != "finished":
         raise UserError(f"{run_dir}: the Ray Train workers stopped before rank 0 finished the run")
@@ -323,8 +298,8 @@ def train_diffusion_on_workers(config_name: str, overrides: list[str], workers: 
 def _ray_train_worker(config: dict[str, Any]) -> None:
     """One Ray Train worker: joins the run in the project directory and trains its DDP rank."""
     enter_project(config["project"], config["tracking_uri"], config["cpus"])
-    train_diffusion(join=Path(config["run_dir"]), ray_train=True)
-
+    load_plugins(**config["plugins"])
+    model(config["model"]).load("recipe").train(join=Path(config["run_dir"]), ray_train=True)
 
 def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
                     extra_callbacks: list | None = None) -> Path:
@@ -332,10 +307,10 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     checkpoint by validation loss); returns the run directory, with ``evaluator.pt`` on success."""
     import lightning.pytorch as pl
 
-    from m2d2m.evaluator import learned_vocabulary, load_glove, save_evaluator
+    from m2d2m.evaluation.evaluator import learned_vocabulary, load_glove, save_evaluator
     from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
 
-    run_dir, config, run_id = _open_run(EVALUATOR_STAGE, config_name, overrides or [], resume)
+    run_dir, config, run_id = open_run(EVALUATOR_STAGE, EVALUATOR_STAGE, config_name, overrides or [], resume)
     data, trainer_cfg, model = config["data"], config["trainer"], config["model"]
     try:
         datamodule = CaptionMotionDataModule(
@@ -353,11 +328,11 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     pl.seed_everything(config["seed"], workers=True, verbose=False)
     module = EvaluatorModule(model, config["optim"], config["loss"], datamodule.feature_dim, vocabulary, vectors)
     module.set_normalizer(datamodule.normalizer)
-    fitted = _fit(EVALUATOR_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
+    fitted = fit(EVALUATOR_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
                   list(extra_callbacks or []))
     if not fitted.primary:
         return run_dir
     save_evaluator(run_dir / EVALUATOR_FILE, module.model)
-    _finish(run_dir, fitted, [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
+    finish(run_dir, fitted, [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
             evaluator=str((run_dir / EVALUATOR_FILE).resolve()))
     return run_dir

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.representation import features_to_joints
-from m2d2m.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from orchestration.errors import UserError
 
 

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.skeleton import KIT, T2M, Skeleton
+from m2d2m.motion.skeleton import KIT, T2M, Skeleton
 
 SPLITS = ("train", "val", "test")
 CORPUS_SKELETONS: dict[str, Skeleton] = {"synthetic": T2M, "humanml3d": T2M, "kit": KIT}

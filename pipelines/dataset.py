@@ -1,4 +1,4 @@
-"""The processed dataset's contract (DESIGN.md, ``data/<name>/``): the sample schema, the
+"""The processed dataset's contract (docs/data.md, ``data/<name>/``): the sample schema, the
 manifest, the summary people read, and the verification ``m2d2m data --check`` runs.
 
 One WebDataset sample per motion: key = motion id (``M<id>`` for mirrors), ``motion.npy`` float32

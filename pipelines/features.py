@@ -23,9 +23,9 @@ import numpy as np
 
 import m2d2m
 from m2d2m.layout import MANIFEST, NLP, QUARANTINE, SHARDS, STATS
-from m2d2m.normalization import Normalizer, RunningMoments, group_averaged_std
-from m2d2m.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
-from m2d2m.skeleton import Skeleton
+from m2d2m.motion.normalization import Normalizer, RunningMoments, group_averaged_std
+from m2d2m.motion.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
+from m2d2m.motion.skeleton import Skeleton
 from pipelines.corpora import (
     CORPUS_SKELETONS,
     DEFAULT_FRAME_BOUNDS,
@@ -273,6 +273,16 @@ def prepare_tagger(captions: list[tuple[str, list[tuple[str, str]]]], out: Path,
     shutil.rmtree(out / NLP, ignore_errors=True)
     train_tagger(captions, out / NLP, seed=config.seed)
     return f"trained on {len(captions)} train captions"
+
+
+def reusable_dataset(config: DataConfig) -> dict[str, Any] | None:
+    """The manifest of ``config.out`` when it was built from the same corpus with the same config
+    (building it again would give the same dataset), else None."""
+    manifest_path = Path(config.out) / MANIFEST
+    if not manifest_path.exists():
+        return None
+    existing = json.loads(manifest_path.read_text(encoding="utf-8"))
+    return existing if existing.get("config") == config.recorded() else None
 
 
 def build_dataset(config: DataConfig) -> dict[str, Any]:

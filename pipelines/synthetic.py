@@ -35,7 +35,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from pipelines.synthetic_motion import ACTIONS, FPS, compose, render
+from pipelines.synthetic_motion import ACTIONS, FPS, compose, program_joints
 
 GENERATOR_VERSION = "1.0"
 FAMILIES: tuple[str, ...] = tuple(ACTIONS)
@@ -532,7 +532,7 @@ def make_clip(index: int, seed: int = 0, families: Sequence[str] = FAMILIES,
         plan = plan[:-1] if len(plan) > 1 else sample_plan(rng, families, 1)
     else:
         raise RuntimeError(f"clip {index}: no plan of {families} fits in {MAX_FRAMES} frames")
-    joints = render(composition.program, composition.body).astype(np.float32)
+    joints = program_joints(composition.program, composition.body).astype(np.float32)
     return Clip(f"{index:06d}", joints, plan, composition.segments, make_captions(plan, rng),
                 composition.body.scale)
 
@@ -569,6 +569,19 @@ def _remove_stale(out: Path) -> None:
         for path in (out / folder).glob(f"*{suffix}"):
             if _ID.match(path.stem):
                 path.unlink()
+
+
+def existing_corpus(out_dir: str | Path, clips: int, seed: int, families: Sequence[str] | None = None) -> bool:
+    """Whether ``out_dir`` already holds exactly this corpus (so generating it again is nothing to
+    do); ValueError when it holds a different one, which only an explicit rebuild may replace."""
+    marker = Path(out_dir) / "corpus.json"
+    if not marker.exists():
+        return False
+    existing = json.loads(marker.read_text(encoding="utf-8"))
+    wanted = {"clips": clips, "seed": seed, "families": list(families or FAMILIES)}
+    if all(existing.get(key) == value for key, value in wanted.items()):
+        return True
+    raise ValueError(f"{out_dir} holds a different corpus ({marker}); use another --out or --force")
 
 
 def generate_corpus(

@@ -25,8 +25,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from m2d2m.rotations import dot, euler_to_matrix, normalize
-from m2d2m.skeleton import T2M
+from m2d2m.motion.rotations import dot, euler_to_matrix, normalize
+from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.smoothing import gaussian_smooth
 
 FPS = T2M.fps
 GRAVITY = 9.81
@@ -75,18 +76,6 @@ def _keys(frames: int, keys: Sequence[tuple[float, object]]) -> np.ndarray:
         w = _ease((t[after] - t0) / max(t1 - t0, 1e-9)).reshape(shape)
         out[after] = np.asarray(v0) + (np.asarray(v1) - np.asarray(v0)) * w
     return out
-
-
-def _smooth(x: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian filter along time with edge replication (the ends of a program are at rest)."""
-    if sigma <= 0:
-        return x
-    radius = int(3.0 * sigma + 0.5)
-    kernel = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
-    kernel /= kernel.sum()
-    padded = np.pad(x, [(radius, radius)] + [(0, 0)] * (x.ndim - 1), mode="edge")
-    windows = np.lib.stride_tricks.sliding_window_view(padded, len(kernel), axis=0)
-    return windows @ kernel
 
 
 def _smooth_cover(x: np.ndarray, radius: int) -> np.ndarray:
@@ -407,7 +396,7 @@ def _fit_pelvis_height(pelvis: np.ndarray, r0: np.ndarray, ankles: np.ndarray, b
     return fitted
 
 
-def render(program: Program, body: Body) -> np.ndarray:
+def program_joints(program: Program, body: Body) -> np.ndarray:
     """Joint positions (T, 22, 3) of a program: FK for the pelvis, spine, neck and collars, two-bone
     IK for the arms (wrist targets in the chest frame) and the legs (world ankle targets)."""
     frames = len(program)
@@ -555,22 +544,22 @@ def _stepping(
     sigma = 0.3 * period * FPS
 
     first = min(s.lift for s in steps) - gait.roll * FPS - 2.0
-    moving = _smooth(((t >= first) & (t <= last)).astype(np.float64), sigma)
+    moving = gaussian_smooth(((t >= first) & (t <= last)).astype(np.float64), sigma, truncate=3.0)
     moving *= _ease(t / 6.0) * _ease((frames - 1.0 - t) / 6.0)  # at rest at both ends
-    yaw = _smooth(foot_yaw.mean(axis=1), sigma)
-    centre = _smooth(ankles.mean(axis=1), sigma)
+    yaw = gaussian_smooth(foot_yaw.mean(axis=1), sigma, truncate=3.0)
+    centre = gaussian_smooth(ankles.mean(axis=1), sigma, truncate=3.0)
     centre[:, 1] = 0.0
     final_yaw = float(foot_yaw[-1].mean()) if end_yaw is None else end_yaw
     end = State(ankles[-1].copy(), foot_yaw[-1].copy(), final_yaw, False)
     centre = _pin_end(centre, end.centre)
     yaw = _pin_end(yaw, final_yaw)
 
-    support = _smooth(down[:, LEFT].astype(float) - down[:, RIGHT].astype(float), sigma)
+    support = gaussian_smooth(down[:, LEFT].astype(float) - down[:, RIGHT].astype(float), sigma, truncate=3.0)
     separation = dot(ankles[:, LEFT] - ankles[:, RIGHT], _forward(yaw))
     stride = max(float(np.percentile(np.abs(separation), 95)), 0.25)
-    ahead = np.clip(_smooth(separation, 1.0) / stride, -1.0, 1.0)  # +1: left foot ahead
-    airborne = _smooth((~down.any(axis=1)).astype(np.float64), 1.0)
-    on_floor = _smooth(down.any(axis=1).astype(np.float64) * moving, 1.0)
+    ahead = np.clip(gaussian_smooth(separation, 1.0, truncate=3.0) / stride, -1.0, 1.0)  # +1: left foot ahead
+    airborne = gaussian_smooth((~down.any(axis=1)).astype(np.float64), 1.0, truncate=3.0)
+    on_floor = gaussian_smooth(down.any(axis=1).astype(np.float64) * moving, 1.0, truncate=3.0)
 
     program.pelvis = centre + _UP * body.stand_height
     program.pelvis += (gait.sway * body.scale * support)[:, None] * _leftward(yaw)
@@ -845,7 +834,7 @@ def _leap_travel(leaps: Sequence[_Leap], distances: Sequence[float], t: np.ndarr
         knots += [(leap.takeoff, feet[k] + ahead), (leap.touchdown, feet[k + 1] - ahead)]
     knots += [(last.absorbed, feet[-1] + 0.1 * distances[-1]), (last.end, feet[-1])]
     times, values = zip(*knots)
-    return _smooth(np.interp(t, times, values), 1.5)
+    return gaussian_smooth(np.interp(t, times, values), 1.5, truncate=3.0)
 
 
 def _leap_foot(body: Body, leaps: Sequence[_Leap], t: np.ndarray, start: np.ndarray,
@@ -916,11 +905,11 @@ def jump(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[P
         arm_keys += [(leap.crouch_end, -0.7), (middle, 1.9 * body.energy), (leap.absorbed, 0.4)]
     trunk_keys.append((leaps[-1].end, 0.0))
     arm_keys.append((leaps[-1].end, 0.06))
-    trunk = _smooth(_keys(frames, trunk_keys), 1.5)
+    trunk = gaussian_smooth(_keys(frames, trunk_keys), 1.5, truncate=3.0)
     program.trunk[:, 0] = trunk
     program.tilt[:, 0] += 0.6 * trunk
     program.neck[:, 0] -= 0.7 * trunk
-    flex = _smooth(_keys(frames, arm_keys), 2.0)
+    flex = gaussian_smooth(_keys(frames, arm_keys), 2.0, truncate=3.0)
     for side in (LEFT, RIGHT):
         program.wrists[:, side], program.elbows[:, side] = arm_pose(body, side, flex, 0.2, 0.4)
     return program, replace(state, ankles=state.ankles + heading * sum(distances))

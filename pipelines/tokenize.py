@@ -25,8 +25,8 @@ import numpy as np
 import torch
 
 from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, SHARDS, STATS, read_manifest
-from m2d2m.normalization import Normalizer
-from m2d2m.vqvae import MotionVQVAE, load_vq
+from m2d2m.motion.normalization import Normalizer
+from m2d2m.networks.vqvae import MotionVQVAE, load_vq
 from pipelines.corpora import SPLITS
 from pipelines.features import code_version, run_json_tasks
 from pipelines.shards import (

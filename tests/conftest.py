@@ -10,9 +10,9 @@ import pytest
 import torch
 import yaml
 
-from m2d2m.skeleton import T2M
+from m2d2m.motion.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
-from orchestration.train import train_diffusion, train_evaluator, train_vq
+from orchestration.train import train_evaluator, train_model, train_vq
 from tests.helpers import TINY_DIFFUSION, TINY_EVALUATOR, TINY_VQ_RUN, write_corpus
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -105,7 +105,7 @@ def trained_project(tmp_path_factory, ray_local) -> Iterator[Path]:
         for name, config in configs.items():
             (root / f"{name}.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
         train_vq(str(root / "vq.yaml"))
-        train_diffusion(str(root / "diffusion.yaml"))
+        train_model("m2d2m", str(root / "diffusion.yaml"))
         train_evaluator(str(root / "evaluator.yaml"))
         yield root
     torch.set_num_threads(threads)

@@ -8,10 +8,10 @@ import socket
 import numpy as np
 import torch
 
-from m2d2m.normalization import Normalizer
-from m2d2m.rotations import qnormalize, quat_from_axis_angle
-from m2d2m.skeleton import Skeleton
-from m2d2m.vqvae import MotionVQVAE, VQConfig, save_vq
+from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.rotations import qnormalize, quat_from_axis_angle
+from m2d2m.motion.skeleton import Skeleton
+from m2d2m.networks.vqvae import MotionVQVAE, VQConfig, save_vq
 from pipelines.shards import iter_tar_samples
 
 TINY_VQ = VQConfig(width=32, code_dim=16, codebook_size=32, depth=1)
@@ -46,7 +46,7 @@ CAPTIONS = (
 def write_corpus(root, splits: dict[str, int], skeleton, kind: str = "joints", seed: int = 0) -> dict[str, list[str]]:
     """A small corpus in HumanML3D's layout: valid clips of 60–120 frames with three tagged
     captions each. Returns the ids per split."""
-    from m2d2m.representation import joints_to_features
+    from m2d2m.motion.representation import joints_to_features
 
     folder = root / ("joints" if kind == "joints" else "new_joint_vecs")
     folder.mkdir(parents=True, exist_ok=True)

@@ -33,7 +33,7 @@ def run_cli(*args: str) -> subprocess.CompletedProcess:
         (["train-vq", "--config", "nope"], "no config 'nope' for vq; available: demo, humanml3d, kit"),
         (["train-vq", "--set", "model.widht=3"], "no key 'widht' in model"),
         (["train-vq", "--set", "optim.lr"], "expected key.sub=value"),
-        (["train-diffusion", "--config", "nope"], "no config 'nope' for diffusion; available: demo, humanml3d, kit"),
+        (["train-diffusion", "--config", "nope"], "no config 'nope' for m2d2m; available: demo, humanml3d, kit"),
         (["train-diffusion", "--set", "diffusion.knid=uniform"], "no key 'knid' in diffusion"),
         (["tokenize", "--vq", "nope", "--dataset", "zzz"], "no vq run 'nope' for dataset 'zzz'"),
         (["tokenize", "--check", "{tmp}"], "problem(s) against its manifest"),

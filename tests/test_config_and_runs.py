@@ -59,3 +59,35 @@ def test_runs_are_found_by_name_mlflow_id_and_latest_marker(tmp_path, monkeypatc
     assert find_run(first.name, "synthetic", "vq").name == first.name
     with pytest.raises(UserError, match="no vq run 'zzz'"):
         find_run("zzz", "synthetic", "vq")
+
+
+def test_runs_of_the_old_diffusion_stage_still_resolve(tmp_path, monkeypatch):
+    """M2D2M's runs lived under runs/<dataset>/diffusion/ before the model registry named the stage
+    m2d2m: `latest`, a run name and an MLflow id still find them there."""
+    from orchestration.generate import resolve_model_file
+
+    monkeypatch.chdir(tmp_path)
+    old = tmp_path / "runs" / "tiny" / "diffusion" / "20250101-000000-abcd"
+    old.mkdir(parents=True)
+    (old / "run.json").write_text('{"mlflow_run_id": "' + "0" * 32 + '"}', encoding="utf-8")
+    (old / "model.pt").write_bytes(b"")
+    (old.parent / "latest").write_text(old.name + "\n", encoding="utf-8")
+    for reference in ("latest", old.name, "0" * 32):
+        assert resolve_model_file("m2d2m", reference, "tiny").resolve() == (old / "model.pt").resolve()
+
+
+def test_evaluation_settings_recorded_before_the_registry_read_as_m2d2m():
+    from orchestration.evaluate import EvalSettings
+
+    recorded = {"checkpoint": "model.pt", "testset": None, "evaluator": "evaluator.pt", "glove": None, "meta": None,
+                "methods": ["tps"], "ts": 80, "eta": 0.25, "guidance": 2.0, "repeats": 2, "single": False}
+    settings = EvalSettings.from_dict(recorded)
+    assert settings.model == "m2d2m" and settings.options == {"ts": 80, "eta": 0.25, "guidance": 2.0}
+
+
+def test_sweep_configs_written_before_the_registry_still_load():
+    from orchestration.sweep import _upgrade
+
+    config = _upgrade({"kind": "training", "diffusion_config": "demo", "resources": {"cpu": 1, "gpu": 0}})
+    assert config["model"] == "m2d2m" and config["train_config"] == "demo" and "diffusion_config" not in config
+    assert config["resources"]["workers"] == 0

@@ -11,11 +11,11 @@ import sys
 
 import mlflow
 
-from m2d2m.checkpoint import load_checkpoint
+from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
 
 
 def test_two_ddp_ranks_train_one_run(trained_project):
-    runs = trained_project / "runs" / "tiny" / "diffusion"
+    runs = trained_project / "runs" / "tiny" / "m2d2m"
     before = {path for path in runs.iterdir() if path.is_dir()}
     env = {key: value for key, value in os.environ.items() if key != "MLFLOW_TRACKING_URI"}
     command = [sys.executable, "-m", "orchestration.cli", "train-diffusion",
@@ -32,7 +32,7 @@ def test_two_ddp_ranks_train_one_run(trained_project):
     assert (runs / "latest").read_text(encoding="utf-8").strip() == run_dir.name
 
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{trained_project / 'mlflow.db'}")
-    experiment = client.get_experiment_by_name("tiny/diffusion")
+    experiment = client.get_experiment_by_name("tiny/m2d2m")
     (run,) = client.search_runs([experiment.experiment_id], f"attributes.run_name = '{run_dir.name}'")
     assert run.info.run_id == info["mlflow_run_id"] and run.info.status == "FINISHED"
     assert run.data.params["world_size"] == "2" and "val/loss" in run.data.metrics

@@ -7,7 +7,7 @@ import time
 import pytest
 import torch
 
-from m2d2m.denoiser import DenoiserConfig, MotionDenoiser, guided_logits, relative_position_bucket
+from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser, guided_logits, relative_position_bucket
 
 SMALL = DenoiserConfig(codebook_size=16, layers=2, heads=4, width=32, ffn=64, text_dim=24, steps=10,
                        max_distance=16, num_buckets=8)

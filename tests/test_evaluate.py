@@ -12,8 +12,8 @@ import pytest
 
 import tests.test_testset as handmade
 from orchestration.cli import main
-from orchestration.evaluate import MULTI_COLUMNS, SINGLE_COLUMNS
-from orchestration.generate import Generator
+from orchestration.reports import MULTI_COLUMNS, SINGLE_COLUMNS
+from m2d2m.generators.m2d2m import M2D2MGenerator
 from pipelines.testset import build_testset
 
 METHODS = ("tps", "slerp")
@@ -78,7 +78,8 @@ def test_evaluate_logs_every_metric_and_knob_to_mlflow(trained_project, evaluate
                  "single/mmodality_ci"):
         assert name in metrics, name
     assert params["methods"] == "tps,slerp" and params["repeats"] == "2" and params["ts"] == "4"
-    assert params["eta"] == "0.25" and params["guidance"] == "2.0" and params["testset"].endswith("n2-seed0")
+    assert params["sampling"] == "T_s = 4 of T = 8, η = 0.25, s = 2" and params["model"] == "m2d2m"
+    assert params["single_sampling"] == "η = 0.5, s = 4" and params["testset"].endswith("n2-seed0")
     assert params["evaluator"].endswith("evaluator.pt") and params["checkpoint"].endswith("model.pt")
     assert run.data.tags["stage"] == "eval" and run.data.tags["methods"] == "tps,slerp"
     assert run.info.status == "FINISHED"
@@ -87,13 +88,13 @@ def test_evaluate_logs_every_metric_and_knob_to_mlflow(trained_project, evaluate
 
 def test_resume_recomputes_only_missing_results(trained_project, evaluated, monkeypatch):
     calls = []
-    original = Generator.generate_tokens
+    original = M2D2MGenerator.generate
 
     def counting(self, actions, *args, **kwargs):
         calls.append(len(actions))
         return original(self, actions, *args, **kwargs)
 
-    monkeypatch.setattr(Generator, "generate_tokens", counting)
+    monkeypatch.setattr(M2D2MGenerator, "generate", counting)
     results = sorted((evaluated / "results").glob("*.json"))
     before = {path: path.stat().st_mtime_ns for path in results}
     assert main(["evaluate", "--dataset", "tiny", "--resume", evaluated.name]) == 0
@@ -118,12 +119,12 @@ def other_dim_testset(tmp_path_factory) -> Path:
 
 
 @pytest.mark.parametrize("arguments, message", [
-    (["--method", "tps,blend"], "unknown method 'blend'; choose from tps, independent, handshake, slerp"),
+    (["--method", "tps,blend"], "unknown method 'blend' for m2d2m; choose from tps, independent, handshake, slerp"),
     (["--repeats", "0"], "--repeats must be at least 1"),
     (["--testset", "nowhere"], "no test set there; build one with `m2d2m testset`"),
-    (["--testset", "{other}"], "holds 251-d features but the checkpoint works on 263-d ones"),
+    (["--testset", "{other}"], "holds 251-d features but the model works on 263-d ones"),
     (["--evaluator", "no-such-run"], "no evaluator run 'no-such-run'"),
-    (["--checkpoint", "no-such-run"], "no diffusion run 'no-such-run'"),
+    (["--checkpoint", "no-such-run"], "no m2d2m run 'no-such-run'"),
     (["--ts", "9"], "T_s must lie in 0..T = 8"),
     (["--glove", "glove"], "--glove and --meta go with --guo-evaluator"),
     (["--guo-evaluator", "guo"], "--guo-evaluator needs --glove DIR"),
@@ -140,6 +141,6 @@ def test_bad_input_is_one_line_and_exit_2(trained_project, tiny_testset, other_d
 
 def test_a_missing_evaluator_says_what_to_run(trained_project, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)  # a trained_project with no runs
-    model = next((trained_project / "runs" / "tiny" / "diffusion").glob("*/model.pt"))
+    model = next((trained_project / "runs" / "tiny" / "m2d2m").glob("*/model.pt"))
     assert main(["evaluate", "--dataset", "tiny", "--checkpoint", str(model)]) == 2
     assert "run `make train-evaluator` first" in capsys.readouterr().err

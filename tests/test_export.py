@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from m2d2m.export import best_fit_rotation, save_bvh, save_motion_npy
-from m2d2m.skeleton import KIT, T2M, Skeleton
+from m2d2m.motion.export import best_fit_rotation, save_bvh, save_motion_npy
+from m2d2m.motion.skeleton import KIT, T2M, Skeleton
 
 
 @dataclass

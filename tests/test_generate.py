@@ -1,4 +1,4 @@
-"""`m2d2m generate` and the Generator API on a tiny trained checkpoint: files, MLflow, editing,
+"""`m2d2m generate` and M2D2M's generator on a tiny trained checkpoint: files, MLflow, editing,
 every baseline, and a one-line error with exit status 2 for each bad input."""
 
 from pathlib import Path
@@ -9,12 +9,13 @@ import pytest
 import torch
 import yaml
 
-from m2d2m.checkpoint import load_checkpoint
-from m2d2m.motion import Motion
+from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
+from m2d2m.motion.clip import Motion
 from orchestration.cli import main
 from orchestration.errors import UserError
-from orchestration.generate import Generator
-from orchestration.train import train_diffusion, train_vq
+from m2d2m.generators.m2d2m import M2D2MGenerator
+from orchestration.generate import PromptPlanner, edit, generate, load_generator
+from orchestration.train import train_model, train_vq
 from tests.helpers import TINY_DIFFUSION, TINY_VQ_RUN
 
 PROMPTS = ["a person walks forward", "a person jumps", "a person waves their right hand"]
@@ -31,17 +32,17 @@ def trained(tmp_path_factory, tiny_data) -> Path:
         (root / "vq.yaml").write_text(yaml.safe_dump(vq), encoding="utf-8")
         (root / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
         train_vq(str(root / "vq.yaml"))
-        train_diffusion(str(root / "diffusion.yaml"))
+        train_model("m2d2m", str(root / "diffusion.yaml"))
         yield root
 
 
 @pytest.fixture
-def generator(trained) -> Generator:
-    return Generator.from_checkpoint("latest", dataset="tiny")
+def generator(trained) -> M2D2MGenerator:
+    return load_generator("m2d2m", "latest", dataset="tiny")
 
 
 def test_the_checkpoint_is_self_contained(trained, tmp_path):
-    model = next((trained / "runs" / "tiny" / "diffusion").glob("*/model.pt"))
+    model = next((trained / "runs" / "tiny" / "m2d2m").glob("*/model.pt"))
     moved = tmp_path / "elsewhere.pt"
     moved.write_bytes(model.read_bytes())  # no run directory, no vq.pt beside it
     checkpoint = load_checkpoint(moved)
@@ -51,18 +52,18 @@ def test_the_checkpoint_is_self_contained(trained, tmp_path):
 
 
 def test_generate_returns_a_motion_with_one_range_per_action(generator):
-    motion = generator.generate(PROMPTS, seconds=[1.6, 1.2, 2.0], seed=3, ts=4, split=False)
+    motion = generate(generator, PROMPTS, seconds=[1.6, 1.2, 2.0], seed=3, ts=4, split=False)
     assert isinstance(motion, Motion) and motion.fps == 20.0 and generator.checkpoint.frames_per_token == 4
     assert motion.ranges == [(0, 32), (32, 56), (56, 96)] and motion.boundaries == [32, 56]
     assert motion.features.shape == (96, 263) and motion.joints.shape == (96, 22, 3)
     assert motion.tokens.shape == (24,) and motion.actions == PROMPTS
-    again = generator.generate(PROMPTS, seconds=[1.6, 1.2, 2.0], seed=3, ts=4, split=False)
+    again = generate(generator, PROMPTS, seconds=[1.6, 1.2, 2.0], seed=3, ts=4, split=False)
     assert np.array_equal(motion.joints, again.joints)
 
 
 @pytest.mark.parametrize("method", ["tps", "independent", "handshake", "slerp"])
 def test_every_method_gives_a_whole_motion(generator, method):
-    motion = generator.generate(PROMPTS[:2], seconds=[2.0, 2.0], method=method, ts=4, split=False)
+    motion = generate(generator, PROMPTS[:2], seconds=[2.0, 2.0], method=method, ts=4, split=False)
     assert np.isfinite(motion.joints).all() and np.isfinite(motion.features).all()
     assert len(motion.features) == len(motion.joints)
     lengths = [end - first for first, end in motion.ranges]
@@ -73,14 +74,14 @@ def test_every_method_gives_a_whole_motion(generator, method):
 
 
 def test_lengths_default_to_the_corpus_prior(generator):
-    actions, lengths = generator.plan(PROMPTS, split=False)
-    assert actions == PROMPTS and lengths == [generator.checkpoint.lengths.median] * 3
+    actions, frames = PromptPlanner(generator).plan(PROMPTS, split=False)
+    assert actions == PROMPTS and frames == [generator.checkpoint.lengths.median * 4] * 3
 
 
 def test_editing_keeps_the_kept_span(generator):
-    source = generator.generate(PROMPTS[:2], seconds=[2.0, 2.0], ts=4, split=False, seed=1)
-    edited = generator.edit(source, keep=[(0.0, 1.0), (3.6, 4.0)], actions=["a person jumps", "a person sits down"],
-                            ts=4, seed=2)
+    source = generate(generator, PROMPTS[:2], seconds=[2.0, 2.0], ts=4, split=False, seed=1)
+    edited = edit(generator, source, keep=[(0.0, 1.0), (3.6, 4.0)], actions=["a person jumps", "a person sits down"],
+                  ts=4, seed=2)
     vq, normalizer = generator.checkpoint.vq, generator.checkpoint.normalizer
     with torch.no_grad():
         encoded = vq.encode(torch.as_tensor(normalizer.normalize(source.features))[None])[0].numpy()
@@ -116,7 +117,7 @@ def test_the_command_writes_files_and_logs_to_mlflow(trained, capsys, monkeypatc
     (["a person jumps", "--eta", "-1"], "eta must be >= 0"),
     (["a person jumps", "--guidance", "-2"], "guidance scale s must be >= 0"),
     (["a person jumps", "--method", "blend"], "unknown method 'blend'"),
-    (["a person jumps", "--checkpoint", "no-such-run"], "no diffusion run 'no-such-run'"),
+    (["a person jumps", "--checkpoint", "no-such-run"], "no m2d2m run 'no-such-run'"),
     (["a person jumps", "--checkpoint", "vq.yaml"], "vq.yaml is not an m2d2m denoiser checkpoint"),
     (["a", "b", "--seconds", "1", "2", "3"], "one duration per prompt"),
 ])
@@ -130,4 +131,4 @@ def test_bad_input_is_one_line_and_exit_2(trained, capsys, monkeypatch, argument
 def test_a_missing_checkpoint_says_what_to_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     with pytest.raises(UserError, match="make train-diffusion"):
-        Generator.from_checkpoint("latest", dataset="tiny")
+        load_generator("m2d2m", "latest", dataset="tiny")

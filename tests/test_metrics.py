@@ -6,7 +6,7 @@ import torch
 from scipy import linalg
 from scipy.spatial.distance import cdist
 
-from m2d2m.metrics import (
+from m2d2m.evaluation.metrics import (
     dimensionless_jerk,
     diversity,
     fid,

@@ -6,9 +6,9 @@ from __future__ import annotations
 import pytest
 import torch
 
-from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.diffusion import TransitionSchedule
-from m2d2m.sampling import FREE, Request, SamplingOptions, TokenSampler, categorical, length_groups, truncate
+from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.generators.m2d2m_sampling import FREE, Request, SamplingOptions, TokenSampler, categorical, length_groups, truncate
 from m2d2m.text import LearnedTextEncoder
 
 CODES, STEPS = 12, 10
@@ -118,7 +118,7 @@ def test_seeds_matter_and_repeat(sampler):
 def test_eta_and_truncation_change_samples(sampler):
     request = [Request([WALK, JUMP], [8, 8], seed=2)]
     base = flat(run(sampler, request)[0])
-    assert not torch.equal(base, flat(sampler.sample(request, SamplingOptions(ts=6), eta=3.0)[0]))
+    assert not torch.equal(base, flat(sampler.sample(request, SamplingOptions(ts=6, eta=3.0))[0]))
     assert not torch.equal(base, flat(run(sampler, request, truncation=0.3)[0]))
     assert sampler.schedule.config.eta == 0.5  # a sampling-time η never changes the model's schedule
 
@@ -131,7 +131,7 @@ def test_bad_options(sampler, options, message):
     with pytest.raises(ValueError, match=message):
         run(sampler, [Request([WALK], [4])], **options)
     with pytest.raises(ValueError, match="eta"):
-        sampler.sample([Request([WALK], [4])], eta=-0.1)
+        sampler.sample([Request([WALK], [4])], SamplingOptions(eta=-0.1))
 
 
 def test_bad_requests():

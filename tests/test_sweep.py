@@ -7,15 +7,18 @@ from __future__ import annotations
 from pathlib import Path
 
 import mlflow
+import numpy as np
 import pytest
 import yaml
 
 from orchestration.cli import main
-from orchestration.sweep import SUMMARY_JSON, SUMMARY_MD, SUMMARY_PNG, sweep, trial_name
+from orchestration.sweep import SUMMARY_JSON, SUMMARY_MD, summary_plot, sweep, trial_name
+
+SUMMARY_PNG = summary_plot("ts")
 
 
 def sweep_config(testset: Path, **changes) -> dict:
-    return {"dataset": "tiny", "kind": "sampling", "checkpoint": "latest", "diffusion_config": "unused",
+    return {"dataset": "tiny", "kind": "sampling", "model": "m2d2m", "checkpoint": "latest", "train_config": "unused",
             "evaluator": "latest", "testset": str(testset), "method": "tps", "repeats": 1, "search": "grid",
             "samples": 1, "space": {"eta": [0.25], "ts": [2, 4]}, "resources": {"cpu": 1, "gpu": 0},
             "max_concurrent": 2, "max_failures": 1, **changes}
@@ -71,7 +74,7 @@ def test_bad_sweep_configs_are_one_line_errors(trained_project, tiny_testset, ca
 
 def test_a_training_sweep_trains_each_trial_then_evaluates_it(trained_project, tiny_testset, monkeypatch):
     monkeypatch.chdir(trained_project)
-    config = sweep_config(tiny_testset, kind="training", diffusion_config=str(trained_project / "diffusion.yaml"),
+    config = sweep_config(tiny_testset, kind="training", train_config=str(trained_project / "diffusion.yaml"),
                           space={"diffusion.kind": ["uniform", "dynamic"]})
     (trained_project / "ablation.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
     sweep_dir = sweep(str(trained_project / "ablation.yaml"))
@@ -79,7 +82,7 @@ def test_a_training_sweep_trains_each_trial_then_evaluates_it(trained_project, t
     assert [row["diffusion.kind"] for row in summary] == ["dynamic", "uniform"]
     assert all(row["multi/tps/jerk"] is not None for row in summary)
     trained = [yaml.safe_load((run / "run.json").read_text())["config"]["diffusion"]["kind"]
-               for run in (trained_project / "runs" / "tiny" / "diffusion").iterdir() if (run / "run.json").exists()]
+               for run in (trained_project / "runs" / "tiny" / "m2d2m").iterdir() if (run / "run.json").exists()]
     assert trained.count("uniform") == 1 and trained.count("dynamic") >= 2  # the fixture's run, and the trial's
 
 
@@ -87,14 +90,14 @@ def test_a_training_trial_can_train_on_two_ray_train_workers(trained_project, ti
     """Ray Train's TorchTrainer, two CPU workers in DDP (gloo), inside a Tune trial: one run
     trained by both ranks, its model evaluated by the trial."""
     monkeypatch.chdir(trained_project)
-    config = sweep_config(tiny_testset, kind="training", diffusion_config=str(trained_project / "diffusion.yaml"),
+    config = sweep_config(tiny_testset, kind="training", train_config=str(trained_project / "diffusion.yaml"),
                           space={"diffusion.eta": [0.5]}, resources={"cpu": 0.5, "gpu": 0, "workers": 2})
     (trained_project / "workers.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
-    before = set((trained_project / "runs" / "tiny" / "diffusion").iterdir())
+    before = set((trained_project / "runs" / "tiny" / "m2d2m").iterdir())
     sweep_dir = sweep(str(trained_project / "workers.yaml"))
     summary = yaml.safe_load((sweep_dir / SUMMARY_JSON).read_text(encoding="utf-8"))
     assert len(summary) == 1 and summary[0]["multi/tps/jerk"] is not None
-    (new_run,) = set((trained_project / "runs" / "tiny" / "diffusion").iterdir()) - before
+    (new_run,) = set((trained_project / "runs" / "tiny" / "m2d2m").iterdir()) - before
     info = yaml.safe_load((new_run / "run.json").read_text(encoding="utf-8"))
     assert info["status"] == "finished" and info["world_size"] == 2
     assert info["config"]["diffusion"]["eta"] == 0.5 and (new_run / "model.pt").is_file()
@@ -106,3 +109,37 @@ def test_workers_are_for_training_sweeps(trained_project, tiny_testset, capsys, 
     (trained_project / "bad-workers.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
     assert main(["sweep", "--config", str(trained_project / "bad-workers.yaml")]) == 2
     assert "training sweeps only" in capsys.readouterr().err
+
+
+def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sweep(
+        trained_project, tiny_testset, monkeypatch, capsys):
+    """The registry and the generator protocol are all that evaluation and sweeps know of a model:
+    a plugin's playback model (tests/fake_model.py) runs through both unchanged."""
+    from orchestration.registry import load_plugins, models
+    from pipelines.testset import load_testset
+    from tests.fake_model import save_playback
+
+    monkeypatch.chdir(trained_project)
+    monkeypatch.setenv("M2D2M_MODELS", "tests.fake_model")
+    load_plugins()
+    assert "playback" in models()
+    testset = load_testset(tiny_testset)
+    clips = {item.action: testset.features(instance.index, p)
+             for instance in testset for p, item in enumerate(instance.items)}
+    model_file = save_playback(trained_project / "playback.npz", clips)
+
+    assert main(["evaluate", "--model", "playback", "--checkpoint", str(model_file), "--dataset", "tiny",
+                 "--testset", str(tiny_testset), "--repeats", "1"]) == 0
+    assert "ground truth played back from frame 0" in capsys.readouterr().out
+    stage = trained_project / "runs" / "tiny" / "eval"
+    table = yaml.safe_load((stage / (stage / "latest").read_text().strip() / "table.json").read_text())
+    assert table["settings"]["model"] == "playback" and table["settings"]["methods"] == ["concat"]
+    assert all(np.isfinite(summary["mean"]) for summary in table["multi"]["concat"].values())
+
+    config = sweep_config(tiny_testset, model="playback", checkpoint=str(model_file), method="concat",
+                          space={"offset": [0, 3]})
+    (trained_project / "playback.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    summary = yaml.safe_load((sweep(str(trained_project / "playback.yaml")) / SUMMARY_JSON).read_text())
+    assert [row["offset"] for row in summary] == [0, 3]
+    assert summary[0]["multi/concat/fid"] == pytest.approx(table["multi"]["concat"]["fid"]["mean"])
+    assert summary[0]["multi/concat/fid"] != summary[1]["multi/concat/fid"]  # the knob reached the generator

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from m2d2m.normalization import Normalizer
-from m2d2m.skeleton import T2M
-from m2d2m.vqvae import MotionVQVAE, VQConfig, load_vq, save_vq
+from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.skeleton import T2M
+from m2d2m.networks.vqvae import MotionVQVAE, VQConfig, load_vq, save_vq
 from pipelines.features import DataConfig, build_dataset
 from pipelines.shards import ShardWriter, iter_tar_samples, npy_bytes
 from pipelines.tokenize import check_tokens, tokenize_dataset

@@ -10,7 +10,7 @@ import yaml
 
 from orchestration.errors import UserError
 from orchestration.runs import latest_run, read_run_info
-from orchestration.train import train_diffusion, train_vq
+from orchestration.train import train_model, train_vq
 from tests.helpers import TINY_DIFFUSION
 from tests.test_train_vq import KillAt, RecordStart
 
@@ -19,12 +19,12 @@ from tests.test_train_vq import KillAt, RecordStart
 def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, tiny_data):
     (project / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
     with pytest.raises(UserError, match="run `make train-vq` first"):
-        train_diffusion(str(project / "diffusion.yaml"))
+        train_model("m2d2m", str(project / "diffusion.yaml"))
     train_vq(str(project / "tiny.yaml"))
 
-    run_dir = train_diffusion(str(project / "diffusion.yaml"))
+    run_dir = train_model("m2d2m", str(project / "diffusion.yaml"))
     info = read_run_info(run_dir)
-    assert info["status"] == "finished" and latest_run("tiny", "diffusion", "make train-diffusion") == run_dir
+    assert info["status"] == "finished" and latest_run("tiny", "m2d2m", "make train-diffusion") == run_dir
     assert (Path(info["tokens"]) / "manifest.json").exists()
     checkpoint = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=True)
     assert checkpoint["state_dict"]["codebook"].shape == (16, 8)  # the VQ codebook travels with it
@@ -36,13 +36,13 @@ def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, ti
     run = mlflow.get_run(info["mlflow_run_id"])
     for metric in ("train/loss", "train/vlb", "train/aux", "val/loss", "val/token_accuracy"):
         assert metric in run.data.metrics, metric
-    assert run.data.params["diffusion.kind"] == "dynamic" and run.data.tags["stage"] == "diffusion"
+    assert run.data.params["diffusion.kind"] == "dynamic" and run.data.tags["stage"] == "m2d2m"
     samples = mlflow.MlflowClient().list_artifacts(run.info.run_id, "samples")
     assert samples and all(a.path.endswith(".gif") for a in samples)
     model_files = {Path(a.path).name for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, "model")}
     assert {"model.pt", "best.ckpt", "last.ckpt", "config.yaml"} <= model_files
 
-    ablation = train_diffusion(str(project / "diffusion.yaml"), overrides=["diffusion.kind=uniform"])
+    ablation = train_model("m2d2m", str(project / "diffusion.yaml"), overrides=["diffusion.kind=uniform"])
     assert read_run_info(ablation)["config"]["diffusion"]["kind"] == "uniform"
 
 
@@ -50,11 +50,11 @@ def test_resume_after_a_kill_continues_at_the_same_step(project):
     (project / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
     train_vq(str(project / "tiny.yaml"))
     with pytest.raises(RuntimeError, match="killed"):
-        train_diffusion(str(project / "diffusion.yaml"), extra_callbacks=[KillAt(step=3)])
-    run_dir = next((project / "runs" / "tiny" / "diffusion").iterdir())
+        train_model("m2d2m", str(project / "diffusion.yaml"), extra_callbacks=[KillAt(step=3)])
+    run_dir = next((project / "runs" / "tiny" / "m2d2m").iterdir())
     assert torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["global_step"] == 2
     started = RecordStart()
-    resumed = train_diffusion(str(project / "diffusion.yaml"), resume=True, extra_callbacks=[started])
+    resumed = train_model("m2d2m", str(project / "diffusion.yaml"), resume=True, extra_callbacks=[started])
     assert resumed.resolve() == run_dir.resolve() and started.step == 2
     assert read_run_info(run_dir)["status"] == "finished" and (run_dir / "model.pt").exists()
 
@@ -73,8 +73,8 @@ def test_a_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(project):
     (project / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
     train_vq(str(project / "tiny.yaml"))
     with pytest.raises(UserError, match=r"the training loss is nan at step 3.*last good checkpoint"):
-        train_diffusion(str(project / "diffusion.yaml"), extra_callbacks=[PoisonWeightsAt(step=3)])
-    run_dir = next((project / "runs" / "tiny" / "diffusion").iterdir())
+        train_model("m2d2m", str(project / "diffusion.yaml"), extra_callbacks=[PoisonWeightsAt(step=3)])
+    run_dir = next((project / "runs" / "tiny" / "m2d2m").iterdir())
     assert read_run_info(run_dir)["status"] == "failed"
     last = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert last["global_step"] == 2

@@ -8,7 +8,7 @@ import mlflow
 import pytest
 import torch
 
-from m2d2m.vqvae import load_vq
+from m2d2m.networks.vqvae import load_vq
 from orchestration.errors import UserError
 from orchestration.runs import latest_run, read_run_info
 from orchestration.train import train_vq

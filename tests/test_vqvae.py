@@ -10,8 +10,8 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
-from m2d2m.normalization import Normalizer
-from m2d2m.vqvae import EMACodebook, MotionVQVAE, VQConfig, load_vq, save_vq
+from m2d2m.motion.normalization import Normalizer
+from m2d2m.networks.vqvae import EMACodebook, MotionVQVAE, VQConfig, load_vq, save_vq
 
 SMALL = VQConfig(feature_dim=12, width=32, depth=2, code_dim=16, codebook_size=32)
 

@@ -5,14 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 import lightning.pytorch as pl
-import torch
 from lightning.pytorch.loggers import MLFlowLogger
 
-from m2d2m.render import render_comparison, render_motion
-from m2d2m.representation import features_to_joints
-from m2d2m.sampling import Request, SamplingOptions
-from m2d2m.skeleton import SKELETONS
-from m2d2m.vqvae import load_vq
+from m2d2m.motion.render import render_comparison, render_motion
+from m2d2m.motion.representation import features_to_joints
+from m2d2m.generators.m2d2m import decode_tokens
+from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions
+from m2d2m.motion.skeleton import SKELETONS
+from m2d2m.networks.vqvae import load_vq
 
 
 class ReconstructionPreview(pl.Callback):
@@ -64,9 +64,7 @@ class SamplePreview(pl.Callback):
                     for prompt, s in zip(self.prompts, self.seconds)]
         sampled = module.sampler().sample(requests, SamplingOptions(guidance=self.guidance, ts=0))
         for n, (prompt, (tokens,)) in enumerate(zip(self.prompts, sampled)):
-            with torch.no_grad():
-                features = vq.decode(tokens[None].cpu())[0].numpy()
-            joints = features_to_joints(normalizer.denormalize(features), skeleton)
+            joints = features_to_joints(decode_tokens(vq, normalizer, tokens), skeleton)
             path = render_motion(joints, self.directory / f"step-{trainer.global_step:07d}-{n}.gif",
                                  skeleton=skeleton, title=prompt, size=240)
             if isinstance(trainer.logger, MLFlowLogger):

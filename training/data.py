@@ -1,8 +1,9 @@
-"""WebDataset DataModules that feed the models from a processed dataset (DESIGN.md, data contract).
+"""WebDataset DataModules that feed the models from a processed dataset (docs/data.md, the processed dataset).
 
 Training streams resampled shards split by rank and worker and cuts every epoch to the same number
-of batches, so no DDP rank waits on another (``reference/ecosystem.md`` §3); validation and test
-read each clip once, in shard order, the ranks sharing them clip by clip. The shards, ``stats.npz``
+of batches, so no DDP rank waits on another (webdataset's multi-node recipe,
+webdataset.github.io/webdataset/multinode/); validation and test read each clip once, in shard
+order, the ranks sharing them clip by clip. The shards, ``stats.npz``
 and the manifest are all this shares with the pipelines that wrote them (through ``m2d2m.layout``).
 Two feeds: motion windows for the VQ-VAE, and captioned token sequences for the denoiser.
 """
@@ -23,9 +24,9 @@ import torch
 import webdataset as wds
 from lightning.pytorch.utilities import rank_zero_info
 
-from m2d2m.checkpoint import LengthPrior
+from m2d2m.generators.m2d2m_checkpoint import LengthPrior
 from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls
-from m2d2m.normalization import Normalizer
+from m2d2m.motion.normalization import Normalizer
 
 Sample = dict[str, Any]
 # A token set's manifest kind and model file, as ``pipelines/tokenize.py`` writes them (no import across).
@@ -176,38 +177,31 @@ def split_pass(urls: list[str], sizes: list[int], trainer: pl.Trainer | None, pr
     return wds.WebLoader(dataset, batch_size=None, num_workers=num_workers)
 
 
-class FeatureShardDataModule(pl.LightningDataModule):
-    """What the DataModules over a processed dataset's feature shards share: the manifest and
-    normalisation, a resampled training stream cut to ``steps_per_epoch`` batches on every rank,
-    and one pass over each clip for validation and test. Subclasses say how a clip becomes a
-    training sample (:meth:`_train_sample`) and an evaluation sample (:meth:`_eval_sample`)."""
+class ShardDataModule(pl.LightningDataModule):
+    """What the DataModules over a directory of manifest-listed shards share: a resampled training
+    stream cut to ``steps_per_epoch`` batches on every rank, and one pass over each clip for
+    validation and test, shared among the ranks. Subclasses read the manifest (``self.manifest``)
+    and say where a split's shards are (:meth:`urls`) and how a clip becomes a training sample
+    (:meth:`_train_sample`) and an evaluation sample (:meth:`_eval_sample`)."""
 
-    def __init__(self, data_dir: str | Path, batch_size: int, num_workers: int, steps_per_epoch: int | None,
-                 val_batch_size: int, shuffle_buffer: int, seed: int) -> None:
+    manifest: dict[str, Any]
+
+    def __init__(self, batch_size: int, num_workers: int, steps_per_epoch: int | None, val_batch_size: int,
+                 shuffle_buffer: int, seed: int) -> None:
         super().__init__()
         require_positive(batch_size=batch_size, val_batch_size=val_batch_size,
                          steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch)
-        self.data_dir = Path(data_dir).resolve()
-        self.manifest = read_manifest(self.data_dir)
-        stats = self.data_dir / STATS
-        if not stats.exists():
-            raise FileNotFoundError(f"{stats}: missing; the dataset is incomplete (rebuild it with `m2d2m data`)")
-        self.normalizer = Normalizer.load(stats)
         self.batch_size, self.num_workers, self.val_batch_size = batch_size, num_workers, val_batch_size
         self.shuffle_buffer, self.seed = shuffle_buffer, seed
         self._steps_per_epoch = steps_per_epoch
 
-    @property
-    def feature_dim(self) -> int:
-        return int(self.manifest["feature_dim"])
+    def urls(self, split: str) -> list[str]:
+        """Absolute paths of a split's shards."""
+        raise NotImplementedError
 
-    @property
-    def fps(self) -> float:
-        return float(self.manifest["fps"])
-
-    @property
-    def skeleton(self) -> str:
-        return str(self.manifest["skeleton"])
+    def _sizes(self, split: str) -> list[int]:
+        """Clips per shard of a split, from the manifest."""
+        return [shard["samples"] for shard in self.manifest["shards"][split]]
 
     @property
     def train_clips(self) -> int:
@@ -233,8 +227,8 @@ class FeatureShardDataModule(pl.LightningDataModule):
 
     def train_dataloader(self) -> wds.WebLoader:
         prepare, collate = self._train_sample(rank_and_world_size(self.trainer)[0])
-        return resampled_batches(shard_urls(self.data_dir, "train"), prepare, collate, self.batch_size,
-                                 self.steps_per_epoch, self.shuffle_buffer, self.num_workers, self.seed)
+        return resampled_batches(self.urls("train"), prepare, collate, self.batch_size, self.steps_per_epoch,
+                                 self.shuffle_buffer, self.num_workers, self.seed)
 
     def val_dataloader(self) -> wds.WebLoader:
         return self._one_pass("val")
@@ -243,10 +237,39 @@ class FeatureShardDataModule(pl.LightningDataModule):
         return self._one_pass("test")
 
     def _one_pass(self, split: str) -> wds.WebLoader:
-        sizes = [shard["samples"] for shard in self.manifest["shards"][split]]
         prepare, collate = self._eval_sample()
-        return split_pass(shard_urls(self.data_dir, split), sizes, self.trainer, prepare, collate,
+        return split_pass(self.urls(split), self._sizes(split), self.trainer, prepare, collate,
                           self.val_batch_size, self.num_workers)
+
+
+class FeatureShardDataModule(ShardDataModule):
+    """A processed dataset's feature shards (docs/data.md) with their manifest and normalisation,
+    for the DataModules of motion windows and of caption/motion pairs."""
+
+    def __init__(self, data_dir: str | Path, batch_size: int, num_workers: int, steps_per_epoch: int | None,
+                 val_batch_size: int, shuffle_buffer: int, seed: int) -> None:
+        super().__init__(batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed)
+        self.data_dir = Path(data_dir).resolve()
+        self.manifest = read_manifest(self.data_dir)
+        stats = self.data_dir / STATS
+        if not stats.exists():
+            raise FileNotFoundError(f"{stats}: missing; the dataset is incomplete (rebuild it with `m2d2m data`)")
+        self.normalizer = Normalizer.load(stats)
+
+    @property
+    def feature_dim(self) -> int:
+        return int(self.manifest["feature_dim"])
+
+    @property
+    def fps(self) -> float:
+        return float(self.manifest["fps"])
+
+    @property
+    def skeleton(self) -> str:
+        return str(self.manifest["skeleton"])
+
+    def urls(self, split: str) -> list[str]:
+        return shard_urls(self.data_dir, split)
 
 
 class MotionWindowDataModule(FeatureShardDataModule):
@@ -272,7 +295,7 @@ class MotionWindowDataModule(FeatureShardDataModule):
     def _train_counts(self) -> tuple[int, int]:
         """(usable, too short) train clips, counted once; reports the skipped ones, and refuses a
         window no clip fills (the resampled stream would then never yield a batch)."""
-        lengths = clip_lengths(shard_urls(self.data_dir, "train"))
+        lengths = clip_lengths(self.urls("train"))
         too_short = sum(length < self.window for length in lengths)
         if too_short == len(lengths):
             raise ValueError(f"{self.data_dir}: none of the {len(lengths)} train clips has {self.window} frames; "
@@ -389,7 +412,7 @@ def read_token_manifest(tokens_dir: Path) -> dict[str, Any]:
     return manifest
 
 
-class TokenDataModule(pl.LightningDataModule):
+class TokenDataModule(ShardDataModule):
     """Captioned VQ token sequences (``data/<name>/tokens/<vq-run>/``) for the discrete-diffusion
     denoiser: in training, one random caption per clip and epoch with its segment of the tokens;
     in validation and test, every clip once with its first caption."""
@@ -405,15 +428,11 @@ class TokenDataModule(pl.LightningDataModule):
         max_tokens: int | None = None,
         seed: int = 0,
     ) -> None:
-        super().__init__()
-        require_positive(batch_size=batch_size, val_batch_size=val_batch_size,
-                         steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch,
-                         max_tokens=1 if max_tokens is None else max_tokens)
+        super().__init__(batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed)
+        require_positive(max_tokens=1 if max_tokens is None else max_tokens)
         self.tokens_dir = Path(tokens_dir).resolve()
         self.manifest = read_token_manifest(self.tokens_dir)
-        self.batch_size, self.num_workers, self.val_batch_size = batch_size, num_workers, val_batch_size
-        self.shuffle_buffer, self.max_tokens, self.seed = shuffle_buffer, max_tokens, seed
-        self._steps_per_epoch = steps_per_epoch
+        self.max_tokens = max_tokens
 
     @property
     def codebook_size(self) -> int:
@@ -432,9 +451,6 @@ class TokenDataModule(pl.LightningDataModule):
     def urls(self, split: str) -> list[str]:
         """A split's token shards, which sit in the token directory itself (no ``shards/``)."""
         return [str(self.tokens_dir / shard["name"]) for shard in self.manifest["shards"][split]]
-
-    def _sizes(self, split: str) -> list[int]:
-        return [shard["samples"] for shard in self.manifest["shards"][split]]
 
     @cached_property
     def _train_captions(self) -> tuple[float, int, int]:
@@ -463,32 +479,16 @@ class TokenDataModule(pl.LightningDataModule):
 
     @property
     def train_clips(self) -> int:
+        """Every train clip: each has a caption to train on."""
         return sum(self._sizes("train"))
 
-    @property
-    def steps_per_epoch(self) -> int:
-        """Batches per epoch on every rank: as given, else one pass over the train clips shared
-        among the ranks (at least one)."""
-        if self._steps_per_epoch is not None:
-            return self._steps_per_epoch
-        return max(1, self.train_clips // (self.batch_size * rank_and_world_size(self.trainer)[1]))
-
-    def train_dataloader(self) -> wds.WebLoader:
+    def _train_sample(self, rank: int):
+        """Also reports, each time a train loader is made, the captions whose segment is empty."""
         _, captions, empty = self._train_captions
         if empty:
             rank_zero_info(f"{self.tokens_dir}: {empty} of {captions} train captions have a start/end segment "
                            "with no tokens of their clip; they train on the whole clip")
-        sampler = CaptionSampler(self.frames_per_token, self.max_tokens, self.seed, rank_and_world_size(self.trainer)[0])
-        return resampled_batches(self.urls("train"), sampler, collate_captioned_tokens, self.batch_size,
-                                 self.steps_per_epoch, self.shuffle_buffer, self.num_workers, self.seed)
+        return CaptionSampler(self.frames_per_token, self.max_tokens, self.seed, rank), collate_captioned_tokens
 
-    def val_dataloader(self) -> wds.WebLoader:
-        return self._first_captions("val")
-
-    def test_dataloader(self) -> wds.WebLoader:
-        return self._first_captions("test")
-
-    def _first_captions(self, split: str) -> wds.WebLoader:
-        return split_pass(self.urls(split), self._sizes(split), self.trainer,
-                          partial(first_caption_tokens, frames_per_token=self.frames_per_token),
-                          collate_captioned_tokens, self.val_batch_size, self.num_workers)
+    def _eval_sample(self):
+        return partial(first_caption_tokens, frames_per_token=self.frames_per_token), collate_captioned_tokens

@@ -1,5 +1,5 @@
 """The text–motion evaluator as a LightningModule, and the DataModule of caption/motion pairs it
-trains on (``reference/anchors.md`` §7.3: Guo's ``Text2MotionDatasetV2`` and matching trainer).
+trains on (Guo et al.'s ``Text2MotionDatasetV2`` and matching trainer: EricGuo5513/text-to-motion, ``data/dataset.py`` and ``networks/trainers.py``).
 
 Pairs follow Guo's loader: a clip's caption is drawn afresh each time the clip is seen; a caption
 with a start/end segment pairs with that segment of the clip; only pairs of at least ``min_frames``
@@ -23,11 +23,11 @@ import numpy as np
 import torch
 from lightning.pytorch.utilities import rank_zero_info
 
-from m2d2m.evaluator import UNIT_LENGTH, EvaluatorConfig, TextMotionEvaluator, contrastive_loss
-from m2d2m.layout import shard_urls
-from m2d2m.normalization import Normalizer
+from m2d2m.evaluation.evaluator import UNIT_LENGTH, EvaluatorConfig, TextMotionEvaluator, contrastive_loss
+from m2d2m.motion.normalization import Normalizer
 from training.data import (FeatureShardDataModule, Sample, caption_span, clip_metas, pad_clips, random_window,
                            worker_generator)
+from training.optim import configure_adamw
 from training.vq_module import NonFiniteLossError
 
 SHORTER_UNIT_CHANCE = 1 / 3  # Guo's "double" coin: one 4-frame unit less
@@ -117,7 +117,7 @@ class CaptionMotionDataModule(FeatureShardDataModule):
         once from the clips' ``meta.json``; refuses a split where no clip has one (the resampled
         stream would never yield a batch)."""
         captions, usable, clips = [], 0, 0
-        for meta in clip_metas(shard_urls(self.data_dir, "train")):
+        for meta in clip_metas(self.urls("train")):
             clips += 1
             captions += [list(caption["tokens"]) for caption in meta["captions"]]
             usable += bool(usable_spans(meta, meta["frames"], self.min_frames))
@@ -195,7 +195,6 @@ class EvaluatorModule(pl.LightningModule):
         self.log("val/top1", top1, batch_size=batch_size, sync_dist=True, prog_bar=True)
         self.log("val/matching_score", distances.diagonal().mean(), batch_size=batch_size, sync_dist=True)
 
-    def configure_optimizers(self) -> torch.optim.Optimizer:
-        optim = self.hparams.optim
-        return torch.optim.AdamW([p for p in self.parameters() if p.requires_grad], lr=optim["lr"],
-                                 betas=tuple(optim["betas"]), weight_decay=optim["weight_decay"])
+    def configure_optimizers(self) -> dict[str, Any]:
+        # Guo trains at a constant rate: no schedule
+        return configure_adamw(self.parameters(), self.hparams.optim, scheduled=False)

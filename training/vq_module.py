@@ -10,26 +10,16 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from m2d2m.normalization import Normalizer
-from m2d2m.representation import features_to_joints
-from m2d2m.skeleton import SKELETONS
-from m2d2m.vqvae import MotionVQVAE, VQConfig
+from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.skeleton import SKELETONS
+from m2d2m.networks.vqvae import MotionVQVAE, VQConfig
+from training.optim import configure_adamw
 
 
 class NonFiniteLossError(FloatingPointError):
     """The loss became NaN or infinite; raised before the optimiser step, so the weights and the
     last checkpoint on disk are still the last good ones."""
-
-
-def warmup_step_decay(warmup_steps: int, milestones: list[int], gamma: float):
-    """Learning-rate factor of step s: linear warm-up to 1, then × gamma at each milestone."""
-
-    def factor(step: int) -> float:
-        if step < warmup_steps:
-            return (step + 1) / (warmup_steps + 1)
-        return gamma ** sum(step >= m for m in milestones)
-
-    return factor
 
 
 class VQVAEModule(pl.LightningModule):
@@ -104,11 +94,6 @@ class VQVAEModule(pl.LightningModule):
             self.log("val/active_codes", float(used), sync_dist=True)
         self._val_codes.clear()
 
-    def configure_optimizers(self):
-        optim = self.hparams.optim
-        optimizer = torch.optim.AdamW(self.parameters(), lr=optim["lr"], betas=tuple(optim["betas"]),
-                                      weight_decay=optim["weight_decay"])
-        schedule = torch.optim.lr_scheduler.LambdaLR(
-            optimizer, warmup_step_decay(optim["warmup_steps"], list(optim["milestones"]), optim["gamma"])
-        )
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+    def configure_optimizers(self) -> dict[str, Any]:
+        # T2M-GPT decays every weight alike: one parameter group
+        return configure_adamw(self.parameters(), self.hparams.optim)

@@ -1,4 +1,4 @@
-"""The motion VQ-VAE of T2M-GPT (``reference/anchors.md`` §1), re-implemented device-agnostically.
+"""The motion VQ-VAE of T2M-GPT (Zhang et al. 2023; Mael-zys/T2M-GPT, ``models/vqvae.py``, ``models/encdec.py``, ``models/quantize_cnn.py``), re-implemented device-agnostically.
 
 Features ``(B, T, D)`` are encoded by a strided 1-D convolution stack into one latent per
 ``2**down_t`` frames, each latent is replaced by its nearest code in an EMA codebook with dead-code
@@ -16,7 +16,7 @@ codebook.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from m2d2m.model_files import cpu_state, read_model_file, write_model_file
-from m2d2m.normalization import Normalizer
+from m2d2m.networks.config import NetworkConfig
+from m2d2m.motion.normalization import Normalizer
 
 FORMAT = "m2d2m-vq/1"
 
@@ -35,7 +36,7 @@ _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "silu": nn.SiLU, "g
 
 
 @dataclass(frozen=True)
-class VQConfig:
+class VQConfig(NetworkConfig):
     """Architecture of the VQ-VAE; the defaults are T2M-GPT's published ones (HumanML3D, 263-d)."""
 
     feature_dim: int = 263
@@ -49,27 +50,13 @@ class VQConfig:
     activation: str = "relu"
 
     def __post_init__(self) -> None:
-        for name in ("feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"VQConfig.{name} must be a positive integer, got {getattr(self, name)!r}")
+        self.require_positive("feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size")
         if not isinstance(self.down_t, int) or self.down_t < 0:
             raise ValueError(f"VQConfig.down_t must be a non-negative integer, got {self.down_t!r}")
-        if not 0.0 < self.ema_decay < 1.0:
-            raise ValueError(f"VQConfig.ema_decay must lie in (0, 1), got {self.ema_decay!r}")
+        self.require_fraction("ema_decay", open_low=True)
         if self.activation not in _ACTIVATIONS:
             raise ValueError(f"VQConfig.activation must be one of {sorted(_ACTIVATIONS)}, "
                              f"got {self.activation!r}")
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "VQConfig":
-        """Build from a config mapping; unknown keys are an error so a typo never goes unnoticed."""
-        unknown = sorted(set(values) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ValueError(f"unknown VQConfig keys: {', '.join(unknown)}")
-        return cls(**values)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from functools import cached_property
 
 import numpy as np
 
-from m2d2m.rotations import dot, normalize, qbetween, qinv, qmul, qrot
+from m2d2m.motion.rotations import dot, normalize, qbetween, qinv, qmul, qrot
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,4 +1,4 @@
-"""Transition matrices of M2D2M's discrete diffusion (paper §3 and §4.2, ``reference/anchors.md`` §2.2–2.4, §2.8).
+"""Transition matrices of M2D2M's discrete diffusion (paper §3 and §4.2; schedule and posterior after microsoft/VQ-Diffusion, ``diffusion_transformer.py``).
 
 Tokens are the K codes of the frozen VQ codebook plus a mask token at index K. One forward step keeps
 a code (α_t), masks it (γ_t) or replaces it, the replace mass 1 − α_t − γ_t being spread evenly over
@@ -26,7 +26,7 @@ KINDS = ("uniform", "dynamic")
 DISTANCES = ("l2_rank", "l2", "cosine", "cosine_rank")
 # schedule name -> (ᾱ_T, γ̄_T); both start at ᾱ_1 = 0.99999, γ̄_1 = 0.000009.
 SCHEDULES: dict[str, tuple[float, float]] = {
-    "linear": (0.000009, 0.9),  # ours: cumulative replace mass grows to 0.1 (DESIGN.md)
+    "linear": (0.000009, 0.9),  # ours: cumulative replace mass grows to 0.1 (docs/training.md)
     "absorbing": (0.000009, 0.99999),  # VQ-Diffusion's released endpoints: in effect pure masking
 }
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from m2d2m.skeleton import Skeleton
+from m2d2m.motion.skeleton import Skeleton
 
 DEFAULT_FEAT_BIAS = 5.0
 

@@ -1,4 +1,4 @@
-"""Joining separately generated motions: the SLERP baseline of TEACH (``reference/anchors.md`` §6.2)
+"""Joining separately generated motions: the SLERP baseline of TEACH (Athanasiou et al. 2022; athn-nik/teach, its SLERP baseline)
 on joint positions.
 
 Each motion after the first is turned about the vertical axis so that its first frame faces where
@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from m2d2m.representation import facing_direction
-from m2d2m.rotations import qbetween, qinv, qrot, qslerp, quat_from_axis_angle
-from m2d2m.skeleton import Skeleton
+from m2d2m.motion.representation import facing_direction
+from m2d2m.motion.rotations import qbetween, qinv, qrot, qslerp, quat_from_axis_angle
+from m2d2m.motion.skeleton import Skeleton
 
 _UP = np.array([0.0, 1.0, 0.0])
 _FORWARD = np.array([0.0, 0.0, 1.0])

@@ -1,6 +1,6 @@
-"""Brute-force checks of the discrete diffusion (m2d2m/diffusion) on a small codebook.
+"""Brute-force checks of the discrete diffusion (m2d2m/processes/discrete_diffusion.py) on a small codebook.
 
-Everything is rebuilt here with plain Python loops straight from the definitions (DESIGN.md
+Everything is rebuilt here with plain Python loops straight from the definitions (docs/training.md
 "Diffusion", paper Eq. 7–8) and compared with the vectorised implementation.
 """
 
@@ -12,7 +12,8 @@ import math
 import pytest
 import torch
 
-from m2d2m.diffusion import TimestepSampler, TransitionSchedule, diffusion_loss
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.processes.discrete_diffusion_loss import TimestepSampler, diffusion_loss
 
 K = 6
 T = 5

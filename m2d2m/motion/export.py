@@ -18,8 +18,8 @@ from typing import Literal, TextIO
 
 import numpy as np
 
-from m2d2m.rotations import matrix_to_euler, qbetween, quat_to_matrix
-from m2d2m.skeleton import T2M, Skeleton
+from m2d2m.motion.rotations import matrix_to_euler, qbetween, quat_to_matrix
+from m2d2m.motion.skeleton import T2M, Skeleton
 
 EULER_ORDER = "ZYX"  # BVH channels Zrotation Yrotation Xrotation: R = Rz · Ry · Rx
 _UNITS = {"t2m": "metre", "kit": "KIT-ML units (about 640 per metre)"}

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.export import save_bvh, save_motion_npy
-from m2d2m.render import render_motion
-from m2d2m.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.export import save_bvh, save_motion_npy
+from m2d2m.motion.render import render_motion
+from m2d2m.motion.skeleton import SKELETONS, Skeleton
 
 FORMATS = ("npy", "bvh", "gif", "mp4")
 

@@ -3,23 +3,36 @@ condition (classifier-free guidance by condition dropout) and deterministic vali
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, NamedTuple
 
 import lightning.pytorch as pl
 import numpy as np
 import torch
 
-from m2d2m.checkpoint import schedule_from_config
-from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.diffusion import TimestepSampler, TransitionSchedule, diffusion_loss
-from m2d2m.sampling import TokenSampler
+from m2d2m.generators.m2d2m_checkpoint import schedule_from_config
+from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
+from m2d2m.generators.m2d2m_sampling import TokenSampler
 from m2d2m.text import build_text_encoder, encode_actions
-from training.vq_module import NonFiniteLossError, warmup_step_decay
+from training.optim import configure_adamw
+from training.vq_module import NonFiniteLossError
 
 T_BUCKETS = 4
 
 
-class DiffusionModule(pl.LightningModule):
+class Denoised(NamedTuple):
+    """One noising and denoising pass over a batch: the clean and corrupted tokens, where they are
+    real, the denoiser's logits and the loss terms."""
+
+    z0: torch.Tensor
+    valid: torch.Tensor
+    z_t: torch.Tensor
+    logits: torch.Tensor
+    loss: DiffusionLoss
+
+
+class M2D2MModule(pl.LightningModule):
     """L_vlb + λ·aux on tokens of the frozen VQ codebook, AdamW with warm-up and step decay.
 
     The codebook is a buffer (not a hyper-parameter), so a checkpoint carries it and the transition
@@ -84,17 +97,29 @@ class DiffusionModule(pl.LightningModule):
         text, text_mask = encode_actions(self.text_encoder, actions)
         return text.to(self.codebook.device), text_mask.to(self.codebook.device)
 
-    def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
+    def _denoise(self, batch: dict[str, Any], t: torch.Tensor, generator: torch.Generator | None = None,
+                 drop_condition: bool = False, pt: torch.Tensor | None = None) -> Denoised:
+        """Corrupt the batch's tokens to z_t ~ q(z_t | z0) at ``t`` (padding becomes the mask), denoise
+        them under the text condition — dropped at the denoiser's rate when ``drop_condition``, for
+        classifier-free guidance — and score the logits. Training and validation differ only in
+        where t and the noise come from, so both go through here."""
         schedule = self.schedule_on_device()
         z0, valid = batch["tokens"].long(), batch["padding_mask"].bool()
-        batch_size = z0.shape[0]
-        t, pt = self.timesteps.sample(batch_size)
-        t, pt = t.to(z0.device), pt.to(z0.device)
-        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None]).masked_fill(~valid, schedule.mask_index)
+        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None], generator=generator)
+        z_t = z_t.masked_fill(~valid, schedule.mask_index)
         text, text_mask = self._condition(batch["actions"])
-        text, text_mask = self.denoiser.drop_condition(text, text_mask, self.denoiser.config.condition_drop)
+        if drop_condition:
+            text, text_mask = self.denoiser.drop_condition(text, text_mask, self.denoiser.config.condition_drop)
         logits = self.denoiser(z_t, valid, t, text, text_mask)
-        out = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt)
+        loss = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt)
+        return Denoised(z0, valid, z_t, logits, loss)
+
+    def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
+        tokens = batch["tokens"]
+        batch_size = tokens.shape[0]
+        t, pt = self.timesteps.sample(batch_size)
+        t, pt = t.to(tokens.device), pt.to(tokens.device)
+        out = self._denoise(batch, t, drop_condition=True, pt=pt).loss
         if not torch.isfinite(out.loss):
             raise NonFiniteLossError(f"the training loss is {out.loss.item()} at step {self.global_step}")
         self.log("train/loss", out.loss, batch_size=batch_size, prog_bar=True)
@@ -112,38 +137,23 @@ class DiffusionModule(pl.LightningModule):
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
         """A fixed t and z_t per row, drawn from a generator seeded with ``batch_idx``: every
         validation pass scores the same noisy inputs, so the numbers are comparable across steps."""
-        schedule = self.schedule_on_device()
-        z0, valid = batch["tokens"].long(), batch["padding_mask"].bool()
-        batch_size = z0.shape[0]
-        generator = torch.Generator(device=z0.device).manual_seed(int(batch_idx))
-        t = torch.randint(1, self.steps + 1, (batch_size,), generator=generator, device=z0.device)
-        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None], generator=generator)
-        z_t = z_t.masked_fill(~valid, schedule.mask_index)
-        text, text_mask = self._condition(batch["actions"])
-        logits = self.denoiser(z_t, valid, t, text, text_mask)
-        out = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight)
+        tokens = batch["tokens"]
+        batch_size = tokens.shape[0]
+        generator = torch.Generator(device=tokens.device).manual_seed(int(batch_idx))
+        t = torch.randint(1, self.steps + 1, (batch_size,), generator=generator, device=tokens.device)
+        z0, valid, z_t, logits, out = self._denoise(batch, t, generator=generator)
         self.log("val/loss", out.loss, batch_size=batch_size, sync_dist=True, prog_bar=True)
         self.log("val/vlb", out.vlb.mean(), batch_size=batch_size, sync_dist=True)
         # accuracy on the positions the model has to restore: masked or replaced ones
-        corrupted = valid & ((z_t == schedule.mask_index) | (z_t != z0))
+        corrupted = valid & ((z_t == self.schedule.mask_index) | (z_t != z0))
         total = int(corrupted.sum())
         if total:
             correct = ((logits.argmax(dim=-1) == z0) & corrupted).sum().float()
             self.log("val/token_accuracy", correct / total, batch_size=total, sync_dist=True, prog_bar=True)
 
-    def configure_optimizers(self):
-        optim = self.hparams.optim
-        params = [p for p in [*self.denoiser.parameters(), *self.text_encoder.parameters()] if p.requires_grad]
-        decay = [p for p in params if p.ndim >= 2]
-        no_decay = [p for p in params if p.ndim < 2]
-        optimizer = torch.optim.AdamW(
-            [{"params": decay, "weight_decay": optim.get("weight_decay", 0.0)},
-             {"params": no_decay, "weight_decay": 0.0}],
-            lr=optim["lr"], betas=tuple(optim.get("betas", (0.9, 0.999))))
-        schedule = torch.optim.lr_scheduler.LambdaLR(
-            optimizer, warmup_step_decay(optim.get("warmup_steps", 0), list(optim.get("milestones", [])),
-                                         optim.get("gamma", 1.0)))
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}
+    def configure_optimizers(self) -> dict[str, Any]:
+        return configure_adamw([*self.denoiser.parameters(), *self.text_encoder.parameters()], self.hparams.optim,
+                               decay_matrices_only=True)
 
     # ----------------------------------------------------------------------------------- sampling
     def sampler(self) -> TokenSampler:

@@ -25,7 +25,8 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 from PIL import Image
 
-from m2d2m.skeleton import T2M, Skeleton
+from m2d2m.motion.skeleton import T2M, Skeleton
+from m2d2m.motion.smoothing import gaussian_smooth
 
 Segment = tuple[int, int, str]
 
@@ -181,17 +182,6 @@ def _nice_step(x: float) -> float:
     return float(magnitude * max(s for s in (1.0, 2.0, 5.0) if s * magnitude <= x))
 
 
-def _smooth(x: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian smoothing along axis 0 with edge padding (the camera's follow path)."""
-    if sigma <= 0 or len(x) < 2:
-        return x.copy()
-    radius = int(3 * sigma)
-    kernel = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
-    kernel /= kernel.sum()
-    padded = np.pad(x, ((radius, radius), (0, 0)), mode="edge")
-    return np.stack([np.convolve(padded[:, i], kernel, mode="valid") for i in range(x.shape[1])], 1)
-
-
 class _View:
     """Camera and scene geometry of one clip: a perspective camera with fixed orientation that
     looks at the smoothed root, and axis limits that contain the figure in every frame."""
@@ -217,7 +207,7 @@ class _View:
 
         if follow is None:
             centre_y = 0.5 * (min(joints[..., 1].min(), 0.0) + joints[..., 1].max())
-            root = _smooth(joints[:, 0, [0, 2]], _FOLLOW_SIGMA_S * fps)
+            root = gaussian_smooth(joints[:, 0, [0, 2]], _FOLLOW_SIGMA_S * fps, truncate=3.0)
             follow = np.stack([root[:, 0], np.full(len(joints), centre_y), root[:, 1]], 1)
         self.target = follow
 

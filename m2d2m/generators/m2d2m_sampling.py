@@ -13,7 +13,7 @@ are laid out as rows:
 - ``handshake``: one row per action, each action after the first extended by H tokens that it shares
   with the end of the previous one; at every step the overlapping x0 probabilities are blended
   with a linear ramp and the drawn tokens copied, so neighbours share one transition (DoubleTake's
-  first take, ``reference/anchors.md`` §6.1, in token space).
+  first take, priorMDM/priorMDM ``sample/double_take.py``, in token space).
 - ``slerp``: one row per action, every action after the first shortened by the transition window;
   the motion-level gap filling is :func:`m2d2m.transitions.bridge` (TEACH, §6.2).
 
@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from m2d2m.denoiser import MotionDenoiser, guided_logits
-from m2d2m.diffusion import TransitionSchedule
+from m2d2m.networks.m2d2m_denoiser import MotionDenoiser, guided_logits
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import TextEncoder, encode_actions
 
 METHODS = ("tps", "independent", "handshake", "slerp")
@@ -45,10 +45,12 @@ FREE = -1  # a position of ``Request.given`` that the sampler fills
 
 @dataclass(frozen=True)
 class SamplingOptions:
-    """Knobs of the reverse process; the defaults are the paper's multi-action settings."""
+    """Knobs of the reverse process. :data:`MULTI_ACTION` and :data:`SINGLE_ACTION` are the paper's
+    settings (§5.1); the bare defaults sample with the η the model was trained with."""
 
     method: str = "tps"
     ts: int | None = None  # TPS switch: joint for t > ts, independent for t <= ts; None = 0.9·T (90 of 100)
+    eta: float | None = None  # η of the dynamic transition at sampling; None = the η it was trained with
     guidance: float = 2.0  # classifier-free guidance scale s
     truncation: float = 1.0  # keep the most probable codes holding this much x0 mass (1 = off)
     handshake: int = 5  # shared tokens between neighbours (``handshake``); 5 tokens = 20 frames
@@ -60,12 +62,19 @@ class SamplingOptions:
             raise ValueError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
         if self.method == "tps" and self.ts is not None and not 0 <= self.ts <= steps:
             raise ValueError(f"T_s must lie in 0..T = {steps}, got {self.ts}")
+        if self.eta is not None and self.eta < 0:
+            raise ValueError(f"eta must be >= 0, got {self.eta}")
         if self.guidance < 0:
             raise ValueError(f"guidance scale s must be >= 0, got {self.guidance}")
         if not 0.0 < self.truncation <= 1.0:
             raise ValueError(f"truncation r must lie in (0, 1], got {self.truncation}")
         if self.handshake < 1 or self.slerp < 0:
             raise ValueError("handshake must be >= 1 token and slerp >= 0 tokens")
+
+
+MULTI_ACTION = SamplingOptions(method="tps", ts=None, eta=0.25, guidance=2.0)
+# one action has no joint phase: every method samples it alike, ``independent`` says so
+SINGLE_ACTION = SamplingOptions(method="independent", eta=0.5, guidance=4.0)
 
 
 @dataclass
@@ -159,8 +168,8 @@ def categorical(probs: Tensor, uniforms: Tensor) -> Tensor:
 class TokenSampler:
     """Reverse diffusion over motion tokens for a denoiser, its text encoder and its schedule.
 
-    Works on the device the denoiser is on; the schedule is moved there. ``eta`` rebuilds the
-    dynamic schedule's matrices for that η (a few hundred milliseconds at K = 512, T = 100).
+    Works on the device the denoiser is on; the schedule is moved there. An η in the options
+    rebuilds the dynamic schedule's matrices for that η (a few hundred milliseconds at K = 512, T = 100).
     """
 
     def __init__(self, denoiser: MotionDenoiser, text_encoder: TextEncoder, schedule: TransitionSchedule) -> None:
@@ -174,8 +183,6 @@ class TokenSampler:
 
     def _schedule(self, eta: float | None) -> TransitionSchedule:
         """The schedule at ``eta`` on the model's device; a ``uniform`` schedule has no η to change."""
-        if eta is not None and eta < 0:
-            raise ValueError(f"eta must be >= 0, got {eta}")
         schedule = self.schedule
         if eta is not None and schedule.config.kind == "dynamic" and float(eta) != schedule.config.eta:
             schedule = schedule.with_eta(eta)
@@ -184,12 +191,12 @@ class TokenSampler:
     # ------------------------------------------------------------------------------------- public
     @torch.no_grad()
     def sample(self, requests: list[Request], options: SamplingOptions = SamplingOptions(),
-               eta: float | None = None, progress: Callable[[int], None] | None = None) -> list[list[Tensor]]:
+               progress: Callable[[int], None] | None = None) -> list[list[Tensor]]:
         """Tokens for each request, one (length,) long tensor per action (the *generated* tokens:
         under ``slerp`` later actions are ``slerp`` tokens shorter; under ``handshake`` the
         shared tokens belong to the earlier action). ``progress(t)`` is called after each step."""
-        schedule = self._schedule(eta)
-        options.check(schedule.steps)
+        options.check(self.schedule.steps)
+        schedule = self._schedule(options.eta)
         if not requests:
             return []
         if options.method == "handshake" and min(n for r in requests for n in r.lengths) < options.handshake:

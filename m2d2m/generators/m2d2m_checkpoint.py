@@ -9,27 +9,28 @@ motion on any machine.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from m2d2m.denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.diffusion import TransitionSchedule
+from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
+from m2d2m.processes.discrete_diffusion import ScheduleConfig, TransitionSchedule
 from m2d2m.model_files import cpu_state, read_model_file, write_model_file
-from m2d2m.normalization import Normalizer
-from m2d2m.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
-from m2d2m.vqvae import FORMAT as VQ_FORMAT
-from m2d2m.vqvae import MotionVQVAE, vq_from_payload
+from m2d2m.networks.vqvae import FORMAT as VQ_FORMAT
+from m2d2m.networks.vqvae import MotionVQVAE, vq_from_payload
 
 FORMAT = "m2d2m-denoiser/1"
-SCHEDULE_KEYS = ("steps", "kind", "eta", "distance", "schedule")
+SCHEDULE_KEYS = tuple(f.name for f in fields(ScheduleConfig))
 
 
 def schedule_from_config(codebook: torch.Tensor, diffusion: dict[str, Any]) -> TransitionSchedule:
-    """The transition schedule a run's ``diffusion`` settings build from its codebook (float64)."""
+    """The transition schedule a run's ``diffusion`` settings (or a saved schedule config) build
+    from its codebook (float64); the settings that are not the schedule's (loss weights) are ignored."""
     options = {k: diffusion[k] for k in SCHEDULE_KEYS if k in diffusion}
     options["steps"] = int(options.get("steps", 100))
     return TransitionSchedule.build(codebook.detach().double(), **options)
@@ -71,9 +72,10 @@ class Checkpoint:
 
 
 def save_checkpoint(path: str | Path, denoiser: MotionDenoiser, text_encoder: TextEncoder, text: dict[str, Any],
-                    diffusion: dict[str, Any], codebook: torch.Tensor, vq_file: str | Path, lengths: LengthPrior,
+                    schedule: ScheduleConfig, codebook: torch.Tensor, vq_file: str | Path, lengths: LengthPrior,
                     extra: dict[str, Any] | None = None) -> Path:
-    """Write a checkpoint; ``text`` and ``diffusion`` are the run's config sections."""
+    """Write a checkpoint; ``text`` is the run's config section, ``schedule`` the trained schedule's
+    whole config (endpoints included, so a configured ᾱ_T or γ̄_T survives the round trip)."""
     vq_payload = read_model_file(vq_file, VQ_FORMAT, "m2d2m VQ model file")
     trained_text = cpu_state(text_encoder) if text_encoder.trainable else None
     payload = {
@@ -83,7 +85,7 @@ def save_checkpoint(path: str | Path, denoiser: MotionDenoiser, text_encoder: Te
         "text": {"kind": text.get("kind", "learned"),
                  "options": {k: v for k, v in text.items() if k != "kind"},
                  "state_dict": trained_text},
-        "schedule": {k: diffusion[k] for k in SCHEDULE_KEYS if k in diffusion},
+        "schedule": schedule.to_dict(),
         "codebook": codebook.detach().cpu().to(torch.float32),
         "vq": vq_payload,
         "lengths": {"per_verb": dict(lengths.per_verb), "median": int(lengths.median), "longest": int(lengths.longest)},

@@ -1,4 +1,4 @@
-"""The text–motion evaluator of Guo et al. (``reference/anchors.md`` §7), which every text-to-motion
+"""The text–motion evaluator of Guo et al. (Guo et al., CVPR 2022; EricGuo5513/text-to-motion, ``networks/modules.py``), which every text-to-motion
 paper's R-precision, matching score, FID, diversity and multimodality are measured with.
 
 A motion (un-normalised features, ``(B, T, D)``) is normalised with the evaluator's *own*
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import pickle
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -37,6 +37,7 @@ from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
 from m2d2m.model_files import read_model_file, write_model_file
+from m2d2m.networks.config import NetworkConfig
 from m2d2m.text import UNK, LearnedTextEncoder
 
 FORMAT = "m2d2m-evaluator/1"
@@ -73,7 +74,7 @@ SPECIAL_WORDS = {"glove": {"unk": "unk", "sos": "sos", "eos": "eos"},
 
 
 @dataclass(frozen=True)
-class EvaluatorConfig:
+class EvaluatorConfig(NetworkConfig):
     """Sizes of the evaluator; the defaults are Guo's HumanML3D ones, so ``finest.tar`` fits them
     (KIT-ML: ``feature_dim=251``). A demo shrinks the widths, never the structure."""
 
@@ -90,29 +91,15 @@ class EvaluatorConfig:
     dropout: float = 0.2
 
     def __post_init__(self) -> None:
-        for name in ("movement_hidden", "movement_latent", "motion_hidden", "text_hidden", "embedding_dim",
-                     "word_dim", "max_text_len", "max_motion_length"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"EvaluatorConfig.{name} must be a positive integer, got {getattr(self, name)!r}")
+        self.require_positive("movement_hidden", "movement_latent", "motion_hidden", "text_hidden", "embedding_dim",
+                              "word_dim", "max_text_len", "max_motion_length")
         if not isinstance(self.feature_dim, int) or self.feature_dim <= CONTACT_DIMS:
             raise ValueError(f"EvaluatorConfig.feature_dim must be an integer above {CONTACT_DIMS}, "
                              f"got {self.feature_dim!r}")
         if self.word_features not in SPECIAL_WORDS:
             raise ValueError(f"EvaluatorConfig.word_features must be one of {sorted(SPECIAL_WORDS)}, "
                              f"got {self.word_features!r}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"EvaluatorConfig.dropout must lie in [0, 1), got {self.dropout!r}")
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "EvaluatorConfig":
-        """Build from a config mapping; unknown keys are an error so a typo never goes unnoticed."""
-        unknown = sorted(set(values) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ValueError(f"unknown EvaluatorConfig keys: {', '.join(unknown)}")
-        return cls(**values)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        self.require_fraction("dropout")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -215,7 +202,7 @@ class BiGRUEncoder(nn.Module):
         return self.head(torch.cat([last[0], last[1]], dim=-1))
 
 
-class TextEncoder(BiGRUEncoder):
+class CaptionEncoder(BiGRUEncoder):
     """Guo's ``TextEncoderBiGRUCo``: the POS one-hot, projected to the word size, is added to the
     word vector before the BiGRU encoder."""
 
@@ -253,7 +240,7 @@ class TextMotionEvaluator(nn.Module):
         self.movement = MovementEncoder(config.feature_dim - CONTACT_DIMS, config.movement_hidden,
                                         config.movement_latent, config.dropout)
         self.motion = BiGRUEncoder(config.movement_latent, config.motion_hidden, config.embedding_dim)
-        self.text = TextEncoder(config.word_dim, config.text_hidden, config.embedding_dim)
+        self.text = CaptionEncoder(config.word_dim, config.text_hidden, config.embedding_dim)
         self.register_buffer("feature_mean", torch.zeros(config.feature_dim))
         self.register_buffer("feature_scale", torch.ones(config.feature_dim))
 

@@ -1,4 +1,4 @@
-"""DiffusionModule on a tiny denoiser and fake token batches: gradients, overfitting, validation
+"""M2D2MModule on a tiny denoiser and fake token batches: gradients, overfitting, validation
 metrics, sampling, non-finite losses and the codebook in checkpoints."""
 
 import lightning.pytorch as pl
@@ -6,9 +6,9 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from m2d2m.sampling import Request, SamplingOptions
+from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions
 from m2d2m.text import LearnedTextEncoder
-from training.diffusion_module import DiffusionModule
+from training.m2d2m_module import M2D2MModule
 from training.vq_module import NonFiniteLossError
 
 K = 8
@@ -17,10 +17,10 @@ SENTENCES = ["a person walks forward", "a person jumps up high", "someone waves 
              "a man turns around and sits down"]
 
 
-def make_module(seed: int = 0, condition_drop: float = 0.1, **diffusion) -> DiffusionModule:
+def make_module(seed: int = 0, condition_drop: float = 0.1, **diffusion) -> M2D2MModule:
     torch.manual_seed(seed)
     codebook = torch.randn(K, 4)
-    return DiffusionModule(
+    return M2D2MModule(
         denoiser={"layers": 1, "heads": 2, "width": 32, "ffn": 64, "text_dim": 32, "num_buckets": 8,
                   "max_distance": 16, "condition_drop": condition_drop},
         text={"kind": "learned", "dim": 32, "layers": 1, "heads": 2, "dropout": 0.0},
@@ -117,8 +117,8 @@ def test_validation_is_deterministic(monkeypatch):
 def test_sampler_uses_the_modules_parts_and_restores_the_mode():
     module = make_module()
     requests = [Request([[SENTENCES[0]]], [7], seed=5), Request([[SENTENCES[1], SENTENCES[2]]], [3], seed=6)]
-    first = module.sampler().sample(requests, SamplingOptions(guidance=3.0, ts=0), eta=0.25)
-    second = module.sampler().sample(requests, SamplingOptions(guidance=3.0, ts=0), eta=0.25)
+    first = module.sampler().sample(requests, SamplingOptions(guidance=3.0, ts=0, eta=0.25))
+    second = module.sampler().sample(requests, SamplingOptions(guidance=3.0, ts=0, eta=0.25))
     assert [len(x[0]) for x in first] == [7, 3]
     for (a,), (b,) in zip(first, second):
         assert a.dtype == torch.long and int(a.min()) >= 0 and int(a.max()) < K

@@ -14,8 +14,9 @@ from collections.abc import Callable
 
 import torch
 
-from m2d2m.denoiser import DenoiserConfig, MotionDenoiser, guided_logits
-from m2d2m.diffusion import TransitionSchedule, diffusion_loss
+from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser, guided_logits
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.processes.discrete_diffusion_loss import diffusion_loss
 from timing import best_time
 
 CODES, STEPS, TOKENS, TEXT_TOKENS, TEXT_DIM = 512, 100, 49, 32, 512

@@ -1,4 +1,4 @@
-"""Training objective of the denoiser: L_vlb + λ·auxiliary cross-entropy (paper Eq. 3, ``reference/anchors.md`` §2.5).
+"""Training objective of the denoiser: L_vlb + λ·auxiliary cross-entropy (paper Eq. 3; microsoft/VQ-Diffusion, ``diffusion_transformer.py`` ``_train_loss``).
 
 The network predicts x0 logits over the K codes; its posterior p(z_{t−1} | z_t) is the mixture of
 true posteriors weighted by softmax(logits) (paper Eq. 4), computed by
@@ -14,7 +14,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from m2d2m.diffusion.transition import TransitionSchedule
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
 
 # log-probabilities are floored here (≈ VQ-Diffusion's clamp at −70) so a zero never gives inf or NaN
 _LOG_FLOOR = 1e-30

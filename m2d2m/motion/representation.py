@@ -20,35 +20,17 @@ time with sigma 20 frames, frame 0's heading is forced to identity, and dimensio
 from __future__ import annotations
 
 import re
-from functools import lru_cache
 
 import numpy as np
 import torch
 
-from m2d2m.rotations import cross, dot, normalize, qbetween, qinv, qmul, qrot, quat_to_cont6d
-from m2d2m.skeleton import T2M, Skeleton
+from m2d2m.motion.rotations import cross, dot, normalize, qbetween, qinv, qmul, qrot, quat_to_cont6d
+from m2d2m.motion.skeleton import T2M, Skeleton
+from m2d2m.motion.smoothing import gaussian_smooth
 
 HEADING_SMOOTHING_SIGMA = 20.0
 _UP = np.array([0.0, 1.0, 0.0])
 _FORWARD = np.array([0.0, 0.0, 1.0])
-
-
-@lru_cache(maxsize=None)
-def _gaussian_kernel(sigma: float, truncate: float = 4.0) -> np.ndarray:
-    radius = int(truncate * sigma + 0.5)
-    x = np.arange(-radius, radius + 1, dtype=np.float64)
-    weights = np.exp(-0.5 * (x / sigma) ** 2)
-    return weights / weights.sum()
-
-
-def gaussian_smooth(x: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian filter along axis 0 with edge replication, as ``scipy.ndimage.gaussian_filter1d(
-    x, sigma, axis=0, mode="nearest")`` computes it (kept here to avoid a SciPy dependency)."""
-    kernel = _gaussian_kernel(float(sigma))
-    radius = len(kernel) // 2
-    padded = np.pad(x, [(radius, radius)] + [(0, 0)] * (x.ndim - 1), mode="edge")
-    windows = np.lib.stride_tricks.sliding_window_view(padded, len(kernel), axis=0)
-    return windows @ kernel
 
 
 def _heading_forward(joints: np.ndarray, hip_a: int, hip_b: int, skeleton: Skeleton) -> np.ndarray:

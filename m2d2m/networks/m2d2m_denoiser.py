@@ -1,4 +1,4 @@
-"""The denoising transformer of M2D2M (paper §4.4; VQ-Diffusion's block, ``reference/anchors.md`` §2.7).
+"""The denoising transformer of M2D2M (paper §4.4; VQ-Diffusion's block: microsoft/VQ-Diffusion, ``image_synthesis/modeling/transformers/transformer_utils.py``).
 
 It estimates p(z0 | z_t, y): motion tokens ``z_t`` (values 0..K-1, K = the mask) go in, logits over
 the K codes (never the mask) come out. Each pre-norm block is
@@ -24,16 +24,18 @@ Choices, each on purpose:
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
+from m2d2m.networks.config import NetworkConfig
+
 
 @dataclass(frozen=True)
-class DenoiserConfig:
+class DenoiserConfig(NetworkConfig):
     """Architecture of the denoiser; the defaults are the paper's (12 x 16 heads x 512, FFN 2048)."""
 
     codebook_size: int = 512
@@ -49,10 +51,7 @@ class DenoiserConfig:
     condition_drop: float = 0.1
 
     def __post_init__(self) -> None:
-        for name in ("codebook_size", "layers", "heads", "width", "ffn", "text_dim", "steps", "max_distance"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"DenoiserConfig.{name} must be a positive integer, got {value!r}")
+        self.require_positive("codebook_size", "layers", "heads", "width", "ffn", "text_dim", "steps", "max_distance")
         if self.width % self.heads:
             raise ValueError(f"DenoiserConfig.width ({self.width}) must be divisible by heads ({self.heads})")
         if not isinstance(self.num_buckets, int) or self.num_buckets < 4 or self.num_buckets % 2:
@@ -60,20 +59,7 @@ class DenoiserConfig:
         if self.max_distance <= self.num_buckets // 4:
             raise ValueError(f"DenoiserConfig.max_distance must exceed num_buckets // 4 "
                              f"({self.num_buckets // 4}), got {self.max_distance}")
-        for name in ("dropout", "condition_drop"):
-            if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"DenoiserConfig.{name} must lie in [0, 1), got {getattr(self, name)!r}")
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "DenoiserConfig":
-        """Build from a config mapping; unknown keys are an error so a typo never goes unnoticed."""
-        unknown = sorted(set(values) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ValueError(f"unknown DenoiserConfig keys: {', '.join(unknown)}")
-        return cls(**values)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        self.require_fraction("dropout", "condition_drop")
 
 
 def relative_position_bucket(relative: torch.Tensor, num_buckets: int, max_distance: int) -> torch.Tensor:

@@ -1,0 +1,244 @@
+"""The measurements behind the paper's tables (M2D2M §5.1–5.3, Tables 1–3, Fig. 5) for any
+generator: what the test set contributes whatever the method (:class:`Reference`), and one
+repeat of one method on it (:class:`Evaluation`).
+
+Per method and repeat r, every test instance is generated (lengths: the ground-truth items') and
+measured with the text–motion evaluator:
+
+- individual motion: each action's frames of the generated sequence against the item's caption
+  (R-Top3, MM-Dist), against the ground-truth segments (FID), and among themselves (Diversity);
+- transition: the :data:`WINDOW` frames around each boundary against "ground truth (single)"
+  windows, the middle :data:`WINDOW` frames of every ground-truth item (FID), among themselves
+  (Diversity), and the paper's Jerk (eq. 10) of the joints there, time measured in frames.
+
+Reference rows: "ground truth (single)" measures the ground-truth segments and their middle
+windows the same way; "ground truth (concat)" is the Jerk at the boundaries of each instance's
+ground-truth segments joined by :func:`m2d2m.motion.joining.slerp_join` with no window (aligned,
+not blended). The seeds of repeat r are the same for every method. docs/evaluation.md explains
+each choice.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch.nn.utils.rnn import pad_sequence
+
+from m2d2m.evaluation.evaluator import TextMotionEvaluator
+from m2d2m.evaluation.metrics import (DEFAULT_MIN_STEP, diversity, fid, jerk, mm_dist, multimodality, r_precision,
+                                      transition_windows)
+from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.joining import slerp_join
+from m2d2m.motion.representation import features_to_joints
+
+WINDOW = 40  # transition frames around a boundary (paper §5.1, after PriorMDM)
+JERK_FPS = 1.0  # time in frames: the scale of the paper's Jerk column (ground truth ≈ 1.19)
+R_PRECISION_BATCH = 32  # Guo's: each caption against 31 other motions
+DIVERSITY_PAIRS = 300
+MM_PROMPTS, MM_GENERATIONS = 100, 10  # MModality: prompts, generations per prompt
+EMBED_CHUNK = 256  # clips per evaluator call
+
+
+def _rng(repeat: int, purpose: str) -> np.random.Generator:
+    """One stream per repeat and purpose: the seeds of repeat r are the same for every method,
+    and do not depend on which other repeats or tables run."""
+    return np.random.default_rng([repeat, zlib.crc32(purpose.encode())])
+
+
+def _seeds(repeat: int, purpose: str, count: int) -> list[int]:
+    return [int(s) for s in _rng(repeat, purpose).integers(0, 2**31 - 1, count)]
+
+
+def _pairs(count: int) -> int:
+    """Diversity pairs: Guo's 300, or fewer for a small set (a pair must not need more samples)."""
+    return min(DIVERSITY_PAIRS, count - 1)
+
+
+def _nanmean(values: Sequence[float]) -> float:
+    """Mean over the defined values (a window where nothing moves has no Jerk); NaN if none is."""
+    kept = np.asarray(values, dtype=np.float64)
+    kept = kept[~np.isnan(kept)]
+    return float(kept.mean()) if len(kept) else float("nan")
+
+
+def embed_clips(evaluator: TextMotionEvaluator, clips: Sequence[np.ndarray]) -> np.ndarray:
+    """Motion embeddings (len(clips), E) of un-normalised feature clips of any lengths."""
+    parts = []
+    with torch.no_grad():
+        for start in range(0, len(clips), EMBED_CHUNK):
+            chunk = [torch.as_tensor(np.asarray(c), dtype=torch.float32) for c in clips[start:start + EMBED_CHUNK]]
+            lengths = torch.tensor([len(c) for c in chunk])
+            padded = pad_sequence(chunk, batch_first=True).to(evaluator.device)
+            parts.append(evaluator.embed_motion(padded, lengths).cpu().numpy())
+    return np.concatenate(parts)
+
+
+def embed_captions(evaluator: TextMotionEvaluator, captions: Sequence[Sequence[str]]) -> np.ndarray:
+    with torch.no_grad():
+        return np.concatenate([evaluator.embed_text(captions[start:start + EMBED_CHUNK]).cpu().numpy()
+                               for start in range(0, len(captions), EMBED_CHUNK)])
+
+
+def transition_profiles(joints: np.ndarray, boundaries: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Fig. 5's curves for each full ``WINDOW``-frame window around a boundary: the mean joint
+    speed per frame step (metres per frame, ``WINDOW − 1`` values) and the mean jerk magnitude
+    normalised by each joint's peak speed in the window (per frame², ``WINDOW − 3`` values).
+    Clipped windows, at a sequence's ends, are left out so that every curve has the same frames."""
+    profiles = []
+    for frames in transition_windows(joints, boundaries, WINDOW):
+        if len(frames) < WINDOW:
+            continue
+        steps = np.linalg.norm(np.diff(frames, axis=0), axis=-1)  # (WINDOW − 1, J) metres per frame
+        third = np.linalg.norm(np.diff(frames, n=3, axis=0), axis=-1)  # (WINDOW − 3, J)
+        peak = np.maximum(steps.max(0), DEFAULT_MIN_STEP)  # a still joint must not blow up the ratio
+        profiles.append((steps.mean(1), (third / peak).mean(1)))
+    return profiles
+
+
+def mean_profile(profiles: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, Any]:
+    if not profiles:
+        return {"velocity": None, "jerk": None, "windows": 0}
+    return {"velocity": np.mean([p[0] for p in profiles], 0).tolist(),
+            "jerk": np.mean([p[1] for p in profiles], 0).tolist(), "windows": len(profiles)}
+
+
+def _matching(text: np.ndarray, motion: np.ndarray, order: np.ndarray, batch: int) -> dict[str, float]:
+    """R-Top1..3 over consecutive groups of ``batch`` in the repeat's shuffled order (Guo
+    shuffles; the incomplete group is dropped), and MM-Dist over the same rows."""
+    used = order[: len(order) // batch * batch]
+    precision = r_precision(text[used], motion[used], top_k=3, batch=batch)
+    return {**{f"r_top{k + 1}": float(p) for k, p in enumerate(precision)},
+            "mm_dist": mm_dist(text[used], motion[used])}
+
+
+@dataclass
+class Reference:
+    """What the test set contributes whatever the method: its requests, the caption embeddings,
+    the ground-truth segment and middle-window embeddings, and the ground-truth Jerk values."""
+
+    actions: list[list[str]]  # per instance
+    frames: list[list[int]]  # per instance, each action's length as the generator makes it
+    text: np.ndarray  # (items, E)
+    segments: np.ndarray  # (items, E)
+    windows: np.ndarray  # (items, E): the middle WINDOW frames of each item
+    jerk_single: float
+    jerk_concat: float
+    concat_profile: dict[str, Any]
+
+    @property
+    def items(self) -> int:
+        return len(self.text)
+
+    @property
+    def rp_batch(self) -> int:
+        """R-precision's group size: Guo's 32, or every item of a smaller test set."""
+        return min(R_PRECISION_BATCH, self.items)
+
+    @classmethod
+    def build(cls, actions: list[list[str]], segments: list[list[np.ndarray]], captions: list[list[str]],
+              evaluator: TextMotionEvaluator, generator: MotionGenerator) -> "Reference":
+        """From each instance's action sentences and ground-truth feature segments, and each
+        item's caption as ``word/POS`` tokens (items in instance order)."""
+        frames = [[generator.round_frames(len(clip)) for clip in clips] for clips in segments]
+        # each segment cut to the frames generated for it (whole tokens of a token model, as Guo's loader crops)
+        features = [[clip[:n] for clip, n in zip(clips, lengths)] for clips, lengths in zip(segments, frames)]
+        skeleton = generator.skeleton
+        flat = [clip for clips in features for clip in clips]
+        middles = [transition_windows(clip, [len(clip) // 2], WINDOW)[0] for clip in flat]
+        joints = [[features_to_joints(clip, skeleton) for clip in clips] for clips in features]
+        single = [jerk(j, JERK_FPS, [len(j) // 2], WINDOW) for clips in joints for j in clips]
+        # joined with no transition window: each clip turned and moved to where the previous ended
+        concat = [(joined, [first for first, _ in ranges[1:]])
+                  for joined, ranges in (slerp_join(clips, 0, skeleton) for clips in joints)]
+        return cls(
+            actions=actions, frames=frames, text=embed_captions(evaluator, captions),
+            segments=embed_clips(evaluator, flat), windows=embed_clips(evaluator, middles),
+            jerk_single=_nanmean(single), jerk_concat=_nanmean([jerk(j, JERK_FPS, b, WINDOW) for j, b in concat]),
+            concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]))
+
+    def measure(self, repeat: int) -> dict[str, float]:
+        """The "ground truth (single)" row for one repeat (its shuffle and diversity draws)."""
+        order = _rng(repeat, "order").permutation(self.items)
+        return {**_matching(self.text, self.segments, order, self.rp_batch),
+                "diversity": diversity(self.segments, _pairs(self.items), seed=repeat),
+                "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
+                "jerk": self.jerk_single}
+
+
+class Evaluation:
+    """The measurements of one run: a loaded generator and evaluator, the test set's
+    :class:`Reference`, the multi-action knobs that differ from the generator's preset, and a
+    progress callback called after each generated batch."""
+
+    def __init__(self, generator: MotionGenerator, evaluator: TextMotionEvaluator, reference: Reference,
+                 knobs: dict[str, Any], batch_size: int, progress: Callable[[str], None]) -> None:
+        self.generator = generator
+        self.evaluator = evaluator
+        self.reference = reference
+        self.knobs = knobs
+        self.batch_size = batch_size
+        self.progress = progress
+
+    def _generate(self, actions: list[list[str]], frames: list[list[int]], options: Any,
+                  seeds: list[int], label: str) -> Iterator[list[Motion]]:
+        """The motions of the requests, one batch at a time (a whole repeat would not fit in
+        memory on a real test set)."""
+        for start in range(0, len(actions), self.batch_size):
+            window = slice(start, start + self.batch_size)
+            yield self.generator.generate(actions[window], frames[window], options, seeds[window])
+            self.progress(label)
+
+    def multi(self, method: str, repeat: int) -> dict[str, Any]:
+        """One repeat of one method on the multi-motion test set: the metrics and Fig. 5's curves."""
+        reference = self.reference
+        options = self.generator.options(MULTI, method=method, **self.knobs)
+        seeds = _seeds(repeat, "multi", len(reference.actions))
+        segments, windows, jerks, profiles = [], [], [], []
+        for motions in self._generate(reference.actions, reference.frames, options, seeds, f"{method} r{repeat}"):
+            segments.append(embed_clips(self.evaluator, [m.features[a:b] for m in motions for a, b in m.ranges]))
+            windows.append(embed_clips(self.evaluator, [
+                w for m in motions for w in transition_windows(m.features, m.boundaries, WINDOW)]))
+            jerks += [jerk(m.joints, JERK_FPS, m.boundaries, WINDOW) for m in motions]
+            profiles += [p for m in motions for p in transition_profiles(m.joints, m.boundaries)]
+        segment_emb, window_emb = np.concatenate(segments), np.concatenate(windows)
+        order = _rng(repeat, "order").permutation(reference.items)
+        metrics = {**_matching(reference.text, segment_emb, order, reference.rp_batch),
+                   "fid": fid(segment_emb, reference.segments),
+                   "diversity": diversity(segment_emb, _pairs(len(segment_emb)), seed=repeat),
+                   "transition_fid": fid(window_emb, reference.windows),
+                   "transition_diversity": diversity(window_emb, _pairs(len(window_emb)), seed=repeat),
+                   "jerk": _nanmean(jerks)}
+        return {"method": method, "repeat": repeat, "metrics": metrics, "profile": mean_profile(profiles)}
+
+    def single(self, repeat: int) -> dict[str, Any]:
+        """One repeat of the single-motion table: every test item generated alone with the
+        paper's single-motion settings, and MModality from ``MM_GENERATIONS`` generations of
+        each of the first ``MM_PROMPTS`` items in the repeat's order."""
+        reference = self.reference
+        options = self.generator.options(SINGLE)
+        actions = [[action] for instance in reference.actions for action in instance]
+        frames = [[n] for instance in reference.frames for n in instance]
+        order = _rng(repeat, "order").permutation(reference.items)
+        label = f"single r{repeat}"
+        embedded = self._embed_generated(actions, frames, options, _seeds(repeat, "single", len(actions)), label)
+        prompts = order[:min(MM_PROMPTS, reference.items)]
+        repeated = [p for p in prompts for _ in range(MM_GENERATIONS)]
+        again = self._embed_generated([actions[p] for p in repeated], [frames[p] for p in repeated], options,
+                                      _seeds(repeat, "mmodality", len(repeated)), label)
+        metrics = {**_matching(reference.text, embedded, order, reference.rp_batch),
+                   "fid": fid(embedded, reference.segments),
+                   "diversity": diversity(embedded, _pairs(len(embedded)), seed=repeat),
+                   "mmodality": multimodality(again.reshape(len(prompts), MM_GENERATIONS, -1),
+                                              pairs=MM_GENERATIONS, seed=repeat)}
+        return {"repeat": repeat, "metrics": metrics}
+
+    def _embed_generated(self, actions: list[list[str]], frames: list[list[int]], options: Any,
+                         seeds: list[int], label: str) -> np.ndarray:
+        return np.concatenate([embed_clips(self.evaluator, [m.features for m in motions])
+                               for motions in self._generate(actions, frames, options, seeds, label)])

@@ -1,0 +1,142 @@
+"""The one call every model's generator answers, so that generation, evaluation and sweeps work
+with any model (docs/architecture.md, "How to add a model").
+
+A generator turns a request — action sentences per sequence, each action's length in *frames*,
+a seed per sequence, optionally frames to keep — into one :class:`~m2d2m.motion.clip.Motion` per
+sequence. Lengths are frames whatever the model works on: a token model rounds them to whole
+tokens (:meth:`MotionGenerator.round_frames`). How the actions of one sequence are joined is the
+*method*, chosen among the generator's :attr:`~MotionGenerator.methods` in its options; the
+options are a frozen dataclass of the model's own sampling knobs, with named presets for the
+paper settings of single and multi-action generation.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.skeleton import Skeleton
+
+SINGLE, MULTI = "single", "multi"  # the presets every generator has
+
+
+@dataclass(frozen=True)
+class Keep:
+    """What to keep of a sequence while the rest is generated (editing): the frames of
+    ``features`` (F, D, un-normalised) where ``frames`` (F,) is True. A model that generates in
+    coarser units keeps every unit that holds a kept frame."""
+
+    features: np.ndarray
+    frames: np.ndarray
+
+    def __post_init__(self) -> None:
+        if self.frames.shape != (len(self.features),) or self.frames.dtype != bool:
+            raise ValueError(f"keep: one boolean per frame of the features ({len(self.features)}), "
+                             f"got {self.frames.dtype} of shape {self.frames.shape}")
+
+
+def keep_spans(motion: Motion, spans: Sequence[tuple[float, float]]) -> Keep:
+    """A :class:`Keep` of ``motion``'s frames inside the time spans ``spans`` (seconds)."""
+    frames = np.zeros(len(motion.features), dtype=bool)
+    for start, end in spans:
+        frames[max(0, int(np.floor(start * motion.fps))):int(np.ceil(end * motion.fps))] = True
+    return Keep(motion.features, frames)
+
+
+class MotionGenerator(ABC):
+    """A loaded model that turns requests into motions: the only view of a model that generation,
+    evaluation and sweeps have. Subclasses set the class attributes and implement the methods."""
+
+    model: ClassVar[str]  # the registry's name of the model
+    methods: ClassVar[tuple[str, ...]]  # its multi-action methods, the first the default
+    options_type: ClassVar[type]  # frozen dataclass of its sampling knobs; has a ``method`` field
+    presets: ClassVar[dict[str, Any]]  # SINGLE and MULTI: the paper's settings as options
+
+    source: Path  # the model file it was loaded from
+
+    # -------------------------------------------------------------------------- what it is
+    @property
+    @abstractmethod
+    def skeleton(self) -> Skeleton:
+        """The skeleton its motions are on (their frame rate is the skeleton's)."""
+
+    @property
+    @abstractmethod
+    def feature_dim(self) -> int:
+        """The width of its motion features (263 for HumanML3D's skeleton, 251 for KIT-ML's)."""
+
+    @property
+    @abstractmethod
+    def device(self) -> torch.device:
+        """Where it computes (an evaluator working beside it goes there too)."""
+
+    @property
+    def data_dir(self) -> Path | None:
+        """The processed dataset it was trained on, when it knows (the default test set's home)."""
+        return None
+
+    @property
+    def fps(self) -> float:
+        return self.skeleton.fps
+
+    @property
+    def frame_step(self) -> int:
+        """Its granularity in frames: every length it generates is a multiple of this."""
+        return 1
+
+    def round_frames(self, frames: int) -> int:
+        """The length it generates when ``frames`` are asked for: whole steps, at least one."""
+        return max(1, int(frames) // self.frame_step) * self.frame_step
+
+    @abstractmethod
+    def typical_frames(self, verb: str | None) -> int:
+        """A length for an action with this verb when the user gives none (the corpus's median)."""
+
+    @property
+    @abstractmethod
+    def longest_frames(self) -> int:
+        """The longest action it was trained on, in frames."""
+
+    # --------------------------------------------------------------------------- its options
+    @classmethod
+    def knobs(cls) -> tuple[str, ...]:
+        """The sampling knobs a user or a sweep may set (every option but the method)."""
+        return tuple(f.name for f in fields(cls.options_type) if f.name != "method")
+
+    def options(self, preset: str = MULTI, **changes: Any) -> Any:
+        """The options of ``preset`` with ``changes``; ValueError names an unknown or bad knob."""
+        if preset not in self.presets:
+            raise ValueError(f"unknown preset {preset!r}: choose one of {', '.join(self.presets)}")
+        unknown = sorted(set(changes) - set(self.knobs()) - {"method"})
+        if unknown:
+            raise ValueError(f"{self.model} has no sampling option {unknown[0]!r}; "
+                             f"its options: {', '.join(self.knobs())}")
+        options = replace(self.presets[preset], **changes)
+        if options.method not in self.methods:
+            raise ValueError(f"unknown method {options.method!r} for {self.model}: "
+                             f"choose one of {', '.join(self.methods)}")
+        self.check_options(options)
+        return options
+
+    def check_options(self, options: Any) -> None:
+        """Raise ValueError naming the first setting this model cannot sample with."""
+
+    @abstractmethod
+    def describe(self, options: Any) -> str:
+        """The options in the paper's words for a table's notes, e.g. ``T_s = 90 of T = 100, η = 0.25, s = 2``."""
+
+    # ----------------------------------------------------------------------------- the call
+    @abstractmethod
+    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: Any,
+                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None) -> list[Motion]:
+        """One motion per sequence: ``actions[i]`` in order, action j about ``frames[i][j]`` frames
+        long (rounded by :meth:`round_frames`), drawn with ``seeds[i]``; ``keep[i]`` holds frames
+        to keep. A sequence's result does not depend on the others in the call. ValueError for a
+        request it cannot serve."""

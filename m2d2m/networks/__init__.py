@@ -1,0 +1,1 @@
+"""The networks, one file each with its config: no noise process, no sampling."""

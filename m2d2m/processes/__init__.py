@@ -1,0 +1,1 @@
+"""The noise processes, no network: forward corruption, posteriors, losses."""

@@ -1,0 +1,114 @@
+"""The models the framework hosts, by name: where each one's network, noise process, generator,
+LightningModule, DataModule, training recipe and configs live. Generation, evaluation, sweeps and
+the command line reach a model only through its entry here and its generator's protocol
+(:mod:`m2d2m.generators.protocol`), so a new model is its own files and one entry
+(docs/architecture.md, "How to add a model").
+
+Entries name code as ``"module:attribute"`` and load it on first use: listing the models (the
+command line does) imports neither torch nor Lightning. Models outside this repository register
+themselves from a plugin module named in ``M2D2M_MODELS`` (comma-separated), imported on first
+use; Ray trials and workers import the same plugins as their driver (:func:`plugins_for_workers`).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from orchestration.errors import UserError
+
+PLUGINS_VARIABLE = "M2D2M_MODELS"
+
+
+@dataclass(frozen=True)
+class ModelEntry:
+    """One model. ``stage`` names its run directories (``runs/<dataset>/<stage>/``) and MLflow
+    experiments; ``legacy_stages`` are older names of those directories, still read."""
+
+    name: str
+    summary: str  # one line for the command line's help
+    stage: str
+    legacy_stages: tuple[str, ...]
+    configs: str  # configs/<configs>/<name>.yaml
+    train_verb: str  # `m2d2m <train_verb>`, `make <train_verb>`
+    model_file: str  # what a finished run directory holds
+    generator: str  # a MotionGenerator subclass with ``load(path, device)``
+    recipe: str  # a module with train(...), prepare(config) (orchestration/train.py says what they do)
+    network: str
+    process: str
+    module: str
+    datamodule: str
+    plugin: str | None = None  # the plugin module that registered it, None for the built-in ones
+
+    def load(self, part: str) -> Any:
+        """The object a ``"module:attribute"`` field names (``part``: generator, recipe, network, ...)."""
+        module_name, _, attribute = getattr(self, part).partition(":")
+        module = importlib.import_module(module_name)
+        return getattr(module, attribute) if attribute else module
+
+
+_MODELS: dict[str, ModelEntry] = {}
+_loaded_plugins: list[str] = []
+
+
+def register(entry: ModelEntry) -> ModelEntry:
+    """Add (or replace) a model; a plugin module calls this when it is imported."""
+    _MODELS[entry.name] = entry
+    return entry
+
+
+register(ModelEntry(
+    name="m2d2m", summary="M2D2M: discrete diffusion over VQ tokens, β(t, d), Two-Phase Sampling",
+    stage="m2d2m", legacy_stages=("diffusion",), configs="m2d2m", train_verb="train-diffusion",
+    model_file="model.pt", generator="m2d2m.generators.m2d2m:M2D2MGenerator",
+    recipe="orchestration.recipes.m2d2m", network="m2d2m.networks.m2d2m_denoiser:MotionDenoiser",
+    process="m2d2m.processes.discrete_diffusion:TransitionSchedule",
+    module="training.m2d2m_module:M2D2MModule", datamodule="training.data:TokenDataModule"))
+
+
+def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) -> list[str]:
+    """Import the plugin modules (default: those named in ``M2D2M_MODELS``) once each, looking in
+    ``paths`` too; returns every plugin imported so far."""
+    if modules is None:
+        modules = [m.strip() for m in os.environ.get(PLUGINS_VARIABLE, "").split(",") if m.strip()]
+    sys.path.extend(path for path in paths if path not in sys.path)
+    for name in modules:
+        if name in _loaded_plugins:
+            continue
+        try:
+            importlib.import_module(name)
+        except ImportError as error:
+            raise UserError(f"{PLUGINS_VARIABLE}: cannot import the model plugin {name!r} ({error})") from error
+        _loaded_plugins.append(name)
+    return list(_loaded_plugins)
+
+
+def plugins_for_workers() -> dict[str, list[str]]:
+    """What another process (a Ray trial or worker) needs to import this process's plugins:
+    ``load_plugins(**plugins_for_workers())`` there registers the same models."""
+    modules = load_plugins()
+    paths = []
+    for name in modules:
+        origin = Path(sys.modules[name].__file__).resolve()
+        root = origin.parents[name.count(".") + (origin.name == "__init__.py")]
+        paths.append(str(root))
+    return {"modules": modules, "paths": list(dict.fromkeys(paths))}
+
+
+def models() -> dict[str, ModelEntry]:
+    """Every registered model, plugins included."""
+    load_plugins()
+    return dict(_MODELS)
+
+
+def model(name: str) -> ModelEntry:
+    """The entry of ``name``, or a one-line error listing the models there are."""
+    known = models()
+    if name not in known:
+        raise UserError(f"unknown model {name!r}; choose one of {', '.join(known)}")
+    return known[name]

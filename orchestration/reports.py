@@ -1,0 +1,122 @@
+"""The evaluation's reports: table.md and table.json (the paper's multi-motion Tables 1–2 and
+single-motion Table 3, mean ± 95 % CI over repeats), Fig. 5 as a PNG, and the tables' numbers
+under MLflow metric names."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from m2d2m.evaluation.measurements import R_PRECISION_BATCH, WINDOW, Reference
+from m2d2m.evaluation.metrics import mean_confidence_interval
+
+TABLE_MD, TABLE_JSON, FIGURE = "table.md", "table.json", "fig5.png"
+GT_SINGLE, GT_CONCAT, GENERATED = "gt_single", "gt_concat", "generated"
+
+# (metric, column title) of each table, in the paper's order
+MULTI_COLUMNS = (("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MMdist ↓"), ("diversity", "Div →"),
+                 ("transition_fid", "Transition FID ↓"), ("transition_diversity", "Transition Div →"),
+                 ("jerk", "Jerk →"))
+SINGLE_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top2", "R-Top2 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"),
+                  ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →"), ("mmodality", "MModality ↑"))
+ROW_TITLES = {GT_SINGLE: "Ground truth (single)", GT_CONCAT: "Ground truth (concat)",
+              GENERATED: "Generated (single action)"}
+
+
+def _summary(values: Sequence[float]) -> dict[str, float | None]:
+    """Mean and 95 % CI half-width over the repeats; None where a repeat had no defined value."""
+    values = np.asarray(values, dtype=np.float64)
+    if not np.isfinite(values).all():
+        return {"mean": None, "ci": None}
+    mean, ci = mean_confidence_interval(values)
+    return {"mean": mean, "ci": ci}
+
+
+def summarize_rows(per_repeat: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, dict[str, float | None]]]:
+    """Row → metric → mean and CI, from each row's per-repeat metric dicts."""
+    return {row: {metric: _summary([r[metric] for r in repeats]) for metric in repeats[0]}
+            for row, repeats in per_repeat.items()}
+
+
+def _cell(summary: dict[str, float | None] | None) -> str:
+    if summary is None or summary["mean"] is None:
+        return "–"
+    return f"{summary['mean']:.3f} ± {summary['ci']:.3f}"
+
+
+def _markdown(title: str, columns: tuple[tuple[str, str], ...], rows: dict[str, dict[str, Any]]) -> list[str]:
+    lines = [f"## {title}", "", "| Method | " + " | ".join(name for _, name in columns) + " |",
+             "| --- |" + " --- |" * len(columns)]
+    for row, values in rows.items():
+        lines.append(f"| {ROW_TITLES.get(row, row)} | " + " | ".join(_cell(values.get(m)) for m, _ in columns) + " |")
+    return lines + [""]
+
+
+def render_table(table: dict[str, Any]) -> str:
+    """table.md: the paper's tables, then the conventions a reader needs to compare them."""
+    settings, testset = table["settings"], table["testset"]
+    lines = [f"# Evaluation of {settings['checkpoint']}", "",
+             f"Test set {testset['path']}: {testset['instances']} instances of N = {testset['n']} actions. "
+             f"Mean ± 95 % CI over {settings['repeats']} repeats.", ""]
+    lines += _markdown("Multi-motion (paper Tables 1–2)", MULTI_COLUMNS, table["multi"])
+    if "single" in table:
+        lines += _markdown("Single-motion (paper Table 3)", SINGLE_COLUMNS, table["single"])
+    lines += [f"- {note}" for note in table["notes"]]
+    return "\n".join(lines) + "\n"
+
+
+def notes(sampling: str, single_sampling: str | None, reference: Reference) -> list[str]:
+    """The conventions a reader needs: the sampling settings as the generator describes them
+    (``single_sampling`` when the single-motion table was made), the windows, the Jerk's units."""
+    lines = [f"sampling: {sampling}" + (f"; single-motion: {single_sampling}" if single_sampling else ""),
+             f"transition: the {WINDOW} frames around each boundary; ground truth (single) = the middle "
+             f"{WINDOW} frames of every ground-truth item",
+             "Jerk: paper eq. 10 averaged over joints and boundaries, time measured in frames (fps = 1)"]
+    if reference.rp_batch < R_PRECISION_BATCH:
+        lines.append(f"R-precision over groups of {reference.rp_batch}, not {R_PRECISION_BATCH}: the test set has only "
+                     f"{reference.items} items (not comparable with published R-Top numbers)")
+    return lines
+
+
+def plot_fig5(path: Path, curves: dict[str, dict[str, Any]]) -> Path:
+    """The paper's Fig. 5: mean joint speed and peak-normalised jerk per frame around the
+    transitions, one curve per label."""
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(10, 4), layout="constrained")
+    speed_axes, jerk_axes = figure.subplots(1, 2)
+    for label, profile in curves.items():
+        if profile["velocity"] is None:
+            continue
+        style = {"color": "black", "linestyle": "--"} if label == ROW_TITLES[GT_CONCAT] else {}
+        velocity, jerk_curve = np.asarray(profile["velocity"]), np.asarray(profile["jerk"])
+        speed_axes.plot(np.arange(len(velocity)) - WINDOW // 2 + 0.5, velocity, label=label, **style)
+        jerk_axes.plot(np.arange(len(jerk_curve)) - WINDOW // 2 + 1.5, jerk_curve, label=label, **style)
+    for axes, title, unit in ((speed_axes, "(a) Velocity", "mean joint speed (m/frame)"),
+                              (jerk_axes, "(b) Jerk", "‖jerk‖ / peak speed (frame⁻²)")):
+        axes.axvline(0, color="grey", linewidth=0.8)
+        axes.set(title=title, xlabel="frames from the boundary", ylabel=unit)
+        axes.legend(fontsize="small")
+    figure.savefig(path, dpi=120)
+    return path
+
+
+def table_metrics(table: dict[str, Any]) -> dict[str, float]:
+    """``multi/<method>/<metric>``, ``gt/<metric>_single``, ``gt/jerk_concat``, ``single/<metric>``,
+    each with a ``_ci`` twin; undefined values are left out."""
+    names = {}
+    sections = [("multi", row, values) for row, values in table["multi"].items()]
+    sections += [("single", row, values) for row, values in table.get("single", {}).items() if row == GENERATED]
+    for section, row, values in sections:
+        for metric, summary in values.items():
+            if summary["mean"] is None:
+                continue
+            if row in (GT_SINGLE, GT_CONCAT):
+                name = f"gt/{metric}_{row.removeprefix('gt_')}"
+            else:
+                name = f"multi/{row}/{metric}" if section == "multi" else f"single/{metric}"
+            names[name], names[f"{name}_ci"] = summary["mean"], summary["ci"]
+    return names

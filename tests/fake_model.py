@@ -1,0 +1,101 @@
+"""A model that is no model, registered from outside the framework as a plugin
+(``M2D2M_MODELS=tests.fake_model``): its generator plays back the ground-truth clip of each action
+sentence, laid end to end. If evaluation or sweeps knew anything of M2D2M beyond the registry and
+the generator protocol, this model could not go through them."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from m2d2m.generators.protocol import MULTI, SINGLE, Keep, MotionGenerator
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.skeleton import SKELETONS, Skeleton
+from orchestration.registry import ModelEntry, register
+
+NAME = "playback"
+
+
+@dataclass(frozen=True)
+class PlaybackOptions:
+    method: str = "concat"
+    offset: int = 0  # frames skipped at the start of every clip: a knob for sweeps to vary
+
+
+def save_playback(path: Path, clips: dict[str, np.ndarray]) -> Path:
+    """The model file: one feature clip per action sentence."""
+    sentences = sorted(clips)
+    np.savez(path, sentences=np.array(sentences), **{f"clip{i}": clips[s] for i, s in enumerate(sentences)})
+    return path
+
+
+class PlaybackGenerator(MotionGenerator):
+    model = NAME
+    methods = ("concat",)
+    options_type = PlaybackOptions
+    presets = {SINGLE: PlaybackOptions(), MULTI: PlaybackOptions()}
+
+    def __init__(self, clips: dict[str, np.ndarray], source: Path) -> None:
+        self.clips = clips
+        self.source = source
+
+    @classmethod
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "PlaybackGenerator":
+        with np.load(path, allow_pickle=False) as arrays:
+            clips = {str(s): arrays[f"clip{i}"] for i, s in enumerate(arrays["sentences"])}
+        return cls(clips, Path(path))
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return SKELETONS["t2m"]
+
+    @property
+    def feature_dim(self) -> int:
+        return self.skeleton.feature_dim
+
+    @property
+    def device(self) -> torch.device:
+        return torch.device("cpu")
+
+    def typical_frames(self, verb: str | None) -> int:
+        return 40
+
+    @property
+    def longest_frames(self) -> int:
+        return max(len(clip) for clip in self.clips.values())
+
+    def describe(self, options: PlaybackOptions) -> str:
+        return f"ground truth played back from frame {options.offset}"
+
+    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: PlaybackOptions,
+                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None) -> list[Motion]:
+        motions = []
+        for sequence, lengths in zip(actions, frames):
+            pieces = []
+            for action, n in zip(sequence, lengths):
+                clip = self.clips[action][options.offset:]
+                pieces.append(clip[np.minimum(np.arange(n), len(clip) - 1)])
+            features = np.concatenate(pieces)
+            ends = np.cumsum([len(p) for p in pieces])
+            motions.append(Motion(features, features_to_joints(features, self.skeleton), self.fps, "t2m",
+                                  list(sequence), [(int(e - len(p)), int(e)) for p, e in zip(pieces, ends)],
+                                  {"model": NAME, "method": options.method, "offset": options.offset}))
+        return motions
+
+
+def train(*args, **kwargs) -> None:
+    raise NotImplementedError("playback has nothing to train")
+
+
+prepare = train
+
+register(ModelEntry(
+    name=NAME, summary="ground truth played back (a test of the registry)", stage=NAME, legacy_stages=(),
+    configs=NAME, train_verb="train-playback", model_file="playback.npz",
+    generator=f"{__name__}:PlaybackGenerator", recipe=__name__, network=__name__, process=__name__,
+    module=__name__, datamodule=__name__, plugin=__name__))
