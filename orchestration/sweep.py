@@ -154,6 +154,9 @@ def _parent_run(sweep_dir: Path, name: str, config: dict[str, Any]) -> tuple[str
     record = sweep_dir / SWEEP_FILE
     if record.exists():
         saved = json.loads(record.read_text(encoding="utf-8"))
+        if "model" not in saved["config"]:  # its Tune experiment holds trials of the older layout
+            raise UserError(f"{sweep_dir} was started by an m2d2m without the model registry and cannot be "
+                            f"resumed; delete it to run the sweep again")
         return saved["experiment_id"], saved["parent_run_id"]
     params = {"model": config["model"], "kind": config["kind"], "method": config["method"],
               "repeats": config["repeats"], "search": config["search"],

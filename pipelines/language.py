@@ -4,7 +4,7 @@ M2D2M conditions its denoiser on *action sentences*: a caption is split at its a
 piece is rewritten with a neutral subject ("a person walks forward and then sits down" ->
 "a person walks forward", "a person sits down"). The same function serves the dataset pipeline,
 where HumanML3D / KIT-ML ship spaCy ``en_core_web_sm`` tags with every caption
-(``caption#word/UPOS ...#start#end``, ``reference/humanml3d.md`` §3.1), and free-text prompts at
+(``caption#word/UPOS ...#start#end``, EricGuo5513/HumanML3D, ``HumanML3D/texts``; docs/data.md), and free-text prompts at
 generation time, where a :class:`Tagger` supplies the tags: ``en_core_web_sm`` when it is
 installed, otherwise a small spaCy pipeline trained here on the corpus's own tagged captions.
 

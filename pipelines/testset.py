@@ -37,7 +37,7 @@ KIT-ML 532. No code was released. The reading implemented here, and why:
 Why this reading of 1,448 / 532: both are multiples of 4 (362 × 4, 133 × 4), as the number of
 *motions* used by an N = 4 test set without re-use must be, and App. B calls them motions. They
 cannot both be instance counts of disjoint groups of 4 captions (KIT-ML's test split has about
-1,560 captions, fewer than 532 × 4; ``reference/humanml3d.md`` §5). The paper's counts exceed
+1,560 captions, fewer than 532 × 4, by the split files of EricGuo5513/HumanML3D's KIT-ML release). The paper's counts exceed
 what a mirror-as-same-motion rule allows on KIT-ML (its test split has fewer than 400 original
 clips), so they were most likely taken over ids with mirrors counted apart
 (``mirrors="distinct"``); the default here is the stricter rule (a motion and its mirror are

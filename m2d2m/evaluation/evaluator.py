@@ -1,4 +1,5 @@
-"""The text–motion evaluator of Guo et al. (Guo et al., CVPR 2022; EricGuo5513/text-to-motion, ``networks/modules.py``), which every text-to-motion
+"""The text–motion evaluator of Guo et al. (Guo et al., CVPR 2022; EricGuo5513/text-to-motion,
+``networks/modules.py``), which every text-to-motion
 paper's R-precision, matching score, FID, diversity and multimodality are measured with.
 
 A motion (un-normalised features, ``(B, T, D)``) is normalised with the evaluator's *own*

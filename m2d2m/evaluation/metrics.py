@@ -2,7 +2,8 @@
 diversity, R-precision, MM-Dist, multimodality) and M2D2M's transition Jerk (paper eq. 10) on
 joint positions.
 
-The embedding metrics follow Guo et al.'s protocol (EricGuo5513/text-to-motion, ``utils/metrics.py``) so that numbers
+The embedding metrics follow Guo et al.'s protocol (EricGuo5513/text-to-motion, ``utils/metrics.py``) so
+that numbers
 from the same evaluator are comparable with published tables. Everything is computed in float64
 NumPy: metrics run once per evaluation, where precision matters more than speed. Inputs may be
 NumPy arrays or torch tensors; results are Python floats or NumPy arrays.

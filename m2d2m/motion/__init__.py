@@ -1,1 +1,2 @@
-"""The motion representation and its files: skeletons, rotations, features, normalisation, rendering, export, joining."""
+"""The motion representation and its files: skeletons, rotations, features, normalisation, rendering,
+export, joining."""

@@ -1,4 +1,5 @@
-"""Joining separately generated motions: the SLERP baseline of TEACH (Athanasiou et al. 2022; athn-nik/teach, its SLERP baseline)
+"""Joining separately generated motions: the SLERP baseline of TEACH (Athanasiou et al. 2022;
+athn-nik/teach, its SLERP baseline)
 on joint positions.
 
 Each motion after the first is turned about the vertical axis so that its first frame faces where

@@ -4,7 +4,7 @@ HumanML3D's statistics: a per-dimension mean over all frames, and a population s
 replaced by its average within each feature group (root yaw, root velocity, root height, RIC
 positions, rotations, velocities, contacts). Models trained on HumanML3D additionally divide the
 std of the root (dims 0:4) and contact (last 4) groups by ``feat_bias`` (default 5) so that those
-few dimensions weigh more (``reference/humanml3d.md`` §2).
+few dimensions weigh more (EricGuo5513/text-to-motion, ``data/dataset.py``; docs/representation.md).
 """
 
 from __future__ import annotations

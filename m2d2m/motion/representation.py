@@ -1,6 +1,7 @@
 """HumanML3D's motion representation: joints ⇄ 263-d (T2M) / 251-d (KIT) features, and mirroring.
 
-Feature layout per frame, J joints (``reference/humanml3d.md`` §1.3)::
+Feature layout per frame, J joints (docs/representation.md, "Feature layout"; HumanML3D's
+``motion_representation.ipynb``, EricGuo5513/HumanML3D)::
 
     [0]                 root angular velocity about Y (HALF the per-frame yaw change, rad)
     [1:3]               root linear velocity (x, z) in the heading frame of the next frame

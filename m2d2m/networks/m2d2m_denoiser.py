@@ -1,4 +1,5 @@
-"""The denoising transformer of M2D2M (paper §4.4; VQ-Diffusion's block: microsoft/VQ-Diffusion, ``image_synthesis/modeling/transformers/transformer_utils.py``).
+"""The denoising transformer of M2D2M (paper §4.4; VQ-Diffusion's block: microsoft/VQ-Diffusion,
+``image_synthesis/modeling/transformers/transformer_utils.py``).
 
 It estimates p(z0 | z_t, y): motion tokens ``z_t`` (values 0..K-1, K = the mask) go in, logits over
 the K codes (never the mask) come out. Each pre-norm block is

@@ -1,4 +1,5 @@
-"""The motion VQ-VAE of T2M-GPT (Zhang et al. 2023; Mael-zys/T2M-GPT, ``models/vqvae.py``, ``models/encdec.py``, ``models/quantize_cnn.py``), re-implemented device-agnostically.
+"""The motion VQ-VAE of T2M-GPT (Zhang et al. 2023; Mael-zys/T2M-GPT, ``models/vqvae.py``,
+``models/encdec.py``, ``models/quantize_cnn.py``), re-implemented device-agnostically.
 
 Features ``(B, T, D)`` are encoded by a strided 1-D convolution stack into one latent per
 ``2**down_t`` frames, each latent is replaced by its nearest code in an EMA codebook with dead-code

@@ -1,4 +1,5 @@
-"""Transition matrices of M2D2M's discrete diffusion (paper §3 and §4.2; schedule and posterior after microsoft/VQ-Diffusion, ``diffusion_transformer.py``).
+"""Transition matrices of M2D2M's discrete diffusion (paper §3 and §4.2; schedule and posterior after
+microsoft/VQ-Diffusion, ``diffusion_transformer.py``).
 
 Tokens are the K codes of the frozen VQ codebook plus a mask token at index K. One forward step keeps
 a code (α_t), masks it (γ_t) or replaces it, the replace mass 1 − α_t − γ_t being spread evenly over

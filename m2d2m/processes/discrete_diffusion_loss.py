@@ -1,4 +1,5 @@
-"""Training objective of the denoiser: L_vlb + λ·auxiliary cross-entropy (paper Eq. 3; microsoft/VQ-Diffusion, ``diffusion_transformer.py`` ``_train_loss``).
+"""Training objective of the denoiser: L_vlb + λ·auxiliary cross-entropy (paper Eq. 3;
+microsoft/VQ-Diffusion, ``diffusion_transformer.py`` ``_train_loss``).
 
 The network predicts x0 logits over the K codes; its posterior p(z_{t−1} | z_t) is the mixture of
 true posteriors weighted by softmax(logits) (paper Eq. 4), computed by
