@@ -51,6 +51,22 @@ def _precision(setting: str) -> str:
     return "bf16-mixed" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "32-true"
 
 
+def validation_interval(trainer_cfg: dict[str, Any]) -> int:
+    """Steps between validations, and so the DataModules' epoch length: ``val_every_steps``, or
+    ``max_steps`` when that is shorter, so that even a short smoke run validates once, at its
+    end, and leaves a best checkpoint and a model file."""
+    return min(trainer_cfg["val_every_steps"], trainer_cfg["max_steps"])
+
+
+def _check_trainer(config: dict[str, Any]) -> None:
+    """Refuse, before a run directory exists, step counts no training can run with."""
+    trainer_cfg = config["trainer"]
+    for key in ("max_steps", "val_every_steps"):
+        value = trainer_cfg[key]
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise UserError(f"trainer.{key} must be a whole number of steps >= 1, got {value!r}")
+
+
 def open_run(stage: str, configs: str, config_name: str, overrides: list[str], resume: bool,
              join: Path | None = None) -> tuple[Path, dict[str, Any], str | None]:
     """The run directory of ``stage``, its config (``configs/<configs>/<config_name>.yaml`` with
@@ -62,6 +78,7 @@ def open_run(stage: str, configs: str, config_name: str, overrides: list[str], r
         info = read_run_info(join)
         return join, info["config"], info.get("mlflow_run_id")
     config = load_config(configs, config_name, overrides)
+    _check_trainer(config)
     if not resume:
         run_dir = new_run_dir(config["dataset"], stage)
         (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
@@ -152,7 +169,7 @@ def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, r
         callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"), *callbacks],
         gradient_clip_val=config["optim"]["grad_clip"],
         limit_val_batches=trainer_cfg["val_batches"],
-        log_every_n_steps=min(50, trainer_cfg["val_every_steps"]),
+        log_every_n_steps=min(50, validation_interval(trainer_cfg)),
         default_root_dir=run_dir,
         num_sanity_val_steps=0,
     )
@@ -204,7 +221,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     try:
         datamodule = MotionWindowDataModule(
             data["dir"], window=data["window"], batch_size=data["batch_size"], num_workers=data["num_workers"],
-            steps_per_epoch=trainer_cfg["val_every_steps"], seed=config["seed"],
+            steps_per_epoch=validation_interval(trainer_cfg), seed=config["seed"],
         )
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
@@ -315,7 +332,7 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     try:
         datamodule = CaptionMotionDataModule(
             data["dir"], batch_size=data["batch_size"], num_workers=data["num_workers"],
-            steps_per_epoch=trainer_cfg["val_every_steps"], min_frames=data["min_frames"],
+            steps_per_epoch=validation_interval(trainer_cfg), min_frames=data["min_frames"],
             max_frames=data["max_frames"], seed=config["seed"])
         if model["word_features"] == "glove":
             if not config.get("glove_dir"):

@@ -12,7 +12,7 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 
 from m2d2m.evaluation.evaluator import (POS_INDEX, EvaluatorConfig, TextMotionEvaluator, contrastive_loss, learned_vocabulary,
-                             load_evaluator, load_guo_checkpoint, save_evaluator)
+                             load_evaluator, load_glove, load_guo_checkpoint, save_evaluator)
 from tests.helpers import CAPTIONS, TINY_EVALUATOR
 from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
 
@@ -229,3 +229,25 @@ def test_training_runs_end_to_end_on_a_tiny_dataset(tiny_data, tmp_path, one_tor
     save_evaluator(tmp_path / "evaluator.pt", module.model)
     loaded = load_evaluator(tmp_path / "evaluator.pt")
     assert torch.equal(loaded.feature_scale, torch.as_tensor(datamodule.normalizer.scale))
+
+
+class _RunsCode:
+    """A pickled object whose unpickling would call a function: what a tampered file could hold."""
+
+    def __reduce__(self):
+        return (print, ("this must never run",))
+
+
+@pytest.mark.parametrize("index", [{"a": np.int64(0), "person": np.int64(1)}, {"a": 0, "person": 1}])
+def test_the_word_index_reader_takes_plain_and_numpy_rows(tmp_path, index):
+    np.save(tmp_path / "our_vab_data.npy", np.zeros((2, 300), dtype=np.float32))
+    (tmp_path / "our_vab_idx.pkl").write_bytes(pickle.dumps(index))
+    assert load_glove(tmp_path)[0] == ["a", "person"]
+
+
+def test_a_word_index_that_would_run_code_is_refused(tmp_path, capsys):
+    np.save(tmp_path / "our_vab_data.npy", np.zeros((1, 300), dtype=np.float32))
+    (tmp_path / "our_vab_idx.pkl").write_bytes(pickle.dumps({"a": _RunsCode()}))
+    with pytest.raises(ValueError, match="not a word index .*builtins.print"):
+        load_glove(tmp_path)
+    assert "never run" not in capsys.readouterr().out

@@ -94,3 +94,18 @@ def test_a_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(project):
 def test_a_missing_dataset_says_what_to_run(project):
     with pytest.raises(UserError, match="m2d2m data"):
         train_vq(str(project / "tiny.yaml"), overrides=[f"data.dir={project / 'nowhere'}"])
+
+
+def test_a_smoke_run_shorter_than_one_validation_interval_still_finishes(project):
+    """max_steps below val_every_steps (3 in the tiny config): the run validates once at its end,
+    keeps a best checkpoint and exports its model file (issue: it used to die loading '')."""
+    run_dir = train_vq(str(project / "tiny.yaml"), overrides=["trainer.max_steps=2"])
+    assert read_run_info(run_dir)["status"] == "finished" and (run_dir / "vq.pt").is_file()
+    assert (run_dir / "checkpoints" / "best.ckpt").is_file()
+
+
+@pytest.mark.parametrize("override", ["trainer.max_steps=0", "trainer.val_every_steps=-1", "trainer.max_steps=2.5"])
+def test_step_counts_no_run_can_use_are_refused_before_a_run_exists(project, override):
+    with pytest.raises(UserError, match=f"{override.split('=')[0]} must be a whole number of steps"):
+        train_vq(str(project / "tiny.yaml"), overrides=[override])
+    assert not (project / "runs").exists()

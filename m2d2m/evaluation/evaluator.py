@@ -123,10 +123,33 @@ def learned_vocabulary(captions: Iterable[Sequence[str]], min_count: int = 1) ->
     return [*LearnedTextEncoder.build_vocabulary(sentences, min_count), specials["sos"], specials["eos"]]
 
 
+class _WordIndexUnpickler(pickle.Unpickler):
+    """Reads a word → row pickle and nothing else: plain dicts, strings and integers need no
+    class, NumPy integers need only NumPy's scalar and dtype; any other class a file names is
+    refused, so a tampered file cannot run code."""
+
+    _ALLOWED = {("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"), ("numpy", "dtype")}
+
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) not in self._ALLOWED:
+            raise pickle.UnpicklingError(f"a word index holds words and rows only, not {module}.{name}")
+        return super().find_class(module, name)
+
+
+def _read_word_index(path: Path) -> dict[str, int]:
+    try:
+        with open(path, "rb") as handle:
+            index = _WordIndexUnpickler(handle).load()
+    except (pickle.UnpicklingError, EOFError, ValueError) as error:
+        raise ValueError(f"{path} is not a word index ({error})") from error
+    if not isinstance(index, dict) or not all(isinstance(w, str) and int(r) == r for w, r in index.items()):
+        raise ValueError(f"{path} is not a word index (a dict of word → row)")
+    return index
+
+
 def load_glove(glove_dir: str | Path, prefix: str = "our_vab") -> tuple[list[str], torch.Tensor]:
     """Guo's GloVe subset from ``glove_dir``: ``<prefix>_data.npy`` (V, 300) and ``<prefix>_idx.pkl``
-    (word → row). Returns the words in row order and the vectors. The pickle is trusted as the
-    user's own file: only load one from a source you trust."""
+    (word → row, read by a restricted unpickler). Returns the words in row order and the vectors."""
     glove_dir = Path(glove_dir)
     vectors_path, index_path = glove_dir / f"{prefix}_data.npy", glove_dir / f"{prefix}_idx.pkl"
     for path in (vectors_path, index_path):
@@ -134,8 +157,7 @@ def load_glove(glove_dir: str | Path, prefix: str = "our_vab") -> tuple[list[str
             raise FileNotFoundError(f"{path}: missing; GloVe files come from text-to-motion's glove/ directory "
                                     "(glove.zip), and are never downloaded here")
     vectors = np.load(vectors_path, allow_pickle=False)
-    with open(index_path, "rb") as handle:
-        index = pickle.load(handle)
+    index = _read_word_index(index_path)
     rows = sorted(int(row) for row in index.values())
     if vectors.ndim != 2 or rows != list(range(len(vectors))):
         raise ValueError(f"{index_path} and {vectors_path} disagree: {len(index)} words with rows "

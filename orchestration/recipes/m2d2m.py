@@ -8,7 +8,7 @@ from typing import Any
 
 from orchestration.errors import UserError
 from orchestration.registry import model
-from orchestration.train import ensure_tokens, finish, fit, open_run, vq_file
+from orchestration.train import ensure_tokens, finish, fit, open_run, validation_interval, vq_file
 
 NAME = "m2d2m"
 
@@ -41,7 +41,7 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
         tokens_dir = ensure_tokens(vq_path)
         data, trainer_cfg = config["data"], config["trainer"]
         datamodule = TokenDataModule(tokens_dir, batch_size=data["batch_size"], num_workers=data["num_workers"],
-                                     steps_per_epoch=trainer_cfg["val_every_steps"], max_tokens=data["max_tokens"],
+                                     steps_per_epoch=validation_interval(trainer_cfg), max_tokens=data["max_tokens"],
                                      seed=config["seed"])
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
