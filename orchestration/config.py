@@ -45,8 +45,26 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return key.strip().split("."), parsed
 
 
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _kind_mismatch(current: Any, value: Any) -> str | None:
+    """What ``value`` should have been to replace ``current`` (the file's value), or None when it
+    fits: a number stays a number (or null), a switch a switch, a list a list; a null or a text in
+    the file takes anything (``devices: auto`` may become 2)."""
+    if isinstance(current, bool):
+        return None if isinstance(value, bool) else "true or false"
+    if _is_number(current):
+        return None if value is None or _is_number(value) else "a number"
+    if isinstance(current, list):
+        return None if isinstance(value, list) else "a list, e.g. [1, 2]"
+    return None
+
+
 def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
-    """A copy of ``config`` with each ``key.sub=value`` applied; unknown keys are errors."""
+    """A copy of ``config`` with each ``key.sub=value`` applied; unknown keys, and values of another
+    kind than the file's (``optim.lr=abc``), are errors before anything starts."""
     result = copy.deepcopy(config)
     for text in overrides:
         path, value = parse_override(text)
@@ -59,6 +77,9 @@ def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, A
             if depth == len(path) - 1:
                 if isinstance(node[key], dict):
                     raise UserError(f"--set {text!r}: {'.'.join(path)} is a section; set one of its keys")
+                wanted = _kind_mismatch(node[key], value)
+                if wanted:
+                    raise UserError(f"--set {text!r}: {'.'.join(path)} takes {wanted}, got {value!r}")
                 node[key] = value
             else:
                 node = node[key]

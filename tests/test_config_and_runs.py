@@ -91,3 +91,19 @@ def test_sweep_configs_written_before_the_registry_still_load():
     config = _upgrade({"kind": "training", "diffusion_config": "demo", "resources": {"cpu": 1, "gpu": 0}})
     assert config["model"] == "m2d2m" and config["train_config"] == "demo" and "diffusion_config" not in config
     assert config["resources"]["workers"] == 0
+
+
+@pytest.mark.parametrize("override, message", [
+    ("optim.lr=abc", "optim.lr takes a number, got 'abc'"),
+    ("optim.betas=0.9", "optim.betas takes a list"),
+    ("model.width=[1]", "model.width takes a number"),
+])
+def test_a_value_of_another_kind_than_the_files_is_refused(override, message):
+    with pytest.raises(UserError, match=message.replace("[", r"\[")):
+        apply_overrides(BASE, [override])
+
+
+def test_texts_and_nulls_in_a_file_take_any_value():
+    config = apply_overrides({"trainer": {"devices": "auto", "clip": None, "lr": 1.0}},
+                             ["trainer.devices=2", "trainer.clip=0.5", "trainer.lr=null"])
+    assert config["trainer"] == {"devices": 2, "clip": 0.5, "lr": None}
