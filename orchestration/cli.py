@@ -125,8 +125,8 @@ def _train_evaluator(args: argparse.Namespace) -> None:
 
 
 def _tokenize(args: argparse.Namespace) -> None:
-    from pipelines.tokenize import check_tokens, current_tokens, tokenize_dataset
     from orchestration.train import token_set, vq_file
+    from pipelines.tokenize import check_tokens, current_tokens, tokenize_dataset
 
     if args.check:
         _report_problems(Path(args.check), check_tokens(args.check), "counts, checksums, schema and codebook")
@@ -226,12 +226,10 @@ def _testset(args: argparse.Namespace) -> None:
 
 
 def _evaluate(args: argparse.Namespace) -> None:
-    from orchestration.evaluate import EVAL_STAGE, TABLE_MD, evaluate, new_settings, reopen
+    from orchestration.evaluate import EVAL_STAGE, KNOBS, TABLE_MD, evaluate, new_settings, reopen
 
     options = _sampling_options(args)
-    given = {knob: getattr(args, knob) for knob in ("checkpoint", "testset", "evaluator", "guo_evaluator", "glove",
-                                                    "meta", "methods", "repeats", "single")
-             if getattr(args, knob) is not None}
+    given = {knob: getattr(args, knob) for knob in KNOBS if getattr(args, knob) is not None}
     if args.resume:
         if given or options or args.model is not None:
             named = [*given, *options] + (["model"] if args.model is not None else [])

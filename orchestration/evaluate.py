@@ -128,7 +128,8 @@ class EvalSettings:
         return cls(**{**values, "methods": tuple(values["methods"])})
 
 
-KNOBS = tuple(f.name for f in fields(EvalSettings) if f.name != "model") + ("guo_evaluator",)
+# the settings given as options of their own (the model and sampling options are given apart)
+KNOBS = tuple(f.name for f in fields(EvalSettings) if f.name not in ("model", "options")) + ("guo_evaluator",)
 
 
 def _methods(values: Sequence[str], generator_type: type[MotionGenerator]) -> tuple[str, ...]:

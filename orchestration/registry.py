@@ -43,7 +43,6 @@ class ModelEntry:
     process: str
     module: str
     datamodule: str
-    plugin: str | None = None  # the plugin module that registered it, None for the built-in ones
 
     def load(self, part: str) -> Any:
         """The object a ``"module:attribute"`` field names (``part``: generator, recipe, network, ...)."""

@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from orchestration.errors import UserError
+
 
 def tracking_uri() -> str:
     uri = os.environ.get("MLFLOW_TRACKING_URI")
@@ -101,8 +103,6 @@ def download_model_file(run_id: str, name: str) -> Path:
     """The model file ``name`` an MLflow run logged under ``model/``, downloaded from the store,
     or a one-line error."""
     import mlflow
-
-    from orchestration.errors import UserError
 
     mlflow.set_tracking_uri(tracking_uri())
     try:

@@ -148,7 +148,7 @@ def _joinable(run_dir: Path) -> Iterator[None]:
 
 
 def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, resume: bool, module, datamodule,
-         monitor: str, callbacks: list, ray_train: bool = False) -> _Fitted:
+        monitor: str, callbacks: list, ray_train: bool = False) -> _Fitted:
     """What every training stage shares: the MLflow run and its params, best and last
     checkpoints, the trainer (DDP when it has several devices or Ray Train workers), resume, the
     NaN stop, and reloading the best weights."""
@@ -229,7 +229,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     module = VQVAEModule(config["model"], config["optim"], config["loss"], datamodule.feature_dim, datamodule.skeleton)
     module.set_normalizer(datamodule.normalizer)
     fitted = fit(VQ_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/recon_loss",
-                  [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])])
+                 [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])])
     if not fitted.primary:
         return run_dir
     save_vq(run_dir / VQ_FILE, module.model, datamodule.normalizer, datamodule.skeleton,
@@ -237,8 +237,8 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
                    "data_dir": str(Path(data["dir"]).resolve()),
                    "best_val_recon_loss": float(fitted.checkpoints.best_model_score)})
     finish(run_dir, fitted, [run_dir / VQ_FILE, Path(fitted.checkpoints.best_model_path), fitted.last,
-                              run_dir / "config.yaml", Path(data["dir"]) / "stats.npz"],
-            vq=str((run_dir / VQ_FILE).resolve()))
+                             run_dir / "config.yaml", Path(data["dir"]) / "stats.npz"],
+           vq=str((run_dir / VQ_FILE).resolve()))
     return run_dir
 
 
@@ -268,16 +268,17 @@ def token_set(vq_path: Path, data_dir: str | Path | None = None) -> tuple[Path, 
     return Path(data), Path(data) / TOKENS / extra.get("run", vq_path.parent.name)
 
 
-def ensure_tokens(vq_path: Path) -> Path:
-    """The token set of the VQ-VAE's dataset under this VQ-VAE, made first when it is missing or
-    stale (so a sweep's driver can make it once, before parallel trials would race to)."""
+def ensure_tokens(vq_path: Path) -> tuple[Path, Path]:
+    """The VQ-VAE's dataset and its token set under this VQ-VAE (:func:`token_set`), the tokens
+    made first when they are missing or stale (so a sweep's driver can make them once, before
+    parallel trials would race to)."""
     from pipelines.tokenize import current_tokens, tokenize_dataset
 
     data_dir, tokens_dir = token_set(vq_path)
     if current_tokens(data_dir, vq_path, tokens_dir) is None:
         print(f"tokenizing {data_dir} with {vq_path} first")
         tokenize_dataset(data_dir, vq_path, tokens_dir)
-    return tokens_dir
+    return data_dir, tokens_dir
 
 
 def train_model(name: str, config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
@@ -318,6 +319,7 @@ def _ray_train_worker(config: dict[str, Any]) -> None:
     load_plugins(**config["plugins"])
     model(config["model"]).load("recipe").train(join=Path(config["run_dir"]), ray_train=True)
 
+
 def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
                     extra_callbacks: list | None = None) -> Path:
     """Train Guo et al.'s text–motion matching evaluator on the dataset's train split (best
@@ -328,13 +330,13 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
 
     run_dir, config, run_id = open_run(EVALUATOR_STAGE, EVALUATOR_STAGE, config_name, overrides or [], resume)
-    data, trainer_cfg, model = config["data"], config["trainer"], config["model"]
+    data, trainer_cfg, network = config["data"], config["trainer"], config["model"]
     try:
         datamodule = CaptionMotionDataModule(
             data["dir"], batch_size=data["batch_size"], num_workers=data["num_workers"],
             steps_per_epoch=validation_interval(trainer_cfg), min_frames=data["min_frames"],
             max_frames=data["max_frames"], seed=config["seed"])
-        if model["word_features"] == "glove":
+        if network["word_features"] == "glove":
             if not config.get("glove_dir"):
                 raise ValueError("model.word_features: glove needs glove_dir (Guo's glove/ directory)")
             vocabulary, vectors = load_glove(config["glove_dir"])
@@ -343,13 +345,13 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
     pl.seed_everything(config["seed"], workers=True, verbose=False)
-    module = EvaluatorModule(model, config["optim"], config["loss"], datamodule.feature_dim, vocabulary, vectors)
+    module = EvaluatorModule(network, config["optim"], config["loss"], datamodule.feature_dim, vocabulary, vectors)
     module.set_normalizer(datamodule.normalizer)
     fitted = fit(EVALUATOR_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
-                  list(extra_callbacks or []))
+                 list(extra_callbacks or []))
     if not fitted.primary:
         return run_dir
     save_evaluator(run_dir / EVALUATOR_FILE, module.model)
     finish(run_dir, fitted, [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
-            evaluator=str((run_dir / EVALUATOR_FILE).resolve()))
+           evaluator=str((run_dir / EVALUATOR_FILE).resolve()))
     return run_dir

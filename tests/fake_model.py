@@ -98,4 +98,4 @@ register(ModelEntry(
     name=NAME, summary="ground truth played back (a test of the registry)", stage=NAME, legacy_stages=(),
     configs=NAME, train_verb="train-playback", model_file="playback.npz",
     generator=f"{__name__}:PlaybackGenerator", recipe=__name__, network=__name__, process=__name__,
-    module=__name__, datamodule=__name__, plugin=__name__))
+    module=__name__, datamodule=__name__))

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import tests.test_testset as handmade
+from m2d2m.generators.m2d2m import M2D2MGenerator
 from orchestration.cli import main
 from orchestration.reports import MULTI_COLUMNS, SINGLE_COLUMNS
-from m2d2m.generators.m2d2m import M2D2MGenerator
 from pipelines.testset import build_testset
 
 METHODS = ("tps", "slerp")

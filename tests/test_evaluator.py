@@ -12,8 +12,9 @@ import pytest
 import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 
-from m2d2m.evaluation.evaluator import (POS_INDEX, EvaluatorConfig, TextMotionEvaluator, contrastive_loss, learned_vocabulary,
-                             load_evaluator, load_glove, load_guo_checkpoint, save_evaluator)
+from m2d2m.evaluation.evaluator import (POS_INDEX, EvaluatorConfig, TextMotionEvaluator, contrastive_loss,
+                                        learned_vocabulary, load_evaluator, load_glove, load_guo_checkpoint,
+                                        save_evaluator)
 from tests.helpers import CAPTIONS, TINY_EVALUATOR
 from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
 

@@ -9,11 +9,11 @@ import pytest
 import torch
 import yaml
 
+from m2d2m.generators.m2d2m import M2D2MGenerator
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
 from m2d2m.motion.clip import Motion
 from orchestration.cli import main
 from orchestration.errors import UserError
-from m2d2m.generators.m2d2m import M2D2MGenerator
 from orchestration.generate import PromptPlanner, edit, generate, load_generator
 from orchestration.train import train_model, train_vq
 from tests.helpers import TINY_DIFFUSION, TINY_VQ_RUN

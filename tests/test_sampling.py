@@ -6,9 +6,10 @@ from __future__ import annotations
 import pytest
 import torch
 
+from m2d2m.generators.m2d2m_sampling import (FREE, Request, SamplingOptions, TokenSampler, categorical, length_groups,
+                                             truncate)
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
-from m2d2m.generators.m2d2m_sampling import FREE, Request, SamplingOptions, TokenSampler, categorical, length_groups, truncate
 from m2d2m.text import LearnedTextEncoder
 
 CODES, STEPS = 12, 10

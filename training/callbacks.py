@@ -7,10 +7,10 @@ from pathlib import Path
 import lightning.pytorch as pl
 from lightning.pytorch.loggers import MLFlowLogger
 
-from m2d2m.motion.render import render_comparison, render_motion
-from m2d2m.motion.representation import features_to_joints
 from m2d2m.generators.m2d2m import decode_tokens
 from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions
+from m2d2m.motion.render import render_comparison, render_motion
+from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS
 from m2d2m.networks.vqvae import load_vq
 

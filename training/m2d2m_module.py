@@ -10,10 +10,10 @@ import numpy as np
 import torch
 
 from m2d2m.generators.m2d2m_checkpoint import schedule_from_config
+from m2d2m.generators.m2d2m_sampling import TokenSampler
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
-from m2d2m.generators.m2d2m_sampling import TokenSampler
 from m2d2m.text import build_text_encoder, encode_actions
 from training.optim import configure_adamw
 from training.vq_module import NonFiniteLossError

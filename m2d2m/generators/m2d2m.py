@@ -111,11 +111,9 @@ class M2D2MGenerator(MotionGenerator):
             encoded = vq.encode(normalized[None])[0].cpu()
         if len(encoded) != tokens:
             raise ValueError(f"the kept motion holds {len(encoded)} tokens but the request asks for {tokens}")
-        step = self.frame_step
         held = np.zeros(tokens, dtype=bool)
-        for index in np.flatnonzero(keep.frames):
-            if index // step < tokens:
-                held[index // step] = True
+        units = np.flatnonzero(keep.frames) // self.frame_step
+        held[units[units < tokens]] = True
         return torch.where(torch.as_tensor(held), encoded, torch.full_like(encoded, FREE))
 
     def decode(self, pieces: list[torch.Tensor], actions: list[str], options: SamplingOptions,

@@ -15,14 +15,14 @@ from typing import Any
 
 import torch
 
-from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.processes.discrete_diffusion import ScheduleConfig, TransitionSchedule
 from m2d2m.model_files import cpu_state, read_model_file, write_model_file
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
-from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
+from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.networks.vqvae import FORMAT as VQ_FORMAT
 from m2d2m.networks.vqvae import MotionVQVAE, vq_from_payload
+from m2d2m.processes.discrete_diffusion import ScheduleConfig, TransitionSchedule
+from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
 
 FORMAT = "m2d2m-denoiser/1"
 SCHEDULE_KEYS = tuple(f.name for f in fields(ScheduleConfig))

@@ -15,7 +15,7 @@ are laid out as rows:
   with a linear ramp and the drawn tokens copied, so neighbours share one transition (DoubleTake's
   first take, priorMDM/priorMDM ``sample/double_take.py``, in token space).
 - ``slerp``: one row per action, every action after the first shortened by the transition window;
-  the motion-level gap filling is :func:`m2d2m.transitions.bridge` (TEACH, §6.2).
+  the motion-level gap filling is :func:`m2d2m.motion.joining.bridge` (TEACH's SLERP baseline).
 
 Randomness is per request: each request has its own generator and draws, at every step, one
 uniform per position of its actions in order, whatever the rows look like. Hence a request's

@@ -19,7 +19,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
@@ -28,8 +27,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from m2d2m.model_files import cpu_state, read_model_file, write_model_file
-from m2d2m.networks.config import NetworkConfig
 from m2d2m.motion.normalization import Normalizer
+from m2d2m.networks.config import NetworkConfig
 
 FORMAT = "m2d2m-vq/1"
 
