@@ -53,8 +53,10 @@ def read_model_file(path: str | Path, expected_format: str, what: str,
     try:
         payload = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as error:  # any unreadable file is, for the caller, simply not this kind of file
-        first_line = str(error).strip().splitlines()[0] if str(error).strip() else ""
-        raise ValueError(f"{path} is not an {what} ({type(error).__name__}: {first_line})") from error
+        # torch's own text runs to paragraphs (and advises weights_only=False): its first sentence
+        first = str(error).strip().split(". ", 1)[0].splitlines()[0].rstrip(".") if str(error).strip() else ""
+        raise ValueError(f"{path} is not an {what}: truncated, damaged or not written by torch.save "
+                         f"({type(error).__name__}: {first})") from error
     found = payload.get("format") if isinstance(payload, dict) else None
     if found != expected_format:
         raise ValueError(f"{path} is not an {what} (format {found!r}, expected {expected_format!r})")

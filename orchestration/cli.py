@@ -10,19 +10,54 @@ from the model registry, so a new model brings its own verb.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from orchestration.errors import UserError
 from orchestration.registry import models
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse that reports a bad command line as one line, like every other user error,
+    instead of a usage block: the usage is one ``--help`` away."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def _positive_int(text: str) -> int:
-    value = int(text)
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text!r}") from None
     if value <= 0:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    """A finite number above zero (frames per second: 0 divides by zero, -1 writes a BVH
+    whose frame time is negative)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
+    return value
+
+
+def _port(text: str) -> int:
+    """A TCP port number, 1 to 65535."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"must be a port number from 1 to 65535, got {text}")
     return value
 
 
@@ -38,6 +73,8 @@ def _option(text: str) -> tuple[str, Any]:
 def _synthesize(args: argparse.Namespace) -> None:
     from pipelines.synthetic import FAMILIES, existing_corpus, generate_corpus
 
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise UserError(f"{args.out}: a file, not a folder; choose another --out")
     families = args.families.split(",") if args.families else None
     unknown = sorted(set(families or ()) - set(FAMILIES))
     if unknown:
@@ -71,7 +108,7 @@ def _report_problems(directory: Path, problems: list[str], what: str) -> None:
 def _data(args: argparse.Namespace) -> None:
     from pipelines.corpora import CORPUS_SKELETONS
     from pipelines.dataset import check_dataset
-    from pipelines.features import DataConfig, build_dataset, print_summary, reusable_dataset
+    from pipelines.features import DataConfig, build_dataset, print_summary, require_replaceable, reusable_dataset
 
     if args.check:
         _report_problems(Path(args.check), check_dataset(Path(args.check)), "counts, checksums and schema")
@@ -93,10 +130,12 @@ def _data(args: argparse.Namespace) -> None:
         print(f"{out}: already built from {raw} with this config; reusing it (--force rebuilds)")
         print_summary(existing, out)
         return
-    if (out / "manifest.json").exists():
-        print(f"{out}: built with another config; rebuilding")
     try:
-        manifest = build_dataset(config)
+        require_replaceable(config, args.replace)
+        if (out / "manifest.json").exists():
+            print(f"{out}: built with another config; building the new one beside it (the old one stays until "
+                  "the new one is complete)")
+        manifest = build_dataset(config, replace_other=args.replace)
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
     print_summary(manifest, out)
@@ -190,28 +229,26 @@ def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import GENERATE_STAGE, generate, load_generator, log_generation
-    from orchestration.runs import new_run_dir
+    from orchestration.generate import (DEFAULT_MAX_SECONDS, GENERATE_STAGE, generate, load_generator, plan_output,
+                                        save_generation)
 
     if not args.prompts:
         raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
+    output = plan_output(args.out, args.name, args.formats)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
     motion = generate(generator, args.prompts, seconds=args.seconds, seed=args.seed, split=not args.no_split,
+                      max_seconds=DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None,
                       **options)
-    out = Path(args.out) if args.out else new_run_dir(args.dataset, GENERATE_STAGE)
-    try:
-        files = motion.save(out, args.name, tuple(args.formats))
-    except (ValueError, RuntimeError) as error:  # an unknown format, or no MP4 encoder here
-        raise UserError(str(error)) from error
+    files, run_id = save_generation(motion, output, args.prompts, args.dataset, track=not args.no_track)
     for text, (first, end) in zip(motion.actions, motion.ranges):
         print(f"  {first / motion.fps:5.1f}–{end / motion.fps:5.1f} s  {text}")
     print(f"wrote {', '.join(str(path) for path in files.values())} ({motion.seconds:.1f} s, "
-          f"{motion.settings['method']})")
-    if not args.no_track:
-        run_id = log_generation(motion, args.prompts, files, args.dataset)
+          f"{motion.settings['method']}; bone-length spread {motion.quality['bone_length_std_mm_mean']:.1f} mm "
+          "before the rigid skeleton)")
+    if run_id is not None:
         print(f"logged to MLflow run {run_id} (experiment {args.dataset}/{GENERATE_STAGE}); `make ui` to browse")
 
 
@@ -247,27 +284,26 @@ def _evaluate(args: argparse.Namespace) -> None:
 def _sweep(args: argparse.Namespace) -> None:
     from orchestration.sweep import SUMMARY_MD, sweep
 
-    sweep_dir = sweep(args.config, args.set, args.ray_address)
+    sweep_dir = sweep(args.config, args.set, args.ray_address, args.name, args.restart)
     print((sweep_dir / SUMMARY_MD).read_text(encoding="utf-8"))
     print(f"sweep {sweep_dir}: its trials are child runs of one MLflow parent run; compare them with `make ui`")
 
 
 def _ui(args: argparse.Namespace) -> None:
     import os
-    import subprocess
 
+    from orchestration.serving import check_port_free, serve
     from orchestration.tracking import tracking_uri, ui_command
 
     if os.environ.get("MLFLOW_TRACKING_URI", "").startswith("http"):
         print(f"the runs are on the tracking server {os.environ['MLFLOW_TRACKING_URI']}: open it in a browser")
         return
+    check_port_free(args.host, args.port)
     print(f"MLflow UI on {tracking_uri()}: http://{args.host}:{args.port}  (Ctrl-C stops it)", flush=True)
-    try:
-        subprocess.run(ui_command(args.host, args.port), check=True)
-    except KeyboardInterrupt:
-        pass
-    except subprocess.CalledProcessError as error:
-        raise UserError(f"the MLflow UI stopped with status {error.returncode} (is port {args.port} free?)") from error
+    status = serve(ui_command(args.host, args.port))
+    if status:
+        raise UserError(f"the MLflow UI stopped with status {status}; its messages are above")
+    print("stopped the MLflow UI and everything it started")
 
 
 # ------------------------------------------------------------------------------------- parsers
@@ -297,6 +333,8 @@ def _add_data(verbs) -> None:
     data.add_argument("--min-frames", type=_positive_int, help="keep clips with at least this many feature frames")
     data.add_argument("--max-frames", type=_positive_int, help="keep clips with fewer feature frames than this")
     data.add_argument("--force", action="store_true", help="rebuild even if an identical dataset exists")
+    data.add_argument("--replace", action="store_true",
+                      help="replace an --out built from another raw corpus (or holding no dataset)")
     data.add_argument("--check", metavar="DIR", help="verify a processed dataset against its manifest and exit")
     data.set_defaults(run=_data)
 
@@ -361,9 +399,12 @@ def _add_generate(verbs) -> None:
     generate.add_argument("--seed", type=int, default=0)
     _add_model_choice(generate, "m2d2m")
     generate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
-    generate.add_argument("--out", help="output directory (default runs/<dataset>/generate/<new run>)")
-    generate.add_argument("--name", default="motion", help="file name stem (default motion)")
-    generate.add_argument("--formats", nargs="+", default=["npy", "bvh", "gif"], help="any of npy bvh gif mp4")
+    generate.add_argument("--out", help="a folder, or one file whose suffix (.npy .bvh .gif .mp4) is its format "
+                          "(default: the folder runs/<dataset>/generate/<new run>)")
+    generate.add_argument("--name", default="motion", help="file name stem in the --out folder (default motion)")
+    generate.add_argument("--formats", nargs="+", help="any of npy bvh gif mp4 (default npy bvh gif)")
+    generate.add_argument("--max-seconds", type=float,
+                          help="refuse, before sampling, a motion longer than this (default 60; 0 = no cap)")
     generate.add_argument("--no-split", action="store_true", help="keep each prompt one action even with several verbs")
     generate.add_argument("--no-track", action="store_true", help="do not log this generation to MLflow")
     generate.set_defaults(run=_generate)
@@ -416,13 +457,16 @@ def _add_sweep(verbs) -> None:
     sweep.add_argument("--config", default="demo", help="configs/sweep/<name>.yaml or a path (default demo)")
     sweep.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                        help="override a config value, e.g. --set space.eta=[0.1,0.5] (repeatable)")
+    sweep.add_argument("--name", help="the sweep's folder and parent run name (default: the config's file name)")
+    sweep.add_argument("--restart", action="store_true",
+                       help="discard the sweep of this name (its Tune experiment and folder) and start it over")
     _add_ray_address(sweep)
     sweep.set_defaults(run=_sweep)
 
 
 def _add_ui(verbs) -> None:
     ui = verbs.add_parser("ui", help="the MLflow UI on the project's tracking store")
-    ui.add_argument("--port", type=int, default=5000)
+    ui.add_argument("--port", type=_port, default=5000)
     ui.add_argument("--host", default="127.0.0.1", help="127.0.0.1 (default) keeps it on this machine")
     ui.set_defaults(run=_ui)
 
@@ -435,13 +479,13 @@ def _add_viewers(verbs) -> None:
         parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
         parser.add_argument("--id", help="clip id when SOURCE is a corpus directory")
         parser.add_argument("--skeleton", default="t2m", choices=["t2m", "kit"])
-        parser.add_argument("--fps", type=float, help="frames per second (default: the skeleton's)")
+        parser.add_argument("--fps", type=_positive_float, help="frames per second (default: the skeleton's)")
         parser.add_argument("--out", required=True, help="output file; its suffix chooses the format")
         parser.set_defaults(run=run)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="m2d2m", description=__doc__.splitlines()[0])
+    parser = _OneLineParser(prog="m2d2m", description=__doc__.splitlines()[0])
     verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
     for add in (_add_synthesize, _add_data, _add_training_verbs, _add_tokenize, _add_generate, _add_testset,
                 _add_evaluate, _add_sweep, _add_ui, _add_viewers):
@@ -461,6 +505,9 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as error:
         print(f"m2d2m {args.verb}: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"m2d2m {args.verb}: interrupted", file=sys.stderr)
+        return 130
     return 0
 
 

@@ -29,6 +29,13 @@ def resolve_config_path(stage: str, name_or_path: str) -> Path:
     raise UserError(f"no config {name_or_path!r} for {stage}; available: {', '.join(available) or 'none'}")
 
 
+def yaml_problem(error: yaml.YAMLError) -> str:
+    """PyYAML's several-line message as one line: what is wrong and where."""
+    mark = getattr(error, "problem_mark", None)
+    problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+    return f"{problem} at line {mark.line + 1}, column {mark.column + 1}" if mark else problem
+
+
 def parse_override(text: str) -> tuple[list[str], Any]:
     key, sep, value = text.partition("=")
     if not sep or not key.strip():
@@ -36,7 +43,7 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     try:
         parsed = yaml.safe_load(value) if value.strip() else ""
     except yaml.YAMLError as error:
-        raise UserError(f"--set {text!r}: the value is not valid YAML ({error})") from error
+        raise UserError(f"--set {text!r}: the value is not valid YAML ({yaml_problem(error)})") from error
     if isinstance(parsed, str):
         try:  # YAML 1.1 reads 1e-3 (no dot) as a string; people mean the number
             parsed = float(parsed)
@@ -92,7 +99,7 @@ def load_config(stage: str, name_or_path: str, overrides: list[str] | None = Non
     try:
         config = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as error:
-        raise UserError(f"{path}: not valid YAML ({error})") from error
+        raise UserError(f"{path}: not valid YAML ({yaml_problem(error)})") from error
     if not isinstance(config, dict):
         raise UserError(f"{path}: expected a mapping of settings at the top level")
     return apply_overrides(config, overrides or [])

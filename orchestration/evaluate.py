@@ -84,7 +84,7 @@ def _caption_tokens(testset: TestSet) -> list[list[str]]:
     shard reader is reused: importing training's would load Lightning, seconds for nothing.)"""
     try:
         metas = split_metas(Path(testset.manifest["source"]["dir"]), testset.manifest["split"])
-    except FileNotFoundError as error:
+    except (FileNotFoundError, ValueError) as error:  # a missing dataset, or shards that changed
         raise UserError(f"{error}; the captions' word/POS tokens come from the test set's source dataset") from error
     wanted = {(item.key, item.caption_index) for instance in testset for item in instance.items}
     tokens = {(meta["id"], index): caption["tokens"] for meta in metas

@@ -3,28 +3,88 @@
 :func:`load_generator` finds a model file (``latest``, a file, a run directory or name, an MLflow
 run id) and loads the model's generator. In front of the generator's protocol call sit the
 optional steps a person's prompts need: splitting free text into action sentences with the
-dataset's tagger (as the corpus was split) and giving each action a length (the seconds asked
-for, or the corpus's typical length for its verb). Each generation is recorded in MLflow.
+dataset's tagger (as the corpus was split), giving each action a length (the seconds asked for,
+or the corpus's typical length for its verb) under a cap on the whole, and putting the decoded
+joints on one rigid skeleton so that every file of a generation shows the same body.
+:func:`plan_output` checks where the files go and in which formats before anything is loaded;
+:func:`save_generation` writes them into a run folder whose ``run.json`` says how it ended. Each
+generation is recorded in MLflow.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+import signal
+import sys
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from m2d2m.generators.protocol import MotionGenerator, keep_spans
 from m2d2m.layout import NLP
-from m2d2m.motion.clip import Motion
+from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
+from m2d2m.motion.render import can_write_mp4
 from orchestration.errors import UserError
 from orchestration.registry import model
-from orchestration.runs import run_file
+from orchestration.runs import new_run_dir, run_file, write_run_info
 from orchestration.tracking import experiment_name, tracked_run
 
 GENERATE_STAGE = "generate"
+DEFAULT_FORMATS = ("npy", "bvh", "gif")
+# A 590-s clip took 293 s and a 182-MB GIF: a minute is several actions, and seconds to make.
+DEFAULT_MAX_SECONDS = 60.0
+
+
+@dataclass(frozen=True)
+class Output:
+    """Where a generation's files go: ``directory`` (None: a new run folder, made when the motion
+    is ready), the file stem ``name`` and the ``formats``."""
+
+    directory: Path | None
+    name: str
+    formats: tuple[str, ...]
+
+
+def plan_output(out: str | Path | None, name: str, formats: Sequence[str] | None) -> Output:
+    """Check ``--out``, ``--name`` and ``--formats`` before anything is loaded or sampled.
+
+    ``out`` ending in a format's suffix (``clip.gif``) is one file, as for ``m2d2m render`` and
+    ``export``: its stem is the name and its suffix the format (``formats`` may only repeat it);
+    any other ``out`` is a folder, which must not be an existing file; none is a new run folder.
+    MP4 needs an encoder here, found up front.
+    """
+    chosen = tuple(dict.fromkeys(formats or ()))
+    unknown = [f for f in chosen if f not in FORMATS]
+    if unknown:
+        raise UserError(f"unknown format{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}: "
+                        f"choose from {', '.join(FORMATS)}")
+    directory = None if out is None else Path(out)
+    if directory is not None and directory.suffix.lower().lstrip(".") in FORMATS:
+        suffix = directory.suffix.lower().lstrip(".")
+        if chosen and chosen != (suffix,):
+            raise UserError(f"--out {out} names one .{suffix} file; drop --formats, or give a folder as --out "
+                            f"to write {', '.join(chosen)}")
+        if directory.is_dir():
+            raise UserError(f"--out {out} is a folder; give a new file name, or --out {directory.parent} "
+                            f"--name {directory.stem} --formats {suffix}")
+        directory, name, chosen = directory.parent, directory.stem, (suffix,)
+    elif directory is not None and directory.exists() and not directory.is_dir():
+        raise UserError(f"--out {out} is an existing file, not a folder; give a folder, or a file name "
+                        f"ending in .{', .'.join(FORMATS)}")
+    if not name or Path(name).name != name:
+        raise UserError(f"--name must be a plain file name, got {name!r}")
+    chosen = chosen or DEFAULT_FORMATS
+    if "mp4" in chosen and not can_write_mp4():
+        raise UserError("mp4 needs ffmpeg, and none is here (on PATH or from imageio-ffmpeg): "
+                        "pip install imageio-ffmpeg, or choose gif")
+    return Output(directory, name, chosen)
 
 
 def resolve_model_file(name: str, reference: str | Path, dataset: str) -> Path:
@@ -112,15 +172,38 @@ def share(total: int, typical: list[int]) -> list[int]:
     return [int(n) for n in raw]
 
 
+def check_length(frames: Sequence[int], fps: float, max_seconds: float | None) -> None:
+    """A one-line refusal, before sampling, of a generation longer than ``max_seconds`` (None: no
+    cap): its time and its GIF grow with its length."""
+    if max_seconds is not None and max_seconds <= 0:
+        raise UserError(f"the cap on a motion's length must be positive (or none), got {max_seconds:g} s")
+    total = sum(frames) / fps
+    if max_seconds is not None and total > max_seconds:
+        raise UserError(f"the prompts make {total:.1f} s of motion in {len(frames)} action(s), over the "
+                        f"{max_seconds:g}-s cap; give fewer or shorter prompts (--seconds), or --max-seconds "
+                        f"{math.ceil(total)} to make it anyway")
+
+
 def generate(generator: MotionGenerator, prompts: str | Sequence[str], seconds: float | Sequence[float] | None = None,
-             seed: int = 0, split: bool = True, **options: Any) -> Motion:
+             seed: int = 0, split: bool = True, max_seconds: float | None = DEFAULT_MAX_SECONDS,
+             **options: Any) -> Motion:
     """One motion doing ``prompts`` in order, with the generator's multi-action preset changed by
-    ``options`` (for M2D2M: method, ts, eta, guidance, truncation)."""
+    ``options`` (for M2D2M: method, ts, eta, guidance, truncation), on one rigid skeleton
+    (:meth:`Motion.on_rigid_skeleton`; the decoded spread of bone lengths is in ``quality``)."""
     prompts = [prompts] if isinstance(prompts, str) else list(prompts)
     seconds = [seconds] if isinstance(seconds, (int, float)) else seconds
     actions, frames = PromptPlanner(generator).plan(prompts, seconds, split)
+    check_length(frames, generator.fps, max_seconds)
     try:
-        return generator.generate([actions], [frames], generator.options(**options), [seed])[0]
+        settings = generator.options(**options)
+        description = f"sampling {len(actions)} action(s), {sum(frames) / generator.fps:.1f} s"
+        with tqdm(total=100, unit="%", desc=description, leave=False, file=sys.stderr,
+                  disable=None) as bar:  # None: on a terminal only, so errors stay one line
+            def advance(done: float) -> None:
+                bar.update(round(100 * done) - bar.n)
+
+            motion = generator.generate([actions], [frames], settings, [seed], progress=advance)[0]
+        return motion.on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error
 
@@ -137,19 +220,72 @@ def edit(generator: MotionGenerator, motion: Motion, keep: Sequence[tuple[float,
     frames = [end - start for start, end in zip(starts[:-1], starts[1:])]
     try:
         return generator.generate([actions], [frames], generator.options(**options), [seed],
-                                  [keep_spans(motion, keep)])[0]
+                                  [keep_spans(motion, keep)])[0].on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error
 
 
+@contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (``kill``, a scheduler) stops like Ctrl-C: temporary files are removed and the run
+    is marked failed, where the default handler would end the process on the spot."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def save_generation(motion: Motion, output: Output, prompts: Sequence[str], dataset: str,
+                    track: bool = True) -> tuple[dict[str, Path], str | None]:
+    """Write ``motion``'s files (a progress bar on stderr while animations render) and, with
+    ``track``, log them to MLflow; returns format → path and the MLflow run id.
+
+    Without a ``directory`` the files go to a new run folder ``runs/<dataset>/generate/<id>/``
+    whose ``run.json`` says ``running`` while they are written, then ``finished`` (with the
+    files, the MLflow run id and the quality figures) or ``failed``, like a training run's.
+    """
+    run_dir = output.directory is None
+    directory = new_run_dir(dataset, GENERATE_STAGE) if run_dir else output.directory
+    if run_dir:
+        write_run_info(directory, stage=GENERATE_STAGE, dataset=dataset, status="running", prompts=list(prompts),
+                       actions=motion.actions, settings=motion.settings)
+    frames = len(motion.joints) * sum(kind in ANIMATIONS for kind in output.formats)
+    try:
+        with _sigterm_as_interrupt(), tqdm(total=frames, unit="frame", desc="rendering", leave=False,
+                                           disable=None if frames else True) as bar:  # None: on a terminal only
+            files = motion.save(directory, output.name, output.formats, progress=lambda _: bar.update())
+            run_id = log_generation(motion, prompts, files, dataset) if track else None
+    except BaseException as error:
+        if run_dir:
+            write_run_info(directory, status="failed", error=f"{type(error).__name__}: {error}")
+        if isinstance(error, (ValueError, RuntimeError)):  # ffmpeg failed, or a file could not be written
+            raise UserError(str(error)) from error
+        raise
+    if run_dir:
+        write_run_info(directory, status="finished", files={k: str(v) for k, v in files.items()},
+                       mlflow_run_id=run_id, quality=motion.quality)
+    return files, run_id
+
+
 def log_generation(motion: Motion, prompts: Sequence[str], files: dict[str, Path], dataset: str) -> str:
     """Record one generation in MLflow (experiment ``<dataset>/generate``): prompts, actions,
-    settings as params, the files as artifacts; returns the MLflow run id."""
+    settings as params, the quality figures as metrics, each file once as an artifact; returns
+    the MLflow run id."""
     params = {**{k: str(v) for k, v in motion.settings.items()}, "prompts": " | ".join(prompts)[:500],
               "actions": " | ".join(motion.actions)[:500], "seconds": f"{motion.seconds:.2f}"}
     tags = {"dataset": dataset, "stage": GENERATE_STAGE, "model": str(motion.settings.get("model")),
             "method": str(motion.settings.get("method"))}
     with tracked_run(experiment_name(dataset, GENERATE_STAGE), tags=tags, params=params) as (client, run_id):
+        for name, value in motion.quality.items():
+            client.log_metric(run_id, name, value)
         for path in files.values():
             client.log_artifact(run_id, str(path), artifact_path="motion")
         features = files.get("npy")

@@ -19,7 +19,7 @@ GT_SINGLE, GT_CONCAT, GENERATED = "gt_single", "gt_concat", "generated"
 # (metric, column title) of each table, in the paper's order
 MULTI_COLUMNS = (("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MMdist ↓"), ("diversity", "Div →"),
                  ("transition_fid", "Transition FID ↓"), ("transition_diversity", "Transition Div →"),
-                 ("jerk", "Jerk →"))
+                 ("jerk", "Jerk →"), ("bone_std", "Bone σ (mm) ↓"))
 SINGLE_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top2", "R-Top2 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"),
                   ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →"), ("mmodality", "MModality ↑"))
 ROW_TITLES = {GT_SINGLE: "Ground truth (single)", GT_CONCAT: "Ground truth (concat)",
@@ -36,8 +36,9 @@ def _summary(values: Sequence[float]) -> dict[str, float | None]:
 
 
 def summarize_rows(per_repeat: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, dict[str, float | None]]]:
-    """Row → metric → mean and CI, from each row's per-repeat metric dicts."""
-    return {row: {metric: _summary([r[metric] for r in repeats]) for metric in repeats[0]}
+    """Row → metric → mean and CI, from each row's per-repeat metric dicts (a repeat written
+    before a metric existed, continued by ``--resume``, leaves that metric undefined)."""
+    return {row: {metric: _summary([r.get(metric, np.nan) for r in repeats]) for metric in repeats[0]}
             for row, repeats in per_repeat.items()}
 
 
@@ -74,7 +75,9 @@ def notes(sampling: str, single_sampling: str | None, reference: Reference) -> l
     lines = [f"sampling: {sampling}" + (f"; single-motion: {single_sampling}" if single_sampling else ""),
              f"transition: the {WINDOW} frames around each boundary; ground truth (single) = the middle "
              f"{WINDOW} frames of every ground-truth item",
-             "Jerk: paper eq. 10 averaged over joints and boundaries, time measured in frames (fps = 1)"]
+             "Jerk: paper eq. 10 averaged over joints and boundaries, time measured in frames (fps = 1)",
+             "Bone σ: each bone's standard deviation of length over a sequence's decoded joints, mean over "
+             "bones and sequences, in mm (0 = one rigid skeleton; `m2d2m generate` puts its files on one)"]
     if reference.rp_batch < R_PRECISION_BATCH:
         lines.append(f"R-precision over groups of {reference.rp_batch}, not {R_PRECISION_BATCH}: the test set has only "
                      f"{reference.items} items (not comparable with published R-Top numbers)")

@@ -65,7 +65,10 @@ def read_run_info(run_dir: Path) -> dict[str, Any]:
 
 
 def mark_latest(run_dir: Path) -> None:
-    (run_dir.parent / LATEST).write_text(run_dir.name + "\n", encoding="utf-8")
+    """Point ``latest`` at a finished run; renamed into place, so a kill never leaves it empty."""
+    temporary = run_dir.parent / (LATEST + ".partial")
+    temporary.write_text(run_dir.name + "\n", encoding="utf-8")
+    temporary.replace(run_dir.parent / LATEST)
 
 
 def latest_run(dataset: str, stage: str, made_by: str, legacy: tuple[str, ...] = ()) -> Path:

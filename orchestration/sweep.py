@@ -9,7 +9,10 @@ starts (parallel trials would otherwise race on SQLite's schema migration); tria
 function trainables that chdir to the project, so relative defaults (``runs/``, ``data/``) mean
 what they mean for the driver. The Tune experiment lives in ``runs/<dataset>/sweep/<name>/tune``:
 re-running a sweep whose driver died restores it there (finished trials are kept, unfinished and
-errored ones run again) instead of starting over. The parent run gets a summary table and, for
+errored ones run again) instead of starting over. A restored Tune experiment keeps the parameters it
+was started with, so a re-run whose config differs from the one recorded in ``sweep.json`` is refused
+(``--name`` for a new sweep, ``--restart`` to replace it). A training sweep's keys are checked
+against the model's training config before Ray starts. The parent run gets a summary table and, for
 sampling sweeps, Jerk and FID against the space's last knob (for M2D2M's T_s per η: the paper's
 Tables 5 and 7 as pictures). A parent run whose sweep fails ends FAILED.
 """
@@ -18,10 +21,11 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
-from orchestration.config import load_config
+from orchestration.config import apply_overrides, flatten, load_config
 from orchestration.errors import UserError
 from orchestration.registry import load_plugins, model, plugins_for_workers
 from orchestration.runs import enter_project, stage_dir
@@ -71,6 +75,26 @@ def _check(config: dict[str, Any]) -> None:
         raise UserError(f"resources.workers must be a whole number >= 0, got {workers!r}")
     if workers and config["kind"] != "training":
         raise UserError("resources.workers (Ray Train workers) applies to training sweeps only")
+    if config["kind"] == "training":
+        _check_training_space(config)
+
+
+def training_overrides(params: dict[str, Any]) -> list[str]:
+    """A training trial's parameters as ``--set`` overrides; values as JSON, which YAML reads
+    back as they were (null, true, lists), unlike Python's ``str``."""
+    return [f"{key}={json.dumps(value)}" for key, value in params.items()]
+
+
+def _check_training_space(config: dict[str, Any]) -> None:
+    """Every value of the space applied to the model's training config, as the trials will: an
+    unknown key or a value of the wrong kind is one line now, not a traceback inside a Ray trial."""
+    base = load_config(model(config["model"]).configs, config["train_config"], [])
+    for key, values in config["space"].items():
+        for value in values:
+            try:
+                apply_overrides(base, training_overrides({key: value}))
+            except UserError as error:
+                raise UserError(f"space of this training sweep (config {config['train_config']}): {error}") from error
 
 
 # ------------------------------------------------------------------------------------- trials
@@ -86,7 +110,7 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     evaluation = dict(context["evaluation"])
     name = context["model"]
     if context["kind"] == "training":
-        overrides = [f"{key}={value}" for key, value in params.items()]
+        overrides = training_overrides(params)
         if resources["workers"]:
             run_dir = train_on_workers(name, context["train_config"], overrides, resources["workers"],
                                        resources["gpu"] > 0, resources["cpu"], Path(context["train_storage"]))
@@ -149,14 +173,49 @@ def _trial_resources(resources: dict[str, Any]) -> dict[str, float]:
     return {"cpu": resources["cpu"], "gpu": resources["gpu"]}
 
 
+def _recorded(sweep_dir: Path) -> dict[str, Any] | None:
+    """What ``sweep.json`` says of a sweep started before: its parent run and its config."""
+    record = sweep_dir / SWEEP_FILE
+    return json.loads(record.read_text(encoding="utf-8")) if record.exists() else None
+
+
+def _check_resumable(sweep_dir: Path, config: dict[str, Any]) -> None:
+    """A re-run restores the Tune experiment with the parameters it was started with, so one
+    whose config (file and ``--set``) differs from the recorded one is refused, naming what
+    changed, instead of silently resuming the old sweep."""
+    saved = _recorded(sweep_dir)
+    if saved is None:
+        return
+    if "model" not in saved["config"]:  # its Tune experiment holds trials of the older layout
+        raise UserError(f"{sweep_dir} was started by an m2d2m without the model registry and cannot be "
+                        f"resumed; --restart replaces it")
+    before, now = flatten(_upgrade(saved["config"])), flatten(json.loads(json.dumps(config)))
+    changed = sorted(key for key in before.keys() | now.keys() if before.get(key, ()) != now.get(key, ()))
+    if changed:
+        raise UserError(f"{sweep_dir} was started with another config ({', '.join(changed)} changed); "
+                        f"give this sweep a new --name, or --restart to replace that one")
+
+
+def _discard(sweep_dir: Path) -> None:
+    """``--restart``: the sweep's folder (Tune experiment, trained runs' storage, record) goes; its
+    parent run, if a dead driver left it RUNNING, is marked KILLED."""
+    from mlflow.exceptions import MlflowException
+
+    saved = _recorded(sweep_dir)
+    if saved is not None:
+        mlflow_client = tracking_client()
+        try:
+            if mlflow_client.get_run(saved["parent_run_id"]).info.status == "RUNNING":
+                mlflow_client.set_terminated(saved["parent_run_id"], "KILLED")
+        except MlflowException:  # the run is gone from this store: nothing to mark
+            pass
+    shutil.rmtree(sweep_dir, ignore_errors=True)
+
+
 def _parent_run(sweep_dir: Path, name: str, config: dict[str, Any]) -> tuple[str, str]:
     """The sweep's MLflow parent run (experiment ``<dataset>/sweep``), reused when the sweep resumes."""
-    record = sweep_dir / SWEEP_FILE
-    if record.exists():
-        saved = json.loads(record.read_text(encoding="utf-8"))
-        if "model" not in saved["config"]:  # its Tune experiment holds trials of the older layout
-            raise UserError(f"{sweep_dir} was started by an m2d2m without the model registry and cannot be "
-                            f"resumed; delete it to run the sweep again")
+    saved = _recorded(sweep_dir)
+    if saved is not None:
         return saved["experiment_id"], saved["parent_run_id"]
     params = {"model": config["model"], "kind": config["kind"], "method": config["method"],
               "repeats": config["repeats"], "search": config["search"],
@@ -165,21 +224,29 @@ def _parent_run(sweep_dir: Path, name: str, config: dict[str, Any]) -> tuple[str
                        {"dataset": config["dataset"], "stage": SWEEP_STAGE, "sweep_kind": config["kind"]}, params)
     experiment_id = tracking_client().get_run(run_id).info.experiment_id
     sweep_dir.mkdir(parents=True, exist_ok=True)
-    record.write_text(json.dumps({"experiment_id": experiment_id, "parent_run_id": run_id,
-                                  "config": config}, indent=2), encoding="utf-8")
+    (sweep_dir / SWEEP_FILE).write_text(json.dumps({"experiment_id": experiment_id, "parent_run_id": run_id,
+                                                    "config": config}, indent=2), encoding="utf-8")
     return experiment_id, run_id
 
 
-def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str | None = None) -> Path:
-    """Run (or resume) a sweep; returns its directory with the summary table and plot."""
+def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str | None = None,
+          name: str | None = None, restart: bool = False) -> Path:
+    """Run (or resume) the sweep ``name`` (default: the config's file name), or with ``restart``
+    start it over; returns its directory with the summary table and plot."""
     from ray import tune
 
     from pipelines.features import init_ray
 
     config = _upgrade(load_config(SWEEP_STAGE, config_name, overrides or []))
     _check(config)
-    name = Path(config_name).stem
+    name = name or Path(config_name).stem
+    if not name or Path(name).name != name or name in (".", ".."):
+        raise UserError(f"--name {name!r}: give a plain folder name, e.g. demo-wide")
     sweep_dir = (stage_dir(config["dataset"], SWEEP_STAGE) / name).resolve()
+    if restart:
+        _discard(sweep_dir)
+    else:
+        _check_resumable(sweep_dir, config)
     init_ray(ray_address, os.cpu_count() or 1)  # first: tokenizing for a training sweep joins the same Ray
     parent = _parent_run(sweep_dir, name, config)
     with finishing(parent[1]):

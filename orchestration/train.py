@@ -21,8 +21,10 @@ MLflow params and model files.
 from __future__ import annotations
 
 import contextlib
+import functools
+import math
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -58,13 +60,66 @@ def validation_interval(trainer_cfg: dict[str, Any]) -> int:
     return min(trainer_cfg["val_every_steps"], trainer_cfg["max_steps"])
 
 
-def _check_trainer(config: dict[str, Any]) -> None:
-    """Refuse, before a run directory exists, step counts no training can run with."""
-    trainer_cfg = config["trainer"]
+ACCELERATORS = ("auto", "cpu", "gpu", "cuda", "mps", "tpu")  # Lightning's accelerator names
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+
+
+def _check_settings(config: dict[str, Any]) -> None:
+    """Refuse, before a run directory exists, settings no training can run with: step counts,
+    where to run, and the optimiser's numbers (which torch would only refuse mid-way)."""
+    trainer_cfg, optim = config["trainer"], config["optim"]
     for key in ("max_steps", "val_every_steps"):
-        value = trainer_cfg[key]
-        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-            raise UserError(f"trainer.{key} must be a whole number of steps >= 1, got {value!r}")
+        if not _is_count(trainer_cfg[key]):
+            raise UserError(f"trainer.{key} must be a whole number of steps >= 1, got {trainer_cfg[key]!r}")
+    if trainer_cfg["accelerator"] not in ACCELERATORS:
+        raise UserError(f"trainer.accelerator must be one of {', '.join(ACCELERATORS)}, "
+                        f"got {trainer_cfg['accelerator']!r}")
+    devices = trainer_cfg["devices"]
+    if not (devices in ("auto", -1) or _is_count(devices)
+            or (isinstance(devices, list) and devices and all(isinstance(d, int) and d >= 0 for d in devices))):
+        raise UserError(f"trainer.devices must be auto, -1, a count >= 1 or a list of device indices, got {devices!r}")
+    if not _is_number(optim["lr"]) or not optim["lr"] > 0:
+        raise UserError(f"optim.lr must be a number > 0, got {optim['lr']!r}")
+    if not (optim.get("grad_clip") is None or (_is_number(optim["grad_clip"]) and optim["grad_clip"] > 0)):
+        raise UserError(f"optim.grad_clip must be null (off) or a number > 0, got {optim['grad_clip']!r}")
+    if "batch_size" in config.get("data", {}) and not _is_count(config["data"]["batch_size"]):
+        raise UserError(f"data.batch_size must be a whole number >= 1, got {config['data']['batch_size']!r}")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+_opened: list[Path] = []  # the runs opened by the stage calls in progress, innermost last
+
+
+def records_failure(stage: Callable[..., Path]) -> Callable[..., Path]:
+    """Decorate a training stage so that, when it raises, the run it opened says so in its
+    ``run.json`` (``failed``, or ``interrupted`` for Ctrl-C; both resumable) instead of
+    ``running``; a bad model setting (:class:`~m2d2m.networks.config.ConfigError`) becomes a
+    one-line error. Only a SIGKILL leaves ``running`` behind, and ``--resume`` continues that."""
+    from m2d2m.networks.config import ConfigError
+
+    @functools.wraps(stage)
+    def recorded(*args: Any, **kwargs: Any) -> Path:
+        depth = len(_opened)
+        try:
+            return stage(*args, **kwargs)
+        except BaseException as error:
+            for run_dir in _opened[depth:]:
+                if read_run_info(run_dir).get("status") == "running":
+                    write_run_info(run_dir, status="interrupted" if isinstance(error, KeyboardInterrupt) else "failed",
+                                   error=f"{type(error).__name__}: {error}"[:1000])
+            if isinstance(error, ConfigError):
+                raise UserError(str(error)) from error
+            raise
+        finally:
+            del _opened[depth:]
+
+    return recorded
 
 
 def open_run(stage: str, configs: str, config_name: str, overrides: list[str], resume: bool,
@@ -78,11 +133,12 @@ def open_run(stage: str, configs: str, config_name: str, overrides: list[str], r
         info = read_run_info(join)
         return join, info["config"], info.get("mlflow_run_id")
     config = load_config(configs, config_name, overrides)
-    _check_trainer(config)
+    _check_settings(config)
     if not resume:
         run_dir = new_run_dir(config["dataset"], stage)
         (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
         write_run_info(run_dir, stage=stage, dataset=config["dataset"], status="running", config=config)
+        _opened.append(run_dir)
         return run_dir, config, None
     if overrides:
         raise UserError("--set cannot change a run being resumed; resume as it was, or start a new run")
@@ -91,6 +147,7 @@ def open_run(stage: str, configs: str, config_name: str, overrides: list[str], r
     if info.get("status") == "finished":
         raise UserError(f"{run_dir} already finished; start a new run instead of --resume")
     write_run_info(run_dir, status="running")
+    _opened.append(run_dir)
     return run_dir, info["config"], info.get("mlflow_run_id")
 
 
@@ -155,6 +212,7 @@ def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, r
     import lightning.pytorch as pl
     from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 
+    from training.callbacks import StepProgressBar
     from training.vq_module import NonFiniteLossError
 
     trainer_cfg = config["trainer"]
@@ -166,7 +224,7 @@ def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, r
         max_steps=trainer_cfg["max_steps"],
         precision=_precision(trainer_cfg["precision"]),
         logger=logger,
-        callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"), *callbacks],
+        callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"), StepProgressBar(), *callbacks],
         gradient_clip_val=config["optim"]["grad_clip"],
         limit_val_batches=trainer_cfg["val_batches"],
         log_every_n_steps=min(50, validation_interval(trainer_cfg)),
@@ -205,6 +263,7 @@ def finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -
     mark_latest(run_dir)
 
 
+@records_failure
 def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
              extra_callbacks: list | None = None) -> Path:
     """Train the motion VQ-VAE; returns the run directory (with ``vq.pt`` on success).
@@ -255,11 +314,10 @@ def token_set(vq_path: Path, data_dir: str | Path | None = None) -> tuple[Path, 
     """The dataset a VQ-VAE encodes (``data_dir``, else the one it was trained on) and the folder
     of its tokens under that VQ-VAE: ``<data>/tokens/<VQ run>``."""
     from m2d2m.layout import TOKENS
-    from m2d2m.model_files import read_model_file
-    from m2d2m.networks.vqvae import FORMAT
+    from m2d2m.networks.vqvae import load_vq
 
-    try:
-        extra = read_model_file(vq_path, FORMAT, "m2d2m VQ model file")["extra"]
+    try:  # the whole model, so that a damaged or foreign file is one line here, not a traceback in Ray
+        extra = load_vq(vq_path)[2]["extra"]
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
     data = data_dir or extra.get("data_dir")
@@ -281,6 +339,7 @@ def ensure_tokens(vq_path: Path) -> tuple[Path, Path]:
     return data_dir, tokens_dir
 
 
+@records_failure
 def train_model(name: str, config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
                 extra_callbacks: list | None = None) -> Path:
     """Train the registered model ``name`` (``m2d2m train-diffusion`` for M2D2M) with its recipe;
@@ -320,6 +379,7 @@ def _ray_train_worker(config: dict[str, Any]) -> None:
     model(config["model"]).load("recipe").train(join=Path(config["run_dir"]), ray_train=True)
 
 
+@records_failure
 def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
                     extra_callbacks: list | None = None) -> Path:
     """Train Guo et al.'s text–motion matching evaluator on the dataset's train split (best

@@ -22,7 +22,20 @@ class LoadedMotion:
     caption: str | None
 
 
+def _check_values(array: np.ndarray, origin: str) -> None:
+    """What no drawing or BVH can be made of: no frames, or values that are not finite numbers
+    (a NaN would otherwise surface as a traceback deep in the renderer or the exporter)."""
+    if not np.issubdtype(array.dtype, np.number):
+        raise UserError(f"{origin}: holds {array.dtype} values, not numbers")
+    if array.ndim >= 1 and len(array) == 0:
+        raise UserError(f"{origin}: shape {array.shape} has no frames")
+    bad = np.size(array) - np.count_nonzero(np.isfinite(array))
+    if bad:
+        raise UserError(f"{origin}: {bad} NaN or infinite value(s); the motion cannot be drawn or exported")
+
+
 def _as_joints(array: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray:
+    _check_values(array, origin)
     if array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3):
         return array.astype(np.float32)
     if array.ndim == 2 and array.shape[1] == skeleton.feature_dim:
@@ -36,8 +49,8 @@ def _as_joints(array: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray
 def _load_npy(path: Path) -> np.ndarray:
     try:
         return np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as error:
-        raise UserError(f"{path}: not a readable .npy file ({error})") from error
+    except (OSError, ValueError, EOFError) as error:  # EOFError: an empty file
+        raise UserError(f"{path}: not a readable .npy file ({error or type(error).__name__})") from error
 
 
 def _first_caption(text_file: Path) -> str | None:

@@ -4,20 +4,25 @@ Stages: read (list the corpus) → validate → features (+ mirror) → language
 → stats → write. The per-motion stages are one function of rows, run by Ray Data tasks, so the
 same code runs on a laptop (``ray.init()`` locally) and on a cluster (``--ray-address``). The
 driver consumes the results in input order and writes the shards, the statistics and, last, the
-manifest; the same input and config therefore give byte-identical shards.
+manifest; the same input and config therefore give byte-identical shards. Everything is built in
+a sibling directory and swapped in only once complete, so a failed, interrupted or killed build
+leaves the previous dataset as it was (docs/data.md, "Rebuilding").
 """
 
 from __future__ import annotations
 
+import fcntl
 import io
 import json
 import os
+import secrets
 import shutil
 import subprocess
 from collections import Counter
-from dataclasses import asdict, dataclass
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
@@ -285,14 +290,114 @@ def reusable_dataset(config: DataConfig) -> dict[str, Any] | None:
     return existing if existing.get("config") == config.recorded() else None
 
 
-def build_dataset(config: DataConfig) -> dict[str, Any]:
-    """Run every stage and write ``config.out``; returns the manifest."""
+# What a build writes; anything else in a dataset directory (tokens/, testsets/) is kept across a rebuild.
+BUILD_OUTPUTS = frozenset({MANIFEST, QUARANTINE, STATS, SHARDS, NLP})
+
+
+def _sibling(out: Path, role: str) -> Path:
+    """``data/.<name>.<role>``: the lock, the build in progress, the dataset being replaced."""
+    return out.parent / f".{out.name}.{role}"
+
+
+def _retire(previous: Path, out: Path) -> None:
+    """Move what the replaced dataset held beyond a build's outputs into the new one, then
+    remove the rest of it."""
+    for entry in sorted(previous.iterdir()):
+        if entry.name not in BUILD_OUTPUTS and not (out / entry.name).exists():
+            os.rename(entry, out / entry.name)
+    shutil.rmtree(previous)
+
+
+def _recover(out: Path) -> None:
+    """Finish or undo whatever a killed build left beside ``out``: a swap cut between its two
+    renames puts the old dataset back, one cut after them completes, and unfinished builds go."""
+    previous = _sibling(out, "previous")
+    if previous.exists():
+        if out.exists():
+            _retire(previous, out)
+        else:
+            os.rename(previous, out)
+    building = _sibling(out, "building-").name
+    for stale in out.parent.iterdir():
+        if stale.name.startswith(building):
+            shutil.rmtree(stale, ignore_errors=True)
+
+
+@contextmanager
+def _exclusive(out: Path) -> Iterator[None]:
+    """Hold ``data/.<name>.lock`` while building and swapping (the kernel releases it when the
+    process ends, even by SIGKILL), having first recovered from a build that was killed."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with _sibling(out, "lock").open("a") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ValueError(f"{out}: another `m2d2m data` is writing it; let it finish first") from None
+        _recover(out)
+        yield
+
+
+def _swap_in(building: Path, out: Path) -> None:
+    """Put the complete ``building`` in the place of ``out``: the old directory is renamed aside,
+    the new one into place, and the old one's derived sets move over (``_recover`` finishes
+    or undoes this after a kill)."""
+    previous = _sibling(out, "previous")
+    if out.exists():
+        os.rename(out, previous)
+    os.rename(building, out)
+    if previous.exists():
+        _retire(previous, out)
+
+
+def require_replaceable(config: DataConfig, replace_other: bool = False) -> None:
+    """Refuse to replace what ``config.out`` holds unless ``replace_other`` says so, when it is a
+    dataset built from another raw corpus, or a non-empty directory that is no dataset."""
+    out = Path(config.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: not a directory; choose another --out")
+    if replace_other or not out.exists() or not any(out.iterdir()):
+        return
+    raw = config.recorded()["raw"]
+    if not (out / MANIFEST).exists():
+        raise ValueError(f"{out}: not a dataset (no {MANIFEST}); pass --replace to replace it with one built "
+                         f"from {raw}, or choose another --out")
+    built_from = json.loads((out / MANIFEST).read_text(encoding="utf-8")).get("config", {}).get("raw")
+    if built_from != raw:
+        raise ValueError(f"{out}: built from {built_from}, not {raw}; pass --replace to replace it, "
+                         "or choose another --out")
+
+
+def _no_statistics(raw: Path, quarantine: list[dict[str, Any]]) -> ValueError:
+    """The refusal of a corpus without one usable train motion, with the quarantine's reasons
+    (the quarantine file itself goes with the failed build)."""
+    reasons = Counter(f"{q['stage']}: {reason_kind(q['reason'])}" for q in quarantine if q["split"] == "train")
+    why = ", ".join(f"{count} {reason}" for reason, count in reasons.most_common()) or "no train inputs"
+    return ValueError(f"{raw}: no valid training motion to compute statistics from ({why}); nothing was replaced")
+
+
+def build_dataset(config: DataConfig, replace_other: bool = False) -> dict[str, Any]:
+    """Run every stage into a sibling directory and swap it in for ``config.out`` once its
+    manifest is written; returns the manifest. A failure removes only the new build. Replacing
+    a dataset of another raw corpus needs ``replace_other`` (:func:`require_replaceable`)."""
+    out = Path(config.out).resolve()
+    with _exclusive(out):
+        require_replaceable(config, replace_other)
+        building = _sibling(out, f"building-{secrets.token_hex(4)}")
+        building.mkdir()
+        try:
+            manifest = _build(replace(config, out=str(building)))
+            _swap_in(building, out)
+        except BaseException:
+            _recover(out)
+            raise
+    return manifest
+
+
+def _build(config: DataConfig) -> dict[str, Any]:
+    """Every stage, writing ``config.out`` (a fresh directory); the manifest last."""
     skeleton, raw, out = config.skeleton, Path(config.raw).resolve(), Path(config.out).resolve()
     rows = list_corpus(raw)
     make_mirror = not corpus_ships_mirrors(rows)
-    (out / MANIFEST).unlink(missing_ok=True)  # the dataset is invalid until the new manifest lands
-    shutil.rmtree(out / SHARDS, ignore_errors=True)
-    out.mkdir(parents=True, exist_ok=True)
 
     counts = {split: SplitCounts() for split in SPLITS}
     shards: dict[str, list[dict[str, Any]]] = {split: [] for split in SPLITS}
@@ -314,7 +419,7 @@ def build_dataset(config: DataConfig) -> dict[str, Any]:
 
     provided = _corpus_statistics(raw, skeleton)
     if provided is None and moments.count == 0:
-        raise ValueError(f"{raw}: no valid training motion to compute statistics from (see {out / QUARANTINE})")
+        raise _no_statistics(raw, quarantine)
     mean, std = provided if provided is not None else (moments.mean(), group_averaged_std(moments.std(), skeleton))
     Normalizer(mean, std, config.feat_bias).save(out / STATS)
     tagger = prepare_tagger(tagged_captions, out, config)

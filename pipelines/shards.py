@@ -8,7 +8,6 @@ the same samples in the same order give byte-identical shards.
 
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import os
@@ -19,6 +18,8 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 import webdataset as wds
+
+from m2d2m.integrity import sha256_of
 
 SCHEMA_VERSION = 1
 PARTIAL_SUFFIX = ".partial"
@@ -42,14 +43,6 @@ def npy_bytes(array: np.ndarray) -> bytes:
 def json_bytes(value: Any) -> bytes:
     """Canonical JSON: sorted keys, UTF-8, so equal metadata gives equal bytes."""
     return json.dumps(value, sort_keys=True, ensure_ascii=False, separators=(",", ":")).encode("utf-8")
-
-
-def sha256_of(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 class ShardWriter:

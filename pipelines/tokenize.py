@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, SHARDS, STATS, read_manifest
+from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls, token_shard_urls
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.vqvae import MotionVQVAE, load_vq
 from pipelines.corpora import SPLITS
@@ -60,7 +60,8 @@ def _require_vq_file(vq_path: Path) -> None:
 def current_tokens(data_dir: str | Path, vq_path: str | Path, out_dir: str | Path,
                    samples_per_shard: int | None = None) -> dict[str, Any] | None:
     """The manifest of ``out_dir`` when it holds the tokens of exactly this dataset build and
-    this VQ file (same shard checksums, same sha256, same sharding), else None."""
+    this VQ file (same shard checksums, same sha256, same sharding) and its token shards still
+    match it, else None: a damaged token set is made again rather than read."""
     manifest_path = Path(out_dir) / MANIFEST
     if not manifest_path.exists():
         return None
@@ -73,20 +74,27 @@ def current_tokens(data_dir: str | Path, vq_path: str | Path, out_dir: str | Pat
         "vq_sha256": sha256_of(vq_path),
         "samples_per_shard": samples_per_shard,
     }
-    return existing if all(existing.get(key) == value for key, value in wanted.items()) else None
+    if any(existing.get(key) != value for key, value in wanted.items()):
+        return None
+    try:
+        for split in SPLITS:
+            token_shard_urls(out_dir, split)
+    except (FileNotFoundError, ValueError):
+        return None
+    return existing
 
 
 def plan_token_shards(data_dir: Path, dataset_manifest: dict[str, Any], samples_per_shard: int | None) -> list[dict[str, Any]]:
     """One task per motion shard, in split and shard order. Each task owns the range of token
     shard numbers its samples fill, so with ``samples_per_shard=None`` the token shard has the
-    motion shard's name, and otherwise a split's tokens stay in the motion order."""
+    motion shard's name, and otherwise a split's tokens stay in the motion order. The motion
+    shards are checked against the dataset's manifest first (``m2d2m.layout.shard_urls``)."""
     tasks = []
     for split in SPLITS:
         first_index = 0
-        for shard in dataset_manifest["shards"][split]:
+        for shard, source in zip(dataset_manifest["shards"][split], shard_urls(data_dir, split)):
             per_shard = samples_per_shard or shard["samples"]
-            tasks.append({"split": split, "index": first_index, "source": str(data_dir / SHARDS / shard["name"]),
-                          "samples_per_shard": per_shard})
+            tasks.append({"split": split, "index": first_index, "source": source, "samples_per_shard": per_shard})
             first_index += math.ceil(shard["samples"] / per_shard)
     return tasks
 
@@ -156,6 +164,7 @@ def tokenize_dataset(data_dir: str | Path, vq_path: str | Path, out_dir: str | P
     if config.codebook_size > MAX_CODEBOOK_SIZE:
         raise ValueError(f"{vq_path}: {config.codebook_size} codes do not fit int16 tokens (at most {MAX_CODEBOOK_SIZE})")
 
+    tasks = plan_token_shards(data_dir, dataset_manifest, samples_per_shard)  # before anything is removed
     out_dir.mkdir(parents=True, exist_ok=True)
     _clear(out_dir)
     # Plain copies: nothing in out_dir is trusted before the manifest lands.
@@ -164,7 +173,6 @@ def tokenize_dataset(data_dir: str | Path, vq_path: str | Path, out_dir: str | P
     np.save(out_dir / CODEBOOK, model.codebook.detach().cpu().numpy().astype(np.float32))
     vq_sha256 = sha256_of(out_dir / VQ_FILE)
 
-    tasks = plan_token_shards(data_dir, dataset_manifest, samples_per_shard)
     results = run_json_tasks(encode_shard, tasks, workers, ray_address,
                              out_dir=str(out_dir), vq_path=str(out_dir / VQ_FILE), vq_sha256=vq_sha256)
     splits = {split: {"samples": 0, "tokens": 0} for split in SPLITS}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -85,11 +86,11 @@ TINY_EVALUATOR_RUN = {
 }
 
 
-@pytest.fixture(scope="module")
-def trained_project(tmp_path_factory, ray_local) -> Iterator[Path]:
-    """A project directory (the working directory while the module runs) with a tiny VQ-VAE,
-    denoiser and evaluator trained on a corpus whose test split has 8 clips (16 with mirrors:
-    8 two-action instances when mirrors are distinct)."""
+@pytest.fixture(scope="session")
+def trained_store(tmp_path_factory, ray_local) -> Path:
+    """A project directory with a tiny VQ-VAE, denoiser and evaluator trained on a corpus whose
+    test split has 8 clips (16 with mirrors: 8 two-action instances when mirrors are distinct);
+    trained once per session, and only ever read through :func:`trained_project`'s copies."""
     root = tmp_path_factory.mktemp("trained")
     write_corpus(root / "raw", {"train": 6, "val": 2, "test": 8}, T2M)
     data = root / "data"
@@ -107,6 +108,23 @@ def trained_project(tmp_path_factory, ray_local) -> Iterator[Path]:
         train_vq(str(root / "vq.yaml"))
         train_model("m2d2m", str(root / "diffusion.yaml"))
         train_evaluator(str(root / "evaluator.yaml"))
+    torch.set_num_threads(threads)
+    return root
+
+
+@pytest.fixture(scope="module")
+def trained_project(trained_store, tmp_path_factory) -> Iterator[Path]:
+    """A module's own copy of :func:`trained_store`, its working directory while it runs: the runs,
+    test sets and MLflow runs one module adds, no other module sees. Paths the copy's files
+    recorded while training (the dataset its model files name, the MLflow artifact folders)
+    still lead into the store, which the tests only read or add new files to."""
+    root = tmp_path_factory.mktemp("project")
+    shutil.copytree(trained_store, root, dirs_exist_ok=True)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.chdir(root)
+        patch.delenv("MLFLOW_TRACKING_URI", raising=False)
         yield root
     torch.set_num_threads(threads)
 

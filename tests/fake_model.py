@@ -5,7 +5,7 @@ the generator protocol, this model could not go through them."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,7 +73,8 @@ class PlaybackGenerator(MotionGenerator):
         return f"ground truth played back from frame {options.offset}"
 
     def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: PlaybackOptions,
-                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None) -> list[Motion]:
+                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
+                 progress: Callable[[float], None] | None = None) -> list[Motion]:
         motions = []
         for sequence, lengths in zip(actions, frames):
             pieces = []

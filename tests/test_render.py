@@ -92,7 +92,6 @@ def test_mp4_without_ffmpeg_fails_clearly(tmp_path: Path, clip: np.ndarray, monk
     assert not (tmp_path / "clip.mp4").exists()
 
 
-@pytest.mark.skipif(render._find_ffmpeg() is None, reason="no ffmpeg writer available")
 def test_mp4_written(tmp_path: Path, clip: np.ndarray) -> None:
     path = render_motion(clip, tmp_path / "clip.mp4", size=161)  # odd sizes are evened out
     data = path.read_bytes()

@@ -1,9 +1,11 @@
 """`m2d2m sweep` end to end with real Ray Tune and a real MLflow SQLite store: two sampling trials
-on a tiny trained model become child runs of one parent with a summary table and plot, and
-re-running a sweep restores it instead of starting over."""
+on a tiny trained model become child runs of one parent with a summary table and plot,
+re-running a sweep restores it instead of starting over (unless its config changed: then it is
+refused, or replaced with --restart), and a training sweep's keys are checked before Ray starts."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import mlflow
@@ -12,9 +14,11 @@ import pytest
 import yaml
 
 from orchestration.cli import main
+from orchestration.errors import UserError
 from orchestration.sweep import SUMMARY_JSON, SUMMARY_MD, summary_plot, sweep, trial_name
 
 SUMMARY_PNG = summary_plot("ts")
+M2D2M_DEMO = Path(__file__).resolve().parents[1] / "configs" / "m2d2m" / "demo.yaml"
 
 
 def sweep_config(testset: Path, **changes) -> dict:
@@ -57,6 +61,16 @@ def test_a_two_trial_sweep_nests_its_trials_under_one_parent_and_resumes(trained
     # the driver runs again (as after a crash): Tune restores the experiment, finished trials stay done
     assert sweep(str(trained_project / "two.yaml")) == sweep_dir
     assert len(child_runs(trained_project, parent_run_id)) == 2
+
+    # an edited config is refused: a restored experiment would run the old space
+    (trained_project / "two.yaml").write_text(yaml.safe_dump(sweep_config(tiny_testset, space={"eta": [0.25], "ts": [3]})),
+                                              encoding="utf-8")
+    with pytest.raises(UserError, match=r"\(space.ts changed\).*--restart"):
+        sweep(str(trained_project / "two.yaml"))
+    # --restart replaces it: a new parent run over the new space only
+    assert sweep(str(trained_project / "two.yaml"), restart=True) == sweep_dir
+    assert yaml.safe_load((sweep_dir / "sweep.json").read_text(encoding="utf-8"))["parent_run_id"] != parent_run_id
+    assert [row["ts"] for row in yaml.safe_load((sweep_dir / SUMMARY_JSON).read_text(encoding="utf-8"))] == [3]
 
 
 @pytest.mark.parametrize("change, message", [
@@ -143,3 +157,44 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     assert [row["offset"] for row in summary] == [0, 3]
     assert summary[0]["multi/concat/fid"] == pytest.approx(table["multi"]["concat"]["fid"]["mean"])
     assert summary[0]["multi/concat/fid"] != summary[1]["multi/concat/fid"]  # the knob reached the generator
+
+
+def one_line_sweep_error(argv: list[str], capsys) -> str:
+    assert main(["sweep", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+@pytest.mark.parametrize("space, message", [
+    ({"diffusion.nope": [1]}, "no key 'nope' in diffusion"),
+    ({"diffusion.kind": ["uniform"], "optim.lr": [1e-3, "fast"]}, "optim.lr takes a number, got 'fast'"),
+])
+def test_a_training_sweep_key_its_training_config_lacks_is_one_line_before_ray(tmp_path, capsys, monkeypatch,
+                                                                               space, message):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    config = sweep_config(tmp_path / "testset", kind="training", train_config=str(M2D2M_DEMO), space=space)
+    (tmp_path / "ablation.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    assert message in one_line_sweep_error(["--config", str(tmp_path / "ablation.yaml")], capsys)
+    assert not (tmp_path / "runs").exists() and not (tmp_path / "mlflow.db").exists()  # no parent run, no Ray
+
+
+def test_a_rerun_whose_config_changed_is_refused_before_ray(tmp_path, capsys, monkeypatch):
+    """A sweep.json as a first run left it; the config edited since, or given through --set."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+    config = {**sweep_config(tmp_path / "testset"), "resources": {"cpu": 1, "gpu": 0, "workers": 0}}
+    sweep_dir = tmp_path / "runs" / "tiny" / "sweep" / "grid"
+    sweep_dir.mkdir(parents=True)
+    (sweep_dir / "sweep.json").write_text(json.dumps({"experiment_id": "1", "parent_run_id": "0" * 32,
+                                                      "config": config}), encoding="utf-8")
+    (tmp_path / "grid.yaml").write_text(yaml.safe_dump({**config, "repeats": 3}), encoding="utf-8")
+    err = one_line_sweep_error(["--config", str(tmp_path / "grid.yaml")], capsys)
+    assert "(repeats changed)" in err and "--name" in err and "--restart" in err
+    err = one_line_sweep_error(["--config", str(tmp_path / "grid.yaml"), "--set", "repeats=1",
+                                "--set", "space.eta=[0.5]"], capsys)
+    assert "(space.eta changed)" in err
+    assert "plain folder name" in one_line_sweep_error(["--config", str(tmp_path / "grid.yaml"), "--name", "../x"],
+                                                       capsys)
+    assert sorted(p.name for p in sweep_dir.iterdir()) == ["sweep.json"]

@@ -1,10 +1,12 @@
-"""`m2d2m ui` serves the project's MLflow store: its front page and the runs API over loopback."""
+"""`m2d2m ui` serves the project's MLflow store (its front page and the runs API over loopback),
+and stopping it stops every process it started; a port it cannot use is a one-line error."""
 
 from __future__ import annotations
 
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -12,7 +14,11 @@ import urllib.request
 from pathlib import Path
 
 import mlflow
+import psutil
+import pytest
 
+from orchestration.cli import main
+from orchestration.serving import serve
 from tests.helpers import free_port
 
 
@@ -23,7 +29,11 @@ def fetch(url: str, body: dict | None = None) -> tuple[int, bytes]:
         return response.status, response.read()
 
 
-def test_the_ui_serves_the_project_store(tmp_path, monkeypatch):
+def alive(processes: list[psutil.Process]) -> list[psutil.Process]:
+    return [p for p in processes if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+
+
+def test_the_ui_serves_the_project_store_and_sigterm_stops_all_of_it(tmp_path, monkeypatch):
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
     experiment = client.create_experiment("tiny/eval")
@@ -51,8 +61,50 @@ def test_the_ui_serves_the_project_store(tmp_path, monkeypatch):
         runs = json.loads(body)["runs"]
         assert status == 200 and [r["info"]["run_name"] for r in runs] == ["a-run"]
         assert runs[0]["data"]["metrics"][0] == {**runs[0]["data"]["metrics"][0], "key": "multi/tps/jerk", "value": 1.25}
+        started = psutil.Process(server.pid).children(recursive=True)
+        assert started  # mlflow server and its uvicorn worker(s), in the session m2d2m ui started
+        server.send_signal(signal.SIGTERM)  # to `m2d2m ui` alone, as a service manager or `kill` does
+        assert server.wait(timeout=60) == 0
+        assert alive(started) == []
+        with pytest.raises(OSError):
+            fetch(base + "/")
     finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        server.wait(timeout=30)
+        if server.poll() is None:
+            os.killpg(server.pid, signal.SIGKILL)
+            server.wait(timeout=30)
         log.close()
     assert f"http://127.0.0.1:{port}" in (tmp_path / "ui.log").read_text().splitlines()[0]
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGHUP])
+def test_a_stop_signal_ends_the_whole_process_tree_it_served(tmp_path, stop):
+    """serve() in a child Python (signal handlers belong to a main thread) runs a shell that
+    starts two sleepers, one in a session of its own; the signal to that Python ends them all."""
+    script = (f"from orchestration.serving import serve; "
+              f"print(serve(['sh', '-c', 'setsid sleep 300 & sleep 300 & wait']), flush=True)")
+    runner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    deadline = time.monotonic() + 30
+    while len(started := psutil.Process(runner.pid).children(recursive=True)) < 3:
+        assert runner.poll() is None and time.monotonic() < deadline
+        time.sleep(0.1)
+    runner.send_signal(stop)
+    assert runner.communicate(timeout=30)[0].strip() == "None" and runner.returncode == 0
+    assert alive(started) == []
+
+
+def test_serve_returns_the_status_of_a_command_that_ends_by_itself():
+    assert serve(["sh", "-c", "exit 3"]) == 3
+
+
+def test_a_port_that_is_taken_or_out_of_range_is_one_line(capsys):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        assert main(["ui", "--port", str(taken.getsockname()[1])]) == 2
+    err = capsys.readouterr().err
+    assert "cannot listen on 127.0.0.1:" in err and len(err.strip().splitlines()) == 1
+    with pytest.raises(SystemExit) as stopped:
+        main(["ui", "--port", "99999"])
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and "from 1 to 65535" in err and "Traceback" not in err

@@ -1,10 +1,12 @@
-"""Callbacks shared by the training stages: pictures of progress logged to MLflow."""
+"""Callbacks shared by the training stages: pictures of progress logged to MLflow, and a
+progress bar that counts the steps training is bounded by."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import lightning.pytorch as pl
+from lightning.pytorch.callbacks import RichProgressBar
 from lightning.pytorch.loggers import MLFlowLogger
 
 from m2d2m.generators.m2d2m import decode_tokens
@@ -69,3 +71,20 @@ class SamplePreview(pl.Callback):
                                  skeleton=skeleton, title=prompt, size=240)
             if isinstance(trainer.logger, MLFlowLogger):
                 trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="samples")
+
+
+class StepProgressBar(RichProgressBar):
+    """Lightning's rich progress bar labelled with the steps each stretch covers ("Steps 1–500 of
+    2000"). Training here is bounded by ``max_steps`` with ``max_epochs=-1``, which Lightning's own
+    label prints as "Epoch 0/-2" (``RichProgressBar._get_train_description``: ``max_epochs - 1``),
+    and an epoch is only the stretch between validations (orchestration/train.py,
+    ``validation_interval``)."""
+
+    def _get_train_description(self, current_epoch: int) -> str:
+        trainer = self.trainer
+        if trainer.max_epochs != -1 or trainer.max_steps <= 0:
+            return super()._get_train_description(current_epoch)
+        first = trainer.global_step + 1
+        last = int(min(trainer.global_step + self.total_train_batches, trainer.max_steps))
+        description = f"{f'Step {last}' if first == last else f'Steps {first}–{last}'} of {trainer.max_steps}"
+        return f"{description:{len(self.validation_description)}}"  # as Lightning pads it, against flicker

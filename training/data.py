@@ -25,7 +25,7 @@ import webdataset as wds
 from lightning.pytorch.utilities import rank_zero_info
 
 from m2d2m.generators.m2d2m_checkpoint import LengthPrior
-from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls
+from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls, token_shard_urls
 from m2d2m.motion.normalization import Normalizer
 
 Sample = dict[str, Any]
@@ -180,11 +180,12 @@ def split_pass(urls: list[str], sizes: list[int], trainer: pl.Trainer | None, pr
 class ShardDataModule(pl.LightningDataModule):
     """What the DataModules over a directory of manifest-listed shards share: a resampled training
     stream cut to ``steps_per_epoch`` batches on every rank, and one pass over each clip for
-    validation and test, shared among the ranks. Subclasses read the manifest (``self.manifest``)
-    and say where a split's shards are (:meth:`urls`) and how a clip becomes a training sample
-    (:meth:`_train_sample`) and an evaluation sample (:meth:`_eval_sample`)."""
+    validation and test, shared among the ranks. Subclasses read the manifest (``self.manifest``),
+    find each split's shards, checked against it (``self._urls``), and say how a clip becomes a
+    training sample (:meth:`_train_sample`) and an evaluation sample (:meth:`_eval_sample`)."""
 
     manifest: dict[str, Any]
+    _urls: dict[str, list[str]]
 
     def __init__(self, batch_size: int, num_workers: int, steps_per_epoch: int | None, val_batch_size: int,
                  shuffle_buffer: int, seed: int) -> None:
@@ -196,8 +197,9 @@ class ShardDataModule(pl.LightningDataModule):
         self._steps_per_epoch = steps_per_epoch
 
     def urls(self, split: str) -> list[str]:
-        """Absolute paths of a split's shards."""
-        raise NotImplementedError
+        """Absolute paths of a split's shards, checked against the manifest (sizes, and sha256
+        once per file: ``m2d2m.integrity``) when the DataModule was made."""
+        return self._urls[split]
 
     def _sizes(self, split: str) -> list[int]:
         """Clips per shard of a split, from the manifest."""
@@ -255,6 +257,8 @@ class FeatureShardDataModule(ShardDataModule):
         if not stats.exists():
             raise FileNotFoundError(f"{stats}: missing; the dataset is incomplete (rebuild it with `m2d2m data`)")
         self.normalizer = Normalizer.load(stats)
+        # Checked here, where the stages turn a refusal into one line, not once the trainer runs.
+        self._urls = {split: shard_urls(self.data_dir, split) for split in self.manifest["shards"]}
 
     @property
     def feature_dim(self) -> int:
@@ -267,9 +271,6 @@ class FeatureShardDataModule(ShardDataModule):
     @property
     def skeleton(self) -> str:
         return str(self.manifest["skeleton"])
-
-    def urls(self, split: str) -> list[str]:
-        return shard_urls(self.data_dir, split)
 
 
 class MotionWindowDataModule(FeatureShardDataModule):
@@ -433,6 +434,8 @@ class TokenDataModule(ShardDataModule):
         self.tokens_dir = Path(tokens_dir).resolve()
         self.manifest = read_token_manifest(self.tokens_dir)
         self.max_tokens = max_tokens
+        # A split's token shards sit in the token directory itself (no ``shards/``).
+        self._urls = {split: token_shard_urls(self.tokens_dir, split) for split in self.manifest["shards"]}
 
     @property
     def codebook_size(self) -> int:
@@ -447,10 +450,6 @@ class TokenDataModule(ShardDataModule):
         """The VQ model that made the tokens: its codebook builds the transitions, its decoder
         turns samples back into motion."""
         return self.tokens_dir / VQ_FILE
-
-    def urls(self, split: str) -> list[str]:
-        """A split's token shards, which sit in the token directory itself (no ``shards/``)."""
-        return [str(self.tokens_dir / shard["name"]) for shard in self.manifest["shards"][split]]
 
     @cached_property
     def _train_captions(self) -> tuple[float, int, int]:

@@ -38,7 +38,7 @@ from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
 from m2d2m.model_files import read_model_file, write_model_file
-from m2d2m.networks.config import NetworkConfig
+from m2d2m.networks.config import ConfigError, NetworkConfig
 from m2d2m.text import UNK, LearnedTextEncoder
 
 FORMAT = "m2d2m-evaluator/1"
@@ -95,10 +95,10 @@ class EvaluatorConfig(NetworkConfig):
         self.require_positive("movement_hidden", "movement_latent", "motion_hidden", "text_hidden", "embedding_dim",
                               "word_dim", "max_text_len", "max_motion_length")
         if not isinstance(self.feature_dim, int) or self.feature_dim <= CONTACT_DIMS:
-            raise ValueError(f"EvaluatorConfig.feature_dim must be an integer above {CONTACT_DIMS}, "
+            raise ConfigError(f"EvaluatorConfig.feature_dim must be an integer above {CONTACT_DIMS}, "
                              f"got {self.feature_dim!r}")
         if self.word_features not in SPECIAL_WORDS:
-            raise ValueError(f"EvaluatorConfig.word_features must be one of {sorted(SPECIAL_WORDS)}, "
+            raise ConfigError(f"EvaluatorConfig.word_features must be one of {sorted(SPECIAL_WORDS)}, "
                              f"got {self.word_features!r}")
         self.require_fraction("dropout")
 

@@ -9,7 +9,10 @@ measured with the text–motion evaluator:
   (R-Top3, MM-Dist), against the ground-truth segments (FID), and among themselves (Diversity);
 - transition: the :data:`WINDOW` frames around each boundary against "ground truth (single)"
   windows, the middle :data:`WINDOW` frames of every ground-truth item (FID), among themselves
-  (Diversity), and the paper's Jerk (eq. 10) of the joints there, time measured in frames.
+  (Diversity), and the paper's Jerk (eq. 10) of the joints there, time measured in frames;
+- body: the spread of bone lengths of the decoded joints (each bone's standard deviation over a
+  sequence's frames, mean over bones, in mm; :func:`m2d2m.motion.rigid.bone_length_spread`),
+  0 for one rigid skeleton: how far a generator's bodies are from the corpus's one skeleton.
 
 Reference rows: "ground truth (single)" measures the ground-truth segments and their middle
 windows the same way; "ground truth (concat)" is the Jerk at the boundaries of each instance's
@@ -36,6 +39,7 @@ from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.joining import slerp_join
 from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.rigid import bone_length_spread
 
 WINDOW = 40  # transition frames around a boundary (paper §5.1, after PriorMDM)
 JERK_FPS = 1.0  # time in frames: the scale of the paper's Jerk column (ground truth ≈ 1.19)
@@ -130,6 +134,7 @@ class Reference:
     jerk_single: float
     jerk_concat: float
     concat_profile: dict[str, Any]
+    bone_std: float  # mm, of the ground-truth segments' joints as recovered from their features
 
     @property
     def items(self) -> int:
@@ -160,7 +165,8 @@ class Reference:
             actions=actions, frames=frames, text=embed_captions(evaluator, captions),
             segments=embed_clips(evaluator, flat), windows=embed_clips(evaluator, middles),
             jerk_single=_nanmean(single), jerk_concat=_nanmean([jerk(j, JERK_FPS, b, WINDOW) for j, b in concat]),
-            concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]))
+            concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]),
+            bone_std=_nanmean([bone_length_spread(j, skeleton)["mean"] for clips in joints for j in clips]))
 
     def measure(self, repeat: int) -> dict[str, float]:
         """The "ground truth (single)" row for one repeat (its shuffle and diversity draws)."""
@@ -168,7 +174,7 @@ class Reference:
         return {**_matching(self.text, self.segments, order, self.rp_batch),
                 "diversity": diversity(self.segments, _pairs(self.items), seed=repeat),
                 "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
-                "jerk": self.jerk_single}
+                "jerk": self.jerk_single, "bone_std": self.bone_std}
 
 
 class Evaluation:
@@ -199,13 +205,14 @@ class Evaluation:
         reference = self.reference
         options = self.generator.options(MULTI, method=method, **self.knobs)
         seeds = _seeds(repeat, "multi", len(reference.actions))
-        segments, windows, jerks, profiles = [], [], [], []
+        segments, windows, jerks, profiles, bones = [], [], [], [], []
         for motions in self._generate(reference.actions, reference.frames, options, seeds, f"{method} r{repeat}"):
             segments.append(embed_clips(self.evaluator, [m.features[a:b] for m in motions for a, b in m.ranges]))
             windows.append(embed_clips(self.evaluator, [
                 w for m in motions for w in transition_windows(m.features, m.boundaries, WINDOW)]))
             jerks += [jerk(m.joints, JERK_FPS, m.boundaries, WINDOW) for m in motions]
             profiles += [p for m in motions for p in transition_profiles(m.joints, m.boundaries)]
+            bones += [bone_length_spread(m.joints, self.generator.skeleton)["mean"] for m in motions]
         segment_emb, window_emb = np.concatenate(segments), np.concatenate(windows)
         order = _rng(repeat, "order").permutation(reference.items)
         metrics = {**_matching(reference.text, segment_emb, order, reference.rp_batch),
@@ -213,7 +220,7 @@ class Evaluation:
                    "diversity": diversity(segment_emb, _pairs(len(segment_emb)), seed=repeat),
                    "transition_fid": fid(window_emb, reference.windows),
                    "transition_diversity": diversity(window_emb, _pairs(len(window_emb)), seed=repeat),
-                   "jerk": _nanmean(jerks)}
+                   "jerk": _nanmean(jerks), "bone_std": _nanmean(bones)}
         return {"method": method, "repeat": repeat, "metrics": metrics, "profile": mean_profile(profiles)}
 
     def single(self, repeat: int) -> dict[str, Any]:

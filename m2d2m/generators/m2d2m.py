@@ -5,7 +5,7 @@ VQ-VAE decoder, from one self-contained checkpoint (:mod:`m2d2m.generators.m2d2m
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -89,13 +89,16 @@ class M2D2MGenerator(MotionGenerator):
 
     # ----------------------------------------------------------------------------- the call
     def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: SamplingOptions,
-                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None) -> list[Motion]:
+                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
+                 progress: Callable[[float], None] | None = None) -> list[Motion]:
         """Sample every sequence in one batch of the sampler and decode each (see the protocol)."""
         keep = [None] * len(actions) if keep is None else keep
         lengths = [[self.round_frames(n) // self.frame_step for n in sequence] for sequence in frames]
         requests = [Request([[a] for a in sequence], tokens, int(seed), self._given(kept, sum(tokens)))
                     for sequence, tokens, seed, kept in zip(actions, lengths, seeds, keep)]
-        tokens = self.sampler.sample(requests, options)
+        steps = self.checkpoint.schedule.steps
+        tokens = self.sampler.sample(requests, options,
+                                     None if progress is None else lambda t: progress((steps - t + 1) / steps))
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
         return [self.decode(pieces, list(sequence), options, {**settings, "seed": int(seed)})
                 for pieces, sequence, seed in zip(tokens, actions, seeds)]

@@ -13,7 +13,7 @@ paper settings of single and multi-action generation.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -25,6 +25,26 @@ from m2d2m.motion.clip import Motion
 from m2d2m.motion.skeleton import Skeleton
 
 SINGLE, MULTI = "single", "multi"  # the presets every generator has
+
+
+def _checked(name: str, value: Any, annotation: str) -> Any:
+    """``value`` as the option's annotation (``int``, ``float``, ``str``, with ``| None``) has it,
+    or ValueError: a knob given as text or NaN must fail here, not deep inside sampling."""
+    if value is None:
+        if "None" not in annotation:
+            raise ValueError(f"option {name} cannot be empty")
+        return value
+    if annotation.startswith("str"):
+        if not isinstance(value, str):
+            raise ValueError(f"option {name} must be text, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise ValueError(f"option {name} must be a finite number, got {value!r}")
+    if annotation.startswith("int"):
+        if value != int(value):
+            raise ValueError(f"option {name} must be a whole number, got {value!r}")
+        return int(value)
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -118,6 +138,8 @@ class MotionGenerator(ABC):
         if unknown:
             raise ValueError(f"{self.model} has no sampling option {unknown[0]!r}; "
                              f"its options: {', '.join(self.knobs())}")
+        kinds = {f.name: f.type for f in fields(self.options_type)}
+        changes = {name: _checked(name, value, str(kinds[name])) for name, value in changes.items()}
         options = replace(self.presets[preset], **changes)
         if options.method not in self.methods:
             raise ValueError(f"unknown method {options.method!r} for {self.model}: "
@@ -135,8 +157,10 @@ class MotionGenerator(ABC):
     # ----------------------------------------------------------------------------- the call
     @abstractmethod
     def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: Any,
-                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None) -> list[Motion]:
+                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
+                 progress: Callable[[float], None] | None = None) -> list[Motion]:
         """One motion per sequence: ``actions[i]`` in order, action j about ``frames[i][j]`` frames
         long (rounded by :meth:`round_frames`), drawn with ``seeds[i]``; ``keep[i]`` holds frames
         to keep. A sequence's result does not depend on the others in the call. ValueError for a
-        request it cannot serve."""
+        request it cannot serve. A model that works in steps may call ``progress`` with the
+        fraction done, for a progress bar on long generations."""

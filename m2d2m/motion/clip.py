@@ -3,16 +3,20 @@ files an animator wants from it (joints ``.npy`` with a JSON sidecar, BVH, GIF o
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from m2d2m.atomic import atomic_path
 from m2d2m.motion.export import save_bvh, save_motion_npy
 from m2d2m.motion.render import render_motion
+from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 
 FORMATS = ("npy", "bvh", "gif", "mp4")
+ANIMATIONS = ("gif", "mp4")
 
 
 @dataclass
@@ -20,7 +24,8 @@ class Motion:
     """``features`` (F, D) HumanML3D features (denormalised), ``joints`` (F, J, 3) global positions,
     ``ranges[i]`` = (first, end) frames of ``actions[i]`` (end exclusive). Frames between two
     ranges belong to no action: a baseline's transition window. ``settings`` records how it was
-    made (method, seed, ...)."""
+    made (method, seed, ...), ``quality`` figures of the joints (``bone_length_std_mm_mean`` and
+    ``_max``: the spread of bone lengths before :meth:`on_rigid_skeleton`)."""
 
     features: np.ndarray
     joints: np.ndarray
@@ -30,6 +35,7 @@ class Motion:
     ranges: list[tuple[int, int]]
     settings: dict = field(default_factory=dict)
     tokens: np.ndarray | None = None  # the generated motion tokens, in order, when it was generated
+    quality: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if len(self.actions) != len(self.ranges):
@@ -59,10 +65,20 @@ class Motion:
     def segments(self) -> list[tuple[int, int, str]]:
         return [(first, end, text) for (first, end), text in zip(self.ranges, self.actions)]
 
+    def on_rigid_skeleton(self) -> "Motion":
+        """This motion with its joints on one rigid skeleton (:mod:`m2d2m.motion.rigid`), so that a
+        BVH of it reproduces the ``.npy`` and the animation; the spread of bone lengths it had is
+        kept in ``quality``. The features stay the model's own."""
+        spread = bone_length_spread(self.joints, self.skeleton)
+        joints = on_rigid_skeleton(self.joints, self.skeleton).astype(np.float32)
+        return replace(self, joints=joints, quality={**self.quality, "bone_length_std_mm_mean": spread["mean"],
+                                                     "bone_length_std_mm_max": spread["max"]})
+
     def save(self, directory: str | Path, name: str = "motion", formats: tuple[str, ...] = ("npy", "bvh", "gif"),
-             size: int = 480) -> dict[str, Path]:
-        """Write ``<name>.<format>`` for each format into ``directory``; returns format → path.
-        The GIF/MP4 shows each action's text over its frames."""
+             size: int = 480, progress: Callable[[int], None] | None = None) -> dict[str, Path]:
+        """Write ``<name>.<format>`` for each format into ``directory``, each file whole or not at
+        all; returns format → path. The GIF/MP4 shows each action's text over its frames;
+        ``progress(t)`` is called after each frame of an animation is drawn."""
         unknown = sorted(set(formats) - set(FORMATS))
         if unknown:
             raise ValueError(f"unknown formats {unknown}: choose from {', '.join(FORMATS)}")
@@ -71,10 +87,12 @@ class Motion:
         for kind in formats:
             path = directory / f"{name}.{kind}"
             if kind == "npy":
-                written[kind] = save_motion_npy(path, self.joints, self.fps, self.skeleton, self.segments)
-                np.save(directory / f"{name}.features.npy", self.features.astype(np.float32))
+                written[kind] = save_motion_npy(path, self.joints, self.fps, self.skeleton, self.segments, self.quality)
+                with atomic_path(directory / f"{name}.features.npy") as partial:
+                    np.save(partial, self.features.astype(np.float32))
             elif kind == "bvh":
                 written[kind] = save_bvh(path, self.joints, self.skeleton, self.fps)
             else:
-                written[kind] = render_motion(self.joints, path, self.skeleton, self.fps, self.segments, size=size)
+                written[kind] = render_motion(self.joints, path, self.skeleton, self.fps, self.segments, size=size,
+                                              progress=progress)
         return written

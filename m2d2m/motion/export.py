@@ -18,12 +18,13 @@ from typing import Literal, TextIO
 
 import numpy as np
 
+from m2d2m.atomic import atomic_path
+from m2d2m.motion.rigid import best_fit_rotation, children, rigid_shape
 from m2d2m.motion.rotations import matrix_to_euler, qbetween, quat_to_matrix
 from m2d2m.motion.skeleton import T2M, Skeleton
 
 EULER_ORDER = "ZYX"  # BVH channels Zrotation Yrotation Xrotation: R = Rz · Ry · Rx
 _UNITS = {"t2m": "metre", "kit": "KIT-ML units (about 640 per metre)"}
-_PROCRUSTES_ITERATIONS = 3
 
 
 def save_bvh(
@@ -67,10 +68,9 @@ def save_bvh(
     motion = np.concatenate([joints[:, 0, :], angles[:, order].reshape(len(joints), -1)], axis=1)
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w") as f:
+    with atomic_path(path) as partial, partial.open("w") as f:
         f.write("HIERARCHY\n")
-        _write_joint(f, skeleton, _children(skeleton), offsets, joint=order[0], depth=0)
+        _write_joint(f, skeleton, children(skeleton), offsets, joint=order[0], depth=0)
         f.write(f"MOTION\nFrames: {len(joints)}\nFrame Time: {1.0 / fps:.8f}\n")
         np.savetxt(f, motion, fmt="%.6f")
     return path
@@ -82,10 +82,12 @@ def save_motion_npy(
     fps: float | None = None,
     skeleton: Skeleton = T2M,
     segments: Sequence[tuple[int, int, str]] | None = None,
+    quality: dict[str, float] | None = None,
 ) -> Path:
     """Write ``<name>.npy`` (float32, T × J × 3) and a ``<name>.json`` sidecar beside it stating
-    joint names and order, units, axes, fps and the ``(start, end, text)`` segments (``end``
-    exclusive); return the ``.npy`` path."""
+    joint names and order, units, axes, fps, the ``(start, end, text)`` segments (``end``
+    exclusive) and, when given, ``quality`` figures of how the joints were made; return the
+    ``.npy`` path."""
     joints = skeleton.check_joints(joints).astype(np.float32)
     fps = float(skeleton.fps if fps is None else fps)
     n_frames = len(joints)
@@ -96,8 +98,8 @@ def save_motion_npy(
                 f"segment ({start}, {end}) must satisfy 0 <= start < end <= {n_frames}"
             )
     npy = Path(path).with_suffix(".npy")
-    npy.parent.mkdir(parents=True, exist_ok=True)
-    np.save(npy, joints)
+    with atomic_path(npy) as partial:
+        np.save(partial, joints)
     sidecar = {
         "file": npy.name,
         "shape": list(joints.shape),
@@ -115,24 +117,11 @@ def save_motion_npy(
             for s, e, text in segments
         ],
         "segments_end": "exclusive",
+        **({"quality": dict(quality)} if quality else {}),
     }
-    npy.with_suffix(".json").write_text(json.dumps(sidecar, indent=2, ensure_ascii=False) + "\n")
+    with atomic_path(npy.with_suffix(".json")) as partial:
+        partial.write_text(json.dumps(sidecar, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
     return npy
-
-
-def best_fit_rotation(rest: np.ndarray, actual: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) minimising Σ‖R·rest_n − actual_n‖² (Kabsch, via SVD)
-    for point sets rest (N, 3) and actual (..., N, 3) without translation (both are offsets)."""
-    cov = np.einsum("ni,...nj->...ij", rest, actual)
-    u, _, vt = np.linalg.svd(cov)
-    v, ut = np.swapaxes(vt, -1, -2), np.swapaxes(u, -1, -2)
-    reflect = np.where(np.linalg.det(v @ ut) < 0, -1.0, 1.0)  # keep a proper rotation
-    v[..., :, 2] *= reflect[..., None]
-    return v @ ut
-
-
-def _children(skeleton: Skeleton) -> list[list[int]]:
-    return [np.flatnonzero(skeleton.parents == j).tolist() for j in range(skeleton.num_joints)]
 
 
 def _topological(skeleton: Skeleton) -> list[int]:
@@ -142,30 +131,23 @@ def _topological(skeleton: Skeleton) -> list[int]:
 
 def _depth_first(skeleton: Skeleton) -> list[int]:
     """Joints in the order BVH lists them (and their channels)."""
-    children = _children(skeleton)
+    kids_of = children(skeleton)
     order, stack = [], [_topological(skeleton)[0]]
     while stack:
         joint = stack.pop()
         order.append(joint)
-        stack.extend(reversed(children[joint]))
+        stack.extend(reversed(kids_of[joint]))
     return order
 
 
 def _fit_rigid_branches(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray) -> np.ndarray:
-    """Offsets whose children of branching joints form the clip's rigid shape of that part.
-
-    Generalised Procrustes: alternate the per-frame best-fit rotation and the mean shape in the
-    part's frame (one round is exact for rigid parts), then turn the shape onto the T-pose.
-    """
+    """Offsets whose children of branching joints form the clip's rigid shape of that part
+    (:func:`m2d2m.motion.rigid.rigid_shape`), turned as close to the T-pose as it goes."""
     offsets = offsets.copy()
-    for joint, kids in enumerate(_children(skeleton)):
+    for joint, kids in enumerate(children(skeleton)):
         if len(kids) < 2:
             continue
-        actual = joints[:, kids] - joints[:, [joint]]
-        shape = offsets[kids]
-        for _ in range(_PROCRUSTES_ITERATIONS):
-            rot = best_fit_rotation(shape, actual)
-            shape = np.einsum("tji,tnj->ni", rot, actual) / len(joints)
+        shape = rigid_shape(joints[:, kids] - joints[:, [joint]], offsets[kids])
         offsets[kids] = shape @ best_fit_rotation(offsets[kids], shape)
     return offsets
 
@@ -173,14 +155,14 @@ def _fit_rigid_branches(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndar
 def _local_rotations(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray) -> np.ndarray:
     """BVH rotation matrices (T, J, 3, 3) of every joint relative to its parent joint."""
     n_frames, n_joints = joints.shape[:2]
-    children = _children(skeleton)
+    kids_of = children(skeleton)
     world = np.empty((n_frames, n_joints, 3, 3))
     local = np.empty_like(world)
     identity = np.broadcast_to(np.eye(3), (n_frames, 3, 3))
     for joint in _topological(skeleton):
         parent = skeleton.parents[joint]
         parent_world = identity if parent < 0 else world[:, parent]
-        kids = children[joint]
+        kids = kids_of[joint]
         if len(kids) > 1:
             world[:, joint] = best_fit_rotation(offsets[kids], joints[:, kids] - joints[:, [joint]])
             local[:, joint] = np.swapaxes(parent_world, -1, -2) @ world[:, joint]
@@ -196,7 +178,7 @@ def _local_rotations(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray
 
 
 def _write_joint(
-    f: TextIO, skeleton: Skeleton, children: list[list[int]], offsets: np.ndarray, joint: int,
+    f: TextIO, skeleton: Skeleton, kids_of: list[list[int]], offsets: np.ndarray, joint: int,
     depth: int,
 ) -> None:
     """Write one joint's HIERARCHY block and, recursively, its descendants'."""
@@ -208,9 +190,9 @@ def _write_joint(
     else:
         f.write(f"{pad}JOINT {name}\n{pad}{{\n{pad}\tOFFSET {_triple(offsets[joint])}\n")
         f.write(f"{pad}\tCHANNELS 3 {_rotation_channels()}\n")
-    kids = children[joint]
+    kids = kids_of[joint]
     for kid in kids:
-        _write_joint(f, skeleton, children, offsets, kid, depth + 1)
+        _write_joint(f, skeleton, kids_of, offsets, kid, depth + 1)
     if not kids:  # End Site: half the last bone again, so the leaf bone shows its direction
         end = _triple(0.5 * offsets[joint])
         f.write(f"{pad}\tEnd Site\n{pad}\t{{\n{pad}\t\tOFFSET {end}\n{pad}\t}}\n")

@@ -10,11 +10,11 @@ each action of a multi-action clip; frames outside every segment are drawn as tr
 
 from __future__ import annotations
 
+import itertools
 import shutil
 import subprocess
-import itertools
 import textwrap
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -23,8 +23,9 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
-from PIL import Image
+from PIL import GifImagePlugin, Image
 
+from m2d2m.atomic import atomic_path
 from m2d2m.motion.skeleton import T2M, Skeleton
 from m2d2m.motion.smoothing import gaussian_smooth
 
@@ -55,11 +56,14 @@ def render_motion(
     segments: Sequence[Segment] | None = None,
     title: str | None = None,
     size: int = 480,
+    progress: Callable[[int], None] | None = None,
 ) -> Path:
     """Write an animation of ``joints`` (T, J, 3) to ``path``; ``.gif`` or ``.mp4`` by suffix.
 
     MP4 needs an ``ffmpeg`` binary (on PATH, or the one bundled with ``imageio-ffmpeg``); without
-    one a ``RuntimeError`` is raised before anything is written.
+    one a ``RuntimeError`` is raised before anything is written. ``progress(t)`` is called after
+    frame ``t`` is drawn. Frames are encoded as they are drawn, so memory does not grow with the
+    clip's length, and the file appears under its name only when complete.
     """
     joints = skeleton.check_joints(joints)
     fps = float(skeleton.fps if fps is None else fps)
@@ -68,7 +72,7 @@ def render_motion(
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
     panel = _Panel(ax, _View(joints, skeleton, fps), _Timeline(segments, len(joints)), size,
                    title=title, with_legend=True)
-    return _animate(fig, [panel], len(joints), path, fps)
+    return _animate(fig, [panel], len(joints), path, fps, progress)
 
 
 def render_comparison(
@@ -98,7 +102,8 @@ def render_comparison(
     return _animate(fig, panels, n_frames, path, fps)
 
 
-def _animate(fig: Figure, panels: Sequence["_Panel"], n_frames: int, path: str | Path, fps: float) -> Path:
+def _animate(fig: Figure, panels: Sequence["_Panel"], n_frames: int, path: str | Path, fps: float,
+             progress: Callable[[int], None] | None = None) -> Path:
     """Draw every frame of the panels and encode them as GIF or MP4 (by the path's suffix)."""
     path = Path(path)
     suffix = path.suffix.lower()
@@ -117,12 +122,14 @@ def _animate(fig: Figure, panels: Sequence["_Panel"], n_frames: int, path: str |
                 panel.draw(t)
             canvas.draw()
             yield np.asarray(canvas.buffer_rgba())[..., :3]
+            if progress is not None:
+                progress(t)
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if ffmpeg is None:
-        _write_gif(frames(), path, fps)
-    else:
-        _write_mp4(frames(), path, fps, ffmpeg)
+    with atomic_path(path) as partial:
+        if ffmpeg is None:
+            _write_gif(frames(), partial, fps)
+        else:
+            _write_mp4(frames(), partial, fps, ffmpeg)
     return path
 
 
@@ -398,6 +405,11 @@ def _head_joint(skeleton: Skeleton) -> int:
     return int(leaves[np.argmax(rest[leaves, 1])])
 
 
+def can_write_mp4() -> bool:
+    """Whether an MP4 can be written here, for callers that check before they start work."""
+    return _find_ffmpeg() is not None
+
+
 def _find_ffmpeg() -> str | None:
     """An ffmpeg executable: the one on PATH, else imageio-ffmpeg's bundled binary."""
     found = shutil.which("ffmpeg")
@@ -411,19 +423,25 @@ def _find_ffmpeg() -> str | None:
 
 
 def _write_gif(frames: Iterator[np.ndarray], path: Path, fps: float) -> None:
-    """Animated GIF through Pillow; every frame gets an adaptive 256-colour palette."""
-    images = [
-        Image.fromarray(rgb).quantize(
-            256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE
-        )
-        for rgb in frames
-    ]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=1000.0 / fps,
-                   loop=0, optimize=False)
+    """Animated GIF written one frame at a time, each with an adaptive 256-colour palette.
+
+    Pillow's ``save(save_all=True)`` keeps every frame until the end (it compares neighbours),
+    which took 2.1 GB for a long clip; its frame-level writers (``GifImagePlugin.getheader`` and
+    ``getdata``, Pillow's documented GIF utilities) let each frame go once it is written.
+    """
+    duration = 1000.0 / fps
+    with path.open("wb") as f:
+        for n, rgb in enumerate(frames):
+            image = Image.fromarray(rgb).quantize(256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE)
+            if n == 0:  # the first frame's palette is the global one; the header also loops forever
+                header, _ = GifImagePlugin.getheader(image, info={"loop": 0, "duration": duration})
+                f.writelines(header)
+            f.writelines(GifImagePlugin.getdata(image, duration=duration, include_color_table=n > 0))
+        f.write(b";")  # the GIF trailer
 
 
 def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, ffmpeg: str) -> None:
-    """H.264 MP4 by piping raw RGB frames to ffmpeg; a failed encode leaves no file behind."""
+    """H.264 MP4 by piping raw RGB frames to ffmpeg (into a temporary file: :func:`_animate`)."""
     frames = iter(frames)
     first = next(frames)
     height, width = first.shape[:2]
@@ -431,7 +449,7 @@ def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, ffmpeg: str
     command = [
         ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
         "-s", f"{width}x{height}", "-r", f"{fps:g}", "-i", "-",
-        "-c:v", "libx264", "-pix_fmt", "yuv420p", str(path),
+        "-c:v", "libx264", "-pix_fmt", "yuv420p", "-f", "mp4", str(path),
     ]
     process = subprocess.Popen(command, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
@@ -442,10 +460,8 @@ def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, ffmpeg: str
     except BaseException:
         process.kill()
         process.communicate()
-        path.unlink(missing_ok=True)
         raise
     _, stderr = process.communicate()
     if process.returncode != 0:
-        path.unlink(missing_ok=True)
         message = stderr.decode(errors="replace").strip()
         raise RuntimeError(f"ffmpeg failed writing {path}: {message}")

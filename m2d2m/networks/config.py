@@ -7,6 +7,10 @@ from dataclasses import asdict, dataclass, fields
 from typing import Any, Self
 
 
+class ConfigError(ValueError):
+    """A network setting no model can be built with: the user's to fix, said in one line."""
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """Subclasses declare their fields with the paper's defaults and check them in ``__post_init__``."""
@@ -16,7 +20,7 @@ class NetworkConfig:
         """Build from a config mapping; unknown keys are an error so a typo never goes unnoticed."""
         unknown = sorted(set(values) - {f.name for f in fields(cls)})
         if unknown:
-            raise ValueError(f"unknown {cls.__name__} keys: {', '.join(unknown)}")
+            raise ConfigError(f"unknown {cls.__name__} keys: {', '.join(unknown)}")
         return cls(**values)
 
     def to_dict(self) -> dict[str, Any]:
@@ -27,12 +31,12 @@ class NetworkConfig:
         for name in names:
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
-                raise ValueError(f"{type(self).__name__}.{name} must be a positive integer, got {value!r}")
+                raise ConfigError(f"{type(self).__name__}.{name} must be a positive integer, got {value!r}")
 
     def require_fraction(self, *names: str, open_low: bool = False) -> None:
         """Each field named must lie in [0, 1) — or (0, 1) with ``open_low``."""
         for name in names:
             value = getattr(self, name)
             if not (0.0 < value < 1.0 if open_low else 0.0 <= value < 1.0):
-                raise ValueError(f"{type(self).__name__}.{name} must lie in {'(' if open_low else '['}0, 1), "
+                raise ConfigError(f"{type(self).__name__}.{name} must lie in {'(' if open_low else '['}0, 1), "
                                  f"got {value!r}")

@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from m2d2m.networks.config import NetworkConfig
+from m2d2m.networks.config import ConfigError, NetworkConfig
 
 
 @dataclass(frozen=True)
@@ -53,11 +53,11 @@ class DenoiserConfig(NetworkConfig):
     def __post_init__(self) -> None:
         self.require_positive("codebook_size", "layers", "heads", "width", "ffn", "text_dim", "steps", "max_distance")
         if self.width % self.heads:
-            raise ValueError(f"DenoiserConfig.width ({self.width}) must be divisible by heads ({self.heads})")
+            raise ConfigError(f"DenoiserConfig.width ({self.width}) must be divisible by heads ({self.heads})")
         if not isinstance(self.num_buckets, int) or self.num_buckets < 4 or self.num_buckets % 2:
-            raise ValueError(f"DenoiserConfig.num_buckets must be an even integer >= 4, got {self.num_buckets!r}")
+            raise ConfigError(f"DenoiserConfig.num_buckets must be an even integer >= 4, got {self.num_buckets!r}")
         if self.max_distance <= self.num_buckets // 4:
-            raise ValueError(f"DenoiserConfig.max_distance must exceed num_buckets // 4 "
+            raise ConfigError(f"DenoiserConfig.max_distance must exceed num_buckets // 4 "
                              f"({self.num_buckets // 4}), got {self.max_distance}")
         self.require_fraction("dropout", "condition_drop")
 

@@ -28,7 +28,7 @@ from torch import nn
 
 from m2d2m.model_files import cpu_state, read_model_file, write_model_file
 from m2d2m.motion.normalization import Normalizer
-from m2d2m.networks.config import NetworkConfig
+from m2d2m.networks.config import ConfigError, NetworkConfig
 
 FORMAT = "m2d2m-vq/1"
 
@@ -52,10 +52,10 @@ class VQConfig(NetworkConfig):
     def __post_init__(self) -> None:
         self.require_positive("feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size")
         if not isinstance(self.down_t, int) or self.down_t < 0:
-            raise ValueError(f"VQConfig.down_t must be a non-negative integer, got {self.down_t!r}")
+            raise ConfigError(f"VQConfig.down_t must be a non-negative integer, got {self.down_t!r}")
         self.require_fraction("ema_decay", open_low=True)
         if self.activation not in _ACTIVATIONS:
-            raise ValueError(f"VQConfig.activation must be one of {sorted(_ACTIVATIONS)}, "
+            raise ConfigError(f"VQConfig.activation must be one of {sorted(_ACTIVATIONS)}, "
                              f"got {self.activation!r}")
 
 
@@ -319,15 +319,25 @@ def save_vq(path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skelet
 def load_vq(path: str | Path,
             map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
     """Read a file written by :func:`save_vq`: the model (eval mode, on ``map_location``), its
-    normaliser, and ``{"skeleton", "extra"}``."""
-    return vq_from_payload(read_model_file(path, FORMAT, "m2d2m VQ model file", map_location), map_location)
+    normaliser, and ``{"skeleton", "extra"}``; ValueError when the file is not one."""
+    payload = read_model_file(path, FORMAT, "m2d2m VQ model file", map_location)
+    try:
+        return vq_from_payload(payload, map_location)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from error
 
 
 def vq_from_payload(payload: dict, map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
     """The model, normaliser and ``{"skeleton", "extra"}`` of a VQ file's contents — also used
     when a denoiser checkpoint carries its VQ-VAE inside it."""
-    model = MotionVQVAE(VQConfig.from_dict(payload["config"]))
-    model.load_state_dict(payload["state_dict"])
-    model.to(map_location).eval()
-    normalizer = Normalizer(payload["mean"].cpu().numpy(), payload["std"].cpu().numpy(), payload["feat_bias"])
-    return model, normalizer, {"skeleton": payload["skeleton"], "extra": payload["extra"]}
+    try:
+        model = MotionVQVAE(VQConfig.from_dict(payload["config"]))
+        model.load_state_dict(payload["state_dict"])
+        normalizer = Normalizer(payload["mean"].cpu().numpy(), payload["std"].cpu().numpy(), payload["feat_bias"])
+        meta = {"skeleton": payload["skeleton"], "extra": payload["extra"]}
+    except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as error:
+        # a file with the format tag whose contents do not fit the model (missing keys, other
+        # shapes): the caller gets a ValueError naming what is wrong, like any unreadable file
+        raise ValueError(f"not a usable VQ-VAE ({type(error).__name__}: {' '.join(str(error).split())[:200]})") \
+            from error
+    return model.to(map_location).eval(), normalizer, meta

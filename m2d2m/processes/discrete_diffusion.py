@@ -23,6 +23,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from m2d2m.networks.config import ConfigError
+
 KINDS = ("uniform", "dynamic")
 DISTANCES = ("l2_rank", "l2", "cosine", "cosine_rank")
 # schedule name -> (ᾱ_T, γ̄_T); both start at ᾱ_1 = 0.99999, γ̄_1 = 0.000009.
@@ -48,19 +50,19 @@ class ScheduleConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.steps, int) or self.steps < 1:
-            raise ValueError(f"steps must be a positive integer, got {self.steps!r}")
+            raise ConfigError(f"steps must be a positive integer, got {self.steps!r}")
         if self.kind not in KINDS:
-            raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
+            raise ConfigError(f"kind must be one of {KINDS}, got {self.kind!r}")
         if self.distance not in DISTANCES:
-            raise ValueError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
+            raise ConfigError(f"distance must be one of {DISTANCES}, got {self.distance!r}")
         if self.schedule not in SCHEDULES:
-            raise ValueError(f"schedule must be one of {tuple(SCHEDULES)}, got {self.schedule!r}")
+            raise ConfigError(f"schedule must be one of {tuple(SCHEDULES)}, got {self.schedule!r}")
         if not 0.0 <= self.alpha_bar_end <= self.alpha_bar_start <= 1.0:
-            raise ValueError("need 0 <= alpha_bar_end <= alpha_bar_start <= 1")
+            raise ConfigError("need 0 <= alpha_bar_end <= alpha_bar_start <= 1")
         if not 0.0 <= self.gamma_bar_start <= self.gamma_bar_end < 1.0:
-            raise ValueError("need 0 <= gamma_bar_start <= gamma_bar_end < 1")
+            raise ConfigError("need 0 <= gamma_bar_start <= gamma_bar_end < 1")
         if self.alpha_bar_start + self.gamma_bar_start > 1.0 or self.alpha_bar_end + self.gamma_bar_end > 1.0:
-            raise ValueError("alpha_bar + gamma_bar must not exceed 1 at either end")
+            raise ConfigError("alpha_bar + gamma_bar must not exceed 1 at either end")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

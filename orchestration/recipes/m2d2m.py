@@ -35,8 +35,8 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
     entry = model(NAME)
     run_dir, config, run_id = open_run(entry.stage, entry.configs, config_name, overrides or [], resume, join)
     vq_path = vq_file(config["vq"], config["dataset"])
-    vq, _, _ = load_vq(vq_path)
     try:
+        vq, _, _ = load_vq(vq_path)
         data_dir, tokens_dir = ensure_tokens(vq_path)
         data, trainer_cfg = config["data"], config["trainer"]
         datamodule = TokenDataModule(tokens_dir, batch_size=data["batch_size"], num_workers=data["num_workers"],

@@ -1,0 +1,346 @@
+"""The fault matrix of docs/reliability.md: every verb driven through bad values of its arguments
+and config keys, corrupt, truncated, empty and wrong-kind input files, and kills.
+
+Every user error must end in exit status 2 and one line on stderr, with no traceback, and leave
+nothing that looks complete but is not: no new run marked finished, ``latest`` unchanged and
+pointing at a finished run. The kills (SIGKILL while a stage writes) must leave what existed
+whole, and a re-run must finish and, where the stage is deterministic, equal a clean run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from orchestration.cli import main
+
+# ------------------------------------------------------------------------------ the bad inputs
+
+
+def write_bad_files(folder: Path, trained: Path) -> None:
+    """Input files of every wrong kind the matrix feeds the verbs, beside the real ones."""
+    folder.mkdir(parents=True, exist_ok=True)
+    joints = np.zeros((12, 22, 3), dtype=np.float32)
+    joints[:, :, 1] = np.linspace(0.0, 1.7, 22)
+    np.save(folder / "joints.npy", joints)
+    (folder / "empty.npy").write_bytes(b"")
+    (folder / "truncated.npy").write_bytes((folder / "joints.npy").read_bytes()[:150])
+    (folder / "text.npy").write_text("not an array\n", encoding="utf-8")
+    np.save(folder / "nan.npy", np.where(np.arange(12)[:, None, None] == 5, np.nan, joints))
+    np.save(folder / "inf.npy", np.where(np.arange(12)[:, None, None] == 5, np.inf, joints))
+    np.save(folder / "no-frames-joints.npy", np.zeros((0, 22, 3), dtype=np.float32))
+    np.save(folder / "no-frames-features.npy", np.zeros((0, 263), dtype=np.float32))
+    np.save(folder / "wrong-shape.npy", np.zeros((12, 7), dtype=np.float32))
+    np.save(folder / "one-dimensional.npy", np.zeros(12, dtype=np.float32))
+    np.save(folder / "objects.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    np.save(folder / "integers.npy", np.zeros((12, 22, 3), dtype=np.int64))
+
+    vq = next((trained / "runs" / "tiny" / "vq").glob("*/vq.pt"))
+    model = next((trained / "runs" / "tiny" / "m2d2m").glob("*/model.pt"))
+    evaluator = next((trained / "runs" / "tiny" / "evaluator").glob("*/evaluator.pt"))
+    (folder / "empty.pt").write_bytes(b"")
+    (folder / "random.pt").write_bytes(np.random.default_rng(0).bytes(4096))
+    for name, source in (("vq", vq), ("model", model), ("evaluator", evaluator)):
+        (folder / f"truncated-{name}.pt").write_bytes(source.read_bytes()[: source.stat().st_size // 2])
+    torch.save({"weights": torch.zeros(3)}, folder / "a-dict.pt")
+    torch.save(torch.zeros(3), folder / "a-tensor.pt")
+
+    (folder / "empty.yaml").write_text("", encoding="utf-8")
+    (folder / "broken.yaml").write_text("model: {width: [\n", encoding="utf-8")
+    (folder / "list.yaml").write_text("- 1\n- 2\n", encoding="utf-8")
+    (folder / "no-manifest").mkdir(exist_ok=True)
+    (folder / "bad-manifest").mkdir(exist_ok=True)
+    (folder / "bad-manifest" / "manifest.json").write_text("{", encoding="utf-8")
+    (folder / "joints-only").mkdir(exist_ok=True)
+    shutil.copytree(trained / "raw" / "joints", folder / "joints-only" / "joints", dirs_exist_ok=True)
+    for split in ("train", "val", "test"):
+        shutil.copy(trained / "raw" / f"{split}.txt", folder / "joints-only" / f"{split}.txt")
+
+
+def _bad_files(verb: str, first: list[str], files: tuple[str, ...], *rest: str) -> list[list[str]]:
+    return [[verb, *first, "{tmp}/" + name, *rest] for name in files]
+
+
+BAD_MOTIONS = ("empty.npy", "truncated.npy", "text.npy", "nan.npy", "inf.npy", "no-frames-joints.npy",
+               "no-frames-features.npy", "wrong-shape.npy", "one-dimensional.npy", "objects.npy", "nowhere.npy")
+BAD_MODEL_FILES = ("empty.pt", "random.pt", "a-dict.pt", "a-tensor.pt", "nowhere.pt")
+BAD_CONFIGS = ("empty.yaml", "broken.yaml", "list.yaml", "nowhere.yaml")
+TRAINING = {"train-vq": "{root}/vq.yaml", "train-diffusion": "{root}/diffusion.yaml",
+            "train-evaluator": "{root}/evaluator.yaml"}
+
+
+def _training_cases() -> list[list[str]]:
+    cases = []
+    for verb, config in TRAINING.items():
+        cases += _bad_files(verb, ["--config"], BAD_CONFIGS)
+        cases += [[verb, "--config", "no-such-config"]]
+        for override in ("optim.lr=abc", "optim.lr=-1", "optim.lr", "trainer.max_steps=-1", "trainer.max_steps=x",
+                         "trainer.val_every_steps=0", "no.such.key=1", "seed=x", "data.batch_size=0",
+                         "data.dir={tmp}/nowhere", "data.dir={tmp}/no-manifest", "data.dir={tmp}/bad-manifest",
+                         "trainer.accelerator=abacus", "trainer.devices=0"):
+            cases.append([verb, "--config", config, "--set", override])
+        cases.append([verb, "--config", config, "--resume"])  # its only run has finished
+    for verb, override in (("train-vq", "model.width=0"), ("train-vq", "model.activation=sigmoidal"),
+                           ("train-evaluator", "model.embedding_dim=0"), ("train-diffusion", "denoiser.heads=3"),
+                           ("train-diffusion", "diffusion.steps=0"), ("train-diffusion", "diffusion.kind=cubic")):
+        cases.append([verb, "--config", TRAINING[verb], "--set", override])
+    diffusion = TRAINING["train-diffusion"]
+    for name in (*BAD_MODEL_FILES, "truncated-vq.pt", "model.pt"):
+        path = "{model}" if name == "model.pt" else "{tmp}/" + name
+        cases.append(["train-diffusion", "--config", diffusion, "--set", f"vq={path}"])
+    return cases
+
+
+BAD_ARGUMENTS: list[list[str]] = [
+    ["no-such-verb"],
+    ["synthesize", "--clips", "0"], ["synthesize", "--clips", "x"], ["synthesize", "--workers", "0"],
+    ["synthesize", "--families", "walk,moonwalk"], ["synthesize", "--seed", "x"],
+    ["synthesize", "--out", "{tmp}/joints.npy", "--clips", "3"],
+    ["data", "--workers", "0"], ["data", "--samples-per-shard", "0"], ["data", "--min-frames", "0"],
+    ["data", "--max-frames", "x"], ["data", "--dataset", "amass"],
+    ["data", "--dataset", "humanml3d", "--raw", "{tmp}/nowhere"], ["data", "--raw", "{tmp}/joints.npy"],
+    ["data", "--raw", "{root}/raw", "--out", "{tmp}/new", "--min-frames", "100", "--max-frames", "50"],
+    ["data", "--raw", "{tmp}/joints-only", "--out", "{tmp}/new"],
+    ["data", "--raw", "{root}/raw", "--out", "{tmp}/joints.npy"],
+    ["data", "--check", "{tmp}/nowhere"], ["data", "--check", "{tmp}/bad-manifest"],
+    ["data", "--check", "{tmp}/no-manifest"],
+    *_training_cases(),
+    ["tokenize", "--workers", "0"], ["tokenize", "--dataset", "tiny", "--vq", "no-such-run"],
+    *_bad_files("tokenize", ["--dataset", "tiny", "--vq"], (*BAD_MODEL_FILES, "truncated-vq.pt")),
+    ["tokenize", "--dataset", "tiny", "--vq", "{model}"],
+    ["tokenize", "--dataset", "tiny", "--data", "{tmp}/nowhere"],
+    ["tokenize", "--dataset", "tiny", "--data", "{tmp}/bad-manifest"],
+    ["tokenize", "--check", "{tmp}/nowhere"], ["tokenize", "--check", "{tmp}/bad-manifest"],
+    ["testset", "--n", "0"], ["testset", "--n", "x"], ["testset", "--seed", "x"], ["testset", "--first", "0"],
+    ["testset", "--dataset", "tiny", "--data", "{root}/data", "--mirrors", "sometimes"],
+    ["testset", "--dataset", "tiny", "--data", "{root}/data", "--n", "500"],
+    ["testset", "--dataset", "tiny", "--data", "{tmp}/nowhere"],
+    ["testset", "--dataset", "tiny", "--data", "{tmp}/bad-manifest"],
+    ["testset", "--dataset", "tiny", "--data", "{tmp}/no-manifest"],
+    *[["evaluate", "--dataset", "tiny", *more] for more in (
+        ["--model", "no-such-model"], ["--method", "teleport"], ["--ts", "-1"], ["--ts", "100000"], ["--ts", "x"],
+        ["--eta", "nan"], ["--eta", "-1"], ["--guidance", "-1"], ["--repeats", "0"], ["--batch-size", "0"],
+        ["--option", "no_such_knob=1"], ["--option", "truncation=abc"], ["--testset", "{tmp}/nowhere"],
+        ["--testset", "{tmp}/bad-manifest"], ["--evaluator", "{tmp}/nowhere"], ["--evaluator", "{tmp}/empty.pt"],
+        ["--evaluator", "{tmp}/truncated-evaluator.pt"], ["--evaluator", "{model}"],
+        ["--checkpoint", "{tmp}/empty.pt"], ["--checkpoint", "{tmp}/truncated-model.pt"],
+        ["--checkpoint", "{vq}"], ["--resume", "no-such-run"], ["--resume", "no-such-run", "--ts", "3"],
+        ["--guo-evaluator", "{tmp}/nowhere"],
+    )],
+    *[["generate", "--dataset", "tiny", "--out", "{tmp}/generated", *more] for more in (
+        [], ["   "], ["a person walks", "--seconds", "-1"], ["a person walks", "--seconds", "0"],
+        ["a person walks", "a person jumps", "--seconds", "1", "2", "3"],
+        ["a person walks", "--seconds", "100000"], ["a person walks", "--seconds", "nan"],
+        ["a person walks", "--method", "teleport"], ["a person walks", "--ts", "-1"],
+        ["a person walks", "--eta", "-0.5"], ["a person walks", "--option", "eta=abc"], ["a person walks", "--guidance", "-2"],
+        ["a person walks", "--truncation", "0"], ["a person walks", "--truncation", "2"],
+        ["a person walks", "--formats", "xyz"], ["a person walks", "--model", "no-such-model"],
+        ["a person walks", "--option", "no_such_knob=1"], ["a person walks", "--seed", "x"],
+        ["a person walks", "--name", "a/b"],
+        *[["a person walks", "--checkpoint", path] for path in
+          ("{tmp}/empty.pt", "{tmp}/random.pt", "{tmp}/a-dict.pt", "{tmp}/truncated-model.pt", "{vq}",
+           "{tmp}/nowhere.pt")],
+    )],
+    ["generate", "a person walks", "--dataset", "tiny", "--out", "{tmp}/joints.npy", "--formats", "gif"],
+    ["sweep", "--config", "no-such-sweep"], *_bad_files("sweep", ["--config"], BAD_CONFIGS),
+    *[["sweep", "--set", "dataset=tiny", "--set", override] for override in (
+        "space.no_such_knob=[1,2]", "space.eta=[]", "space.eta=0.5", "kind=other", "repeats=0", "bogus",
+        "search=sometimes", "model=no-such-model", "max_concurrent=0", "no_such_key=1")],
+    *[["render", "{tmp}/joints.npy", "--out", "{tmp}/out.gif", *more] for more in (
+        ["--fps", "0"], ["--fps", "-1"], ["--fps", "nan"], ["--fps", "inf"], ["--fps", "x"],
+        ["--skeleton", "smpl"])],
+    ["render", "{tmp}/joints.npy", "--out", "{tmp}/out.png"], ["render", "{root}/raw", "--out", "{tmp}/out.gif"],
+    ["render", "{root}/raw", "--id", "no-such-clip", "--out", "{tmp}/out.gif"],
+    *_bad_files("render", [], BAD_MOTIONS, "--out", "{tmp}/out.gif"),
+    *[["export", "{tmp}/joints.npy", "--out", "{tmp}/out.bvh", *more] for more in (
+        ["--fps", "0"], ["--fps", "-1"], ["--fps", "nan"])],
+    ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.fbx"],
+    *_bad_files("export", [], BAD_MOTIONS, "--out", "{tmp}/out.bvh"),
+    ["ui", "--port", "99999"], ["ui", "--port", "-1"], ["ui", "--port", "x"], ["ui", "--port", "{busy_port}"],
+]
+
+
+# ------------------------------------------------------------------------------ the invariants
+
+
+def run_states(root: Path) -> dict[str, str]:
+    """Every run folder's status and every ``latest`` marker's target under ``root/runs``."""
+    states = {}
+    for run_file in sorted((root / "runs").glob("*/*/*/run.json")):
+        states[str(run_file.parent.relative_to(root))] = json.loads(run_file.read_text())["status"]
+    for marker in sorted((root / "runs").glob("*/*/latest")):
+        states[str(marker.relative_to(root))] = marker.read_text().strip()
+    return states
+
+
+def assert_latest_is_finished(root: Path) -> None:
+    for marker in (root / "runs").glob("*/*/latest"):
+        target = marker.parent / marker.read_text().strip()
+        assert json.loads((target / "run.json").read_text())["status"] == "finished", marker
+
+
+def assert_nothing_looks_finished(root: Path, before: dict[str, str]) -> None:
+    """After a user error: no new run unless marked failed, no ``latest`` moved."""
+    after = run_states(root)
+    for key, value in after.items():
+        if key.endswith("latest"):
+            assert before.get(key) == value, f"{key} moved to {value}"
+        elif key not in before:
+            assert value == "failed", f"{key} is a new run left {value}"
+    assert_latest_is_finished(root)
+
+
+@pytest.fixture(scope="module")
+def matrix_project(trained_project: Path, tmp_path_factory) -> Iterator[dict[str, str]]:
+    tmp = tmp_path_factory.mktemp("bad-inputs")
+    write_bad_files(tmp, trained_project)
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        yield {"root": str(trained_project), "tmp": str(tmp), "busy_port": str(busy.getsockname()[1]),
+               "vq": str(next((trained_project / "runs" / "tiny" / "vq").glob("*/vq.pt"))),
+               "model": str(next((trained_project / "runs" / "tiny" / "m2d2m").glob("*/model.pt")))}
+
+
+def _case_id(argv: list[str]) -> str:
+    return " ".join(a.replace("{tmp}/", "").replace("{root}/", "") for a in argv)[:90]
+
+
+@pytest.mark.parametrize("argv", BAD_ARGUMENTS, ids=[_case_id(a) for a in BAD_ARGUMENTS])
+def test_a_user_error_is_one_line_with_exit_2_and_leaves_nothing_that_looks_done(argv, matrix_project, capfd):
+    root = Path(matrix_project["root"])
+    before = run_states(root)
+    capfd.readouterr()
+    try:
+        status = main([a.format(**matrix_project) for a in argv])
+    except SystemExit as stop:  # argparse
+        status = stop.code
+    err = capfd.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert "Traceback" not in err, err
+    assert status == 2, err
+    assert len(lines) == 1 and lines[0].startswith("m2d2m") and "error:" in lines[0], err
+    assert_nothing_looks_finished(root, before)
+
+
+# ------------------------------------------------------------------------------------ the kills
+
+
+def cli_process(argv: list[str], cwd: Path) -> subprocess.Popen:
+    """``m2d2m`` in its own session, so that a kill reaches what it started (Ray, workers)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "RAY_ADDRESS")}
+    return subprocess.Popen([sys.executable, "-m", "orchestration.cli", *argv], cwd=cwd, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def kill_when(argv: list[str], cwd: Path, reached: Callable[[], bool], timeout: float = 300.0) -> None:
+    """Run ``m2d2m argv`` and SIGKILL its whole session as soon as ``reached()`` holds."""
+    process = cli_process(argv, cwd)
+    deadline = time.monotonic() + timeout
+    while process.poll() is None and not reached() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    running = process.poll() is None
+    if running:
+        os.killpg(process.pid, signal.SIGKILL)
+    stderr = process.communicate()[1]
+    assert running and reached(), f"the kill point was never reached; stderr:\n{stderr[-2000:]}"
+
+
+def run_to_the_end(argv: list[str], cwd: Path) -> None:
+    process = cli_process(argv, cwd)
+    stderr = process.communicate(timeout=600)[1]
+    assert process.returncode == 0, stderr[-3000:]
+
+
+def tree_digest(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_killed_synthesize_leaves_a_corpus_a_rerun_completes_to_the_clean_one(tmp_path):
+    from pipelines.synthetic import generate_corpus
+
+    generate_corpus(tmp_path / "clean", clips=60, seed=3)
+    argv = ["synthesize", "--out", "killed", "--clips", "60", "--seed", "3", "--workers", "1"]
+    kill_when(argv, tmp_path, lambda: len(list((tmp_path / "killed" / "joints").glob("*.npy"))) >= 10)
+    assert main(["synthesize", "--out", str(tmp_path / "killed"), "--clips", "60", "--seed", "3"]) == 0
+    assert tree_digest(tmp_path / "killed") == tree_digest(tmp_path / "clean")
+
+
+def test_a_killed_rebuild_leaves_the_dataset_whole_and_a_rerun_equals_a_clean_build(tmp_path, ray_local):
+    from pipelines.features import DataConfig, build_dataset
+    from pipelines.synthetic import generate_corpus
+
+    generate_corpus(tmp_path / "raw", clips=60, seed=4)
+    build_dataset(DataConfig(dataset="synthetic", raw=str(tmp_path / "raw"), out=str(tmp_path / "data"),
+                             samples_per_shard=8, workers=1))
+    clean = tree_digest(tmp_path / "data")
+    argv = ["data", "--raw", "raw", "--out", "data", "--samples-per-shard", "8", "--workers", "1", "--force"]
+    kill_when(argv, tmp_path, lambda: any(tmp_path.glob(".data.building-*/shards/*.tar")))
+    assert tree_digest(tmp_path / "data") == clean  # the old dataset, untouched
+    run_to_the_end(argv, tmp_path)
+    rebuilt = tree_digest(tmp_path / "data")
+    assert {k: v for k, v in rebuilt.items() if k.startswith("shards/") or k == "stats.npz"} == \
+        {k: v for k, v in clean.items() if k.startswith("shards/") or k == "stats.npz"}
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".data.")) == [".data.lock"]
+    assert main(["data", "--check", str(tmp_path / "data")]) == 0
+
+
+def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_project):
+    root = Path(matrix_project["root"])
+    marker = root / "runs" / "tiny" / "vq" / "latest"
+    finished = marker.read_text()
+    before = set((root / "runs" / "tiny" / "vq").iterdir())
+
+    def a_new_checkpoint() -> bool:
+        return any(list(run.glob("checkpoints/*.ckpt")) for run in set(marker.parent.iterdir()) - before)
+
+    kill_when(["train-vq", "--config", "vq.yaml", "--set", "trainer.max_steps=30", "--set",
+               "trainer.val_every_steps=2", "--set", "trainer.gif_every=100"], root, a_new_checkpoint)
+    (killed,) = set(marker.parent.iterdir()) - before
+    assert json.loads((killed / "run.json").read_text())["status"] == "running"
+    assert marker.read_text() == finished and not (killed / "vq.pt").exists()
+    run_to_the_end(["train-vq", "--config", "vq.yaml", "--resume"], root)
+    assert json.loads((killed / "run.json").read_text())["status"] == "finished"
+    assert marker.read_text().strip() == killed.name and (killed / "vq.pt").is_file()
+
+
+def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
+    from PIL import Image
+
+    root = Path(matrix_project["root"])
+    runs = root / "runs" / "tiny" / "generate"
+    before = set(runs.iterdir()) if runs.exists() else set()
+
+    def writing_the_gif() -> bool:
+        return any("gif" in path.name for run in set(runs.glob("*")) - before for path in run.iterdir())
+
+    argv = ["generate", "a person walks forward", "a person jumps", "--seconds", "4", "--dataset", "tiny",
+            "--formats", "npy", "gif", "--no-track"]
+    kill_when(argv, root, writing_the_gif)
+    (killed,) = set(runs.iterdir()) - before
+    assert json.loads((killed / "run.json").read_text())["status"] != "finished"
+    run_to_the_end(argv, root)
+    (done,) = set(runs.iterdir()) - before - {killed}
+    assert json.loads((done / "run.json").read_text())["status"] == "finished"
+    frames = len(np.load(done / "motion.npy"))
+    with Image.open(done / "motion.gif") as image:
+        assert frames == image.n_frames == 160
+    if (killed / "motion.gif").exists():  # only ever a whole animation under the final name
+        with Image.open(killed / "motion.gif") as image:
+            assert image.n_frames == frames

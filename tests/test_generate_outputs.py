@@ -1,0 +1,264 @@
+"""What `m2d2m generate` leaves on disk: formats and ``--out`` checked before any model is loaded,
+files that appear whole or not at all, a run folder that says how it ended, a cap on length said
+before sampling, and one rigid body in every file (a BVH read back by forward kinematics matches
+the ``.npy``)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import orchestration.generate
+from m2d2m.generators.m2d2m import M2D2MGenerator
+from m2d2m.motion import render
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
+from m2d2m.motion.rotations import quat_from_axis_angle
+from m2d2m.motion.skeleton import T2M
+from orchestration.cli import main
+from orchestration.generate import Output, save_generation
+from tests.helpers import pose_clip
+
+PROMPTS = ["a person walks forward", "a person jumps"]
+QUICK = ["--dataset", "tiny", "--ts", "4", "--no-split", "--no-track", "--seconds", "1.2"]
+
+
+# ------------------------------------------------------------------------ the rigid skeleton
+def _rigid_branches_clip(frames: int) -> np.ndarray:
+    """A T2M body by forward kinematics whose pelvis and upper-spine children turn together (no
+    own rotation at joints 1, 2, 3, 6, 9, 12, 13, 14), so every part of the BVH hierarchy is rigid."""
+    rng = np.random.default_rng(5)
+    axes = rng.normal(size=(T2M.num_joints, 3))
+    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+    angles = 0.5 * np.sin(np.linspace(0, 2 * np.pi, frames)[:, None] * rng.uniform(0.5, 2.0, T2M.num_joints))
+    angles[:, [1, 2, 3, 6, 9, 12, 13, 14]] = 0.0
+    local = quat_from_axis_angle(axes[None], angles)
+    root = np.stack([np.linspace(0, 2, frames), np.full(frames, 0.9), np.zeros(frames)], axis=-1)
+    return T2M.forward_kinematics(local, root)
+
+
+def test_a_rigid_body_with_stretched_bones_comes_back_exactly():
+    rigid = _rigid_branches_clip(40)
+    bones = np.zeros_like(rigid)
+    bones[:, T2M.bones] = rigid[:, T2M.bones] - rigid[:, T2M.parents[T2M.bones]]
+    stretch = np.random.default_rng(0).uniform(0.7, 1.3, size=bones.shape[:2] + (1,))
+    stretched = rigid[:, :1] + np.einsum("jb,tbk->tjk", T2M.ancestors, bones * stretch)
+    assert bone_length_spread(stretched, T2M)["max"] > 10.0
+    assert np.abs(on_rigid_skeleton(stretched, T2M) - rigid).max() < 1e-9
+
+
+def test_any_clip_gets_constant_lengths_its_root_path_and_its_bone_directions():
+    joints = pose_clip(T2M, 50, seed=2) + np.random.default_rng(1).normal(scale=0.03, size=(50, 22, 3))
+    fitted = on_rigid_skeleton(joints, T2M)
+    lengths = T2M.bone_lengths_of(fitted)
+    assert np.abs(lengths - T2M.bone_lengths).max() < 1e-9
+    assert bone_length_spread(fitted, T2M)["max"] < 1e-9
+    assert np.array_equal(fitted[:, 0], joints[:, 0])
+    single = [b for b in T2M.bones if (T2M.parents == T2M.parents[b]).sum() == 1]  # only child of its parent
+    before = joints[:, single] - joints[:, T2M.parents[single]]
+    after = fitted[:, single] - fitted[:, T2M.parents[single]]
+    cosine = (before * after).sum(-1) / np.linalg.norm(before, axis=-1) / np.linalg.norm(after, axis=-1)
+    assert cosine.min() > 1 - 1e-12
+    for joint in (0, 9):  # a branching joint and its children keep one shape
+        group = [joint, *np.flatnonzero(T2M.parents == joint)]
+        distances = np.linalg.norm(fitted[:, group, None] - fitted[:, None, group], axis=-1)
+        assert np.ptp(distances, axis=0).max() < 1e-9
+
+
+def test_the_spread_is_each_bones_standard_deviation_in_millimetres():
+    joints = np.repeat(_rigid_branches_clip(1), 4, axis=0)
+    joints[:, 21] += (joints[:, 21] - joints[:, 19]) * np.array([0.1, -0.1, 0.1, -0.1])[:, None] / T2M.bone_lengths[21]
+    spread = bone_length_spread(joints, T2M)  # the right wrist's bone: ±0.1 m → σ = 100 mm
+    assert spread["max"] == pytest.approx(100.0) and spread["mean"] == pytest.approx(100.0 / 21)
+
+
+# ---------------------------------------------------------------- a BVH read back by FK
+def _rotation(axis: str, degrees: float) -> np.ndarray:
+    a = np.radians(degrees)
+    c, s = np.cos(a), np.sin(a)
+    i, j = {"X": (1, 2), "Y": (2, 0), "Z": (0, 1)}[axis]
+    matrix = np.eye(3)
+    matrix[i, i], matrix[i, j], matrix[j, i], matrix[j, j] = c, -s, s, c
+    return matrix
+
+
+def read_bvh(path: Path) -> dict[str, np.ndarray]:
+    """Joint positions (T, 3) by name: HIERARCHY offsets and channels, then forward kinematics of
+    the MOTION rows, each joint's rotations composed in the order its channels are written."""
+    tokens = path.read_text().split()
+    assert tokens[0] == "HIERARCHY"
+    nodes: list[dict] = []
+    open_nodes: list[int] = []
+    at = 1
+    while tokens[at] != "MOTION":
+        token = tokens[at]
+        if token in ("ROOT", "JOINT", "End"):
+            nodes.append({"name": tokens[at + 1] if token != "End" else None,
+                          "parent": open_nodes[-1] if open_nodes else None, "channels": []})
+            at += 2
+        elif token == "{":
+            open_nodes.append(len(nodes) - 1)
+            at += 1
+        elif token == "}":
+            open_nodes.pop()
+            at += 1
+        elif token == "OFFSET":
+            nodes[open_nodes[-1]]["offset"] = np.array(tokens[at + 1:at + 4], dtype=float)
+            at += 4
+        elif token == "CHANNELS":
+            count = int(tokens[at + 1])
+            nodes[open_nodes[-1]]["channels"] = tokens[at + 2:at + 2 + count]
+            at += 2 + count
+        else:
+            raise AssertionError(f"unexpected BVH token {token!r}")
+    frames = int(tokens[at + 2])  # MOTION Frames: n Frame Time: dt
+    rows = np.array(tokens[at + 6:], dtype=float).reshape(frames, -1)
+    positions: dict[str, list[np.ndarray]] = {}
+    for row in rows:
+        column, world = 0, {}
+        for index, node in enumerate(nodes):
+            if node["name"] is None:
+                continue
+            rotation, translation = np.eye(3), np.zeros(3)
+            for channel in node["channels"]:
+                if channel.endswith("position"):
+                    translation["XYZ".index(channel[0])] = row[column]
+                else:
+                    rotation = rotation @ _rotation(channel[0], row[column])
+                column += 1
+            if node["parent"] is None:
+                world[index] = (rotation, node["offset"] + translation)
+            else:
+                parent_rotation, parent_position = world[node["parent"]]
+                world[index] = (parent_rotation @ rotation, parent_position + parent_rotation @ node["offset"])
+            positions.setdefault(node["name"], []).append(world[index][1])
+    return {name: np.array(values) for name, values in positions.items()}
+
+
+def test_every_joint_of_a_generated_bvh_is_where_the_npy_has_it(trained_project, monkeypatch, capsys):
+    monkeypatch.chdir(trained_project)
+    out = trained_project / "fk"
+    code = main(["generate", *PROMPTS, *QUICK, "--formats", "npy", "bvh", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    joints = np.load(out / "motion.npy")
+    sidecar = json.loads((out / "motion.json").read_text(encoding="utf-8"))
+    read_back = read_bvh(out / "motion.bvh")
+    from_bvh = np.stack([read_back[name] for name in sidecar["joint_names"]], axis=1)
+    assert from_bvh.shape == joints.shape
+    assert np.linalg.norm(from_bvh - joints, axis=-1).max() < 1e-3  # metres: under 1 mm, every joint and frame
+    assert bone_length_spread(joints, T2M)["max"] < 0.01  # the file's body is rigid (float32 rounding)
+    quality = sidecar["quality"]  # the decoded motion's spread, before the rigid skeleton
+    assert quality["bone_length_std_mm_max"] >= quality["bone_length_std_mm_mean"] > 0.01
+
+
+# --------------------------------------------------------------- checked before any loading
+def _loading_fails(monkeypatch) -> None:
+    def refuse(*_, **__):
+        raise AssertionError("the model was loaded before the arguments were checked")
+
+    monkeypatch.setattr(orchestration.generate, "load_generator", refuse)
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--formats", "xyz"], "unknown format xyz: choose from npy, bvh, gif, mp4"),
+    (["--formats", "gif", "mp4"], "mp4 needs ffmpeg"),
+    (["--out", "notes.txt"], "--out notes.txt is an existing file, not a folder"),
+    (["--out", "clip.gif", "--formats", "bvh"], "--out clip.gif names one .gif file; drop --formats"),
+    (["--out", "made.gif"], "--out made.gif is a folder"),
+    (["--name", "a/b"], "--name must be a plain file name"),
+])
+def test_bad_outputs_are_one_line_before_loading(tmp_path, monkeypatch, capsys, arguments, message):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(render, "_find_ffmpeg", lambda: None)
+    (tmp_path / "notes.txt").write_text("keep me\n")
+    (tmp_path / "made.gif").mkdir()
+    _loading_fails(monkeypatch)
+    code = main(["generate", "a person jumps", "--dataset", "tiny", "--no-track", *arguments])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and message in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "runs").exists() and (tmp_path / "notes.txt").read_text() == "keep me\n"
+
+
+def test_the_length_cap_is_one_line_before_sampling(trained_project, monkeypatch, capsys):
+    monkeypatch.chdir(trained_project)
+    monkeypatch.setattr(M2D2MGenerator, "generate", lambda *_: pytest.fail("sampled past the cap"))
+    code = main(["generate", *PROMPTS, *QUICK, "--max-seconds", "2"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert "2.4 s of motion in 2 action(s), over the 2-s cap" in err and "--max-seconds 3" in err
+
+
+# -------------------------------------------------------------------- what ends on disk
+def test_out_with_a_format_suffix_is_one_file(trained_project, monkeypatch, capsys):
+    monkeypatch.chdir(trained_project)
+    target = trained_project / "clips" / "clip.gif"
+    assert main(["generate", PROMPTS[0], *QUICK, "--out", str(target)]) == 0, capsys.readouterr().err
+    assert target.is_file() and sorted(p.name for p in target.parent.iterdir()) == ["clip.gif"]
+    with Image.open(target) as gif:
+        assert gif.n_frames == 24 and gif.info["duration"] == 50 and gif.info["loop"] == 0
+
+
+def test_a_run_folder_says_finished_or_failed(trained_project, monkeypatch, capsys):
+    monkeypatch.chdir(trained_project)
+    runs = trained_project / "runs" / "tiny" / "generate"
+    before = set(runs.iterdir()) if runs.exists() else set()
+    assert main(["generate", PROMPTS[0], *QUICK, "--formats", "npy"]) == 0, capsys.readouterr().err
+    (finished,) = set(runs.iterdir()) - before
+    info = json.loads((finished / "run.json").read_text(encoding="utf-8"))
+    assert info["status"] == "finished" and info["files"]["npy"].endswith("motion.npy")
+    assert info["quality"]["bone_length_std_mm_mean"] > 0 and info["actions"] == [PROMPTS[0]]
+
+    def broken_encoder(*_, **__):
+        raise RuntimeError("ffmpeg failed writing motion.mp4: out of disk")
+
+    monkeypatch.setattr("m2d2m.motion.clip.render_motion", broken_encoder)
+    code = main(["generate", PROMPTS[0], *QUICK, "--formats", "npy", "gif"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "out of disk" in err and len(err.splitlines()) == 1
+    (failed,) = set(runs.iterdir()) - before - {finished}
+    info = json.loads((failed / "run.json").read_text(encoding="utf-8"))
+    assert info["status"] == "failed" and "out of disk" in info["error"]
+    assert (failed / "motion.npy").exists() and not (failed / "motion.gif").exists()
+
+
+def test_an_interrupted_animation_leaves_the_old_file_or_none(tmp_path):
+    joints = pose_clip(T2M, 12, seed=0)
+
+    def stop_at_frame_5(t: int) -> None:
+        if t == 5:
+            raise KeyboardInterrupt
+
+    for name in ("new.gif", "old.gif"):
+        if name == "old.gif":
+            (tmp_path / name).write_bytes(b"an earlier file")
+        with pytest.raises(KeyboardInterrupt):
+            render.render_motion(joints, tmp_path / name, T2M, size=64, progress=stop_at_frame_5)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.gif"]
+    assert (tmp_path / "old.gif").read_bytes() == b"an earlier file"
+
+
+def test_sigterm_while_rendering_marks_the_run_failed_and_leaves_no_gif(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    joints = pose_clip(T2M, 12, seed=0)
+    motion = Motion(np.zeros((12, T2M.feature_dim), np.float32), joints, 20.0, "t2m", ["a person jumps"],
+                    [(0, 12)]).on_rigid_skeleton()
+    real = render.render_motion
+
+    def killed_at_frame_3(*args, progress=None, **options):
+        def tick(t: int) -> None:
+            if t == 3:
+                os.kill(os.getpid(), signal.SIGTERM)
+        return real(*args, progress=tick, **{**options, "size": 64})
+
+    monkeypatch.setattr("m2d2m.motion.clip.render_motion", killed_at_frame_3)
+    with pytest.raises(KeyboardInterrupt):
+        save_generation(motion, Output(None, "motion", ("npy", "gif")), ["a person jumps"], "tiny", track=False)
+    (run,) = (tmp_path / "runs" / "tiny" / "generate").iterdir()
+    assert json.loads((run / "run.json").read_text(encoding="utf-8"))["status"] == "failed"
+    assert sorted(p.name for p in run.iterdir()) == ["motion.features.npy", "motion.json", "motion.npy", "run.json"]
