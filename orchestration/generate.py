@@ -175,8 +175,8 @@ def share(total: int, typical: list[int]) -> list[int]:
 def check_length(frames: Sequence[int], fps: float, max_seconds: float | None) -> None:
     """A one-line refusal, before sampling, of a generation longer than ``max_seconds`` (None: no
     cap): its time and its GIF grow with its length."""
-    if max_seconds is not None and max_seconds <= 0:
-        raise UserError(f"the cap on a motion's length must be positive (or none), got {max_seconds:g} s")
+    if max_seconds is not None and not 0 < max_seconds < math.inf:
+        raise UserError(f"--max-seconds must be a positive number (0 for no cap), got {max_seconds:g}")
     total = sum(frames) / fps
     if max_seconds is not None and total > max_seconds:
         raise UserError(f"the prompts make {total:.1f} s of motion in {len(frames)} action(s), over the "

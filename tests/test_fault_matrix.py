@@ -149,7 +149,8 @@ BAD_ARGUMENTS: list[list[str]] = [
         ["a person walks", "--truncation", "0"], ["a person walks", "--truncation", "2"],
         ["a person walks", "--formats", "xyz"], ["a person walks", "--model", "no-such-model"],
         ["a person walks", "--option", "no_such_knob=1"], ["a person walks", "--seed", "x"],
-        ["a person walks", "--name", "a/b"],
+        ["a person walks", "--name", "a/b"], ["a person walks", "--max-seconds", "-5"],
+        ["a person walks", "--max-seconds", "nan"], ["a person walks", "--max-seconds", "0.1"],
         *[["a person walks", "--checkpoint", path] for path in
           ("{tmp}/empty.pt", "{tmp}/random.pt", "{tmp}/a-dict.pt", "{tmp}/truncated-model.pt", "{vq}",
            "{tmp}/nowhere.pt")],
