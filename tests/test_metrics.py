@@ -1,5 +1,7 @@
 """Metrics checked against closed forms, hand-computed cases and independent SciPy computations."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -10,10 +12,13 @@ from m2d2m.evaluation.metrics import (
     dimensionless_jerk,
     diversity,
     fid,
+    frame_jerk,
     jerk,
     mean_confidence_interval,
+    mean_frame_jerk,
     mm_dist,
     multimodality,
+    peak_jerk_and_auj,
     r_precision,
     transition_windows,
 )
@@ -291,4 +296,44 @@ def test_mean_confidence_interval_uses_1_96_std_over_root_n():
 ])
 def test_bad_inputs_raise_a_clear_value_error(call, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        call()
+
+
+def _stepped_clip() -> np.ndarray:
+    """10 frames, 2 joints: joint 0 steps 1 m along x at frame 5 (third differences 1, −2, 1 at
+    frames 2..4); joint 1 follows y = 0.1·t³/6 (third difference 0.1 everywhere) and steps
+    −0.5 m along z at frame 3 (−0.5, 1, −0.5 at frames 0..2)."""
+    t = np.arange(10, dtype=np.float64)
+    clip = np.zeros((10, 2, 3))
+    clip[5:, 0, 0] = 1.0
+    clip[:, 1, 1] = 0.1 * t**3 / 6
+    clip[3:, 1, 2] = -0.5
+    return clip
+
+
+def test_frame_jerk_is_the_max_over_joints_of_the_l1_third_difference():
+    # joint 0: |Δ³x| = 0 0 1 2 1 0 0; joint 1: 0.1 + |Δ³z| = 0.6 1.1 0.6 0.1 0.1 0.1 0.1
+    assert frame_jerk(_stepped_clip()) == pytest.approx([0.6, 1.1, 1.0, 2.0, 1.0, 0.1, 0.1])
+    assert frame_jerk(torch.as_tensor(_stepped_clip())) == pytest.approx(frame_jerk(_stepped_clip()))
+
+
+def test_peak_jerk_and_auj_read_the_mean_curve_against_the_datasets_constant():
+    assert peak_jerk_and_auj([[1.0, 2.0, 3.0], [3.0, 2.0, 1.0]], 1.5) == pytest.approx((2.0, 1.5))
+    assert peak_jerk_and_auj([[0.0, 4.0, 0.0]], 1.0) == pytest.approx((4.0, 5.0))  # |−1| + |3| + |−1|
+
+
+def test_the_datasets_constant_is_the_mean_over_every_frame_of_every_clip():
+    cubic = np.zeros((4, 1, 3))
+    cubic[:, 0, 1] = 0.1 * np.arange(4.0) ** 3 / 6  # one frame of jerk 0.1
+    assert mean_frame_jerk([_stepped_clip(), cubic]) == pytest.approx((5.9 + 0.1) / 8)  # 7 frames + 1
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: frame_jerk(np.zeros((3, 2, 3))), "at least 4 frames"),
+    (lambda: frame_jerk(np.zeros((5, 2, 2))), "(frames, joints, 3)"),
+    (lambda: mean_frame_jerk([]), "at least one clip"),
+    (lambda: peak_jerk_and_auj(np.zeros((0, 5)), 0.0), "at least one transition"),
+])
+def test_flowmdm_metrics_refuse_what_they_cannot_measure(call, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
         call()

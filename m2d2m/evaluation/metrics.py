@@ -1,6 +1,6 @@
 """Evaluation metrics: Guo et al.'s text-to-motion metrics on evaluator embeddings (FID,
-diversity, R-precision, MM-Dist, multimodality) and M2D2M's transition Jerk (paper eq. 10) on
-joint positions.
+diversity, R-precision, MM-Dist, multimodality), M2D2M's transition Jerk (paper eq. 10) on
+joint positions, and FlowMDM's Peak Jerk and Area Under the Jerk (Barquero et al., CVPR 2024).
 
 The embedding metrics follow Guo et al.'s protocol (EricGuo5513/text-to-motion, ``utils/metrics.py``) so
 that numbers
@@ -256,6 +256,42 @@ def jerk(joints, fps: float, boundaries: Sequence[int], window: int = 40,
             with np.errstate(divide="ignore"):
                 per_window.append(np.nanmean(np.log(ratios)))
     return float(np.mean(per_window)) if per_window else float("nan")
+
+
+def frame_jerk(joints) -> np.ndarray:
+    """FlowMDM's jerk curve of a clip of joint positions (F, J, 3): per frame, the third finite
+    difference of each joint's position with Δt = 1 frame, its L1 norm over x, y, z, and the
+    maximum over joints; F − 3 values, in the positions' unit per frame³. As Barquero et al.
+    (CVPR 2024) compute it (BarqueroGerman/FlowMDM, ``data_loaders/humanml/utils/metrics.py``,
+    ``calculate_jerk``); the curve behind Peak Jerk and AUJ (:func:`peak_jerk_and_auj`), not the
+    paper's eq. 10 (:func:`jerk`) — the two are different metrics, never interchangeable."""
+    joints = _as_array(joints, "joints", 3)
+    if joints.shape[2] != 3:
+        raise ValueError(f"joints must be (frames, joints, 3), got shape {joints.shape}")
+    if len(joints) < 4:
+        raise ValueError(f"a third difference needs at least 4 frames, got {len(joints)}")
+    return np.abs(np.diff(joints, n=3, axis=0)).sum(-1).max(-1)
+
+
+def mean_frame_jerk(clips: Sequence) -> float:
+    """A dataset's mean of :func:`frame_jerk` over every frame of its clips (F − 3 each): the
+    constant AUJ measures against (FlowMDM's 0.033031363 for HumanML3D, in metres)."""
+    curves = [frame_jerk(clip) for clip in clips]
+    if not curves:
+        raise ValueError("mean_frame_jerk needs at least one clip")
+    return float(np.concatenate(curves).mean())
+
+
+def peak_jerk_and_auj(curves, reference: float) -> tuple[float, float]:
+    """FlowMDM's Peak Jerk and Area Under the Jerk of a test set's transitions, from the
+    :func:`frame_jerk` curves (n, L) of its equally long transition windows: the curves are
+    averaged over the windows, PJ is that mean curve's maximum and AUJ is Σ over its frames of
+    |mean − ``reference``|, with ``reference`` the dataset's :func:`mean_frame_jerk`."""
+    curves = _as_array(curves, "curves", 2)
+    if len(curves) == 0:
+        raise ValueError("peak_jerk_and_auj needs at least one transition's curve")
+    mean = curves.mean(0)
+    return float(mean.max()), float(np.abs(mean - reference).sum())
 
 
 def mean_confidence_interval(values) -> tuple[float | np.ndarray, float | np.ndarray]:
