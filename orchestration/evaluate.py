@@ -319,7 +319,7 @@ def _finish(run_dir: Path, settings: EvalSettings, testset: TestSet, reference: 
     """table.json, table.md and fig5.png from the run's result files."""
     multi = {m: [_read(_result_file(run_dir, m, r)) for r in range(settings.repeats)] for m in settings.methods}
     gt_single = [reference.measure(r) for r in range(settings.repeats)]
-    per_row = {GT_SINGLE: gt_single, GT_CONCAT: [{"jerk": reference.jerk_concat}] * settings.repeats,
+    per_row = {GT_SINGLE: gt_single, GT_CONCAT: [reference.concat_row()] * settings.repeats,
                **{m: [result["metrics"] for result in results] for m, results in multi.items()}}
     table: dict[str, Any] = {
         "settings": asdict(settings),

@@ -19,7 +19,7 @@ GT_SINGLE, GT_CONCAT, GENERATED = "gt_single", "gt_concat", "generated"
 # (metric, column title) of each table, in the paper's order
 MULTI_COLUMNS = (("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MMdist ↓"), ("diversity", "Div →"),
                  ("transition_fid", "Transition FID ↓"), ("transition_diversity", "Transition Div →"),
-                 ("jerk", "Jerk →"), ("bone_std", "Bone σ (mm) ↓"))
+                 ("jerk", "Jerk →"), ("peak_jerk", "PJ →"), ("auj", "AUJ ↓"), ("bone_std", "Bone σ (mm) ↓"))
 SINGLE_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top2", "R-Top2 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"),
                   ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →"), ("mmodality", "MModality ↑"))
 ROW_TITLES = {GT_SINGLE: "Ground truth (single)", GT_CONCAT: "Ground truth (concat)",
@@ -76,6 +76,10 @@ def notes(sampling: str, single_sampling: str | None, reference: Reference) -> l
              f"transition: the {WINDOW} frames around each boundary; ground truth (single) = the middle "
              f"{WINDOW} frames of every ground-truth item",
              "Jerk: paper eq. 10 averaged over joints and boundaries, time measured in frames (fps = 1)",
+             "PJ, AUJ: FlowMDM's (Barquero et al., CVPR 2024; not the paper's Jerk): per frame, the L1 norm of "
+             "each joint's third difference, max over joints, averaged over the full transition windows; PJ its "
+             "peak, AUJ Σ |curve − c| with c = {:.6f} m/frame³, this test set's ground-truth mean (FlowMDM's "
+             "for HumanML3D: 0.033031363)".format(reference.frame_jerk_mean),
              "Bone σ: each bone's standard deviation of length over a sequence's decoded joints, mean over "
              "bones and sequences, in mm (0 = one rigid skeleton; `m2d2m generate` puts its files on one)"]
     if reference.rp_batch < R_PRECISION_BATCH:

@@ -9,7 +9,9 @@ measured with the text–motion evaluator:
   (R-Top3, MM-Dist), against the ground-truth segments (FID), and among themselves (Diversity);
 - transition: the :data:`WINDOW` frames around each boundary against "ground truth (single)"
   windows, the middle :data:`WINDOW` frames of every ground-truth item (FID), among themselves
-  (Diversity), and the paper's Jerk (eq. 10) of the joints there, time measured in frames;
+  (Diversity), the paper's Jerk (eq. 10) of the joints there, time measured in frames, and
+  FlowMDM's Peak Jerk and AUJ of the full windows' mean jerk curve, AUJ against the test set's
+  ground-truth mean frame jerk (:func:`m2d2m.evaluation.metrics.peak_jerk_and_auj`);
 - body: the spread of bone lengths of the decoded joints (each bone's standard deviation over a
   sequence's frames, mean over bones, in mm; :func:`m2d2m.motion.rigid.bone_length_spread`),
   0 for one rigid skeleton: how far a generator's bodies are from the corpus's one skeleton.
@@ -33,8 +35,8 @@ import torch
 from torch.nn.utils.rnn import pad_sequence
 
 from m2d2m.evaluation.evaluator import TextMotionEvaluator
-from m2d2m.evaluation.metrics import (DEFAULT_MIN_STEP, diversity, fid, jerk, mm_dist, multimodality, r_precision,
-                                      transition_windows)
+from m2d2m.evaluation.metrics import (DEFAULT_MIN_STEP, diversity, fid, frame_jerk, jerk, mean_frame_jerk, mm_dist,
+                                      multimodality, peak_jerk_and_auj, r_precision, transition_windows)
 from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.joining import slerp_join
@@ -89,15 +91,27 @@ def embed_captions(evaluator: TextMotionEvaluator, captions: Sequence[Sequence[s
                                for start in range(0, len(captions), EMBED_CHUNK)])
 
 
+def full_windows(joints: np.ndarray, boundaries: Sequence[int]) -> list[np.ndarray]:
+    """The ``WINDOW``-frame windows around the boundaries, clipped ones (at a sequence's ends)
+    left out so that every curve drawn from them has the same frames."""
+    return [frames for frames in transition_windows(joints, boundaries, WINDOW) if len(frames) == WINDOW]
+
+
+def flowmdm_jerk(curves: list[np.ndarray], reference: float) -> dict[str, float]:
+    """``peak_jerk`` and ``auj`` of the :func:`~m2d2m.evaluation.metrics.frame_jerk` curves of
+    full windows; NaN when no window is full."""
+    if not curves:
+        return {"peak_jerk": float("nan"), "auj": float("nan")}
+    peak, area = peak_jerk_and_auj(np.stack(curves), reference)
+    return {"peak_jerk": peak, "auj": area}
+
+
 def transition_profiles(joints: np.ndarray, boundaries: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
     """Fig. 5's curves for each full ``WINDOW``-frame window around a boundary: the mean joint
     speed per frame step (metres per frame, ``WINDOW − 1`` values) and the mean jerk magnitude
-    normalised by each joint's peak speed in the window (per frame², ``WINDOW − 3`` values).
-    Clipped windows, at a sequence's ends, are left out so that every curve has the same frames."""
+    normalised by each joint's peak speed in the window (per frame², ``WINDOW − 3`` values)."""
     profiles = []
-    for frames in transition_windows(joints, boundaries, WINDOW):
-        if len(frames) < WINDOW:
-            continue
+    for frames in full_windows(joints, boundaries):
         steps = np.linalg.norm(np.diff(frames, axis=0), axis=-1)  # (WINDOW − 1, J) metres per frame
         third = np.linalg.norm(np.diff(frames, n=3, axis=0), axis=-1)  # (WINDOW − 3, J)
         peak = np.maximum(steps.max(0), DEFAULT_MIN_STEP)  # a still joint must not blow up the ratio
@@ -133,6 +147,9 @@ class Reference:
     windows: np.ndarray  # (items, E): the middle WINDOW frames of each item
     jerk_single: float
     jerk_concat: float
+    frame_jerk_mean: float  # AUJ's constant: the ground-truth items' mean frame jerk (m / frame³)
+    flowmdm_single: dict[str, float]  # PJ and AUJ of the items' middle windows
+    flowmdm_concat: dict[str, float]  # PJ and AUJ at the boundaries of the concatenated items
     concat_profile: dict[str, Any]
     bone_std: float  # mm, of the ground-truth segments' joints as recovered from their features
 
@@ -161,10 +178,15 @@ class Reference:
         # joined with no transition window: each clip turned and moved to where the previous ended
         concat = [(joined, [first for first, _ in ranges[1:]])
                   for joined, ranges in (slerp_join(clips, 0, skeleton) for clips in joints)]
+        constant = mean_frame_jerk([j for clips in joints for j in clips if len(j) >= 4])
+        middle_curves = [frame_jerk(w) for clips in joints for j in clips for w in full_windows(j, [len(j) // 2])]
+        concat_curves = [frame_jerk(w) for j, b in concat for w in full_windows(j, b)]
         return cls(
             actions=actions, frames=frames, text=embed_captions(evaluator, captions),
             segments=embed_clips(evaluator, flat), windows=embed_clips(evaluator, middles),
             jerk_single=_nanmean(single), jerk_concat=_nanmean([jerk(j, JERK_FPS, b, WINDOW) for j, b in concat]),
+            frame_jerk_mean=constant, flowmdm_single=flowmdm_jerk(middle_curves, constant),
+            flowmdm_concat=flowmdm_jerk(concat_curves, constant),
             concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]),
             bone_std=_nanmean([bone_length_spread(j, skeleton)["mean"] for clips in joints for j in clips]))
 
@@ -174,7 +196,11 @@ class Reference:
         return {**_matching(self.text, self.segments, order, self.rp_batch),
                 "diversity": diversity(self.segments, _pairs(self.items), seed=repeat),
                 "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
-                "jerk": self.jerk_single, "bone_std": self.bone_std}
+                "jerk": self.jerk_single, **self.flowmdm_single, "bone_std": self.bone_std}
+
+    def concat_row(self) -> dict[str, float]:
+        """The "ground truth (concat)" row: its transition jerks, the same in every repeat."""
+        return {"jerk": self.jerk_concat, **self.flowmdm_concat}
 
 
 class Evaluation:
@@ -205,12 +231,13 @@ class Evaluation:
         reference = self.reference
         options = self.generator.options(MULTI, method=method, **self.knobs)
         seeds = _seeds(repeat, "multi", len(reference.actions))
-        segments, windows, jerks, profiles, bones = [], [], [], [], []
+        segments, windows, jerks, curves, profiles, bones = [], [], [], [], [], []
         for motions in self._generate(reference.actions, reference.frames, options, seeds, f"{method} r{repeat}"):
             segments.append(embed_clips(self.evaluator, [m.features[a:b] for m in motions for a, b in m.ranges]))
             windows.append(embed_clips(self.evaluator, [
                 w for m in motions for w in transition_windows(m.features, m.boundaries, WINDOW)]))
             jerks += [jerk(m.joints, JERK_FPS, m.boundaries, WINDOW) for m in motions]
+            curves += [frame_jerk(w) for m in motions for w in full_windows(m.joints, m.boundaries)]
             profiles += [p for m in motions for p in transition_profiles(m.joints, m.boundaries)]
             bones += [bone_length_spread(m.joints, self.generator.skeleton)["mean"] for m in motions]
         segment_emb, window_emb = np.concatenate(segments), np.concatenate(windows)
@@ -220,7 +247,8 @@ class Evaluation:
                    "diversity": diversity(segment_emb, _pairs(len(segment_emb)), seed=repeat),
                    "transition_fid": fid(window_emb, reference.windows),
                    "transition_diversity": diversity(window_emb, _pairs(len(window_emb)), seed=repeat),
-                   "jerk": _nanmean(jerks), "bone_std": _nanmean(bones)}
+                   "jerk": _nanmean(jerks), **flowmdm_jerk(curves, reference.frame_jerk_mean),
+                   "bone_std": _nanmean(bones)}
         return {"method": method, "repeat": repeat, "metrics": metrics, "profile": mean_profile(profiles)}
 
     def single(self, repeat: int) -> dict[str, Any]:
