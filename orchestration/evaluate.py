@@ -30,8 +30,8 @@ from m2d2m.layout import MANIFEST
 from orchestration.errors import UserError
 from orchestration.generate import load_generator, resolve_model_file
 from orchestration.registry import model
-from orchestration.reports import (FIGURE, GENERATED, GT_CONCAT, GT_SINGLE, ROW_TITLES, SINGLE_COLUMNS, TABLE_JSON,
-                                   TABLE_MD, notes, plot_fig5, render_table, summarize_rows, table_metrics)
+from orchestration.reports import (FIGURE, GENERATED, GT_CONCAT, GT_SINGLE, RECONSTRUCTION, ROW_TITLES, SINGLE_COLUMNS,
+                                   TABLE_JSON, TABLE_MD, notes, plot_fig5, render_table, summarize_rows, table_metrics)
 from orchestration.runs import find_run, mark_latest, new_run_dir, read_run_info, run_file, write_run_info
 from orchestration.tracking import experiment_name, finishing, log_batch, start_run, tracked_run
 from orchestration.train import EVALUATOR_FILE, EVALUATOR_STAGE
@@ -319,7 +319,9 @@ def _finish(run_dir: Path, settings: EvalSettings, testset: TestSet, reference: 
     """table.json, table.md and fig5.png from the run's result files."""
     multi = {m: [_read(_result_file(run_dir, m, r)) for r in range(settings.repeats)] for m in settings.methods}
     gt_single = [reference.measure(r) for r in range(settings.repeats)]
-    per_row = {GT_SINGLE: gt_single, GT_CONCAT: [reference.concat_row()] * settings.repeats,
+    reconstructed = [reference.reconstruction_rows(r) for r in range(settings.repeats)]
+    codec = {RECONSTRUCTION: [rows[0] for rows in reconstructed]} if reconstructed[0] else {}
+    per_row = {GT_SINGLE: gt_single, GT_CONCAT: [reference.concat_row()] * settings.repeats, **codec,
                **{m: [result["metrics"] for result in results] for m, results in multi.items()}}
     table: dict[str, Any] = {
         "settings": asdict(settings),
@@ -329,11 +331,14 @@ def _finish(run_dir: Path, settings: EvalSettings, testset: TestSet, reference: 
     if settings.single:
         single = [_read(_result_file(run_dir, None, r))["metrics"] for r in range(settings.repeats)]
         columns = {metric for metric, _ in SINGLE_COLUMNS}
+        codec = {RECONSTRUCTION: [rows[1] for rows in reconstructed]} if reconstructed[0] else {}
         table["single"] = summarize_rows({GT_SINGLE: [{k: v for k, v in m.items() if k in columns} for m in gt_single],
-                                          GENERATED: single})
+                                          **codec, GENERATED: single})
     write_json_atomically(run_dir / TABLE_JSON, table)
     (run_dir / TABLE_MD).write_text(render_table(table), encoding="utf-8")
     curves = {m: mean_profile([(np.asarray(r["profile"]["velocity"]), np.asarray(r["profile"]["jerk"]))
                                for r in results if r["profile"]["windows"]]) for m, results in multi.items()}
+    if reference.reconstruction is not None:
+        curves = {ROW_TITLES[RECONSTRUCTION]: mean_profile(reference.reconstruction.profiles), **curves}
     plot_fig5(run_dir / FIGURE, {ROW_TITLES[GT_CONCAT]: reference.concat_profile, **curves})
     return table

@@ -14,7 +14,7 @@ from m2d2m.evaluation.measurements import R_PRECISION_BATCH, WINDOW, Reference
 from m2d2m.evaluation.metrics import mean_confidence_interval
 
 TABLE_MD, TABLE_JSON, FIGURE = "table.md", "table.json", "fig5.png"
-GT_SINGLE, GT_CONCAT, GENERATED = "gt_single", "gt_concat", "generated"
+GT_SINGLE, GT_CONCAT, RECONSTRUCTION, GENERATED = "gt_single", "gt_concat", "reconstruction", "generated"
 
 # (metric, column title) of each table, in the paper's order
 MULTI_COLUMNS = (("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MMdist ↓"), ("diversity", "Div →"),
@@ -23,7 +23,7 @@ MULTI_COLUMNS = (("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MMdi
 SINGLE_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top2", "R-Top2 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"),
                   ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →"), ("mmodality", "MModality ↑"))
 ROW_TITLES = {GT_SINGLE: "Ground truth (single)", GT_CONCAT: "Ground truth (concat)",
-              GENERATED: "Generated (single action)"}
+              RECONSTRUCTION: "VQ-VAE reconstruction", GENERATED: "Generated (single action)"}
 
 
 def _summary(values: Sequence[float]) -> dict[str, float | None]:
@@ -113,16 +113,20 @@ def plot_fig5(path: Path, curves: dict[str, dict[str, Any]]) -> Path:
 
 def table_metrics(table: dict[str, Any]) -> dict[str, float]:
     """``multi/<method>/<metric>``, ``gt/<metric>_single``, ``gt/jerk_concat``, ``single/<metric>``,
-    each with a ``_ci`` twin; undefined values are left out."""
+    ``multi/reconstruction/<metric>`` and ``single/reconstruction/<metric>``, each with a ``_ci``
+    twin; undefined values are left out."""
     names = {}
     sections = [("multi", row, values) for row, values in table["multi"].items()]
-    sections += [("single", row, values) for row, values in table.get("single", {}).items() if row == GENERATED]
+    sections += [("single", row, values) for row, values in table.get("single", {}).items()
+                 if row in (GENERATED, RECONSTRUCTION)]
     for section, row, values in sections:
         for metric, summary in values.items():
             if summary["mean"] is None:
                 continue
             if row in (GT_SINGLE, GT_CONCAT):
                 name = f"gt/{metric}_{row.removeprefix('gt_')}"
+            elif row == RECONSTRUCTION:
+                name = f"{section}/reconstruction/{metric}"
             else:
                 name = f"multi/{row}/{metric}" if section == "multi" else f"single/{metric}"
             names[name], names[f"{name}_ci"] = summary["mean"], summary["ci"]

@@ -59,11 +59,17 @@ def test_evaluate_writes_both_tables_and_fig5(evaluated):
     for metric in ("jerk", "peak_jerk", "auj"):  # deterministic: no repeat changes them
         assert np.isfinite(table["multi"]["gt_concat"][metric]["mean"]) and table["multi"]["gt_concat"][metric]["ci"] == 0
     assert any(note.startswith("PJ, AUJ: FlowMDM's") and "c = " in note for note in table["notes"])
+    for metric, _ in MULTI_COLUMNS:  # the codec's ceiling, measured like a method
+        summary = table["multi"]["reconstruction"][metric]
+        assert np.isfinite(summary["mean"]) and summary["ci"] >= 0, metric
+    assert all(np.isfinite(table["single"]["reconstruction"][m]["mean"])
+               for m, _ in SINGLE_COLUMNS if m != "mmodality")
     for row in ("gt_single", "generated"):
         columns = [m for m, _ in SINGLE_COLUMNS if row == "generated" or m not in ("fid", "mmodality")]
         assert all(np.isfinite(table["single"][row][metric]["mean"]) for metric in columns), row
     markdown = (evaluated / "table.md").read_text(encoding="utf-8")
     assert "Ground truth (concat)" in markdown and "| tps |" in markdown and "Single-motion" in markdown
+    assert markdown.count("| VQ-VAE reconstruction |") == 2
     assert (evaluated / "fig5.png").read_bytes()[:4] == b"\x89PNG"
     assert len(list((evaluated / "results").glob("multi-*.json"))) == 4
     assert len(list((evaluated / "results").glob("single-*.json"))) == 2
@@ -77,7 +83,7 @@ def test_evaluate_logs_every_metric_and_knob_to_mlflow(trained_project, evaluate
         for metric, _ in MULTI_COLUMNS:
             assert f"multi/{method}/{metric}" in metrics and f"multi/{method}/{metric}_ci" in metrics
     for name in ("gt/jerk_single", "gt/jerk_concat", "gt/r_top3_single", "single/r_top1", "single/fid",
-                 "single/mmodality_ci"):
+                 "single/mmodality_ci", "multi/reconstruction/jerk", "single/reconstruction/fid"):
         assert name in metrics, name
     assert params["methods"] == "tps,slerp" and params["repeats"] == "2" and params["ts"] == "4"
     assert params["sampling"] == "T_s = 4 of T = 8, η = 0.25, s = 2" and params["model"] == "m2d2m"

@@ -9,7 +9,7 @@ import pytest
 import torch
 import yaml
 
-from m2d2m.generators.m2d2m import M2D2MGenerator
+from m2d2m.generators.m2d2m import M2D2MGenerator, decode_tokens
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
 from m2d2m.motion.clip import Motion
 from orchestration.cli import main
@@ -88,6 +88,18 @@ def test_editing_keeps_the_kept_span(generator):
     assert np.array_equal(edited.tokens[:5], encoded[:5]) and np.array_equal(edited.tokens[18:], encoded[18:])
     assert not np.array_equal(edited.tokens[5:18], encoded[5:18])
     assert edited.actions == ["a person jumps", "a person sits down"] and edited.ranges == source.ranges
+
+
+def test_reconstruction_decodes_the_segments_tokens_together(generator):
+    """The evaluation's codec row: each segment's own tokens, concatenated, decoded in one call."""
+    first, second = (generate(generator, [p], seconds=[s], split=False, seed=3).features for p, s in
+                     ((PROMPTS[0], 1.6), (PROMPTS[1], 1.2)))
+    (motion,) = generator.reconstruct([[first, second]])
+    tokens = torch.cat([generator.encode(first), generator.encode(second)])
+    assert motion.ranges == [(0, 32), (32, 56)] and np.array_equal(motion.tokens, tokens.numpy())
+    assert np.allclose(motion.features, decode_tokens(generator.checkpoint.vq, generator.checkpoint.normalizer,
+                                                      tokens), atol=1e-6)
+    assert motion.settings["method"] == "vq reconstruction"
 
 
 def test_the_command_writes_files_and_logs_to_mlflow(trained, capsys, monkeypatch):

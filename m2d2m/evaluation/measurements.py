@@ -19,7 +19,11 @@ measured with the text–motion evaluator:
 Reference rows: "ground truth (single)" measures the ground-truth segments and their middle
 windows the same way; "ground truth (concat)" is the Jerk at the boundaries of each instance's
 ground-truth segments joined by :func:`m2d2m.motion.joining.slerp_join` with no window (aligned,
-not blended). The seeds of repeat r are the same for every method. docs/evaluation.md explains
+not blended); "VQ-VAE reconstruction", for a model with a codec
+(:meth:`~m2d2m.generators.protocol.MotionGenerator.reconstruct`), measures each instance's
+ground-truth segments encoded, concatenated in tokens and decoded together like a method's
+output — the ceiling of every sampler over those tokens, and the floor of decoding noise under
+any transition effect (in the single-motion table: each item encoded and decoded alone). The seeds of repeat r are the same for every method. docs/evaluation.md explains
 each choice.
 """
 
@@ -27,7 +31,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -126,6 +130,47 @@ def mean_profile(profiles: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, Any
             "jerk": np.mean([p[1] for p in profiles], 0).tolist(), "windows": len(profiles)}
 
 
+@dataclass
+class MultiMeasures:
+    """What a set of multi-action motions gives before a repeat's draws: the embeddings of their
+    segments and transition windows, their transition jerks, curves and bodies."""
+
+    segments: list[np.ndarray] = field(default_factory=list)  # per batch of motions
+    windows: list[np.ndarray] = field(default_factory=list)
+    jerks: list[float] = field(default_factory=list)
+    curves: list[np.ndarray] = field(default_factory=list)  # frame_jerk of each full window
+    profiles: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    bones: list[float] = field(default_factory=list)
+
+    def add(self, motions: Sequence[Motion], evaluator: TextMotionEvaluator, skeleton: Any) -> None:
+        self.segments.append(embed_clips(evaluator, [m.features[a:b] for m in motions for a, b in m.ranges]))
+        self.windows.append(embed_clips(evaluator, [
+            w for m in motions for w in transition_windows(m.features, m.boundaries, WINDOW)]))
+        self.jerks += [jerk(m.joints, JERK_FPS, m.boundaries, WINDOW) for m in motions]
+        self.curves += [frame_jerk(w) for m in motions for w in full_windows(m.joints, m.boundaries)]
+        self.profiles += [p for m in motions for p in transition_profiles(m.joints, m.boundaries)]
+        self.bones += [bone_length_spread(m.joints, skeleton)["mean"] for m in motions]
+
+    def metrics(self, reference: "Reference", repeat: int) -> dict[str, float]:
+        """The multi-motion table's row for repeat ``repeat`` (its shuffle and diversity draws)."""
+        segment_emb, window_emb = np.concatenate(self.segments), np.concatenate(self.windows)
+        order = _rng(repeat, "order").permutation(reference.items)
+        return {**_matching(reference.text, segment_emb, order, reference.rp_batch),
+                "fid": fid(segment_emb, reference.segments),
+                "diversity": diversity(segment_emb, _pairs(len(segment_emb)), seed=repeat),
+                "transition_fid": fid(window_emb, reference.windows),
+                "transition_diversity": diversity(window_emb, _pairs(len(window_emb)), seed=repeat),
+                "jerk": _nanmean(self.jerks), **flowmdm_jerk(self.curves, reference.frame_jerk_mean),
+                "bone_std": _nanmean(self.bones)}
+
+
+def _single_metrics(reference: "Reference", embedded: np.ndarray, order: np.ndarray, repeat: int) -> dict[str, float]:
+    """The single-motion table's columns but MModality, for items embedded in test-set order."""
+    return {**_matching(reference.text, embedded, order, reference.rp_batch),
+            "fid": fid(embedded, reference.segments),
+            "diversity": diversity(embedded, _pairs(len(embedded)), seed=repeat)}
+
+
 def _matching(text: np.ndarray, motion: np.ndarray, order: np.ndarray, batch: int) -> dict[str, float]:
     """R-Top1..3 over consecutive groups of ``batch`` in the repeat's shuffled order (Guo
     shuffles; the incomplete group is dropped), and MM-Dist over the same rows."""
@@ -152,6 +197,8 @@ class Reference:
     flowmdm_concat: dict[str, float]  # PJ and AUJ at the boundaries of the concatenated items
     concat_profile: dict[str, Any]
     bone_std: float  # mm, of the ground-truth segments' joints as recovered from their features
+    reconstruction: MultiMeasures | None = None  # the instances through the generator's codec, if it has one
+    reconstructed_items: np.ndarray | None = None  # (items, E): each item through the codec alone
 
     @property
     def items(self) -> int:
@@ -181,7 +228,7 @@ class Reference:
         constant = mean_frame_jerk([j for clips in joints for j in clips if len(j) >= 4])
         middle_curves = [frame_jerk(w) for clips in joints for j in clips for w in full_windows(j, [len(j) // 2])]
         concat_curves = [frame_jerk(w) for j, b in concat for w in full_windows(j, b)]
-        return cls(
+        reference = cls(
             actions=actions, frames=frames, text=embed_captions(evaluator, captions),
             segments=embed_clips(evaluator, flat), windows=embed_clips(evaluator, middles),
             jerk_single=_nanmean(single), jerk_concat=_nanmean([jerk(j, JERK_FPS, b, WINDOW) for j, b in concat]),
@@ -189,6 +236,13 @@ class Reference:
             flowmdm_concat=flowmdm_jerk(concat_curves, constant),
             concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]),
             bone_std=_nanmean([bone_length_spread(j, skeleton)["mean"] for clips in joints for j in clips]))
+        reconstructed = generator.reconstruct(features)
+        if reconstructed is not None:
+            reference.reconstruction = MultiMeasures()
+            reference.reconstruction.add(reconstructed, evaluator, skeleton)
+            reference.reconstructed_items = embed_clips(
+                evaluator, [m.features for m in generator.reconstruct([[clip] for clip in flat])])
+        return reference
 
     def measure(self, repeat: int) -> dict[str, float]:
         """The "ground truth (single)" row for one repeat (its shuffle and diversity draws)."""
@@ -197,6 +251,14 @@ class Reference:
                 "diversity": diversity(self.segments, _pairs(self.items), seed=repeat),
                 "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
                 "jerk": self.jerk_single, **self.flowmdm_single, "bone_std": self.bone_std}
+
+    def reconstruction_rows(self, repeat: int) -> tuple[dict[str, float], dict[str, float]] | None:
+        """The "VQ-VAE reconstruction" rows of the multi- and single-motion tables for one
+        repeat, or None for a model without a codec."""
+        if self.reconstruction is None or self.reconstructed_items is None:
+            return None
+        order = _rng(repeat, "order").permutation(self.items)
+        return self.reconstruction.metrics(self, repeat), _single_metrics(self, self.reconstructed_items, order, repeat)
 
     def concat_row(self) -> dict[str, float]:
         """The "ground truth (concat)" row: its transition jerks, the same in every repeat."""
@@ -231,25 +293,11 @@ class Evaluation:
         reference = self.reference
         options = self.generator.options(MULTI, method=method, **self.knobs)
         seeds = _seeds(repeat, "multi", len(reference.actions))
-        segments, windows, jerks, curves, profiles, bones = [], [], [], [], [], []
+        measures = MultiMeasures()
         for motions in self._generate(reference.actions, reference.frames, options, seeds, f"{method} r{repeat}"):
-            segments.append(embed_clips(self.evaluator, [m.features[a:b] for m in motions for a, b in m.ranges]))
-            windows.append(embed_clips(self.evaluator, [
-                w for m in motions for w in transition_windows(m.features, m.boundaries, WINDOW)]))
-            jerks += [jerk(m.joints, JERK_FPS, m.boundaries, WINDOW) for m in motions]
-            curves += [frame_jerk(w) for m in motions for w in full_windows(m.joints, m.boundaries)]
-            profiles += [p for m in motions for p in transition_profiles(m.joints, m.boundaries)]
-            bones += [bone_length_spread(m.joints, self.generator.skeleton)["mean"] for m in motions]
-        segment_emb, window_emb = np.concatenate(segments), np.concatenate(windows)
-        order = _rng(repeat, "order").permutation(reference.items)
-        metrics = {**_matching(reference.text, segment_emb, order, reference.rp_batch),
-                   "fid": fid(segment_emb, reference.segments),
-                   "diversity": diversity(segment_emb, _pairs(len(segment_emb)), seed=repeat),
-                   "transition_fid": fid(window_emb, reference.windows),
-                   "transition_diversity": diversity(window_emb, _pairs(len(window_emb)), seed=repeat),
-                   "jerk": _nanmean(jerks), **flowmdm_jerk(curves, reference.frame_jerk_mean),
-                   "bone_std": _nanmean(bones)}
-        return {"method": method, "repeat": repeat, "metrics": metrics, "profile": mean_profile(profiles)}
+            measures.add(motions, self.evaluator, self.generator.skeleton)
+        return {"method": method, "repeat": repeat, "metrics": measures.metrics(reference, repeat),
+                "profile": mean_profile(measures.profiles)}
 
     def single(self, repeat: int) -> dict[str, Any]:
         """One repeat of the single-motion table: every test item generated alone with the
@@ -266,9 +314,7 @@ class Evaluation:
         repeated = [p for p in prompts for _ in range(MM_GENERATIONS)]
         again = self._embed_generated([actions[p] for p in repeated], [frames[p] for p in repeated], options,
                                       _seeds(repeat, "mmodality", len(repeated)), label)
-        metrics = {**_matching(reference.text, embedded, order, reference.rp_batch),
-                   "fid": fid(embedded, reference.segments),
-                   "diversity": diversity(embedded, _pairs(len(embedded)), seed=repeat),
+        metrics = {**_single_metrics(reference, embedded, order, repeat),
                    "mmodality": multimodality(again.reshape(len(prompts), MM_GENERATIONS, -1),
                                               pairs=MM_GENERATIONS, seed=repeat)}
         return {"repeat": repeat, "metrics": metrics}

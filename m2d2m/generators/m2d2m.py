@@ -108,16 +108,29 @@ class M2D2MGenerator(MotionGenerator):
         wherever a token holds a kept frame, :data:`FREE` elsewhere."""
         if keep is None:
             return None
-        vq, normalizer = self.checkpoint.vq, self.checkpoint.normalizer
-        with torch.no_grad():
-            normalized = torch.as_tensor(normalizer.normalize(keep.features), dtype=torch.float32, device=self.device)
-            encoded = vq.encode(normalized[None])[0].cpu()
+        encoded = self.encode(keep.features)
         if len(encoded) != tokens:
             raise ValueError(f"the kept motion holds {len(encoded)} tokens but the request asks for {tokens}")
         held = np.zeros(tokens, dtype=bool)
         units = np.flatnonzero(keep.frames) // self.frame_step
         held[units[units < tokens]] = True
         return torch.where(torch.as_tensor(held), encoded, torch.full_like(encoded, FREE))
+
+    def encode(self, features: np.ndarray) -> torch.Tensor:
+        """The VQ-VAE's tokens (on the CPU) of un-normalised features (F, D): one per 4 frames."""
+        normalizer = self.checkpoint.normalizer
+        with torch.no_grad():
+            normalized = torch.as_tensor(normalizer.normalize(features), dtype=torch.float32, device=self.device)
+            return self.checkpoint.vq.encode(normalized[None])[0].cpu()
+
+    def reconstruct(self, segments: Sequence[Sequence[np.ndarray]]) -> list[Motion]:
+        """Each sequence's segments encoded by the VQ-VAE, their tokens concatenated and decoded
+        together: the ceiling of any sampler over these tokens (paper Table 3's "VQ-VAE" row)."""
+        options = self.options(MULTI, method="independent")
+        return [self.decode([self.encode(clip) for clip in clips], [f"segment {i + 1}" for i in range(len(clips))],
+                            options, {"model": self.model, "method": "vq reconstruction",
+                                      "checkpoint": str(self.source)})
+                for clips in segments]
 
     def decode(self, pieces: list[torch.Tensor], actions: list[str], options: SamplingOptions,
                settings: dict[str, Any]) -> Motion:

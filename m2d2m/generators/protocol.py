@@ -154,6 +154,13 @@ class MotionGenerator(ABC):
     def describe(self, options: Any) -> str:
         """The options in the paper's words for a table's notes, e.g. ``T_s = 90 of T = 100, η = 0.25, s = 2``."""
 
+    def reconstruct(self, segments: Sequence[Sequence[np.ndarray]]) -> list[Motion] | None:
+        """For a model that generates through a motion codec (a VQ-VAE): each sequence's ground-truth
+        feature segments encoded, joined in the codec's space and decoded together, one Motion
+        per sequence with the segments' ranges: the ceiling of every method of that model, the
+        evaluation tables' reconstruction row. None (the default) for a model without a codec."""
+        return None
+
     # ----------------------------------------------------------------------------- the call
     @abstractmethod
     def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: Any,
