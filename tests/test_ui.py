@@ -81,7 +81,7 @@ def test_a_stop_signal_ends_the_whole_process_tree_it_served(tmp_path, stop):
     """serve() in a child Python (signal handlers belong to a main thread) runs a shell that
     starts two sleepers, one in a session of its own; the signal to that Python ends them all."""
     script = ("from orchestration.serving import serve; "
-              f"print(serve(['sh', '-c', 'setsid sleep 300 & sleep 300 & wait']), flush=True)")
+              "print(serve(['sh', '-c', 'setsid sleep 300 & sleep 300 & wait']), flush=True)")
     runner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
                               env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
     deadline = time.monotonic() + 30
