@@ -4,11 +4,12 @@ the denoiser checkpoint."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from m2d2m.atomic import atomic_path
 
 
 def check_plain(value: Any, where: str = "extra") -> None:
@@ -36,10 +37,8 @@ def write_model_file(path: str | Path, payload: dict[str, Any]) -> Path:
     """Save ``payload`` to ``path`` through a temporary file, so readers never see half a file."""
     check_plain(payload, "payload")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
-    torch.save(payload, partial)
-    os.replace(partial, path)
+    with atomic_path(path) as partial:
+        torch.save(payload, partial)
     return path
 
 

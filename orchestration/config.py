@@ -52,7 +52,7 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     return key.strip().split("."), parsed
 
 
-def _is_number(value: Any) -> bool:
+def is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
@@ -62,8 +62,8 @@ def _kind_mismatch(current: Any, value: Any) -> str | None:
     the file takes anything (``devices: auto`` may become 2)."""
     if isinstance(current, bool):
         return None if isinstance(value, bool) else "true or false"
-    if _is_number(current):
-        return None if value is None or _is_number(value) else "a number"
+    if is_number(current):
+        return None if value is None or is_number(value) else "a number"
     if isinstance(current, list):
         return None if isinstance(value, list) else "a list, e.g. [1, 2]"
     return None

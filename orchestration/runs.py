@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from m2d2m.atomic import atomic_path
 from orchestration.errors import UserError
 from orchestration.tracking import download_model_file
 
@@ -51,9 +52,8 @@ def write_run_info(run_dir: Path, **info: Any) -> dict[str, Any]:
     path = run_dir / RUN_FILE
     current = json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
     current.update(info)
-    temporary = path.with_name(RUN_FILE + ".partial")
-    temporary.write_text(json.dumps(current, indent=2, sort_keys=True, default=str) + "\n", encoding="utf-8")
-    temporary.replace(path)
+    with atomic_path(path) as partial:
+        partial.write_text(json.dumps(current, indent=2, sort_keys=True, default=str) + "\n", encoding="utf-8")
     return current
 
 
@@ -66,9 +66,8 @@ def read_run_info(run_dir: Path) -> dict[str, Any]:
 
 def mark_latest(run_dir: Path) -> None:
     """Point ``latest`` at a finished run; renamed into place, so a kill never leaves it empty."""
-    temporary = run_dir.parent / (LATEST + ".partial")
-    temporary.write_text(run_dir.name + "\n", encoding="utf-8")
-    temporary.replace(run_dir.parent / LATEST)
+    with atomic_path(run_dir.parent / LATEST) as partial:
+        partial.write_text(run_dir.name + "\n", encoding="utf-8")
 
 
 def latest_run(dataset: str, stage: str, made_by: str, legacy: tuple[str, ...] = ()) -> Path:

@@ -33,7 +33,7 @@ import torch
 import yaml
 
 from m2d2m.layout import VQ_FILE
-from orchestration.config import flatten, load_config
+from orchestration.config import flatten, is_number, load_config
 from orchestration.errors import UserError
 from orchestration.registry import load_plugins, model, plugins_for_workers
 from orchestration.runs import (enter_project, mark_latest, new_run_dir, newest_run, read_run_info, run_file,
@@ -81,16 +81,16 @@ def _check_settings(config: dict[str, Any]) -> None:
     if not (devices in ("auto", -1) or _is_count(devices)
             or (isinstance(devices, list) and devices and all(isinstance(d, int) and d >= 0 for d in devices))):
         raise UserError(f"trainer.devices must be auto, -1, a count >= 1 or a list of device indices, got {devices!r}")
-    if not _is_number(optim["lr"]) or not optim["lr"] > 0:
+    if not _is_finite_number(optim["lr"]) or not optim["lr"] > 0:
         raise UserError(f"optim.lr must be a number > 0, got {optim['lr']!r}")
-    if not (optim.get("grad_clip") is None or (_is_number(optim["grad_clip"]) and optim["grad_clip"] > 0)):
+    if not (optim.get("grad_clip") is None or (_is_finite_number(optim["grad_clip"]) and optim["grad_clip"] > 0)):
         raise UserError(f"optim.grad_clip must be null (off) or a number > 0, got {optim['grad_clip']!r}")
     if "batch_size" in config.get("data", {}) and not _is_count(config["data"]["batch_size"]):
         raise UserError(f"data.batch_size must be a whole number >= 1, got {config['data']['batch_size']!r}")
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+def _is_finite_number(value: Any) -> bool:
+    return is_number(value) and math.isfinite(value)
 
 
 _opened: list[Path] = []  # the runs opened by the stage calls in progress, innermost last

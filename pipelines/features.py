@@ -27,6 +27,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 
 import m2d2m
+from m2d2m.atomic import atomic_path
 from m2d2m.layout import MANIFEST, NLP, QUARANTINE, SHARDS, STATS
 from m2d2m.motion.normalization import Normalizer, RunningMoments, group_averaged_std
 from m2d2m.motion.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
@@ -412,10 +413,9 @@ def _build(config: DataConfig) -> dict[str, Any]:
         quarantine += result["quarantine"]
         tagged_captions += [(text, parse_tagged_tokens(" ".join(tokens))) for text, tokens in result["tagged"]]
 
-    with (out / (QUARANTINE + ".partial")).open("w", encoding="utf-8") as handle:
+    with atomic_path(out / QUARANTINE) as partial, partial.open("w", encoding="utf-8") as handle:
         for line in quarantine:
             handle.write(json.dumps(line, sort_keys=True) + "\n")
-    (out / (QUARANTINE + ".partial")).replace(out / QUARANTINE)
 
     provided = _corpus_statistics(raw, skeleton)
     if provided is None and moments.count == 0:

@@ -1,8 +1,8 @@
 """WebDataset shards written atomically and reproducibly, their manifest, and their verification.
 
 Every arrow of the flow is a set of tar shards plus a ``manifest.json`` written last, so a reader
-can trust a directory whose manifest exists: an interrupted writer leaves only ``*.partial``
-files, which are never listed. Tar headers are fixed (mtime 0, one owner, sorted members), so
+can trust a directory whose manifest exists: an interrupted writer leaves only files marked
+``.partial``, which are never listed. Tar headers are fixed (mtime 0, one owner, sorted members), so
 the same samples in the same order give byte-identical shards.
 """
 
@@ -19,6 +19,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import webdataset as wds
 
+from m2d2m.atomic import atomic_path
 from m2d2m.integrity import sha256_of
 
 SCHEMA_VERSION = 1
@@ -118,10 +119,8 @@ class ShardWriter:
 
 def write_json_atomically(path: str | Path, value: Any) -> None:
     """Write JSON under a temporary name, then rename: readers never see half a file."""
-    path = Path(path)
-    temporary = path.with_name(path.name + PARTIAL_SUFFIX)
-    temporary.write_text(json.dumps(value, indent=2, sort_keys=True, ensure_ascii=False) + "\n", encoding="utf-8")
-    os.replace(temporary, path)
+    with atomic_path(path) as partial:
+        partial.write_text(json.dumps(value, indent=2, sort_keys=True, ensure_ascii=False) + "\n", encoding="utf-8")
 
 
 def shard_records(shards: list[ShardInfo]) -> list[dict[str, Any]]:
