@@ -28,16 +28,18 @@ import multiprocessing
 import re
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from functools import partial
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from pipelines.synthetic_motion import ACTIONS, FPS, compose, program_joints
+from pipelines.synthetic_motion import ACTIONS, FPS, Texture, compose, program_joints
 
-GENERATOR_VERSION = "1.0"
+GENERATOR_VERSION = "1.1"
+# Real capture's high-frequency content, calibrated against HumanML3D (bench/calibrate_corpus.py).
+TEXTURE = Texture(pelvis=0.00169, wrists=0.00324)
 FAMILIES: tuple[str, ...] = tuple(ACTIONS)
 MIN_FRAMES, MAX_FRAMES = 40, 199  # HumanML3D keeps 40 ≤ T < 200
 SPLITS = {"train": 0.80, "val": 0.05, "test": 0.15}
@@ -519,10 +521,11 @@ class Clip:
 
 
 def make_clip(index: int, seed: int = 0, families: Sequence[str] = FAMILIES,
-              max_actions: int = 3) -> Clip:
+              max_actions: int = 3, texture: Texture = TEXTURE) -> Clip:
     """Clip number ``index`` of the corpus with ``seed``: a function of (seed, index) only.
     A plan whose motion would exceed 199 frames loses its last action (a lone action that is
-    too long is drawn again), so long families keep their share of first actions."""
+    too long is drawn again), so long families keep their share of first actions. The texture
+    is drawn from its own stream, so plans, captions and bodies do not depend on it."""
     rng = np.random.default_rng([seed, index])
     plan = sample_plan(rng, families, max_actions)
     for _ in range(40):
@@ -532,7 +535,8 @@ def make_clip(index: int, seed: int = 0, families: Sequence[str] = FAMILIES,
         plan = plan[:-1] if len(plan) > 1 else sample_plan(rng, families, 1)
     else:
         raise RuntimeError(f"clip {index}: no plan of {families} fits in {MAX_FRAMES} frames")
-    joints = program_joints(composition.program, composition.body).astype(np.float32)
+    program = texture.apply(composition.program, np.random.default_rng([seed, index, 2]))
+    joints = program_joints(program, composition.body).astype(np.float32)
     return Clip(f"{index:06d}", joints, plan, composition.segments, make_captions(plan, rng),
                 composition.body.scale)
 
@@ -578,10 +582,13 @@ def existing_corpus(out_dir: str | Path, clips: int, seed: int, families: Sequen
     if not marker.exists():
         return False
     existing = json.loads(marker.read_text(encoding="utf-8"))
-    wanted = {"clips": clips, "seed": seed, "families": list(families or FAMILIES)}
-    if all(existing.get(key) == value for key, value in wanted.items()):
+    wanted = {"clips": clips, "seed": seed, "families": list(families or FAMILIES),
+              "version": GENERATOR_VERSION}
+    different = [key for key, value in wanted.items() if existing.get(key) != value]
+    if not different:
         return True
-    raise ValueError(f"{out_dir} holds a different corpus ({marker}); use another --out or --force")
+    raise ValueError(f"{out_dir} holds a different corpus ({marker}: other {', '.join(different)}); "
+                     "use another --out or --force")
 
 
 def generate_corpus(
@@ -640,7 +647,7 @@ def generate_corpus(
     }
     corpus = {"generator": "pipelines.synthetic", "version": GENERATOR_VERSION, "seed": seed,
               "clips": clips, "fps": FPS, "families": list(families), "max_actions": max_actions,
-              "summary": summary}
+              "texture": asdict(TEXTURE), "summary": summary}
     (out / "corpus.json").write_text(json.dumps(corpus, indent=2) + "\n", encoding="utf-8")
     return summary
 

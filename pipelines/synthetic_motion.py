@@ -373,6 +373,57 @@ def idle(body: Body, state: State, frames: int, rng: np.random.Generator) -> Pro
     return program
 
 
+# --------------------------------------------------------------------------- texture
+
+
+@dataclass(frozen=True)
+class Texture:
+    """How much high-frequency content real capture adds on top of the animated curves: the RMS
+    second difference (per frame², 20 fps) of band-limited noise on the pelvis position (m), the
+    trunk, pelvis tilt and neck angles (rad) and the wrist targets (m). Real motion is never as
+    smooth as eased keys; its acceleration spectrum stays flat up to the Nyquist rate, and both
+    the paper's Jerk (eq. 10) and FlowMDM's PJ/AUJ are dominated by that band. The defaults are
+    calibrated against real HumanML3D motion (``bench/calibrate_corpus.py``, docs/data.md)."""
+
+    pelvis: float = 0.0
+    angles: float = 0.0
+    wrists: float = 0.0
+    low_hz: float = 3.0  # the band starts here: what a viewer would call the motion is below
+
+    def apply(self, program: Program, rng: np.random.Generator) -> Program:
+        """The program with independent band-limited noise added to each textured channel."""
+        frames = len(program)
+        changes = {
+            "pelvis": (program.pelvis, self.pelvis),
+            "tilt": (program.tilt, self.angles),
+            "trunk": (program.trunk, self.angles),
+            "neck": (program.neck, self.angles),
+            "wrists": (program.wrists, self.wrists),
+        }
+        return replace(program, **{
+            name: curve + level * band_noise(frames, curve.shape[1:], rng, self.low_hz)
+            for name, (curve, level) in changes.items()
+        })
+
+
+def band_noise(frames: int, shape: tuple[int, ...], rng: np.random.Generator,
+               low_hz: float, fps: float = FPS) -> np.ndarray:
+    """Gaussian noise (frames, *shape) whose second difference has a flat spectrum above
+    ``low_hz`` (a raised-cosine edge from half of it), nothing below, and unit RMS: positions
+    from white acceleration in one band, made in the frequency domain over twice the length so
+    the circular wrap never shows."""
+    n = 2 * frames + 8
+    freqs = np.fft.rfftfreq(n, 1.0 / fps)
+    edge = np.clip((freqs - 0.5 * low_hz) / (0.5 * low_hz), 0.0, 1.0)
+    gain = 0.5 - 0.5 * np.cos(np.pi * edge)
+    second_difference = 4.0 * np.sin(np.pi * freqs / fps) ** 2  # |H| of x[t+1] − 2x[t] + x[t−1]
+    transfer = np.divide(gain, second_difference, out=np.zeros_like(gain), where=gain > 0)
+    spectrum = rng.standard_normal((len(freqs),) + shape) + 1j * rng.standard_normal((len(freqs),) + shape)
+    x = np.fft.irfft(spectrum * transfer.reshape((-1,) + (1,) * len(shape)), n=n, axis=0)[:frames]
+    rms = np.sqrt(np.mean(np.diff(x, n=2, axis=0) ** 2)) if frames > 2 else 1.0
+    return x / max(rms, 1e-12)
+
+
 # --------------------------------------------------------------------------- rendering
 
 

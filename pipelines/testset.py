@@ -266,9 +266,11 @@ def _same_parameters(manifest: dict[str, Any], parameters: dict[str, Any]) -> bo
 
 
 def testset_dir(data_dir: str | Path, n: int, seed: int, out: str | Path | None = None,
-                limit: int | None = None) -> Path:
-    """Where ``build_testset`` writes: ``<out or data_dir/testsets>/n<N>-seed<S>[-first<L>]``."""
-    name = f"n{n}-seed{seed}" + (f"-first{limit}" if limit is not None else "")
+                limit: int | None = None, mirrors: str = "same") -> Path:
+    """Where ``build_testset`` writes: ``<out or data_dir/testsets>/n<N>-seed<S>[-<mirrors>][-first<L>]``,
+    the mirror rule named unless it is the default, so test sets drawn by other rules never collide."""
+    name = (f"n{n}-seed{seed}" + (f"-{mirrors}" if mirrors != "same" else "")
+            + (f"-first{limit}" if limit is not None else ""))
     return Path(out if out is not None else Path(data_dir) / TESTSETS) / name
 
 
@@ -288,7 +290,7 @@ def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Pa
         raise ValueError(f"n must be at least 1, got {n}")
     if limit is not None and limit < 2:
         raise ValueError(f"limit must be at least 2 instances, got {limit}")
-    target = testset_dir(data_dir, n, seed, out, limit).resolve()
+    target = testset_dir(data_dir, n, seed, out, limit, mirrors).resolve()
     parameters = _parameters(data_dir, n, seed, split, min_frames, mirrors, limit)
     if (target / MANIFEST).exists() and not force:
         existing = json.loads((target / MANIFEST).read_text(encoding="utf-8"))

@@ -87,7 +87,7 @@ def test_evaluate_logs_every_metric_and_knob_to_mlflow(trained_project, evaluate
         assert name in metrics, name
     assert params["methods"] == "tps,slerp" and params["repeats"] == "2" and params["ts"] == "4"
     assert params["sampling"] == "T_s = 4 of T = 8, η = 0.25, s = 2" and params["model"] == "m2d2m"
-    assert params["single_sampling"] == "η = 0.5, s = 4" and params["testset"].endswith("n2-seed0")
+    assert params["single_sampling"] == "η = 0.5, s = 4" and params["testset"].endswith("n2-seed0-distinct")
     assert params["evaluator"].endswith("evaluator.pt") and params["checkpoint"].endswith("model.pt")
     assert run.data.tags["stage"] == "eval" and run.data.tags["methods"] == "tps,slerp"
     assert run.info.status == "FINISHED"

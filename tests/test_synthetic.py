@@ -176,6 +176,16 @@ def test_rewriting_a_smaller_corpus_removes_stale_clips(tmp_path):
     assert sorted(p.stem for p in (tmp_path / "joints").glob("*.npy")) == ["000000", "000001", "000002"]
 
 
+def test_a_corpus_of_an_older_generator_is_never_taken_for_the_current_one(tmp_path):
+    syn.generate_corpus(tmp_path, clips=2, seed=1, families=["clap"])
+    assert syn.existing_corpus(tmp_path, 2, 1, ["clap"])
+    record = json.loads((tmp_path / "corpus.json").read_text())
+    assert record["texture"]["wrists"] == syn.TEXTURE.wrists
+    (tmp_path / "corpus.json").write_text(json.dumps({**record, "version": "1.0"}))
+    with pytest.raises(ValueError, match="other version"):
+        syn.existing_corpus(tmp_path, 2, 1, ["clap"])
+
+
 def test_splits_are_disjoint_and_cover_all_ids(corpus):
     out, summary = corpus
     splits = {name: (out / f"{name}.txt").read_text().split() for name in ("train", "val", "test")}
@@ -367,3 +377,35 @@ def test_families_are_separable_from_the_motion(tmp_path):
     accuracy = correct / len(held_out)
     print(f"nearest-centroid family accuracy on {len(held_out)} held-out clips: {accuracy:.2f}")
     assert len(summary["families"]) == 18 and accuracy > 0.6
+
+
+def test_band_noise_has_unit_acceleration_and_nothing_below_its_band():
+    from pipelines.synthetic_motion import FPS, band_noise
+
+    x = band_noise(400, (3,), np.random.default_rng(0), low_hz=4.0)
+    assert x.shape == (400, 3)
+    assert np.sqrt(np.mean(np.diff(x, n=2, axis=0) ** 2)) == pytest.approx(1.0)
+    power = np.abs(np.fft.rfft(np.diff(x, n=2, axis=0), axis=0)) ** 2
+    freqs = np.fft.rfftfreq(398, 1.0 / FPS)
+    below, inside = power[(freqs > 0.3) & (freqs < 1.5)].mean(), power[freqs > 5.0].mean()
+    assert below < 0.01 * inside  # the motion's own band (under low_hz / 2) is left alone
+
+
+def test_texture_adds_high_frequencies_only_where_asked_and_keeps_the_body_rigid():
+    from pipelines.synthetic_motion import Texture
+
+    smooth = syn.make_clip(3, seed=5, texture=Texture()).joints
+    textured = syn.make_clip(3, seed=5).joints
+    assert syn.TEXTURE.pelvis > 0 and syn.TEXTURE.wrists > 0
+    # same plan, body and captions (the texture has its own random stream), different jerk
+    assert smooth.shape == textured.shape
+    assert syn.make_clip(3, seed=5, texture=Texture()).captions == syn.make_clip(3, seed=5).captions
+    difference = np.abs(textured - smooth).max()
+    assert 1e-4 < difference < 0.05  # millimetres of texture, never a different motion
+
+    def hf(j):
+        return np.abs(np.diff(j, n=3, axis=0)).mean()
+
+    assert hf(textured[:, [0, 20, 21]]) > 1.5 * hf(smooth[:, [0, 20, 21]])
+    bones = np.linalg.norm(textured[:, 1:] - textured[:, T2M.parents[1:]], axis=-1)
+    assert np.ptp(bones, axis=0).max() < 1e-4

@@ -145,11 +145,15 @@ def test_no_motion_or_mirror_twice_and_floor_count(dataset, n, request, tmp_path
 
 
 def test_mirror_rules(data, tmp_path):
-    distinct = build_testset(data, n=3, seed=0, out=tmp_path / "d", mirrors="distinct")
+    same = build_testset(data, n=3, seed=0, out=tmp_path)
+    distinct = build_testset(data, n=3, seed=0, out=tmp_path, mirrors="distinct")
     assert distinct["pool"]["motions"] == 16 and distinct["instances"] == 16 // 3
+    # each rule has its own folder: drawing by another rule never meets the first one's test set
+    assert [Path(same["path"]).name, Path(distinct["path"]).name] == ["n3-seed0", "n3-seed0-distinct"]
     keys = [item["key"] for r in instances(Path(distinct["path"])) for item in r["items"]]
     assert len(keys) == len(set(keys))
-    exclude = build_testset(data, n=3, seed=0, out=tmp_path / "e", mirrors="exclude")
+    exclude = build_testset(data, n=3, seed=0, out=tmp_path, mirrors="exclude")
+    assert Path(exclude["path"]).name == "n3-seed0-exclude"
     assert exclude["pool"]["entries"] == 15 and exclude["instances"] == 8 // 3
     assert not any(item["key"].startswith("M") for r in instances(Path(exclude["path"])) for item in r["items"])
     with pytest.raises(ValueError, match="mirrors"):

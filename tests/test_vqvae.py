@@ -273,3 +273,38 @@ def test_paper_size_default_runs_on_cpu():
     with torch.no_grad():
         out = model.train()(torch.randn(2, 64, 263))
     assert out.reconstruction.shape == (2, 64, 263) and out.tokens.shape == (2, 16)
+
+
+# ---------------------------------------------------------------------------------- smooth decoding
+
+
+def test_output_low_pass_is_the_library_gaussian_filter_and_zero_is_t2m_gpts_decoder():
+    from m2d2m.motion.smoothing import gaussian_smooth
+    from m2d2m.networks.vqvae import TemporalLowPass
+
+    x = np.random.default_rng(1).normal(size=(2, 5, 30))
+    filtered = TemporalLowPass(1.5)(torch.tensor(x, dtype=torch.float32)).numpy()
+    np.testing.assert_allclose(filtered[1], gaussian_smooth(x[1].T, 1.5).T, atol=1e-5)
+    assert torch.equal(TemporalLowPass(0.0)(torch.tensor(x)), torch.tensor(x))
+
+    torch.manual_seed(0)
+    plain = MotionVQVAE(SMALL).eval()
+    smoothed = MotionVQVAE(replace(SMALL, output_smoothing=1.0)).eval()
+    smoothed.load_state_dict(plain.state_dict())  # the filter has no weights: old files still load
+    tokens = torch.randint(0, SMALL.codebook_size, (1, 8))
+    with torch.no_grad():
+        raw, low = plain.decode(tokens)[0].numpy(), smoothed.decode(tokens)[0].numpy()
+    np.testing.assert_allclose(low, gaussian_smooth(raw, 1.0), atol=1e-5)
+    assert np.abs(np.diff(low, n=3, axis=0)).mean() < 0.5 * np.abs(np.diff(raw, n=3, axis=0)).mean()
+
+
+@pytest.mark.parametrize("sigma", [-1.0, 9.0, "1"])
+def test_output_smoothing_outside_its_range_is_a_config_error(sigma):
+    with pytest.raises(ValueError, match="output_smoothing"):
+        replace(SMALL, output_smoothing=sigma)
+
+
+def test_model_files_without_output_smoothing_load_as_t2m_gpts_decoder():
+    config = SMALL.to_dict()
+    del config["output_smoothing"]
+    assert VQConfig.from_dict(config).output_smoothing == 0.0

@@ -52,7 +52,12 @@ class VQVAEModule(pl.LightningModule):
         joint = F.smooth_l1_loss(out.reconstruction[..., self.positions], x[..., self.positions])
         weights = self.hparams.loss
         total = weights["recon"] * recon + weights["joint"] * joint + weights["commit"] * out.commit_loss
-        return {"loss": total, "recon": recon, "joint": joint, "commit": out.commit_loss,
+        losses = {"recon": recon, "joint": joint, "commit": out.commit_loss}
+        if weights.get("acceleration", 0.0):
+            losses["acceleration"] = F.smooth_l1_loss(_acceleration(out.reconstruction[..., self.positions]),
+                                                      _acceleration(x[..., self.positions]))
+            total = total + weights["acceleration"] * losses["acceleration"]
+        return {"loss": total, **losses,
                 "perplexity": out.perplexity, "active_codes": torch.as_tensor(float(out.active_codes))}
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
@@ -97,3 +102,9 @@ class VQVAEModule(pl.LightningModule):
     def configure_optimizers(self) -> dict[str, Any]:
         # T2M-GPT decays every weight alike: one parameter group
         return configure_adamw(self.parameters(), self.hparams.optim)
+
+
+def _acceleration(x: torch.Tensor) -> torch.Tensor:
+    """Second difference along time of (B, T, C): the optional acceleration term (not in
+    T2M-GPT) that penalises the decoder's frame-to-frame jitter directly; docs/training.md."""
+    return x[:, 2:] - 2 * x[:, 1:-1] + x[:, :-2]

@@ -1,0 +1,32 @@
+"""`make reproduce`'s report: readable midway, complete at the end (bench/reproduce.py)."""
+
+from __future__ import annotations
+
+from bench.reproduce import Scale, plot, report
+
+SCALE = Scale(vq_steps=10, diffusion_steps=10, repeats=2, ts=(0, 90, 100))
+
+
+def metrics(jerk: float) -> dict:
+    names = ("jerk", "fid", "transition_fid", "peak_jerk", "auj", "r_top3")
+    return {name: {"mean": jerk + i, "ci": 0.01} for i, name in enumerate(names)}
+
+
+def test_a_report_written_midway_marks_what_is_missing(tmp_path):
+    results = {"uniform": {}, "dynamic": {100: {"tps": metrics(0.5)}}}
+    text = report(results, {}, SCALE)
+    assert "| β(t, d) (dynamic), T_s = 100 | 1.500 ± 0.010 | 2.500 ± 0.010 | 0.500 ± 0.010 |" in text
+    assert "| β_t (uniform), T_s = 90 | – | – | – | – | – | – |" in text
+    plot(tmp_path / "curve.png", results)
+    assert (tmp_path / "curve.png").stat().st_size > 0
+
+
+def test_a_complete_report_has_both_tables_and_every_point_of_the_curve():
+    results = {kind: {ts: {"tps": metrics(ts / 100)} for ts in SCALE.ts} for kind in ("uniform", "dynamic")}
+    baselines = {"handshake": metrics(0.7), "slerp": metrics(1.5), "gt_single": metrics(1.0),
+                 "gt_concat": metrics(1.2), "reconstruction": metrics(1.0)}
+    text = report(results, baselines, SCALE)
+    for heading in ("## Table 5", "## Table 6", "## Ground truth", "## Jerk and FID against T_s"):
+        assert heading in text
+    assert "| slerp | 2.500 ± 0.010 | 3.500 ± 0.010 | 1.500 ± 0.010 |" in text
+    assert text.count("T_s = 0 |") == 2 and "| – |" not in text.split("## Ground truth")[0]
