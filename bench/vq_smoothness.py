@@ -27,7 +27,10 @@ from m2d2m.motion.smoothing import gaussian_smooth
 from m2d2m.networks.vqvae import load_vq
 
 
-def test_clips(data: str, limit: int) -> list[np.ndarray]:
+SPECTRUM_FRAMES = 56  # the error spectrum's window: every clip of ≥ 60 frames has it
+
+
+def held_out_clips(data: str, limit: int) -> list[np.ndarray]:
     """Whole test clips (features), mirrors left out, cut to whole tokens of 4 frames."""
     clips = []
     for url in shard_urls(data, "test"):
@@ -56,7 +59,7 @@ def main() -> None:
 
     model, normalizer, info = load_vq(args.vq)
     skeleton = SKELETONS[info["skeleton"]]
-    clips = test_clips(args.data, args.clips)
+    clips = held_out_clips(args.data, args.clips)
     rows: dict[str, list[tuple[float, float]]] = {"ground truth": [], "reconstruction": []}
     rows.update({f"reconstruction, features low-passed σ={s:g}": [] for s in args.sigmas})
     spectra = []
@@ -71,9 +74,10 @@ def main() -> None:
             smoothed = features_to_joints(gaussian_smooth(decoded, s).astype(np.float32), skeleton)
             rows[f"reconstruction, features low-passed σ={s:g}"].append(
                 (middle_jerk(smoothed), aligned_mpjpe_mm(smoothed, truth)))
-        error_velocity = np.diff(joints - truth, axis=0)[:56].reshape(56 if len(joints) > 56 else -1, -1)
-        if len(error_velocity) == 56:
-            spectra.append((np.abs(np.fft.rfft(error_velocity, axis=0)) ** 2).mean(axis=1))
+        error_velocity = np.diff(joints - truth, axis=0)
+        if len(error_velocity) >= SPECTRUM_FRAMES:
+            segment = error_velocity[:SPECTRUM_FRAMES].reshape(SPECTRUM_FRAMES, -1)
+            spectra.append((np.abs(np.fft.rfft(segment, axis=0)) ** 2).mean(axis=1))
 
     print(f"{len(clips)} test clips, {args.vq}")
     print("| decoding | Jerk (middle 40 frames) | root-aligned MPJPE (mm) |\n| --- | --- | --- |")
@@ -82,7 +86,7 @@ def main() -> None:
         half = 1.96 * np.nanstd(jerks) / np.sqrt(np.sum(np.isfinite(jerks)))
         print(f"| {name} | {np.nanmean(jerks):.2f} ± {half:.2f} | {np.mean(errors):.1f} |")
     spectrum = np.mean(spectra, axis=0)
-    frequencies = np.fft.rfftfreq(56)
+    frequencies = np.fft.rfftfreq(SPECTRUM_FRAMES)
     for f in (0.25, 0.5):
         i = int(np.argmin(np.abs(frequencies - f)))
         neighbours = spectrum[[max(i - 2, 0), min(i + 2, len(spectrum) - 1)]].mean() if f < 0.5 else spectrum[i - 2]
