@@ -31,7 +31,7 @@ $(STAMP): pyproject.toml
 setup: $(STAMP)  ## create .venv with the project and its test tools
 
 DEMO_PROMPTS := "a person walks forward" "a person jumps" "a person waves their right hand" "a person sits down"
-# 5 repeats on the 78 instances of DEMO_TESTSET keep each Jerk's 95 % half-width under 0.03 (docs/evaluation.md)
+# 5 repeats on the 78 instances of DEMO_TESTSET: each Jerk's 95 % half-width about 0.03 (docs/evaluation.md, Power)
 DEMO_REPEATS ?= 5
 DEMO_TESTSET := data/synthetic/testsets/n4-seed0-distinct
 demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus: data, models, evaluation, a clip, a sweep

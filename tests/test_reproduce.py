@@ -13,8 +13,9 @@ def metrics(jerk: float) -> dict:
 
 
 def test_a_report_written_midway_marks_what_is_missing(tmp_path):
-    results = {"uniform": {}, "dynamic": {100: {"tps": metrics(0.5)}}}
+    results = {"uniform": {}, "dynamic": {100: {"tps": metrics(0.5), "gt_single": metrics(1.0)}}}
     text = report(results, {}, SCALE)
+    assert "| ground truth (single) | 2.000 ± 0.010 |" in text  # from whichever evaluation finished
     assert "| β(t, d) (dynamic), T_s = 100 | 1.500 ± 0.010 | 2.500 ± 0.010 | 0.500 ± 0.010 |" in text
     assert "| β_t (uniform), T_s = 90 | – | – | – | – | – | – |" in text
     plot(tmp_path / "curve.png", results)
