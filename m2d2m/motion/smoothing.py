@@ -1,5 +1,5 @@
 """Gaussian smoothing along time, the one filter behind heading estimation, the renderer's camera
-path and the synthetic corpus's programs."""
+path, the synthetic corpus's programs and the VQ-VAE's optional output low-pass."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ import numpy as np
 
 
 @lru_cache(maxsize=None)
-def _gaussian_kernel(sigma: float, truncate: float) -> np.ndarray:
+def gaussian_kernel(sigma: float, truncate: float = 4.0) -> np.ndarray:
+    """Normalised weights of :func:`gaussian_smooth`'s filter, radius ``int(truncate·σ + 0.5)``
+    (SciPy's); shared with the VQ-VAE's optional output low-pass."""
     radius = int(truncate * sigma + 0.5)
     x = np.arange(-radius, radius + 1, dtype=np.float64)
     weights = np.exp(-0.5 * (x / sigma) ** 2)
@@ -22,7 +24,7 @@ def gaussian_smooth(x: np.ndarray, sigma: float, truncate: float = 4.0) -> np.nd
     dependency); ``sigma <= 0`` returns a copy."""
     if sigma <= 0:
         return np.array(x, copy=True)
-    kernel = _gaussian_kernel(float(sigma), float(truncate))
+    kernel = gaussian_kernel(float(sigma), float(truncate))
     radius = len(kernel) // 2
     padded = np.pad(x, [(radius, radius)] + [(0, 0)] * (x.ndim - 1), mode="edge")
     windows = np.lib.stride_tricks.sliding_window_view(padded, len(kernel), axis=0)

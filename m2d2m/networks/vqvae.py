@@ -28,6 +28,7 @@ from torch import nn
 
 from m2d2m.model_files import cpu_state, read_model_file, write_model_file
 from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.smoothing import gaussian_kernel
 from m2d2m.networks.config import ConfigError, NetworkConfig
 
 FORMAT = "m2d2m-vq/1"
@@ -232,18 +233,17 @@ class TemporalLowPass(nn.Module):
     """A fixed Gaussian filter of σ frames along time, each channel alone, edges replicated (the
     same filter as :func:`m2d2m.motion.smoothing.gaussian_smooth`); identity for σ = 0.
 
-    Why: a small decoder trained for minutes leaves broadband sub-millimetre jitter in every
-    joint, which the transition metrics (the M2D2M paper's Jerk, eq. 10; FlowMDM's PJ/AUJ) weigh
-    far above anything visible; measured in docs/training.md, "Smooth decoding". As the decoder's
-    last layer it is trained through, so the reconstruction loss sees the output that is used."""
+    Why: a decoder can leave broadband sub-millimetre jitter in every joint, which the
+    transition metrics (the M2D2M paper's Jerk, eq. 10; FlowMDM's PJ/AUJ) weigh far above anything
+    visible. Off in every shipped config: on the calibrated corpus T2M-GPT's decoder is already as
+    smooth as the data (docs/training.md, "Smooth decoding"). As the decoder's last layer it is
+    trained through, so the reconstruction loss sees the output that is used."""
 
     def __init__(self, sigma: float) -> None:
         super().__init__()
         self.sigma = float(sigma)
-        radius = int(4.0 * self.sigma + 0.5)
-        offsets = torch.arange(-radius, radius + 1, dtype=torch.float64)
-        kernel = torch.exp(-0.5 * (offsets / max(self.sigma, 1e-12)) ** 2)
-        self.register_buffer("kernel", (kernel / kernel.sum()).float().view(1, 1, -1), persistent=False)
+        kernel = gaussian_kernel(self.sigma) if self.sigma > 0 else np.ones(1)
+        self.register_buffer("kernel", torch.tensor(kernel, dtype=torch.float32).view(1, 1, -1), persistent=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(B, C, T) → (B, C, T)."""
