@@ -16,21 +16,32 @@ evaluation. The tables and the curve are written to ``runs/synthetic/reproductio
 
 About 100 minutes on 2 CPU cores at the defaults (twice the demo's training); ``--quick`` runs every stage at toy sizes (minutes)
 to check the pipeline, not to measure anything.
+
+A stopped reproduction continues where it stopped: ``state.json`` beside the report records
+each stage's start and what it produced, an interrupted training run is continued with
+``--resume``, an interrupted evaluation with ``evaluate --resume``, and finished ones are not
+run again. ``--restart`` starts over; another scale than the recorded one is refused.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import dataclass
+import time
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
+from m2d2m.atomic import atomic_path
 from orchestration.cli import main as m2d2m
+from orchestration.reports import cell, plot_against_knob
+from orchestration.runs import read_run_info, stage_dir
 
 DATASET = "synthetic"
 RUNS = Path("runs") / DATASET
 TESTSET = Path("data") / DATASET / "testsets" / "n4-seed0-distinct"
+OUT = RUNS / "reproduction"
 TRANSITIONS = {"uniform": "β_t (uniform)", "dynamic": "β(t, d) (dynamic)"}
 COLUMNS = (("fid", "FID ↓"), ("transition_fid", "Transition FID ↓"), ("jerk", "Jerk →"),
            ("peak_jerk", "PJ →"), ("auj", "AUJ ↓"), ("r_top3", "R-Top3 ↑"))
@@ -49,11 +60,61 @@ def run(*argv: str) -> None:
     print("$ m2d2m " + " ".join(argv), flush=True)
     code = m2d2m(list(argv))
     if code:
-        raise SystemExit(f"m2d2m {argv[0]} failed (exit {code}); the runs so far are kept")
+        raise SystemExit(f"m2d2m {argv[0]} failed (exit {code}); the runs so far are kept, run again to continue")
 
 
 def latest(stage: str) -> Path:
     return RUNS / stage / (RUNS / stage / "latest").read_text(encoding="utf-8").strip()
+
+
+class Progress:
+    """What this reproduction has started and finished (``state.json``), so that a stopped
+    `make reproduce` continues instead of training and evaluating everything again."""
+
+    def __init__(self, path: Path, scale: Scale, restart: bool) -> None:
+        self.path = path
+        recorded = json.loads(path.read_text(encoding="utf-8")) if path.exists() and not restart else None
+        if recorded is not None and recorded["scale"] != _plain(scale):
+            raise SystemExit(f"{path} records a reproduction at another scale ({recorded['scale']}); "
+                             "run it with the same arguments to continue, or add --restart to start over")
+        self.state = recorded or {"scale": _plain(scale), "started": {}, "finished": {}}
+        self._write()
+
+    def stage(self, key: str, stage: str, finish: Callable[[Path], Any], *argv: str, resume: Sequence[str]) -> Any:
+        """Run ``argv`` for ``key`` unless it finished; a run of ``stage`` that this key started
+        and that did not finish is continued with ``resume`` + its folder (``{run}``) instead.
+        ``finish(run_dir)`` gives what the finished key records."""
+        if key in self.state["finished"]:
+            return self.state["finished"][key]
+        earlier = self._run_started_by(key, stage)
+        if earlier is None:  # never started, or stopped before its run folder existed
+            self.state["started"][key] = time.time()
+            self._write()
+            run(*argv)
+        elif read_run_info(earlier).get("status") != "finished":
+            run(*[arg.replace("{run}", str(earlier)) for arg in resume])
+        self.state["finished"][key] = finish(self._run_started_by(key, stage) or latest(stage))
+        self._write()
+        return self.state["finished"][key]
+
+    def _run_started_by(self, key: str, stage: str) -> Path | None:
+        """The newest run of ``stage`` that began after ``key`` was started, if any."""
+        since = self.state["started"].get(key)
+        folder = stage_dir(DATASET, stage)
+        if since is None or not folder.exists():
+            return None
+        runs = [(read_run_info(p).get("started", 0.0), p) for p in folder.iterdir() if (p / "run.json").exists()]
+        runs = [(started, p) for started, p in runs if started >= since]
+        return max(runs)[1] if runs else None
+
+    def _write(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.path) as temporary:
+            temporary.write_text(json.dumps(self.state, indent=2), encoding="utf-8")
+
+
+def _plain(scale: Scale) -> dict[str, Any]:
+    return {**asdict(scale), "ts": list(scale.ts)}
 
 
 def schedule_overrides(steps: int) -> list[str]:
@@ -62,37 +123,41 @@ def schedule_overrides(steps: int) -> list[str]:
             "--set", f"trainer.val_every_steps={max(steps // 6, 1)}"]
 
 
-def train(scale: Scale) -> dict[str, Path]:
+def train(scale: Scale, progress: Progress) -> dict[str, Path]:
     """The VQ-VAE, its tokens, the evaluator and one denoiser per transition kind."""
-    run("train-vq", "--config", "demo", *schedule_overrides(scale.vq_steps))
-    vq = latest("vq") / "vq.pt"
-    run("tokenize", "--vq", str(vq))
-    run("train-evaluator", "--config", "demo")
+    def model_file(name: str) -> Callable[[Path], str]:
+        return lambda run_dir: str(run_dir / name)
+
+    vq = progress.stage("vq", "vq", model_file("vq.pt"), "train-vq", "--config", "demo",
+                        *schedule_overrides(scale.vq_steps), resume=("train-vq", "--config", "demo", "--resume"))
+    run("tokenize", "--vq", vq)
+    progress.stage("evaluator", "evaluator", model_file("evaluator.pt"), "train-evaluator", "--config", "demo",
+                   resume=("train-evaluator", "--config", "demo", "--resume"))
     models = {}
     for kind in TRANSITIONS:
-        run("train-diffusion", "--config", "demo", "--set", f"vq={vq}", "--set", f"diffusion.kind={kind}",
-            *schedule_overrides(scale.diffusion_steps))
-        models[kind] = latest("m2d2m") / "model.pt"
+        models[kind] = Path(progress.stage(
+            f"denoiser/{kind}", "m2d2m", model_file("model.pt"), "train-diffusion", "--config", "demo",
+            "--set", f"vq={vq}", "--set", f"diffusion.kind={kind}", *schedule_overrides(scale.diffusion_steps),
+            resume=("train-diffusion", "--config", "demo", "--resume")))
     return models
 
 
-def evaluate(model: Path, methods: Sequence[str], ts: int, repeats: int) -> dict[str, Any]:
-    """One `m2d2m evaluate` run (multi-motion table only); its table.json."""
-    run("evaluate", "--dataset", DATASET, "--checkpoint", str(model), "--testset", str(TESTSET),
-        "--method", ",".join(methods), "--ts", str(ts), "--repeats", str(repeats), "--no-single")
-    return json.loads((latest("eval") / "table.json").read_text(encoding="utf-8"))["multi"]
+def evaluate(progress: Progress, key: str, model: Path, methods: Sequence[str], ts: int,
+             repeats: int) -> dict[str, Any]:
+    """One `m2d2m evaluate` run (multi-motion table only), or the rest of an interrupted one;
+    its table.json's multi-motion rows."""
+    def table(run_dir: Path) -> dict[str, Any]:
+        return json.loads((run_dir / "table.json").read_text(encoding="utf-8"))["multi"]
 
-
-def cell(metrics: dict[str, Any], name: str) -> str:
-    value = metrics.get(name)
-    if not value or value.get("mean") is None:
-        return "–"
-    return f"{value['mean']:.3f} ± {value['ci']:.3f}"
+    return progress.stage(key, "eval", table, "evaluate", "--dataset", DATASET, "--checkpoint", str(model),
+                          "--testset", str(TESTSET), "--method", ",".join(methods), "--ts", str(ts),
+                          "--repeats", str(repeats), "--no-single",
+                          resume=("evaluate", "--dataset", DATASET, "--resume", "{run}"))
 
 
 def table(rows: list[tuple[str, dict[str, Any]]]) -> list[str]:
     lines = ["| | " + " | ".join(title for _, title in COLUMNS) + " |", "| --- " * (len(COLUMNS) + 1) + "|"]
-    lines += [f"| {label} | " + " | ".join(cell(m, name) for name, _ in COLUMNS) + " |" for label, m in rows]
+    lines += [f"| {label} | " + " | ".join(cell(m.get(name)) for name, _ in COLUMNS) + " |" for label, m in rows]
     return lines
 
 
@@ -125,24 +190,10 @@ def report(results: dict[str, dict[int, dict[str, Any]]], baselines: dict[str, A
 
 def plot(path: Path, results: dict[str, dict[int, dict[str, Any]]]) -> None:
     """Jerk and FID against T_s, one line per transition, with the 95 % intervals as bars."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    figure = Figure(figsize=(9, 3.4), dpi=110)
-    FigureCanvasAgg(figure)
-    for index, (metric, title) in enumerate((("jerk", "Jerk (transitions)"), ("fid", "FID (individual motions)"))):
-        axes = figure.add_subplot(1, 2, index + 1)
-        for kind, label in TRANSITIONS.items():
-            points = sorted(results.get(kind, {}).items())
-            if points:
-                axes.errorbar([ts for ts, _ in points], [r["tps"][metric]["mean"] for _, r in points],
-                              yerr=[r["tps"][metric]["ci"] for _, r in points], marker="o", capsize=3, label=label)
-        axes.set_xlabel("T_s (joint phase for t > T_s)")
-        axes.set_title(title)
-        axes.grid(alpha=0.3)
-        axes.legend(fontsize=8)
-    figure.tight_layout()
-    figure.savefig(path)
+    series = {metric: {label: [(ts, r["tps"][metric]["mean"], r["tps"][metric]["ci"])
+                               for ts, r in results.get(kind, {}).items()]
+                       for kind, label in TRANSITIONS.items()} for metric in ("jerk", "fid")}
+    plot_against_knob(path, series, "T_s (joint phase for t > T_s)")
 
 
 def main() -> None:
@@ -152,17 +203,17 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--ts", type=int, nargs="+", default=[0, 50, 90, 100])
     parser.add_argument("--quick", action="store_true", help="toy sizes: checks the pipeline in minutes")
+    parser.add_argument("--restart", action="store_true", help="start over instead of continuing a stopped run")
     args = parser.parse_args()
     scale = (Scale(60, 60, 2, (90, 100)) if args.quick
              else Scale(args.vq_steps, args.diffusion_steps, args.repeats, tuple(sorted({*args.ts, 90, 100}))))
 
+    progress = Progress(OUT / "state.json", scale, args.restart)
     run("synthesize", "--out", f"data/raw/{DATASET}", "--clips", "2000", "--seed", "0")
     run("data", "--dataset", DATASET, "--raw", f"data/raw/{DATASET}")
-    models = train(scale)
+    models = train(scale, progress)
     run("testset", "--dataset", DATASET, "--n", "4", "--seed", "0", "--mirrors", "distinct")
 
-    out = RUNS / "reproduction"
-    out.mkdir(parents=True, exist_ok=True)
     results: dict[str, dict[int, dict[str, Any]]] = {kind: {} for kind in models}
     baselines: dict[str, Any] = {}
     # Tables 5 and 6 first, then the rest of the curve; the report is rewritten after each.
@@ -170,12 +221,13 @@ def main() -> None:
     order += [(kind, ts) for ts in scale.ts if ts not in (90, 100) for kind in models]
     for kind, ts in order:
         if kind == "baselines":
-            baselines = evaluate(models["dynamic"], ["handshake", "slerp"], ts, scale.repeats)
+            baselines = evaluate(progress, "eval/baselines", models["dynamic"], ["handshake", "slerp"], ts,
+                                 scale.repeats)
         else:
-            results[kind][ts] = evaluate(models[kind], ["tps"], ts, scale.repeats)
-        plot(out / "ts-curve.png", results)
-        (out / "report.md").write_text(report(results, baselines, scale), encoding="utf-8")
-    print(f"report: {out / 'report.md'}; every run is in MLflow (make ui)")
+            results[kind][ts] = evaluate(progress, f"eval/{kind}/{ts}", models[kind], ["tps"], ts, scale.repeats)
+        plot(OUT / "ts-curve.png", results)
+        (OUT / "report.md").write_text(report(results, baselines, scale), encoding="utf-8")
+    print(f"report: {OUT / 'report.md'}; every run is in MLflow (make ui)")
 
 
 if __name__ == "__main__":

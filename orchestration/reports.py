@@ -42,7 +42,8 @@ def summarize_rows(per_repeat: dict[str, list[dict[str, float]]]) -> dict[str, d
             for row, repeats in per_repeat.items()}
 
 
-def _cell(summary: dict[str, float | None] | None) -> str:
+def cell(summary: dict[str, float | None] | None) -> str:
+    """``mean ± ci`` to three decimals, or "–" for a value not measured (yet)."""
     if summary is None or summary["mean"] is None:
         return "–"
     return f"{summary['mean']:.3f} ± {summary['ci']:.3f}"
@@ -52,7 +53,7 @@ def _markdown(title: str, columns: tuple[tuple[str, str], ...], rows: dict[str, 
     lines = [f"## {title}", "", "| Method | " + " | ".join(name for _, name in columns) + " |",
              "| --- |" + " --- |" * len(columns)]
     for row, values in rows.items():
-        lines.append(f"| {ROW_TITLES.get(row, row)} | " + " | ".join(_cell(values.get(m)) for m, _ in columns) + " |")
+        lines.append(f"| {ROW_TITLES.get(row, row)} | " + " | ".join(cell(values.get(m)) for m, _ in columns) + " |")
     return lines + [""]
 
 
@@ -108,6 +109,31 @@ def plot_fig5(path: Path, curves: dict[str, dict[str, Any]]) -> Path:
         axes.set(title=title, xlabel="frames from the boundary", ylabel=unit)
         axes.legend(fontsize="small")
     figure.savefig(path, dpi=120)
+    return path
+
+
+Point = tuple[float, float, float | None]  # a knob's value, a metric's mean, its 95 % half-width (or None)
+KNOB_METRICS = (("jerk", "Jerk (transitions)"), ("fid", "FID (individual motions)"))
+
+
+def plot_against_knob(path: Path, series: dict[str, dict[str, list[Point]]], knob: str) -> Path:
+    """Jerk and FID against a sampling knob (T_s, η, ...), one line per label of
+    ``series[metric]``, with error bars where a point has a half-width."""
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(9, 3.6), dpi=110, layout="constrained")
+    for axes, (metric, title) in zip(figure.subplots(1, len(KNOB_METRICS)), KNOB_METRICS):
+        for label, points in series.get(metric, {}).items():
+            points = sorted(p for p in points if p[1] is not None)
+            if not points:
+                continue
+            xs, means, widths = zip(*points)
+            errors = None if any(w is None for w in widths) else widths
+            axes.errorbar(xs, means, yerr=errors, marker="o", capsize=3, label=label)
+        axes.set(xlabel=knob, title=title)
+        axes.grid(alpha=0.3)
+        axes.legend(fontsize="small")
+    figure.savefig(path)
     return path
 
 

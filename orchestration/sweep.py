@@ -300,20 +300,10 @@ def summarize(sweep_dir: Path, rows: list[dict[str, Any]], config: dict[str, Any
 
 def plot_against(path: Path, rows: list[dict[str, Any]], method: str, x: str, line: str | None) -> Path:
     """Jerk and FID of ``method`` against the knob ``x``, one curve per value of the knob ``line``."""
-    from matplotlib.figure import Figure
+    from orchestration.reports import KNOB_METRICS, plot_against_knob
 
-    figure = Figure(figsize=(9, 3.6), dpi=100)
-    for index, metric in enumerate(("jerk", "fid")):
-        axes = figure.add_subplot(1, 2, index + 1)
-        for value in sorted({row[line] for row in rows}) if line else [None]:
-            points = sorted((row[x], row[f"multi/{method}/{metric}"]) for row in rows
-                            if (line is None or row[line] == value) and row[f"multi/{method}/{metric}"] is not None)
-            if points:
-                axes.plot(*zip(*points), marker="o", label=f"{line} = {value}" if line else method)
-        axes.set_xlabel(x)
-        axes.set_title(f"{'Jerk (transitions)' if metric == 'jerk' else 'FID (individual motions)'}")
-        axes.grid(alpha=0.3)
-        axes.legend()
-    figure.tight_layout()
-    figure.savefig(path)
-    return path
+    values = sorted({row[line] for row in rows}) if line else [None]
+    series = {metric: {(f"{line} = {value}" if line else method): [
+        (row[x], row[f"multi/{method}/{metric}"], None) for row in rows if line is None or row[line] == value]
+        for value in values} for metric, _ in KNOB_METRICS}
+    return plot_against_knob(path, series, x)

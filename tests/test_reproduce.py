@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
+from bench import reproduce
 from bench.reproduce import Scale, plot, report
+from orchestration.runs import new_run_dir, newest_run, write_run_info
 
 SCALE = Scale(vq_steps=10, diffusion_steps=10, repeats=2, ts=(0, 90, 100))
 
@@ -31,3 +35,33 @@ def test_a_complete_report_has_both_tables_and_every_point_of_the_curve():
         assert heading in text
     assert "| slerp | 2.500 ± 0.010 | 3.500 ± 0.010 | 1.500 ± 0.010 |" in text
     assert text.count("T_s = 0 |") == 2 and "| – |" not in text.split("## Ground truth")[0]
+
+
+def test_a_stopped_reproduction_continues_where_it_stopped(tmp_path, monkeypatch):
+    """A stage killed midway is resumed (not started again); finished stages are not run again."""
+    monkeypatch.chdir(tmp_path)
+    calls: list[tuple[str, ...]] = []
+
+    def killed_once(*argv: str) -> None:
+        calls.append(argv)
+        if argv[0] == "train-vq" and "--resume" not in argv:
+            new_run_dir("synthetic", "vq")  # the kill comes after the run folder exists
+            raise SystemExit("killed")
+        run_dir = newest_run("synthetic", "vq") if "--resume" in argv else new_run_dir("synthetic", "vq")
+        write_run_info(run_dir, status="finished")
+
+    monkeypatch.setattr(reproduce, "run", killed_once)
+    state = tmp_path / "state.json"
+    vq = ("train-vq", "--config", "demo")
+    with pytest.raises(SystemExit):
+        reproduce.Progress(state, SCALE, restart=False).stage(
+            "vq", "vq", str, *vq, resume=(*vq, "--resume"))
+    progress = reproduce.Progress(state, SCALE, restart=False)
+    first = progress.stage("vq", "vq", str, *vq, resume=(*vq, "--resume"))
+    assert calls == [vq, (*vq, "--resume")]
+    assert first == str(newest_run("synthetic", "vq"))
+    assert progress.stage("vq", "vq", str, *vq, resume=(*vq, "--resume")) == first and len(calls) == 2
+
+    with pytest.raises(SystemExit, match="another scale"):
+        reproduce.Progress(state, Scale(1, 1, 1, (90, 100)), restart=False)
+    assert reproduce.Progress(state, Scale(1, 1, 1, (90, 100)), restart=True).state["finished"] == {}
