@@ -16,7 +16,11 @@ For the test set's instances, ``--seeds`` seeds each, and every T_s given, this 
   t = T_s, 1 − γ̄_{T_s} (what survives into the independent phase; ᾱ_{T_s} of it is data);
 * the paper's Jerk (eq. 10, fps 1, 40 frames) of each boundary, TPS minus independent, paired,
   with its 95 % interval, and the same for the middle of each action as a control: an effect
-  that is there too is not a transition effect.
+  that is there too is not a transition effect;
+* the power of `m2d2m evaluate`: its Jerk is a mean over the test set's sequences, which stay
+  the same from repeat to repeat, so only the seed-to-seed spread of a sequence's Jerk (σ, from
+  the seeds here) moves it, and R repeats of n instances give a 95 % half-width of
+  1.96·σ/√(R·n).
 
     python bench/tps_boundaries.py [--checkpoint latest] [--testset data/synthetic/testsets/n4-seed0-distinct]
                                    [--ts 0 50 90] [--seeds 2] [--out runs/synthetic/reproduction/boundaries]
@@ -27,6 +31,7 @@ It writes ``boundaries.md`` and ``boundaries.png`` in ``--out`` and prints the t
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +45,7 @@ from orchestration.generate import load_generator
 from pipelines.testset import load_testset
 
 NEAREST = 12  # token distances from a boundary reported one by one; farther ones are pooled
+POWER_TARGET = 0.03  # the Jerk half-width the evaluation is sized for (docs/evaluation.md, Power)
 
 
 @dataclass
@@ -87,6 +93,18 @@ def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     return float(difference.mean()), float(CI95_Z * difference.std(ddof=1) / np.sqrt(len(difference)))
 
 
+def seed_spread(paired: Paired, seeds: int) -> float:
+    """σ of a sequence's Jerk (as `m2d2m evaluate` averages it: over its boundaries) from one
+    seed to another, pooled over the instances (sequences are in seed-major order)."""
+    per_sequence = np.nanmean(paired.boundary_jerk, axis=1).reshape(seeds, -1)
+    return float(np.sqrt(np.nanmean(per_sequence.var(axis=0, ddof=1))))
+
+
+def repeats_for(sigma: float, instances: int, half_width: float = POWER_TARGET) -> int:
+    """Repeats of ``instances`` sequences that bring 1.96·σ/√(R·n) to ``half_width``."""
+    return max(1, math.ceil((CI95_Z * sigma / half_width) ** 2 / instances))
+
+
 def sample(generator, actions, frames, ts: int, seeds: list[int]) -> Paired:
     options = generator.options(MULTI, method="tps", ts=ts)
     motions: list[Motion] = []
@@ -115,9 +133,11 @@ def main(argv: list[str] | None = None) -> None:
     seeds = [1000 * (i // len(testset)) + instance.index for i, instance in enumerate(instances)]
 
     independent = sample(generator, actions, frames, schedule.steps, seeds)
+    spreads = {f"independent (T_s = {schedule.steps})": seed_spread(independent, args.seeds)}
     rows, curves = [], {}
     for ts in sorted(args.ts):
         tps = sample(generator, actions, frames, ts, seeds)
+        spreads[f"TPS, T_s = {ts}"] = seed_spread(tps, args.seeds)
         curves[ts] = changed_by_distance(tps, independent)
         boundary = paired_difference(tps.boundary_jerk, independent.boundary_jerk)
         middle = paired_difference(tps.middle_jerk, independent.middle_jerk)
@@ -128,14 +148,14 @@ def main(argv: list[str] | None = None) -> None:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    text = report(rows, len(testset), args.seeds, float(np.nanmean(independent.boundary_jerk)),
+    text = report(rows, spreads, len(testset), args.seeds, float(np.nanmean(independent.boundary_jerk)),
                   float(np.nanmean(independent.middle_jerk)), schedule.steps, args)
     (out / "boundaries.md").write_text(text, encoding="utf-8")
     plot(out / "boundaries.png", curves)
     print(text)
 
 
-def report(rows, instances: int, seeds: int, independent_boundary: float, independent_middle: float,
+def report(rows, spreads: dict[str, float], instances: int, seeds: int, independent_boundary: float, independent_middle: float,
            steps: int, args: argparse.Namespace) -> str:
     pm = "{:+.3f} ± {:.3f}".format
     lines = [f"# TPS against independent sampling, paired ({args.checkpoint}, {args.testset})", "",
@@ -149,7 +169,12 @@ def report(rows, instances: int, seeds: int, independent_boundary: float, indepe
                      f"{changed[NEAREST]:.3f} | {pm(*boundary)} | {pm(*middle)} | "
                      + ", ".join(pm(*b) for b in per_boundary) + " |")
     lines += ["", "Δ = TPS minus independent sampling on the same instance and seed; ± is the 95 % half-width "
-              "over the pairs.", "", "![tokens changed by distance from the boundary](boundaries.png)", ""]
+              "over the pairs.", "", "![tokens changed by distance from the boundary](boundaries.png)", "",
+              f"Power: σ is a sequence's Jerk's seed-to-seed standard deviation; R is the number of repeats "
+              f"of these {instances} instances that gives `m2d2m evaluate` a Jerk half-width of {POWER_TARGET}.",
+              "", "| sampling | σ | R |", "| --- | --- | --- |"]
+    lines += [f"| {name} | {sigma:.3f} | {repeats_for(sigma, instances)} |" for name, sigma in spreads.items()]
+    lines += [""]
     return "\n".join(lines)
 
 

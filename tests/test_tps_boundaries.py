@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.tps_boundaries import NEAREST, Paired, changed_by_distance, distance_to_boundary, main, paired_difference
+from bench.tps_boundaries import (NEAREST, Paired, changed_by_distance, distance_to_boundary, main, paired_difference,
+                                 repeats_for, seed_spread)
 
 
 def test_distance_to_the_nearest_boundary_counts_both_neighbours_as_zero():
@@ -39,3 +40,11 @@ def test_tps_at_t_equals_independent_and_a_joint_phase_changes_tokens(trained_pr
     # a whole joint phase sees the other actions: tokens change
     assert max(float(cell) for cell in rows["0"][2:5]) > 0
     assert (out / "boundaries.png").stat().st_size > 0 and "T_s" in capsys.readouterr().out
+
+
+def test_power_from_the_seed_to_seed_spread():
+    # two seeds (seed-major) of two instances, one boundary each: per-instance variances 2 and 0
+    paired = Paired([], [], np.array([[1.0], [5.0], [3.0], [5.0]]), np.zeros((4, 1)))
+    assert seed_spread(paired, seeds=2) == pytest.approx(1.0)
+    # 1.96 · 1 / √(R · 2) ≤ 0.5  ⇔  R ≥ 7.68
+    assert repeats_for(1.0, instances=2, half_width=0.5) == 8
