@@ -2,9 +2,9 @@
 CVPR 2024, §3.2 and supplement §F–G): how training corrupts a token sequence and how parallel
 decoding schedules what stays masked. No network and no parameters, like the other processes.
 
-- Training masks r·L of a sequence's L tokens, r ~ U(α, 1) (§3.2; Table 4 ablates α, 0.5 by
-  default), chosen uniformly among its real positions; the loss is the cross-entropy of the
-  masked tokens (eq. 2).
+- Training masks r·L of a sequence's L tokens, rounded and at least one, r ~ U(α, 1) (§3.2;
+  Table 4 ablates α, 0.5 by default), chosen uniformly among its real positions; the loss is
+  the cross-entropy of the masked tokens (eq. 2).
 - Decoding starts from an all-[MASK] canvas. After iteration t of T_dyn, n_M(t) = ⌈γ(t / T_dyn)·L⌉
   tokens are masked again (supplement eq. 4): those the model is least confident about. γ is a
   decaying function (§G): ``cosine`` cos(π/2·x), ``linear`` 1 − x, or the supplement's third,
@@ -64,13 +64,13 @@ def masked_counts(length: int, iterations: int, schedule: str = "cosine") -> lis
 
 def training_mask(lengths: Tensor, width: int, alpha: float, generator: torch.Generator | None = None) -> Tensor:
     """(B, width) bool, True where a token is replaced by [MASK]: for each sequence of
-    ``lengths[b]`` real tokens, ⌈r·L⌉ of them (at least one), r ~ U(α, 1), chosen uniformly."""
+    ``lengths[b]`` real tokens, round(r·L) of them (at least one), r ~ U(α, 1), chosen uniformly."""
     if not 0.0 <= alpha <= 1.0:
         raise ValueError(f"alpha must lie in [0, 1], got {alpha}")
     device = lengths.device
     batch = len(lengths)
     ratio = alpha + (1.0 - alpha) * torch.rand(batch, generator=generator, device=device)
-    count = torch.ceil(ratio * lengths).clamp(min=1).long()
+    count = torch.round(ratio * lengths).clamp(min=1).long()
     real = torch.arange(width, device=device)[None, :] < lengths[:, None]
     # a random order of each row's real positions (padding sorts last); the first `count` are masked
     noise = torch.rand(batch, width, generator=generator, device=device).masked_fill(~real, 2.0)
