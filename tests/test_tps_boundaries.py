@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.tps_boundaries import (NEAREST, Paired, changed_by_distance, distance_to_boundary, main, paired_difference,
-                                 repeats_for, seed_spread)
+                                 another_seed, repeats_for, seed_spread)
 
 
 def test_distance_to_the_nearest_boundary_counts_both_neighbours_as_zero():
@@ -48,3 +48,11 @@ def test_power_from_the_seed_to_seed_spread():
     assert seed_spread(paired, seeds=2) == pytest.approx(1.0)
     # 1.96 · 1 / √(R · 2) ≤ 0.5  ⇔  R ≥ 7.68
     assert repeats_for(1.0, instances=2, half_width=0.5) == 8
+
+
+def test_another_seed_compares_the_same_instance_across_seeds():
+    # seed-major: two instances under seed 0, then the same two under seed 1; boundary before token 2
+    tokens = [np.array([1, 2, 3, 4]), np.array([5, 6, 7, 8]), np.array([1, 9, 3, 4]), np.array([5, 6, 7, 8])]
+    independent = Paired(tokens, [[2]] * 4, np.zeros((4, 1)), np.zeros((4, 2)))
+    # distance 0 holds tokens 1 and 2 of both instances: one of the four differs; distance 1 none
+    assert another_seed(independent, instances=2)[:2].tolist() == [0.25, 0.0]
