@@ -1,0 +1,104 @@
+"""MMM's confidence-based parallel decoding (Pinyoanuntapong et al., CVPR 2024, §3.2, supplement
+§F–H), over any predictor of token logits.
+
+Each sequence starts as a canvas of [MASK] wherever it is free (kept tokens — editing — are
+given and never change). An iteration predicts every masked position at once, draws a token for
+each (temperature, then top-k and top-p filtering: supplement §H), and masks again the
+n_M(t) drawn tokens the model was least sure of (the model's own probability of the drawn token,
+before temperature and filtering, so that top-k = 1 still ranks positions), with
+n_M(t) from :func:`m2d2m.processes.masking.masked_counts` over the sequence's own T_dyn
+iterations and its free positions. Tokens once decided stay decided, as in MaskGIT.
+
+Randomness is per sequence: each has its own generator and draws one uniform per position per
+iteration, so a sequence's result does not depend on the rest of the batch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from m2d2m.processes.masking import SCHEDULES, dynamic_iterations, least_confident, masked_counts
+
+FREE = -1  # a position of ``given`` that decoding fills
+
+Predictor = Callable[[Tensor], Tensor]  # (B, L) tokens with [MASK] → (B, L, K) logits
+
+
+@dataclass(frozen=True)
+class DecodingOptions:
+    """Knobs of parallel decoding; the defaults are the paper's (10 iterations for the longest
+    motion, cosine schedule, temperature 1, no filtering)."""
+
+    iterations: int = 10
+    schedule: str = "cosine"
+    temperature: float = 1.0
+    top_k: int | None = None
+    top_p: float | None = None
+
+    def check(self) -> None:
+        if self.iterations < 1:
+            raise ValueError(f"iterations must be >= 1, got {self.iterations}")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"unknown mask schedule {self.schedule!r}: choose one of {', '.join(SCHEDULES)}")
+        if not self.temperature > 0:
+            raise ValueError(f"temperature must be > 0, got {self.temperature}")
+        if self.top_k is not None and self.top_k < 1:
+            raise ValueError(f"top_k must be >= 1, got {self.top_k}")
+        if self.top_p is not None and not 0 < self.top_p <= 1:
+            raise ValueError(f"top_p must lie in (0, 1], got {self.top_p}")
+
+
+def filtered_probabilities(logits: Tensor, options: DecodingOptions) -> Tensor:
+    """softmax(logits / temperature), keeping the ``top_k`` most probable codes and the fewest
+    whose mass reaches ``top_p`` (the most probable always stays), renormalised; float64."""
+    probs = torch.softmax(logits.double() / options.temperature, dim=-1)
+    keep = torch.ones_like(probs, dtype=torch.bool)
+    ordered, order = probs.sort(dim=-1, descending=True)
+    rank = torch.empty_like(order).scatter_(-1, order, torch.arange(probs.shape[-1], device=probs.device).expand_as(order))
+    if options.top_k is not None:
+        keep &= rank < options.top_k
+    if options.top_p is not None:
+        before = (ordered.cumsum(dim=-1) - ordered).gather(-1, rank)  # mass of the more probable codes
+        keep &= before < options.top_p
+    kept = probs * keep
+    return kept / kept.sum(dim=-1, keepdim=True)
+
+
+def schedule_table(free: list[int], longest: int, options: DecodingOptions) -> Tensor:
+    """(B, I) long: how many of each sequence's free positions stay masked after iteration i,
+    over its own T_dyn iterations (then 0); I is the longest T_dyn of the batch."""
+    counts = [masked_counts(n, dynamic_iterations(n, longest, options.iterations), options.schedule) if n else [0]
+              for n in free]
+    width = max(len(c) for c in counts)
+    return torch.tensor([c + [0] * (width - len(c)) for c in counts], dtype=torch.long)
+
+
+def decode(predict: Predictor, given: Tensor, valid: Tensor, mask_id: int, longest: int,
+           options: DecodingOptions, seeds: list[int]) -> Tensor:
+    """Tokens (B, L) for a batch: ``given`` (B, L) holds kept codes and :data:`FREE` where to
+    generate, ``valid`` (B, L) marks each sequence's positions (the rest is returned as given);
+    ``longest`` is M of T_dyn, the token length given all ``options.iterations``."""
+    options.check()
+    device = given.device
+    free = (given == FREE) & valid
+    tokens = torch.where(free, torch.full_like(given, mask_id), given)
+    counts = schedule_table(free.sum(dim=1).tolist(), longest, options).to(device)
+    generators = [torch.Generator(device=device).manual_seed(int(seed)) for seed in seeds]
+    for iteration in range(counts.shape[1]):
+        masked = tokens == mask_id
+        if not masked.any():
+            break
+        logits = predict(tokens)
+        probs = filtered_probabilities(logits, options)
+        uniforms = torch.stack([torch.rand(given.shape[1], generator=g, dtype=torch.float64, device=device)
+                                for g in generators])
+        cdf = probs.cumsum(dim=-1)
+        drawn = (cdf <= uniforms[..., None] * cdf[..., -1:]).sum(dim=-1).clamp_max(probs.shape[-1] - 1)
+        confidence = torch.softmax(logits.double(), dim=-1).gather(-1, drawn[..., None])[..., 0]
+        again = least_confident(confidence, masked, counts[:, iteration].clamp(max=masked.sum(dim=1)))
+        tokens = torch.where(masked & ~again, drawn, tokens)
+    return tokens
