@@ -308,3 +308,23 @@ def test_model_files_without_output_smoothing_load_as_t2m_gpts_decoder():
     config = SMALL.to_dict()
     del config["output_smoothing"]
     assert VQConfig.from_dict(config).output_smoothing == 0.0
+
+
+def test_mmm_reset_waits_for_its_interval_and_spares_codes_used_in_it():
+    torch.manual_seed(2)
+    quantizer = EMACodebook(4, 2, decay=0.5, reset_every=3).train()
+    set_codebook(quantizer, CORNERS, [2.0, 2.0, 2.0, 2.0])
+    near = {code: CORNERS[code][None] + 0.1 for code in range(4)}
+    quantizer(near[2])  # step 1: code 2 used once in the interval
+    for _ in range(2):  # steps 2 and 3: only code 0; codes 1 and 3 unused for the whole interval
+        before = quantizer.codebook.clone()
+        quantizer(torch.cat([near[0], near[0]]))
+    # step 2 reset nothing although counts fell below 1 (code 1: 2·0.5³ = 0.25)
+    assert quantizer.code_count[1] < 1
+    # step 3 (the interval's end) re-drew codes 1 and 3 from the batch (jittered copies: 2 vectors
+    # for 4 codes), kept code 2 (used at step 1)
+    for code in (1, 3):
+        assert torch.dist(quantizer.codebook[code], near[0][0]) < 5 * 0.01 / math.sqrt(2)
+    torch.testing.assert_close(quantizer.codebook[2], before[2])
+    assert quantizer.recent_usage.sum() == 0 and int(quantizer.updates) == 3
+    assert "recent_usage" not in EMACodebook(4, 2).state_dict()  # T2M-GPT's files keep their buffers

@@ -48,13 +48,17 @@ class VQConfig(NetworkConfig):
     code_dim: int = 512
     codebook_size: int = 512
     ema_decay: float = 0.99
+    # dead-code reset: every step, dead = EMA count below 1 (T2M-GPT), or every N steps, dead =
+    # unused by the last N batches (MMM resets every 20; see :class:`EMACodebook`)
+    reset_every: int = 1
     activation: str = "relu"
     # σ (frames) of a fixed Gaussian low-pass on the decoder's output, trained through; 0 is
     # T2M-GPT's decoder. Not in T2M-GPT: see :class:`TemporalLowPass` and docs/training.md.
     output_smoothing: float = 0.0
 
     def __post_init__(self) -> None:
-        self.require_positive("feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size")
+        self.require_positive("feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size",
+                              "reset_every")
         if not isinstance(self.down_t, int) or self.down_t < 0:
             raise ConfigError(f"VQConfig.down_t must be a non-negative integer, got {self.down_t!r}")
         self.require_fraction("ema_decay", open_low=True)
@@ -97,17 +101,27 @@ class EMACodebook(nn.Module):
     reference, its EMA statistics are not reset: it stays dead (and is re-drawn every step) until
     its count climbs back to 1, i.e. until it averages more than one vector per batch, so batches
     need several encoder outputs per code.
+
+    With ``reset_every`` = N > 1 (MMM's tokenizer, N = 20: Pinyoanuntapong et al., CVPR 2024,
+    supplement §C) codes are reset only every N steps, and a code is dead when none of the last N
+    batches used it: a large codebook (8192) then keeps rarely used codes instead of re-drawing
+    them every step. Its usage counter exists only then, so T2M-GPT-style model files keep their
+    buffers.
     """
 
-    def __init__(self, codebook_size: int, code_dim: int, decay: float = 0.99) -> None:
+    def __init__(self, codebook_size: int, code_dim: int, decay: float = 0.99, reset_every: int = 1) -> None:
         super().__init__()
         self.codebook_size = codebook_size
         self.code_dim = code_dim
         self.decay = decay
+        self.reset_every = reset_every
         self.register_buffer("codebook", torch.zeros(codebook_size, code_dim))
         self.register_buffer("code_sum", torch.zeros(codebook_size, code_dim))
         self.register_buffer("code_count", torch.zeros(codebook_size))
         self.register_buffer("initialised", torch.tensor(False))
+        if reset_every > 1:
+            self.register_buffer("recent_usage", torch.zeros(codebook_size))
+            self.register_buffer("updates", torch.tensor(0))
 
     def _sample(self, vectors: torch.Tensor) -> torch.Tensor:
         """``codebook_size`` rows drawn from ``vectors`` without replacement; when there are
@@ -148,10 +162,21 @@ class EMACodebook(nn.Module):
         mu = self.decay
         self.code_sum.mul_(mu).add_(sums, alpha=1.0 - mu)
         self.code_count.mul_(mu).add_(counts, alpha=1.0 - mu)
-        count = self.code_count.unsqueeze(1)
-        live = count >= 1.0
-        mean = self.code_sum / count.clamp_min(1.0)
-        self.codebook.copy_(torch.where(live, mean, self._sample(vectors)))
+        mean = self.code_sum / self.code_count.unsqueeze(1).clamp_min(1e-12)
+        # drawn every step, dead codes or not, so every rank takes part in its broadcast
+        self.codebook.copy_(torch.where(self._dead(counts).unsqueeze(1), self._sample(vectors), mean))
+
+    def _dead(self, counts: torch.Tensor) -> torch.Tensor:
+        """(K,) bool: the codes to re-draw after this step's update."""
+        if self.reset_every == 1:
+            return self.code_count < 1.0
+        self.recent_usage.add_(counts)
+        self.updates.add_(1)
+        if int(self.updates) % self.reset_every:
+            return torch.zeros_like(self.code_count, dtype=torch.bool)
+        dead = self.recent_usage == 0
+        self.recent_usage.zero_()
+        return dead
 
     def forward(self, x: torch.Tensor) -> Quantized:
         """Quantize ``x`` (..., code_dim). In training mode the first call initialises the
@@ -278,7 +303,8 @@ class MotionVQVAE(nn.Module):
         super().__init__()
         self.config = config or VQConfig()
         self.encoder = _encoder(self.config)
-        self.quantizer = EMACodebook(self.config.codebook_size, self.config.code_dim, self.config.ema_decay)
+        self.quantizer = EMACodebook(self.config.codebook_size, self.config.code_dim, self.config.ema_decay,
+                                     self.config.reset_every)
         self.decoder = _decoder(self.config)
 
     @property
