@@ -36,6 +36,14 @@ class TextEncoder(nn.Module):
     def encode(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
 
+    def encode_pooled(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """:meth:`encode`'s features and mask, and one (N, dim) vector per sentence, for models that
+        condition on a sentence embedding as well as on words (MMM prepends it as a token): the
+        mean of the sentence's real token features; CLIP gives its own pooled feature instead."""
+        features, mask = self.encode(sentences)
+        weights = mask.to(features.dtype)[..., None]
+        return features, mask, (features * weights).sum(dim=1) / weights.sum(dim=1)
+
     @property
     def device(self) -> torch.device:
         return next(self.parameters()).device
@@ -66,12 +74,18 @@ class CLIPTextEncoder(TextEncoder):
         """Stays in eval mode: the tower is frozen, so a trainer's ``.train()`` must not wake dropout."""
         return super().train(False)
 
-    @torch.no_grad()
     def encode(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        features, mask, _ = self.encode_pooled(sentences)
+        return features, mask
+
+    @torch.no_grad()
+    def encode_pooled(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Token features, mask and CLIP's pooled sentence feature (the end-of-text token's, after
+        the final layer norm), all from one pass of the tower."""
         batch = self.tokenizer(list(sentences), padding=True, truncation=True, max_length=self.max_length,
                                return_tensors="pt").to(self.device)
-        features = self.model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"]).last_hidden_state
-        return features, batch["attention_mask"].bool()
+        output = self.model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"])
+        return output.last_hidden_state, batch["attention_mask"].bool(), output.pooler_output
 
 
 def _words(sentence: str) -> list[str]:

@@ -149,3 +149,20 @@ def test_clip_missing_weights_give_one_clear_error(tmp_path: Path, offline):
     assert "\n" not in message and str(missing) in message and "save_pretrained" in message
     with pytest.raises(FileNotFoundError, match="nothing is downloaded"):
         CLIPTextEncoder("nobody/not-a-cached-model")
+
+
+def test_clip_sentence_feature_is_the_end_of_text_token(tiny_clip: Path):
+    encoder = CLIPTextEncoder(str(tiny_clip))
+    features, mask, pooled = encoder.encode_pooled(["the walk", "a person runs"])
+    ends = mask.sum(1) - 1  # <|endoftext|> is each sentence's last real token
+    torch.testing.assert_close(pooled, features[torch.arange(2), ends])
+    torch.testing.assert_close(encoder.encode(["the walk", "a person runs"])[0], features)
+
+
+def test_learned_sentence_feature_is_the_mean_of_its_real_tokens():
+    encoder = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(["a person walks", "a person jumps high"]),
+                                 dim=16, layers=1, heads=2, dropout=0.0).eval()
+    features, mask, pooled = encoder.encode_pooled(["a person walks", "a person jumps high"])
+    assert mask.sum(1).tolist() == [3, 4]
+    torch.testing.assert_close(pooled[0], features[0, :3].mean(0))  # the padded fourth slot is left out
+    torch.testing.assert_close(pooled[1], features[1].mean(0))
