@@ -187,6 +187,19 @@ def encode_actions(encoder: TextEncoder, actions_per_caption: list[list[str]]) -
 _KINDS = {"clip": CLIPTextEncoder, "learned": LearnedTextEncoder}
 
 
+def text_encoder_from_config(text: dict[str, Any], vocabulary: list[str] | None = None) -> TextEncoder:
+    """A training run's text encoder from its ``text`` config section (``kind`` and options); a
+    ``learned`` one takes the vocabulary of the run's training captions."""
+    options = {k: v for k, v in text.items() if k != "kind"}
+    kind = text.get("kind", "learned")
+    if kind == "learned":
+        if vocabulary is None:
+            raise ValueError("a 'learned' text encoder needs a vocabulary "
+                             "(LearnedTextEncoder.build_vocabulary over the training captions)")
+        options["vocabulary"] = list(vocabulary)
+    return build_text_encoder(kind, **options)
+
+
 def build_text_encoder(kind: str, **options: Any) -> TextEncoder:
     """``clip`` (options: path, max_length) or ``learned`` (options: vocabulary, dim, layers, heads, ...)."""
     if kind not in _KINDS:

@@ -66,3 +66,11 @@ def test_bad_settings_and_inputs_are_refused():
         model(torch.tensor([[CONFIG.mask_id + 1]]), *text(1))
     with pytest.raises(ValueError, match="exceed"):
         model(torch.zeros(1, 12, dtype=torch.long), *text(1))  # 10 tokens + [END] fit, 12 positions do not
+
+
+def test_canvas_ends_each_sequence_and_pads_the_rest():
+    from m2d2m.networks.mmm_transformer import canvas
+
+    tokens = torch.tensor([[1, 2, 3], [4, CONFIG.mask_id, 9]])
+    E, P = CONFIG.end_id, CONFIG.pad_id
+    assert canvas(tokens, torch.tensor([3, 1]), CONFIG).tolist() == [[1, 2, 3, E], [4, E, P, P]]

@@ -14,7 +14,7 @@ from m2d2m.generators.m2d2m_sampling import TokenSampler
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
-from m2d2m.text import build_text_encoder, encode_actions
+from m2d2m.text import encode_actions, text_encoder_from_config
 from training.optim import configure_adamw
 from training.vq_module import NonFiniteLossError
 
@@ -53,14 +53,7 @@ class M2D2MModule(pl.LightningModule):
         num_codes = codebook.shape[0]
         steps = int(diffusion.get("steps", 100))
 
-        text_options = {k: v for k, v in text.items() if k != "kind"}
-        kind = text.get("kind", "learned")
-        if kind == "learned":
-            if vocabulary is None:
-                raise ValueError("a 'learned' text encoder needs a vocabulary "
-                                 "(LearnedTextEncoder.build_vocabulary over the training captions)")
-            text_options["vocabulary"] = list(vocabulary)
-        self.text_encoder = build_text_encoder(kind, **text_options)
+        self.text_encoder = text_encoder_from_config(text, vocabulary)
 
         config = {**denoiser, "codebook_size": num_codes, "steps": steps, "text_dim": self.text_encoder.dim}
         if "text_dim" in denoiser and denoiser["text_dim"] != self.text_encoder.dim:

@@ -72,6 +72,16 @@ class MaskedTransformerConfig(NetworkConfig):
         return self.codebook_size + 2
 
 
+def canvas(tokens: torch.Tensor, lengths: torch.Tensor, config: MaskedTransformerConfig) -> torch.Tensor:
+    """The network's input (B, W + 1) for ``tokens`` (B, W) of which the first ``lengths[b]`` are
+    sequence b's (codes or [MASK]): [END] right after each sequence's last token, [PAD] after that."""
+    batch, width = tokens.shape
+    position = torch.arange(width + 1, device=tokens.device)[None, :]
+    padded = torch.cat([tokens, torch.full((batch, 1), config.pad_id, dtype=tokens.dtype, device=tokens.device)], 1)
+    padded = torch.where(position < lengths[:, None], padded, torch.full_like(padded, config.pad_id))
+    return torch.where(position == lengths[:, None], torch.full_like(padded, config.end_id), padded)
+
+
 class MaskedBlock(nn.Module):
     """Pre-norm attention (to the sequence itself, or to the words) and a GELU feed-forward."""
 

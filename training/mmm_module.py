@@ -1,0 +1,78 @@
+"""MMM's masked transformer as a LightningModule: masked-token prediction on VQ tokens with a text
+condition (Pinyoanuntapong et al., CVPR 2024, §3.2, eq. 2) and deterministic validation."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import lightning.pytorch as pl
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas
+from m2d2m.processes.masking import training_mask
+from m2d2m.text import text_encoder_from_config
+from training.optim import configure_adamw
+from training.vq_module import NonFiniteLossError
+
+
+class MMMModule(pl.LightningModule):
+    """Cross-entropy of the masked tokens, r ~ U(α, 1) of each caption's tokens masked; AdamW
+    with warm-up and step decay. The tokenizer's codebook embeds the codes and is never trained.
+    Each training sample is one caption and its segment of the tokens; the condition is the
+    caption's sentence feature (prepended) and word features (cross-attended)."""
+
+    def __init__(self, transformer: dict[str, Any], text: dict[str, Any], masking: dict[str, Any],
+                 optim: dict[str, Any], codebook: torch.Tensor | np.ndarray,
+                 vocabulary: list[str] | None = None) -> None:
+        super().__init__()
+        self.save_hyperparameters(ignore=["codebook"])
+        codebook = torch.as_tensor(np.asarray(codebook) if not torch.is_tensor(codebook) else codebook).float()
+        if codebook.dim() != 2:
+            raise ValueError(f"codebook must have shape (K, code_dim), got {tuple(codebook.shape)}")
+        self.text_encoder = text_encoder_from_config(text, vocabulary)
+        config = MaskedTransformerConfig.from_dict({**transformer, "codebook_size": codebook.shape[0],
+                                                    "code_dim": codebook.shape[1], "text_dim": self.text_encoder.dim})
+        self.transformer = MaskedMotionTransformer(config, codebook)
+        self.alpha = float(masking.get("alpha", 0.5))
+
+    def _condition(self, captions: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        words, word_mask, sentence = self.text_encoder.encode_pooled(list(captions))
+        device = self.transformer.codebook.device
+        return sentence.to(device), words.to(device), word_mask.to(device)
+
+    def _predict(self, batch: dict[str, Any], generator: torch.Generator | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Mask the batch's tokens and predict them: (codes, masked positions, logits)."""
+        config = self.transformer.config
+        codes, valid = batch["tokens"].long(), batch["padding_mask"].bool()
+        lengths = valid.sum(dim=1)
+        masked = training_mask(lengths, codes.shape[1], self.alpha, generator)
+        inputs = canvas(codes.masked_fill(masked, config.mask_id), lengths, config)
+        logits = self.transformer(inputs, *self._condition(batch["text"]))[:, :-1]
+        return codes, masked, logits
+
+    def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
+        codes, masked, logits = self._predict(batch)
+        loss = F.cross_entropy(logits[masked], codes[masked])
+        if not torch.isfinite(loss):
+            raise NonFiniteLossError(f"the training loss is {loss.item()} at step {self.global_step}")
+        self.log("train/loss", loss, batch_size=codes.shape[0], prog_bar=True)
+        return loss
+
+    def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
+        """The same masks in every validation pass (a generator seeded with ``batch_idx``), so the
+        numbers are comparable across steps."""
+        codes = batch["tokens"]
+        generator = torch.Generator(device=codes.device).manual_seed(int(batch_idx))
+        codes, masked, logits = self._predict(batch, generator)
+        total = int(masked.sum())
+        loss = F.cross_entropy(logits[masked], codes[masked])
+        accuracy = (logits[masked].argmax(dim=-1) == codes[masked]).float().mean()
+        self.log("val/loss", loss, batch_size=total, sync_dist=True, prog_bar=True)
+        self.log("val/masked_accuracy", accuracy, batch_size=total, sync_dist=True, prog_bar=True)
+
+    def configure_optimizers(self) -> dict[str, Any]:
+        return configure_adamw([*self.transformer.parameters(), *self.text_encoder.parameters()], self.hparams.optim,
+                               decay_matrices_only=True)
