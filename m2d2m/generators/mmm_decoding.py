@@ -21,9 +21,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from m2d2m.generators.token_model import FREE
 from m2d2m.processes.masking import SCHEDULES, dynamic_iterations, least_confident, masked_counts
-
-FREE = -1  # a position of ``given`` that decoding fills
 
 Predictor = Callable[[Tensor], Tensor]  # (B, L) tokens with [MASK] → (B, L, K) logits
 

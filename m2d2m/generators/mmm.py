@@ -1,0 +1,176 @@
+"""MMM's generator (Pinyoanuntapong et al., CVPR 2024): action sentences and lengths in frames →
+tokens by confidence-based parallel decoding (:mod:`m2d2m.generators.mmm_decoding`) → motion by
+the VQ-VAE, from one model file (:mod:`m2d2m.generators.mmm_checkpoint`).
+
+Multi-action methods:
+
+- ``transition`` (MMM's long-sequence generation, §4 and supplement §I.3): every action's tokens
+  are generated alone; then, between neighbours, ``transition`` [MASK] tokens (2 = 8 frames) with
+  the end of the earlier action before them and the start of the later one after them — half of
+  each, as much as fits the transformer — are filled in a single decoding step, conditioned on the
+  earlier action's sentence. As with the SLERP baseline, every later action is ``transition``
+  tokens shorter, so a sequence is as long as asked and the transition frames belong to no action.
+- ``independent``: every action alone, tokens concatenated before decoding.
+
+Editing (``keep``) fixes the kept tokens while the rest is decoded, bit-exact, for one action or
+under ``independent``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from m2d2m.generators.mmm_checkpoint import MMMCheckpoint, load_mmm
+from m2d2m.generators.mmm_decoding import DecodingOptions, decode
+from m2d2m.generators.protocol import MULTI, SINGLE, Keep
+from m2d2m.generators.token_model import FREE, TokenModelGenerator
+from m2d2m.motion.clip import Motion
+from m2d2m.networks.mmm_transformer import canvas
+
+METHODS = ("transition", "independent")
+
+
+@dataclass(frozen=True)
+class MMMOptions:
+    """Knobs of MMM's sampling; the defaults are the paper's (10 iterations for the longest
+    motion, cosine schedule, temperature 1, 2 transition tokens)."""
+
+    method: str = "transition"
+    iterations: int = 10
+    schedule: str = "cosine"
+    temperature: float = 1.0
+    top_k: int | None = None
+    top_p: float | None = None
+    transition: int = 2  # [MASK] tokens between neighbouring actions (``transition``)
+
+    def decoding(self, iterations: int | None = None) -> DecodingOptions:
+        return DecodingOptions(self.iterations if iterations is None else iterations, self.schedule,
+                               self.temperature, self.top_k, self.top_p)
+
+
+@dataclass
+class _Row:
+    """One decoding row: its condition, its tokens (``given``: codes to keep, FREE to fill), a seed."""
+
+    sentence: str
+    given: torch.Tensor
+    seed: int
+
+
+def _seed(seed: int, *role: int) -> int:
+    """A row's seed from its sequence's and its role in it, so that no row depends on the batch."""
+    return int(np.random.SeedSequence([int(seed), *role]).generate_state(1)[0])
+
+
+class MMMGenerator(TokenModelGenerator):
+    """A loaded MMM model file behind the generator protocol."""
+
+    model = "mmm"
+    methods = METHODS
+    options_type = MMMOptions
+    presets = {MULTI: MMMOptions(), SINGLE: MMMOptions(method="independent")}
+
+    def __init__(self, checkpoint: MMMCheckpoint, source: Path) -> None:
+        self.checkpoint = checkpoint
+        self.source = source
+        self.codec, self.lengths, self.extra = checkpoint.codec, checkpoint.lengths, checkpoint.extra
+
+    @classmethod
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "MMMGenerator":
+        return cls(load_mmm(path, device), Path(path))
+
+    @property
+    def device(self) -> torch.device:
+        return self.checkpoint.transformer.codebook.device
+
+    @property
+    def max_tokens(self) -> int:
+        return self.checkpoint.transformer.config.max_tokens
+
+    def check_options(self, options: MMMOptions) -> None:
+        options.decoding().check()
+        if options.transition < 1:
+            raise ValueError(f"transition must be at least 1 token, got {options.transition}")
+
+    def describe(self, options: MMMOptions) -> str:
+        sampling = ", ".join(f"{name} {value}" for name, value in
+                             (("top-k", options.top_k), ("top-p", options.top_p)) if value is not None)
+        joined = f", {options.transition} transition tokens" if options.method == "transition" else ""
+        return (f"{options.iterations} iterations ({options.schedule}), temperature {options.temperature:g}"
+                + (f", {sampling}" if sampling else "") + joined)
+
+    # ----------------------------------------------------------------------------- the call
+    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: MMMOptions,
+                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
+                 progress: Callable[[float], None] | None = None) -> list[Motion]:
+        """Every action of every sequence decoded in one batch, then (``transition``) every
+        transition in a second, one decoding step; each sequence decoded by the VQ-VAE."""
+        keep = [None] * len(actions) if keep is None else keep
+        joined = options.method == "transition"
+        lengths = [[n if j == 0 or not joined else max(1, n - options.transition) for j, n in enumerate(tokens)]
+                   for tokens in self.tokens_of(frames)]
+        rows = []
+        for i, (sequence, tokens, seed, kept) in enumerate(zip(actions, lengths, seeds, keep)):
+            if kept is not None and joined and len(sequence) > 1:
+                raise ValueError("MMM keeps frames for one action at a time, or with --method independent")
+            given = self.given_tokens(kept, sum(tokens))
+            pieces = torch.full((sum(tokens),), FREE) if given is None else given
+            rows += [_Row(sentence, piece, _seed(seed, 0, j))
+                     for j, (sentence, piece) in enumerate(zip(sequence, pieces.split(tokens)))]
+        decoded = iter(self._decode(rows, options.decoding()))
+        pieces = [[next(decoded) for _ in sequence] for sequence in actions]
+        if progress is not None:
+            progress(0.5 if joined else 1.0)
+        gaps: list[list[torch.Tensor]] = [[] for _ in actions]
+        if joined:
+            gaps = self._transitions(actions, pieces, seeds, options)
+            if progress is not None:
+                progress(1.0)
+        settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
+        return [self.codec.motion(p, list(sequence), self.fps, {**settings, "seed": int(seed)}, g)
+                for p, g, sequence, seed in zip(pieces, gaps, actions, seeds)]
+
+    def _transitions(self, actions: Sequence[Sequence[str]], pieces: list[list[torch.Tensor]], seeds: Sequence[int],
+                     options: MMMOptions) -> list[list[torch.Tensor]]:
+        """The transition tokens between each pair of neighbours, all in one decoding step."""
+        side = (self.max_tokens - options.transition) // 2
+        rows, shapes = [], []
+        for i, (sequence, tokens, seed) in enumerate(zip(actions, pieces, seeds)):
+            for j in range(len(sequence) - 1):
+                before = tokens[j][-min(side, max(1, len(tokens[j]) // 2)):]
+                after = tokens[j + 1][:min(side, max(1, len(tokens[j + 1]) // 2))]
+                given = torch.cat([before, torch.full((options.transition,), FREE), after])
+                rows.append(_Row(sequence[j], given, _seed(seed, 1, j)))
+                shapes.append(len(before))
+        filled = iter(zip(self._decode(rows, options.decoding(iterations=1)) if rows else [], shapes))
+        return [[tokens[start:start + options.transition] for tokens, start in
+                 (next(filled) for _ in range(len(sequence) - 1))] for sequence in actions]
+
+    def _decode(self, rows: list[_Row], options: DecodingOptions) -> list[torch.Tensor]:
+        """Each row's tokens, the FREE positions decoded under its sentence."""
+        longest = max(len(row.given) for row in rows)
+        if longest > self.max_tokens:
+            raise ValueError(f"MMM generates at most {self.max_tokens} tokens "
+                             f"({self.max_tokens * self.frame_step} frames) per action; {longest} were asked for")
+        device = self.device
+        lengths = torch.tensor([len(row.given) for row in rows], device=device)
+        given = torch.full((len(rows), longest), FREE, dtype=torch.long, device=device)
+        for index, row in enumerate(rows):
+            given[index, :len(row.given)] = row.given.to(device)
+        valid = torch.arange(longest, device=device)[None, :] < lengths[:, None]
+        transformer, config = self.checkpoint.transformer, self.checkpoint.transformer.config
+        with torch.no_grad():
+            words, word_mask, sentence = self.checkpoint.text_encoder.encode_pooled([row.sentence for row in rows])
+
+            def predict(tokens: torch.Tensor) -> torch.Tensor:
+                inputs = canvas(tokens, lengths, config)  # [END], then [PAD] past each row
+                return transformer(inputs, sentence, words, word_mask)[:, :-1]
+
+            tokens = decode(predict, given, valid, config.mask_id, self.lengths.longest, options,
+                            [row.seed for row in rows])
+        return [tokens[index, :len(row.given)].cpu() for index, row in enumerate(rows)]

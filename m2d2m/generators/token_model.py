@@ -1,0 +1,164 @@
+"""What every generator over VQ-VAE motion tokens shares (M2D2M, MMM): the codec that turns
+features into tokens and back, the corpus's length prior, how a text encoder is kept in a model
+file, and the protocol's properties that follow from them (:class:`TokenModelGenerator`)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from m2d2m.generators.protocol import Keep, MotionGenerator
+from m2d2m.model_files import cpu_state
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.skeleton import SKELETONS, Skeleton
+from m2d2m.networks.vqvae import MotionVQVAE, vq_from_payload
+from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
+
+FREE = -1  # a token position a generator fills (the samplers' and decoders' convention)
+
+
+@dataclass
+class LengthPrior:
+    """Typical lengths in tokens: the median per verb over single-action training captions, and
+    the median over all of them for verbs never seen alone; ``longest`` is the longest clip."""
+
+    per_verb: dict[str, int]
+    median: int
+    longest: int
+
+    def tokens_for(self, verb: str | None) -> int:
+        return self.per_verb.get(verb or "", self.median)
+
+    def to_payload(self) -> dict[str, Any]:
+        return {"per_verb": dict(self.per_verb), "median": int(self.median), "longest": int(self.longest)}
+
+
+def text_payload(encoder: TextEncoder, text: dict[str, Any]) -> dict[str, Any]:
+    """A text encoder in a model file: its kind and options (the run's ``text`` section), and its
+    weights when it was trained (the frozen CLIP tower is found again by its path)."""
+    return {"kind": text.get("kind", "learned"), "options": {k: v for k, v in text.items() if k != "kind"},
+            "state_dict": cpu_state(encoder) if encoder.trainable else None}
+
+
+def text_encoder_from_payload(payload: dict[str, Any]) -> TextEncoder:
+    if payload["state_dict"] is not None and payload["kind"] == "learned":
+        return LearnedTextEncoder.from_state_dict(payload["state_dict"])
+    return build_text_encoder(payload["kind"], **payload["options"])
+
+
+@dataclass
+class TokenCodec:
+    """The VQ-VAE a token model decodes with, its normalisation and skeleton."""
+
+    vq: MotionVQVAE
+    normalizer: Normalizer
+    skeleton: Skeleton
+
+    @classmethod
+    def from_payload(cls, payload: dict[str, Any], device: str | torch.device = "cpu") -> "TokenCodec":
+        """From a VQ model file's payload embedded in a model's file, on ``device``, in eval mode."""
+        vq, normalizer, meta = vq_from_payload(payload, device)
+        return cls(vq, normalizer, SKELETONS[meta["skeleton"]])
+
+    @property
+    def frames_per_token(self) -> int:
+        return self.vq.frames_per_token
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.vq.parameters()).device
+
+    def encode(self, features: np.ndarray) -> torch.Tensor:
+        """Tokens (on the CPU) of un-normalised features (F, D): one per ``frames_per_token`` frames."""
+        with torch.no_grad():
+            normalized = torch.as_tensor(self.normalizer.normalize(features), dtype=torch.float32, device=self.device)
+            return self.vq.encode(normalized[None])[0].cpu()
+
+    def decode(self, tokens: torch.Tensor) -> np.ndarray:
+        """Un-normalised features (F, D) of one token sequence."""
+        with torch.no_grad():
+            return self.normalizer.denormalize(self.vq.decode(tokens[None].to(self.device))[0].cpu().numpy())
+
+    def motion(self, pieces: list[torch.Tensor], actions: list[str], fps: float, settings: dict[str, Any],
+               gaps: Sequence[torch.Tensor] = ()) -> Motion:
+        """One Motion from each action's tokens, decoded together in order, with ``gaps[j]`` (tokens
+        that belong to no action: a transition) between actions j and j + 1."""
+        stream, ranges, start = [], [], 0
+        per_token = self.frames_per_token
+        for j, piece in enumerate(pieces):
+            ranges.append((start * per_token, (start + len(piece)) * per_token))
+            stream.append(piece)
+            start += len(piece)
+            if j < len(gaps):
+                stream.append(gaps[j])
+                start += len(gaps[j])
+        tokens = torch.cat(stream)
+        features = self.decode(tokens)
+        joints = features_to_joints(features, self.skeleton)
+        return Motion(features, np.asarray(joints, dtype=np.float32), fps, self.skeleton.name, list(actions),
+                      ranges, settings, tokens.cpu().numpy())
+
+
+class TokenModelGenerator(MotionGenerator):
+    """The protocol's properties for a model over a :class:`TokenCodec`'s tokens; subclasses set
+    ``codec``, ``lengths``, ``extra`` and ``source`` and implement sampling."""
+
+    codec: TokenCodec
+    lengths: LengthPrior
+    extra: dict[str, Any]
+
+    @property
+    def skeleton(self) -> Skeleton:
+        return self.codec.skeleton
+
+    @property
+    def feature_dim(self) -> int:
+        return int(self.codec.normalizer.mean.shape[-1])
+
+    @property
+    def data_dir(self) -> Path | None:
+        data_dir = self.extra.get("data_dir")
+        return Path(data_dir) if data_dir else None
+
+    @property
+    def frame_step(self) -> int:
+        return self.codec.frames_per_token
+
+    def typical_frames(self, verb: str | None) -> int:
+        return self.lengths.tokens_for(verb) * self.frame_step
+
+    @property
+    def longest_frames(self) -> int:
+        return self.lengths.longest * self.frame_step
+
+    def tokens_of(self, frames: Sequence[Sequence[int]]) -> list[list[int]]:
+        """Each action's length in tokens for lengths asked in frames."""
+        return [[self.round_frames(n) // self.frame_step for n in sequence] for sequence in frames]
+
+    def given_tokens(self, keep: Keep | None, tokens: int) -> torch.Tensor | None:
+        """The fixed tokens of a :class:`Keep`: the codec's tokens of the kept features wherever a
+        token holds a kept frame, :data:`FREE` elsewhere (None without a Keep)."""
+        if keep is None:
+            return None
+        encoded = self.codec.encode(keep.features)
+        if len(encoded) != tokens:
+            raise ValueError(f"the kept motion holds {len(encoded)} tokens but the request asks for {tokens}")
+        held = np.zeros(tokens, dtype=bool)
+        units = np.flatnonzero(keep.frames) // self.frame_step
+        held[units[units < tokens]] = True
+        return torch.where(torch.as_tensor(held), encoded, torch.full_like(encoded, FREE))
+
+    def reconstruct(self, segments: Sequence[Sequence[np.ndarray]]) -> list[Motion]:
+        """Each sequence's segments encoded, their tokens concatenated and decoded together: the
+        ceiling of any sampler over these tokens (the M2D2M paper's Table 3 "VQ-VAE" row)."""
+        settings = {"model": self.model, "method": "vq reconstruction", "checkpoint": str(self.source)}
+        return [self.codec.motion([self.codec.encode(clip) for clip in clips],
+                                  [f"segment {i + 1}" for i in range(len(clips))], self.fps, settings)
+                for clips in segments]
