@@ -15,7 +15,7 @@ RAW     ?= data/raw/$(DATASET)
 DEMO    ?= runs/demo
 
 .DEFAULT_GOAL := help
-.PHONY: help setup demo test test-all bench corpus data train-vq tokens train-diffusion train-evaluator testset \
+.PHONY: help setup demo test test-all bench corpus data train-vq tokens train-diffusion train-mmm train-evaluator testset \
         eval eval-power generate sweep reproduce ui clean
 
 help:  ## list the verbs
@@ -83,6 +83,10 @@ tokens: $(STAMP)  ## encode every motion with the latest VQ-VAE into token shard
 DIFFUSION_CONFIG ?= demo
 train-diffusion: $(STAMP)  ## train the denoiser with beta(t, d) (DIFFUSION_CONFIG=demo|humanml3d|kit, SET=...); tokenizes first if needed
 	$(M2D2M) train-diffusion --config $(DIFFUSION_CONFIG) $(foreach s,$(SET),--set $(s))
+
+MMM_CONFIG ?= demo
+train-mmm: $(STAMP)  ## train MMM's masked transformer on the latest VQ run's tokens, the demo's by default (MMM_CONFIG=demo|humanml3d|kit, SET=...)
+	$(M2D2M) train-mmm --config $(MMM_CONFIG) $(foreach s,$(SET),--set $(s))
 
 PROMPTS ?= "a person walks forward" "a person jumps" "a person sits down"
 GENERATE_ARGS ?=

@@ -69,6 +69,13 @@ register(ModelEntry(
     process="m2d2m.processes.discrete_diffusion:TransitionSchedule",
     module="training.m2d2m_module:M2D2MModule", datamodule="training.data:TokenDataModule"))
 
+register(ModelEntry(
+    name="mmm", summary="MMM: a masked motion model over VQ tokens, parallel decoding, transition tokens",
+    stage="mmm", legacy_stages=(), configs="mmm", train_verb="train-mmm", model_file="model.pt",
+    generator="m2d2m.generators.mmm:MMMGenerator", recipe="orchestration.recipes.mmm",
+    network="m2d2m.networks.mmm_transformer:MaskedMotionTransformer", process="m2d2m.processes.masking",
+    module="training.mmm_module:MMMModule", datamodule="training.data:TokenDataModule"))
+
 
 def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) -> list[str]:
     """Import the plugin modules (default: those named in ``M2D2M_MODELS``) once each, looking in

@@ -9,7 +9,7 @@ import pytest
 import torch
 import yaml
 
-from m2d2m.generators.m2d2m import M2D2MGenerator, decode_tokens
+from m2d2m.generators.m2d2m import M2D2MGenerator
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
 from m2d2m.motion.clip import Motion
 from orchestration.cli import main
@@ -46,14 +46,14 @@ def test_the_checkpoint_is_self_contained(trained, tmp_path):
     moved = tmp_path / "elsewhere.pt"
     moved.write_bytes(model.read_bytes())  # no run directory, no vq.pt beside it
     checkpoint = load_checkpoint(moved)
-    assert checkpoint.vq.config.codebook_size == checkpoint.denoiser.config.codebook_size == 16
-    assert checkpoint.schedule.config.kind == "dynamic" and checkpoint.skeleton.name == "t2m"
+    assert checkpoint.codec.vq.config.codebook_size == checkpoint.denoiser.config.codebook_size == 16
+    assert checkpoint.schedule.config.kind == "dynamic" and checkpoint.codec.skeleton.name == "t2m"
     assert checkpoint.lengths.median >= 1 and checkpoint.lengths.longest >= checkpoint.lengths.median
 
 
 def test_generate_returns_a_motion_with_one_range_per_action(generator):
     motion = generate(generator, PROMPTS, seconds=[1.6, 1.2, 2.0], seed=3, ts=4, split=False)
-    assert isinstance(motion, Motion) and motion.fps == 20.0 and generator.checkpoint.frames_per_token == 4
+    assert isinstance(motion, Motion) and motion.fps == 20.0 and generator.codec.frames_per_token == 4
     assert motion.ranges == [(0, 32), (32, 56), (56, 96)] and motion.boundaries == [32, 56]
     assert motion.features.shape == (96, 263) and motion.joints.shape == (96, 22, 3)
     assert motion.tokens.shape == (24,) and motion.actions == PROMPTS
@@ -82,7 +82,7 @@ def test_editing_keeps_the_kept_span(generator):
     source = generate(generator, PROMPTS[:2], seconds=[2.0, 2.0], ts=4, split=False, seed=1)
     edited = edit(generator, source, keep=[(0.0, 1.0), (3.6, 4.0)], actions=["a person jumps", "a person sits down"],
                   ts=4, seed=2)
-    vq, normalizer = generator.checkpoint.vq, generator.checkpoint.normalizer
+    vq, normalizer = generator.codec.vq, generator.codec.normalizer
     with torch.no_grad():
         encoded = vq.encode(torch.as_tensor(normalizer.normalize(source.features))[None])[0].numpy()
     assert np.array_equal(edited.tokens[:5], encoded[:5]) and np.array_equal(edited.tokens[18:], encoded[18:])
@@ -95,10 +95,9 @@ def test_reconstruction_decodes_the_segments_tokens_together(generator):
     first, second = (generate(generator, [p], seconds=[s], split=False, seed=3).features for p, s in
                      ((PROMPTS[0], 1.6), (PROMPTS[1], 1.2)))
     (motion,) = generator.reconstruct([[first, second]])
-    tokens = torch.cat([generator.encode(first), generator.encode(second)])
+    tokens = torch.cat([generator.codec.encode(first), generator.codec.encode(second)])
     assert motion.ranges == [(0, 32), (32, 56)] and np.array_equal(motion.tokens, tokens.numpy())
-    assert np.allclose(motion.features, decode_tokens(generator.checkpoint.vq, generator.checkpoint.normalizer,
-                                                      tokens), atol=1e-6)
+    assert np.allclose(motion.features, generator.codec.decode(tokens), atol=1e-6)
     assert motion.settings["method"] == "vq reconstruction"
 
 

@@ -4,13 +4,13 @@ progress bar that counts the steps training is bounded by."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import lightning.pytorch as pl
 from lightning.pytorch.callbacks import RichProgressBar
 from lightning.pytorch.loggers import MLFlowLogger
 
-from m2d2m.generators.m2d2m import decode_tokens
-from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions
+from m2d2m.generators.token_model import TokenCodec
 from m2d2m.motion.render import render_comparison, render_motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS
@@ -41,16 +41,17 @@ class ReconstructionPreview(pl.Callback):
 
 
 class SamplePreview(pl.Callback):
-    """Every ``every`` validations, one GIF per fixed prompt: tokens sampled by the denoiser,
-    decoded by the VQ-VAE into motion, drawn, and logged as MLflow artifacts — what a person
-    looks at to judge whether samples follow their text."""
+    """Every ``every`` validations, one GIF per fixed prompt: tokens from the module's
+    ``preview_tokens(prompts, lengths, seed, **knobs)``, decoded by the VQ-VAE into motion, drawn,
+    and logged as MLflow artifacts — what a person looks at to judge whether samples follow
+    their text. Any model over VQ tokens serves (M2D2M, MMM)."""
 
     def __init__(self, directory: str | Path, vq_file: str | Path, prompts: list[str], seconds: list[float],
-                 guidance: float = 4.0, every: int = 1, seed: int = 0) -> None:
+                 every: int = 1, seed: int = 0, **knobs: Any) -> None:
         if len(prompts) != len(seconds):
             raise ValueError("give one duration in seconds per preview prompt")
         self.directory, self.vq_file = Path(directory), Path(vq_file)
-        self.prompts, self.seconds, self.guidance = prompts, seconds, guidance
+        self.prompts, self.seconds, self.knobs = prompts, seconds, knobs
         self.every, self.seed = max(1, every), seed
         self.validations = 0
 
@@ -61,14 +62,13 @@ class SamplePreview(pl.Callback):
         if (self.validations - 1) % self.every:
             return
         vq, normalizer, meta = load_vq(self.vq_file)
-        skeleton = SKELETONS[meta["skeleton"]]
-        requests = [Request([[prompt]], [max(1, round(s * skeleton.fps / vq.frames_per_token))], seed=self.seed)
-                    for prompt, s in zip(self.prompts, self.seconds)]
-        sampled = module.sampler().sample(requests, SamplingOptions(guidance=self.guidance, ts=0))
-        for n, (prompt, (tokens,)) in enumerate(zip(self.prompts, sampled)):
-            joints = features_to_joints(decode_tokens(vq, normalizer, tokens), skeleton)
+        codec = TokenCodec(vq, normalizer, SKELETONS[meta["skeleton"]])
+        lengths = [max(1, round(s * codec.skeleton.fps / vq.frames_per_token)) for s in self.seconds]
+        sampled = module.preview_tokens(self.prompts, lengths, self.seed, **self.knobs)
+        for n, (prompt, tokens) in enumerate(zip(self.prompts, sampled)):
+            joints = features_to_joints(codec.decode(tokens), codec.skeleton)
             path = render_motion(joints, self.directory / f"step-{trainer.global_step:07d}-{n}.gif",
-                                 skeleton=skeleton, title=prompt, size=240)
+                                 skeleton=codec.skeleton, title=prompt, size=240)
             if isinstance(trainer.logger, MLFlowLogger):
                 trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="samples")
 

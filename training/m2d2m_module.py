@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from m2d2m.generators.m2d2m_checkpoint import schedule_from_config
-from m2d2m.generators.m2d2m_sampling import TokenSampler
+from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions, TokenSampler
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
@@ -149,6 +149,12 @@ class M2D2MModule(pl.LightningModule):
                                decay_matrices_only=True)
 
     # ----------------------------------------------------------------------------------- sampling
+    def preview_tokens(self, prompts: list[str], lengths: list[int], seed: int,
+                       guidance: float = 4.0) -> list[torch.Tensor]:
+        """Tokens for each prompt, sampled with no joint phase at guidance ``guidance`` (previews)."""
+        requests = [Request([[prompt]], [n], seed=seed) for prompt, n in zip(prompts, lengths)]
+        return [tokens for (tokens,) in self.sampler().sample(requests, SamplingOptions(guidance=guidance, ts=0))]
+
     def sampler(self) -> TokenSampler:
         """The reverse process over this module's denoiser, text encoder and schedule (for previews)."""
         return TokenSampler(self.denoiser, self.text_encoder, self.schedule_on_device())

@@ -73,6 +73,20 @@ class MMMModule(pl.LightningModule):
         self.log("val/loss", loss, batch_size=total, sync_dist=True, prog_bar=True)
         self.log("val/masked_accuracy", accuracy, batch_size=total, sync_dist=True, prog_bar=True)
 
+    def preview_tokens(self, prompts: list[str], lengths: list[int], seed: int) -> list[torch.Tensor]:
+        """Tokens for each prompt, decoded with the paper's settings (for previews)."""
+        from m2d2m.generators.mmm import Row, decode_sentences
+        from m2d2m.generators.mmm_decoding import DecodingOptions
+        from m2d2m.generators.token_model import FREE
+
+        rows = [Row(prompt, torch.full((n,), FREE), seed) for prompt, n in zip(prompts, lengths)]
+        was_training = self.training
+        self.eval()
+        try:
+            return decode_sentences(self.transformer, self.text_encoder, rows, max(lengths), DecodingOptions())
+        finally:
+            self.train(was_training)
+
     def configure_optimizers(self) -> dict[str, Any]:
         return configure_adamw([*self.transformer.parameters(), *self.text_encoder.parameters()], self.hparams.optim,
                                decay_matrices_only=True)

@@ -15,14 +15,12 @@ from typing import Any
 
 import torch
 
+from m2d2m.generators.token_model import LengthPrior, TokenCodec, text_encoder_from_payload, text_payload
 from m2d2m.model_files import cpu_state, read_model_file, write_model_file
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.networks.vqvae import FORMAT as VQ_FORMAT
-from m2d2m.networks.vqvae import MotionVQVAE, vq_from_payload
 from m2d2m.processes.discrete_diffusion import ScheduleConfig, TransitionSchedule
-from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
+from m2d2m.text import TextEncoder
 
 FORMAT = "m2d2m-denoiser/1"
 SCHEDULE_KEYS = tuple(f.name for f in fields(ScheduleConfig))
@@ -37,38 +35,15 @@ def schedule_from_config(codebook: torch.Tensor, diffusion: dict[str, Any]) -> T
 
 
 @dataclass
-class LengthPrior:
-    """Typical lengths in tokens: the median per verb over single-action training captions, and
-    the median over all of them for verbs never seen alone; ``longest`` is the longest clip."""
-
-    per_verb: dict[str, int]
-    median: int
-    longest: int
-
-    def tokens_for(self, verb: str | None) -> int:
-        return self.per_verb.get(verb or "", self.median)
-
-
-@dataclass
 class Checkpoint:
     """A loaded checkpoint, on one device, in eval mode."""
 
     denoiser: MotionDenoiser
     text_encoder: TextEncoder
     schedule: TransitionSchedule
-    vq: MotionVQVAE
-    normalizer: Normalizer
-    skeleton: Skeleton
+    codec: TokenCodec
     lengths: LengthPrior
     extra: dict[str, Any]
-
-    @property
-    def fps(self) -> float:
-        return self.skeleton.fps
-
-    @property
-    def frames_per_token(self) -> int:
-        return self.vq.frames_per_token
 
 
 def save_checkpoint(path: str | Path, denoiser: MotionDenoiser, text_encoder: TextEncoder, text: dict[str, Any],
@@ -77,18 +52,15 @@ def save_checkpoint(path: str | Path, denoiser: MotionDenoiser, text_encoder: Te
     """Write a checkpoint; ``text`` is the run's config section, ``schedule`` the trained schedule's
     whole config (endpoints included, so a configured ᾱ_T or γ̄_T survives the round trip)."""
     vq_payload = read_model_file(vq_file, VQ_FORMAT, "m2d2m VQ model file")
-    trained_text = cpu_state(text_encoder) if text_encoder.trainable else None
     payload = {
         "format": FORMAT,
         "denoiser": {"config": denoiser.config.to_dict(),
                      "state_dict": cpu_state(denoiser)},
-        "text": {"kind": text.get("kind", "learned"),
-                 "options": {k: v for k, v in text.items() if k != "kind"},
-                 "state_dict": trained_text},
+        "text": text_payload(text_encoder, text),
         "schedule": schedule.to_dict(),
         "codebook": codebook.detach().cpu().to(torch.float32),
         "vq": vq_payload,
-        "lengths": {"per_verb": dict(lengths.per_verb), "median": int(lengths.median), "longest": int(lengths.longest)},
+        "lengths": lengths.to_payload(),
         "extra": {} if extra is None else extra,
     }
     return write_model_file(path, payload)
@@ -99,13 +71,8 @@ def load_checkpoint(path: str | Path, device: str | torch.device = "cpu") -> Che
     payload = read_model_file(path, FORMAT, "m2d2m denoiser checkpoint")
     denoiser = MotionDenoiser(DenoiserConfig.from_dict(payload["denoiser"]["config"]))
     denoiser.load_state_dict(payload["denoiser"]["state_dict"])
-    text = payload["text"]
-    if text["state_dict"] is not None and text["kind"] == "learned":
-        text_encoder: TextEncoder = LearnedTextEncoder.from_state_dict(text["state_dict"])
-    else:
-        text_encoder = build_text_encoder(text["kind"], **text["options"])
+    text_encoder = text_encoder_from_payload(payload["text"])
     schedule = schedule_from_config(payload["codebook"].to(device), payload["schedule"])
-    vq, normalizer, vq_meta = vq_from_payload(payload["vq"], device)
-    lengths = LengthPrior(**payload["lengths"])
-    return Checkpoint(denoiser.to(device).eval(), text_encoder.to(device).eval(), schedule, vq, normalizer,
-                      SKELETONS[vq_meta["skeleton"]], lengths, payload["extra"])
+    return Checkpoint(denoiser.to(device).eval(), text_encoder.to(device).eval(), schedule,
+                      TokenCodec.from_payload(payload["vq"], device), LengthPrior(**payload["lengths"]),
+                      payload["extra"])

@@ -35,12 +35,12 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
+from m2d2m.generators.token_model import FREE
 from m2d2m.networks.m2d2m_denoiser import MotionDenoiser, guided_logits
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import TextEncoder, encode_actions
 
 METHODS = ("tps", "independent", "handshake", "slerp")
-FREE = -1  # a position of ``Request.given`` that the sampler fills
 
 
 @dataclass(frozen=True)

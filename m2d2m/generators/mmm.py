@@ -30,7 +30,8 @@ from m2d2m.generators.mmm_decoding import DecodingOptions, decode
 from m2d2m.generators.protocol import MULTI, SINGLE, Keep
 from m2d2m.generators.token_model import FREE, TokenModelGenerator
 from m2d2m.motion.clip import Motion
-from m2d2m.networks.mmm_transformer import canvas
+from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, canvas
+from m2d2m.text import TextEncoder
 
 METHODS = ("transition", "independent")
 
@@ -54,7 +55,7 @@ class MMMOptions:
 
 
 @dataclass
-class _Row:
+class Row:
     """One decoding row: its condition, its tokens (``given``: codes to keep, FREE to fill), a seed."""
 
     sentence: str
@@ -120,7 +121,7 @@ class MMMGenerator(TokenModelGenerator):
                 raise ValueError("MMM keeps frames for one action at a time, or with --method independent")
             given = self.given_tokens(kept, sum(tokens))
             pieces = torch.full((sum(tokens),), FREE) if given is None else given
-            rows += [_Row(sentence, piece, _seed(seed, 0, j))
+            rows += [Row(sentence, piece, _seed(seed, 0, j))
                      for j, (sentence, piece) in enumerate(zip(sequence, pieces.split(tokens)))]
         decoded = iter(self._decode(rows, options.decoding()))
         pieces = [[next(decoded) for _ in sequence] for sequence in actions]
@@ -145,32 +146,39 @@ class MMMGenerator(TokenModelGenerator):
                 before = tokens[j][-min(side, max(1, len(tokens[j]) // 2)):]
                 after = tokens[j + 1][:min(side, max(1, len(tokens[j + 1]) // 2))]
                 given = torch.cat([before, torch.full((options.transition,), FREE), after])
-                rows.append(_Row(sequence[j], given, _seed(seed, 1, j)))
+                rows.append(Row(sequence[j], given, _seed(seed, 1, j)))
                 shapes.append(len(before))
         filled = iter(zip(self._decode(rows, options.decoding(iterations=1)) if rows else [], shapes))
         return [[tokens[start:start + options.transition] for tokens, start in
                  (next(filled) for _ in range(len(sequence) - 1))] for sequence in actions]
 
-    def _decode(self, rows: list[_Row], options: DecodingOptions) -> list[torch.Tensor]:
-        """Each row's tokens, the FREE positions decoded under its sentence."""
+    def _decode(self, rows: list[Row], options: DecodingOptions) -> list[torch.Tensor]:
         longest = max(len(row.given) for row in rows)
         if longest > self.max_tokens:
             raise ValueError(f"MMM generates at most {self.max_tokens} tokens "
                              f"({self.max_tokens * self.frame_step} frames) per action; {longest} were asked for")
-        device = self.device
-        lengths = torch.tensor([len(row.given) for row in rows], device=device)
-        given = torch.full((len(rows), longest), FREE, dtype=torch.long, device=device)
-        for index, row in enumerate(rows):
-            given[index, :len(row.given)] = row.given.to(device)
-        valid = torch.arange(longest, device=device)[None, :] < lengths[:, None]
-        transformer, config = self.checkpoint.transformer, self.checkpoint.transformer.config
-        with torch.no_grad():
-            words, word_mask, sentence = self.checkpoint.text_encoder.encode_pooled([row.sentence for row in rows])
+        return decode_sentences(self.checkpoint.transformer, self.checkpoint.text_encoder, rows, self.lengths.longest,
+                                options)
 
-            def predict(tokens: torch.Tensor) -> torch.Tensor:
-                inputs = canvas(tokens, lengths, config)  # [END], then [PAD] past each row
-                return transformer(inputs, sentence, words, word_mask)[:, :-1]
 
-            tokens = decode(predict, given, valid, config.mask_id, self.lengths.longest, options,
-                            [row.seed for row in rows])
-        return [tokens[index, :len(row.given)].cpu() for index, row in enumerate(rows)]
+def decode_sentences(transformer: MaskedMotionTransformer, text_encoder: TextEncoder, rows: list[Row],
+                     longest: int, options: DecodingOptions) -> list[torch.Tensor]:
+    """Each row's tokens, its FREE positions decoded under its sentence in one batch (``longest``
+    is the M of T_dyn: the corpus's longest motion in tokens)."""
+    device = transformer.codebook.device
+    width = max(len(row.given) for row in rows)
+    lengths = torch.tensor([len(row.given) for row in rows], device=device)
+    given = torch.full((len(rows), width), FREE, dtype=torch.long, device=device)
+    for index, row in enumerate(rows):
+        given[index, :len(row.given)] = row.given.to(device)
+    valid = torch.arange(width, device=device)[None, :] < lengths[:, None]
+    config = transformer.config
+    with torch.no_grad():
+        words, word_mask, sentence = text_encoder.encode_pooled([row.sentence for row in rows])
+
+        def predict(tokens: torch.Tensor) -> torch.Tensor:
+            inputs = canvas(tokens, lengths, config)  # [END], then [PAD] past each row
+            return transformer(inputs, sentence, words, word_mask)[:, :-1]
+
+        tokens = decode(predict, given, valid, config.mask_id, longest, options, [row.seed for row in rows])
+    return [tokens[index, :len(row.given)].cpu() for index, row in enumerate(rows)]
