@@ -10,6 +10,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from m2d2m.networks.config import ConfigError
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas
 from m2d2m.processes.masking import training_mask
 from m2d2m.text import text_encoder_from_config
@@ -36,6 +37,8 @@ class MMMModule(pl.LightningModule):
                                                     "code_dim": codebook.shape[1], "text_dim": self.text_encoder.dim})
         self.transformer = MaskedMotionTransformer(config, codebook)
         self.alpha = float(masking.get("alpha", 0.5))
+        if not 0.0 <= self.alpha <= 1.0:
+            raise ConfigError(f"masking.alpha must lie in [0, 1], got {self.alpha}")
 
     def _condition(self, captions: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         words, word_mask, sentence = self.text_encoder.encode_pooled(list(captions))
