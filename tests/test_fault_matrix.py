@@ -24,8 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from orchestration.cli import main
+from tests.helpers import TINY_MMM
 
 # ------------------------------------------------------------------------------ the bad inputs
 
@@ -79,7 +81,7 @@ BAD_MOTIONS = ("empty.npy", "truncated.npy", "text.npy", "nan.npy", "inf.npy", "
 BAD_MODEL_FILES = ("empty.pt", "random.pt", "a-dict.pt", "a-tensor.pt", "nowhere.pt")
 BAD_CONFIGS = ("empty.yaml", "broken.yaml", "list.yaml", "nowhere.yaml")
 TRAINING = {"train-vq": "{root}/vq.yaml", "train-diffusion": "{root}/diffusion.yaml",
-            "train-evaluator": "{root}/evaluator.yaml"}
+            "train-evaluator": "{root}/evaluator.yaml", "train-mmm": "{root}/mmm.yaml"}
 
 
 def _training_cases() -> list[list[str]]:
@@ -95,12 +97,14 @@ def _training_cases() -> list[list[str]]:
         cases.append([verb, "--config", config, "--resume"])  # its only run has finished
     for verb, override in (("train-vq", "model.width=0"), ("train-vq", "model.activation=sigmoidal"),
                            ("train-evaluator", "model.embedding_dim=0"), ("train-diffusion", "denoiser.heads=3"),
-                           ("train-diffusion", "diffusion.steps=0"), ("train-diffusion", "diffusion.kind=cubic")):
+                           ("train-diffusion", "diffusion.steps=0"), ("train-diffusion", "diffusion.kind=cubic"),
+                           ("train-mmm", "transformer.heads=3"), ("train-mmm", "transformer.cross_layers=9"),
+                           ("train-mmm", "masking.alpha=2")):
         cases.append([verb, "--config", TRAINING[verb], "--set", override])
-    diffusion = TRAINING["train-diffusion"]
-    for name in (*BAD_MODEL_FILES, "truncated-vq.pt", "model.pt"):
-        path = "{model}" if name == "model.pt" else "{tmp}/" + name
-        cases.append(["train-diffusion", "--config", diffusion, "--set", f"vq={path}"])
+    for verb in ("train-diffusion", "train-mmm"):
+        for name in (*BAD_MODEL_FILES, "truncated-vq.pt", "model.pt"):
+            path = "{model}" if name == "model.pt" else "{tmp}/" + name
+            cases.append([verb, "--config", TRAINING[verb], "--set", f"vq={path}"])
     return cases
 
 
@@ -208,6 +212,7 @@ def assert_nothing_looks_finished(root: Path, before: dict[str, str]) -> None:
 def matrix_project(trained_project: Path, tmp_path_factory) -> Iterator[dict[str, str]]:
     tmp = tmp_path_factory.mktemp("bad-inputs")
     write_bad_files(tmp, trained_project)
+    (trained_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()

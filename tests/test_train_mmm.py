@@ -12,22 +12,8 @@ import yaml
 from orchestration.cli import main
 from orchestration.runs import latest_run, read_run_info
 from orchestration.train import train_model
+from tests.helpers import TINY_MMM
 
-TINY_MMM = {
-    "dataset": "tiny",
-    "seed": 1,
-    "vq": "latest",
-    "data": {"batch_size": 4, "num_workers": 0, "max_tokens": None},
-    "text": {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
-    "transformer": {"width": 16, "heads": 2, "layers": 2, "cross_layers": 1, "ffn": 32, "dropout": 0.0,
-                    "max_tokens": 50},
-    "masking": {"alpha": 0.5},
-    "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1, "milestones": [100],
-              "gamma": 0.1, "grad_clip": 1.0},
-    "trainer": {"max_steps": 4, "val_every_steps": 2, "val_batches": 1, "gif_every": 2, "accelerator": "cpu",
-                "devices": 1, "precision": "auto"},
-    "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
-}
 
 
 def test_mmm_trains_generates_and_is_evaluated_through_the_registry(trained_project, tiny_testset):
