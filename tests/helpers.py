@@ -115,20 +115,13 @@ TINY_DIFFUSION = {
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0], "guidance": 2.0},
 }
 
-# An MMM training config small enough for tests (the VQ run is the dataset's latest).
+# An MMM training config small enough for tests: the denoiser's data, text, optimiser and trainer
+# sections, MMM's own network and masking.
 TINY_MMM = {
-    "dataset": "tiny",
-    "seed": 1,
-    "vq": "latest",
-    "data": {"batch_size": 4, "num_workers": 0, "max_tokens": None},
-    "text": {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
+    **{key: TINY_DIFFUSION[key] for key in ("dataset", "seed", "vq", "data", "text", "optim", "trainer")},
     "transformer": {"width": 16, "heads": 2, "layers": 2, "cross_layers": 1, "ffn": 32, "dropout": 0.0,
                     "max_tokens": 50},
     "masking": {"alpha": 0.5},
-    "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1, "milestones": [100],
-              "gamma": 0.1, "grad_clip": 1.0},
-    "trainer": {"max_steps": 4, "val_every_steps": 2, "val_batches": 1, "gif_every": 2, "accelerator": "cpu",
-                "devices": 1, "precision": "auto"},
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
 }
 
