@@ -51,7 +51,8 @@ POWER_TARGET = 0.03  # the Jerk half-width the evaluation is sized for (docs/eva
 
 @dataclass
 class Paired:
-    """Per-instance results of one sampling, in instance × seed order."""
+    """Per-sequence results of one sampling, seed-major: every instance under the first seed, then
+    every instance under the next."""
 
     tokens: list[np.ndarray]  # each sequence's tokens
     token_boundaries: list[list[int]]  # each sequence's first token of actions 2..N
@@ -160,15 +161,16 @@ def main(argv: list[str] | None = None) -> None:
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    text = report(rows, spreads, curves.get("independent, another seed"), len(testset), args.seeds, float(np.nanmean(independent.boundary_jerk)),
-                  float(np.nanmean(independent.middle_jerk)), schedule.steps, args)
+    text = report(rows, spreads, curves.get("independent, another seed"), len(testset), args.seeds,
+                  float(np.nanmean(independent.boundary_jerk)), float(np.nanmean(independent.middle_jerk)),
+                  schedule.steps, args)
     (out / "boundaries.md").write_text(text, encoding="utf-8")
     plot(out / "boundaries.png", curves)
     print(text)
 
 
-def report(rows, spreads: dict[str, float], reference: np.ndarray | None, instances: int, seeds: int, independent_boundary: float, independent_middle: float,
-           steps: int, args: argparse.Namespace) -> str:
+def report(rows, spreads: dict[str, float], reference: np.ndarray | None, instances: int, seeds: int,
+           independent_boundary: float, independent_middle: float, steps: int, args: argparse.Namespace) -> str:
     pm = "{:+.3f} ± {:.3f}".format
     lines = [f"# TPS against independent sampling, paired ({args.checkpoint}, {args.testset})", "",
              f"{instances} instances × {seeds} seeds; T = {steps}. Independent sampling (T_s = T): Jerk "
@@ -185,7 +187,8 @@ def report(rows, spreads: dict[str, float], reference: np.ndarray | None, instan
                      f"{reference[NEAREST]:.3f} | | | |")
     lines += ["", "Δ = TPS minus independent sampling on the same instance and seed; ± is the 95 % half-width "
               "over the pairs. Tokens changed: the share that differs from independent sampling at the same "
-              "seed (last row: between two seeds of independent sampling).", "", "![tokens changed by distance from the boundary](boundaries.png)", "",
+              "seed (last row: between two seeds of independent sampling).", "",
+              "![tokens changed by distance from the boundary](boundaries.png)", "",
               f"Power: σ is a sequence's Jerk's seed-to-seed standard deviation; R is the number of repeats "
               f"of these {instances} instances that gives `m2d2m evaluate` a Jerk half-width of {POWER_TARGET}.",
               "", "| sampling | σ | R |", "| --- | --- | --- |"]

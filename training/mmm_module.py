@@ -10,6 +10,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from m2d2m.generators.mmm import Row, decode_sentences
+from m2d2m.generators.mmm_decoding import DecodingOptions
+from m2d2m.generators.token_model import FREE
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas
 from m2d2m.processes.masking import training_mask
@@ -78,10 +81,6 @@ class MMMModule(pl.LightningModule):
 
     def preview_tokens(self, prompts: list[str], lengths: list[int], seed: int) -> list[torch.Tensor]:
         """Tokens for each prompt, decoded with the paper's settings (for previews)."""
-        from m2d2m.generators.mmm import Row, decode_sentences
-        from m2d2m.generators.mmm_decoding import DecodingOptions
-        from m2d2m.generators.token_model import FREE
-
         rows = [Row(prompt, torch.full((n,), FREE), seed) for prompt, n in zip(prompts, lengths)]
         was_training = self.training
         self.eval()

@@ -74,7 +74,7 @@ class M2D2MGenerator(TokenModelGenerator):
                settings: dict[str, Any]) -> Motion:
         """Tokens per action → one Motion: decoded together, or (``slerp``) one by one and joined."""
         if options.method != "slerp":
-            return self.codec.motion(pieces, actions, self.fps, settings)
+            return self.codec.motion(pieces, actions, settings)
         skeleton = self.skeleton
         joints, ranges = slerp_join([features_to_joints(self.codec.decode(p), skeleton) for p in pieces],
                                     options.slerp * self.frame_step, skeleton)

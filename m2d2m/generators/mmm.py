@@ -116,7 +116,7 @@ class MMMGenerator(TokenModelGenerator):
         lengths = [[n if j == 0 or not joined else max(1, n - options.transition) for j, n in enumerate(tokens)]
                    for tokens in self.tokens_of(frames)]
         rows = []
-        for i, (sequence, tokens, seed, kept) in enumerate(zip(actions, lengths, seeds, keep)):
+        for sequence, tokens, seed, kept in zip(actions, lengths, seeds, keep):
             if kept is not None and joined and len(sequence) > 1:
                 raise ValueError("MMM keeps frames for one action at a time, or with --method independent")
             given = self.given_tokens(kept, sum(tokens))
@@ -133,7 +133,7 @@ class MMMGenerator(TokenModelGenerator):
             if progress is not None:
                 progress(1.0)
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
-        return [self.codec.motion(p, list(sequence), self.fps, {**settings, "seed": int(seed)}, g)
+        return [self.codec.motion(p, list(sequence), {**settings, "seed": int(seed)}, g)
                 for p, g, sequence, seed in zip(pieces, gaps, actions, seeds)]
 
     def _transitions(self, actions: Sequence[Sequence[str]], pieces: list[list[torch.Tensor]], seeds: Sequence[int],
@@ -141,7 +141,7 @@ class MMMGenerator(TokenModelGenerator):
         """The transition tokens between each pair of neighbours, all in one decoding step."""
         side = (self.max_tokens - options.transition) // 2
         rows, shapes = [], []
-        for i, (sequence, tokens, seed) in enumerate(zip(actions, pieces, seeds)):
+        for sequence, tokens, seed in zip(actions, pieces, seeds):
             for j in range(len(sequence) - 1):
                 before = tokens[j][-min(side, max(1, len(tokens[j]) // 2)):]
                 after = tokens[j + 1][:min(side, max(1, len(tokens[j + 1]) // 2))]

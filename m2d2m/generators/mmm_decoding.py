@@ -57,7 +57,8 @@ def filtered_probabilities(logits: Tensor, options: DecodingOptions) -> Tensor:
     probs = torch.softmax(logits.double() / options.temperature, dim=-1)
     keep = torch.ones_like(probs, dtype=torch.bool)
     ordered, order = probs.sort(dim=-1, descending=True)
-    rank = torch.empty_like(order).scatter_(-1, order, torch.arange(probs.shape[-1], device=probs.device).expand_as(order))
+    positions = torch.arange(probs.shape[-1], device=probs.device).expand_as(order)
+    rank = torch.empty_like(order).scatter_(-1, order, positions)  # each code's place in the order
     if options.top_k is not None:
         keep &= rank < options.top_k
     if options.top_p is not None:

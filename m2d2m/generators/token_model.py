@@ -86,7 +86,7 @@ class TokenCodec:
         with torch.no_grad():
             return self.normalizer.denormalize(self.vq.decode(tokens[None].to(self.device))[0].cpu().numpy())
 
-    def motion(self, pieces: list[torch.Tensor], actions: list[str], fps: float, settings: dict[str, Any],
+    def motion(self, pieces: list[torch.Tensor], actions: list[str], settings: dict[str, Any],
                gaps: Sequence[torch.Tensor] = ()) -> Motion:
         """One Motion from each action's tokens, decoded together in order, with ``gaps[j]`` (tokens
         that belong to no action: a transition) between actions j and j + 1."""
@@ -102,7 +102,8 @@ class TokenCodec:
         tokens = torch.cat(stream)
         features = self.decode(tokens)
         joints = features_to_joints(features, self.skeleton)
-        return Motion(features, np.asarray(joints, dtype=np.float32), fps, self.skeleton.name, list(actions),
+        skeleton = self.skeleton
+        return Motion(features, np.asarray(joints, dtype=np.float32), skeleton.fps, skeleton.name, list(actions),
                       ranges, settings, tokens.cpu().numpy())
 
 
@@ -160,5 +161,5 @@ class TokenModelGenerator(MotionGenerator):
         ceiling of any sampler over these tokens (the M2D2M paper's Table 3 "VQ-VAE" row)."""
         settings = {"model": self.model, "method": "vq reconstruction", "checkpoint": str(self.source)}
         return [self.codec.motion([self.codec.encode(clip) for clip in clips],
-                                  [f"segment {i + 1}" for i in range(len(clips))], self.fps, settings)
+                                  [f"segment {i + 1}" for i in range(len(clips))], settings)
                 for clips in segments]

@@ -5,18 +5,14 @@ first when its tokens are missing or stale."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
-from orchestration.recipes.token_data import token_training
+from orchestration.recipes.token_data import export_model, prepare, token_training
 from orchestration.registry import model
-from orchestration.train import ensure_tokens, finish, fit, open_run, vq_file
+from orchestration.train import fit, open_run
+
+__all__ = ["prepare", "train"]  # a recipe: prepare (the tokens, shared by token models) and train
 
 NAME = "mmm"
-
-
-def prepare(config: dict[str, Any]) -> None:
-    """The tokens every trial of a training sweep reads, made once by the sweep's driver."""
-    ensure_tokens(vq_file(config["vq"], config["dataset"]))
 
 
 def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
@@ -27,7 +23,6 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
 
     from m2d2m.generators.mmm_checkpoint import save_mmm
     from training.callbacks import SamplePreview
-    from training.data import length_prior
     from training.mmm_module import MMMModule
 
     entry = model(NAME)
@@ -42,14 +37,7 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
                                 every=config["trainer"]["gif_every"]), *(extra_callbacks or [])], ray_train=ray_train)
     if not fitted.primary:
         return run_dir
-    datamodule = data.datamodule
-    lengths = length_prior(datamodule.urls("train"), datamodule.frames_per_token)
-    model_file = run_dir / entry.model_file
-    save_mmm(model_file, module.transformer, module.text_encoder, config["text"], data.vq_path, lengths,
-             extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
-                    "data_dir": str(data.data_dir.resolve()), "tokens": str(data.tokens_dir.resolve()),
-                    "best_val_loss": float(fitted.checkpoints.best_model_score)})
-    finish(run_dir, fitted, [model_file, Path(fitted.checkpoints.best_model_path), fitted.last,
-                             run_dir / "config.yaml"],
-           model=str(model_file.resolve()), vq=str(data.vq_path.resolve()), tokens=str(data.tokens_dir.resolve()))
+    export_model(run_dir, fitted, config, data, run_dir / entry.model_file,
+                 lambda path, lengths, extra: save_mmm(path, module.transformer, module.text_encoder, config["text"],
+                                                       data.vq_path, lengths, extra))
     return run_dir
