@@ -270,7 +270,8 @@ def _evaluate(args: argparse.Namespace) -> None:
     if args.resume:
         if given or options or args.model is not None:
             named = [*given, *options] + (["model"] if args.model is not None else [])
-            flags = ", ".join("--method" if knob == "methods" else "--" + knob.replace("_", "-") for knob in named)
+            renamed = {"methods": "method", "editing": "edit"}
+            flags = ", ".join("--" + renamed.get(knob, knob).replace("_", "-") for knob in named)
             raise UserError(f"--resume continues {args.resume} with its own settings; drop {flags}")
         run_dir, settings = reopen(args.resume, args.dataset)
     else:
@@ -426,8 +427,13 @@ def _add_testset(verbs) -> None:
 
 
 def _add_evaluate(verbs) -> None:
-    evaluate = verbs.add_parser("evaluate", help="the paper's multi-motion (and single-motion) tables and Fig. 5")
-    _add_model_choice(evaluate, None)
+    evaluate = verbs.add_parser("evaluate", help="the paper's multi-motion (single-motion, editing) tables and Fig. 5")
+    evaluate.add_argument("--model", action="append", metavar="MODEL",
+                          help=f"registered models to judge side by side in one table: {', '.join(models())}; "
+                               "repeatable or a comma list (default m2d2m)")
+    evaluate.add_argument("--checkpoint", action="append", metavar="REF",
+                          help="the model's file, a run directory or name, or an MLflow run id (default: latest); "
+                               "with several models MODEL=REF, once per model")
     evaluate.add_argument("--testset", help="test set directory (default: n4-seed0 of the model's dataset, "
                                             "data/<dataset>/testsets/n4-seed0, built if missing)")
     evaluate.add_argument("--evaluator", help="evaluator.pt, or an evaluator run directory, name or MLflow run id "
@@ -437,13 +443,17 @@ def _add_evaluate(verbs) -> None:
     evaluate.add_argument("--glove", metavar="DIR", help="Guo's glove/ directory (with --guo-evaluator)")
     evaluate.add_argument("--meta", metavar="DIR", help="the evaluator's mean.npy/std.npy (default CKPT_DIR/meta)")
     evaluate.add_argument("--method", dest="methods", action="append", metavar="METHOD",
-                          help="the model's multi-action methods (m2d2m: tps, independent, handshake, slerp); "
-                               "repeatable or a comma list (default: the model's first)")
+                          help="multi-action methods (m2d2m: tps, independent, handshake, slerp; mmm: transition, "
+                               "independent), each for every model that has it, or MODEL:METHOD for one; "
+                               "repeatable or a comma list (default: each model's first)")
     _add_sampling_knobs(evaluate)
     evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
     evaluate.add_argument("--single", action=argparse.BooleanOptionalAction,
                           help="also the single-motion table (paper Table 3; the model's single-action preset, "
                                "for m2d2m s = 4, η = 0.5)")
+    evaluate.add_argument("--edit", dest="editing", action="append", metavar="TASK",
+                          help="also the editing table (MMM Table 3) for these tasks, each with and without text: "
+                               "inbetween (the middle 50 %% given the first and last 25 %%); repeatable or a comma list")
     evaluate.add_argument("--batch-size", type=_positive_int, default=64,
                           help="sequences generated at once (default 64)")
     evaluate.add_argument("--resume", metavar="RUN", help="finish an evaluation run (directory, name or MLflow id) "

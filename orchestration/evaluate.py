@@ -13,8 +13,9 @@ files at the end.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -23,16 +24,18 @@ import torch
 from tqdm import tqdm
 
 from m2d2m.evaluation.evaluator import TextMotionEvaluator, load_evaluator, load_guo_checkpoint
-from m2d2m.evaluation.measurements import (JERK_FPS, MM_GENERATIONS, MM_PROMPTS, WINDOW, Evaluation, Reference,
-                                           mean_profile)
+from m2d2m.evaluation.measurements import (EDITS, JERK_FPS, MM_GENERATIONS, MM_PROMPTS, WINDOW, Evaluation,
+                                           Reference, mean_profile)
 from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
 from m2d2m.layout import MANIFEST
 from orchestration.errors import UserError
 from orchestration.generate import load_generator, resolve_model_file
 from orchestration.registry import model
-from orchestration.reports import (FIGURE, GENERATED, GT_CONCAT, GT_SINGLE, RECONSTRUCTION, ROW_TITLES, SINGLE_COLUMNS,
-                                   TABLE_JSON, TABLE_MD, notes, plot_fig5, render_table, summarize_rows, table_metrics)
+from orchestration.reports import (EDIT_TITLES, FIGURE, GENERATED, GT_CONCAT, GT_SINGLE, RECONSTRUCTION, ROW_TITLES,
+                                   SINGLE_COLUMNS, TABLE_JSON, TABLE_MD, notes, plot_fig5, render_table, summarize_rows,
+                                   table_metrics)
 from orchestration.runs import find_run, mark_latest, new_run_dir, read_run_info, run_file, write_run_info
+from orchestration.tracking import client as tracking_client
 from orchestration.tracking import experiment_name, finishing, log_batch, start_run, tracked_run
 from orchestration.train import EVALUATOR_FILE, EVALUATOR_STAGE
 from pipelines.shards import write_json_atomically
@@ -92,71 +95,180 @@ def _caption_tokens(testset: TestSet) -> list[list[str]]:
     return [tokens[item.key, item.caption_index] for instance in testset for item in instance.items]
 
 
-def _reference(testset: TestSet, evaluator: TextMotionEvaluator, generator: MotionGenerator) -> Reference:
+def _reference(testset: TestSet, evaluator: TextMotionEvaluator,
+               generators: dict[str, MotionGenerator]) -> tuple[Reference, dict[str, str]]:
+    """The test set's measurements, its lengths in whole steps of every generator, and each
+    generator's codec, if it has one, measured once per distinct codec; with the label each
+    model's codec is measured under (models without a codec have none)."""
     segments = [[testset.features(instance.index, p) for p in range(len(instance.items))] for instance in testset]
-    return Reference.build([instance.actions for instance in testset], segments, _caption_tokens(testset),
-                           evaluator, generator)
+    first = next(iter(generators.values()))
+    reference = Reference.build([instance.actions for instance in testset], segments, _caption_tokens(testset),
+                                evaluator, first.skeleton, math.lcm(*(g.frame_step for g in generators.values())))
+    codec_of = {name: reference.add_reconstruction(name, generator, evaluator) for name, generator in generators.items()}
+    return reference, {name: label for name, label in codec_of.items() if label is not None}
 
 
 # ----------------------------------------------------------------------------------- settings
 @dataclass(frozen=True)
-class EvalSettings:
-    """Every knob that changes the numbers. Recorded in run.json, table.json and the MLflow
-    params, and fixed for a run: ``--resume`` continues with exactly these. ``options`` are the
-    sampling knobs that differ from the model's multi-action preset (for M2D2M: ts, eta, ...)."""
+class Candidate:
+    """One model file under evaluation and the rows it contributes: its multi-action methods,
+    sampled with its multi-action preset changed by ``options`` (for M2D2M: ts, eta, ...)."""
 
     model: str
     checkpoint: str
-    testset: str | None  # None: the default test set of the checkpoint's dataset, resolved by evaluate
+    methods: tuple[str, ...]
+    options: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """Every knob that changes the numbers. Recorded in run.json, table.json and the MLflow
+    params, and fixed for a run: ``--resume`` continues with exactly these. One evaluation may
+    judge several models (``candidates``) on the same test set with the same evaluator and seeds."""
+
+    candidates: tuple[Candidate, ...]
+    testset: str | None  # None: the default test set of the first model's dataset, resolved by evaluate
     evaluator: str
     glove: str | None  # Guo's published evaluator: its GloVe and meta directories
     meta: str | None
-    methods: tuple[str, ...]
-    options: dict[str, Any]
     repeats: int
     single: bool
+    editing: tuple[str, ...] = ()  # tasks of the editing table (MMM Table 3), each with and without text
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "EvalSettings":
-        """Settings as run.json holds them; runs recorded before the model registry (no ``model``,
-        M2D2M's ts / eta / guidance at the top level) read as M2D2M runs."""
+        """Settings as run.json holds them. Runs recorded with one model at the top level (and,
+        before the model registry, M2D2M's ts / eta / guidance there too) read as one candidate."""
         values = dict(values)
-        if "model" not in values:
-            values["model"] = "m2d2m"
-            values["options"] = {key: values.pop(key) for key in ("ts", "eta", "guidance")
-                                 if values.get(key) is not None}
-        return cls(**{**values, "methods": tuple(values["methods"])})
+        if "candidates" not in values:
+            if "model" not in values:
+                values["model"] = "m2d2m"
+                values["options"] = {key: values.pop(key) for key in ("ts", "eta", "guidance")
+                                     if values.get(key) is not None}
+            values["candidates"] = [{key: values.pop(key) for key in ("model", "checkpoint", "methods", "options")}]
+        candidates = tuple(Candidate(**{**c, "methods": tuple(c["methods"])}) for c in values.pop("candidates"))
+        return cls(candidates=candidates, **{**values, "editing": tuple(values.get("editing", ()))})
+
+    @property
+    def models(self) -> tuple[str, ...]:
+        return tuple(c.model for c in self.candidates)
+
+    def row(self, candidate: Candidate, method: str) -> str:
+        """The table row of a candidate's method: the method's name when one model is judged,
+        ``<model>/<method>`` when several are."""
+        return method if len(self.candidates) == 1 else f"{candidate.model}/{method}"
+
+    def rows(self) -> list[tuple[Candidate, str]]:
+        """Every (candidate, method) of the multi-motion table, in order."""
+        return [(candidate, method) for candidate in self.candidates for method in candidate.methods]
+
+    def single_row(self, candidate: Candidate) -> str:
+        """The single-motion table's row of a candidate's generations."""
+        return GENERATED if len(self.candidates) == 1 else f"{GENERATED}/{candidate.model}"
+
+    def edit_rows(self, candidate: Candidate) -> list[tuple[str, bool, str]]:
+        """The editing table's rows of a candidate: (task, with text, row)."""
+        owner = "" if len(self.candidates) == 1 else f"{candidate.model}/"
+        return [(task, text, f"{owner}{task}/{'text' if text else 'no_text'}")
+                for task in self.editing for text in (True, False)]
 
 
-# the settings given as options of their own (the model and sampling options are given apart)
-KNOBS = tuple(f.name for f in fields(EvalSettings) if f.name not in ("model", "options")) + ("guo_evaluator",)
+# the settings given as options of their own (the models and sampling options are given apart)
+KNOBS = ("checkpoint", "testset", "evaluator", "guo_evaluator", "glove", "meta", "methods", "repeats", "single",
+         "editing")
 
 
-def _methods(values: Sequence[str], generator_type: type[MotionGenerator]) -> tuple[str, ...]:
-    """Methods given as repeated options and/or comma lists, in order, without repeats."""
-    methods = [m.strip() for value in values for m in value.split(",") if m.strip()]
-    unknown = [m for m in methods if m not in generator_type.methods]
-    if unknown or not methods:
-        problem = f"unknown method {unknown[0]!r}" if unknown else "no method given"
-        raise UserError(f"{problem} for {generator_type.model}; choose from {', '.join(generator_type.methods)}")
-    return tuple(dict.fromkeys(methods))
+def _split(values: Sequence[str] | str | None) -> list[str]:
+    """Repeated options and/or comma lists, in order, without repeats."""
+    values = [values] if isinstance(values, str) else list(values or [])
+    return list(dict.fromkeys(v.strip() for value in values for v in value.split(",") if v.strip()))
 
 
-def new_settings(dataset: str, model_name: str = "m2d2m", checkpoint: str = "latest", testset: str | None = None,
+def _qualified(entry: str, names: Sequence[str], separators: str) -> tuple[str | None, str]:
+    """``model<sep>rest`` → (model, rest) when ``model`` is one of ``names``; else (None, entry)."""
+    for separator in separators:
+        head, found, rest = entry.partition(separator)
+        if found and head in names:
+            return head, rest
+    return None, entry
+
+
+def _checkpoints(names: Sequence[str], values: Sequence[str] | str | None) -> dict[str, str]:
+    """Each model's checkpoint reference (default ``latest``) from ``REF`` (one model) or
+    ``MODEL=REF`` entries."""
+    given = {}
+    for value in [values] if isinstance(values, str) else list(values or []):
+        owner, reference = _qualified(value, names, "=")
+        if owner is None:
+            if len(names) > 1:
+                raise UserError(f"--checkpoint {value}: with several models say whose, as MODEL=REF "
+                                f"(models: {', '.join(names)})")
+            owner = names[0]
+        if owner in given:
+            raise UserError(f"--checkpoint: {owner} given twice")
+        given[owner] = reference
+    return {name: given.get(name, "latest") for name in names}
+
+
+def _choices(generators: dict[str, type[MotionGenerator]], of: str) -> str:
+    """The methods or knobs (``of``) there are: a list for one model, per model for several."""
+    listed = {name: ", ".join(g.methods if of == "methods" else g.knobs()) for name, g in generators.items()}
+    return next(iter(listed.values())) if len(listed) == 1 else "; ".join(f"{n}: {c}" for n, c in listed.items())
+
+
+def _assign(entries: dict[str, Any], generators: dict[str, type[MotionGenerator]], of: str,
+            separators: str) -> dict[str, dict[str, Any]]:
+    """Method or knob (``of``) entries to the models they belong to: an entry ``name`` to every
+    model that has it, ``model<separator>name`` to that model alone."""
+    chosen: dict[str, dict[str, Any]] = {model_name: {} for model_name in generators}
+    for entry, value in entries.items():
+        owner, name = _qualified(entry, list(generators), separators)
+        has = {model_name: name in (g.methods if of == "methods" else g.knobs()) for model_name, g in generators.items()}
+        owners = [owner] if owner else [model_name for model_name, yes in has.items() if yes]
+        if not owners or not has[owners[0]]:
+            whose = owner or " or ".join(generators)
+            raise UserError(f"unknown method {name!r} for {whose}; choose from {_choices(generators, of)}"
+                            if of == "methods" else
+                            f"{whose} has no sampling option {name!r}; its options: {_choices(generators, of)}")
+        for model_name in owners:
+            chosen[model_name][name] = value
+    return chosen
+
+
+def _methods(values: Sequence[str] | None, generators: dict[str, type[MotionGenerator]]) -> dict[str, tuple[str, ...]]:
+    """Each model's methods from ``method`` entries (every model that has it) and ``model:method``
+    or ``model/method`` ones (that model); a model named by no entry gets its default method."""
+    chosen = _assign(dict.fromkeys(_split(values)), generators, "methods", ":/")
+    return {name: tuple(methods or generators[name].methods[:1]) for name, methods in chosen.items()}
+
+
+def _options(options: dict[str, Any], generators: dict[str, type[MotionGenerator]]) -> dict[str, dict[str, Any]]:
+    """Each model's sampling options from ``knob`` entries (every model that has the knob) and
+    ``model.knob`` ones (that model)."""
+    return _assign(options, generators, "knobs", ".")
+
+
+def new_settings(dataset: str, model_name: str | Sequence[str] = "m2d2m",
+                 checkpoint: str | Sequence[str] | None = None, testset: str | None = None,
                  evaluator: str | None = None, guo_evaluator: str | None = None, glove: str | None = None,
                  meta: str | None = None, methods: Sequence[str] | None = None, options: dict[str, Any] | None = None,
-                 repeats: int = 10, single: bool = False) -> EvalSettings:
-    """The settings of a new evaluation, with references resolved to files (so that a later
-    ``latest`` cannot change what a resumed run measures). Defaults: the model's first method,
-    its multi-action preset (the paper's T_s = 0.9·T, η = 0.25, s = 2 for M2D2M), 10 repeats."""
-    generator_type = model(model_name).load("generator")
+                 repeats: int = 10, single: bool = False, editing: Sequence[str] | None = None) -> EvalSettings:
+    """The settings of a new evaluation of one model or several (``model_name``: a name, a
+    comma list or a list; ``checkpoint``: ``REF`` or ``MODEL=REF`` entries, ``latest`` for a
+    model not named), with references resolved to files (so that a later ``latest``
+    cannot change what a resumed run measures). Defaults: each model's first method, its
+    multi-action preset (the paper's T_s = 0.9·T, η = 0.25, s = 2 for M2D2M), 10 repeats."""
+    names = _split(model_name)
+    if not names:
+        raise UserError("--model: no model given")
+    generators = {name: model(name).load("generator") for name in names}
     if repeats < 1:
         raise UserError(f"--repeats must be at least 1, got {repeats}")
-    options = dict(options or {})
-    unknown = sorted(set(options) - set(generator_type.knobs()))
-    if unknown:
-        raise UserError(f"{model_name} has no sampling option {unknown[0]!r}; its options: "
-                        f"{', '.join(generator_type.knobs())}")
+    tasks = tuple(_split(editing))
+    if set(tasks) - set(EDITS):
+        raise UserError(f"unknown editing task {sorted(set(tasks) - set(EDITS))[0]!r}; choose from {', '.join(EDITS)}")
+    checkpoints = _checkpoints(names, checkpoint)
+    chosen_methods, chosen_options = _methods(methods, generators), _options(dict(options or {}), generators)
     if guo_evaluator is not None:
         if evaluator is not None:
             raise UserError("give --evaluator or --guo-evaluator, not both")
@@ -170,12 +282,11 @@ def new_settings(dataset: str, model_name: str = "m2d2m", checkpoint: str = "lat
             raise UserError("--glove and --meta go with --guo-evaluator")
         evaluator_path = run_file(evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE,
                                   "make train-evaluator").resolve()
-    return EvalSettings(
-        model=model_name, checkpoint=str(resolve_model_file(model_name, checkpoint, dataset).resolve()),
-        testset=None if testset is None else str(Path(testset).resolve()),
-        evaluator=str(evaluator_path), glove=glove, meta=meta,
-        methods=_methods(methods or generator_type.methods[:1], generator_type), options=options,
-        repeats=int(repeats), single=bool(single))
+    candidates = tuple(Candidate(name, str(resolve_model_file(name, checkpoints[name], dataset).resolve()),
+                                 chosen_methods[name], chosen_options[name]) for name in names)
+    return EvalSettings(candidates=candidates, testset=None if testset is None else str(Path(testset).resolve()),
+                        evaluator=str(evaluator_path), glove=glove, meta=meta, repeats=int(repeats),
+                        single=bool(single), editing=tasks)
 
 
 def reopen(reference: str, dataset: str) -> tuple[Path, EvalSettings]:
@@ -194,8 +305,39 @@ def _load_evaluator(settings: EvalSettings, device: torch.device) -> TextMotionE
 
 
 # ------------------------------------------------------------------------------------ the run
-def _result_file(run_dir: Path, method: str | None, repeat: int) -> Path:
-    return run_dir / RESULTS / (f"multi-{method}-r{repeat}.json" if method else f"single-r{repeat}.json")
+@dataclass(frozen=True)
+class Job:
+    """One result file's worth of work: a candidate's row of one table in one repeat."""
+
+    candidate: Candidate
+    table: str  # "multi", "single" or "editing"
+    row: str  # the table's row (the candidate's only one in the single-motion table)
+    repeat: int
+    method: str | None = None  # multi: the method
+    task: str | None = None  # editing: the task and whether with text
+    text: bool = True
+
+    @property
+    def batches(self) -> str:
+        """Which batch count of :func:`evaluate`'s progress bar a job advances by."""
+        return "multi" if self.table == "multi" else "items" if self.table == "editing" else "single"
+
+
+def _jobs(settings: EvalSettings) -> list[Job]:
+    jobs = [Job(c, "multi", settings.row(c, m), r, method=m) for c, m in settings.rows() for r in range(settings.repeats)]
+    if settings.single:
+        jobs += [Job(c, "single", settings.single_row(c), r) for c in settings.candidates for r in range(settings.repeats)]
+    return jobs + [Job(c, "editing", row, r, task=task, text=text) for c in settings.candidates
+                   for task, text, row in settings.edit_rows(c) for r in range(settings.repeats)]
+
+
+def _result_file(run_dir: Path, job: Job) -> Path:
+    """results/multi-<row>-r<repeat>.json, single-[<model>-]r<repeat>.json, edit-<row>-r<repeat>.json."""
+    if job.table == "single":
+        owner = "" if job.row == GENERATED else f"{job.candidate.model}-"
+        return run_dir / RESULTS / f"single-{owner}r{job.repeat}.json"
+    prefix = "edit" if job.table == "editing" else "multi"
+    return run_dir / RESULTS / f"{prefix}-{job.row.replace('/', '-')}-r{job.repeat}.json"
 
 
 def _read(path: Path) -> dict[str, Any]:
@@ -211,23 +353,51 @@ class ParentRun:
     child_name: str
 
 
-def _sampling(settings: EvalSettings, generator: MotionGenerator) -> tuple[str, str | None]:
-    """The multi-action and (with ``single``) single-action sampling, in the generator's words."""
-    multi = generator.describe(generator.options(MULTI, method=settings.methods[0], **settings.options))
-    return multi, generator.describe(generator.options(SINGLE)) if settings.single else None
+@dataclass(frozen=True)
+class Sampling:
+    """How a candidate samples, in its generator's words: multi-action and (with ``single``) single-action."""
+
+    multi: str
+    single: str | None
 
 
-def _start(settings: EvalSettings, dataset: str, generator: MotionGenerator, testset: TestSet, rp_batch: int,
+def _sampling(settings: EvalSettings, generators: dict[str, MotionGenerator]) -> dict[str, Sampling]:
+    samplings = {}
+    for candidate in settings.candidates:
+        generator = generators[candidate.model]
+        multi = generator.describe(generator.options(MULTI, method=candidate.methods[0], **candidate.options))
+        samplings[candidate.model] = Sampling(multi, generator.describe(generator.options(SINGLE))
+                                              if settings.single else None)
+    return samplings
+
+
+def _candidate_params(candidate: Candidate, sampling: Sampling) -> dict[str, Any]:
+    return {"model": candidate.model, "checkpoint": candidate.checkpoint, "methods": ",".join(candidate.methods),
+            **candidate.options, "sampling": sampling.multi, "single_sampling": sampling.single}
+
+
+def _params(settings: EvalSettings, samplings: dict[str, Sampling]) -> dict[str, Any]:
+    """The MLflow params: the shared settings, and each candidate's — under their own names for
+    one model, prefixed ``<model>.`` for several (each child run has them unprefixed)."""
+    shared = {key: value for key, value in asdict(settings).items() if key != "candidates"}
+    if len(settings.candidates) == 1:
+        only = settings.candidates[0]
+        return {**shared, **_candidate_params(only, samplings[only.model])}
+    prefixed = {f"{c.model}.{key}": value for c in settings.candidates
+                for key, value in _candidate_params(c, samplings[c.model]).items() if key != "model"}
+    return {**shared, "model": ",".join(settings.models), **prefixed}
+
+
+def _start(settings: EvalSettings, dataset: str, samplings: dict[str, Sampling], testset: TestSet, rp_batch: int,
            parent: ParentRun | None = None) -> Path:
     """A new run directory and its MLflow run (experiment ``<dataset>/eval``, or a child run of
     ``parent`` in the parent's experiment) with every knob."""
     run_dir = new_run_dir(dataset, EVAL_STAGE)
-    tags = {"dataset": dataset, "stage": EVAL_STAGE, "model": settings.model, "methods": ",".join(settings.methods),
+    methods = ",".join(settings.row(c, m) for c, m in settings.rows())
+    tags = {"dataset": dataset, "stage": EVAL_STAGE, "model": ",".join(settings.models), "methods": methods,
             "run_dir": str(run_dir.resolve())}
-    multi, single = _sampling(settings, generator)
-    recorded = {key: value for key, value in asdict(settings).items() if key != "options"}
-    params = {**recorded, **settings.options, "methods": ",".join(settings.methods), "sampling": multi, "single_sampling": single, "n": testset.n, "instances": len(testset),
-              "window": WINDOW, "jerk_fps": JERK_FPS, "r_precision_batch": rp_batch}
+    params = {**_params(settings, samplings), "n": testset.n, "instances": len(testset), "window": WINDOW,
+              "jerk_fps": JERK_FPS, "r_precision_batch": rp_batch}
     run_id = start_run(experiment_name(dataset, EVAL_STAGE), parent.child_name if parent else run_dir.name, tags,
                        params, (parent.experiment_id, parent.run_id) if parent else None)
     write_run_info(run_dir, stage=EVAL_STAGE, dataset=dataset, status="running", settings=asdict(settings),
@@ -245,20 +415,24 @@ def _default_testset(generator: MotionGenerator, dataset: str) -> Path:
     return path
 
 
-def _check(settings: EvalSettings, generator: MotionGenerator, testset: TestSet,
+def _check(settings: EvalSettings, generators: dict[str, MotionGenerator], testset: TestSet,
            evaluator: TextMotionEvaluator) -> None:
     """Refuse, before anything runs, what cannot give a table."""
-    dims = {"the model": generator.feature_dim, "the evaluator": evaluator.config.feature_dim}
-    for owner, dim in dims.items():
+    dims = {f"the model {name}" if len(generators) > 1 else "the model": g.feature_dim for name, g in generators.items()}
+    for owner, dim in {**dims, "the evaluator": evaluator.config.feature_dim}.items():
         if testset.manifest.get("feature_dim") != dim:
             raise UserError(f"{testset.path} holds {testset.manifest.get('feature_dim')}-d features but {owner} "
                             f"works on {dim}-d ones: use a test set of the same dataset")
+    skeletons = {name: g.skeleton.name for name, g in generators.items()}
+    if len(set(skeletons.values())) > 1:
+        raise UserError("the models are on different skeletons (" + ", ".join(f"{n}: {s}" for n, s in skeletons.items())
+                        + "); judge models of one dataset together")
     if testset.n < 2 or len(testset) < 2:
         raise UserError(f"{testset.path}: multi-motion evaluation needs N >= 2 actions and at least 2 instances "
                         f"(it has N = {testset.n}, {len(testset)} instances)")
     try:
-        for method in settings.methods:
-            generator.options(MULTI, method=method, **settings.options)
+        for candidate, method in settings.rows():
+            generators[candidate.model].options(MULTI, method=method, **candidate.options)
     except ValueError as error:
         raise UserError(str(error)) from error
 
@@ -269,43 +443,51 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
     """Run (or, given ``run_dir``, finish) an evaluation; returns the run directory and the table.
     ``parent`` nests its MLflow run under a sweep's.
 
-    Only the (method, repeat) pairs without a result file are computed, so a killed run resumes
-    where it stopped and a finished one only rewrites its table, figure and MLflow record.
+    Only the (candidate, method, repeat) triples without a result file are computed, so a killed
+    run resumes where it stopped and a finished one only rewrites its table, figure and MLflow
+    record. With several models, each also gets a child MLflow run with its rows under the
+    metric names of a one-model evaluation, so the MLflow UI compares the models column by column.
     """
-    generator = load_generator(settings.model, settings.checkpoint, dataset)
+    generators = {c.model: load_generator(c.model, c.checkpoint, dataset) for c in settings.candidates}
     if settings.testset is None:
-        settings = replace(settings, testset=str(_default_testset(generator, dataset).resolve()))
+        first = generators[settings.candidates[0].model]
+        settings = replace(settings, testset=str(_default_testset(first, dataset).resolve()))
     testset = _open_testset(settings.testset)
-    evaluator = _load_evaluator(settings, generator.device)
-    _check(settings, generator, testset, evaluator)
-    reference = _reference(testset, evaluator, generator)
+    evaluator = _load_evaluator(settings, next(iter(generators.values())).device)
+    _check(settings, generators, testset, evaluator)
+    reference, codec_of = _reference(testset, evaluator, generators)
+    samplings = _sampling(settings, generators)
     if run_dir is None:
-        run_dir = _start(settings, dataset, generator, testset, reference.rp_batch, parent)
+        run_dir = _start(settings, dataset, samplings, testset, reference.rp_batch, parent)
     (run_dir / RESULTS).mkdir(exist_ok=True)
-    jobs: list[tuple[str | None, int]] = [(m, r) for m in settings.methods for r in range(settings.repeats)]
-    jobs += [(None, r) for r in range(settings.repeats)] if settings.single else []
-    pending = [job for job in jobs if not _result_file(run_dir, *job).exists()]
+    pending = [job for job in _jobs(settings) if not _result_file(run_dir, job).exists()]
     run_id = read_run_info(run_dir)["mlflow_run_id"]
-    batches = {"multi": -(-len(reference.actions) // batch_size),
+    batches = {"multi": -(-len(reference.actions) // batch_size), "items": -(-reference.items // batch_size),
                "single": -(-reference.items // batch_size)
                + -(-min(MM_PROMPTS, reference.items) * MM_GENERATIONS // batch_size)}
     try:
         with finishing(run_id) as client:
-            with tqdm(total=sum(batches["multi" if m else "single"] for m, _ in pending), unit="batch",
+            with tqdm(total=sum(batches[job.batches] for job in pending), unit="batch",
                       disable=not progress) as bar:
                 def advance(label: str) -> None:
                     bar.set_description(label)
                     bar.update()
 
-                evaluation = Evaluation(generator, evaluator, reference, settings.options, batch_size, advance)
-                for method, repeat in pending:
-                    result = evaluation.multi(method, repeat) if method else evaluation.single(repeat)
-                    write_json_atomically(_result_file(run_dir, method, repeat), result)
-            table = _finish(run_dir, settings, testset, reference, _sampling(settings, generator))
+                evaluations = {c.model: Evaluation(generators[c.model], evaluator, reference, c.options, batch_size,
+                                                   advance) for c in settings.candidates}
+                for job in pending:
+                    evaluation = evaluations[job.candidate.model]
+                    result = (evaluation.multi(job.method, job.repeat) if job.table == "multi" else
+                              evaluation.single(job.repeat) if job.table == "single" else
+                              evaluation.edit(job.task, job.text, job.repeat))
+                    write_json_atomically(_result_file(run_dir, job), result)
+            table = _finish(run_dir, settings, testset, reference, codec_of, samplings)
             log_batch(client, run_id, metrics=table_metrics(table))
             for name in (TABLE_MD, TABLE_JSON, FIGURE):
                 client.log_artifact(run_id, str(run_dir / name))
             client.log_artifacts(run_id, str(run_dir / RESULTS), artifact_path=RESULTS)
+            if len(settings.candidates) > 1:
+                _log_children(run_dir, settings, samplings, table, dataset)
     except BaseException:
         write_run_info(run_dir, status="failed")
         raise
@@ -314,31 +496,89 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
     return run_dir, table
 
 
-def _finish(run_dir: Path, settings: EvalSettings, testset: TestSet, reference: Reference,
-            sampling: tuple[str, str | None]) -> dict[str, Any]:
+def _log_children(run_dir: Path, settings: EvalSettings, samplings: dict[str, Sampling], table: dict[str, Any],
+                  dataset: str) -> None:
+    """One child run per candidate, named by its model, holding its params and its rows' metrics
+    as a one-model evaluation names them (``multi/<method>/<metric>``, ``single/<metric>``,
+    ``edit/<task>/<text|no_text>/<metric>``, the ground-truth rows, its codec's reconstruction
+    rows). A resumed run reuses its children."""
+    info = read_run_info(run_dir)
+    children = dict(info.get("children", {}))
+    parent_id, experiment_id = info["mlflow_run_id"], tracking_client().get_run(info["mlflow_run_id"]).info.experiment_id
+    for candidate in settings.candidates:
+        codec = table["codecs"].get(candidate.model)
+        shared = {row: values for row, values in table["multi"].items() if row in (GT_SINGLE, GT_CONCAT)}
+        one = {"multi": {**shared, **({RECONSTRUCTION: table["multi"][codec]} if codec else {}),
+                         **{method: table["multi"][settings.row(candidate, method)] for method in candidate.methods}}}
+        if "single" in table:
+            one["single"] = {GENERATED: table["single"][settings.single_row(candidate)],
+                             **({RECONSTRUCTION: table["single"][codec]} if codec else {})}
+        if "editing" in table:
+            one["editing"] = {row.removeprefix(f"{candidate.model}/"): table["editing"][row]
+                              for _, _, row in settings.edit_rows(candidate)}
+        if candidate.model not in children:
+            tags = {"dataset": dataset, "stage": EVAL_STAGE, "model": candidate.model,
+                    "methods": ",".join(candidate.methods)}
+            children[candidate.model] = start_run(experiment_name(dataset, EVAL_STAGE), candidate.model, tags,
+                                                  _candidate_params(candidate, samplings[candidate.model]),
+                                                  (experiment_id, parent_id))
+            write_run_info(run_dir, children=children)
+        with finishing(children[candidate.model]) as client:
+            log_batch(client, children[candidate.model], metrics=table_metrics(one))
+
+
+def _titles(settings: EvalSettings, codec_rows: dict[str, str]) -> dict[str, str]:
+    """Row titles beyond :data:`ROW_TITLES`: editing rows, and with several models each row's model."""
+    several = len(settings.candidates) > 1
+    owner = {c.model: f"{c.model} " if several else "" for c in settings.candidates}
+    titles = {row: f"{owner[c.model]}{EDIT_TITLES[task]} ({'w/' if text else 'w/o'} text)"
+              for c in settings.candidates for task, text, row in settings.edit_rows(c)}
+    if several:
+        titles |= {settings.row(c, m): f"{c.model} {m}" for c, m in settings.rows()}
+        titles |= {settings.single_row(c): f"{c.model} (single action)" for c in settings.candidates}
+        titles |= {row: f"{ROW_TITLES[RECONSTRUCTION]} ({', '.join(m for m, r in codec_rows.items() if r == row)})"
+                   for row in set(codec_rows.values())}
+    return titles
+
+
+def _finish(run_dir: Path, settings: EvalSettings, testset: TestSet, reference: Reference, codec_of: dict[str, str],
+            samplings: dict[str, Sampling]) -> dict[str, Any]:
     """table.json, table.md and fig5.png from the run's result files."""
-    multi = {m: [_read(_result_file(run_dir, m, r)) for r in range(settings.repeats)] for m in settings.methods}
+    several = len(settings.candidates) > 1
+    results: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for job in _jobs(settings):
+        results.setdefault((job.table, job.row), []).append(_read(_result_file(run_dir, job)))
+    metrics = {key: [result["metrics"] for result in found] for key, found in results.items()}
+    codecs = {label: [reference.reconstruction_rows(label, r) for r in range(settings.repeats)]
+              for label in reference.reconstructions}
+    codec_row = {label: f"{RECONSTRUCTION}/{label}" if len(codecs) > 1 else RECONSTRUCTION for label in codecs}
+    owners = {name: codec_row[label] for name, label in codec_of.items()}
+    titles = _titles(settings, owners)
     gt_single = [reference.measure(r) for r in range(settings.repeats)]
-    reconstructed = [reference.reconstruction_rows(r) for r in range(settings.repeats)]
-    codec = {RECONSTRUCTION: [rows[0] for rows in reconstructed]} if reconstructed[0] else {}
-    per_row = {GT_SINGLE: gt_single, GT_CONCAT: [reference.concat_row()] * settings.repeats, **codec,
-               **{m: [result["metrics"] for result in results] for m, results in multi.items()}}
+    columns = {metric for metric, _ in SINGLE_COLUMNS}
+    gt_items = [{k: v for k, v in m.items() if k in columns} for m in gt_single]
+    items_through_codecs = {codec_row[label]: [rows[1] for rows in repeats] for label, repeats in codecs.items()}
+    sampling_note = "; ".join(f"{name}: {s.multi}" if several else s.multi for name, s in samplings.items())
+    single_note = "; ".join(f"{name}: {s.single}" if several else str(s.single) for name, s in samplings.items())
     table: dict[str, Any] = {
         "settings": asdict(settings),
         "testset": {"path": str(testset.path), "n": testset.n, "instances": len(testset), "items": reference.items},
         "r_precision_batch": reference.rp_batch, "window": WINDOW, "jerk_fps": JERK_FPS,
-        "notes": notes(*sampling, reference), "multi": summarize_rows(per_row)}
-    if settings.single:
-        single = [_read(_result_file(run_dir, None, r))["metrics"] for r in range(settings.repeats)]
-        columns = {metric for metric, _ in SINGLE_COLUMNS}
-        codec = {RECONSTRUCTION: [rows[1] for rows in reconstructed]} if reconstructed[0] else {}
-        table["single"] = summarize_rows({GT_SINGLE: [{k: v for k, v in m.items() if k in columns} for m in gt_single],
-                                          **codec, GENERATED: single})
+        "notes": notes(sampling_note, single_note if settings.single else None, reference),
+        "titles": titles, "codecs": owners,
+        "multi": summarize_rows({GT_SINGLE: gt_single, GT_CONCAT: [reference.concat_row()] * settings.repeats,
+                                 **{codec_row[label]: [rows[0] for rows in repeats] for label, repeats in codecs.items()},
+                                 **{row: found for (kind, row), found in metrics.items() if kind == "multi"}})}
+    for kind in ("single", "editing"):
+        rows = {row: found for (owner, row), found in metrics.items() if owner == kind}
+        if rows:
+            table[kind] = summarize_rows({GT_SINGLE: gt_items, **items_through_codecs, **rows})
     write_json_atomically(run_dir / TABLE_JSON, table)
     (run_dir / TABLE_MD).write_text(render_table(table), encoding="utf-8")
-    curves = {m: mean_profile([(np.asarray(r["profile"]["velocity"]), np.asarray(r["profile"]["jerk"]))
-                               for r in results if r["profile"]["windows"]]) for m, results in multi.items()}
-    if reference.reconstruction is not None:
-        curves = {ROW_TITLES[RECONSTRUCTION]: mean_profile(reference.reconstruction.profiles), **curves}
-    plot_fig5(run_dir / FIGURE, {ROW_TITLES[GT_CONCAT]: reference.concat_profile, **curves})
+    curves = {titles.get(row, row): mean_profile([(np.asarray(r["profile"]["velocity"]), np.asarray(r["profile"]["jerk"]))
+                                                  for r in found if r["profile"]["windows"]])
+              for (kind, row), found in results.items() if kind == "multi"}
+    reconstructed = {titles.get(codec_row[label], ROW_TITLES[RECONSTRUCTION]): mean_profile(codec.measures.profiles)
+                     for label, codec in reference.reconstructions.items()}
+    plot_fig5(run_dir / FIGURE, {ROW_TITLES[GT_CONCAT]: reference.concat_profile, **reconstructed, **curves})
     return table

@@ -22,6 +22,9 @@ MULTI_COLUMNS = (("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MMdi
                  ("jerk", "Jerk →"), ("peak_jerk", "PJ →"), ("auj", "AUJ ↓"), ("bone_std", "Bone σ (mm) ↓"))
 SINGLE_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top2", "R-Top2 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"),
                   ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →"), ("mmodality", "MModality ↑"))
+EDIT_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MM-Dist ↓"),
+                ("diversity", "Diversity →"))  # MMM Table 3's, and R-Top3 as every table here has
+EDIT_TITLES = {"inbetween": "In-betweening", "upper": "Upper-body editing"}
 ROW_TITLES = {GT_SINGLE: "Ground truth (single)", GT_CONCAT: "Ground truth (concat)",
               RECONSTRUCTION: "VQ-VAE reconstruction", GENERATED: "Generated (single action)"}
 
@@ -49,23 +52,28 @@ def cell(summary: dict[str, float | None] | None) -> str:
     return f"{summary['mean']:.3f} ± {summary['ci']:.3f}"
 
 
-def _markdown(title: str, columns: tuple[tuple[str, str], ...], rows: dict[str, dict[str, Any]]) -> list[str]:
+def _markdown(title: str, columns: tuple[tuple[str, str], ...], rows: dict[str, dict[str, Any]],
+              titles: dict[str, str]) -> list[str]:
     lines = [f"## {title}", "", "| Method | " + " | ".join(name for _, name in columns) + " |",
              "| --- |" + " --- |" * len(columns)]
     for row, values in rows.items():
-        lines.append(f"| {ROW_TITLES.get(row, row)} | " + " | ".join(cell(values.get(m)) for m, _ in columns) + " |")
+        name = titles.get(row, ROW_TITLES.get(row, row))
+        lines.append(f"| {name} | " + " | ".join(cell(values.get(m)) for m, _ in columns) + " |")
     return lines + [""]
 
 
 def render_table(table: dict[str, Any]) -> str:
     """table.md: the paper's tables, then the conventions a reader needs to compare them."""
-    settings, testset = table["settings"], table["testset"]
-    lines = [f"# Evaluation of {settings['checkpoint']}", "",
+    settings, testset, titles = table["settings"], table["testset"], table.get("titles", {})
+    judged = ", ".join(c["checkpoint"] for c in settings["candidates"])
+    lines = [f"# Evaluation of {judged}", "",
              f"Test set {testset['path']}: {testset['instances']} instances of N = {testset['n']} actions. "
              f"Mean ± 95 % CI over {settings['repeats']} repeats.", ""]
-    lines += _markdown("Multi-motion (paper Tables 1–2)", MULTI_COLUMNS, table["multi"])
+    lines += _markdown("Multi-motion (paper Tables 1–2)", MULTI_COLUMNS, table["multi"], titles)
     if "single" in table:
-        lines += _markdown("Single-motion (paper Table 3)", SINGLE_COLUMNS, table["single"])
+        lines += _markdown("Single-motion (paper Table 3)", SINGLE_COLUMNS, table["single"], titles)
+    if "editing" in table:
+        lines += _markdown("Editing (MMM Table 3)", EDIT_COLUMNS, table["editing"], titles)
     lines += [f"- {note}" for note in table["notes"]]
     return "\n".join(lines) + "\n"
 
@@ -138,22 +146,25 @@ def plot_against_knob(path: Path, series: dict[str, dict[str, list[Point]]], kno
 
 
 def table_metrics(table: dict[str, Any]) -> dict[str, float]:
-    """``multi/<method>/<metric>``, ``gt/<metric>_single``, ``gt/jerk_concat``, ``single/<metric>``,
-    ``multi/reconstruction/<metric>`` and ``single/reconstruction/<metric>``, each with a ``_ci``
-    twin; undefined values are left out."""
+    """``multi/<row>/<metric>`` (``multi/tps/jerk``; ``multi/mmm/transition/jerk`` when several
+    models are judged; ``multi/reconstruction/jerk``), ``gt/<metric>_single``, ``gt/jerk_concat``,
+    ``single/<metric>`` (``single/<model>/<metric>`` for several models),
+    ``single/reconstruction/<metric>``, ``edit/<task>/<text|no_text>/<metric>`` (the editing table's
+    rows, ``edit/<model>/...`` for several models), each with a ``_ci`` twin; undefined values are left out."""
     names = {}
     sections = [("multi", row, values) for row, values in table["multi"].items()]
-    sections += [("single", row, values) for row, values in table.get("single", {}).items()
-                 if row in (GENERATED, RECONSTRUCTION)]
+    sections += [("single", row, values) for row, values in table.get("single", {}).items() if row != GT_SINGLE]
+    sections += [("edit", row, values) for row, values in table.get("editing", {}).items()
+                 if row != GT_SINGLE and not row.startswith(RECONSTRUCTION)]
     for section, row, values in sections:
         for metric, summary in values.items():
             if summary["mean"] is None:
                 continue
             if row in (GT_SINGLE, GT_CONCAT):
                 name = f"gt/{metric}_{row.removeprefix('gt_')}"
-            elif row == RECONSTRUCTION:
-                name = f"{section}/reconstruction/{metric}"
+            elif section == "single" and row.split("/")[0] == GENERATED:
+                name = "/".join(["single", *row.split("/")[1:], metric])
             else:
-                name = f"multi/{row}/{metric}" if section == "multi" else f"single/{metric}"
+                name = f"{section}/{row}/{metric}"
             names[name], names[f"{name}_ci"] = summary["mean"], summary["ci"]
     return names

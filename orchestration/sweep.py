@@ -156,7 +156,8 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
                   "repeats": config["repeats"]}
     if config["kind"] == "sampling":
         resolved = new_settings(dataset, entry.name, checkpoint=config["checkpoint"], **evaluation)
-        evaluation.update(checkpoint=resolved.checkpoint, evaluator=resolved.evaluator, testset=resolved.testset)
+        evaluation.update(checkpoint=resolved.candidates[0].checkpoint, evaluator=resolved.evaluator,
+                          testset=resolved.testset)
     else:
         entry.load("recipe").prepare(load_config(entry.configs, config["train_config"], []))
     return {"project": str(Path.cwd().resolve()), "tracking_uri": tracking_uri(), "dataset": dataset,

@@ -121,7 +121,7 @@ TINY_MMM = {
     **{key: TINY_DIFFUSION[key] for key in ("dataset", "seed", "vq", "data", "text", "optim", "trainer")},
     "transformer": {"width": 16, "heads": 2, "layers": 2, "cross_layers": 1, "ffn": 32, "dropout": 0.0,
                     "max_tokens": 50},
-    "masking": {"alpha": 0.5},
+    "masking": {"alpha": 0.5, "text_drop": 0.1},
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
 }
 

@@ -82,7 +82,21 @@ def test_evaluation_settings_recorded_before_the_registry_read_as_m2d2m():
     recorded = {"checkpoint": "model.pt", "testset": None, "evaluator": "evaluator.pt", "glove": None, "meta": None,
                 "methods": ["tps"], "ts": 80, "eta": 0.25, "guidance": 2.0, "repeats": 2, "single": False}
     settings = EvalSettings.from_dict(recorded)
-    assert settings.model == "m2d2m" and settings.options == {"ts": 80, "eta": 0.25, "guidance": 2.0}
+    (only,) = settings.candidates
+    assert only.model == "m2d2m" and only.options == {"ts": 80, "eta": 0.25, "guidance": 2.0}
+    assert only.methods == ("tps",) and only.checkpoint == "model.pt" and settings.repeats == 2
+
+
+def test_one_model_evaluation_settings_read_as_one_candidate_and_round_trip():
+    from dataclasses import asdict
+
+    from orchestration.evaluate import EvalSettings
+
+    recorded = {"model": "mmm", "checkpoint": "model.pt", "testset": None, "evaluator": "evaluator.pt", "glove": None,
+                "meta": None, "methods": ["transition"], "options": {"temperature": 0.5}, "repeats": 1, "single": True}
+    settings = EvalSettings.from_dict(recorded)
+    assert settings.models == ("mmm",) and settings.candidates[0].options == {"temperature": 0.5}
+    assert EvalSettings.from_dict(asdict(settings)) == settings
 
 
 def test_sweep_configs_written_before_the_registry_still_load():

@@ -159,3 +159,28 @@ def test_categorical_follows_probabilities_and_skips_zeros():
     assert abs(counts[1] - 0.2) < 0.005
     edges = categorical(probs[:3], torch.tensor([0.0, 0.2, 0.999999], dtype=torch.float64))
     assert edges.tolist() == [1, 3, 3]
+
+
+def test_an_empty_sentence_samples_under_the_null_condition(sampler, monkeypatch):
+    """Editing "without text" asks with ""; the denoiser must then see its learned null condition,
+    exactly what classifier-free training drops a caption to, for that row and no other."""
+    denoiser = sampler.denoiser
+    text, mask = torch.randn(3, 5, 16), torch.ones(3, 5, dtype=torch.bool)
+    nulled, null_mask = denoiser.nullify(text, mask, torch.tensor([True, False, True]))
+    dropped, dropped_mask = denoiser.drop_condition(text, mask, 1.0)
+    assert torch.equal(nulled[0], dropped[0]) and torch.equal(null_mask[2], dropped_mask[2])
+    assert torch.equal(nulled[1], text[1]) and torch.equal(null_mask[1], mask[1])
+
+    seen = []
+    original = type(denoiser).forward
+
+    def spying(self, z, valid, steps, condition, condition_mask):
+        seen.append((condition.clone(), condition_mask.clone()))
+        return original(self, z, valid, steps, condition, condition_mask)
+
+    monkeypatch.setattr(type(denoiser), "forward", spying)
+    run(sampler, [Request([[""]], [5], seed=1), Request([WALK], [5], seed=1)], method="independent", guidance=1.0)
+    condition, condition_mask = seen[0]
+    assert torch.equal(condition_mask[0], torch.arange(condition.shape[1]) == 0)
+    assert torch.equal(condition[0, 0], denoiser.null_text.reshape(-1))
+    assert condition_mask[1].sum() == len(WALK[0].split())

@@ -147,7 +147,8 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     assert "ground truth played back from frame 0" in capsys.readouterr().out
     stage = trained_project / "runs" / "tiny" / "eval"
     table = yaml.safe_load((stage / (stage / "latest").read_text().strip() / "table.json").read_text())
-    assert table["settings"]["model"] == "playback" and table["settings"]["methods"] == ["concat"]
+    (judged,) = table["settings"]["candidates"]
+    assert judged["model"] == "playback" and judged["methods"] == ["concat"]
     assert all(np.isfinite(summary["mean"]) for summary in table["multi"]["concat"].values())
 
     config = sweep_config(tiny_testset, model="playback", checkpoint=str(model_file), method="concat",

@@ -23,7 +23,9 @@ from training.vq_module import NonFiniteLossError
 
 class MMMModule(pl.LightningModule):
     """Cross-entropy of the masked tokens, r ~ U(α, 1) of each caption's tokens masked; AdamW
-    with warm-up and step decay. The tokenizer's codebook embeds the codes and is never trained.
+    with warm-up and step decay. A fraction ``text_drop`` of the captions is replaced by the
+    empty sentence, the null condition (ours: the paper's Table 3 edits "w/o text" but does not
+    say how its model learned to). The tokenizer's codebook embeds the codes and is never trained.
     Each training sample is one caption and its segment of the tokens; the condition is the
     caption's sentence feature (prepended) and word features (cross-attended)."""
 
@@ -40,8 +42,10 @@ class MMMModule(pl.LightningModule):
                                                     "code_dim": codebook.shape[1], "text_dim": self.text_encoder.dim})
         self.transformer = MaskedMotionTransformer(config, codebook)
         self.alpha = float(masking.get("alpha", 0.5))
-        if not 0.0 <= self.alpha <= 1.0:
-            raise ConfigError(f"masking.alpha must lie in [0, 1], got {self.alpha}")
+        self.text_drop = float(masking.get("text_drop", 0.0))
+        for name, value in (("alpha", self.alpha), ("text_drop", self.text_drop)):
+            if not 0.0 <= value <= 1.0:
+                raise ConfigError(f"masking.{name} must lie in [0, 1], got {value}")
 
     def _condition(self, captions: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         words, word_mask, sentence = self.text_encoder.encode_pooled(list(captions))
@@ -56,7 +60,10 @@ class MMMModule(pl.LightningModule):
         lengths = valid.sum(dim=1)
         masked = training_mask(lengths, codes.shape[1], self.alpha, generator)
         inputs = canvas(codes.masked_fill(masked, config.mask_id), lengths, config)
-        logits = self.transformer(inputs, *self._condition(batch["text"]))[:, :-1]
+        # a caption dropped to "" teaches the null condition that editing without text asks for
+        dropped = torch.rand(len(batch["text"]), generator=generator, device=codes.device) < self.text_drop
+        captions = ["" if drop else caption for caption, drop in zip(batch["text"], dropped.tolist())]
+        logits = self.transformer(inputs, *self._condition(captions))[:, :-1]
         return codes, masked, logits
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:

@@ -41,7 +41,7 @@ from torch.nn.utils.rnn import pad_sequence
 from m2d2m.evaluation.evaluator import TextMotionEvaluator
 from m2d2m.evaluation.metrics import (DEFAULT_MIN_STEP, diversity, fid, frame_jerk, jerk, mean_frame_jerk, mm_dist,
                                       multimodality, peak_jerk_and_auj, r_precision, transition_windows)
-from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
+from m2d2m.generators.protocol import MULTI, SINGLE, Keep, MotionGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.joining import slerp_join
 from m2d2m.motion.representation import features_to_joints
@@ -181,6 +181,16 @@ def _matching(text: np.ndarray, motion: np.ndarray, order: np.ndarray, batch: in
 
 
 @dataclass
+class Reconstruction:
+    """The test set through one codec: its instances decoded together, its items alone (their
+    embeddings), and the decoded sequences, to recognise the same codec in another model."""
+
+    measures: MultiMeasures
+    items: np.ndarray  # (items, E)
+    sequences: list[np.ndarray]
+
+
+@dataclass
 class Reference:
     """What the test set contributes whatever the method: its requests, the caption embeddings,
     the ground-truth segment and middle-window embeddings, and the ground-truth Jerk values."""
@@ -197,8 +207,8 @@ class Reference:
     flowmdm_concat: dict[str, float]  # PJ and AUJ at the boundaries of the concatenated items
     concat_profile: dict[str, Any]
     bone_std: float  # mm, of the ground-truth segments' joints as recovered from their features
-    reconstruction: MultiMeasures | None = None  # the instances through the generator's codec, if it has one
-    reconstructed_items: np.ndarray | None = None  # (items, E): each item through the codec alone
+    features: list[list[np.ndarray]] = field(default_factory=list)  # each segment cut to its generated length
+    reconstructions: dict[str, Reconstruction] = field(default_factory=dict)  # by the models sharing a codec
 
     @property
     def items(self) -> int:
@@ -211,13 +221,13 @@ class Reference:
 
     @classmethod
     def build(cls, actions: list[list[str]], segments: list[list[np.ndarray]], captions: list[list[str]],
-              evaluator: TextMotionEvaluator, generator: MotionGenerator) -> "Reference":
+              evaluator: TextMotionEvaluator, skeleton: Any, frame_step: int = 1) -> "Reference":
         """From each instance's action sentences and ground-truth feature segments, and each
-        item's caption as ``word/POS`` tokens (items in instance order)."""
-        frames = [[generator.round_frames(len(clip)) for clip in clips] for clips in segments]
-        # each segment cut to the frames generated for it (whole tokens of a token model, as Guo's loader crops)
+        item's caption as ``word/POS`` tokens (items in instance order). Every length is cut to
+        a multiple of ``frame_step`` (whole tokens of a token model, as Guo's loader crops), the
+        coarsest step of the generators measured against it, so that all get the same requests."""
+        frames = [[max(1, len(clip) // frame_step) * frame_step for clip in clips] for clips in segments]
         features = [[clip[:n] for clip, n in zip(clips, lengths)] for clips, lengths in zip(segments, frames)]
-        skeleton = generator.skeleton
         flat = [clip for clips in features for clip in clips]
         middles = [transition_windows(clip, [len(clip) // 2], WINDOW)[0] for clip in flat]
         joints = [[features_to_joints(clip, skeleton) for clip in clips] for clips in features]
@@ -235,14 +245,27 @@ class Reference:
             frame_jerk_mean=constant, flowmdm_single=flowmdm_jerk(middle_curves, constant),
             flowmdm_concat=flowmdm_jerk(concat_curves, constant),
             concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]),
-            bone_std=_nanmean([bone_length_spread(j, skeleton)["mean"] for clips in joints for j in clips]))
-        reconstructed = generator.reconstruct(features)
-        if reconstructed is not None:
-            reference.reconstruction = MultiMeasures()
-            reference.reconstruction.add(reconstructed, evaluator, skeleton)
-            reference.reconstructed_items = embed_clips(
-                evaluator, [m.features for m in generator.reconstruct([[clip] for clip in flat])])
+            bone_std=_nanmean([bone_length_spread(j, skeleton)["mean"] for clips in joints for j in clips]),
+            features=features)
         return reference
+
+    def add_reconstruction(self, label: str, generator: MotionGenerator, evaluator: TextMotionEvaluator) -> str | None:
+        """Measure the test set through ``generator``'s codec, if it has one, under ``label``; a
+        codec that reconstructs exactly as one measured before (models sharing a VQ-VAE) is not
+        measured twice. Returns the label its rows are under, or None for a model without a codec."""
+        reconstructed = generator.reconstruct(self.features)
+        if reconstructed is None:
+            return None
+        for known, earlier in self.reconstructions.items():
+            if len(earlier.sequences) == len(reconstructed) and all(
+                    np.array_equal(a, m.features) for a, m in zip(earlier.sequences, reconstructed)):
+                return known
+        measures = MultiMeasures()
+        measures.add(reconstructed, evaluator, generator.skeleton)
+        items = embed_clips(evaluator, [m.features for m in generator.reconstruct(
+            [[clip] for clips in self.features for clip in clips])])
+        self.reconstructions[label] = Reconstruction(measures, items, [m.features for m in reconstructed])
+        return label
 
     def measure(self, repeat: int) -> dict[str, float]:
         """The "ground truth (single)" row for one repeat (its shuffle and diversity draws)."""
@@ -252,13 +275,13 @@ class Reference:
                 "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
                 "jerk": self.jerk_single, **self.flowmdm_single, "bone_std": self.bone_std}
 
-    def reconstruction_rows(self, repeat: int) -> tuple[dict[str, float], dict[str, float]] | None:
+    def reconstruction_rows(self, label: str, repeat: int) -> tuple[dict[str, float], dict[str, float]]:
         """The "VQ-VAE reconstruction" rows of the multi- and single-motion tables for one
-        repeat, or None for a model without a codec."""
-        if self.reconstruction is None or self.reconstructed_items is None:
-            return None
+        repeat, of the codec measured under ``label``."""
+        reconstruction = self.reconstructions[label]
         order = _rng(repeat, "order").permutation(self.items)
-        return self.reconstruction.metrics(self, repeat), _single_metrics(self, self.reconstructed_items, order, repeat)
+        return (reconstruction.measures.metrics(self, repeat),
+                _single_metrics(self, reconstruction.items, order, repeat))
 
     def concat_row(self) -> dict[str, float]:
         """The "ground truth (concat)" row: its transition jerks, the same in every repeat."""
@@ -280,12 +303,13 @@ class Evaluation:
         self.progress = progress
 
     def _generate(self, actions: list[list[str]], frames: list[list[int]], options: Any,
-                  seeds: list[int], label: str) -> Iterator[list[Motion]]:
+                  seeds: list[int], label: str, keep: list[Keep] | None = None) -> Iterator[list[Motion]]:
         """The motions of the requests, one batch at a time (a whole repeat would not fit in
         memory on a real test set)."""
         for start in range(0, len(actions), self.batch_size):
             window = slice(start, start + self.batch_size)
-            yield self.generator.generate(actions[window], frames[window], options, seeds[window])
+            yield self.generator.generate(actions[window], frames[window], options, seeds[window],
+                                          None if keep is None else keep[window])
             self.progress(label)
 
     def multi(self, method: str, repeat: int) -> dict[str, Any]:
@@ -319,7 +343,38 @@ class Evaluation:
                                               pairs=MM_GENERATIONS, seed=repeat)}
         return {"repeat": repeat, "metrics": metrics}
 
+    def edit(self, task: str, text: bool, repeat: int) -> dict[str, Any]:
+        """One repeat of one row of the editing table (MMM Table 3): every test item regenerated
+        with the single-action settings, keeping what ``task`` keeps of its ground truth, under
+        its sentence (``text``) or the empty sentence, the null condition; measured as the
+        single-motion table measures (against the items' captions and ground-truth segments)."""
+        reference = self.reference
+        flat = [clip for clips in reference.features for clip in clips]
+        actions = [[action if text else ""] for instance in reference.actions for action in instance]
+        frames = [[len(clip)] for clip in flat]
+        keep = [EDITS[task](clip, self.generator.skeleton) for clip in flat]
+        order = _rng(repeat, "order").permutation(reference.items)
+        label = f"{task} {'with' if text else 'without'} text r{repeat}"
+        embedded = self._embed_generated(actions, frames, self.generator.options(SINGLE),
+                                         _seeds(repeat, f"edit-{task}", len(actions)), label, keep)
+        return {"task": task, "text": text, "repeat": repeat,
+                "metrics": _single_metrics(reference, embedded, order, repeat)}
+
     def _embed_generated(self, actions: list[list[str]], frames: list[list[int]], options: Any,
-                         seeds: list[int], label: str) -> np.ndarray:
+                         seeds: list[int], label: str, keep: list[Keep] | None = None) -> np.ndarray:
         return np.concatenate([embed_clips(self.evaluator, [m.features for m in motions])
-                               for motions in self._generate(actions, frames, options, seeds, label)])
+                               for motions in self._generate(actions, frames, options, seeds, label, keep)])
+
+
+def inbetween_keep(features: np.ndarray, skeleton: Any) -> Keep:
+    """In-betweening as MMM's Table 3 evaluates it: the first and last 25 % of the frames kept,
+    the middle 50 % generated."""
+    frames = np.zeros(len(features), dtype=bool)
+    quarter = len(features) // 4
+    frames[:quarter] = True
+    frames[len(features) - quarter:] = True
+    return Keep(features, frames)
+
+
+# editing tasks of the editing table: what each keeps of a ground-truth item
+EDITS: dict[str, Callable[[np.ndarray, Any], Keep]] = {"inbetween": inbetween_keep}

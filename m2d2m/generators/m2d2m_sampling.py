@@ -246,6 +246,10 @@ class TokenSampler:
         valid = torch.arange(width, device=device)[None, :] < lengths[:, None]
         groups = [(torch.tensor(g, device=device), row_lengths[g[0]]) for g in length_groups(row_lengths)]
         text, text_mask = encode_actions(self.text_encoder, [row.condition for row in layout.rows])
+        # an empty sentence asks for no text: the null condition of classifier-free guidance
+        unconditional = torch.tensor([not any(s.strip() for s in row.condition) for row in layout.rows])
+        if unconditional.any():
+            text, text_mask = self.denoiser.nullify(text, text_mask, unconditional)
         z = torch.full((rows, width), mask, dtype=torch.long, device=device)
         fixed = torch.full_like(z, FREE)
         for i, row in enumerate(layout.rows):

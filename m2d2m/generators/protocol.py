@@ -168,6 +168,7 @@ class MotionGenerator(ABC):
                  progress: Callable[[float], None] | None = None) -> list[Motion]:
         """One motion per sequence: ``actions[i]`` in order, action j about ``frames[i][j]`` frames
         long (rounded by :meth:`round_frames`), drawn with ``seeds[i]``; ``keep[i]`` holds frames
-        to keep. A sequence's result does not depend on the others in the call. ValueError for a
+        to keep. An empty sentence asks for the action without text: the model's null condition
+        (editing "w/o text", MMM Table 3). A sequence's result does not depend on the others in the call. ValueError for a
         request it cannot serve. A model that works in steps may call ``progress`` with the
         fraction done, for a progress bar on long generations."""

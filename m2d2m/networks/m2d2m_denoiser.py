@@ -221,11 +221,18 @@ class MotionDenoiser(nn.Module):
             raise ValueError("text must have at least one token to be replaced by the null condition")
         draw_device = generator.device if generator is not None else text.device
         dropped = (torch.rand(batch, generator=generator, device=draw_device) < p).to(text.device)
+        return self.nullify(text, text_mask, dropped)
+
+    def nullify(self, text: torch.Tensor, text_mask: torch.Tensor,
+                rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The condition with the samples where ``rows`` (B,) is True replaced by the null condition,
+        which takes the first position, the rest of that sample's tokens becoming padding."""
+        batch, length, _ = text.shape
         null_text = F.pad(self.null_text.to(text.dtype), (0, 0, 0, length - 1)).expand(batch, -1, -1)
         null_mask = torch.zeros_like(text_mask)
         null_mask[:, 0] = True
-        return (torch.where(dropped[:, None, None], null_text, text),
-                torch.where(dropped[:, None], null_mask, text_mask))
+        rows = rows.to(text.device)
+        return torch.where(rows[:, None, None], null_text, text), torch.where(rows[:, None], null_mask, text_mask)
 
     def relative_position_bias(self, length: int, device: torch.device) -> torch.Tensor:
         """(heads, L, L) learned bias indexed by the bucket of ``key - query``."""
