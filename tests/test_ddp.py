@@ -1,5 +1,5 @@
-"""DDP on one machine, as Lightning runs it on a GPU node: it starts the second rank by re-running
-the command, and both ranks train one run (one directory, one MLflow run) whose files only rank 0
+"""DDP on one machine, as Lightning runs it on a GPU node, for M2D2M and MMM: it starts the second
+rank by re-running the command, and both ranks train one run (one directory, one MLflow run) whose files only rank 0
 writes. Two CPU processes with gloo stand in for two GPUs."""
 
 from __future__ import annotations
@@ -10,16 +10,30 @@ import subprocess
 import sys
 
 import mlflow
+import pytest
+import yaml
 
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
+from m2d2m.generators.mmm_checkpoint import load_mmm
+from tests.helpers import TINY_MMM
 
 
-def test_two_ddp_ranks_train_one_run(trained_project):
-    runs = trained_project / "runs" / "tiny" / "m2d2m"
-    before = {path for path in runs.iterdir() if path.is_dir()}
+def width(model: str, path) -> int:
+    return (load_checkpoint(path).denoiser.config.width if model == "m2d2m" else
+            load_mmm(path).transformer.config.width)
+
+
+@pytest.mark.parametrize("model, verb", [("m2d2m", "train-diffusion"), ("mmm", "train-mmm")])
+def test_two_ddp_ranks_train_one_run(trained_project, model, verb):
+    runs = trained_project / "runs" / "tiny" / model
+    before = {path for path in runs.iterdir() if path.is_dir()} if runs.exists() else set()
+    config = trained_project / f"{model}-ddp.yaml"
+    if model == "mmm":
+        config.write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
+    else:
+        config = trained_project / "diffusion.yaml"
     env = {key: value for key, value in os.environ.items() if key != "MLFLOW_TRACKING_URI"}
-    command = [sys.executable, "-m", "orchestration.cli", "train-diffusion",
-               "--config", str(trained_project / "diffusion.yaml"),
+    command = [sys.executable, "-m", "orchestration.cli", verb, "--config", str(config),
                "--set", "trainer.accelerator=cpu", "--set", "trainer.devices=2"]
     result = subprocess.run(command, cwd=trained_project, env={**env, "OMP_NUM_THREADS": "1"},
                             capture_output=True, text=True, timeout=600)
@@ -28,11 +42,11 @@ def test_two_ddp_ranks_train_one_run(trained_project):
     (run_dir,) = {path for path in runs.iterdir() if path.is_dir()} - before
     info = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
     assert info["status"] == "finished" and info["world_size"] == 2
-    assert load_checkpoint(run_dir / "model.pt").denoiser.config.width == 16
+    assert width(model, run_dir / "model.pt") == (16 if model == "m2d2m" else TINY_MMM["transformer"]["width"])
     assert (runs / "latest").read_text(encoding="utf-8").strip() == run_dir.name
 
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{trained_project / 'mlflow.db'}")
-    experiment = client.get_experiment_by_name("tiny/m2d2m")
+    experiment = client.get_experiment_by_name(f"tiny/{model}")
     (run,) = client.search_runs([experiment.experiment_id], f"attributes.run_name = '{run_dir.name}'")
     assert run.info.run_id == info["mlflow_run_id"] and run.info.status == "FINISHED"
     assert run.data.params["world_size"] == "2" and "val/loss" in run.data.metrics
