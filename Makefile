@@ -106,12 +106,13 @@ MIRRORS ?= same
 testset: $(STAMP)  ## build the N-action test set of the multi-motion evaluation (N=4 SEED=0 MIRRORS=same|distinct|exclude)
 	$(M2D2M) testset --dataset $(DATASET) --n $(N) --seed $(SEED) --mirrors $(MIRRORS)
 
+MODELS    ?= m2d2m
 METHODS   ?= tps,independent,handshake,slerp
 REPEATS   ?= 10
 RESUME    ?=
 EVAL_ARGS ?=
-eval: $(STAMP)  ## the paper's multi-motion table + Fig. 5 of the latest denoiser (METHODS=... REPEATS=10 EVAL_ARGS="--single", RESUME=<run>)
-	$(M2D2M) evaluate --dataset $(DATASET) $(if $(RESUME),--resume $(RESUME),--method $(METHODS) --repeats $(REPEATS)) $(EVAL_ARGS)
+eval: $(STAMP)  ## the paper's multi-motion table + Fig. 5 of the latest denoiser (MODELS=m2d2m,mmm METHODS=...,mmm:transition REPEATS=10 EVAL_ARGS="--single --edit inbetween", RESUME=<run>)
+	$(M2D2M) evaluate --dataset $(DATASET) $(if $(RESUME),--resume $(RESUME),--model $(MODELS) --method $(METHODS) --repeats $(REPEATS)) $(EVAL_ARGS)
 
 # Sized by bench/tps_boundaries.py on the demo model: a sequence's Jerk varies by 0.31-0.41 from seed to
 # seed, so 10 repeats of 78 instances give half-widths of 1.96 * σ / sqrt(780) = 0.022-0.029.
