@@ -21,6 +21,14 @@ from training.optim import configure_adamw
 from training.vq_module import NonFiniteLossError
 
 
+def as_codebook(codebook: torch.Tensor | np.ndarray) -> torch.Tensor:
+    """A tokenizer's (K, code_dim) code vectors as a float tensor."""
+    codebook = torch.as_tensor(np.asarray(codebook) if not torch.is_tensor(codebook) else codebook).float()
+    if codebook.dim() != 2:
+        raise ValueError(f"codebook must have shape (K, code_dim), got {tuple(codebook.shape)}")
+    return codebook
+
+
 class MMMModule(pl.LightningModule):
     """Cross-entropy of the masked tokens, r ~ U(α, 1) of each caption's tokens masked; AdamW
     with warm-up and step decay. The tokenizer's codebook embeds the codes and is never trained.
@@ -31,17 +39,19 @@ class MMMModule(pl.LightningModule):
                  optim: dict[str, Any], codebook: torch.Tensor | np.ndarray,
                  vocabulary: list[str] | None = None) -> None:
         super().__init__()
-        self.save_hyperparameters(ignore=["codebook"])
-        codebook = torch.as_tensor(np.asarray(codebook) if not torch.is_tensor(codebook) else codebook).float()
-        if codebook.dim() != 2:
-            raise ValueError(f"codebook must have shape (K, code_dim), got {tuple(codebook.shape)}")
+        self.save_hyperparameters(ignore=["codebook", "lower_codebook"])
         self.text_encoder = text_encoder_from_config(text, vocabulary)
-        config = MaskedTransformerConfig.from_dict({**transformer, "codebook_size": codebook.shape[0],
-                                                    "code_dim": codebook.shape[1], "text_dim": self.text_encoder.dim})
-        self.transformer = MaskedMotionTransformer(config, codebook)
+        self.transformer = self.build_transformer(transformer, codebook)
         self.alpha = float(masking.get("alpha", 0.5))
         if not 0.0 <= self.alpha <= 1.0:
             raise ConfigError(f"masking.alpha must lie in [0, 1], got {self.alpha}")
+
+    def build_transformer(self, settings: dict[str, Any], codebook: torch.Tensor | np.ndarray) -> MaskedMotionTransformer:
+        """The network of the config section ``settings`` over the tokenizer's ``codebook``."""
+        codebook = as_codebook(codebook)
+        config = MaskedTransformerConfig.from_dict({**settings, "codebook_size": codebook.shape[0],
+                                                    "code_dim": codebook.shape[1], "text_dim": self.text_encoder.dim})
+        return MaskedMotionTransformer(config, codebook)
 
     def _condition(self, captions: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         words, word_mask, sentence = self.text_encoder.encode_pooled(list(captions))
