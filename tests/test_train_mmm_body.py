@@ -1,0 +1,71 @@
+"""MMM's upper-body editing end to end at toy size: both part tokenizers by `m2d2m train-vq`, the
+editor by `m2d2m train-mmm-body`, an edit by `m2d2m generate --edit ... --keep-body lower`."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from m2d2m.motion.body_parts import LOWER, UPPER, part_dims
+from m2d2m.motion.skeleton import T2M
+from m2d2m.networks.vqvae import load_vq
+from orchestration.cli import main
+from orchestration.runs import latest_run, read_run_info
+from tests.helpers import TINY_MMM, pose_clip
+
+TINY_BODY = {**TINY_MMM, "vq": {UPPER: "latest", LOWER: "latest"}, "masking": {"alpha": 0.5, "lower_most": 0.3}}
+del TINY_BODY["preview"]
+
+
+@pytest.fixture(scope="module")
+def body_project(trained_project):
+    """The trained project with both part tokenizers and an editor trained on its corpus."""
+    vq = yaml.safe_load((trained_project / "vq.yaml").read_text(encoding="utf-8"))
+    for part in (UPPER, LOWER):
+        config = {**vq, "model": {**vq["model"], "part": part}}
+        (trained_project / f"vq-{part}.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+        assert main(["train-vq", "--config", str(trained_project / f"vq-{part}.yaml")]) == 0
+    (trained_project / "body.yaml").write_text(yaml.safe_dump(TINY_BODY), encoding="utf-8")
+    assert main(["train-mmm-body", "--config", str(trained_project / "body.yaml")]) == 0
+    return trained_project
+
+
+def test_part_tokenizers_have_their_own_runs(body_project):
+    whole = latest_run("tiny", "vq", "make train-vq")
+    for part in (UPPER, LOWER):
+        run = latest_run("tiny", f"vq-{part}", "train-vq")
+        model, _, meta = load_vq(run / "vq.pt")
+        assert meta["part"] == part and run != whole
+        assert model.decoder[-2].out_channels == len(part_dims(T2M, part))  # it writes its part's dimensions
+    assert load_vq(whole / "vq.pt")[2]["part"] == "full"  # the whole-body tokenizer stays the vq stage's latest
+
+
+def test_the_editor_trains_and_edits_through_the_command_line(body_project, capsys):
+    run_dir = latest_run("tiny", "mmm-body", "make train-mmm-body")
+    info = read_run_info(run_dir)
+    assert info["status"] == "finished" and (run_dir / "model.pt").exists()
+    assert "lower_vq" in info and "lower_tokens" in info  # the run says which tokenizers it paired
+
+    joints = pose_clip(T2M, 41, seed=3)  # joints: the command line makes the 40 frames of features
+    np.save(body_project / "source.npy", joints)
+    out = body_project / "edited"
+    assert main(["generate", "a man waves his right hand", "--model", "mmm-body", "--dataset", "tiny",
+                 "--edit", str(body_project / "source.npy"), "--keep-body", "lower", "--option", "lower_mask=0.5",
+                 "--no-split", "--no-track", "--out", str(out)]) == 0
+    assert {p.name for p in out.iterdir()} >= {"motion.npy", "motion.features.npy", "motion.bvh", "motion.gif"}
+    edited = np.load(out / "motion.features.npy")
+    assert edited.shape == (40, 263)
+
+    for argv, message in (
+        (["--keep-body", "lower"], "go together"),
+        (["--edit", str(body_project / "missing.npy"), "--keep-body", "lower"], "no such file"),
+        (["--edit", str(body_project / "source.npy"), "--keep-body", "upper"], "keeps on every frame"),
+        (["--edit", str(body_project / "source.npy"), "--keep-body", "arms"], "unknown body part 'arms'"),
+        ([], "keeps on every frame"),  # the editor cannot make a motion from text alone
+    ):
+        capsys.readouterr()
+        assert main(["generate", "a man claps", "--model", "mmm-body", "--dataset", "tiny", "--no-track",
+                     "--out", str(body_project / "refused"), *argv]) == 2
+        error = capsys.readouterr().err
+        assert message in error and len(error.strip().splitlines()) == 1
