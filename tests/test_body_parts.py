@@ -26,7 +26,8 @@ def test_the_parts_partition_the_features_with_mmms_sizes(skeleton, upper, lower
     root_and_contacts = [0, 1, 2, 3, *range(skeleton.feature_dim - 4, skeleton.feature_dim)]
     assert set(root_and_contacts) <= set(dims[LOWER].tolist())
     assert np.array_equal(part_dims(skeleton, FULL), np.arange(skeleton.feature_dim))
-    assert sorted(np.concatenate([part_joints(skeleton, p) for p in PARTS]).tolist()) == list(range(skeleton.num_joints))
+    joints = np.concatenate([part_joints(skeleton, part) for part in PARTS])
+    assert sorted(joints.tolist()) == list(range(skeleton.num_joints))
 
 
 def test_a_joints_dimensions_follow_the_feature_layout():

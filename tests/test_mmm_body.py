@@ -91,7 +91,8 @@ def test_the_training_step_scores_masked_upper_tokens_only(model_file):
     module = BodyMMMModule(NETWORK, TEXT, {"alpha": 0.5, "lower_most": 0.3},
                            {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1,
                             "milestones": [10], "gamma": 0.1},
-                           codebook=checkpoint.transformer.codebook, lower_codebook=checkpoint.transformer.lower_codebook,
+                           codebook=checkpoint.transformer.codebook,
+                           lower_codebook=checkpoint.transformer.lower_codebook,
                            vocabulary=LearnedTextEncoder.build_vocabulary(SENTENCES))
     pairs = torch.stack([torch.randint(0, K_UPPER, (3, 10)), torch.randint(0, K_LOWER, (3, 10))], dim=-1)
     lengths = torch.tensor([10, 7, 4])

@@ -5,7 +5,8 @@ of batches, so no DDP rank waits on another (webdataset's multi-node recipe,
 webdataset.github.io/webdataset/multinode/); validation and test read each clip once, in shard
 order, the ranks sharing them clip by clip. The shards, ``stats.npz``
 and the manifest are all this shares with the pipelines that wrote them (through ``m2d2m.layout``).
-Two feeds: motion windows for the VQ-VAE, and captioned token sequences for the denoiser.
+Two feeds: motion windows for the VQ-VAE, and captioned token sequences for the token models
+(upper/lower-body token pairs for MMM's upper-body editor).
 """
 
 from __future__ import annotations

@@ -46,7 +46,8 @@ class MMMModule(pl.LightningModule):
         if not 0.0 <= self.alpha <= 1.0:
             raise ConfigError(f"masking.alpha must lie in [0, 1], got {self.alpha}")
 
-    def build_transformer(self, settings: dict[str, Any], codebook: torch.Tensor | np.ndarray) -> MaskedMotionTransformer:
+    def build_transformer(self, settings: dict[str, Any], codebook: torch.Tensor | np.ndarray
+                          ) -> MaskedMotionTransformer:
         """The network of the config section ``settings`` over the tokenizer's ``codebook``."""
         codebook = as_codebook(codebook)
         config = MaskedTransformerConfig.from_dict({**settings, "codebook_size": codebook.shape[0],

@@ -82,12 +82,13 @@ class BodyMMMGenerator(MMMGenerator):
         return (f"upper body by {options.iterations} iterations ({options.schedule}), temperature "
                 f"{options.temperature:g}, {options.lower_mask:.0%} of the lower-body tokens masked")
 
-    def _lower_tokens(self, keep: Keep | None, tokens: int) -> torch.Tensor:
+    def _kept_pairs(self, keep: Keep | None, tokens: int) -> torch.Tensor:
         """The kept motion's token pairs (L, 2), or ValueError when ``keep`` is not its whole lower body."""
         if keep is None or keep.dims is None or not np.array_equal(keep.dims, part_mask(self.skeleton, LOWER)) \
                 or not keep.frames.all():
             raise ValueError("mmm-body generates the upper body of a motion whose lower body it keeps on every "
-                             "frame: give that motion (m2d2m generate --model mmm-body --edit SOURCE --keep-body lower)")
+                             "frame: give that motion (m2d2m generate --model mmm-body --edit SOURCE "
+                             "--keep-body lower)")
         encoded = self.codec.encode(keep.features)
         if len(encoded) != tokens:
             raise ValueError(f"the kept motion holds {len(encoded)} tokens but the request asks for {tokens}")
@@ -101,7 +102,7 @@ class BodyMMMGenerator(MMMGenerator):
         config = self.checkpoint.transformer.config
         rows, kept, lowers = [], [], []
         for sequence, tokens, seed, held in zip(actions, self.tokens_of(frames), seeds, keep):
-            pairs = self._lower_tokens(held, sum(tokens))
+            pairs = self._kept_pairs(held, sum(tokens))
             kept.append(pairs[:, 1].split(tokens))
             for j, (sentence, lower) in enumerate(zip(sequence, kept[-1])):
                 rows.append(Row(sentence, torch.full((len(lower),), FREE), seed_of(seed, 0, j)))

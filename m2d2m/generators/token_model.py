@@ -1,6 +1,7 @@
 """What every generator over VQ-VAE motion tokens shares (M2D2M, MMM): the codec that turns
-features into tokens and back (a pair of body-part codecs for MMM's upper-body editing), the corpus's length prior, how a text encoder is kept in a model
-file, and the protocol's properties that follow from them (:class:`TokenModelGenerator`)."""
+features into tokens and back (a pair of body-part codecs for MMM's upper-body editing), the
+corpus's length prior, how a text encoder is kept in a model file, and the protocol's properties
+that follow from them (:class:`TokenModelGenerator`)."""
 
 from __future__ import annotations
 
@@ -103,6 +104,8 @@ class TokenCodec:
                gaps: Sequence[torch.Tensor] = ()) -> Motion:
         """One Motion from each action's tokens, decoded together in order, with ``gaps[j]`` (tokens
         that belong to no action: a transition) between actions j and j + 1."""
+        if self.part != FULL:
+            raise ValueError(f"a {self.part}-body tokenizer alone cannot make a whole motion")
         stream, ranges, start = [], [], 0
         per_token = self.frames_per_token
         for j, piece in enumerate(pieces):
@@ -113,8 +116,6 @@ class TokenCodec:
                 stream.append(gaps[j])
                 start += len(gaps[j])
         tokens = torch.cat(stream)
-        if self.part != FULL:
-            raise ValueError(f"a {self.part}-body tokenizer alone cannot make a whole motion")
         features = self.decode(tokens)
         joints = features_to_joints(features, self.skeleton)
         skeleton = self.skeleton

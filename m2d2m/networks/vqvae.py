@@ -309,7 +309,8 @@ class TemporalLowPass(nn.Module):
 @dataclass
 class VQOutput:
     """Result of :meth:`MotionVQVAE.forward`: the reconstruction (B, T, D_part) of the model's
-    dimensions (:attr:`VQConfig.dims`) in normalised feature space, the commitment loss, the tokens (B, ceil(T / frames_per_token)) and codebook usage."""
+    dimensions (:attr:`VQConfig.dims`) in normalised feature space, the commitment loss, the
+    tokens (B, ceil(T / frames_per_token)) and codebook usage."""
 
     reconstruction: torch.Tensor
     commit_loss: torch.Tensor
