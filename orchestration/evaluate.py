@@ -248,6 +248,9 @@ def _default_testset(generator: MotionGenerator, dataset: str) -> Path:
 def _check(settings: EvalSettings, generator: MotionGenerator, testset: TestSet,
            evaluator: TextMotionEvaluator) -> None:
     """Refuse, before anything runs, what cannot give a table."""
+    if generator.needs_keep is not None:
+        raise UserError(f"{generator.model} edits motions and cannot generate from text alone, which evaluation "
+                        f"asks for; {generator.needs_keep}")
     dims = {"the model": generator.feature_dim, "the evaluator": evaluator.config.feature_dim}
     for owner, dim in dims.items():
         if testset.manifest.get("feature_dim") != dim:

@@ -165,9 +165,9 @@ def test_lower_mask_is_the_users_knob(generator):
 
 def test_requests_it_cannot_serve_are_refused(generator):
     features = source()
-    with pytest.raises(ValueError, match="keeps on every frame"):
+    with pytest.raises(ValueError, match="lower body to keep on every frame"):
         generator.generate([[SENTENCES[0]]], [[32]], generator.options(SINGLE), [0])  # nothing to keep
-    with pytest.raises(ValueError, match="keeps on every frame"):  # whole frames, not the lower body
+    with pytest.raises(ValueError, match="lower body to keep on every frame"):  # whole frames, not the lower body
         generator.generate([[SENTENCES[0]]], [[32]], generator.options(SINGLE), [0],
                            keep=[Keep(features, np.ones(32, dtype=bool))])
     with pytest.raises(ValueError, match="holds 8 tokens but the request asks for 5"):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from m2d2m.motion.body_parts import LOWER, UPPER, part_dims
@@ -13,6 +14,7 @@ from m2d2m.networks.vqvae import load_vq
 from orchestration.cli import main
 from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_MMM, pose_clip
+from training.data import BodyTokenDataModule, TokenDataModule
 
 TINY_BODY = {**TINY_MMM, "vq": {UPPER: "latest", LOWER: "latest"}, "masking": {"alpha": 0.5, "lower_most": 0.3}}
 del TINY_BODY["preview"]
@@ -41,7 +43,23 @@ def test_part_tokenizers_have_their_own_runs(body_project):
     assert load_vq(whole / "vq.pt")[2]["part"] == "full"  # the whole-body tokenizer stays the vq stage's latest
 
 
-def test_the_editor_trains_and_edits_through_the_command_line(body_project, capsys):
+def test_the_editor_reads_each_clip_s_two_token_sets_as_pairs(body_project, capsys):
+    info = read_run_info(latest_run("tiny", "mmm-body", "make train-mmm-body"))
+    paired = next(iter(BodyTokenDataModule(info["tokens"], info["lower_tokens"], num_workers=0).val_dataloader()))
+    for column, tokens_dir in enumerate((info["tokens"], info["lower_tokens"])):
+        alone = next(iter(TokenDataModule(tokens_dir, num_workers=0).val_dataloader()))
+        assert torch.equal(paired["tokens"][..., column], alone["tokens"]) and paired["keys"] == alone["keys"]
+    # a whole-body model refuses a part tokenizer, and the editor a whole-body one
+    upper = latest_run("tiny", "vq-upper", "train-vq") / "vq.pt"
+    (body_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
+    assert main(["train-mmm", "--config", str(body_project / "mmm.yaml"), "--set", f"vq={upper}"]) == 2
+    assert "tokenizes the upper body, not the full body" in capsys.readouterr().err
+    whole = latest_run("tiny", "vq", "make train-vq") / "vq.pt"
+    assert main(["train-mmm-body", "--config", str(body_project / "body.yaml"), "--set", f"vq.lower={whole}"]) == 2
+    assert "tokenizes the full body, not the lower body" in capsys.readouterr().err
+
+
+def test_the_editor_trains_and_edits_through_the_command_line(body_project, tiny_testset, capsys):
     run_dir = latest_run("tiny", "mmm-body", "make train-mmm-body")
     info = read_run_info(run_dir)
     assert info["status"] == "finished" and (run_dir / "model.pt").exists()
@@ -60,12 +78,16 @@ def test_the_editor_trains_and_edits_through_the_command_line(body_project, caps
     for argv, message in (
         (["--keep-body", "lower"], "go together"),
         (["--edit", str(body_project / "missing.npy"), "--keep-body", "lower"], "no such file"),
-        (["--edit", str(body_project / "source.npy"), "--keep-body", "upper"], "keeps on every frame"),
+        (["--edit", str(body_project / "source.npy"), "--keep-body", "upper"], "lower body to keep on every frame"),
         (["--edit", str(body_project / "source.npy"), "--keep-body", "arms"], "unknown body part 'arms'"),
-        ([], "keeps on every frame"),  # the editor cannot make a motion from text alone
+        ([], "lower body to keep on every frame"),  # the editor cannot make a motion from text alone
     ):
         capsys.readouterr()
         assert main(["generate", "a man claps", "--model", "mmm-body", "--dataset", "tiny", "--no-track",
                      "--out", str(body_project / "refused"), *argv]) == 2
         error = capsys.readouterr().err
         assert message in error and len(error.strip().splitlines()) == 1
+    # evaluation asks for motions from text alone, which an editor cannot make
+    assert main(["evaluate", "--model", "mmm-body", "--dataset", "tiny", "--testset", str(tiny_testset),
+                 "--repeats", "1"]) == 2
+    assert "cannot generate from text alone" in capsys.readouterr().err

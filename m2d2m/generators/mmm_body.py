@@ -70,6 +70,8 @@ class BodyMMMGenerator(MMMGenerator):
     methods = ("independent",)
     options_type = BodyOptions
     presets = {MULTI: BodyOptions(), SINGLE: BodyOptions()}
+    needs_keep = ("give the motion whose lower body to keep on every frame "
+                  "(m2d2m generate --model mmm-body --edit SOURCE --keep-body lower)")
 
     @classmethod
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "BodyMMMGenerator":
@@ -86,9 +88,8 @@ class BodyMMMGenerator(MMMGenerator):
         """The kept motion's token pairs (L, 2), or ValueError when ``keep`` is not its whole lower body."""
         if keep is None or keep.dims is None or not np.array_equal(keep.dims, part_mask(self.skeleton, LOWER)) \
                 or not keep.frames.all():
-            raise ValueError("mmm-body generates the upper body of a motion whose lower body it keeps on every "
-                             "frame: give that motion (m2d2m generate --model mmm-body --edit SOURCE "
-                             "--keep-body lower)")
+            raise ValueError(f"mmm-body generates the upper body of a motion whose lower body it keeps: "
+                             f"{self.needs_keep}")
         encoded = self.codec.encode(keep.features)
         if len(encoded) != tokens:
             raise ValueError(f"the kept motion holds {len(encoded)} tokens but the request asks for {tokens}")

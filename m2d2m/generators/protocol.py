@@ -96,6 +96,10 @@ class MotionGenerator(ABC):
     methods: ClassVar[tuple[str, ...]]  # its multi-action methods, the first the default
     options_type: ClassVar[type]  # frozen dataclass of its sampling knobs; has a ``method`` field
     presets: ClassVar[dict[str, Any]]  # SINGLE and MULTI: the paper's settings as options
+    # None for a model that generates from text alone; else what every request must keep, said as
+    # an instruction (an editor: MMM's upper-body editor keeps a lower body), so that evaluation,
+    # which asks for text alone, refuses it up front
+    needs_keep: ClassVar[str | None] = None
 
     source: Path  # the model file it was loaded from
 
