@@ -15,8 +15,8 @@ RAW     ?= data/raw/$(DATASET)
 DEMO    ?= runs/demo
 
 .DEFAULT_GOAL := help
-.PHONY: help setup demo test test-all bench corpus data train-vq tokens train-diffusion train-mmm train-evaluator testset \
-        eval eval-power generate sweep reproduce ui clean
+.PHONY: help setup demo test test-all bench corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
+        train-mmm-body edit-upper train-evaluator testset eval eval-power generate sweep reproduce ui clean
 
 help:  ## list the verbs
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -87,6 +87,21 @@ train-diffusion: $(STAMP)  ## train the denoiser with beta(t, d) (DIFFUSION_CONF
 MMM_CONFIG ?= demo
 train-mmm: $(STAMP)  ## train MMM's masked transformer on the latest VQ run's tokens, the demo's by default (MMM_CONFIG=demo|humanml3d|kit, SET=...)
 	$(M2D2M) train-mmm --config $(MMM_CONFIG) $(foreach s,$(SET),--set $(s))
+
+BODY_VQ_CONFIG ?= demo
+train-body-vq: $(STAMP)  ## train MMM's upper- and lower-body tokenizers (configs/vq/mmm-{upper,lower}-$(BODY_VQ_CONFIG).yaml: demo|humanml3d|kit; SET=...)
+	$(M2D2M) train-vq --config mmm-upper-$(BODY_VQ_CONFIG) $(foreach s,$(SET),--set $(s))
+	$(M2D2M) train-vq --config mmm-lower-$(BODY_VQ_CONFIG) $(foreach s,$(SET),--set $(s))
+
+MMM_BODY_CONFIG ?= demo
+train-mmm-body: $(STAMP)  ## train MMM's upper-body editor on the latest part tokenizers' tokens (make train-body-vq first; MMM_BODY_CONFIG=demo|humanml3d|kit, SET=...)
+	$(M2D2M) train-mmm-body --config $(MMM_BODY_CONFIG) $(foreach s,$(SET),--set $(s))
+
+SOURCE ?=
+EDIT_PROMPT ?= "a person waves their right hand"
+edit-upper: $(STAMP)  ## new upper body for a motion, its lower body kept (SOURCE=motion.features.npy EDIT_PROMPT='"a person claps"' GENERATE_ARGS="--option lower_mask=0.25")
+	@test -n "$(SOURCE)" || { echo "make edit-upper: give SOURCE=<a .npy of features or joints>, e.g. a generation's motion.features.npy" >&2; exit 2; }
+	$(M2D2M) generate $(EDIT_PROMPT) --model mmm-body --dataset $(DATASET) --edit $(SOURCE) --keep-body lower $(GENERATE_ARGS)
 
 PROMPTS ?= "a person walks forward" "a person jumps" "a person sits down"
 GENERATE_ARGS ?=

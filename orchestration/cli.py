@@ -229,19 +229,29 @@ def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import (DEFAULT_MAX_SECONDS, GENERATE_STAGE, generate, load_generator, plan_output,
-                                        save_generation)
+    from orchestration.generate import (DEFAULT_MAX_SECONDS, GENERATE_STAGE, edit_part, generate, load_generator,
+                                        plan_output, save_generation)
+    from orchestration.viewing import load_features
 
     if not args.prompts:
         raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
+    if (args.edit is None) != (args.keep_body is None):
+        raise UserError("--edit SOURCE and --keep-body PART go together: the motion to edit and the body part of it "
+                        "to keep, e.g. --model mmm-body --edit motion.features.npy --keep-body lower")
+    if args.edit is not None and args.seconds is not None:
+        raise UserError("--seconds does not go with --edit: the edited motion is as long as the source")
     output = plan_output(args.out, args.name, args.formats)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    motion = generate(generator, args.prompts, seconds=args.seconds, seed=args.seed, split=not args.no_split,
-                      max_seconds=DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None,
-                      **options)
+    max_seconds = DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
+    if args.edit is not None:
+        motion = edit_part(generator, load_features(args.edit, generator.skeleton), args.prompts, args.keep_body,
+                           seed=args.seed, split=not args.no_split, max_seconds=max_seconds, **options)
+    else:
+        motion = generate(generator, args.prompts, seconds=args.seconds, seed=args.seed, split=not args.no_split,
+                          max_seconds=max_seconds, **options)
     files, run_id = save_generation(motion, output, args.prompts, args.dataset, track=not args.no_track)
     for text, (first, end) in zip(motion.actions, motion.ranges):
         print(f"  {first / motion.fps:5.1f}–{end / motion.fps:5.1f} s  {text}")
@@ -407,6 +417,13 @@ def _add_generate(verbs) -> None:
     generate.add_argument("--max-seconds", type=float,
                           help="refuse, before sampling, a motion longer than this (default 60; 0 = no cap)")
     generate.add_argument("--no-split", action="store_true", help="keep each prompt one action even with several verbs")
+    generate.add_argument("--edit", metavar="SOURCE",
+                          help="edit this motion instead: a .npy of features (the .features.npy generate writes) "
+                               "or joints; the prompts share its length (with --keep-body)")
+    generate.add_argument("--keep-body", metavar="PART",
+                          help="the body part (upper, lower) of --edit's motion to keep on every frame; the rest "
+                               "follows the prompts "
+                               "(--model mmm-body keeps lower: MMM's upper-body editing; --option lower_mask=0.25)")
     generate.add_argument("--no-track", action="store_true", help="do not log this generation to MLflow")
     generate.set_defaults(run=_generate)
 
@@ -453,7 +470,8 @@ def _add_evaluate(verbs) -> None:
                                "for m2d2m s = 4, η = 0.5)")
     evaluate.add_argument("--edit", dest="editing", action="append", metavar="TASK",
                           help="also the editing table (MMM Table 3) for these tasks, each with and without text: "
-                               "inbetween (the middle 50 %% given the first and last 25 %%); repeatable or a comma list")
+                               "inbetween (the middle 50 %% given the first and last 25 %%), upper (the upper body "
+                               "given the lower; mmm-body); repeatable or a comma list")
     evaluate.add_argument("--batch-size", type=_positive_int, default=64,
                           help="sequences generated at once (default 64)")
     evaluate.add_argument("--resume", metavar="RUN", help="finish an evaluation run (directory, name or MLflow id) "

@@ -30,7 +30,7 @@ from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
 from m2d2m.layout import MANIFEST
 from orchestration.errors import UserError
 from orchestration.generate import load_generator, resolve_model_file
-from orchestration.registry import model
+from orchestration.registry import model, models
 from orchestration.reports import (EDIT_TITLES, FIGURE, GENERATED, GT_CONCAT, GT_SINGLE, RECONSTRUCTION, ROW_TITLES,
                                    SINGLE_COLUMNS, TABLE_JSON, TABLE_MD, notes, plot_fig5, render_table, summarize_rows,
                                    table_metrics)
@@ -116,8 +116,9 @@ class Candidate:
 
     model: str
     checkpoint: str
-    methods: tuple[str, ...]
+    methods: tuple[str, ...]  # none for an editor (a model that needs something to keep)
     options: dict[str, Any]
+    edits: tuple[str, ...] = ()  # its tasks of the editing table
 
 
 @dataclass(frozen=True)
@@ -146,7 +147,8 @@ class EvalSettings:
                 values["options"] = {key: values.pop(key) for key in ("ts", "eta", "guidance")
                                      if values.get(key) is not None}
             values["candidates"] = [{key: values.pop(key) for key in ("model", "checkpoint", "methods", "options")}]
-        candidates = tuple(Candidate(**{**c, "methods": tuple(c["methods"])}) for c in values.pop("candidates"))
+        candidates = tuple(Candidate(**{**c, "methods": tuple(c["methods"]), "edits": tuple(c.get("edits", ()))})
+                           for c in values.pop("candidates"))
         return cls(candidates=candidates, **{**values, "editing": tuple(values.get("editing", ()))})
 
     @property
@@ -170,7 +172,7 @@ class EvalSettings:
         """The editing table's rows of a candidate: (task, with text, row)."""
         owner = "" if len(self.candidates) == 1 else f"{candidate.model}/"
         return [(task, text, f"{owner}{task}/{'text' if text else 'no_text'}")
-                for task in self.editing for text in (True, False)]
+                for task in candidate.edits for text in (True, False)]
 
 
 # the settings given as options of their own (the models and sampling options are given apart)
@@ -237,9 +239,34 @@ def _assign(entries: dict[str, Any], generators: dict[str, type[MotionGenerator]
 
 def _methods(values: Sequence[str] | None, generators: dict[str, type[MotionGenerator]]) -> dict[str, tuple[str, ...]]:
     """Each model's methods from ``method`` entries (every model that has it) and ``model:method``
-    or ``model/method`` ones (that model); a model named by no entry gets its default method."""
-    chosen = _assign(dict.fromkeys(_split(values)), generators, "methods", ":/")
-    return {name: tuple(methods or generators[name].methods[:1]) for name, methods in chosen.items()}
+    or ``model/method`` ones (that model); a model named by no entry gets its default method, an
+    editor none (it cannot generate from text alone)."""
+    makers = {name: g for name, g in generators.items() if g.needs_keep is None}
+    for entry in _split(values):
+        owner, _ = _qualified(entry, list(generators), ":/")
+        if owner is not None and owner not in makers:
+            raise UserError(f"{owner} edits motions and has no multi-action method; {generators[owner].needs_keep}")
+    chosen = _assign(dict.fromkeys(_split(values)), makers, "methods", ":/") if makers else {}
+    return {name: tuple(chosen[name] or generators[name].methods[:1]) if name in makers else ()
+            for name in generators}
+
+
+def _edits(tasks: tuple[str, ...], generators: dict[str, type[MotionGenerator]]) -> dict[str, tuple[str, ...]]:
+    """Each model's tasks of the editing table: those it can do."""
+    unknown = sorted(set(tasks) - set(EDITS))
+    if unknown:
+        raise UserError(f"unknown editing task {unknown[0]!r}; choose from {', '.join(EDITS)}")
+    chosen = {name: tuple(task for task in tasks if task in g.edits) for name, g in generators.items()}
+    for task in tasks:
+        if not any(task in edits for edits in chosen.values()):
+            able = [name for name in models() if task in model(name).load("generator").edits]
+            raise UserError(f"no model given can do the editing task {task!r}; "
+                            + (f"{', '.join(able)} can" if able else "no registered model can"))
+    for name, g in generators.items():
+        if g.needs_keep is not None and not chosen[name]:
+            raise UserError(f"{name} edits motions and cannot generate from text alone, which the multi-motion "
+                            f"table asks for; judge it in the editing table: --edit {', '.join(g.edits)}")
+    return chosen
 
 
 def _options(options: dict[str, Any], generators: dict[str, type[MotionGenerator]]) -> dict[str, dict[str, Any]]:
@@ -265,8 +292,7 @@ def new_settings(dataset: str, model_name: str | Sequence[str] = "m2d2m",
     if repeats < 1:
         raise UserError(f"--repeats must be at least 1, got {repeats}")
     tasks = tuple(_split(editing))
-    if set(tasks) - set(EDITS):
-        raise UserError(f"unknown editing task {sorted(set(tasks) - set(EDITS))[0]!r}; choose from {', '.join(EDITS)}")
+    chosen_edits = _edits(tasks, generators)
     checkpoints = _checkpoints(names, checkpoint)
     chosen_methods, chosen_options = _methods(methods, generators), _options(dict(options or {}), generators)
     if guo_evaluator is not None:
@@ -283,7 +309,7 @@ def new_settings(dataset: str, model_name: str | Sequence[str] = "m2d2m",
         evaluator_path = run_file(evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE,
                                   "make train-evaluator").resolve()
     candidates = tuple(Candidate(name, str(resolve_model_file(name, checkpoints[name], dataset).resolve()),
-                                 chosen_methods[name], chosen_options[name]) for name in names)
+                                 chosen_methods[name], chosen_options[name], chosen_edits[name]) for name in names)
     return EvalSettings(candidates=candidates, testset=None if testset is None else str(Path(testset).resolve()),
                         evaluator=str(evaluator_path), glove=glove, meta=meta, repeats=int(repeats),
                         single=bool(single), editing=tasks)
@@ -326,7 +352,8 @@ class Job:
 def _jobs(settings: EvalSettings) -> list[Job]:
     jobs = [Job(c, "multi", settings.row(c, m), r, method=m) for c, m in settings.rows() for r in range(settings.repeats)]
     if settings.single:
-        jobs += [Job(c, "single", settings.single_row(c), r) for c in settings.candidates for r in range(settings.repeats)]
+        jobs += [Job(c, "single", settings.single_row(c), r) for c in settings.candidates if c.methods
+                 for r in range(settings.repeats)]
     return jobs + [Job(c, "editing", row, r, task=task, text=text) for c in settings.candidates
                    for task, text, row in settings.edit_rows(c) for r in range(settings.repeats)]
 
@@ -365,7 +392,8 @@ def _sampling(settings: EvalSettings, generators: dict[str, MotionGenerator]) ->
     samplings = {}
     for candidate in settings.candidates:
         generator = generators[candidate.model]
-        multi = generator.describe(generator.options(MULTI, method=candidate.methods[0], **candidate.options))
+        preset = {"preset": MULTI, "method": candidate.methods[0]} if candidate.methods else {"preset": SINGLE}
+        multi = generator.describe(generator.options(**preset, **candidate.options))
         samplings[candidate.model] = Sampling(multi, generator.describe(generator.options(SINGLE))
                                               if settings.single else None)
     return samplings
@@ -510,7 +538,7 @@ def _log_children(run_dir: Path, settings: EvalSettings, samplings: dict[str, Sa
         shared = {row: values for row, values in table["multi"].items() if row in (GT_SINGLE, GT_CONCAT)}
         one = {"multi": {**shared, **({RECONSTRUCTION: table["multi"][codec]} if codec else {}),
                          **{method: table["multi"][settings.row(candidate, method)] for method in candidate.methods}}}
-        if "single" in table:
+        if "single" in table and candidate.methods:
             one["single"] = {GENERATED: table["single"][settings.single_row(candidate)],
                              **({RECONSTRUCTION: table["single"][codec]} if codec else {})}
         if "editing" in table:

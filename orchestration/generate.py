@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from m2d2m.generators.protocol import MotionGenerator, keep_spans
+from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
 from m2d2m.layout import NLP
 from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
 from m2d2m.motion.render import can_write_mp4
@@ -221,6 +221,28 @@ def edit(generator: MotionGenerator, motion: Motion, keep: Sequence[tuple[float,
     try:
         return generator.generate([actions], [frames], generator.options(**options), [seed],
                                   [keep_spans(motion, keep)])[0].on_rigid_skeleton()
+    except ValueError as error:
+        raise UserError(str(error)) from error
+
+
+def edit_part(generator: MotionGenerator, features: np.ndarray, prompts: Sequence[str], part: str, seed: int = 0,
+              split: bool = True, max_seconds: float | None = DEFAULT_MAX_SECONDS, **options: Any) -> Motion:
+    """Keep body part ``part`` of ``features`` (F, D) on every frame and generate the rest of the
+    body doing ``prompts`` (MMM's upper-body editing keeps ``lower``; docs/generation.md). The
+    motion is cut to whole steps of the generator; its actions share its length in proportion to
+    their typical lengths."""
+    if generator.feature_dim != features.shape[-1]:
+        raise UserError(f"the motion has {features.shape[-1]}-d features, the model {generator.feature_dim}-d ones")
+    step = generator.frame_step
+    features = features[: len(features) // step * step]
+    if not len(features):
+        raise UserError(f"the motion to edit is shorter than the model's step of {step} frames")
+    actions, frames = PromptPlanner(generator).plan(prompts, [len(features) / generator.fps], split)
+    check_length(frames, generator.fps, max_seconds)
+    try:
+        keep = keep_part(features, generator.skeleton, part)
+        return generator.generate([actions], [frames], generator.options(**options), [seed],
+                                  [keep])[0].on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error
 

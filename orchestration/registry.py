@@ -76,6 +76,13 @@ register(ModelEntry(
     network="m2d2m.networks.mmm_transformer:MaskedMotionTransformer", process="m2d2m.processes.masking",
     module="training.mmm_module:MMMModule", datamodule="training.data:TokenDataModule"))
 
+register(ModelEntry(
+    name="mmm-body", summary="MMM's upper-body editor: new upper body from text, the lower body kept",
+    stage="mmm-body", legacy_stages=(), configs="mmm-body", train_verb="train-mmm-body", model_file="model.pt",
+    generator="m2d2m.generators.mmm_body:BodyMMMGenerator", recipe="orchestration.recipes.mmm_body",
+    network="m2d2m.networks.mmm_body_transformer:BodyMaskedTransformer", process="m2d2m.processes.masking",
+    module="training.mmm_body_module:BodyMMMModule", datamodule="training.data:BodyTokenDataModule"))
+
 
 def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) -> list[str]:
     """Import the plugin modules (default: those named in ``M2D2M_MODELS``) once each, looking in

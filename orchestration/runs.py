@@ -109,7 +109,8 @@ def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by
     """The file ``name`` of a run given as that file itself, ``latest``, a run directory, its name
     or its MLflow run id — downloaded from the tracking store (every stage logs its model files
     under ``model/``) when no local run has that id; a run without the file did not finish,
-    which is said in one line."""
+    which is said in one line. ``made_by`` is the command that makes such a run: a make target
+    (``make train-vq``) or an ``m2d2m`` command line."""
     path = Path(reference)
     if path.is_file():
         return path
@@ -123,6 +124,6 @@ def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by
             raise
         return download_model_file(str(reference), name)
     if not (run_dir / name).is_file():
-        raise UserError(f"{run_dir} has no {name}: the run did not finish "
-                        f"(`m2d2m {made_by.split()[-1]} --resume` continues it)")
+        resume = f"m2d2m {made_by.split()[-1]}" if made_by.startswith("make ") else made_by
+        raise UserError(f"{run_dir} has no {name}: the run did not finish (`{resume} --resume` continues it)")
     return run_dir / name

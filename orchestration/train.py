@@ -33,6 +33,7 @@ import torch
 import yaml
 
 from m2d2m.layout import VQ_FILE
+from m2d2m.motion.body_parts import FULL
 from orchestration.config import flatten, is_number, load_config
 from orchestration.errors import UserError
 from orchestration.registry import load_plugins, model, plugins_for_workers
@@ -275,7 +276,8 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     from training.data import MotionWindowDataModule
     from training.vq_module import VQVAEModule
 
-    run_dir, config, run_id = open_run(VQ_STAGE, VQ_STAGE, config_name, overrides or [], resume)
+    stage = vq_stage(load_config(VQ_STAGE, config_name, overrides or [])["model"].get("part", FULL))
+    run_dir, config, run_id = open_run(stage, VQ_STAGE, config_name, overrides or [], resume)
     data, trainer_cfg = config["data"], config["trainer"]
     try:
         datamodule = MotionWindowDataModule(
@@ -287,7 +289,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     pl.seed_everything(config["seed"], workers=True, verbose=False)
     module = VQVAEModule(config["model"], config["optim"], config["loss"], datamodule.feature_dim, datamodule.skeleton)
     module.set_normalizer(datamodule.normalizer)
-    fitted = fit(VQ_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/recon_loss",
+    fitted = fit(stage, config, run_dir, run_id, resume, module, datamodule, "val/recon_loss",
                  [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])])
     if not fitted.primary:
         return run_dir
@@ -301,13 +303,23 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     return run_dir
 
 
-def vq_file(reference: str | Path, dataset: str) -> Path:
+def vq_stage(part: str) -> str:
+    """The stage (run folder, MLflow experiment) of a tokenizer of ``part``: ``vq`` for the whole
+    body, ``vq-upper`` / ``vq-lower`` for MMM's part tokenizers, so that each has its own ``latest``
+    and a part tokenizer never becomes the one the whole-body models take."""
+    return VQ_STAGE if part == FULL else f"{VQ_STAGE}-{part}"
+
+
+def vq_file(reference: str | Path, dataset: str, part: str = FULL) -> Path:
     """A VQ model file from ``latest``, a ``vq.pt`` path, a Lightning checkpoint of a VQ run, or a
-    VQ run directory, name or MLflow run id (the one resolver of every stage that reads a VQ-VAE)."""
+    VQ run directory, name or MLflow run id (the one resolver of every stage that reads a VQ-VAE);
+    ``part`` says whose runs ``latest`` and names are looked up in (:func:`vq_stage`)."""
     path = Path(reference)
     if path.suffix == ".ckpt" and path.is_file():
         reference = path.resolve().parent.parent  # <run>/checkpoints/<name>.ckpt
-    return run_file(reference, dataset, VQ_STAGE, VQ_FILE, "make train-vq")
+    made_by = ("make train-vq" if part == FULL
+               else f"m2d2m train-vq --config mmm-{part}-{'demo' if dataset == 'synthetic' else dataset}")
+    return run_file(reference, dataset, vq_stage(part), VQ_FILE, made_by)
 
 
 def token_set(vq_path: Path, data_dir: str | Path | None = None) -> tuple[Path, Path]:

@@ -1,5 +1,6 @@
-"""Load a motion for looking at or exporting: a ``.npy`` of joints or features, or a clip of a
-raw corpus in HumanML3D's layout (with its captions and, for the synthetic corpus, its actions)."""
+"""Load a motion for looking at, exporting or editing: a ``.npy`` of joints or features, or a clip
+of a raw corpus in HumanML3D's layout (with its captions and, for the synthetic corpus, its
+actions)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.representation import features_to_joints, joints_to_features
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from orchestration.errors import UserError
 
@@ -44,6 +45,23 @@ def _as_joints(array: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray
         f"{origin}: shape {array.shape} is neither joints (T, {skeleton.num_joints}, 3) nor "
         f"{skeleton.feature_dim}-d features of skeleton {skeleton.name!r} (see --skeleton)"
     )
+
+
+def load_features(source: str | Path, skeleton: Skeleton) -> np.ndarray:
+    """Float32 features (T, D) of ``skeleton`` from a ``.npy`` of features (the ``.features.npy``
+    that ``m2d2m generate`` writes, a corpus's ``new_joint_vecs`` clip) or of joints (T, J, 3), which
+    HumanML3D's processing turns into features (one frame fewer): the motion an edit starts from."""
+    path = Path(source)
+    if not path.is_file():
+        raise UserError(f"{path}: no such file; give a .npy of features or joints")
+    array = _load_npy(path)
+    _check_values(array, str(path))
+    if array.ndim == 2 and array.shape[1] == skeleton.feature_dim:
+        return array.astype(np.float32)
+    if array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3) and len(array) >= 2:
+        return joints_to_features(array, skeleton)
+    raise UserError(f"{path}: shape {array.shape} is neither {skeleton.feature_dim}-d features nor joints "
+                    f"(T >= 2, {skeleton.num_joints}, 3) of the model's skeleton {skeleton.name!r}")
 
 
 def _load_npy(path: Path) -> np.ndarray:

@@ -227,7 +227,7 @@ def test_save_load_round_trip_and_foreign_files(tmp_path):
     save_vq(tmp_path / "vq.pt", model, normalizer, "t2m", extra={"run": "abc", "step": 7})
     loaded, loaded_norm, info = load_vq(tmp_path / "vq.pt")
     assert not loaded.training and loaded.config == SMALL
-    assert info == {"skeleton": "t2m", "extra": {"run": "abc", "step": 7}}
+    assert info == {"skeleton": "t2m", "part": "full", "extra": {"run": "abc", "step": 7}}
     np.testing.assert_allclose(loaded_norm.scale, normalizer.scale, rtol=1e-6)
     assert loaded_norm.feat_bias == 4.0
     x = torch.randn(2, 23, SMALL.feature_dim)

@@ -5,11 +5,13 @@ of batches, so no DDP rank waits on another (webdataset's multi-node recipe,
 webdataset.github.io/webdataset/multinode/); validation and test read each clip once, in shard
 order, the ranks sharing them clip by clip. The shards, ``stats.npz``
 and the manifest are all this shares with the pipelines that wrote them (through ``m2d2m.layout``).
-Two feeds: motion windows for the VQ-VAE, and captioned token sequences for the denoiser.
+Two feeds: motion windows for the VQ-VAE, and captioned token sequences for the token models
+(upper/lower-body token pairs for MMM's upper-body editor).
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
 import tarfile
@@ -491,3 +493,51 @@ class TokenDataModule(ShardDataModule):
 
     def _eval_sample(self):
         return partial(first_caption_tokens, frames_per_token=self.frames_per_token), collate_captioned_tokens
+
+
+def token_arrays(urls: list[str]) -> dict[str, np.ndarray]:
+    """Every clip's ``tokens.npy`` in local token shards, by key."""
+    arrays = {}
+    for url in urls:
+        with tarfile.open(url) as archive:
+            for member in archive:
+                if member.name.endswith(".tokens.npy"):
+                    key = member.name[: -len(".tokens.npy")]
+                    arrays[key] = np.load(io.BytesIO(archive.extractfile(member).read()), allow_pickle=False)
+    return arrays
+
+
+def with_lower_body(sample: Sample, lower: dict[str, np.ndarray], then: Callable[[Sample], Sample]) -> Sample:
+    """A decoded upper-body token sample whose ``tokens.npy`` becomes the (L, 2) pairs with the same
+    clip's lower-body tokens, handed to ``then`` (a caption sampler)."""
+    upper = sample["tokens.npy"]
+    return then({**sample, "tokens.npy": np.stack([upper, lower[sample["__key__"]].astype(upper.dtype)], axis=-1)})
+
+
+class BodyTokenDataModule(TokenDataModule):
+    """Upper- and lower-body token sets of one dataset, made by MMM's two part tokenizers, as
+    pairs: every clip's tokens are (L, 2), upper then lower, cut by the same caption segment and
+    crop. The upper set is streamed; the lower one (int16, a few MB even for HumanML3D) is read
+    into memory at the start and joined by clip key."""
+
+    def __init__(self, tokens_dir: str | Path, lower_tokens_dir: str | Path, batch_size: int = 64,
+                 num_workers: int = 2, steps_per_epoch: int | None = None, val_batch_size: int = 64,
+                 shuffle_buffer: int = 1000, max_tokens: int | None = None, seed: int = 0) -> None:
+        super().__init__(tokens_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer,
+                         max_tokens, seed)
+        self.lower_tokens_dir = Path(lower_tokens_dir).resolve()
+        lower_manifest = read_token_manifest(self.lower_tokens_dir)
+        if lower_manifest.get("source_shards") != self.manifest.get("source_shards") \
+                or lower_manifest["frames_per_token"] != self.manifest["frames_per_token"]:
+            raise ValueError(f"{self.lower_tokens_dir} and {self.tokens_dir} are not token sets of the same dataset "
+                             "build at the same frame rate")
+        self.lower = token_arrays([url for split in lower_manifest["shards"]
+                                   for url in token_shard_urls(self.lower_tokens_dir, split)])
+
+    def _train_sample(self, rank: int):
+        sampler, collate = super()._train_sample(rank)
+        return partial(with_lower_body, lower=self.lower, then=sampler), collate
+
+    def _eval_sample(self):
+        first, collate = super()._eval_sample()
+        return partial(with_lower_body, lower=self.lower, then=first), collate

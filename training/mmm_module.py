@@ -21,6 +21,14 @@ from training.optim import configure_adamw
 from training.vq_module import NonFiniteLossError
 
 
+def as_codebook(codebook: torch.Tensor | np.ndarray) -> torch.Tensor:
+    """A tokenizer's (K, code_dim) code vectors as a float tensor."""
+    codebook = torch.as_tensor(np.asarray(codebook) if not torch.is_tensor(codebook) else codebook).float()
+    if codebook.dim() != 2:
+        raise ValueError(f"codebook must have shape (K, code_dim), got {tuple(codebook.shape)}")
+    return codebook
+
+
 class MMMModule(pl.LightningModule):
     """Cross-entropy of the masked tokens, r ~ U(α, 1) of each caption's tokens masked; AdamW
     with warm-up and step decay. A fraction ``text_drop`` of the captions is replaced by the
@@ -33,22 +41,31 @@ class MMMModule(pl.LightningModule):
                  optim: dict[str, Any], codebook: torch.Tensor | np.ndarray,
                  vocabulary: list[str] | None = None) -> None:
         super().__init__()
-        self.save_hyperparameters(ignore=["codebook"])
-        codebook = torch.as_tensor(np.asarray(codebook) if not torch.is_tensor(codebook) else codebook).float()
-        if codebook.dim() != 2:
-            raise ValueError(f"codebook must have shape (K, code_dim), got {tuple(codebook.shape)}")
+        self.save_hyperparameters(ignore=["codebook", "lower_codebook"])
         self.text_encoder = text_encoder_from_config(text, vocabulary)
-        config = MaskedTransformerConfig.from_dict({**transformer, "codebook_size": codebook.shape[0],
-                                                    "code_dim": codebook.shape[1], "text_dim": self.text_encoder.dim})
-        self.transformer = MaskedMotionTransformer(config, codebook)
+        self.transformer = self.build_transformer(transformer, codebook)
         self.alpha = float(masking.get("alpha", 0.5))
         self.text_drop = float(masking.get("text_drop", 0.0))
         for name, value in (("alpha", self.alpha), ("text_drop", self.text_drop)):
             if not 0.0 <= value <= 1.0:
                 raise ConfigError(f"masking.{name} must lie in [0, 1], got {value}")
 
-    def _condition(self, captions: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        words, word_mask, sentence = self.text_encoder.encode_pooled(list(captions))
+    def build_transformer(self, settings: dict[str, Any], codebook: torch.Tensor | np.ndarray
+                          ) -> MaskedMotionTransformer:
+        """The network of the config section ``settings`` over the tokenizer's ``codebook``."""
+        codebook = as_codebook(codebook)
+        config = MaskedTransformerConfig.from_dict({**settings, "codebook_size": codebook.shape[0],
+                                                    "code_dim": codebook.shape[1], "text_dim": self.text_encoder.dim})
+        return MaskedMotionTransformer(config, codebook)
+
+    def _condition(self, captions: list[str], generator: torch.Generator | None = None
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The captions' sentence and word features, a fraction ``text_drop`` of them dropped to
+        "": the null condition that editing without text asks for."""
+        dropped = torch.rand(len(captions), generator=generator,
+                             device=generator.device if generator is not None else "cpu") < self.text_drop
+        captions = ["" if drop else caption for caption, drop in zip(captions, dropped.tolist())]
+        words, word_mask, sentence = self.text_encoder.encode_pooled(captions)
         device = self.transformer.codebook.device
         return sentence.to(device), words.to(device), word_mask.to(device)
 
@@ -60,10 +77,7 @@ class MMMModule(pl.LightningModule):
         lengths = valid.sum(dim=1)
         masked = training_mask(lengths, codes.shape[1], self.alpha, generator)
         inputs = canvas(codes.masked_fill(masked, config.mask_id), lengths, config)
-        # a caption dropped to "" teaches the null condition that editing without text asks for
-        dropped = torch.rand(len(batch["text"]), generator=generator, device=codes.device) < self.text_drop
-        captions = ["" if drop else caption for caption, drop in zip(batch["text"], dropped.tolist())]
-        logits = self.transformer(inputs, *self._condition(captions))[:, :-1]
+        logits = self.transformer(inputs, *self._condition(batch["text"], generator))[:, :-1]
         return codes, masked, logits
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:

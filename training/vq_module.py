@@ -10,6 +10,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from m2d2m.motion.body_parts import part_joints
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS
@@ -27,7 +28,8 @@ class VQVAEModule(pl.LightningModule):
     (T2M-GPT's "velocity" term, which is really positions) + ``commit`` × commitment, AdamW with
     linear warm-up and step decay. Validation reconstructs whole clips and reports the feature
     error, the joint error in millimetres (MPJPE after ``features_to_joints``) and how many codes
-    the validation set uses."""
+    the validation set uses. A body part's tokenizer (``model.part``) is scored on its part's
+    dimensions, positions and joints; for its MPJPE the rest of the body is the ground truth's."""
 
     def __init__(self, model: dict[str, Any], optim: dict[str, Any], loss: dict[str, Any], feature_dim: int, skeleton: str) -> None:
         super().__init__()
@@ -35,7 +37,12 @@ class VQVAEModule(pl.LightningModule):
         self.model = MotionVQVAE(VQConfig.from_dict({**model, "feature_dim": feature_dim}))
         self.skeleton = SKELETONS[skeleton]
         j = self.skeleton.num_joints
-        self.positions = slice(4, 4 + 3 * (j - 1))
+        dims = self.model.config.dims
+        # the root-relative positions among the dimensions the model reconstructs, and its joints
+        self.register_buffer("positions", torch.as_tensor(np.flatnonzero((dims >= 4) & (dims < 4 + 3 * (j - 1)))),
+                             persistent=False)
+        self.register_buffer("joints", torch.as_tensor(part_joints(self.skeleton, self.model.config.part)),
+                             persistent=False)
         # The normalisation travels inside the checkpoint, so a checkpoint alone can decode.
         self.register_buffer("feature_mean", torch.zeros(feature_dim))
         self.register_buffer("feature_scale", torch.ones(feature_dim))
@@ -48,6 +55,7 @@ class VQVAEModule(pl.LightningModule):
 
     def _losses(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
         out = self.model(x)
+        x = self.model.select(x)
         recon = F.smooth_l1_loss(out.reconstruction, x)
         joint = F.smooth_l1_loss(out.reconstruction[..., self.positions], x[..., self.positions])
         weights = self.hparams.loss
@@ -79,14 +87,18 @@ class VQVAEModule(pl.LightningModule):
         for n, length in enumerate(batch["lengths"].tolist()):
             x = batch["motion"][n : n + 1, :length]
             out = self.model(x)
-            error = F.smooth_l1_loss(out.reconstruction, x)
-            truth, reconstruction = self._joints(x)[0], self._joints(out.reconstruction)[0]
+            error = F.smooth_l1_loss(out.reconstruction, self.model.select(x))
+            whole = x.clone()  # the reconstructed part within the ground truth's other parts
+            whole[..., self.model.dims] = out.reconstruction
+            truth, reconstruction = self._joints(x)[0], self._joints(whole)[0]
             to_mm = self.skeleton.metres_per_unit * 1000.0
-            mpjpe = (truth - reconstruction).norm(dim=-1).mean() * to_mm
+            mpjpe = (truth - reconstruction)[:, self.joints].norm(dim=-1).mean() * to_mm
             # The global error integrates root drift over the clip; the root-aligned one is the pose.
-            aligned = ((truth - truth[:, :1]) - (reconstruction - reconstruction[:, :1])).norm(dim=-1).mean() * to_mm
+            aligned = ((truth - truth[:, :1]) - (reconstruction - reconstruction[:, :1]))[:, self.joints]
+            aligned = aligned.norm(dim=-1).mean() * to_mm
             self.log("val/recon_loss", error, batch_size=1, sync_dist=True)
-            self.log("val/feature_l1", (out.reconstruction - x).abs().mean(), batch_size=1, sync_dist=True)
+            self.log("val/feature_l1", (out.reconstruction - self.model.select(x)).abs().mean(), batch_size=1,
+                     sync_dist=True)
             self.log("val/mpjpe_mm", mpjpe, batch_size=1, sync_dist=True, prog_bar=True)
             self.log("val/mpjpe_root_aligned_mm", aligned, batch_size=1, sync_dist=True, prog_bar=True)
             self._val_codes.append(out.tokens.flatten())

@@ -41,7 +41,7 @@ from torch.nn.utils.rnn import pad_sequence
 from m2d2m.evaluation.evaluator import TextMotionEvaluator
 from m2d2m.evaluation.metrics import (DEFAULT_MIN_STEP, diversity, fid, frame_jerk, jerk, mean_frame_jerk, mm_dist,
                                       multimodality, peak_jerk_and_auj, r_precision, transition_windows)
-from m2d2m.generators.protocol import MULTI, SINGLE, Keep, MotionGenerator
+from m2d2m.generators.protocol import MULTI, SINGLE, Keep, MotionGenerator, keep_part
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.joining import slerp_join
 from m2d2m.motion.representation import features_to_joints
@@ -376,5 +376,11 @@ def inbetween_keep(features: np.ndarray, skeleton: Any) -> Keep:
     return Keep(features, frames)
 
 
+def upper_body_keep(features: np.ndarray, skeleton: Any) -> Keep:
+    """Upper-body editing as MMM's Table 3 evaluates it: the lower body kept on every frame, the
+    upper body generated (:mod:`m2d2m.motion.body_parts`)."""
+    return keep_part(features, skeleton, "lower")
+
+
 # editing tasks of the editing table: what each keeps of a ground-truth item
-EDITS: dict[str, Callable[[np.ndarray, Any], Keep]] = {"inbetween": inbetween_keep}
+EDITS: dict[str, Callable[[np.ndarray, Any], Keep]] = {"inbetween": inbetween_keep, "upper": upper_body_keep}

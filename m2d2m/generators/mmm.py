@@ -63,7 +63,7 @@ class Row:
     seed: int
 
 
-def _seed(seed: int, *role: int) -> int:
+def seed_of(seed: int, *role: int) -> int:
     """A row's seed from its sequence's and its role in it, so that no row depends on the batch."""
     return int(np.random.SeedSequence([int(seed), *role]).generate_state(1)[0])
 
@@ -121,7 +121,7 @@ class MMMGenerator(TokenModelGenerator):
                 raise ValueError("MMM keeps frames for one action at a time, or with --method independent")
             given = self.given_tokens(kept, sum(tokens))
             pieces = torch.full((sum(tokens),), FREE) if given is None else given
-            rows += [Row(sentence, piece, _seed(seed, 0, j))
+            rows += [Row(sentence, piece, seed_of(seed, 0, j))
                      for j, (sentence, piece) in enumerate(zip(sequence, pieces.split(tokens)))]
         decoded = iter(self._decode(rows, options.decoding()))
         pieces = [[next(decoded) for _ in sequence] for sequence in actions]
@@ -146,25 +146,30 @@ class MMMGenerator(TokenModelGenerator):
                 before = tokens[j][-min(side, max(1, len(tokens[j]) // 2)):]
                 after = tokens[j + 1][:min(side, max(1, len(tokens[j + 1]) // 2))]
                 given = torch.cat([before, torch.full((options.transition,), FREE), after])
-                rows.append(Row(sequence[j], given, _seed(seed, 1, j)))
+                rows.append(Row(sequence[j], given, seed_of(seed, 1, j)))
                 shapes.append(len(before))
         filled = iter(zip(self._decode(rows, options.decoding(iterations=1)) if rows else [], shapes))
         return [[tokens[start:start + options.transition] for tokens, start in
                  (next(filled) for _ in range(len(sequence) - 1))] for sequence in actions]
 
-    def _decode(self, rows: list[Row], options: DecodingOptions) -> list[torch.Tensor]:
+    def _decode(self, rows: list[Row], options: DecodingOptions, frame: Frame | None = None) -> list[torch.Tensor]:
         longest = max(len(row.given) for row in rows)
         if longest > self.max_tokens:
             raise ValueError(f"MMM generates at most {self.max_tokens} tokens "
                              f"({self.max_tokens * self.frame_step} frames) per action; {longest} were asked for")
         return decode_sentences(self.checkpoint.transformer, self.checkpoint.text_encoder, rows, self.lengths.longest,
-                                options)
+                                options, frame)
+
+
+Frame = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]  # (B, W) tokens, (B,) lengths → network input
 
 
 def decode_sentences(transformer: MaskedMotionTransformer, text_encoder: TextEncoder, rows: list[Row],
-                     longest: int, options: DecodingOptions) -> list[torch.Tensor]:
+                     longest: int, options: DecodingOptions, frame: Frame | None = None) -> list[torch.Tensor]:
     """Each row's tokens, its FREE positions decoded under its sentence in one batch (``longest``
-    is the M of T_dyn: the corpus's longest motion in tokens)."""
+    is the M of T_dyn: the corpus's longest motion in tokens). ``frame`` makes the network's input
+    from the tokens being decoded, padded to the longest row, and the rows' lengths; by default
+    :func:`~m2d2m.networks.mmm_transformer.canvas` (upper-body editing adds the fixed lower body)."""
     device = transformer.codebook.device
     width = max(len(row.given) for row in rows)
     lengths = torch.tensor([len(row.given) for row in rows], device=device)
@@ -177,7 +182,8 @@ def decode_sentences(transformer: MaskedMotionTransformer, text_encoder: TextEnc
         words, word_mask, sentence = text_encoder.encode_pooled([row.sentence for row in rows])
 
         def predict(tokens: torch.Tensor) -> torch.Tensor:
-            inputs = canvas(tokens, lengths, config)  # [END], then [PAD] past each row
+            # [END], then [PAD] past each row
+            inputs = canvas(tokens, lengths, config) if frame is None else frame(tokens, lengths)
             return transformer(inputs, sentence, words, word_mask)[:, :-1]
 
         tokens = decode(predict, given, valid, config.mask_id, longest, options, [row.seed for row in rows])

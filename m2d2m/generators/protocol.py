@@ -21,6 +21,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
+from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.skeleton import Skeleton
 
@@ -50,16 +51,33 @@ def _checked(name: str, value: Any, annotation: str) -> Any:
 @dataclass(frozen=True)
 class Keep:
     """What to keep of a sequence while the rest is generated (editing): the frames of
-    ``features`` (F, D, un-normalised) where ``frames`` (F,) is True. A model that generates in
-    coarser units keeps every unit that holds a kept frame."""
+    ``features`` (F, D, un-normalised) where ``frames`` (F,) is True, and of those only the
+    feature dimensions where ``dims`` (D,) is True (None: every dimension, whole frames). A model
+    that generates in coarser units keeps every unit that holds a kept frame; one that cannot keep
+    some dimensions alone (a body part: :mod:`m2d2m.motion.body_parts`) refuses such a Keep."""
 
     features: np.ndarray
     frames: np.ndarray
+    dims: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.frames.shape != (len(self.features),) or self.frames.dtype != bool:
             raise ValueError(f"keep: one boolean per frame of the features ({len(self.features)}), "
                              f"got {self.frames.dtype} of shape {self.frames.shape}")
+        if self.dims is not None and (self.dims.shape != self.features.shape[1:] or self.dims.dtype != bool):
+            raise ValueError(f"keep: one boolean per feature dimension ({self.features.shape[1]}), "
+                             f"got {self.dims.dtype} of shape {self.dims.shape}")
+
+    @property
+    def whole_frames(self) -> bool:
+        """Whether every dimension of a kept frame is kept."""
+        return self.dims is None or bool(self.dims.all())
+
+
+def keep_part(features: np.ndarray, skeleton: Skeleton, part: str) -> Keep:
+    """A :class:`Keep` of body part ``part`` of ``features`` on every frame, the rest of the body
+    to generate (MMM's upper-body editing keeps ``lower``)."""
+    return Keep(features, np.ones(len(features), dtype=bool), part_mask(skeleton, part))
 
 
 def keep_spans(motion: Motion, spans: Sequence[tuple[float, float]]) -> Keep:
@@ -78,6 +96,12 @@ class MotionGenerator(ABC):
     methods: ClassVar[tuple[str, ...]]  # its multi-action methods, the first the default
     options_type: ClassVar[type]  # frozen dataclass of its sampling knobs; has a ``method`` field
     presets: ClassVar[dict[str, Any]]  # SINGLE and MULTI: the paper's settings as options
+    # None for a model that generates from text alone; else what every request must keep, said as
+    # an instruction (an editor: MMM's upper-body editor keeps a lower body), so that evaluation,
+    # which asks for text alone, refuses it up front
+    needs_keep: ClassVar[str | None] = None
+    # the editing-table tasks it can do (m2d2m.evaluation.measurements.EDITS: inbetween, upper)
+    edits: ClassVar[tuple[str, ...]] = ()
 
     source: Path  # the model file it was loaded from
 

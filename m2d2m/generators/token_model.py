@@ -1,6 +1,7 @@
 """What every generator over VQ-VAE motion tokens shares (M2D2M, MMM): the codec that turns
-features into tokens and back, the corpus's length prior, how a text encoder is kept in a model
-file, and the protocol's properties that follow from them (:class:`TokenModelGenerator`)."""
+features into tokens and back (a pair of body-part codecs for MMM's upper-body editing), the
+corpus's length prior, how a text encoder is kept in a model file, and the protocol's properties
+that follow from them (:class:`TokenModelGenerator`)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import torch
 
 from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.model_files import cpu_state
+from m2d2m.motion.body_parts import FULL, LOWER, UPPER, merge
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import features_to_joints
@@ -55,7 +57,9 @@ def text_encoder_from_payload(payload: dict[str, Any]) -> TextEncoder:
 
 @dataclass
 class TokenCodec:
-    """The VQ-VAE a token model decodes with, its normalisation and skeleton."""
+    """The VQ-VAE a token model decodes with, its normalisation and skeleton. A body part's
+    tokenizer (``vq.config.part``) encodes whole-body features and decodes its part's dimensions
+    (:attr:`dims`); only a whole-body codec makes a :class:`Motion`."""
 
     vq: MotionVQVAE
     normalizer: Normalizer
@@ -75,6 +79,15 @@ class TokenCodec:
     def device(self) -> torch.device:
         return next(self.vq.parameters()).device
 
+    @property
+    def part(self) -> str:
+        return self.vq.config.part
+
+    @property
+    def dims(self) -> np.ndarray:
+        """The feature dimensions :meth:`decode` returns."""
+        return self.vq.config.dims
+
     def encode(self, features: np.ndarray) -> torch.Tensor:
         """Tokens (on the CPU) of un-normalised features (F, D): one per ``frames_per_token`` frames."""
         with torch.no_grad():
@@ -82,14 +95,17 @@ class TokenCodec:
             return self.vq.encode(normalized[None])[0].cpu()
 
     def decode(self, tokens: torch.Tensor) -> np.ndarray:
-        """Un-normalised features (F, D) of one token sequence."""
+        """Un-normalised features (F, D) of one token sequence; a part's (F, D_part)."""
         with torch.no_grad():
-            return self.normalizer.denormalize(self.vq.decode(tokens[None].to(self.device))[0].cpu().numpy())
+            decoded = self.vq.decode(tokens[None].to(self.device))[0].cpu().numpy()
+        return self.normalizer.denormalize(decoded, None if self.part == FULL else self.dims)
 
     def motion(self, pieces: list[torch.Tensor], actions: list[str], settings: dict[str, Any],
                gaps: Sequence[torch.Tensor] = ()) -> Motion:
         """One Motion from each action's tokens, decoded together in order, with ``gaps[j]`` (tokens
         that belong to no action: a transition) between actions j and j + 1."""
+        if self.part != FULL:
+            raise ValueError(f"a {self.part}-body tokenizer alone cannot make a whole motion")
         stream, ranges, start = [], [], 0
         per_token = self.frames_per_token
         for j, piece in enumerate(pieces):
@@ -107,10 +123,54 @@ class TokenCodec:
                       ranges, settings, tokens.cpu().numpy())
 
 
+@dataclass
+class BodyCodec(TokenCodec):
+    """Two part tokenizers as one codec (MMM's upper-body editing, Pinyoanuntapong et al., CVPR
+    2024, §3.3): a token is the pair (upper code, lower code), (L, 2); decoding decodes each half
+    with its own VQ-VAE and merges the parts into whole-body features. ``vq`` is the upper body's."""
+
+    lower: TokenCodec
+
+    @classmethod
+    def pair(cls, upper: TokenCodec, lower: TokenCodec) -> "BodyCodec":
+        """The codec of ``upper`` and ``lower`` tokenizers, or ValueError when they do not pair up."""
+        if (upper.part, lower.part) != (UPPER, LOWER):
+            raise ValueError(f"need an upper- and a lower-body tokenizer, got {upper.part} and {lower.part}")
+        if upper.skeleton is not lower.skeleton or upper.frames_per_token != lower.frames_per_token:
+            raise ValueError("the upper- and lower-body tokenizers differ in skeleton or frames per token")
+        if not (np.array_equal(upper.normalizer.mean, lower.normalizer.mean)
+                and np.array_equal(upper.normalizer.std, lower.normalizer.std)
+                and upper.normalizer.feat_bias == lower.normalizer.feat_bias):
+            raise ValueError("the upper- and lower-body tokenizers normalise differently (other datasets?)")
+        return cls(upper.vq, upper.normalizer, upper.skeleton, lower)
+
+    @property
+    def upper(self) -> TokenCodec:
+        return TokenCodec(self.vq, self.normalizer, self.skeleton)
+
+    @property
+    def part(self) -> str:
+        return FULL
+
+    @property
+    def dims(self) -> np.ndarray:
+        return np.arange(self.skeleton.feature_dim)
+
+    def encode(self, features: np.ndarray) -> torch.Tensor:
+        """Token pairs (L, 2) of un-normalised whole-body features (F, D)."""
+        return torch.stack([self.upper.encode(features), self.lower.encode(features)], dim=-1)
+
+    def decode(self, tokens: torch.Tensor) -> np.ndarray:
+        """Whole-body features (F, D) of token pairs (L, 2)."""
+        return merge({UPPER: self.upper.decode(tokens[:, 0]), LOWER: self.lower.decode(tokens[:, 1])},
+                     self.skeleton)
+
+
 class TokenModelGenerator(MotionGenerator):
     """The protocol's properties for a model over a :class:`TokenCodec`'s tokens; subclasses set
     ``codec``, ``lengths``, ``extra`` and ``source`` and implement sampling."""
 
+    edits = ("inbetween",)  # kept frames become kept tokens (:meth:`given_tokens`)
     codec: TokenCodec
     lengths: LengthPrior
     extra: dict[str, Any]
@@ -148,6 +208,9 @@ class TokenModelGenerator(MotionGenerator):
         token holds a kept frame, :data:`FREE` elsewhere (None without a Keep)."""
         if keep is None:
             return None
+        if not keep.whole_frames:
+            raise ValueError(f"{self.model} keeps whole frames, not a body part alone "
+                             "(upper-body editing is the model mmm-body)")
         encoded = self.codec.encode(keep.features)
         if len(encoded) != tokens:
             raise ValueError(f"the kept motion holds {len(encoded)} tokens but the request asks for {tokens}")

@@ -91,17 +91,20 @@ class Normalizer:
         scale[-4:] /= self.feat_bias
         return scale
 
-    def normalize(self, features):
-        """Works on NumPy arrays and on torch tensors (statistics are moved to their device)."""
-        mean, scale = self._like(features)
+    def normalize(self, features, dims: np.ndarray | None = None):
+        """Works on NumPy arrays and on torch tensors (statistics are moved to their device);
+        ``dims``: the features are only these dimensions of the full width (a body part's)."""
+        mean, scale = self._like(features, dims)
         return (features - mean) / scale
 
-    def denormalize(self, features):
-        mean, scale = self._like(features)
+    def denormalize(self, features, dims: np.ndarray | None = None):
+        mean, scale = self._like(features, dims)
         return features * scale + mean
 
-    def _like(self, features):
+    def _like(self, features, dims: np.ndarray | None):
         mean, scale = np.asarray(self.mean, dtype=np.float32), self.scale
+        if dims is not None:
+            mean, scale = mean[..., dims], scale[..., dims]
         if isinstance(features, np.ndarray):
             return mean, scale
         return (torch.as_tensor(mean, device=features.device, dtype=features.dtype),

@@ -71,15 +71,35 @@ class MaskedTransformerConfig(NetworkConfig):
     def mask_id(self) -> int:
         return self.codebook_size + 2
 
+    @property
+    def token_width(self) -> int:
+        """The width of a token's vector before the projection to the transformer's width."""
+        return self.code_dim
+
+
+def framed(tokens: torch.Tensor, lengths: torch.Tensor, end_id: int, pad_id: int) -> torch.Tensor:
+    """(B, W + 1): ``tokens`` (B, W) with ``end_id`` right after each sequence's first
+    ``lengths[b]`` tokens and ``pad_id`` after that."""
+    batch, width = tokens.shape
+    position = torch.arange(width + 1, device=tokens.device)[None, :]
+    padded = torch.cat([tokens, torch.full((batch, 1), pad_id, dtype=tokens.dtype, device=tokens.device)], 1)
+    padded = torch.where(position < lengths[:, None], padded, torch.full_like(padded, pad_id))
+    return torch.where(position == lengths[:, None], torch.full_like(padded, end_id), padded)
+
 
 def canvas(tokens: torch.Tensor, lengths: torch.Tensor, config: MaskedTransformerConfig) -> torch.Tensor:
     """The network's input (B, W + 1) for ``tokens`` (B, W) of which the first ``lengths[b]`` are
     sequence b's (codes or [MASK]): [END] right after each sequence's last token, [PAD] after that."""
-    batch, width = tokens.shape
-    position = torch.arange(width + 1, device=tokens.device)[None, :]
-    padded = torch.cat([tokens, torch.full((batch, 1), config.pad_id, dtype=tokens.dtype, device=tokens.device)], 1)
-    padded = torch.where(position < lengths[:, None], padded, torch.full_like(padded, config.pad_id))
-    return torch.where(position == lengths[:, None], torch.full_like(padded, config.end_id), padded)
+    return framed(tokens, lengths, config.end_id, config.pad_id)
+
+
+def code_vectors(tokens: torch.Tensor, codebook: torch.Tensor, special: torch.Tensor) -> torch.Tensor:
+    """(..., code_dim): ``codebook`` rows for codes 0..K−1, ``special`` rows for [END], [PAD], [MASK]
+    (K, K + 1, K + 2)."""
+    last = codebook.shape[0] + SPECIAL_TOKENS - 1
+    if tokens.numel() and (int(tokens.min()) < 0 or int(tokens.max()) > last):
+        raise ValueError(f"tokens must lie in 0..{last} (codes, then END, PAD, MASK)")
+    return F.embedding(tokens, torch.cat([codebook, special]))
 
 
 class MaskedBlock(nn.Module):
@@ -119,7 +139,7 @@ class MaskedMotionTransformer(nn.Module):
         self.config = config
         self.register_buffer("codebook", codebook.detach().clone().float())
         self.special = nn.Parameter(torch.randn(SPECIAL_TOKENS, config.code_dim) * 0.02)
-        self.token_projection = nn.Linear(config.code_dim, config.width)
+        self.token_projection = nn.Linear(config.token_width, config.width)
         self.sentence_projection = nn.Linear(config.text_dim, config.width)
         self.word_projection = nn.Linear(config.text_dim, config.width)
         self.positions = nn.Parameter(torch.randn(config.max_tokens + 2, config.width) * 0.02)
@@ -129,10 +149,11 @@ class MaskedMotionTransformer(nn.Module):
 
     def embed_tokens(self, tokens: torch.Tensor) -> torch.Tensor:
         """(B, L, width): frozen code vectors for codes, learned vectors for [END], [PAD], [MASK]."""
-        if tokens.numel() and (int(tokens.min()) < 0 or int(tokens.max()) > self.config.mask_id):
-            raise ValueError(f"tokens must lie in 0..{self.config.mask_id} (codes, then END, PAD, MASK)")
-        table = torch.cat([self.codebook, self.special])
-        return self.token_projection(F.embedding(tokens, table))
+        return self.token_projection(code_vectors(tokens, self.codebook, self.special))
+
+    def padding(self, tokens: torch.Tensor) -> torch.Tensor:
+        """(B, L) bool: the [PAD] positions, never attended to."""
+        return tokens == self.config.pad_id
 
     def forward(self, tokens: torch.Tensor, sentence: torch.Tensor, words: torch.Tensor,
                 word_mask: torch.Tensor) -> torch.Tensor:
@@ -140,13 +161,13 @@ class MaskedMotionTransformer(nn.Module):
         [END] after a sequence's last token and [PAD] after that (never attended to).
         ``sentence`` (B, text_dim); ``words`` (B, S, text_dim) with ``word_mask`` (B, S), True = real.
         """
-        batch, length = tokens.shape
+        batch, length = tokens.shape[:2]
         if length + 1 > self.positions.shape[0]:
             raise ValueError(f"{length} tokens exceed the {self.config.max_tokens} + [END] this model was built for")
         sequence = torch.cat([self.sentence_projection(sentence)[:, None], self.embed_tokens(tokens)], dim=1)
         sequence = sequence + self.positions[: length + 1]
         padding = torch.cat([torch.zeros(batch, 1, dtype=torch.bool, device=tokens.device),
-                             tokens == self.config.pad_id], dim=1)
+                             self.padding(tokens)], dim=1)
         word_features = self.word_projection(words)
         for block in self.blocks:
             sequence = block(sequence, padding, word_features, ~word_mask)

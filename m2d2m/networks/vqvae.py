@@ -6,6 +6,10 @@ Features ``(B, T, D)`` are encoded by a strided 1-D convolution stack into one l
 reset, and a mirror-image decoder with nearest-neighbour upsampling maps the codes back to frames.
 The codebook is also what the denoiser builds its distance-aware transitions from.
 
+A tokenizer may cover one body part (``VQConfig.part``, MMM's part tokenizers: Pinyoanuntapong et
+al., CVPR 2024, §3.3): it reads the whole body's features, encodes only its part's dimensions
+(:mod:`m2d2m.motion.body_parts`) and decodes those alone.
+
 Differences from the reference code, each on purpose: no hard-coded CUDA; any ``T`` (padded at the
 end by repeating the last frame, the reconstruction cropped back); ``decode`` works for any batch
 size; the quantizer computes in float32 even under autocast; dead codes are selected with
@@ -27,6 +31,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from m2d2m.model_files import cpu_state, read_model_file, write_model_file
+from m2d2m.motion.body_parts import FULL, PARTS, part_dims, skeleton_of_width
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.smoothing import gaussian_kernel
 from m2d2m.networks.config import ConfigError, NetworkConfig
@@ -55,6 +60,9 @@ class VQConfig(NetworkConfig):
     # σ (frames) of a fixed Gaussian low-pass on the decoder's output, trained through; 0 is
     # T2M-GPT's decoder. Not in T2M-GPT: see :class:`TemporalLowPass` and docs/training.md.
     output_smoothing: float = 0.0
+    # the body part it tokenizes: full, or upper / lower (MMM's part tokenizers); ``feature_dim``
+    # stays the whole body's, which it reads
+    part: str = FULL
 
     def __post_init__(self) -> None:
         self.require_positive("feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size",
@@ -68,6 +76,20 @@ class VQConfig(NetworkConfig):
         if self.activation not in _ACTIVATIONS:
             raise ConfigError(f"VQConfig.activation must be one of {sorted(_ACTIVATIONS)}, "
                              f"got {self.activation!r}")
+        if self.part not in (FULL, *PARTS):
+            raise ConfigError(f"VQConfig.part must be one of {', '.join((FULL, *PARTS))}, got {self.part!r}")
+        if self.part != FULL:
+            try:
+                skeleton_of_width(self.feature_dim)
+            except ValueError as error:
+                raise ConfigError(f"VQConfig.part {self.part!r}: {error}") from error
+
+    @property
+    def dims(self) -> np.ndarray:
+        """The feature dimensions it encodes and decodes: its part's, or all of them."""
+        if self.part == FULL:
+            return np.arange(self.feature_dim)
+        return part_dims(skeleton_of_width(self.feature_dim), self.part)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -235,7 +257,7 @@ def resnet1d(width: int, depth: int, growth: int, activation: str) -> nn.Sequent
 
 
 def _encoder(c: VQConfig) -> nn.Sequential:
-    layers: list[nn.Module] = [nn.Conv1d(c.feature_dim, c.width, 3, padding=1), _ACTIVATIONS[c.activation]()]
+    layers: list[nn.Module] = [nn.Conv1d(len(c.dims), c.width, 3, padding=1), _ACTIVATIONS[c.activation]()]
     for _ in range(c.down_t):
         layers += [nn.Conv1d(c.width, c.width, 4, stride=2, padding=1),
                    resnet1d(c.width, c.depth, c.dilation_growth, c.activation)]
@@ -250,7 +272,7 @@ def _decoder(c: VQConfig) -> nn.Sequential:
                    nn.Upsample(scale_factor=2, mode="nearest"),
                    nn.Conv1d(c.width, c.width, 3, padding=1)]
     layers += [nn.Conv1d(c.width, c.width, 3, padding=1), _ACTIVATIONS[c.activation](),
-               nn.Conv1d(c.width, c.feature_dim, 3, padding=1), TemporalLowPass(c.output_smoothing)]
+               nn.Conv1d(c.width, len(c.dims), 3, padding=1), TemporalLowPass(c.output_smoothing)]
     return nn.Sequential(*layers)
 
 
@@ -286,8 +308,9 @@ class TemporalLowPass(nn.Module):
 
 @dataclass
 class VQOutput:
-    """Result of :meth:`MotionVQVAE.forward`: the reconstruction (B, T, D) in normalised feature
-    space, the commitment loss, the tokens (B, ceil(T / frames_per_token)) and codebook usage."""
+    """Result of :meth:`MotionVQVAE.forward`: the reconstruction (B, T, D_part) of the model's
+    dimensions (:attr:`VQConfig.dims`) in normalised feature space, the commitment loss, the
+    tokens (B, ceil(T / frames_per_token)) and codebook usage."""
 
     reconstruction: torch.Tensor
     commit_loss: torch.Tensor
@@ -297,11 +320,13 @@ class VQOutput:
 
 
 class MotionVQVAE(nn.Module):
-    """Encoder → EMA codebook → decoder on normalised motion features (B, T, D)."""
+    """Encoder → EMA codebook → decoder on normalised motion features (B, T, D); a part's model
+    reads the same (B, T, D) and writes its part's dimensions (B, T, D_part)."""
 
     def __init__(self, config: VQConfig | None = None) -> None:
         super().__init__()
         self.config = config or VQConfig()
+        self.register_buffer("dims", torch.as_tensor(self.config.dims), persistent=False)
         self.encoder = _encoder(self.config)
         self.quantizer = EMACodebook(self.config.codebook_size, self.config.code_dim, self.config.ema_decay,
                                      self.config.reset_every)
@@ -316,12 +341,17 @@ class MotionVQVAE(nn.Module):
         """The (K, code_dim) code vectors (a buffer, so never part of a gradient)."""
         return self.quantizer.codebook
 
+    def select(self, x: torch.Tensor) -> torch.Tensor:
+        """The dimensions of full features (..., D) that this model encodes and reconstructs."""
+        return x if self.config.part == FULL else x[..., self.dims]
+
     def _latents(self, x: torch.Tensor) -> torch.Tensor:
         """Encoder outputs (B, L, code_dim); ``x`` is padded at the end to a whole number of
         tokens by repeating its last frame, which keeps the padding on the motion's manifold."""
         if x.ndim != 3 or x.shape[-1] != self.config.feature_dim or x.shape[1] < 1:
             raise ValueError(f"expected features (B, T >= 1, {self.config.feature_dim}), "
                              f"got {tuple(x.shape)}")
+        x = self.select(x)
         missing = -x.shape[1] % self.frames_per_token
         if missing:
             x = torch.cat([x, x[:, -1:].expand(-1, missing, -1)], dim=1)
@@ -348,7 +378,7 @@ class MotionVQVAE(nn.Module):
         return self.quantizer.nearest(latents.reshape(-1, self.config.code_dim)).reshape(latents.shape[:2])
 
     def decode(self, tokens: torch.Tensor) -> torch.Tensor:
-        """Features (B, frames_per_token · L, D) for token indices (B, L)."""
+        """Features (B, frames_per_token · L, D_part) for token indices (B, L): its part's dimensions."""
         if tokens.ndim != 2:
             raise ValueError(f"expected tokens (B, L), got {tuple(tokens.shape)}")
         return self._decode_latents(F.embedding(tokens.long(), self.codebook))
@@ -378,7 +408,8 @@ def save_vq(path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skelet
 def load_vq(path: str | Path,
             map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
     """Read a file written by :func:`save_vq`: the model (eval mode, on ``map_location``), its
-    normaliser, and ``{"skeleton", "extra"}``; ValueError when the file is not one."""
+    normaliser, and ``{"skeleton", "part", "extra"}`` (``part``: the body part it tokenizes);
+    ValueError when the file is not one."""
     payload = read_model_file(path, FORMAT, "m2d2m VQ model file", map_location)
     try:
         return vq_from_payload(payload, map_location)
@@ -387,13 +418,13 @@ def load_vq(path: str | Path,
 
 
 def vq_from_payload(payload: dict, map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
-    """The model, normaliser and ``{"skeleton", "extra"}`` of a VQ file's contents — also used
-    when a denoiser checkpoint carries its VQ-VAE inside it."""
+    """The model, normaliser and ``{"skeleton", "part", "extra"}`` of a VQ file's contents — also
+    used when a denoiser checkpoint carries its VQ-VAE inside it."""
     try:
         model = MotionVQVAE(VQConfig.from_dict(payload["config"]))
         model.load_state_dict(payload["state_dict"])
         normalizer = Normalizer(payload["mean"].cpu().numpy(), payload["std"].cpu().numpy(), payload["feat_bias"])
-        meta = {"skeleton": payload["skeleton"], "extra": payload["extra"]}
+        meta = {"skeleton": payload["skeleton"], "part": model.config.part, "extra": payload["extra"]}
     except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as error:
         # a file with the format tag whose contents do not fit the model (missing keys, other
         # shapes): the caller gets a ValueError naming what is wrong, like any unreadable file

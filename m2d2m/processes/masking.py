@@ -67,15 +67,29 @@ def training_mask(lengths: Tensor, width: int, alpha: float, generator: torch.Ge
     ``lengths[b]`` real tokens, round(r·L) of them (at least one), r ~ U(α, 1), chosen uniformly."""
     if not 0.0 <= alpha <= 1.0:
         raise ValueError(f"alpha must lie in [0, 1], got {alpha}")
+    ratio = alpha + (1.0 - alpha) * torch.rand(len(lengths), generator=generator, device=lengths.device)
+    return random_positions(lengths, width, torch.round(ratio * lengths).clamp(min=1).long(), generator)
+
+
+def corruption_mask(lengths: Tensor, width: int, most: float, generator: torch.Generator | None = None) -> Tensor:
+    """(B, width) bool, True where a conditioning token is replaced by [MASK]: round(q·L) of
+    each sequence's ``lengths[b]`` tokens (none at all for some), q ~ U(0, ``most``). MMM's light
+    corruption of the lower-body tokens in upper-body editing (§3.3): without it the upper body
+    follows the lower too closely and the text too little."""
+    if not 0.0 <= most <= 1.0:
+        raise ValueError(f"the largest corrupted fraction must lie in [0, 1], got {most}")
+    ratio = most * torch.rand(len(lengths), generator=generator, device=lengths.device)
+    return random_positions(lengths, width, torch.round(ratio * lengths).long(), generator)
+
+
+def random_positions(lengths: Tensor, width: int, counts: Tensor, generator: torch.Generator | None = None) -> Tensor:
+    """(B, width) bool: ``counts[b]`` of row b's first ``lengths[b]`` positions, chosen uniformly."""
     device = lengths.device
-    batch = len(lengths)
-    ratio = alpha + (1.0 - alpha) * torch.rand(batch, generator=generator, device=device)
-    count = torch.round(ratio * lengths).clamp(min=1).long()
     real = torch.arange(width, device=device)[None, :] < lengths[:, None]
-    # a random order of each row's real positions (padding sorts last); the first `count` are masked
-    noise = torch.rand(batch, width, generator=generator, device=device).masked_fill(~real, 2.0)
+    # a random order of each row's real positions (padding sorts last); the first `count` are chosen
+    noise = torch.rand(len(lengths), width, generator=generator, device=device).masked_fill(~real, 2.0)
     rank = noise.argsort(dim=1).argsort(dim=1)
-    return (rank < count[:, None]) & real
+    return (rank < counts[:, None]) & real
 
 
 def least_confident(confidence: Tensor, candidates: Tensor, counts: Tensor) -> Tensor:
