@@ -19,7 +19,14 @@ def wall_time(run: Callable[[], object], device: torch.device) -> float:
     return time.perf_counter() - started
 
 
+def call_times(run: Callable[[], object], warmup: int, repeats: int, device: torch.device) -> list[float]:
+    """Wall times of ``repeats`` calls after ``warmup`` untimed ones (first calls allocate and pick
+    kernels), in seconds."""
+    for _ in range(warmup):
+        run()
+    return [wall_time(run, device) for _ in range(repeats)]
+
+
 def best_time(run: Callable[[], object], repeats: int, device: torch.device) -> float:
     """Best wall time of ``repeats`` calls after one warm-up call, in seconds."""
-    run()
-    return min(wall_time(run, device) for _ in range(repeats))
+    return min(call_times(run, 1, repeats, device))
