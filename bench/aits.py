@@ -6,8 +6,9 @@ AITS is MLD's metric as MMM uses it (Table 7): the wall time of text → motion 
 model loading excluded. Here that is one call of a model's generator (text encoding, token
 sampling, VQ-VAE decoding) with its single-action preset for one sentence (batch 1); a batch of B
 sentences in one call has an AITS of the call's time / B. Every (model, batch, length) gets
-``--warmup`` untimed calls, then ``--repeats`` timed ones, each with other sentences and seeds;
-reported are the median and the range.
+``--warmup`` untimed calls, then ``--repeats`` timed ones, each with other sentences and seeds,
+in rounds that time every setting once (the machine may be shared: load that comes and goes then
+slows every setting alike); reported are the median and the range.
 
 Why the times grow with length: MMM decodes L tokens in T_dyn = ⌈T·L/M⌉ iterations (§3.2; M the
 corpus's longest motion in tokens, T = 10), so both the number of passes and their width grow;
@@ -16,8 +17,8 @@ M2D2M always takes T steps (two passes each for guidance, batched), only their w
 The long sequence: ``--long-minutes`` of motion at the models' frame rate in the fewest actions of
 at most ``--action-frames`` frames, whole tokens, as even as possible (10.873 min at 20 fps =
 3,262 tokens = 46 actions of 196 frames and 21 of 192), generated as one sequence by MMM's
-``transition`` and M2D2M's ``tps`` (each model's multi-action preset): one warm-up call, then
-``--long-repeats`` timed ones.
+``transition`` and M2D2M's ``tps`` (each model's multi-action preset): one warm-up call each,
+then ``--long-repeats`` rounds.
 
     python bench/aits.py [--mmm latest] [--m2d2m latest] [--dataset synthetic] [--lengths 40 80 120 160 196]
                          [--batches 1 32] [--warmup 2] [--repeats 5] [--long-repeats 3] [--out DIR]
@@ -35,6 +36,7 @@ import os
 import platform
 import statistics
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
 from datetime import datetime
 from functools import partial
@@ -49,7 +51,7 @@ from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
 from m2d2m.processes.masking import dynamic_iterations
 from orchestration.errors import UserError
 from orchestration.generate import load_generator
-from timing import call_times
+from timing import interleaved_times
 
 PROMPTS = ("a person walks forward", "a person jumps", "a person waves their right hand", "a person sits down")
 LONG_METHODS = {"mmm": "transition", "m2d2m": "tps"}  # each model's long-sequence method, in plotting order
@@ -100,8 +102,9 @@ def request(batch: int, call: int) -> tuple[list[list[str]], list[int]]:
     return [[PROMPTS[(call + j) % len(PROMPTS)]] for j in range(batch)], [call * batch + j for j in range(batch)]
 
 
-def time_sentences(generator: MotionGenerator, batch: int, frames: int, warmup: int, repeats: int) -> Timing:
-    """Single-action generation of ``batch`` sentences of ``frames`` frames per call, timed."""
+def sentence_call(generator: MotionGenerator, batch: int, frames: int) -> Callable[[], None]:
+    """One call of single-action generation of ``batch`` sentences of ``frames`` frames; each
+    call has the next sentences and seeds."""
     options = generator.options(SINGLE)
     calls = count()
 
@@ -109,16 +112,18 @@ def time_sentences(generator: MotionGenerator, batch: int, frames: int, warmup: 
         actions, seeds = request(batch, next(calls))
         generator.generate(actions, [[frames]] * batch, options, seeds)
 
-    return Timing(generator.model, batch, frames, sampler_passes(generator, options, frames),
-                  call_times(run, warmup, repeats, generator.device))
+    return run
 
 
 def measure_aits(generators: dict[str, MotionGenerator], lengths: list[int], batches: list[int], warmup: int,
                  repeats: int) -> list[Timing]:
-    """:func:`time_sentences` for every batch size, model and length."""
+    """Every batch size, model and length, timed in interleaved rounds."""
     settings = [(batch, name, frames) for batch in batches for name in generators for frames in lengths]
-    return [time_sentences(generators[name], batch, frames, warmup, repeats)
-            for batch, name, frames in tqdm(settings, desc="AITS", unit="setting")]
+    device = next(iter(generators.values())).device
+    times = interleaved_times([sentence_call(generators[name], batch, frames) for batch, name, frames in settings],
+                              warmup, repeats, device, desc="AITS")
+    return [Timing(name, batch, frames, sampler_passes(generators[name], generators[name].options(SINGLE), frames),
+                   seconds) for (batch, name, frames), seconds in zip(settings, times)]
 
 
 def long_plan(minutes: float, fps: float, frame_step: int, action_frames: int) -> list[int]:
@@ -131,16 +136,17 @@ def long_plan(minutes: float, fps: float, frame_step: int, action_frames: int) -
 
 
 def measure_long(generators: dict[str, MotionGenerator], frames: list[int], repeats: int) -> dict[str, list[float]]:
-    """Seconds per call of each model's long-sequence method on one sequence of ``frames``."""
+    """Seconds per call of each model's long-sequence method on one sequence of ``frames``, after
+    a warm-up call that checks the length."""
     actions = [[PROMPTS[j % len(PROMPTS)] for j in range(len(frames))]]
-    times = {}
-    for name, generator in tqdm(generators.items(), desc="long sequence", unit="model"):
-        run = partial(generator.generate, actions, [frames], generator.options(MULTI, method=LONG_METHODS[name]), [0])
-        motion = run()[0]  # the warm-up, which also checks the length
-        if len(motion.features) != sum(frames):
-            raise RuntimeError(f"{name} made {len(motion.features)} frames of the {sum(frames)} asked for")
-        times[name] = call_times(run, 0, repeats, generator.device)
-    return times
+    runs = {name: partial(generator.generate, actions, [frames], generator.options(MULTI, method=LONG_METHODS[name]),
+                          [0]) for name, generator in generators.items()}
+    for name, run in tqdm(runs.items(), desc="long sequence, warm-up", unit="model"):
+        made = len(run()[0].features)
+        if made != sum(frames):
+            raise RuntimeError(f"{name} made {made} frames of the {sum(frames)} asked for")
+    device = next(iter(generators.values())).device
+    return dict(zip(runs, interleaved_times(list(runs.values()), 0, repeats, device, desc="long sequence")))
 
 
 def load(checkpoints: dict[str, str], dataset: str) -> dict[str, MotionGenerator]:
@@ -173,7 +179,7 @@ def machine(device: torch.device) -> dict[str, Any]:
             "torch": torch.__version__, "load": list(os.getloadavg())}
 
 
-def run(args: argparse.Namespace) -> dict[str, Any]:
+def measure(args: argparse.Namespace) -> dict[str, Any]:
     """Every measurement, as the JSON written next to the figure."""
     generators = load({name: getattr(args, name) for name in LONG_METHODS}, args.dataset)
     check_lengths(generators, args.lengths, args.action_frames)
@@ -208,7 +214,8 @@ def report(result: dict[str, Any]) -> str:
     info = result["machine"]
     lines = [f"{result['date']}; {info['device']}, {info['cores']} cores, {info['torch_threads']} torch threads, "
              f"torch {info['torch']}; load average {info['load'][0]:.2f} before, {info['load_after'][0]:.2f} after; "
-             f"median [min–max] of {result['settings']['repeats']} calls after {result['settings']['warmup']} warm-ups"]
+             f"median [min–max] of {result['settings']['repeats']} calls after {result['settings']['warmup']} "
+             "warm-ups"]
     lines += [f"- {name}: {model['checkpoint']}, parameters {model['parameters']}; single: {model['single']}"
               for name, model in result["models"].items()]
     for batch in dict.fromkeys(t.batch for t in timings):
@@ -262,7 +269,8 @@ def plot(path: Path, result: dict[str, Any]) -> None:
              ylabel="AITS (s): median, range", yscale="log")
     axes.set_title(f"AITS by motion length, {info['device']}, {info['torch_threads']} threads\n"
                    f"{long['minutes']:.3f} min in {long['actions']} actions: "
-                   + ", ".join(f"{name} {long['methods'][name]} {seconds:.2f} s" for name, seconds in long["median"].items()),
+                   + ", ".join(f"{name} {long['methods'][name]} {seconds:.2f} s"
+                               for name, seconds in long["median"].items()),
                    fontsize="medium")
     axes.grid(alpha=0.3, which="both")
     axes.legend(fontsize="small")
@@ -272,7 +280,8 @@ def plot(path: Path, result: dict[str, Any]) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     for name, hint in (("mmm", "make train-mmm"), ("m2d2m", "make train-diffusion")):
-        parser.add_argument(f"--{name}", default="latest", help=f"{name}'s model: latest, a run or its model.pt ({hint})")
+        parser.add_argument(f"--{name}", default="latest",
+                            help=f"{name}'s model: latest, a run or its model.pt ({hint})")
     parser.add_argument("--dataset", default="synthetic")
     parser.add_argument("--lengths", type=int, nargs="+", default=[40, 80, 120, 160, 196], help="frames per sentence")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 32], help="sentences per call")
@@ -290,7 +299,7 @@ def main(argv: list[str] | None = None) -> None:
 
     torch.set_num_threads(args.threads)
     try:
-        result = run(args)
+        result = measure(args)
     except UserError as error:
         raise SystemExit(f"bench/aits.py: {error}") from None
     out = Path(args.out or f"runs/{args.dataset}/bench/aits")
