@@ -24,7 +24,8 @@ then ``--long-repeats`` rounds.
                          [--batches 1 32] [--warmup 2] [--repeats 5] [--long-repeats 3] [--out DIR]
 
 Writes ``aits.json`` (every call's time) and ``aits.png`` into ``--out`` (runs/<dataset>/bench/aits)
-and prints Markdown. About 9 minutes on 2 CPU cores with the demo's models.
+and prints Markdown. About 9 minutes on a quiet 2-core machine with the demo's models; on a loaded
+one, give ``--threads 1`` (BENCHMARKS.md: 2 intra-op threads on 2 busy cores are 40× slower).
 """
 
 from __future__ import annotations
@@ -262,12 +263,13 @@ def plot(path: Path, result: dict[str, Any]) -> None:
         if batch == 1:
             for row in rows:
                 axes.annotate(str(row["passes"]), (row["frames"], row["aits"]), textcoords="offset points",
-                              xytext=(0, 6), ha="center", fontsize="x-small", color=colours[model])
+                              xytext=(5, 3), ha="left", fontsize="x-small", color=colours[model])
     long = result["long"]
     info = result["machine"]
     axes.set(xlabel=f"frames ({result['fps']:g} fps); over the points: sampler iterations (MMM's T_dyn, M2D2M's T)",
              ylabel="AITS (s): median, range", yscale="log")
-    axes.set_title(f"AITS by motion length, {info['device']}, {info['torch_threads']} threads\n"
+    axes.set_title(f"AITS by motion length, {info['device']}, {info['cores']} cores, "
+                   f"{info['torch_threads']} torch thread(s)\n"
                    f"{long['minutes']:.3f} min in {long['actions']} actions: "
                    + ", ".join(f"{name} {long['methods'][name]} {seconds:.2f} s"
                                for name, seconds in long["median"].items()),
