@@ -175,6 +175,7 @@ def check_lengths(generators: dict[str, MotionGenerator], lengths: list[int], ac
 
 
 def machine(device: torch.device) -> dict[str, Any]:
+    """What the times were measured on, and how loaded it was (the machine may be shared)."""
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or platform.machine()
     return {"device": name, "cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
             "torch": torch.__version__, "load": list(os.getloadavg())}
