@@ -66,6 +66,7 @@ bench: $(STAMP)  ## measure speed; results go to BENCHMARKS.md by hand
 	$(BIN)/python bench/train_vq.py
 	$(BIN)/python bench/discrete_diffusion.py
 	$(BIN)/python bench/sampling.py
+	$(BIN)/python bench/aits.py --dataset $(DATASET)
 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic
 	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)

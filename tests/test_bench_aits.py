@@ -1,0 +1,71 @@
+"""bench/aits.py on the session's tiny models: what it measures and writes, not how fast."""
+
+from __future__ import annotations
+
+import json
+import statistics
+import sys
+from collections import Counter
+from pathlib import Path
+
+import pytest
+import yaml
+
+from orchestration.train import train_model
+from tests.helpers import TINY_MMM
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `timing` beside them
+from bench.aits import long_plan, main  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def both_models(trained_project) -> Path:
+    """The trained project (tiny VQ-VAE and denoiser) with a tiny MMM beside its denoiser."""
+    (trained_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
+    train_model("mmm", str(trained_project / "mmm.yaml"))
+    return trained_project
+
+
+def test_mmm_long_sequence_is_split_into_the_fewest_even_actions():
+    frames = long_plan(10.873, fps=20, frame_step=4, action_frames=196)
+    # 10.873 min at 20 fps = 3,262 tokens: 67 actions of at most 49 tokens, 48 or 49 each
+    assert len(frames) == 67 and sum(frames) == 13048
+    assert Counter(frames) == {196: 46, 192: 21}
+    assert long_plan(0.05, fps=20, frame_step=4, action_frames=20) == [20, 20, 20]
+
+
+def test_aits_and_long_sequence_of_both_models_in_one_run(both_models, capsys):
+    out = both_models / "aits"
+    main(["--dataset", "tiny", "--lengths", "8", "16", "--batches", "1", "2", "--warmup", "0", "--repeats", "2",
+          "--long-minutes", "0.05", "--action-frames", "24", "--long-repeats", "1", "--threads", "1",
+          "--out", str(out)])
+    result = json.loads((out / "aits.json").read_text(encoding="utf-8"))
+    rows = {(row["model"], row["batch"], row["frames"]): row for row in result["aits"]}
+    assert set(rows) == {(m, b, f) for m in ("mmm", "m2d2m") for b in (1, 2) for f in (8, 16)}
+    for (_, batch, _), row in rows.items():
+        assert len(row["times"]) == 2 and all(t > 0 for t in row["times"])
+        assert row["aits"] == pytest.approx(statistics.median(row["times"]) / batch)
+        assert row["spread"][0] <= row["aits"] <= row["spread"][1]
+    # MMM's T_dyn grows with the length, M2D2M always takes its T (8 steps for the tiny model)
+    assert rows[("mmm", 1, 8)]["passes"] <= rows[("mmm", 1, 16)]["passes"] <= 10
+    assert rows[("m2d2m", 1, 8)]["passes"] == rows[("m2d2m", 1, 16)]["passes"] == 8
+
+    long = result["long"]
+    assert long["frames"] == [20, 20, 20] and long["actions"] == 3 and long["minutes"] == pytest.approx(0.05)
+    assert long["methods"] == {"mmm": "transition", "m2d2m": "tps"}
+    assert {name: len(times) for name, times in long["times"].items()} == {"mmm": 1, "m2d2m": 1}
+    assert long["ratio"] == pytest.approx(long["median"]["m2d2m"] / long["median"]["mmm"])
+    assert set(result["models"]) == {"mmm", "m2d2m"} and all(m["parameters"] for m in result["models"].values())
+    assert result["machine"]["torch_threads"] == 1
+    assert (out / "aits.png").stat().st_size > 0
+    printed = capsys.readouterr().out
+    assert "AITS, 2 sentence(s) per call" in printed and "| mmm | transition |" in printed
+
+
+def test_a_missing_model_is_one_line_naming_how_to_train_it(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stopped:
+        main(["--out", str(tmp_path / "out")])
+    message = str(stopped.value)
+    assert "make train-mmm" in message and "make train-diffusion" in message and "\n" not in message
+    assert not (tmp_path / "out").exists()
