@@ -23,7 +23,8 @@ def width(model: str, path) -> int:
             load_mmm(path).transformer.config.width)
 
 
-@pytest.mark.parametrize("model, verb", [("m2d2m", "train-diffusion"), ("mmm", "train-mmm")])
+@pytest.mark.parametrize("model, verb", [("m2d2m", "train-diffusion"),
+                                         pytest.param("mmm", "train-mmm", marks=pytest.mark.slow)])  # same code path
 def test_two_ddp_ranks_train_one_run(trained_project, model, verb):
     runs = trained_project / "runs" / "tiny" / model
     before = {path for path in runs.iterdir() if path.is_dir()} if runs.exists() else set()
