@@ -180,10 +180,14 @@ KNOBS = ("checkpoint", "testset", "evaluator", "guo_evaluator", "glove", "meta",
          "editing")
 
 
+def _given(values: Sequence[str] | str | None) -> list[str]:
+    """An option's values as a list: one string, repeated options, or none."""
+    return [values] if isinstance(values, str) else list(values or [])
+
+
 def _split(values: Sequence[str] | str | None) -> list[str]:
     """Repeated options and/or comma lists, in order, without repeats."""
-    values = [values] if isinstance(values, str) else list(values or [])
-    return list(dict.fromkeys(v.strip() for value in values for v in value.split(",") if v.strip()))
+    return list(dict.fromkeys(v.strip() for value in _given(values) for v in value.split(",") if v.strip()))
 
 
 def _qualified(entry: str, names: Sequence[str], separators: str) -> tuple[str | None, str]:
@@ -199,7 +203,7 @@ def _checkpoints(names: Sequence[str], values: Sequence[str] | str | None) -> di
     """Each model's checkpoint reference (default ``latest``) from ``REF`` (one model) or
     ``MODEL=REF`` entries."""
     given = {}
-    for value in [values] if isinstance(values, str) else list(values or []):
+    for value in _given(values):
         owner, reference = _qualified(value, names, "=")
         if owner is None:
             if len(names) > 1:
@@ -212,9 +216,14 @@ def _checkpoints(names: Sequence[str], values: Sequence[str] | str | None) -> di
     return {name: given.get(name, "latest") for name in names}
 
 
+def _named(generator: type[MotionGenerator], of: str) -> tuple[str, ...]:
+    """A generator's methods or knobs (``of``)."""
+    return generator.methods if of == "methods" else generator.knobs()
+
+
 def _choices(generators: dict[str, type[MotionGenerator]], of: str) -> str:
     """The methods or knobs (``of``) there are: a list for one model, per model for several."""
-    listed = {name: ", ".join(g.methods if of == "methods" else g.knobs()) for name, g in generators.items()}
+    listed = {name: ", ".join(_named(g, of)) for name, g in generators.items()}
     return next(iter(listed.values())) if len(listed) == 1 else "; ".join(f"{n}: {c}" for n, c in listed.items())
 
 
@@ -225,7 +234,7 @@ def _assign(entries: dict[str, Any], generators: dict[str, type[MotionGenerator]
     chosen: dict[str, dict[str, Any]] = {model_name: {} for model_name in generators}
     for entry, value in entries.items():
         owner, name = _qualified(entry, list(generators), separators)
-        has = {model_name: name in (g.methods if of == "methods" else g.knobs()) for model_name, g in generators.items()}
+        has = {model_name: name in _named(g, of) for model_name, g in generators.items()}
         owners = [owner] if owner else [model_name for model_name, yes in has.items() if yes]
         if not owners or not has[owners[0]]:
             whose = owner or " or ".join(generators)
@@ -242,11 +251,12 @@ def _methods(values: Sequence[str] | None, generators: dict[str, type[MotionGene
     or ``model/method`` ones (that model); a model named by no entry gets its default method, an
     editor none (it cannot generate from text alone)."""
     makers = {name: g for name, g in generators.items() if g.needs_keep is None}
-    for entry in _split(values):
+    entries = _split(values)
+    for entry in entries:
         owner, _ = _qualified(entry, list(generators), ":/")
         if owner is not None and owner not in makers:
             raise UserError(f"{owner} edits motions and has no multi-action method; {generators[owner].needs_keep}")
-    chosen = _assign(dict.fromkeys(_split(values)), makers, "methods", ":/") if makers else {}
+    chosen = _assign(dict.fromkeys(entries), makers, "methods", ":/") if makers else {}
     return {name: tuple(chosen[name] or generators[name].methods[:1]) if name in makers else ()
             for name in generators}
 

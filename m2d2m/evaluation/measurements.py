@@ -215,6 +215,11 @@ class Reference:
         return len(self.text)
 
     @property
+    def item_features(self) -> list[np.ndarray]:
+        """Every item's ground-truth features as generated for it, in item order."""
+        return [clip for clips in self.features for clip in clips]
+
+    @property
     def rp_batch(self) -> int:
         """R-precision's group size: Guo's 32, or every item of a smaller test set."""
         return min(R_PRECISION_BATCH, self.items)
@@ -263,7 +268,7 @@ class Reference:
         measures = MultiMeasures()
         measures.add(reconstructed, evaluator, generator.skeleton)
         items = embed_clips(evaluator, [m.features for m in generator.reconstruct(
-            [[clip] for clips in self.features for clip in clips])])
+            [[clip] for clip in self.item_features])])
         self.reconstructions[label] = Reconstruction(measures, items, [m.features for m in reconstructed])
         return label
 
@@ -349,7 +354,7 @@ class Evaluation:
         its sentence (``text``) or the empty sentence, the null condition; measured as the
         single-motion table measures (against the items' captions and ground-truth segments)."""
         reference = self.reference
-        flat = [clip for clips in reference.features for clip in clips]
+        flat = reference.item_features
         actions = [[action if text else ""] for instance in reference.actions for action in instance]
         frames = [[len(clip)] for clip in flat]
         keep = [EDITS[task](clip, self.generator.skeleton) for clip in flat]
