@@ -16,7 +16,8 @@ DEMO    ?= runs/demo
 
 .DEFAULT_GOAL := help
 .PHONY: help setup demo test test-all bench corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
-        train-mmm-body edit-upper train-evaluator testset eval eval-power generate sweep reproduce ui clean
+        train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
+        reproduce ui clean
 
 help:  ## list the verbs
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -67,6 +68,7 @@ bench: $(STAMP)  ## measure speed; results go to BENCHMARKS.md by hand
 	$(BIN)/python bench/discrete_diffusion.py
 	$(BIN)/python bench/sampling.py
 	$(BIN)/python bench/aits.py --dataset $(DATASET)
+	$(BIN)/python bench/attention.py
 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic
 	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)
@@ -104,6 +106,10 @@ edit-upper: $(STAMP)  ## new upper body for a motion, its lower body kept (SOURC
 	@test -n "$(SOURCE)" || { echo "make edit-upper: give SOURCE=<a .npy of features or joints>, e.g. a generation's motion.features.npy" >&2; exit 2; }
 	$(M2D2M) generate $(EDIT_PROMPT) --model mmm-body --dataset $(DATASET) --edit $(SOURCE) --keep-body lower $(GENERATE_ARGS)
 
+MOTIONDIFFUSE_CONFIG ?= demo
+train-motiondiffuse: $(STAMP)  ## train MotionDiffuse on the dataset's features (MOTIONDIFFUSE_CONFIG=demo|humanml3d|kit, SET=...)
+	$(M2D2M) train-motiondiffuse --config $(MOTIONDIFFUSE_CONFIG) $(foreach s,$(SET),--set $(s))
+
 PROMPTS ?= "a person walks forward" "a person jumps" "a person sits down"
 GENERATE_ARGS ?=
 generate: $(STAMP)  ## text to motion with the latest denoiser (PROMPTS='"a person walks" "a person jumps"', GENERATE_ARGS="--method tps --seconds 4")
@@ -138,6 +144,24 @@ POWER_TESTSET := data/$(DATASET)/testsets/n4-seed0-distinct
 eval-power: $(STAMP)  ## the multi-motion table with Jerk half-widths <= 0.03: 78 instances x 10 repeats (POWER_METHODS=tps,independent; about 10 min a method)
 	$(M2D2M) testset --dataset $(DATASET) --n 4 --seed 0 --mirrors distinct
 	$(M2D2M) evaluate --dataset $(DATASET) --testset $(POWER_TESTSET) --method $(POWER_METHODS) --repeats $(POWER_REPEATS)
+
+# The three seed systems on the embedded default, each trained only if it has no finished run yet, judged in one
+# evaluate run. MotionDiffuse samples with 100 of its 1000 steps here (respaced; COMPARE_MD_STEPS=1000 for the
+# paper's, about 10x longer): BENCHMARKS.md has what the respacing costs in quality and buys in time.
+COMPARE_REPEATS  ?= 2
+COMPARE_MD_STEPS ?= 100
+COMPARE_METHODS  := m2d2m:tps,m2d2m:independent,m2d2m:handshake,m2d2m:slerp,mmm:transition,motiondiffuse:time-varied
+compare: $(STAMP)  ## M2D2M, MMM and MotionDiffuse trained (what is missing) and judged in one evaluate run (COMPARE_REPEATS=2 COMPARE_MD_STEPS=100)
+	@test -f data/synthetic/manifest.json || { $(M2D2M) synthesize --out data/raw/synthetic --clips $(CLIPS) --seed $(SEED) \
+		&& $(M2D2M) data --dataset synthetic --raw data/raw/synthetic; }
+	@test -f runs/synthetic/vq/latest || $(M2D2M) train-vq --config demo
+	@test -f runs/synthetic/m2d2m/latest || $(M2D2M) train-diffusion --config demo
+	@test -f runs/synthetic/mmm/latest || $(M2D2M) train-mmm --config demo
+	@test -f runs/synthetic/motiondiffuse/latest || $(M2D2M) train-motiondiffuse --config demo
+	@test -f runs/synthetic/evaluator/latest || $(M2D2M) train-evaluator --config demo
+	$(M2D2M) testset --dataset synthetic --n 4 --seed 0
+	$(M2D2M) evaluate --dataset synthetic --model m2d2m,mmm,motiondiffuse --method $(COMPARE_METHODS) --single \
+		--repeats $(COMPARE_REPEATS) --option motiondiffuse.steps=$(COMPARE_MD_STEPS)
 
 SWEEP_CONFIG ?= demo
 RAY_ADDRESS_ARG ?=

@@ -1,6 +1,7 @@
-"""AITS (average inference time per sentence) against motion length for MMM and M2D2M in one run,
-as MMM's supplement Fig. 11 plots it, and MMM's long-sequence figure (§5.2: 10.873 minutes of
-motion in 1.658 s on an RTX A5000) against M2D2M's Two-Phase Sampling on the same actions.
+"""AITS (average inference time per sentence) against motion length for MMM, M2D2M and MotionDiffuse
+in one run, as MMM's supplement Fig. 11 plots it, and MMM's long-sequence figure (§5.2: 10.873
+minutes of motion in 1.658 s on an RTX A5000) against M2D2M's Two-Phase Sampling and MotionDiffuse's
+time-varied control (Zhang et al. 2022, §3.5) on the same actions.
 
 AITS is MLD's metric as MMM uses it (Table 7): the wall time of text → motion for one sentence,
 model loading excluded. Here that is one call of a model's generator (text encoding, token
@@ -13,25 +14,46 @@ slows every setting alike); reported are the median and the range.
 Why the times grow with length: MMM decodes L tokens in T_dyn = ⌈T·L/M⌉ iterations (§3.2; M the
 corpus's longest motion in tokens, T = 10), so both the number of passes and their width grow;
 M2D2M always takes T steps (two passes each for guidance, batched), only their width grows.
+MotionDiffuse denoises the features themselves (no codec) in one pass per step, and its number of
+steps does not depend on the length either, but it runs all T = 1000 steps it was trained with
+(the paper's setting): ten times M2D2M's T = 100. The respaced sampler (Nichol & Dhariwal 2021,
+§4: ``steps`` below T) is what makes it usable, so each of ``--md-steps`` (1000 and 100) is a
+series of its own, "motiondiffuse (100 steps)"; the report gives their ratio, what respacing buys
+in time (what it costs in quality is ``make compare``'s question, not this script's). A
+MotionDiffuse step at batch 32 costs 12–32 times one at batch 1 on a CPU (40–196 frames), so 1000
+steps at batch 32 would take minutes a call: ``--md-batches`` (default 1) says at which batch
+sizes MotionDiffuse is timed.
 
 The long sequence: ``--long-minutes`` of motion at the models' frame rate in the fewest actions of
 at most ``--action-frames`` frames, whole tokens, as even as possible (10.873 min at 20 fps =
 3,262 tokens = 46 actions of 196 frames and 21 of 192), generated as one sequence by MMM's
-``transition`` and M2D2M's ``tps`` (each model's multi-action preset): one warm-up call each,
-then ``--long-repeats`` rounds.
+``transition``, M2D2M's ``tps`` and MotionDiffuse's ``time-varied`` (each model's multi-action
+preset): one warm-up call each, then ``--long-repeats`` rounds. MotionDiffuse's takes
+``--md-long-steps`` steps (default 50, respaced), not the paper's 1000: every step denoises all 67
+intervals at once (one per action, reaching ``overlap`` frames into its neighbours as far as the
+network's longest pass allows), and where they overlap the correction λ2·∇Σ‖ε_i − ε_j‖ (eq. 11)
+adds a backward pass through the network, so on a CPU one step takes seconds and 1000 of them
+about an hour. A step costs the same whatever their number, so the report also gives the time at
+all T steps extrapolated from the measured one (× T / steps).
 
-    python bench/aits.py [--mmm latest] [--m2d2m latest] [--dataset synthetic] [--lengths 40 80 120 160 196]
-                         [--batches 1 32] [--warmup 2] [--repeats 5] [--long-repeats 3] [--out DIR]
+    python bench/aits.py [--mmm latest] [--m2d2m latest] [--motiondiffuse latest] [--dataset synthetic]
+                         [--lengths 40 80 120 160 196] [--batches 1 32] [--md-steps 1000 100] [--md-batches 1]
+                         [--md-long-steps 50] [--warmup 2] [--repeats 5] [--long-repeats 3] [--out DIR]
 
 Writes ``aits.json`` (every call's time) and ``aits.png`` into ``--out`` (runs/<dataset>/bench/aits)
-and prints Markdown. About 9 minutes on a quiet 2-core machine with the demo's models; on a loaded
-one, give ``--threads 1`` (BENCHMARKS.md: 2 intra-op threads on 2 busy cores are 40× slower).
+and prints Markdown. MMM and M2D2M took about 9 minutes on a quiet 2-core machine with the demo's
+models. MotionDiffuse adds more, estimated (not yet run end to end) from single passes of the demo's
+network (width 272, 2 layers) on one thread of a loaded 2-core machine: 8–16 ms a pass at batch 1
+over 40–196 frames, so 8–16 s a 1000-step call and some 8 minutes for its 35 calls of the AITS
+table; about 1 s for a forward pass over the long sequence's 67 intervals, with the correction's
+backward pass some 3 s a step, so 2–3 minutes a 50-step call and some 10 minutes for the four.
+On a loaded machine, give ``--threads 1`` (BENCHMARKS.md: 2 intra-op threads on 2 busy cores are
+40× slower).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -52,21 +74,25 @@ from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
 from m2d2m.processes.masking import dynamic_iterations
 from orchestration.errors import UserError
 from orchestration.generate import load_generator
-from timing import interleaved_times
+from timing import interleaved_times, publish
 
 PROMPTS = ("a person walks forward", "a person jumps", "a person waves their right hand", "a person sits down")
-LONG_METHODS = {"mmm": "transition", "m2d2m": "tps"}  # each model's long-sequence method, in plotting order
+LONG_METHODS = {"mmm": "transition", "m2d2m": "tps", "motiondiffuse": "time-varied"}  # in plotting order
+TRAIN = {"mmm": "make train-mmm", "m2d2m": "make train-diffusion", "motiondiffuse": "make train-motiondiffuse"}
+STEPPED = "motiondiffuse"  # the model timed at several numbers of sampling steps (--md-steps)
 MMM_MINUTES, MMM_SECONDS, MMM_GPU = 10.873, 1.658, "RTX A5000"  # MMM §5.2
 
 
 @dataclass
 class Timing:
-    """The timed calls of one model at one batch size and action length."""
+    """The timed calls of one series (a model, and for MotionDiffuse a number of steps) at one batch
+    size and action length."""
 
     model: str
+    series: str  # the model's name, or "motiondiffuse (100 steps)"
     batch: int  # sentences per call
     frames: int  # of each sentence's motion
-    passes: int  # sampler iterations: MMM's T_dyn, M2D2M's T (each a guided pair of passes)
+    passes: int  # sampler iterations: MMM's T_dyn, M2D2M's T (guided pairs of passes), MotionDiffuse's steps
     times: list[float]  # seconds per call
 
     @property
@@ -83,19 +109,52 @@ class Timing:
         return {**asdict(self), "aits": self.aits, "spread": list(self.spread)}
 
 
+@dataclass(frozen=True)
+class Series:
+    """One curve of the figure: a model's generator with the single-action options it is timed with,
+    at the batch sizes it is timed at."""
+
+    label: str
+    model: str
+    generator: MotionGenerator
+    options: Any
+    batches: tuple[int, ...]
+
+
 def sampler_passes(generator: MotionGenerator, options: Any, frames: int) -> int:
-    """Iterations of the sampler for one action of ``frames`` frames: MMM's T_dyn (§3.2), M2D2M's T."""
+    """Iterations of the sampler for one action of ``frames`` frames: MMM's T_dyn (§3.2), M2D2M's T,
+    MotionDiffuse's steps (all T when ``steps`` is None; one pass each, as a single action has no
+    neighbour to correct towards)."""
     if generator.model == "mmm":
         return dynamic_iterations(frames // generator.frame_step, generator.lengths.longest, options.iterations)
+    if generator.model == STEPPED:
+        return generator.process.num_steps if options.steps is None else options.steps
     return generator.checkpoint.schedule.steps
 
 
 def parameter_counts(generator: MotionGenerator) -> dict[str, int]:
-    """Parameters of every network a token model's generator runs: its model file's and the VQ-VAE."""
+    """Parameters of every network a generator runs: its model file's (MotionDiffuse's noise
+    estimator and its text encoder) and a token model's VQ-VAE."""
     modules = {field.name: getattr(generator.checkpoint, field.name) for field in fields(generator.checkpoint)}
-    modules["vq"] = generator.codec.vq
+    codec = getattr(generator, "codec", None)
+    if codec is not None:
+        modules["vq"] = codec.vq
     return {name: sum(p.numel() for p in module.parameters())
             for name, module in modules.items() if isinstance(module, torch.nn.Module)}
+
+
+def series_of(generators: dict[str, MotionGenerator], batches: list[int], md_steps: list[int],
+              md_batches: list[int]) -> list[Series]:
+    """The figure's curves: each model with its single-action preset, MotionDiffuse once per number
+    of steps in ``md_steps`` (at ``md_batches``), the others at ``batches``."""
+    series = []
+    for name, generator in generators.items():
+        if name != STEPPED:
+            series.append(Series(name, name, generator, generator.options(SINGLE), tuple(batches)))
+            continue
+        series += [Series(f"{name} ({steps} steps)", name, generator, generator.options(SINGLE, steps=steps),
+                          tuple(md_batches)) for steps in md_steps]
+    return series
 
 
 def request(batch: int, call: int) -> tuple[list[list[str]], list[int]]:
@@ -103,10 +162,10 @@ def request(batch: int, call: int) -> tuple[list[list[str]], list[int]]:
     return [[PROMPTS[(call + j) % len(PROMPTS)]] for j in range(batch)], [call * batch + j for j in range(batch)]
 
 
-def sentence_call(generator: MotionGenerator, batch: int, frames: int) -> Callable[[], None]:
-    """One call of single-action generation of ``batch`` sentences of ``frames`` frames; each
-    call has the next sentences and seeds."""
-    options = generator.options(SINGLE)
+def sentence_call(generator: MotionGenerator, batch: int, frames: int, options: Any = None) -> Callable[[], None]:
+    """One call of single-action generation of ``batch`` sentences of ``frames`` frames, with
+    ``options`` (the single-action preset by default); each call has the next sentences and seeds."""
+    options = generator.options(SINGLE) if options is None else options
     calls = count()
 
     def run() -> None:
@@ -116,15 +175,15 @@ def sentence_call(generator: MotionGenerator, batch: int, frames: int) -> Callab
     return run
 
 
-def measure_aits(generators: dict[str, MotionGenerator], lengths: list[int], batches: list[int], warmup: int,
-                 repeats: int) -> list[Timing]:
-    """Every batch size, model and length, timed in interleaved rounds."""
-    settings = [(batch, name, frames) for batch in batches for name in generators for frames in lengths]
-    device = next(iter(generators.values())).device
-    times = interleaved_times([sentence_call(generators[name], batch, frames) for batch, name, frames in settings],
+def measure_aits(series: list[Series], lengths: list[int], warmup: int, repeats: int) -> list[Timing]:
+    """Every batch size, series and length, timed in interleaved rounds."""
+    batches = dict.fromkeys(batch for s in series for batch in s.batches)
+    settings = [(batch, s, frames) for batch in batches for s in series if batch in s.batches for frames in lengths]
+    device = series[0].generator.device
+    times = interleaved_times([sentence_call(s.generator, batch, frames, s.options) for batch, s, frames in settings],
                               warmup, repeats, device, desc="AITS")
-    return [Timing(name, batch, frames, sampler_passes(generators[name], generators[name].options(SINGLE), frames),
-                   seconds) for (batch, name, frames), seconds in zip(settings, times)]
+    return [Timing(s.model, s.label, batch, frames, sampler_passes(s.generator, s.options, frames), seconds)
+            for (batch, s, frames), seconds in zip(settings, times)]
 
 
 def long_plan(minutes: float, fps: float, frame_step: int, action_frames: int) -> list[int]:
@@ -136,12 +195,20 @@ def long_plan(minutes: float, fps: float, frame_step: int, action_frames: int) -
     return [(base + 1) * frame_step] * longer + [base * frame_step] * (actions - longer)
 
 
-def measure_long(generators: dict[str, MotionGenerator], frames: list[int], repeats: int) -> dict[str, list[float]]:
+def long_options(generator: MotionGenerator, md_long_steps: int) -> Any:
+    """A model's multi-action preset with its long-sequence method; MotionDiffuse's with
+    ``md_long_steps`` steps."""
+    changes = {"steps": md_long_steps} if generator.model == STEPPED else {}
+    return generator.options(MULTI, method=LONG_METHODS[generator.model], **changes)
+
+
+def measure_long(generators: dict[str, MotionGenerator], frames: list[int], repeats: int,
+                 md_long_steps: int) -> dict[str, list[float]]:
     """Seconds per call of each model's long-sequence method on one sequence of ``frames``, after
     a warm-up call that checks the length."""
     actions = [[PROMPTS[j % len(PROMPTS)] for j in range(len(frames))]]
-    runs = {name: partial(generator.generate, actions, [frames], generator.options(MULTI, method=LONG_METHODS[name]),
-                          [0]) for name, generator in generators.items()}
+    runs = {name: partial(generator.generate, actions, [frames], long_options(generator, md_long_steps), [0])
+            for name, generator in generators.items()}
     for name, run in tqdm(runs.items(), desc="long sequence, warm-up", unit="model"):
         made = len(run()[0].features)
         if made != sum(frames):
@@ -174,6 +241,15 @@ def check_lengths(generators: dict[str, MotionGenerator], lengths: list[int], ac
         raise UserError("the models run at different frame rates; compare models of one dataset")
 
 
+def check_steps(generators: dict[str, MotionGenerator], md_steps: list[int], md_long_steps: int) -> None:
+    """A one-line refusal of step counts MotionDiffuse's process cannot be respaced to."""
+    trained = generators[STEPPED].process.num_steps
+    for steps in [*md_steps, md_long_steps]:
+        if not 1 <= steps <= trained:
+            raise UserError(f"{steps} steps: {STEPPED} was trained with T = {trained} steps; give --md-steps and "
+                            f"--md-long-steps from 1 to {trained}")
+
+
 def machine(device: torch.device) -> dict[str, Any]:
     """What the times were measured on, and how loaded it was (the machine may be shared)."""
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or platform.machine()
@@ -185,34 +261,41 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     """Every measurement, as the JSON written next to the figure."""
     generators = load({name: getattr(args, name) for name in LONG_METHODS}, args.dataset)
     check_lengths(generators, args.lengths, args.action_frames)
+    check_steps(generators, args.md_steps, args.md_long_steps)
     first = next(iter(generators.values()))
     frame_step = math.lcm(*(generator.frame_step for generator in generators.values()))
     frames = long_plan(args.long_minutes, first.fps, frame_step, args.action_frames)
     started = machine(first.device)
-    timings = measure_aits(generators, args.lengths, args.batches, args.warmup, args.repeats)
-    long = measure_long(generators, frames, args.long_repeats)
+    series = series_of(generators, args.batches, args.md_steps, args.md_batches)
+    timings = measure_aits(series, args.lengths, args.warmup, args.repeats)
+    long = measure_long(generators, frames, args.long_repeats, args.md_long_steps)
     medians = {name: statistics.median(times) for name, times in long.items()}
+    trained = generators[STEPPED].process.num_steps
     return {
         "date": datetime.now().isoformat(timespec="minutes"),
         "fps": first.fps,
         "machine": {**started, "load_after": list(os.getloadavg())},
         "models": {name: {"checkpoint": str(generator.source), "parameters": parameter_counts(generator),
-                          "single": generator.describe(generator.options(SINGLE)),
-                          "long": generator.describe(generator.options(MULTI, method=LONG_METHODS[name]))}
+                          "single": "; ".join(s.generator.describe(s.options) for s in series if s.model == name),
+                          "long": generator.describe(long_options(generator, args.md_long_steps))}
                    for name, generator in generators.items()},
-        "settings": {"warmup": args.warmup, "repeats": args.repeats, "long_repeats": args.long_repeats},
+        "settings": {"warmup": args.warmup, "repeats": args.repeats, "long_repeats": args.long_repeats,
+                     "md_steps": args.md_steps, "md_batches": args.md_batches, "md_long_steps": args.md_long_steps},
         "aits": [timing.record() for timing in timings],
         "long": {"minutes": sum(frames) / first.fps / 60, "actions": len(frames), "frames": frames,
                  "methods": LONG_METHODS, "times": long, "median": medians,
                  "ratio": medians["m2d2m"] / medians["mmm"],
+                 "ratios": {name: median / medians["mmm"] for name, median in medians.items()},
+                 STEPPED: {"steps": args.md_long_steps, "trained_steps": trained,
+                           "extrapolated": medians[STEPPED] * trained / args.md_long_steps},
                  "mmm_paper": {"minutes": MMM_MINUTES, "seconds": MMM_SECONDS, "gpu": MMM_GPU}},
     }
 
 
 def report(result: dict[str, Any]) -> str:
-    """The measurements as Markdown: one AITS table per batch size, then the long sequence."""
+    """The measurements as Markdown: one AITS table per batch size (every series against the first,
+    and what respacing buys MotionDiffuse), then the long sequence."""
     timings = [Timing(**{f.name: row[f.name] for f in fields(Timing)}) for row in result["aits"]]
-    models = list(dict.fromkeys(t.model for t in timings))
     info = result["machine"]
     lines = [f"{result['date']}; {info['device']}, {info['cores']} cores, {info['torch_threads']} torch threads, "
              f"torch {info['torch']}; load average {info['load'][0]:.2f} before, {info['load_after'][0]:.2f} after; "
@@ -221,73 +304,101 @@ def report(result: dict[str, Any]) -> str:
     lines += [f"- {name}: {model['checkpoint']}, parameters {model['parameters']}; single: {model['single']}"
               for name, model in result["models"].items()]
     for batch in dict.fromkeys(t.batch for t in timings):
-        rows = {(t.model, t.frames): t for t in timings if t.batch == batch}
-        header = " | ".join(f"{m} passes | {m} AITS (ms) | {m} per pass (ms)" for m in models)
-        lines += ["", f"AITS, {batch} sentence(s) per call", "", f"| frames | {header} | {models[-1]} / {models[0]} |",
-                  "| --- " * (2 + 3 * len(models)) + "|"]
+        rows = {(t.series, t.frames): t for t in timings if t.batch == batch}
+        series = list(dict.fromkeys(t.series for t in timings if t.batch == batch))
+        stepped = [name for name in series if rows[(name, timings[0].frames)].model == STEPPED]
+        ratios = [(name, series[0]) for name in series[1:]] + [(stepped[0], name) for name in stepped[1:]]
+        header = " | ".join(f"{name} passes | {name} AITS (ms) | {name} per pass (ms)" for name in series)
+        lines += ["", f"AITS, {batch} sentence(s) per call", "",
+                  f"| frames | {header} | {' | '.join(f'{a} / {b}' for a, b in ratios)} |",
+                  "| --- " * (1 + 3 * len(series) + len(ratios)) + "|"]
         for frames in dict.fromkeys(t.frames for t in timings):
             cells = []
-            for model in models:
-                t = rows[(model, frames)]
+            for name in series:
+                t = rows[(name, frames)]
                 low, high = t.spread
                 cells.append(f"{t.passes} | {1e3 * t.aits:.1f} [{1e3 * low:.1f}–{1e3 * high:.1f}] | "
                              f"{1e3 * t.aits / t.passes:.2f}")
-            ratio = rows[(models[-1], frames)].aits / rows[(models[0], frames)].aits
-            lines.append(f"| {frames} | {' | '.join(cells)} | {ratio:.1f} |")
+            cells += [f"{rows[(a, frames)].aits / rows[(b, frames)].aits:.1f}" for a, b in ratios]
+            lines.append(f"| {frames} | {' | '.join(cells)} |")
+        if len(stepped) > 1:
+            most, fewest = rows[(stepped[0], timings[0].frames)].passes, rows[(stepped[-1], timings[0].frames)].passes
+            lines += ["", f"The respaced sampler: {most} → {fewest} steps ({most / fewest:.1f}× fewer) makes "
+                      f"{STEPPED}'s call "
+                      + ", ".join(f"{rows[(stepped[0], f)].aits / rows[(stepped[-1], f)].aits:.1f}×"
+                                  for f in dict.fromkeys(t.frames for t in timings))
+                      + " faster over the lengths above."]
     long = result["long"]
+    md = long[STEPPED]
     lines += ["", f"Long sequence: {long['minutes']:.3f} min in {long['actions']} actions "
               f"({', '.join(f'{n} × {f}' for f, n in sorted(Counter(long['frames']).items(), reverse=True))} frames), "
               f"{len(next(iter(long['times'].values())))} calls after a warm-up", "",
-              "| model | method | median (s) | range (s) |", "| --- | --- | --- | --- |"]
-    lines += [f"| {name} | {long['methods'][name]} | {long['median'][name]:.2f} | {min(times):.2f}–{max(times):.2f} |"
-              for name, times in long["times"].items()]
+              "| model | method | median (s) | range (s) | / mmm |", "| --- | --- | --- | --- | --- |"]
+    for name, times in long["times"].items():
+        method = long["methods"][name]
+        if name == STEPPED:
+            method += f", {md['steps']} of T = {md['trained_steps']} steps"
+        lines.append(f"| {name} | {method} | {long['median'][name]:.2f} | {min(times):.2f}–{max(times):.2f} | "
+                     f"{long['ratios'][name]:.1f} |")
     paper = long["mmm_paper"]
     lines += ["", f"m2d2m / mmm: {long['ratio']:.1f}×; MMM's paper: {paper['minutes']} min in {paper['seconds']} s "
-              f"on an {paper['gpu']}", ""]
+              f"on an {paper['gpu']}",
+              f"{STEPPED} ran {md['steps']} of its T = {md['trained_steps']} steps (--md-long-steps): all "
+              f"{md['trained_steps']} would take about {md['extrapolated']:.1f} s (× T / steps, not measured: a step "
+              "costs the same whatever their number). Its time-varied correction adds a backward pass per step "
+              "where intervals overlap.", ""]
     return "\n".join(lines)
 
 
 def plot(path: Path, result: dict[str, Any]) -> None:
-    """AITS against frames, one curve per model and batch size (Fig. 11's axes), log time."""
+    """AITS against frames, one curve per series and batch size (Fig. 11's axes), log time."""
     from matplotlib.figure import Figure
 
-    figure = Figure(figsize=(6.4, 4.0), dpi=110, layout="constrained")
+    figure = Figure(figsize=(7.2, 4.6), dpi=110, layout="constrained")
     axes = figure.subplots()
-    colours = {name: f"C{i}" for i, name in enumerate(LONG_METHODS)}
-    for model, batch in dict.fromkeys((row["model"], row["batch"]) for row in result["aits"]):
-        rows = [row for row in result["aits"] if row["model"] == model and row["batch"] == batch]
+    colours = {name: f"C{i}" for i, name in enumerate(dict.fromkeys(row["series"] for row in result["aits"]))}
+    for series, batch in dict.fromkeys((row["series"], row["batch"]) for row in result["aits"]):
+        rows = [row for row in result["aits"] if row["series"] == series and row["batch"] == batch]
         x = [row["frames"] for row in rows]
         y = [row["aits"] for row in rows]
         error = [[row["aits"] - row["spread"][0] for row in rows], [row["spread"][1] - row["aits"] for row in rows]]
-        axes.errorbar(x, y, yerr=error, marker="o" if batch == 1 else "s", capsize=3, color=colours[model],
-                      linestyle="-" if batch == 1 else "--", label=f"{model}, batch {batch}")
+        axes.errorbar(x, y, yerr=error, marker="o" if batch == 1 else "s", capsize=3, color=colours[series],
+                      linestyle="-" if batch == 1 else "--", label=f"{series}, batch {batch}")
         if batch == 1:
             for row in rows:
                 axes.annotate(str(row["passes"]), (row["frames"], row["aits"]), textcoords="offset points",
-                              xytext=(5, 3), ha="left", fontsize="x-small", color=colours[model])
+                              xytext=(5, 3), ha="left", fontsize="x-small", color=colours[series])
     long = result["long"]
     info = result["machine"]
-    axes.set(xlabel=f"frames ({result['fps']:g} fps); over the points: sampler iterations (MMM's T_dyn, M2D2M's T)",
+    steps = {STEPPED: f" ({long[STEPPED]['steps']} steps)"}
+    axes.set(xlabel=f"frames ({result['fps']:g} fps)\nover the points: sampler iterations "
+                    "(MMM's T_dyn, M2D2M's T, MotionDiffuse's steps)",
              ylabel="AITS (s): median, range", yscale="log")
     axes.set_title(f"AITS by motion length, {info['device']}, {info['cores']} cores, "
                    f"{info['torch_threads']} torch thread(s)\n"
                    f"{long['minutes']:.3f} min in {long['actions']} actions: "
-                   + ", ".join(f"{name} {long['methods'][name]} {seconds:.2f} s"
+                   + ", ".join(f"{name} {long['methods'][name]}{steps.get(name, '')} {seconds:.2f} s"
                                for name, seconds in long["median"].items()),
-                   fontsize="medium")
+                   fontsize="small")
     axes.grid(alpha=0.3, which="both")
-    axes.legend(fontsize="small")
+    axes.legend(fontsize="x-small")
     figure.savefig(path)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    for name, hint in (("mmm", "make train-mmm"), ("m2d2m", "make train-diffusion")):
+    for name, hint in TRAIN.items():
         parser.add_argument(f"--{name}", default="latest",
                             help=f"{name}'s model: latest, a run or its model.pt ({hint})")
     parser.add_argument("--dataset", default="synthetic")
     parser.add_argument("--lengths", type=int, nargs="+", default=[40, 80, 120, 160, 196], help="frames per sentence")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 32], help="sentences per call")
+    parser.add_argument("--md-steps", type=int, nargs="+", default=[1000, 100],
+                        help="MotionDiffuse's sampling steps, one series each (below T: respaced)")
+    parser.add_argument("--md-batches", type=int, nargs="+", default=[1],
+                        help="sentences per call at which MotionDiffuse is timed (1000 steps at 32: minutes a call)")
+    parser.add_argument("--md-long-steps", type=int, default=50,
+                        help="MotionDiffuse's steps on the long sequence (the paper's 1000 would take about an hour)")
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--long-minutes", type=float, default=MMM_MINUTES)
@@ -296,21 +407,19 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=os.cpu_count(), help="torch threads")
     parser.add_argument("--out", default=None, help="where aits.json and aits.png go (runs/<dataset>/bench/aits)")
     args = parser.parse_args(argv)
-    if min(args.batches + [args.repeats, args.long_repeats, args.threads]) < 1 or args.warmup < 0 \
-            or not args.long_minutes > 0:
-        parser.error("batches, repeats and threads must be at least 1, --warmup at least 0, --long-minutes positive")
+    if min(args.batches + args.md_batches + args.md_steps + [args.md_long_steps, args.repeats, args.long_repeats,
+                                                               args.threads]) < 1 \
+            or args.warmup < 0 or not args.long_minutes > 0:
+        parser.error("batches, steps, repeats and threads must be at least 1, --warmup at least 0, --long-minutes "
+                     "positive")
+    args.md_steps = sorted(set(args.md_steps), reverse=True)  # the paper's many steps first, each respacing after
 
     torch.set_num_threads(args.threads)
     try:
         result = measure(args)
     except UserError as error:
         raise SystemExit(f"bench/aits.py: {error}") from None
-    out = Path(args.out or f"runs/{args.dataset}/bench/aits")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "aits.json").write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
-    plot(out / "aits.png", result)
-    print(report(result))
-    print(f"wrote {out / 'aits.json'} and {out / 'aits.png'}")
+    publish(Path(args.out or f"runs/{args.dataset}/bench/aits"), "aits", result, plot, report)
 
 
 if __name__ == "__main__":

@@ -1,9 +1,13 @@
-"""Wall-clock timing for the benchmarks that also holds on a GPU (kernels are asynchronous)."""
+"""Wall-clock timing for the benchmarks that also holds on a GPU (kernels are asynchronous), and how a
+bench publishes what it measured."""
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import torch
 from tqdm import tqdm
@@ -42,3 +46,13 @@ def interleaved_times(runs: list[Callable[[], object]], warmup: int, repeats: in
                 collected.append(wall_time(run, device))
                 bar.update()
     return times
+
+
+def publish(out: Path, name: str, result: dict[str, Any], plot: Callable[[Path, dict[str, Any]], None],
+            report: Callable[[dict[str, Any]], str]) -> None:
+    """Write a bench's ``<name>.json`` and ``<name>.png`` into ``out`` and print its Markdown report."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    plot(out / f"{name}.png", result)
+    print(report(result))
+    print(f"wrote {out / f'{name}.json'} and {out / f'{name}.png'}")

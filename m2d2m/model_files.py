@@ -1,15 +1,18 @@
 """Self-contained model files: one ``torch.save`` dict with a format tag, written atomically and
-read back with ``weights_only=True`` (so a file can never run code), shared by the VQ-VAE and
-the denoiser checkpoint."""
+read back with ``weights_only=True`` (so a file can never run code), shared by every model; and
+the parts every generator's file holds beside its network: the corpus's length prior and the
+text encoder."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from m2d2m.atomic import atomic_path
+from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
 
 
 def check_plain(value: Any, where: str = "extra") -> None:
@@ -60,3 +63,33 @@ def read_model_file(path: str | Path, expected_format: str, what: str,
     if found != expected_format:
         raise ValueError(f"{path} is not an {what} (format {found!r}, expected {expected_format!r})")
     return payload
+
+
+@dataclass
+class LengthPrior:
+    """Typical lengths in a model's steps (tokens; frames for a model on features): the median
+    per verb over single-action training captions, and the median over all of them for verbs
+    never seen alone; ``longest`` is the longest clip."""
+
+    per_verb: dict[str, int]
+    median: int
+    longest: int
+
+    def tokens_for(self, verb: str | None) -> int:
+        return self.per_verb.get(verb or "", self.median)
+
+    def to_payload(self) -> dict[str, Any]:
+        return {"per_verb": dict(self.per_verb), "median": int(self.median), "longest": int(self.longest)}
+
+
+def text_payload(encoder: TextEncoder, text: dict[str, Any]) -> dict[str, Any]:
+    """A text encoder in a model file: its kind and options (the run's ``text`` section), and its
+    weights when it was trained (the frozen CLIP tower is found again by its path)."""
+    return {"kind": text.get("kind", "learned"), "options": {k: v for k, v in text.items() if k != "kind"},
+            "state_dict": cpu_state(encoder) if encoder.trainable else None}
+
+
+def text_encoder_from_payload(payload: dict[str, Any]) -> TextEncoder:
+    if payload["state_dict"] is not None and payload["kind"] == "learned":
+        return LearnedTextEncoder.from_state_dict(payload["state_dict"])
+    return build_text_encoder(payload["kind"], **payload["options"])

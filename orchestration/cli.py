@@ -69,6 +69,14 @@ def _option(text: str) -> tuple[str, Any]:
     return ".".join(path), value
 
 
+def _body_part(text: str) -> tuple[str, str]:
+    """``PART=TEXT`` of ``generate --part``."""
+    part, separator, sentence = text.partition("=")
+    if not separator or not part.strip() or not sentence.strip():
+        raise argparse.ArgumentTypeError(f"expected PART=TEXT, e.g. upper=\"a person waves\", got {text!r}")
+    return part.strip(), sentence.strip()
+
+
 # ------------------------------------------------------------------------------------ handlers
 def _synthesize(args: argparse.Namespace) -> None:
     from pipelines.synthetic import FAMILIES, existing_corpus, generate_corpus
@@ -229,10 +237,11 @@ def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import (DEFAULT_MAX_SECONDS, GENERATE_STAGE, edit_part, generate, load_generator,
-                                        plan_output, save_generation)
+    from orchestration.generate import DEFAULT_MAX_SECONDS, edit_part, generate, load_generator, plan_output
     from orchestration.viewing import load_features
 
+    if args.part:
+        return _generate_parts(args)
     if not args.prompts:
         raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
     if (args.edit is None) != (args.keep_body is None):
@@ -252,7 +261,43 @@ def _generate(args: argparse.Namespace) -> None:
     else:
         motion = generate(generator, args.prompts, seconds=args.seconds, seed=args.seed, split=not args.no_split,
                           max_seconds=max_seconds, **options)
-    files, run_id = save_generation(motion, output, args.prompts, args.dataset, track=not args.no_track)
+    _report(motion, output, args.prompts, args)
+
+
+def _generate_parts(args: argparse.Namespace) -> None:
+    """``generate --part PART=TEXT``: one sentence per body part; a prompt, if given, drives the parts
+    not named."""
+    from m2d2m.motion.body_parts import PARTS
+    from orchestration.generate import DEFAULT_MAX_SECONDS, generate_parts, load_generator, plan_output
+
+    if args.edit is not None:
+        raise UserError("--part does not go with --edit: body-part control generates the whole motion")
+    if len(args.prompts) > 1 or (args.seconds is not None and len(args.seconds) > 1):
+        raise UserError("with --part give at most one prompt (for the parts not named) and one --seconds")
+    parts = dict(args.part)
+    if len(parts) != len(args.part):
+        raise UserError("name each body part once with --part")
+    unknown = sorted(set(parts) - set(PARTS))
+    if unknown:
+        raise UserError(f"unknown body part {unknown[0]!r}: choose from {', '.join(PARTS)}")
+    missing = [part for part in PARTS if part not in parts]
+    if missing and not args.prompts:
+        raise UserError(f"give a prompt for the parts not named ({', '.join(missing)}), or --part for each of them")
+    parts.update({part: args.prompts[0] for part in missing})
+    output = plan_output(args.out, args.name, args.formats)
+    generator = load_generator(args.model, args.checkpoint, args.dataset)
+    options = _sampling_options(args)
+    max_seconds = DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
+    motion = generate_parts(generator, parts, seconds=args.seconds[0] if args.seconds else None, seed=args.seed,
+                            max_seconds=max_seconds, **options)
+    _report(motion, output, [f"{part}: {text}" for part, text in parts.items()], args)
+
+
+def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespace) -> None:
+    """Save a generation's files, log it, and say what was made."""
+    from orchestration.generate import GENERATE_STAGE, save_generation
+
+    files, run_id = save_generation(motion, output, prompts, args.dataset, track=not args.no_track)
     for text, (first, end) in zip(motion.actions, motion.ranges):
         print(f"  {first / motion.fps:5.1f}–{end / motion.fps:5.1f} s  {text}")
     print(f"wrote {', '.join(str(path) for path in files.values())} ({motion.seconds:.1f} s, "
@@ -404,7 +449,8 @@ def _add_generate(verbs) -> None:
     generate.add_argument("prompts", nargs="*", help='one or more prompts, e.g. "a person walks forward" "a person jumps"')
     generate.add_argument("--seconds", type=float, nargs="+",
                           help="duration of each prompt, or one for all (default: the corpus's typical length per verb)")
-    generate.add_argument("--method", help="the multi-action method (m2d2m: tps (default), independent, handshake, slerp)")
+    generate.add_argument("--method", help="the multi-action method (m2d2m: tps (default), independent, handshake, slerp; "
+                          "mmm: transition, independent; motiondiffuse: time-varied, independent)")
     _add_sampling_knobs(generate)
     generate.add_argument("--truncation", type=float, help="truncation rate r (default 1 = off)")
     generate.add_argument("--seed", type=int, default=0)
@@ -424,6 +470,10 @@ def _add_generate(verbs) -> None:
                           help="the body part (upper, lower) of --edit's motion to keep on every frame; the rest "
                                "follows the prompts "
                                "(--model mmm-body keeps lower: MMM's upper-body editing; --option lower_mask=0.25)")
+    generate.add_argument("--part", type=_body_part, action="append", metavar="PART=TEXT",
+                          help="body-part control: this part (upper, lower) does TEXT, the prompt drives the other "
+                               "parts, e.g. \"a person runs\" --part upper=\"a person waves their hands\" "
+                               "(--model motiondiffuse; repeatable)")
     generate.add_argument("--no-track", action="store_true", help="do not log this generation to MLflow")
     generate.set_defaults(run=_generate)
 

@@ -404,8 +404,8 @@ def _sampling(settings: EvalSettings, generators: dict[str, MotionGenerator]) ->
         generator = generators[candidate.model]
         preset = {"preset": MULTI, "method": candidate.methods[0]} if candidate.methods else {"preset": SINGLE}
         multi = generator.describe(generator.options(**preset, **candidate.options))
-        samplings[candidate.model] = Sampling(multi, generator.describe(generator.options(SINGLE))
-                                              if settings.single else None)
+        single = generator.describe(generator.options(SINGLE, **candidate.options)) if settings.single else None
+        samplings[candidate.model] = Sampling(multi, single)
     return samplings
 
 

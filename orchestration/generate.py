@@ -17,7 +17,7 @@ import math
 import signal
 import sys
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +32,7 @@ from m2d2m.layout import NLP
 from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
 from m2d2m.motion.render import can_write_mp4
 from orchestration.errors import UserError
-from orchestration.registry import model
+from orchestration.registry import model, models
 from orchestration.runs import new_run_dir, run_file, write_run_info
 from orchestration.tracking import experiment_name, tracked_run
 
@@ -243,6 +243,33 @@ def edit_part(generator: MotionGenerator, features: np.ndarray, prompts: Sequenc
         keep = keep_part(features, generator.skeleton, part)
         return generator.generate([actions], [frames], generator.options(**options), [seed],
                                   [keep])[0].on_rigid_skeleton()
+    except ValueError as error:
+        raise UserError(str(error)) from error
+
+
+def generate_parts(generator: MotionGenerator, parts: Mapping[str, str], seconds: float | None = None, seed: int = 0,
+                   max_seconds: float | None = DEFAULT_MAX_SECONDS, **options: Any) -> Motion:
+    """One motion in which every body part does its own sentence (``parts``: part → sentence; the
+    parts of :mod:`m2d2m.motion.body_parts`), ``seconds`` long or the corpus's median action, for
+    a model with body-part control (MotionDiffuse's eq. 10; docs/generation.md)."""
+    if not generator.part_control:
+        able = [name for name, entry in models().items() if entry.load("generator").part_control]
+        raise UserError(f"{generator.model} has no body-part control; use --model {' or '.join(able)}")
+    if seconds is None:
+        frames = generator.typical_frames(None)
+    else:
+        lo, hi = PromptPlanner(generator).seconds_range()
+        if not lo <= seconds <= hi:
+            raise UserError(f"{seconds:g} s is outside what this model supports ({lo:g}–{hi:g} s)")
+        frames = generator.round_frames(round(seconds * generator.fps))
+    check_length([frames], generator.fps, max_seconds)
+    try:
+        settings = generator.options(**options)
+        with tqdm(total=100, unit="%", desc=f"sampling {len(parts)} body parts, {frames / generator.fps:.1f} s",
+                  leave=False, file=sys.stderr, disable=None) as bar:
+            motion = generator.generate_parts([dict(parts)], [frames], settings, [seed],
+                                              progress=lambda done: bar.update(round(100 * done) - bar.n))[0]
+        return motion.on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error
 

@@ -83,6 +83,16 @@ register(ModelEntry(
     network="m2d2m.networks.mmm_body_transformer:BodyMaskedTransformer", process="m2d2m.processes.masking",
     module="training.mmm_body_module:BodyMMMModule", datamodule="training.data:BodyTokenDataModule"))
 
+register(ModelEntry(
+    name="motiondiffuse", summary="MotionDiffuse: Gaussian diffusion on features, time-varied and body-part control",
+    stage="motiondiffuse", legacy_stages=(), configs="motiondiffuse", train_verb="train-motiondiffuse",
+    model_file="model.pt", generator="m2d2m.generators.motiondiffuse:MotionDiffuseGenerator",
+    recipe="orchestration.recipes.motiondiffuse",
+    network="m2d2m.networks.motiondiffuse_transformer:MotionDiffuseTransformer",
+    process="m2d2m.processes.gaussian_diffusion:GaussianDiffusion",
+    module="training.motiondiffuse_module:MotionDiffuseModule",
+    datamodule="training.evaluator_module:CaptionMotionDataModule"))
+
 
 def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) -> list[str]:
     """Import the plugin modules (default: those named in ``M2D2M_MODELS``) once each, looking in

@@ -125,6 +125,19 @@ TINY_MMM = {
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
 }
 
+# A MotionDiffuse training config small enough for tests (data.dir is filled in per test): 50 diffusion
+# steps, so that sampling with every step stays quick.
+TINY_MOTIONDIFFUSE = {
+    "dataset": "tiny", "seed": 1,
+    "data": {"dir": None, "batch_size": 4, "num_workers": 0, "min_frames": 20, "max_frames": 120},
+    "text": TINY_DIFFUSION["text"], "text_drop": 0.1,
+    "network": {"width": 16, "layers": 1, "heads": 2, "ffn": 32, "dropout": 0.0, "text_width": 16, "text_layers": 1,
+                "text_heads": 2, "text_ffn": 32, "max_frames": 160, "attention": "linear"},
+    "diffusion": {"steps": 50, "beta_start": 1e-4, "beta_end": 0.02},
+    "optim": TINY_DIFFUSION["optim"], "trainer": TINY_DIFFUSION["trainer"],
+    "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
+}
+
 # Evaluator sizes small enough for tests (EvaluatorConfig fields).
 TINY_EVALUATOR = {"movement_hidden": 16, "movement_latent": 16, "motion_hidden": 24, "text_hidden": 16,
                   "embedding_dim": 8, "word_dim": 12, "word_features": "learned", "max_motion_length": 48}

@@ -1,4 +1,5 @@
-"""bench/aits.py on the session's tiny models: what it measures and writes, not how fast."""
+"""bench/aits.py on the session's tiny models (M2D2M, MMM, MotionDiffuse): what it measures and writes,
+not how fast."""
 
 from __future__ import annotations
 
@@ -12,17 +13,21 @@ import pytest
 import yaml
 
 from orchestration.train import train_model
-from tests.helpers import TINY_MMM
+from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `timing` beside them
 from bench.aits import long_plan, main  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def both_models(trained_project) -> Path:
-    """The trained project (tiny VQ-VAE and denoiser) with a tiny MMM beside its denoiser."""
+def three_models(trained_project) -> Path:
+    """The trained project (tiny VQ-VAE and denoiser) with a tiny MMM and a tiny MotionDiffuse (T = 50
+    steps) beside its denoiser."""
     (trained_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
     train_model("mmm", str(trained_project / "mmm.yaml"))
+    config = {**TINY_MOTIONDIFFUSE, "data": {**TINY_MOTIONDIFFUSE["data"], "dir": str(trained_project / "data")}}
+    (trained_project / "motiondiffuse.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    train_model("motiondiffuse", str(trained_project / "motiondiffuse.yaml"))
     return trained_project
 
 
@@ -34,32 +39,56 @@ def test_mmm_long_sequence_is_split_into_the_fewest_even_actions():
     assert long_plan(0.05, fps=20, frame_step=4, action_frames=20) == [20, 20, 20]
 
 
-def test_aits_and_long_sequence_of_both_models_in_one_run(both_models, capsys):
-    out = both_models / "aits"
+def test_aits_and_long_sequence_of_three_models_in_one_run(three_models, capsys):
+    out = three_models / "aits"
     main(["--dataset", "tiny", "--lengths", "8", "16", "--batches", "1", "2", "--warmup", "0", "--repeats", "2",
+          "--md-steps", "10", "50", "--md-batches", "1", "--md-long-steps", "5",
           "--long-minutes", "0.05", "--action-frames", "24", "--long-repeats", "1", "--threads", "1",
           "--out", str(out)])
     result = json.loads((out / "aits.json").read_text(encoding="utf-8"))
-    rows = {(row["model"], row["batch"], row["frames"]): row for row in result["aits"]}
-    assert set(rows) == {(m, b, f) for m in ("mmm", "m2d2m") for b in (1, 2) for f in (8, 16)}
-    for (_, batch, _), row in rows.items():
+    rows = {(row["series"], row["batch"], row["frames"]): row for row in result["aits"]}
+    md = ("motiondiffuse (50 steps)", "motiondiffuse (10 steps)")
+    # MotionDiffuse at --md-batches only, once per number of steps (most first)
+    assert set(rows) == ({(m, b, f) for m in ("mmm", "m2d2m") for b in (1, 2) for f in (8, 16)}
+                         | {(m, 1, f) for m in md for f in (8, 16)})
+    assert list(dict.fromkeys(row["series"] for row in result["aits"])) == ["mmm", "m2d2m", *md]
+    for (series, batch, _), row in rows.items():
+        assert row["model"] == series.split(" ")[0]
         assert len(row["times"]) == 2 and all(t > 0 for t in row["times"])
         assert row["aits"] == pytest.approx(statistics.median(row["times"]) / batch)
         assert row["spread"][0] <= row["aits"] <= row["spread"][1]
-    # MMM's T_dyn grows with the length, M2D2M always takes its T (8 steps for the tiny model)
+    # MMM's T_dyn grows with the length, M2D2M always takes its T (8 steps for the tiny model),
+    # MotionDiffuse the steps it is given whatever the length
     assert rows[("mmm", 1, 8)]["passes"] <= rows[("mmm", 1, 16)]["passes"] <= 10
     assert rows[("m2d2m", 1, 8)]["passes"] == rows[("m2d2m", 1, 16)]["passes"] == 8
+    assert [rows[(m, 1, f)]["passes"] for m in md for f in (8, 16)] == [50, 50, 10, 10]
 
     long = result["long"]
     assert long["frames"] == [20, 20, 20] and long["actions"] == 3 and long["minutes"] == pytest.approx(0.05)
-    assert long["methods"] == {"mmm": "transition", "m2d2m": "tps"}
-    assert {name: len(times) for name, times in long["times"].items()} == {"mmm": 1, "m2d2m": 1}
+    assert long["methods"] == {"mmm": "transition", "m2d2m": "tps", "motiondiffuse": "time-varied"}
+    assert {name: len(times) for name, times in long["times"].items()} == {"mmm": 1, "m2d2m": 1, "motiondiffuse": 1}
     assert long["ratio"] == pytest.approx(long["median"]["m2d2m"] / long["median"]["mmm"])
-    assert set(result["models"]) == {"mmm", "m2d2m"} and all(m["parameters"] for m in result["models"].values())
+    assert long["ratios"]["motiondiffuse"] == pytest.approx(long["median"]["motiondiffuse"] / long["median"]["mmm"])
+    assert long["motiondiffuse"]["steps"] == 5 and long["motiondiffuse"]["trained_steps"] == 50
+    assert long["motiondiffuse"]["extrapolated"] == pytest.approx(10 * long["median"]["motiondiffuse"])
+    assert set(result["models"]) == {"mmm", "m2d2m", "motiondiffuse"}
+    assert all(m["parameters"] for m in result["models"].values())
+    assert set(result["models"]["motiondiffuse"]["parameters"]) == {"network", "text_encoder"}  # no codec
+    assert result["models"]["motiondiffuse"]["long"].startswith("5 of T = 50 steps")
     assert result["machine"]["torch_threads"] == 1
     assert (out / "aits.png").stat().st_size > 0
     printed = capsys.readouterr().out
     assert "AITS, 2 sentence(s) per call" in printed and "| mmm | transition |" in printed
+    assert "| motiondiffuse | time-varied, 5 of T = 50 steps |" in printed
+    assert "motiondiffuse (50 steps) / motiondiffuse (10 steps)" in printed
+    assert "The respaced sampler: 50 → 10 steps (5.0× fewer)" in printed
+
+
+def test_steps_motiondiffuse_was_not_trained_with_are_refused(three_models):
+    with pytest.raises(SystemExit, match="trained with T = 50 steps"):
+        main(["--dataset", "tiny", "--lengths", "8", "--action-frames", "24", "--md-steps", "1000", "100",
+              "--out", str(three_models / "refused")])
+    assert not (three_models / "refused").exists()
 
 
 def test_a_missing_model_is_one_line_naming_how_to_train_it(tmp_path, monkeypatch):
@@ -68,4 +97,5 @@ def test_a_missing_model_is_one_line_naming_how_to_train_it(tmp_path, monkeypatc
         main(["--out", str(tmp_path / "out")])
     message = str(stopped.value)
     assert "make train-mmm" in message and "make train-diffusion" in message and "\n" not in message
+    assert "make train-motiondiffuse" in message
     assert not (tmp_path / "out").exists()

@@ -1,4 +1,4 @@
-"""DDP on one machine, as Lightning runs it on a GPU node, for M2D2M and MMM: it starts the second
+"""DDP on one machine, as Lightning runs it on a GPU node, for M2D2M, MMM and MotionDiffuse: it starts the second
 rank by re-running the command, and both ranks train one run (one directory, one MLflow run) whose files only rank 0
 writes. Two CPU processes with gloo stand in for two GPUs."""
 
@@ -15,22 +15,33 @@ import yaml
 
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
 from m2d2m.generators.mmm_checkpoint import load_mmm
-from tests.helpers import TINY_MMM
+from m2d2m.generators.motiondiffuse_checkpoint import load_motiondiffuse
+from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE
+
+WIDTHS = {"m2d2m": 16, "mmm": TINY_MMM["transformer"]["width"], "motiondiffuse": TINY_MOTIONDIFFUSE["network"]["width"]}
 
 
 def width(model: str, path) -> int:
-    return (load_checkpoint(path).denoiser.config.width if model == "m2d2m" else
-            load_mmm(path).transformer.config.width)
+    if model == "m2d2m":
+        return load_checkpoint(path).denoiser.config.width
+    if model == "mmm":
+        return load_mmm(path).transformer.config.width
+    return load_motiondiffuse(path).network.config.width
 
 
+# MMM's and MotionDiffuse's runs take the same code path as M2D2M's (orchestration/train.py's fit)
 @pytest.mark.parametrize("model, verb", [("m2d2m", "train-diffusion"),
-                                         pytest.param("mmm", "train-mmm", marks=pytest.mark.slow)])  # same code path
+                                         pytest.param("mmm", "train-mmm", marks=pytest.mark.slow),
+                                         pytest.param("motiondiffuse", "train-motiondiffuse", marks=pytest.mark.slow)])
 def test_two_ddp_ranks_train_one_run(trained_project, model, verb):
     runs = trained_project / "runs" / "tiny" / model
     before = {path for path in runs.iterdir() if path.is_dir()} if runs.exists() else set()
     config = trained_project / f"{model}-ddp.yaml"
     if model == "mmm":
         config.write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
+    elif model == "motiondiffuse":
+        data = {**TINY_MOTIONDIFFUSE["data"], "dir": str(trained_project / "data")}
+        config.write_text(yaml.safe_dump({**TINY_MOTIONDIFFUSE, "data": data}), encoding="utf-8")
     else:
         config = trained_project / "diffusion.yaml"
     env = {key: value for key, value in os.environ.items() if key != "MLFLOW_TRACKING_URI"}
@@ -43,7 +54,7 @@ def test_two_ddp_ranks_train_one_run(trained_project, model, verb):
     (run_dir,) = {path for path in runs.iterdir() if path.is_dir()} - before
     info = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))
     assert info["status"] == "finished" and info["world_size"] == 2
-    assert width(model, run_dir / "model.pt") == (16 if model == "m2d2m" else TINY_MMM["transformer"]["width"])
+    assert width(model, run_dir / "model.pt") == WIDTHS[model]
     assert (runs / "latest").read_text(encoding="utf-8").strip() == run_dir.name
 
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{trained_project / 'mlflow.db'}")

@@ -2,7 +2,7 @@
 ᾱ_T or γ̄_T comes back from the file, not the named schedule's default."""
 
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint, save_checkpoint
-from m2d2m.generators.token_model import LengthPrior
+from m2d2m.model_files import LengthPrior
 from m2d2m.text import LearnedTextEncoder
 from tests.helpers import TINY_DIFFUSION, random_vq
 from training.m2d2m_module import M2D2MModule

@@ -14,7 +14,7 @@ from m2d2m.generators.mmm import MMMGenerator
 from m2d2m.generators.mmm_body import BodyMMMGenerator, masked_lower
 from m2d2m.generators.mmm_checkpoint import load_body_mmm, save_body_mmm, save_mmm
 from m2d2m.generators.protocol import SINGLE, Keep, keep_part
-from m2d2m.generators.token_model import LengthPrior
+from m2d2m.model_files import LengthPrior
 from m2d2m.motion.body_parts import LOWER, UPPER
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import T2M

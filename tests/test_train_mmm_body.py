@@ -99,7 +99,7 @@ def test_the_editor_is_judged_in_the_editing_table_beside_a_text_to_motion_model
     for argv, message in ((["--model", "mmm-body", "--edit", "upper", "--method", "mmm-body:independent"],
                            "mmm-body edits motions and has no multi-action"),
                           (["--model", "m2d2m", "--edit", "upper"], "no model given can do the editing task 'upper'; "
-                                                                    "mmm-body can")):
+                                                                    "mmm-body, motiondiffuse can")):
         assert main(["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), *argv]) == 2
         assert message in capsys.readouterr().err
     assert main(["evaluate", "--model", "m2d2m,mmm-body", "--dataset", "tiny", "--testset", str(tiny_testset),

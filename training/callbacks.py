@@ -7,13 +7,14 @@ from pathlib import Path
 from typing import Any
 
 import lightning.pytorch as pl
+import numpy as np
 from lightning.pytorch.callbacks import RichProgressBar
 from lightning.pytorch.loggers import MLFlowLogger
 
 from m2d2m.generators.token_model import TokenCodec
 from m2d2m.motion.render import render_comparison, render_motion
 from m2d2m.motion.representation import features_to_joints
-from m2d2m.motion.skeleton import SKELETONS
+from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.vqvae import load_vq
 
 
@@ -41,19 +42,22 @@ class ReconstructionPreview(pl.Callback):
 
 
 class SamplePreview(pl.Callback):
-    """Every ``every`` validations, one GIF per fixed prompt: tokens from the module's
-    ``preview_tokens(prompts, lengths, seed, **knobs)``, decoded by the VQ-VAE into motion, drawn,
-    and logged as MLflow artifacts — what a person looks at to judge whether samples follow
-    their text. Any model over VQ tokens serves (M2D2M, MMM)."""
+    """Every ``every`` validations, one GIF per fixed prompt of the module's samples, drawn and
+    logged as MLflow artifacts: what a person looks at to judge whether samples follow their
+    text. Subclasses say how a model's samples become features (:meth:`_sample`)."""
 
-    def __init__(self, directory: str | Path, vq_file: str | Path, prompts: list[str], seconds: list[float],
-                 every: int = 1, seed: int = 0, **knobs: Any) -> None:
+    def __init__(self, directory: str | Path, prompts: list[str], seconds: list[float], every: int = 1,
+                 seed: int = 0) -> None:
         if len(prompts) != len(seconds):
             raise ValueError("give one duration in seconds per preview prompt")
-        self.directory, self.vq_file = Path(directory), Path(vq_file)
-        self.prompts, self.seconds, self.knobs = prompts, seconds, knobs
+        self.directory = Path(directory)
+        self.prompts, self.seconds = prompts, seconds
         self.every, self.seed = max(1, every), seed
         self.validations = 0
+
+    def _sample(self, module: pl.LightningModule) -> tuple[list[np.ndarray], Skeleton]:
+        """Un-normalised features (F, D) for each prompt, and their skeleton."""
+        raise NotImplementedError
 
     def on_validation_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if trainer.sanity_checking or not trainer.is_global_zero:
@@ -61,16 +65,44 @@ class SamplePreview(pl.Callback):
         self.validations += 1
         if (self.validations - 1) % self.every:
             return
+        samples, skeleton = self._sample(module)
+        for n, (prompt, features) in enumerate(zip(self.prompts, samples)):
+            path = render_motion(features_to_joints(features, skeleton),
+                                 self.directory / f"step-{trainer.global_step:07d}-{n}.gif",
+                                 skeleton=skeleton, title=prompt, size=240)
+            if isinstance(trainer.logger, MLFlowLogger):
+                trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="samples")
+
+
+class TokenSamplePreview(SamplePreview):
+    """Previews of a model over VQ tokens (M2D2M, MMM): tokens from the module's
+    ``preview_tokens(prompts, lengths, seed, **knobs)``, decoded by the VQ-VAE of ``vq_file``."""
+
+    def __init__(self, directory: str | Path, vq_file: str | Path, prompts: list[str], seconds: list[float],
+                 every: int = 1, seed: int = 0, **knobs: Any) -> None:
+        super().__init__(directory, prompts, seconds, every, seed)
+        self.vq_file, self.knobs = Path(vq_file), knobs
+
+    def _sample(self, module: pl.LightningModule) -> tuple[list[np.ndarray], Skeleton]:
         vq, normalizer, meta = load_vq(self.vq_file)
         codec = TokenCodec(vq, normalizer, SKELETONS[meta["skeleton"]])
         lengths = [max(1, round(s * codec.skeleton.fps / vq.frames_per_token)) for s in self.seconds]
         sampled = module.preview_tokens(self.prompts, lengths, self.seed, **self.knobs)
-        for n, (prompt, tokens) in enumerate(zip(self.prompts, sampled)):
-            joints = features_to_joints(codec.decode(tokens), codec.skeleton)
-            path = render_motion(joints, self.directory / f"step-{trainer.global_step:07d}-{n}.gif",
-                                 skeleton=codec.skeleton, title=prompt, size=240)
-            if isinstance(trainer.logger, MLFlowLogger):
-                trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="samples")
+        return [codec.decode(tokens) for tokens in sampled], codec.skeleton
+
+
+class FeatureSamplePreview(SamplePreview):
+    """Previews of a model on features (MotionDiffuse): the module's ``preview(prompts, frames,
+    seed)`` gives the features themselves."""
+
+    def __init__(self, directory: str | Path, skeleton: Skeleton, prompts: list[str], seconds: list[float],
+                 every: int = 1, seed: int = 0) -> None:
+        super().__init__(directory, prompts, seconds, every, seed)
+        self.skeleton = skeleton
+
+    def _sample(self, module: pl.LightningModule) -> tuple[list[np.ndarray], Skeleton]:
+        frames = [max(1, round(s * self.skeleton.fps)) for s in self.seconds]
+        return module.preview(self.prompts, frames, self.seed), self.skeleton
 
 
 class StepProgressBar(RichProgressBar):

@@ -26,7 +26,7 @@ import torch
 import webdataset as wds
 from lightning.pytorch.utilities import rank_zero_info
 
-from m2d2m.generators.token_model import LengthPrior
+from m2d2m.model_files import LengthPrior
 from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls, token_shard_urls
 from m2d2m.motion.normalization import Normalizer
 

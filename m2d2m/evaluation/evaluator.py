@@ -97,9 +97,7 @@ class EvaluatorConfig(NetworkConfig):
         if not isinstance(self.feature_dim, int) or self.feature_dim <= CONTACT_DIMS:
             raise ConfigError(f"EvaluatorConfig.feature_dim must be an integer above {CONTACT_DIMS}, "
                              f"got {self.feature_dim!r}")
-        if self.word_features not in SPECIAL_WORDS:
-            raise ConfigError(f"EvaluatorConfig.word_features must be one of {sorted(SPECIAL_WORDS)}, "
-                             f"got {self.word_features!r}")
+        self.require_choice("word_features", sorted(SPECIAL_WORDS))
         self.require_fraction("dropout")
 
 

@@ -295,8 +295,9 @@ class Reference:
 
 class Evaluation:
     """The measurements of one run: a loaded generator and evaluator, the test set's
-    :class:`Reference`, the multi-action knobs that differ from the generator's preset, and a
-    progress callback called after each generated batch."""
+    :class:`Reference`, the knobs that differ from the generator's presets (the user's: they
+    change every table, so ``steps=100`` makes MotionDiffuse's single-motion rows quick too), and
+    a progress callback called after each generated batch."""
 
     def __init__(self, generator: MotionGenerator, evaluator: TextMotionEvaluator, reference: Reference,
                  knobs: dict[str, Any], batch_size: int, progress: Callable[[str], None]) -> None:
@@ -333,7 +334,7 @@ class Evaluation:
         paper's single-motion settings, and MModality from ``MM_GENERATIONS`` generations of
         each of the first ``MM_PROMPTS`` items in the repeat's order."""
         reference = self.reference
-        options = self.generator.options(SINGLE)
+        options = self.generator.options(SINGLE, **self.knobs)
         actions = [[action] for instance in reference.actions for action in instance]
         frames = [[n] for instance in reference.frames for n in instance]
         order = _rng(repeat, "order").permutation(reference.items)
@@ -360,7 +361,7 @@ class Evaluation:
         keep = [EDITS[task](clip, self.generator.skeleton) for clip in flat]
         order = _rng(repeat, "order").permutation(reference.items)
         label = f"{task} {'with' if text else 'without'} text r{repeat}"
-        embedded = self._embed_generated(actions, frames, self.generator.options(SINGLE),
+        embedded = self._embed_generated(actions, frames, self.generator.options(SINGLE, **self.knobs),
                                          _seeds(repeat, f"edit-{task}", len(actions)), label, keep)
         return {"task": task, "text": text, "repeat": repeat,
                 "metrics": _single_metrics(reference, embedded, order, repeat)}

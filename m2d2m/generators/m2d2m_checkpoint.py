@@ -15,8 +15,9 @@ from typing import Any
 
 import torch
 
-from m2d2m.generators.token_model import LengthPrior, TokenCodec, text_encoder_from_payload, text_payload
-from m2d2m.model_files import cpu_state, read_model_file, write_model_file
+from m2d2m.generators.token_model import TokenCodec
+from m2d2m.model_files import (LengthPrior, cpu_state, read_model_file, text_encoder_from_payload, text_payload,
+                               write_model_file)
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.networks.vqvae import FORMAT as VQ_FORMAT
 from m2d2m.processes.discrete_diffusion import ScheduleConfig, TransitionSchedule

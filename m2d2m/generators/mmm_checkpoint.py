@@ -11,8 +11,9 @@ from typing import Any
 
 import torch
 
-from m2d2m.generators.token_model import BodyCodec, LengthPrior, TokenCodec, text_encoder_from_payload, text_payload
-from m2d2m.model_files import cpu_state, read_model_file, write_model_file
+from m2d2m.generators.token_model import BodyCodec, TokenCodec
+from m2d2m.model_files import (LengthPrior, cpu_state, read_model_file, text_encoder_from_payload, text_payload,
+                               write_model_file)
 from m2d2m.networks.mmm_body_transformer import BodyMaskedTransformer, BodyTransformerConfig
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig
 from m2d2m.networks.vqvae import FORMAT as VQ_FORMAT

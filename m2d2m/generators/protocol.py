@@ -13,7 +13,7 @@ paper settings of single and multi-action generation.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -102,6 +102,8 @@ class MotionGenerator(ABC):
     needs_keep: ClassVar[str | None] = None
     # the editing-table tasks it can do (m2d2m.evaluation.measurements.EDITS: inbetween, upper)
     edits: ClassVar[tuple[str, ...]] = ()
+    # whether it answers :meth:`generate_parts` (one sentence per body part: MotionDiffuse's eq. 10)
+    part_control: ClassVar[bool] = False
 
     source: Path  # the model file it was loaded from
 
@@ -196,3 +198,10 @@ class MotionGenerator(ABC):
         (editing "w/o text", MMM Table 3). A sequence's result does not depend on the others in the call. ValueError for a
         request it cannot serve. A model that works in steps may call ``progress`` with the
         fraction done, for a progress bar on long generations."""
+
+    def generate_parts(self, parts: Sequence[Mapping[str, str]], frames: Sequence[int], options: Any,
+                       seeds: Sequence[int], progress: Callable[[float], None] | None = None) -> list[Motion]:
+        """One motion per request in which every body part (:data:`m2d2m.motion.body_parts.PARTS`)
+        does its own sentence, ``parts[i]`` mapping part → sentence, ``frames[i]`` long, drawn with
+        ``seeds[i]``. ValueError for a model without body-part control (:attr:`part_control`)."""
+        raise ValueError(f"{self.model} has no body-part control")

@@ -1,7 +1,6 @@
 """What every generator over VQ-VAE motion tokens shares (M2D2M, MMM): the codec that turns
-features into tokens and back (a pair of body-part codecs for MMM's upper-body editing), the
-corpus's length prior, how a text encoder is kept in a model file, and the protocol's properties
-that follow from them (:class:`TokenModelGenerator`)."""
+features into tokens and back (a pair of body-part codecs for MMM's upper-body editing), and the
+protocol's properties that follow from it and the corpus's length prior (:class:`TokenModelGenerator`)."""
 
 from __future__ import annotations
 
@@ -14,45 +13,15 @@ import numpy as np
 import torch
 
 from m2d2m.generators.protocol import Keep, MotionGenerator
-from m2d2m.model_files import cpu_state
+from m2d2m.model_files import LengthPrior
 from m2d2m.motion.body_parts import FULL, LOWER, UPPER, merge
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.vqvae import MotionVQVAE, vq_from_payload
-from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
 
 FREE = -1  # a token position a generator fills (the samplers' and decoders' convention)
-
-
-@dataclass
-class LengthPrior:
-    """Typical lengths in tokens: the median per verb over single-action training captions, and
-    the median over all of them for verbs never seen alone; ``longest`` is the longest clip."""
-
-    per_verb: dict[str, int]
-    median: int
-    longest: int
-
-    def tokens_for(self, verb: str | None) -> int:
-        return self.per_verb.get(verb or "", self.median)
-
-    def to_payload(self) -> dict[str, Any]:
-        return {"per_verb": dict(self.per_verb), "median": int(self.median), "longest": int(self.longest)}
-
-
-def text_payload(encoder: TextEncoder, text: dict[str, Any]) -> dict[str, Any]:
-    """A text encoder in a model file: its kind and options (the run's ``text`` section), and its
-    weights when it was trained (the frozen CLIP tower is found again by its path)."""
-    return {"kind": text.get("kind", "learned"), "options": {k: v for k, v in text.items() if k != "kind"},
-            "state_dict": cpu_state(encoder) if encoder.trainable else None}
-
-
-def text_encoder_from_payload(payload: dict[str, Any]) -> TextEncoder:
-    if payload["state_dict"] is not None and payload["kind"] == "learned":
-        return LearnedTextEncoder.from_state_dict(payload["state_dict"])
-    return build_text_encoder(payload["kind"], **payload["options"])
 
 
 @dataclass

@@ -3,6 +3,7 @@ written into model files, with the checks they all make named once."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Self
 
@@ -40,3 +41,16 @@ class NetworkConfig:
             if not (0.0 < value < 1.0 if open_low else 0.0 <= value < 1.0):
                 raise ConfigError(f"{type(self).__name__}.{name} must lie in {'(' if open_low else '['}0, 1), "
                                  f"got {value!r}")
+
+    def require_choice(self, name: str, choices: Iterable[str]) -> None:
+        """The field named must be one of ``choices``."""
+        choices = tuple(choices)
+        value = getattr(self, name)
+        if value not in choices:
+            raise ConfigError(f"{type(self).__name__}.{name} must be one of {', '.join(choices)}, got {value!r}")
+
+    def require_divisible(self, name: str, by: str) -> None:
+        """The field ``name`` must be a multiple of the field ``by`` (a width split into heads)."""
+        if getattr(self, name) % getattr(self, by):
+            raise ConfigError(f"{type(self).__name__}.{name} ({getattr(self, name)}) must be divisible by "
+                              f"{by} ({getattr(self, by)})")

@@ -52,8 +52,7 @@ class DenoiserConfig(NetworkConfig):
 
     def __post_init__(self) -> None:
         self.require_positive("codebook_size", "layers", "heads", "width", "ffn", "text_dim", "steps", "max_distance")
-        if self.width % self.heads:
-            raise ConfigError(f"DenoiserConfig.width ({self.width}) must be divisible by heads ({self.heads})")
+        self.require_divisible("width", "heads")
         if not isinstance(self.num_buckets, int) or self.num_buckets < 4 or self.num_buckets % 2:
             raise ConfigError(f"DenoiserConfig.num_buckets must be an even integer >= 4, got {self.num_buckets!r}")
         if self.max_distance <= self.num_buckets // 4:

@@ -52,8 +52,7 @@ class MaskedTransformerConfig(NetworkConfig):
     def __post_init__(self) -> None:
         self.require_positive("codebook_size", "code_dim", "width", "heads", "layers", "ffn", "text_dim",
                               "max_tokens")
-        if self.width % self.heads:
-            raise ConfigError(f"MaskedTransformerConfig.width ({self.width}) must be divisible by heads ({self.heads})")
+        self.require_divisible("width", "heads")
         if not isinstance(self.cross_layers, int) or not 0 <= self.cross_layers <= self.layers:
             raise ConfigError(f"MaskedTransformerConfig.cross_layers must lie in 0..layers ({self.layers}), "
                               f"got {self.cross_layers!r}")

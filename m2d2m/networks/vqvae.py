@@ -73,11 +73,8 @@ class VQConfig(NetworkConfig):
         if not isinstance(self.output_smoothing, (int, float)) or not 0 <= self.output_smoothing <= 8:
             raise ConfigError(f"VQConfig.output_smoothing must be a number of frames in [0, 8], "
                               f"got {self.output_smoothing!r}")
-        if self.activation not in _ACTIVATIONS:
-            raise ConfigError(f"VQConfig.activation must be one of {sorted(_ACTIVATIONS)}, "
-                             f"got {self.activation!r}")
-        if self.part not in (FULL, *PARTS):
-            raise ConfigError(f"VQConfig.part must be one of {', '.join((FULL, *PARTS))}, got {self.part!r}")
+        self.require_choice("activation", sorted(_ACTIVATIONS))
+        self.require_choice("part", (FULL, *PARTS))
         if self.part != FULL:
             try:
                 skeleton_of_width(self.feature_dim)

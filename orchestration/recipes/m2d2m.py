@@ -22,7 +22,7 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
     import lightning.pytorch as pl
 
     from m2d2m.generators.m2d2m_checkpoint import save_checkpoint
-    from training.callbacks import SamplePreview
+    from training.callbacks import TokenSamplePreview
     from training.m2d2m_module import M2D2MModule
 
     entry = model(NAME)
@@ -33,8 +33,8 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
                          codebook=data.codebook, vocabulary=data.vocabulary)
     preview = config["preview"]
     fitted = fit(entry.stage, config, run_dir, run_id, resume, module, data.datamodule, "val/loss",
-                 [SamplePreview(run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
-                                every=config["trainer"]["gif_every"], guidance=preview["guidance"]),
+                 [TokenSamplePreview(run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
+                                     every=config["trainer"]["gif_every"], guidance=preview["guidance"]),
                   *(extra_callbacks or [])], ray_train=ray_train)
     if not fitted.primary:
         return run_dir

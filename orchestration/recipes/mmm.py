@@ -22,7 +22,7 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
     import lightning.pytorch as pl
 
     from m2d2m.generators.mmm_checkpoint import save_mmm
-    from training.callbacks import SamplePreview
+    from training.callbacks import TokenSamplePreview
     from training.mmm_module import MMMModule
 
     entry = model(NAME)
@@ -33,8 +33,8 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
                        codebook=data.codebook, vocabulary=data.vocabulary)
     preview = config["preview"]
     fitted = fit(entry.stage, config, run_dir, run_id, resume, module, data.datamodule, "val/loss",
-                 [SamplePreview(run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
-                                every=config["trainer"]["gif_every"]), *(extra_callbacks or [])], ray_train=ray_train)
+                 [TokenSamplePreview(run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
+                                     every=config["trainer"]["gif_every"]), *(extra_callbacks or [])], ray_train=ray_train)
     if not fitted.primary:
         return run_dir
     export_model(run_dir, fitted, config, data, run_dir / entry.model_file,

@@ -70,7 +70,7 @@ def _tokenizer(reference: str, dataset: str, part: str) -> tuple[Path, Any, Path
         raise UserError(str(error)) from error
 
 
-def _vocabulary(config: dict[str, Any], datamodule: Any, sentences: Callable[[dict[str, Any]], Iterable[str]]
+def caption_vocabulary(config: dict[str, Any], datamodule: Any, sentences: Callable[[dict[str, Any]], Iterable[str]]
                 ) -> list[str] | None:
     """The words of a learned text encoder: those of ``sentences(caption)`` over the train captions."""
     from m2d2m.text import LearnedTextEncoder
@@ -104,7 +104,7 @@ def token_training(config: dict[str, Any], sentences: Callable[[dict[str, Any]],
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
     return TokenTraining(vq_path, vq.codebook, data_dir, tokens_dir, datamodule,
-                         _vocabulary(config, datamodule, sentences))
+                         caption_vocabulary(config, datamodule, sentences))
 
 
 def body_token_training(config: dict[str, Any], sentences: Callable[[dict[str, Any]], Iterable[str]],
@@ -125,7 +125,7 @@ def body_token_training(config: dict[str, Any], sentences: Callable[[dict[str, A
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
     return BodyTokenTraining(upper_path, upper.codebook, data_dir, upper_tokens, datamodule,
-                             _vocabulary(config, datamodule, sentences), lower_path, lower.codebook, lower_tokens)
+                             caption_vocabulary(config, datamodule, sentences), lower_path, lower.codebook, lower_tokens)
 
 
 def export_model(run_dir: Path, fitted: Any, config: dict[str, Any], data: TokenTraining, model_file: Path,

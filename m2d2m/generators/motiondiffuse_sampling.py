@@ -1,0 +1,214 @@
+"""MotionDiffuse's reverse process with its fine-grained control (Zhang et al. 2022, §3.5): every
+request is a set of *terms*, a sentence over some frames and some feature dimensions of the
+sequence, whose noise estimates are combined at every denoising step.
+
+- **Time-varied control** (eq. 11): one term per interval, its own sentence on its own frames
+  (intervals may overlap); each ε_i is estimated on the interval alone and padded to the whole
+  length. **Body-part control** (eq. 10): one term per part over every frame, its ε_i kept on the
+  part's dimensions M_i (:mod:`m2d2m.motion.body_parts`).
+- **Combination.** ε̄ = Σ_i pad(ε_i)·M_i, divided, frame by frame and dimension by dimension, by the
+  number of terms covering it. Where the terms tile the sequence (the paper's intervals and parts)
+  every count is 1 and this is the paper's sum; where intervals overlap it is their mean, since a
+  sum would double the noise estimate there (ours).
+- **Correction** λ·∇_{x_t} Σ_{i≠j} ‖ε_i − ε_j‖ (eqs. 10 and 11), the gradient taken through the
+  network with respect to the noisy motion, as in classifier guidance: adding it to ε̄ moves x_{t−1}
+  along −∇, towards terms that agree. Each difference is taken where both terms are defined (the
+  frames both intervals cover; for parts, the whole sequence): beyond that a padded zero would
+  compare a prediction with nothing. λ = 0 skips the backward pass.
+- **Editing** (``keep``): the kept entries of x_{t−1} are replaced by q(x_{t−1} | x_0) of the kept
+  motion at every step, and by the kept motion itself at the end (replacement inpainting).
+
+Each request draws its noise from its own generator seeded with its seed, on the CPU, so its result
+does not depend on the other requests in the batch nor on the device.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from m2d2m.networks.motiondiffuse_transformer import EncodedText, MotionDiffuseTransformer
+from m2d2m.processes.gaussian_diffusion import GaussianDiffusion
+
+
+@dataclass(frozen=True)
+class Term:
+    """One noise estimate: ``sentence`` over frames [start, end) and the dimensions ``dims`` (D,)
+    bool (None: all of them)."""
+
+    sentence: str
+    start: int
+    end: int
+    dims: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Request:
+    """One sequence to sample: its length, its terms, its seed, and optionally normalised features
+    (frames, D) to keep where ``keep_mask`` (frames, D) is True."""
+
+    frames: int
+    terms: tuple[Term, ...]
+    seed: int
+    keep: torch.Tensor | None = None
+    keep_mask: torch.Tensor | None = None
+
+
+# one reverse step: (x_t, t, ε̄, noise) → x_{t−1}
+Step = Callable[[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+GROUP = 32  # terms per network call: terms sorted by length, so each call pads little
+
+
+class Layout:
+    """Where every term of a batch of requests reads and writes in the padded motions (B, F, D):
+    gather indices into the flattened frames, the term masks, the coverage counts, and the pairs
+    of terms of one request that share frames and dimensions (the correction's)."""
+
+    def __init__(self, requests: Sequence[Request], feature_dim: int, max_term: int, device: torch.device) -> None:
+        self.frames = max(request.frames for request in requests)
+        self.batch, self.feature_dim = len(requests), feature_dim
+        terms = [(b, term) for b, request in enumerate(requests) for term in request.terms]
+        self.sentences = [term.sentence for _, term in terms]
+        lengths = [term.end - term.start for _, term in terms]
+        longest = max(lengths)
+        if longest > max_term:
+            raise ValueError(f"MotionDiffuse generates at most {max_term} frames per action; {longest} were asked for")
+        self.width = longest
+        self.lengths = torch.tensor(lengths, device=device)
+        gather = torch.zeros(len(terms), longest, dtype=torch.long)
+        dims = torch.zeros(len(terms), feature_dim)
+        for k, (b, term) in enumerate(terms):
+            if not 0 <= term.start < term.end <= requests[b].frames:
+                raise ValueError(f"a term's frames [{term.start}, {term.end}) lie outside the sequence's "
+                                 f"{requests[b].frames}")
+            gather[k, :lengths[k]] = b * self.frames + torch.arange(term.start, term.end)
+            dims[k] = 1.0 if term.dims is None else torch.as_tensor(term.dims, dtype=torch.float32)
+        self.valid = (torch.arange(longest)[None, :] < torch.tensor(lengths)[:, None]).to(device)
+        by_length = sorted(range(len(terms)), key=lambda k: -lengths[k])
+        self.groups = [(torch.tensor(rows, device=device), lengths[rows[0]])
+                       for rows in (by_length[i:i + GROUP] for i in range(0, len(terms), GROUP))]
+        self.order = torch.argsort(torch.cat([rows for rows, _ in self.groups]))
+        self.gather, self.dims = gather.to(device), dims.to(device)
+        coverage = torch.zeros(self.batch * self.frames, feature_dim, device=device)
+        coverage.index_add_(0, self.gather.flatten(), self._spread(torch.ones(len(terms), longest, feature_dim,
+                                                                             device=device)).flatten(0, 1))
+        coverage = coverage.view(self.batch, self.frames, feature_dim)
+        for b, request in enumerate(requests):
+            if not bool((coverage[b, :request.frames] > 0).all()):
+                raise ValueError("the terms leave some frames or body parts of a sequence without a sentence")
+        self.coverage = coverage.clamp(min=1.0)
+        self._pairs(requests, terms, device)
+
+    def _spread(self, values: torch.Tensor) -> torch.Tensor:
+        """Per-term values (K, W, D) zeroed off each term's frames and dimensions."""
+        return values * self.valid[:, :, None] * self.dims[:, None, :]
+
+    def _pairs(self, requests: Sequence[Request], terms: list[tuple[int, Term]], device: torch.device) -> None:
+        """For each pair of terms of one request sharing frames and dimensions: the flat indices
+        of the shared frames in each term's estimate and the shared dimensions."""
+        first, second, dims = [], [], []
+        for i, (b, a) in enumerate(terms):
+            for j in range(i + 1, len(terms)):
+                other_b, other = terms[j]
+                start, end = max(a.start, other.start), min(a.end, other.end)
+                shared = self.dims[i] * self.dims[j]
+                if other_b != b or start >= end or not bool(shared.any()):
+                    continue
+                frames = torch.arange(start, end)
+                first.append(i * self.width + frames - a.start)
+                second.append(j * self.width + frames - other.start)
+                dims.append(shared)
+        self.pair_count = len(first)
+        if first:
+            self.pair_first = torch.nn.utils.rnn.pad_sequence(first, batch_first=True, padding_value=-1).to(device)
+            self.pair_second = torch.nn.utils.rnn.pad_sequence(second, batch_first=True, padding_value=-1).to(device)
+            self.pair_dims = torch.stack(dims)
+
+    def terms_of(self, x: torch.Tensor) -> torch.Tensor:
+        """Each term's frames of the padded motions x (B, F, D): (K, W, D), zero past its length."""
+        return x.reshape(-1, self.feature_dim)[self.gather] * self.valid[:, :, None]
+
+    def estimate(self, network: MotionDiffuseTransformer, x: torch.Tensor, t: torch.Tensor,
+                 text: EncodedText) -> torch.Tensor:
+        """Every term's ε_θ (K, W, D) on its frames of x (B, F, D), zero past its length. Terms go
+        through the network in groups of similar length, each padded to its own longest: padding
+        never changes a valid frame's estimate (the network masks it), it only costs time."""
+        terms = self.terms_of(x)
+        estimates = [network(terms[rows, :width], t[rows], self.lengths[rows], text.take(rows))
+                     for rows, width in self.groups]
+        padded = [torch.nn.functional.pad(eps, (0, 0, 0, self.width - eps.shape[1])) for eps in estimates]
+        return torch.cat(padded)[self.order] * self.valid[:, :, None]
+
+    def combine(self, eps: torch.Tensor) -> torch.Tensor:
+        """ε̄ (B, F, D) from the terms' estimates (K, W, D): each term on its frames and dimensions,
+        divided by the coverage."""
+        total = torch.zeros(self.batch * self.frames, self.feature_dim, dtype=eps.dtype, device=eps.device)
+        total = total.index_add(0, self.gather.flatten(), self._spread(eps).flatten(0, 1))
+        return total.view(self.batch, self.frames, self.feature_dim) / self.coverage
+
+    def disagreement(self, eps: torch.Tensor) -> torch.Tensor:
+        """Σ_{i≠j} ‖ε_i − ε_j‖ over every pair sharing frames and dimensions, both orders (eqs. 10, 11)."""
+        if not self.pair_count:
+            return eps.sum() * 0.0
+        flat = eps.reshape(-1, self.feature_dim)
+        valid = (self.pair_first >= 0)[:, :, None]
+        difference = (flat[self.pair_first.clamp(min=0)] - flat[self.pair_second.clamp(min=0)]) * valid
+        difference = difference * self.pair_dims[:, None, :]
+        return 2.0 * torch.linalg.vector_norm(difference.flatten(1), dim=1).sum()
+
+
+def _pad(rows: Sequence[torch.Tensor], frames: int) -> torch.Tensor:
+    return torch.stack([torch.nn.functional.pad(row, (0, 0, 0, frames - len(row))) for row in rows])
+
+
+def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Sequence[Request],
+           process: GaussianDiffusion, step: Step, correction: float,
+           progress: Callable[[float], None] | None = None) -> list[torch.Tensor]:
+    """Each request's normalised motion (frames, D), denoised from N(0, I) through every step of
+    ``process`` with ``step`` (ancestral or DDIM); ``text`` holds one encoded sentence per term, in
+    the order of the requests and their terms; ``correction`` is λ."""
+    device = text.sentence.device
+    feature_dim = network.config.feature_dim
+    layout = Layout(requests, feature_dim, network.config.max_frames, device)
+    generators = [torch.Generator().manual_seed(int(request.seed)) for request in requests]
+    # the kept motion's noise comes from a second stream, drawn only by requests that keep something
+    keep_generators = [None if r.keep is None else
+                       torch.Generator().manual_seed(int(np.random.SeedSequence([int(r.seed), 1]).generate_state(1)[0]))
+                       for r in requests]
+
+    def noise(streams: Sequence[torch.Generator | None]) -> torch.Tensor:
+        rows = [torch.zeros(r.frames, feature_dim) if g is None else torch.randn(r.frames, feature_dim, generator=g)
+                for r, g in zip(requests, streams)]
+        return _pad(rows, layout.frames).to(device)
+
+    keep = keep_mask = None
+    if any(r.keep is not None for r in requests):
+        keep = _pad([r.keep if r.keep is not None else torch.zeros(r.frames, feature_dim) for r in requests],
+                    layout.frames).to(device)
+        keep_mask = _pad([r.keep_mask if r.keep is not None else torch.zeros(r.frames, feature_dim, dtype=torch.bool)
+                          for r in requests], layout.frames).bool().to(device)
+    guided = correction > 0 and layout.pair_count > 0
+    x = noise(generators)
+    total = process.num_steps
+    for index in reversed(range(total)):
+        t = torch.full((layout.batch,), index, dtype=torch.long, device=device)
+        network_t = process.network_steps(torch.full((len(layout.sentences),), index, dtype=torch.long, device=device))
+        with torch.enable_grad() if guided else torch.no_grad():
+            x_in = x.detach().requires_grad_(guided)
+            eps = layout.estimate(network, x_in, network_t, text)
+            combined = layout.combine(eps)
+            if guided:
+                gradient, = torch.autograd.grad(layout.disagreement(eps), x_in)
+                combined = combined + correction * gradient
+        x = step(x, t, combined.detach(), noise(generators))
+        if keep is not None:
+            known = keep if index == 0 else process.q_sample(keep, t - 1, noise(keep_generators))
+            x = torch.where(keep_mask, known, x)
+        if progress is not None and (index % max(1, total // 100) == 0):
+            progress((total - index) / total)
+    return [x[b, :request.frames].detach() for b, request in enumerate(requests)]

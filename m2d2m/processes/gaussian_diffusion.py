@@ -1,0 +1,186 @@
+"""Gaussian DDPM of MotionDiffuse (Zhang et al. 2022, §3.3, eqs. 1-5), after Ho et al. 2020.
+
+Forward process (Ho et al. 2020, eq. 2 and 4; MotionDiffuse eq. 1 and 3): q(x_t | x_{t-1}) =
+N(sqrt(α_t) x_{t-1}, β_t I), hence q(x_t | x_0) = N(sqrt(ᾱ_t) x_0, (1 - ᾱ_t) I) with ᾱ_t = prod_{s<=t} α_s.
+The network predicts the noise ε (MotionDiffuse eq. 4; Ho et al. eq. 14); the reverse mean is the
+posterior mean q(x_{t-1} | x_t, x_0) (Ho et al. eq. 6-7) taken at the x_0 implied by ε, which is the
+same as MotionDiffuse eq. 5 / Ho et al. eq. 11: 1/sqrt(α_t) (x_t - β_t / sqrt(1 - ᾱ_t) ε). The reverse
+variance is fixed: β_t as in MotionDiffuse §3.3 (after eq. 4), or β̃_t, the posterior variance
+(Ho et al. eq. 7; "fixed small" in the public DDPM code).
+
+Schedule: linear β from 1e-4 to 0.02 over T = 1000 steps (Ho et al. §4), both ends scaled by 1000/T
+so that a shorter chain spans the same noise range (Nichol & Dhariwal 2021, the "linear" schedule of
+improved-diffusion).
+
+Fewer sampling steps (Nichol & Dhariwal 2021 §4, respacing): keep a subsequence s_0 < ... < s_{K-1}
+of the steps, leave ᾱ at those steps unchanged and set β'_i = 1 - ᾱ_{s_i} / ᾱ_{s_{i-1}}; the network
+is still told the original index s_i. Deterministic sampling follows DDIM (Song et al. 2021, eq. 12,
+with σ from eq. 16 scaled by η).
+
+Indices are 0-based: index t is the paper's step t + 1, so ᾱ at index t is prod_{s<=t} α_s and the
+"previous" ᾱ at index 0 is 1 (x_{-1} stands for the clean x_0). The schedule is kept in float64
+numpy arrays and converted to the input tensor's dtype and device when indexed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from m2d2m.networks.config import ConfigError
+
+# Σ_θ = β_t (the paper, §3.3 after eq. 4) or β̃_t (the public code's FIXED_SMALL)
+VARIANCES = ("beta", "posterior")
+
+
+def linear_betas(steps: int = 1000, start: float = 1e-4, end: float = 0.02) -> np.ndarray:
+    """β_0..β_{steps-1}, linear from ``start`` to ``end`` after scaling both by 1000/steps, float64."""
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ConfigError(f"diffusion steps must be a positive integer, got {steps!r}")
+    if not 0.0 < start <= end:
+        raise ConfigError(f"need 0 < beta start <= beta end, got start={start!r}, end={end!r}")
+    scale = 1000.0 / steps
+    if scale * end >= 1.0:
+        raise ConfigError(f"{steps} steps scale beta end {end!r} to {scale * end:.4g}, which must stay below 1")
+    return np.linspace(scale * start, scale * end, steps, dtype=np.float64)
+
+
+def timestep_buckets(t: Tensor, num_steps: int, buckets: int = 4) -> Tensor:
+    """Bucket 0..buckets-1 of each step index, equal parts of [0, num_steps), to log the loss per t range."""
+    if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
+        raise ConfigError(f"num_steps must be a positive integer, got {num_steps!r}")
+    if isinstance(buckets, bool) or not isinstance(buckets, int) or buckets < 1:
+        raise ConfigError(f"buckets must be a positive integer, got {buckets!r}")
+    t = t.long()
+    if t.numel() and (int(t.min()) < 0 or int(t.max()) >= num_steps):
+        raise ValueError(f"step indices must lie in [0, {num_steps}), got [{int(t.min())}, {int(t.max())}]")
+    return t * buckets // num_steps
+
+
+class GaussianDiffusion:
+    """The fixed schedule and the closed forms built from it; no network, no state besides arrays."""
+
+    def __init__(self, betas: np.ndarray, timesteps: Sequence[int] | None = None) -> None:
+        betas = np.asarray(betas, dtype=np.float64)
+        if betas.ndim != 1 or betas.size == 0:
+            raise ConfigError(f"betas must be a non-empty 1-D array, got shape {betas.shape}")
+        if not np.all((betas > 0.0) & (betas < 1.0)):
+            raise ConfigError("every beta must lie in (0, 1)")
+        if timesteps is None:
+            steps = np.arange(betas.size, dtype=np.int64)
+        else:
+            steps = np.asarray(timesteps)
+            if steps.ndim != 1 or steps.size != betas.size or not np.issubdtype(steps.dtype, np.integer):
+                raise ConfigError(f"timesteps must be {betas.size} integers, one per beta, got shape {steps.shape}")
+            steps = steps.astype(np.int64)
+            if steps[0] < 0 or np.any(np.diff(steps) <= 0):
+                raise ConfigError("timesteps must be non-negative and strictly increasing")
+        self.betas = betas
+        self.timesteps = steps
+        self.alphas = 1.0 - betas
+        self.alphas_cumprod = np.cumprod(self.alphas)
+        self.alphas_cumprod_prev = np.concatenate([[1.0], self.alphas_cumprod[:-1]])
+        self.posterior_variance = betas * (1.0 - self.alphas_cumprod_prev) / (1.0 - self.alphas_cumprod)
+        # Ho et al. eq. 7: μ̃_t = coef_x0 · x_0 + coef_xt · x_t
+        self._posterior_coef_x0 = betas * np.sqrt(self.alphas_cumprod_prev) / (1.0 - self.alphas_cumprod)
+        self._posterior_coef_xt = (1.0 - self.alphas_cumprod_prev) * np.sqrt(self.alphas) / (1.0 - self.alphas_cumprod)
+
+    @classmethod
+    def linear(cls, steps: int = 1000, start: float = 1e-4, end: float = 0.02) -> GaussianDiffusion:
+        """The MotionDiffuse / DDPM process with :func:`linear_betas`."""
+        return cls(linear_betas(steps, start, end))
+
+    @property
+    def num_steps(self) -> int:
+        return int(self.betas.size)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(num_steps={self.num_steps}, timesteps={self.timesteps[0]}..{self.timesteps[-1]})"
+
+    def _at(self, values: np.ndarray, t: Tensor, like: Tensor) -> Tensor:
+        """values[t] in ``like``'s dtype and device, shaped (B, 1, ...) to broadcast over a batch like ``like``."""
+        if t.dim() != 1 or t.shape[0] != like.shape[0]:
+            raise ValueError(f"t must have shape ({like.shape[0]},) to match a batch of shape {tuple(like.shape)}, "
+                             f"got {tuple(t.shape)}")
+        table = torch.as_tensor(values, dtype=like.dtype, device=like.device)
+        return table[t.to(like.device).long()].reshape(-1, *([1] * (like.dim() - 1)))
+
+    def network_steps(self, t: Tensor) -> Tensor:
+        """The original-schedule index each step stands for, the one the network was trained with."""
+        return torch.as_tensor(self.timesteps, device=t.device)[t.long()]
+
+    def q_sample(self, x0: Tensor, t: Tensor, noise: Tensor) -> Tensor:
+        """x_t ~ q(x_t | x_0) by reparameterisation (MotionDiffuse eq. 3, Ho et al. eq. 4)."""
+        return (self._at(np.sqrt(self.alphas_cumprod), t, x0) * x0
+                + self._at(np.sqrt(1.0 - self.alphas_cumprod), t, x0) * noise)
+
+    def q_mean_variance(self, x0: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
+        """Mean sqrt(ᾱ_t) x_0 and variance 1 - ᾱ_t (shaped to broadcast) of q(x_t | x_0)."""
+        return (self._at(np.sqrt(self.alphas_cumprod), t, x0) * x0,
+                self._at(1.0 - self.alphas_cumprod, t, x0))
+
+    def q_posterior(self, x0: Tensor, xt: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
+        """Mean and variance β̃_t of q(x_{t-1} | x_t, x_0) (Ho et al. eq. 6-7); at t = 0 it is x_0 exactly."""
+        mean = self._at(self._posterior_coef_x0, t, x0) * x0 + self._at(self._posterior_coef_xt, t, xt) * xt
+        return mean, self._at(self.posterior_variance, t, xt)
+
+    def predict_x0(self, xt: Tensor, t: Tensor, eps: Tensor) -> Tensor:
+        """The x_0 for which x_t = q_sample(x_0, t, eps): eq. 3 solved for x_0."""
+        return (self._at(np.sqrt(1.0 / self.alphas_cumprod), t, xt) * xt
+                - self._at(np.sqrt(1.0 / self.alphas_cumprod - 1.0), t, xt) * eps)
+
+    def _variance(self, variance: str) -> np.ndarray:
+        if variance == "beta":
+            return self.betas
+        if variance == "posterior":
+            return self.posterior_variance
+        raise ConfigError(f"variance must be one of {VARIANCES}, got {variance!r}")
+
+    def p_mean_variance(self, xt: Tensor, t: Tensor, eps: Tensor, variance: str = "beta") -> tuple[Tensor, Tensor]:
+        """Mean and fixed variance of p_θ(x_{t-1} | x_t) given the predicted noise (MotionDiffuse eq. 5)."""
+        table = self._variance(variance)
+        mean, _ = self.q_posterior(self.predict_x0(xt, t, eps), xt, t)
+        return mean, self._at(table, t, xt)
+
+    def p_sample(self, xt: Tensor, t: Tensor, eps: Tensor, noise: Tensor, variance: str = "beta") -> Tensor:
+        """One ancestral step x_t -> x_{t-1} (Ho et al. Algorithm 2); the last step (t = 0) adds no noise."""
+        mean, var = self.p_mean_variance(xt, t, eps, variance)
+        keep = (t != 0).to(device=xt.device, dtype=xt.dtype).reshape(var.shape)
+        return mean + keep * var.sqrt() * noise
+
+    def ddim_sample(self, xt: Tensor, t: Tensor, eps: Tensor, noise: Tensor, eta: float = 0.0) -> Tensor:
+        """One DDIM step to this process's previous step (Song et al. 2021, eq. 12; σ of eq. 16 times η).
+
+        η = 0 is deterministic; η = 1 is the ancestral step with variance β̃_t. No noise at t = 0.
+        """
+        if not 0.0 <= eta <= 1.0:
+            raise ConfigError(f"DDIM eta must lie in [0, 1], got {eta!r}")
+        prev = self.alphas_cumprod_prev
+        sigma = eta * np.sqrt((1.0 - prev) / (1.0 - self.alphas_cumprod) * (1.0 - self.alphas_cumprod / prev))
+        direction = np.sqrt(np.clip(1.0 - prev - sigma**2, 0.0, None))
+        keep = (t != 0).to(device=xt.device, dtype=xt.dtype).reshape(-1, *([1] * (xt.dim() - 1)))
+        return (self._at(np.sqrt(prev), t, xt) * self.predict_x0(xt, t, eps)
+                + self._at(direction, t, xt) * eps
+                + keep * self._at(sigma, t, xt) * noise)
+
+    def respaced(self, steps: int) -> GaussianDiffusion:
+        """A process of ``steps`` of these steps, evenly spaced from the first to the last index.
+
+        ᾱ at the kept steps is unchanged and β'_i = 1 - ᾱ_{s_i} / ᾱ_{s_{i-1}} (Nichol & Dhariwal 2021
+        §4). A single step keeps the last index, the one pure noise starts from. Indices are rounded
+        half up, which keeps them distinct whenever steps <= num_steps.
+        """
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= self.num_steps:
+            raise ConfigError(f"respaced steps must be an integer in [1, {self.num_steps}], got {steps!r}")
+        if steps == self.num_steps:
+            return GaussianDiffusion(self.betas.copy(), self.timesteps.copy())
+        if steps == 1:
+            keep = np.array([self.num_steps - 1])
+        else:
+            keep = np.floor(np.linspace(0.0, self.num_steps - 1, steps) + 0.5).astype(np.int64)
+        kept = self.alphas_cumprod[keep]
+        betas = 1.0 - kept / np.concatenate([[1.0], kept[:-1]])
+        return GaussianDiffusion(betas, self.timesteps[keep])
