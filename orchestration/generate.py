@@ -17,7 +17,7 @@ import math
 import signal
 import sys
 import threading
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -184,6 +184,14 @@ def check_length(frames: Sequence[int], fps: float, max_seconds: float | None) -
                         f"{math.ceil(total)} to make it anyway")
 
 
+@contextmanager
+def _progress(description: str) -> Iterator[Callable[[float], None]]:
+    """A percentage bar on stderr for a generator's ``progress`` callback (the fraction done); on a
+    terminal only, so errors stay one line."""
+    with tqdm(total=100, unit="%", desc=description, leave=False, file=sys.stderr, disable=None) as bar:
+        yield lambda done: bar.update(round(100 * done) - bar.n)
+
+
 def generate(generator: MotionGenerator, prompts: str | Sequence[str], seconds: float | Sequence[float] | None = None,
              seed: int = 0, split: bool = True, max_seconds: float | None = DEFAULT_MAX_SECONDS,
              **options: Any) -> Motion:
@@ -196,12 +204,7 @@ def generate(generator: MotionGenerator, prompts: str | Sequence[str], seconds: 
     check_length(frames, generator.fps, max_seconds)
     try:
         settings = generator.options(**options)
-        description = f"sampling {len(actions)} action(s), {sum(frames) / generator.fps:.1f} s"
-        with tqdm(total=100, unit="%", desc=description, leave=False, file=sys.stderr,
-                  disable=None) as bar:  # None: on a terminal only, so errors stay one line
-            def advance(done: float) -> None:
-                bar.update(round(100 * done) - bar.n)
-
+        with _progress(f"sampling {len(actions)} action(s), {sum(frames) / generator.fps:.1f} s") as advance:
             motion = generator.generate([actions], [frames], settings, [seed], progress=advance)[0]
         return motion.on_rigid_skeleton()
     except ValueError as error:
@@ -265,10 +268,8 @@ def generate_parts(generator: MotionGenerator, parts: Mapping[str, str], seconds
     check_length([frames], generator.fps, max_seconds)
     try:
         settings = generator.options(**options)
-        with tqdm(total=100, unit="%", desc=f"sampling {len(parts)} body parts, {frames / generator.fps:.1f} s",
-                  leave=False, file=sys.stderr, disable=None) as bar:
-            motion = generator.generate_parts([dict(parts)], [frames], settings, [seed],
-                                              progress=lambda done: bar.update(round(100 * done) - bar.n))[0]
+        with _progress(f"sampling {len(parts)} body parts, {frames / generator.fps:.1f} s") as advance:
+            motion = generator.generate_parts([dict(parts)], [frames], settings, [seed], progress=advance)[0]
         return motion.on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error

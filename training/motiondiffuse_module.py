@@ -17,6 +17,7 @@ from m2d2m.networks.config import ConfigError
 from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, MotionDiffuseTransformer
 from m2d2m.processes.gaussian_diffusion import timestep_buckets
 from m2d2m.text import text_encoder_from_config
+from training.data import valid_frames
 from training.optim import configure_adamw
 from training.vq_module import NonFiniteLossError
 
@@ -26,7 +27,7 @@ BUCKETS = 4  # the loss is logged per quarter of the steps: t near 0 is the hard
 def masked_mse(predicted: torch.Tensor, target: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
     """Per motion (B,): the mean squared error over its valid frames and every dimension, so that
     padding adds nothing and every motion weighs the same whatever its length."""
-    valid = (torch.arange(predicted.shape[1], device=predicted.device)[None, :] < lengths[:, None]).to(predicted.dtype)
+    valid = valid_frames(lengths, predicted.shape[1]).to(predicted.dtype)
     squared = ((predicted - target) ** 2).mean(dim=-1) * valid
     return squared.sum(dim=1) / valid.sum(dim=1)
 
