@@ -13,7 +13,9 @@ slows every setting alike); reported are the median and the range.
 
 Why the times grow with length: MMM decodes L tokens in T_dyn = ⌈T·L/M⌉ iterations (§3.2; M the
 corpus's longest motion in tokens, T = 10), so both the number of passes and their width grow;
-M2D2M always takes T steps (two passes each for guidance, batched), only their width grows.
+M2D2M takes its steps whatever the length (two passes each for guidance, batched), only their
+width grows: all T = 100 of its schedule in the paper, fewer when it jumps with exact posteriors
+(``steps``; each of ``--m2d2m-steps`` is a series of its own, "m2d2m (25 steps)", at ``--batches``).
 MotionDiffuse denoises the features themselves (no codec) in one pass per step, and its number of
 steps does not depend on the length either, but it runs all T = 1000 steps it was trained with
 (the paper's setting): ten times M2D2M's T = 100. The respaced sampler (Nichol & Dhariwal 2021,
@@ -28,7 +30,8 @@ The long sequence: ``--long-minutes`` of motion at the models' frame rate in the
 at most ``--action-frames`` frames, whole tokens, as even as possible (10.873 min at 20 fps =
 3,262 tokens = 46 actions of 196 frames and 21 of 192), generated as one sequence by MMM's
 ``transition``, M2D2M's ``tps`` and MotionDiffuse's ``time-varied`` (each model's multi-action
-preset): one warm-up call each, then ``--long-repeats`` rounds. MotionDiffuse's takes
+preset, M2D2M's with the steps its model file samples with unless ``--m2d2m-long-steps``): one
+warm-up call each, then ``--long-repeats`` rounds. MotionDiffuse's takes
 ``--md-long-steps`` steps (default 50, respaced), not the paper's 1000: every step denoises all 67
 intervals at once (one per action, reaching ``overlap`` frames into its neighbours as far as the
 network's longest pass allows), and where they overlap the correction λ2·∇Σ‖ε_i − ε_j‖ (eq. 11)
@@ -37,7 +40,8 @@ about an hour. A step costs the same whatever their number, so the report also g
 all T steps extrapolated from the measured one (× T / steps).
 
     python bench/aits.py [--mmm latest] [--m2d2m latest] [--motiondiffuse latest] [--dataset synthetic]
-                         [--lengths 40 80 120 160 196] [--batches 1 32] [--md-steps 1000 100] [--md-batches 1]
+                         [--lengths 40 80 120 160 196] [--batches 1 32] [--m2d2m-steps 100 50 25 10]
+                         [--m2d2m-long-steps N] [--md-steps 1000 100] [--md-batches 1]
                          [--md-long-steps 50] [--warmup 2] [--repeats 5] [--long-repeats 3] [--out DIR]
 
 Writes ``aits.json`` (every call's time) and ``aits.png`` into ``--out`` (runs/<dataset>/bench/aits)
@@ -79,7 +83,8 @@ from timing import interleaved_times, publish
 PROMPTS = ("a person walks forward", "a person jumps", "a person waves their right hand", "a person sits down")
 LONG_METHODS = {"mmm": "transition", "m2d2m": "tps", "motiondiffuse": "time-varied"}  # in plotting order
 TRAIN = {"mmm": "make train-mmm", "m2d2m": "make train-diffusion", "motiondiffuse": "make train-motiondiffuse"}
-STEPPED = "motiondiffuse"  # the model timed at several numbers of sampling steps (--md-steps)
+STEPPED = "motiondiffuse"  # the model whose long sequence runs fewer steps than it samples with (--md-long-steps)
+STEP_SERIES = ("m2d2m", STEPPED)  # the models timed at several numbers of sampling steps (--m2d2m-steps, --md-steps)
 MMM_MINUTES, MMM_SECONDS, MMM_GPU = 10.873, 1.658, "RTX A5000"  # MMM §5.2
 
 
@@ -121,15 +126,18 @@ class Series:
     batches: tuple[int, ...]
 
 
+def trained_steps(generator: MotionGenerator) -> int:
+    """The steps a diffusion model's schedule has (M2D2M's T, MotionDiffuse's T)."""
+    return generator.process.num_steps if generator.model == STEPPED else generator.checkpoint.schedule.steps
+
+
 def sampler_passes(generator: MotionGenerator, options: Any, frames: int) -> int:
-    """Iterations of the sampler for one action of ``frames`` frames: MMM's T_dyn (§3.2), M2D2M's T,
-    MotionDiffuse's steps (all T when ``steps`` is None; one pass each, as a single action has no
-    neighbour to correct towards)."""
+    """Iterations of the sampler for one action of ``frames`` frames: MMM's T_dyn (§3.2), M2D2M's and
+    MotionDiffuse's steps (all T when ``steps`` is None; one pass each for MotionDiffuse, as a
+    single action has no neighbour to correct towards; a guided pair for M2D2M)."""
     if generator.model == "mmm":
         return dynamic_iterations(frames // generator.frame_step, generator.lengths.longest, options.iterations)
-    if generator.model == STEPPED:
-        return generator.process.num_steps if options.steps is None else options.steps
-    return generator.checkpoint.schedule.steps
+    return trained_steps(generator) if options.steps is None else options.steps
 
 
 def parameter_counts(generator: MotionGenerator) -> dict[str, int]:
@@ -143,17 +151,18 @@ def parameter_counts(generator: MotionGenerator) -> dict[str, int]:
             for name, module in modules.items() if isinstance(module, torch.nn.Module)}
 
 
-def series_of(generators: dict[str, MotionGenerator], batches: list[int], md_steps: list[int],
+def series_of(generators: dict[str, MotionGenerator], batches: list[int], steps: dict[str, list[int]],
               md_batches: list[int]) -> list[Series]:
-    """The figure's curves: each model with its single-action preset, MotionDiffuse once per number
-    of steps in ``md_steps`` (at ``md_batches``), the others at ``batches``."""
+    """The figure's curves: each model with its single-action preset, M2D2M and MotionDiffuse once
+    per number of steps in ``steps[model]`` (MotionDiffuse at ``md_batches``), the others at ``batches``."""
     series = []
     for name, generator in generators.items():
-        if name != STEPPED:
-            series.append(Series(name, name, generator, generator.options(SINGLE), tuple(batches)))
+        batch_sizes = tuple(md_batches if name == STEPPED else batches)
+        if name not in steps:
+            series.append(Series(name, name, generator, generator.options(SINGLE), batch_sizes))
             continue
-        series += [Series(f"{name} ({steps} steps)", name, generator, generator.options(SINGLE, steps=steps),
-                          tuple(md_batches)) for steps in md_steps]
+        series += [Series(f"{name} ({count} steps)", name, generator, generator.options(SINGLE, steps=count),
+                          batch_sizes) for count in steps[name]]
     return series
 
 
@@ -195,19 +204,19 @@ def long_plan(minutes: float, fps: float, frame_step: int, action_frames: int) -
     return [(base + 1) * frame_step] * longer + [base * frame_step] * (actions - longer)
 
 
-def long_options(generator: MotionGenerator, md_long_steps: int) -> Any:
-    """A model's multi-action preset with its long-sequence method; MotionDiffuse's with
-    ``md_long_steps`` steps."""
-    changes = {"steps": md_long_steps} if generator.model == STEPPED else {}
+def long_options(generator: MotionGenerator, long_steps: dict[str, int]) -> Any:
+    """A model's multi-action preset with its long-sequence method, with ``long_steps[model]``
+    steps where given."""
+    changes = {"steps": long_steps[generator.model]} if generator.model in long_steps else {}
     return generator.options(MULTI, method=LONG_METHODS[generator.model], **changes)
 
 
 def measure_long(generators: dict[str, MotionGenerator], frames: list[int], repeats: int,
-                 md_long_steps: int) -> dict[str, list[float]]:
+                 long_steps: dict[str, int]) -> dict[str, list[float]]:
     """Seconds per call of each model's long-sequence method on one sequence of ``frames``, after
     a warm-up call that checks the length."""
     actions = [[PROMPTS[j % len(PROMPTS)] for j in range(len(frames))]]
-    runs = {name: partial(generator.generate, actions, [frames], long_options(generator, md_long_steps), [0])
+    runs = {name: partial(generator.generate, actions, [frames], long_options(generator, long_steps), [0])
             for name, generator in generators.items()}
     for name, run in tqdm(runs.items(), desc="long sequence, warm-up", unit="model"):
         made = len(run()[0].features)
@@ -241,13 +250,16 @@ def check_lengths(generators: dict[str, MotionGenerator], lengths: list[int], ac
         raise UserError("the models run at different frame rates; compare models of one dataset")
 
 
-def check_steps(generators: dict[str, MotionGenerator], md_steps: list[int], md_long_steps: int) -> None:
-    """A one-line refusal of step counts MotionDiffuse's process cannot be respaced to."""
-    trained = generators[STEPPED].process.num_steps
-    for steps in [*md_steps, md_long_steps]:
-        if not 1 <= steps <= trained:
-            raise UserError(f"{steps} steps: {STEPPED} was trained with T = {trained} steps; give --md-steps and "
-                            f"--md-long-steps from 1 to {trained}")
+def check_steps(generators: dict[str, MotionGenerator], steps: dict[str, list[int]],
+                long_steps: dict[str, int]) -> None:
+    """A one-line refusal of step counts a model's schedule cannot be sampled with."""
+    for name in STEP_SERIES:
+        trained = trained_steps(generators[name])
+        for count in [*steps[name], *([long_steps[name]] if name in long_steps else [])]:
+            if not 1 <= count <= trained:
+                flag = "--md" if name == STEPPED else f"--{name}"
+                raise UserError(f"{count} steps: {name} was trained with T = {trained} steps; give {flag}-steps and "
+                                f"{flag}-long-steps from 1 to {trained}")
 
 
 def machine(device: torch.device) -> dict[str, Any]:
@@ -261,25 +273,28 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     """Every measurement, as the JSON written next to the figure."""
     generators = load({name: getattr(args, name) for name in LONG_METHODS}, args.dataset)
     check_lengths(generators, args.lengths, args.action_frames)
-    check_steps(generators, args.md_steps, args.md_long_steps)
+    steps = {"m2d2m": args.m2d2m_steps, STEPPED: args.md_steps}
+    long_steps = {STEPPED: args.md_long_steps, **({"m2d2m": args.m2d2m_long_steps} if args.m2d2m_long_steps else {})}
+    check_steps(generators, steps, long_steps)
     first = next(iter(generators.values()))
     frame_step = math.lcm(*(generator.frame_step for generator in generators.values()))
     frames = long_plan(args.long_minutes, first.fps, frame_step, args.action_frames)
     started = machine(first.device)
-    series = series_of(generators, args.batches, args.md_steps, args.md_batches)
+    series = series_of(generators, args.batches, steps, args.md_batches)
     timings = measure_aits(series, args.lengths, args.warmup, args.repeats)
-    long = measure_long(generators, frames, args.long_repeats, args.md_long_steps)
+    long = measure_long(generators, frames, args.long_repeats, long_steps)
     medians = {name: statistics.median(times) for name, times in long.items()}
-    trained = generators[STEPPED].process.num_steps
+    trained = trained_steps(generators[STEPPED])
     return {
         "date": datetime.now().isoformat(timespec="minutes"),
         "fps": first.fps,
         "machine": {**started, "load_after": list(os.getloadavg())},
         "models": {name: {"checkpoint": str(generator.source), "parameters": parameter_counts(generator),
                           "single": "; ".join(s.generator.describe(s.options) for s in series if s.model == name),
-                          "long": generator.describe(long_options(generator, args.md_long_steps))}
+                          "long": generator.describe(long_options(generator, long_steps))}
                    for name, generator in generators.items()},
         "settings": {"warmup": args.warmup, "repeats": args.repeats, "long_repeats": args.long_repeats,
+                     "m2d2m_steps": args.m2d2m_steps, "m2d2m_long_steps": args.m2d2m_long_steps,
                      "md_steps": args.md_steps, "md_batches": args.md_batches, "md_long_steps": args.md_long_steps},
         "aits": [timing.record() for timing in timings],
         "long": {"minutes": sum(frames) / first.fps / 60, "actions": len(frames), "frames": frames,
@@ -306,8 +321,10 @@ def report(result: dict[str, Any]) -> str:
     for batch in dict.fromkeys(t.batch for t in timings):
         rows = {(t.series, t.frames): t for t in timings if t.batch == batch}
         series = list(dict.fromkeys(t.series for t in timings if t.batch == batch))
-        stepped = [name for name in series if rows[(name, timings[0].frames)].model == STEPPED]
-        ratios = [(name, series[0]) for name in series[1:]] + [(stepped[0], name) for name in stepped[1:]]
+        by_model: dict[str, list[str]] = {}
+        for name in series:
+            by_model.setdefault(rows[(name, timings[0].frames)].model, []).append(name)
+        ratios = [(name, series[0]) for name in series[1:]]
         header = " | ".join(f"{name} passes | {name} AITS (ms) | {name} per pass (ms)" for name in series)
         lines += ["", f"AITS, {batch} sentence(s) per call", "",
                   f"| frames | {header} | {' | '.join(f'{a} / {b}' for a, b in ratios)} |",
@@ -321,10 +338,11 @@ def report(result: dict[str, Any]) -> str:
                              f"{1e3 * t.aits / t.passes:.2f}")
             cells += [f"{rows[(a, frames)].aits / rows[(b, frames)].aits:.1f}" for a, b in ratios]
             lines.append(f"| {frames} | {' | '.join(cells)} |")
-        if len(stepped) > 1:
+        for model, stepped in by_model.items():
+            if len(stepped) < 2:
+                continue
             most, fewest = rows[(stepped[0], timings[0].frames)].passes, rows[(stepped[-1], timings[0].frames)].passes
-            lines += ["", f"The respaced sampler: {most} → {fewest} steps ({most / fewest:.1f}× fewer) makes "
-                      f"{STEPPED}'s call "
+            lines += ["", f"Fewer steps: {most} → {fewest} ({most / fewest:.1f}× fewer) makes {model}'s call "
                       + ", ".join(f"{rows[(stepped[0], f)].aits / rows[(stepped[-1], f)].aits:.1f}×"
                                   for f in dict.fromkeys(t.frames for t in timings))
                       + " faster over the lengths above."]
@@ -393,6 +411,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dataset", default="synthetic")
     parser.add_argument("--lengths", type=int, nargs="+", default=[40, 80, 120, 160, 196], help="frames per sentence")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 32], help="sentences per call")
+    parser.add_argument("--m2d2m-steps", type=int, nargs="+", default=[100, 50, 25, 10],
+                        help="M2D2M's sampling steps, one series each (below T: jumps with exact posteriors)")
+    parser.add_argument("--m2d2m-long-steps", type=int, default=None,
+                        help="M2D2M's steps on the long sequence (default: those its model file samples with)")
     parser.add_argument("--md-steps", type=int, nargs="+", default=[1000, 100],
                         help="MotionDiffuse's sampling steps, one series each (below T: respaced)")
     parser.add_argument("--md-batches", type=int, nargs="+", default=[1],
@@ -407,12 +429,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=os.cpu_count(), help="torch threads")
     parser.add_argument("--out", default=None, help="where aits.json and aits.png go (runs/<dataset>/bench/aits)")
     args = parser.parse_args(argv)
-    if min(args.batches + args.md_batches + args.md_steps + [args.md_long_steps, args.repeats, args.long_repeats,
-                                                               args.threads]) < 1 \
+    if min(args.batches + args.md_batches + args.md_steps + args.m2d2m_steps
+           + [args.md_long_steps, args.m2d2m_long_steps or 1, args.repeats, args.long_repeats, args.threads]) < 1 \
             or args.warmup < 0 or not args.long_minutes > 0:
         parser.error("batches, steps, repeats and threads must be at least 1, --warmup at least 0, --long-minutes "
                      "positive")
-    args.md_steps = sorted(set(args.md_steps), reverse=True)  # the paper's many steps first, each respacing after
+    # the paper's many steps first, each respacing after
+    args.md_steps, args.m2d2m_steps = (sorted(set(steps), reverse=True) for steps in (args.md_steps, args.m2d2m_steps))
 
     torch.set_num_threads(args.threads)
     try:

@@ -27,19 +27,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from m2d2m.atomic import atomic_path
-from orchestration.cli import main as m2d2m
 from orchestration.reports import cell, plot_against_knob
-from orchestration.runs import read_run_info, stage_dir
+from stages import DATASET, RUNS, Progress, run
 
-DATASET = "synthetic"
-RUNS = Path("runs") / DATASET
 TESTSET = Path("data") / DATASET / "testsets" / "n4-seed0-distinct"
 OUT = RUNS / "reproduction"
 TRANSITIONS = {"uniform": "β_t (uniform)", "dynamic": "β(t, d) (dynamic)"}
@@ -53,64 +48,6 @@ class Scale:
     diffusion_steps: int
     repeats: int
     ts: tuple[int, ...]
-
-
-def run(*argv: str) -> None:
-    """One `m2d2m` verb, in this process; any failure stops the reproduction."""
-    print("$ m2d2m " + " ".join(argv), flush=True)
-    code = m2d2m(list(argv))
-    if code:
-        raise SystemExit(f"m2d2m {argv[0]} failed (exit {code}); the runs so far are kept, run again to continue")
-
-
-def latest(stage: str) -> Path:
-    return RUNS / stage / (RUNS / stage / "latest").read_text(encoding="utf-8").strip()
-
-
-class Progress:
-    """What this reproduction has started and finished (``state.json``), so that a stopped
-    `make reproduce` continues instead of training and evaluating everything again."""
-
-    def __init__(self, path: Path, scale: Scale, restart: bool) -> None:
-        self.path = path
-        recorded = json.loads(path.read_text(encoding="utf-8")) if path.exists() and not restart else None
-        if recorded is not None and recorded["scale"] != _plain(scale):
-            raise SystemExit(f"{path} records a reproduction at another scale ({recorded['scale']}); "
-                             "run it with the same arguments to continue, or add --restart to start over")
-        self.state = recorded or {"scale": _plain(scale), "started": {}, "finished": {}}
-        self._write()
-
-    def stage(self, key: str, stage: str, finish: Callable[[Path], Any], *argv: str, resume: Sequence[str]) -> Any:
-        """Run ``argv`` for ``key`` unless it finished; a run of ``stage`` that this key started
-        and that did not finish is continued with ``resume`` + its folder (``{run}``) instead.
-        ``finish(run_dir)`` gives what the finished key records."""
-        if key in self.state["finished"]:
-            return self.state["finished"][key]
-        earlier = self._run_started_by(key, stage)
-        if earlier is None:  # never started, or stopped before its run folder existed
-            self.state["started"][key] = time.time()
-            self._write()
-            run(*argv)
-        elif read_run_info(earlier).get("status") != "finished":
-            run(*[arg.replace("{run}", str(earlier)) for arg in resume])
-        self.state["finished"][key] = finish(self._run_started_by(key, stage) or latest(stage))
-        self._write()
-        return self.state["finished"][key]
-
-    def _run_started_by(self, key: str, stage: str) -> Path | None:
-        """The newest run of ``stage`` that began after ``key`` was started, if any."""
-        since = self.state["started"].get(key)
-        folder = stage_dir(DATASET, stage)
-        if since is None or not folder.exists():
-            return None
-        runs = [(read_run_info(p).get("started", 0.0), p) for p in folder.iterdir() if (p / "run.json").exists()]
-        runs = [(started, p) for started, p in runs if started >= since]
-        return max(runs)[1] if runs else None
-
-    def _write(self) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_path(self.path) as temporary:
-            temporary.write_text(json.dumps(self.state, indent=2), encoding="utf-8")
 
 
 def _plain(scale: Scale) -> dict[str, Any]:
@@ -136,9 +73,9 @@ def train(scale: Scale, progress: Progress) -> dict[str, Path]:
     models = {}
     for kind in TRANSITIONS:
         models[kind] = Path(progress.stage(
-            f"denoiser/{kind}", "m2d2m", model_file("model.pt"), "train-diffusion", "--config", "demo",
+            f"denoiser/{kind}", "m2d2m", model_file("model.pt"), "train-diffusion", "--config", "paper-demo",
             "--set", f"vq={vq}", "--set", f"diffusion.kind={kind}", *schedule_overrides(scale.diffusion_steps),
-            resume=("train-diffusion", "--config", "demo", "--resume")))
+            resume=("train-diffusion", "--config", "paper-demo", "--resume")))
     return models
 
 
@@ -208,7 +145,7 @@ def main() -> None:
     scale = (Scale(60, 60, 2, (90, 100)) if args.quick
              else Scale(args.vq_steps, args.diffusion_steps, args.repeats, tuple(sorted({*args.ts, 90, 100}))))
 
-    progress = Progress(OUT / "state.json", scale, args.restart)
+    progress = Progress(OUT / "state.json", _plain(scale), args.restart)
     run("synthesize", "--out", f"data/raw/{DATASET}", "--clips", "2000", "--seed", "0")
     run("data", "--dataset", DATASET, "--raw", f"data/raw/{DATASET}")
     models = train(scale, progress)

@@ -439,9 +439,10 @@ def _add_sampling_knobs(parser: argparse.ArgumentParser) -> None:
     model's multi-action preset (the paper's: T_s = 90 % of T, η = 0.25, s = 2)."""
     parser.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 %% of T: 90 for T = 100)")
     parser.add_argument("--eta", type=float, help="η of the dynamic transition at sampling (default 0.25)")
-    parser.add_argument("--guidance", type=float, help="classifier-free guidance scale s (default 2)")
+    parser.add_argument("--guidance", type=float,
+                        help="classifier-free guidance scale s of the paper's eq. 9, 0 = none (default 2)")
     parser.add_argument("--option", type=_option, action="append", metavar="KEY=VALUE",
-                        help="any sampling option of the model, e.g. --option truncation=0.9 (repeatable)")
+                        help="any sampling option of the model, e.g. --option steps=25 (repeatable)")
 
 
 def _add_generate(verbs) -> None:
@@ -452,7 +453,7 @@ def _add_generate(verbs) -> None:
     generate.add_argument("--method", help="the multi-action method (m2d2m: tps (default), independent, handshake, slerp; "
                           "mmm: transition, independent; motiondiffuse: time-varied, independent)")
     _add_sampling_knobs(generate)
-    generate.add_argument("--truncation", type=float, help="truncation rate r (default 1 = off)")
+    generate.add_argument("--truncation", type=float, help="truncation rate r (default: the model file's; 1 = off)")
     generate.add_argument("--seed", type=int, default=0)
     _add_model_choice(generate, "m2d2m")
     generate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
@@ -515,6 +516,9 @@ def _add_evaluate(verbs) -> None:
                                "repeatable or a comma list (default: each model's first)")
     _add_sampling_knobs(evaluate)
     evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
+    evaluate.add_argument("--multi", action=argparse.BooleanOptionalAction,
+                          help="the multi-motion table's generated rows (default on; --no-multi with --single "
+                               "judges single actions alone, as a learning curve does)")
     evaluate.add_argument("--single", action=argparse.BooleanOptionalAction,
                           help="also the single-motion table (paper Table 3; the model's single-action preset, "
                                "for m2d2m s = 4, η = 0.5)")

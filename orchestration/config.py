@@ -93,8 +93,19 @@ def apply_overrides(config: dict[str, Any], overrides: list[str]) -> dict[str, A
     return result
 
 
-def load_config(stage: str, name_or_path: str, overrides: list[str] | None = None) -> dict[str, Any]:
-    """The resolved config of a stage: the YAML file with the overrides applied."""
+def with_defaults(config: dict[str, Any], defaults: dict[str, Any]) -> dict[str, Any]:
+    """``config`` with every key of ``defaults`` it lacks, section by section (its own values win)."""
+    merged = copy.deepcopy(defaults)
+    for key, value in config.items():
+        merged[key] = with_defaults(value, merged[key]) if isinstance(value, dict) and isinstance(
+            merged.get(key), dict) else value
+    return merged
+
+
+def load_config(stage: str, name_or_path: str, overrides: list[str] | None = None,
+                defaults: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The resolved config of a stage: the YAML file over ``defaults`` (settings every file of the
+    stage may leave out, so an override can still name them), with the overrides applied."""
     path = resolve_config_path(stage, name_or_path)
     try:
         config = yaml.safe_load(path.read_text(encoding="utf-8"))
@@ -102,7 +113,7 @@ def load_config(stage: str, name_or_path: str, overrides: list[str] | None = Non
         raise UserError(f"{path}: not valid YAML ({yaml_problem(error)})") from error
     if not isinstance(config, dict):
         raise UserError(f"{path}: expected a mapping of settings at the top level")
-    return apply_overrides(config, overrides or [])
+    return apply_overrides(with_defaults(config, defaults or {}), overrides or [])
 
 
 def flatten(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:

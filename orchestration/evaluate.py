@@ -135,6 +135,7 @@ class EvalSettings:
     repeats: int
     single: bool
     editing: tuple[str, ...] = ()  # tasks of the editing table (MMM Table 3), each with and without text
+    multi: bool = True  # the multi-motion table's generated rows (False: single-motion or editing only)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "EvalSettings":
@@ -177,7 +178,7 @@ class EvalSettings:
 
 # the settings given as options of their own (the models and sampling options are given apart)
 KNOBS = ("checkpoint", "testset", "evaluator", "guo_evaluator", "glove", "meta", "methods", "repeats", "single",
-         "editing")
+         "editing", "multi")
 
 
 def _given(values: Sequence[str] | str | None) -> list[str]:
@@ -289,7 +290,8 @@ def new_settings(dataset: str, model_name: str | Sequence[str] = "m2d2m",
                  checkpoint: str | Sequence[str] | None = None, testset: str | None = None,
                  evaluator: str | None = None, guo_evaluator: str | None = None, glove: str | None = None,
                  meta: str | None = None, methods: Sequence[str] | None = None, options: dict[str, Any] | None = None,
-                 repeats: int = 10, single: bool = False, editing: Sequence[str] | None = None) -> EvalSettings:
+                 repeats: int = 10, single: bool = False, editing: Sequence[str] | None = None,
+                 multi: bool = True) -> EvalSettings:
     """The settings of a new evaluation of one model or several (``model_name``: a name, a
     comma list or a list; ``checkpoint``: ``REF`` or ``MODEL=REF`` entries, ``latest`` for a
     model not named), with references resolved to files (so that a later ``latest``
@@ -302,6 +304,8 @@ def new_settings(dataset: str, model_name: str | Sequence[str] = "m2d2m",
     if repeats < 1:
         raise UserError(f"--repeats must be at least 1, got {repeats}")
     tasks = tuple(_split(editing))
+    if not (multi or single or tasks):
+        raise UserError("--no-multi leaves nothing to evaluate: add --single or --edit TASK")
     chosen_edits = _edits(tasks, generators)
     checkpoints = _checkpoints(names, checkpoint)
     chosen_methods, chosen_options = _methods(methods, generators), _options(dict(options or {}), generators)
@@ -322,7 +326,7 @@ def new_settings(dataset: str, model_name: str | Sequence[str] = "m2d2m",
                                  chosen_methods[name], chosen_options[name], chosen_edits[name]) for name in names)
     return EvalSettings(candidates=candidates, testset=None if testset is None else str(Path(testset).resolve()),
                         evaluator=str(evaluator_path), glove=glove, meta=meta, repeats=int(repeats),
-                        single=bool(single), editing=tasks)
+                        single=bool(single), editing=tasks, multi=bool(multi))
 
 
 def reopen(reference: str, dataset: str) -> tuple[Path, EvalSettings]:
@@ -360,7 +364,8 @@ class Job:
 
 
 def _jobs(settings: EvalSettings) -> list[Job]:
-    jobs = [Job(c, "multi", settings.row(c, m), r, method=m) for c, m in settings.rows() for r in range(settings.repeats)]
+    jobs = [Job(c, "multi", settings.row(c, m), r, method=m) for c, m in settings.rows() for r in range(settings.repeats)
+            if settings.multi]
     if settings.single:
         jobs += [Job(c, "single", settings.single_row(c), r) for c in settings.candidates if c.methods
                  for r in range(settings.repeats)]
@@ -547,7 +552,8 @@ def _log_children(run_dir: Path, settings: EvalSettings, samplings: dict[str, Sa
         codec = table["codecs"].get(candidate.model)
         shared = {row: values for row, values in table["multi"].items() if row in (GT_SINGLE, GT_CONCAT)}
         one = {"multi": {**shared, **({RECONSTRUCTION: table["multi"][codec]} if codec else {}),
-                         **{method: table["multi"][settings.row(candidate, method)] for method in candidate.methods}}}
+                         **{method: table["multi"][settings.row(candidate, method)] for method in candidate.methods
+                            if settings.multi}}}
         if "single" in table and candidate.methods:
             one["single"] = {GENERATED: table["single"][settings.single_row(candidate)],
                              **({RECONSTRUCTION: table["single"][codec]} if codec else {})}

@@ -121,15 +121,16 @@ def plot_fig5(path: Path, curves: dict[str, dict[str, Any]]) -> Path:
 
 
 Point = tuple[float, float, float | None]  # a knob's value, a metric's mean, its 95 % half-width (or None)
-KNOB_METRICS = (("jerk", "Jerk (transitions)"), ("fid", "FID (individual motions)"))
+KNOB_METRICS = (("jerk", "Jerk (transitions)"), ("fid", "FID (individual motions)"),
+                ("r_top3", "R-Top3 (individual motions)"))
 
 
 def plot_against_knob(path: Path, series: dict[str, dict[str, list[Point]]], knob: str) -> Path:
-    """Jerk and FID against a sampling knob (T_s, η, ...), one line per label of
+    """Jerk, FID and R-Top3 against a sampling knob (T_s, η, steps, ...), one line per label of
     ``series[metric]``, with error bars where a point has a half-width."""
     from matplotlib.figure import Figure
 
-    figure = Figure(figsize=(9, 3.6), dpi=110, layout="constrained")
+    figure = Figure(figsize=(12, 3.6), dpi=110, layout="constrained")
     for axes, (metric, title) in zip(figure.subplots(1, len(KNOB_METRICS)), KNOB_METRICS):
         for label, points in series.get(metric, {}).items():
             points = sorted(p for p in points if p[1] is not None)

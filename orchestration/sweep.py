@@ -88,7 +88,9 @@ def training_overrides(params: dict[str, Any]) -> list[str]:
 def _check_training_space(config: dict[str, Any]) -> None:
     """Every value of the space applied to the model's training config, as the trials will: an
     unknown key or a value of the wrong kind is one line now, not a traceback inside a Ray trial."""
-    base = load_config(model(config["model"]).configs, config["train_config"], [])
+    from orchestration.train import TRAINING_DEFAULTS
+
+    base = load_config(model(config["model"]).configs, config["train_config"], [], TRAINING_DEFAULTS)
     for key, values in config["space"].items():
         for value in values:
             try:

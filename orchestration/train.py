@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import json
 import math
 import os
 from collections.abc import Callable, Iterator
@@ -44,6 +45,9 @@ from orchestration.tracking import artifact_location, ensure_experiment, experim
 VQ_STAGE = "vq"
 EVALUATOR_STAGE = "evaluator"
 EVALUATOR_FILE = "evaluator.pt"
+SNAPSHOTS = "snapshots"  # a run's folder of weights at chosen steps (trainer.snapshots)
+# Trainer settings every training config may leave out: off unless asked for (see fit)
+TRAINING_DEFAULTS = {"trainer": {"ema": 0.0, "snapshots": []}}
 JOIN_RUN = "M2D2M_JOIN_RUN"  # environment: the run directory a DDP rank started by Lightning joins
 
 
@@ -75,6 +79,14 @@ def _check_settings(config: dict[str, Any]) -> None:
     for key in ("max_steps", "val_every_steps"):
         if not _is_count(trainer_cfg[key]):
             raise UserError(f"trainer.{key} must be a whole number of steps >= 1, got {trainer_cfg[key]!r}")
+    ema = trainer_cfg.get("ema") or 0.0
+    if not (_is_finite_number(ema) and 0.0 <= ema < 1.0):
+        raise UserError(f"trainer.ema must be a decay in [0, 1) (0: off), got {ema!r}")
+    snapshots = trainer_cfg.get("snapshots") or []
+    if not isinstance(snapshots, list) or not all(_is_count(step) and step <= trainer_cfg["max_steps"]
+                                                  for step in snapshots):
+        raise UserError(f"trainer.snapshots must be a list of steps from 1 to trainer.max_steps "
+                        f"({trainer_cfg['max_steps']}), got {snapshots!r}")
     if trainer_cfg["accelerator"] not in ACCELERATORS:
         raise UserError(f"trainer.accelerator must be one of {', '.join(ACCELERATORS)}, "
                         f"got {trainer_cfg['accelerator']!r}")
@@ -133,7 +145,7 @@ def open_run(stage: str, configs: str, config_name: str, overrides: list[str], r
     if join is not None:
         info = read_run_info(join)
         return join, info["config"], info.get("mlflow_run_id")
-    config = load_config(configs, config_name, overrides)
+    config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS)
     _check_settings(config)
     if not resume:
         run_dir = new_run_dir(config["dataset"], stage)
@@ -209,14 +221,20 @@ def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, r
         monitor: str, callbacks: list, ray_train: bool = False) -> _Fitted:
     """What every training stage shares: the MLflow run and its params, best and last
     checkpoints, the trainer (DDP when it has several devices or Ray Train workers), resume, the
-    NaN stop, and reloading the best weights."""
+    NaN stop, an exponential moving average of the weights (``trainer.ema``), snapshots at chosen
+    steps (``trainer.snapshots``), and reloading the best weights."""
     import lightning.pytorch as pl
-    from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+    from lightning.pytorch.callbacks import EMAWeightAveraging, LearningRateMonitor, ModelCheckpoint
 
-    from training.callbacks import StepProgressBar
+    from training.callbacks import StepProgressBar, StepSnapshots
     from training.vq_module import NonFiniteLossError
 
     trainer_cfg = config["trainer"]
+    if trainer_cfg.get("ema"):
+        # validation, checkpoints (best, last, snapshots) and so the model file see the averaged weights
+        callbacks = [*callbacks, EMAWeightAveraging(decay=trainer_cfg["ema"], use_buffers=False)]
+    if trainer_cfg.get("snapshots"):
+        callbacks = [*callbacks, StepSnapshots(run_dir / SNAPSHOTS, trainer_cfg["snapshots"])]
     logger = _mlflow_logger(config["dataset"], stage, run_dir, run_id)
     checkpoints = ModelCheckpoint(dirpath=run_dir / "checkpoints", filename="best", monitor=monitor,
                                   mode="min", save_last=True, save_top_k=1)
@@ -255,6 +273,24 @@ def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, r
     return fitted
 
 
+def export_snapshots(run_dir: Path, module, save: Callable[[Path], Path]) -> list[Path]:
+    """Each snapshot of the run (``trainer.snapshots``: the weights after those steps) written by
+    ``save(path)`` as ``snapshots/model-step<N>.pt`` beside its checkpoint, from the module's own
+    weights replaced by the snapshot's; call it after the run's model file is written. Only the
+    snapshots whose seconds were recorded count (a snapshot cut short by a kill is not)."""
+    from training.callbacks import StepSnapshots
+
+    directory = run_dir / SNAPSHOTS
+    seconds = directory / StepSnapshots.SECONDS
+    steps = sorted(int(step) for step in json.loads(seconds.read_text(encoding="utf-8"))) if seconds.exists() else []
+    written = []
+    for step in steps:
+        snapshot = torch.load(directory / f"step-{step}.ckpt", map_location="cpu", weights_only=True)
+        module.load_state_dict(snapshot["state_dict"])
+        written.append(save(directory / f"model-step{step}.pt"))
+    return written
+
+
 def finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -> None:
     """Log the run's files to MLflow, record its final validation metrics, mark it ``latest``."""
     for path in artifacts:
@@ -276,7 +312,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     from training.data import MotionWindowDataModule
     from training.vq_module import VQVAEModule
 
-    stage = vq_stage(load_config(VQ_STAGE, config_name, overrides or [])["model"].get("part", FULL))
+    stage = vq_stage(load_config(VQ_STAGE, config_name, overrides or [], TRAINING_DEFAULTS)["model"].get("part", FULL))
     run_dir, config, run_id = open_run(stage, VQ_STAGE, config_name, overrides or [], resume)
     data, trainer_cfg = config["data"], config["trainer"]
     try:

@@ -105,7 +105,7 @@ TINY_DIFFUSION = {
     "data": {"batch_size": 4, "num_workers": 0, "max_tokens": None},
     "text": {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
     "denoiser": {"layers": 1, "heads": 2, "width": 16, "ffn": 32, "dropout": 0.0, "max_distance": 16,
-                 "num_buckets": 8, "condition_drop": 0.1},
+                 "num_buckets": 8, "condition_drop": 0.1, "positions": "relative"},
     "diffusion": {"steps": 8, "kind": "dynamic", "eta": 0.5, "distance": "l2_rank", "schedule": "linear",
                   "aux_weight": 5e-4, "timestep_sampling": "uniform"},
     "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1, "milestones": [100],

@@ -42,25 +42,27 @@ def test_mmm_long_sequence_is_split_into_the_fewest_even_actions():
 def test_aits_and_long_sequence_of_three_models_in_one_run(three_models, capsys):
     out = three_models / "aits"
     main(["--dataset", "tiny", "--lengths", "8", "16", "--batches", "1", "2", "--warmup", "0", "--repeats", "2",
+          "--m2d2m-steps", "8", "2", "--m2d2m-long-steps", "4",
           "--md-steps", "10", "50", "--md-batches", "1", "--md-long-steps", "5",
           "--long-minutes", "0.05", "--action-frames", "24", "--long-repeats", "1", "--threads", "1",
           "--out", str(out)])
     result = json.loads((out / "aits.json").read_text(encoding="utf-8"))
     rows = {(row["series"], row["batch"], row["frames"]): row for row in result["aits"]}
     md = ("motiondiffuse (50 steps)", "motiondiffuse (10 steps)")
-    # MotionDiffuse at --md-batches only, once per number of steps (most first)
-    assert set(rows) == ({(m, b, f) for m in ("mmm", "m2d2m") for b in (1, 2) for f in (8, 16)}
+    m2 = ("m2d2m (8 steps)", "m2d2m (2 steps)")
+    # M2D2M at --batches and MotionDiffuse at --md-batches, once per number of steps (most first)
+    assert set(rows) == ({(m, b, f) for m in ("mmm", *m2) for b in (1, 2) for f in (8, 16)}
                          | {(m, 1, f) for m in md for f in (8, 16)})
-    assert list(dict.fromkeys(row["series"] for row in result["aits"])) == ["mmm", "m2d2m", *md]
+    assert list(dict.fromkeys(row["series"] for row in result["aits"])) == ["mmm", *m2, *md]
     for (series, batch, _), row in rows.items():
         assert row["model"] == series.split(" ")[0]
         assert len(row["times"]) == 2 and all(t > 0 for t in row["times"])
         assert row["aits"] == pytest.approx(statistics.median(row["times"]) / batch)
         assert row["spread"][0] <= row["aits"] <= row["spread"][1]
-    # MMM's T_dyn grows with the length, M2D2M always takes its T (8 steps for the tiny model),
-    # MotionDiffuse the steps it is given whatever the length
+    # MMM's T_dyn grows with the length, M2D2M and MotionDiffuse take the steps they are given
+    # whatever the length (all T = 8 of the tiny denoiser, or 2)
     assert rows[("mmm", 1, 8)]["passes"] <= rows[("mmm", 1, 16)]["passes"] <= 10
-    assert rows[("m2d2m", 1, 8)]["passes"] == rows[("m2d2m", 1, 16)]["passes"] == 8
+    assert [rows[(m, 1, f)]["passes"] for m in m2 for f in (8, 16)] == [8, 8, 2, 2]
     assert [rows[(m, 1, f)]["passes"] for m in md for f in (8, 16)] == [50, 50, 10, 10]
 
     long = result["long"]
@@ -75,13 +77,15 @@ def test_aits_and_long_sequence_of_three_models_in_one_run(three_models, capsys)
     assert all(m["parameters"] for m in result["models"].values())
     assert set(result["models"]["motiondiffuse"]["parameters"]) == {"network", "text_encoder"}  # no codec
     assert result["models"]["motiondiffuse"]["long"].startswith("5 of T = 50 steps")
+    assert result["models"]["m2d2m"]["long"].endswith("4 of 8 steps")
     assert result["machine"]["torch_threads"] == 1
     assert (out / "aits.png").stat().st_size > 0
     printed = capsys.readouterr().out
     assert "AITS, 2 sentence(s) per call" in printed and "| mmm | transition |" in printed
     assert "| motiondiffuse | time-varied, 5 of T = 50 steps |" in printed
-    assert "motiondiffuse (50 steps) / motiondiffuse (10 steps)" in printed
-    assert "The respaced sampler: 50 → 10 steps (5.0× fewer)" in printed
+    assert "motiondiffuse (10 steps) / mmm" in printed and "m2d2m (2 steps) / mmm" in printed
+    assert "Fewer steps: 50 → 10 (5.0× fewer) makes motiondiffuse's call" in printed
+    assert "Fewer steps: 8 → 2 (4.0× fewer) makes m2d2m's call" in printed
 
 
 def test_steps_motiondiffuse_was_not_trained_with_are_refused(three_models):

@@ -136,13 +136,16 @@ def test_runs_on_four_times_the_training_length():
         -1, 4 * train_length - SMALL.max_distance))
 
 
-def test_guided_logits_is_log_space_guidance():
+def test_guided_logits_is_the_papers_eq_9():
+    """log p = (s + 1)·log p(c) − s·log p(∅): s = 0 is the conditional model alone, and s = 3 is
+    VQ-Diffusion's u + 4·(c − u)."""
     cond = torch.randn(2, 5, 7)
     uncond = torch.randn(2, 5, 7)
-    torch.testing.assert_close(guided_logits(cond, uncond, 1.0), torch.log_softmax(cond, -1))
-    torch.testing.assert_close(guided_logits(cond, uncond, 0.0), torch.log_softmax(uncond, -1))
-    expected = torch.log_softmax(uncond + 3.0 * (cond - uncond), -1)
+    torch.testing.assert_close(guided_logits(cond, uncond, 0.0), torch.log_softmax(cond, -1))
+    torch.testing.assert_close(guided_logits(cond, uncond, -1.0), torch.log_softmax(uncond, -1))
+    expected = torch.log_softmax(4.0 * torch.log_softmax(cond, -1) - 3.0 * torch.log_softmax(uncond, -1), -1)
     torch.testing.assert_close(guided_logits(cond + 4.0, uncond - 2.0, 3.0), expected)
+    torch.testing.assert_close(guided_logits(cond, uncond, 3.0), torch.log_softmax(uncond + 4.0 * (cond - uncond), -1))
     assert torch.allclose(guided_logits(cond, uncond, 3.0).exp().sum(-1), torch.ones(2, 5))
 
 
@@ -191,3 +194,87 @@ def test_paper_size_parameter_count_and_forward(capsys):
     assert logits.shape == (2, 49, 512) and torch.isfinite(logits).all()
     with capsys.disabled():
         print(f"\npaper-size denoiser: {count:,} parameters, forward (2, 49) on CPU {elapsed * 1000:.0f} ms")
+
+
+# --------------------------------------------------------------------- positions within the action
+def trained_on_positions(positions: str, steps: int = 150) -> MotionDenoiser:
+    """A tiny denoiser trained on all-[MASK] inputs whose target code is the position's index
+    (clips of 4 to 8 tokens): the denoiser can learn it only if it knows where each token is."""
+    torch.manual_seed(0)
+    config = DenoiserConfig.from_dict({**SMALL.to_dict(), "positions": positions})
+    model = MotionDenoiser(config)
+    optimiser = torch.optim.Adam(model.parameters(), lr=3e-3)
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(steps):
+        lengths = torch.randint(4, 9, (16,), generator=generator)
+        valid = torch.arange(8)[None, :] < lengths[:, None]
+        tokens = torch.full((16, 8), config.codebook_size)
+        targets = torch.arange(8).expand(16, -1)
+        logits = model(tokens, valid, torch.full((16,), config.steps), None)
+        loss = torch.nn.functional.cross_entropy(logits[valid], targets[valid])
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    return model.eval()
+
+
+def test_all_mask_logits_tell_positions_apart_only_with_action_offsets():
+    """The paper's relative bias alone gives every position of an all-[MASK] input the same logits
+    (what the issue measured on the demo model: 2.6e-6 apart); offsets within the action let a
+    trained denoiser tell them apart, and predict each position's own code."""
+    tokens = torch.full((1, 8), SMALL.codebook_size)
+    t = torch.tensor([SMALL.steps])
+    models = {positions: trained_on_positions(positions) for positions in ("relative", "action")}
+    with torch.no_grad():
+        relative, action = (models[positions](tokens, None, t, None) for positions in ("relative", "action"))
+    assert float((relative - relative[:, :1]).abs().max()) < 1e-4
+    assert float((action - action[:, :1]).abs().max()) > 1.0
+    assert torch.equal(action[0].argmax(dim=-1), torch.arange(8))
+
+
+def test_action_offsets_restart_at_each_action_and_match_one_action_rows():
+    from m2d2m.networks.m2d2m_denoiser import action_offsets, row_offsets
+
+    offsets = action_offsets([[3, 2], [4]], 6)
+    assert offsets[0, :, 0].tolist() == [0, 1, 2, 0, 1, 0] and offsets[0, :, 1].tolist() == [2, 1, 0, 1, 0, 0]
+    assert offsets[1, :, 0].tolist() == [0, 1, 2, 3, 0, 0] and offsets[1, :, 1].tolist() == [3, 2, 1, 0, 0, 0]
+    valid = torch.tensor([[True] * 4 + [False] * 2, [True] * 6])
+    assert torch.equal(row_offsets(valid), action_offsets([[4], [6]], 6))
+
+
+def test_a_joint_row_of_two_actions_sees_each_actions_offsets():
+    """Two actions in one row (the joint phase) are embedded with their own offsets: the logits
+    differ from reading the row as one action, and padding after the row still changes nothing."""
+    torch.manual_seed(0)
+    model = MotionDenoiser(DenoiserConfig.from_dict({**SMALL.to_dict(), "positions": "action"})).eval()
+    tokens, _, t, text, text_mask = inputs(batch=1, length=10)
+    from m2d2m.networks.m2d2m_denoiser import action_offsets
+
+    with torch.no_grad():
+        joint = model(tokens, None, t, text, text_mask, action_offsets([[4, 6]], 10))
+        whole = model(tokens, None, t, text, text_mask)
+        padded = model(torch.cat([tokens, tokens[:, :3]], 1), torch.arange(13)[None] < 10, t, text, text_mask,
+                       action_offsets([[4, 6]], 13))
+    assert not torch.allclose(joint, whole, atol=1e-3)
+    torch.testing.assert_close(padded[:, :10], joint, atol=1e-5, rtol=0)
+
+
+def test_codebook_embedding_projects_the_frozen_code_vectors_and_travels_in_the_state_dict():
+    codebook = torch.randn(SMALL.codebook_size, 6, generator=torch.Generator().manual_seed(2))
+    config = DenoiserConfig.from_dict({**SMALL.to_dict(), "embedding": "codebook", "code_dim": 6})
+    torch.manual_seed(0)
+    model = MotionDenoiser(config, codebook).eval()
+    tokens = torch.tensor([[0, 3, SMALL.codebook_size, 3]])
+    embedded = model.embed(tokens)
+    torch.testing.assert_close(embedded[0, 1], model.code_projection(codebook[3]))
+    torch.testing.assert_close(embedded[0, 3], embedded[0, 1])
+    torch.testing.assert_close(embedded[0, 2], model.mask_vector)
+    assert not any(name == "codebook" for name, _ in model.named_parameters())  # frozen: a buffer
+    again = MotionDenoiser(config)  # a saved state dict brings the codebook
+    again.load_state_dict(model.state_dict())
+    torch.testing.assert_close(again.codebook, codebook)
+    tokens, mask, t, text, text_mask = inputs()
+    with torch.no_grad():
+        torch.testing.assert_close(again.eval()(tokens, mask, t, text, text_mask), model(tokens, mask, t, text, text_mask))
+    with pytest.raises(ValueError, match=r"the codebook is \(16, 5\), the config asks for \(16, 6\)"):
+        MotionDenoiser(config, torch.zeros(SMALL.codebook_size, 5))

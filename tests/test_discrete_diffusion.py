@@ -251,6 +251,53 @@ def test_posterior_probs_mixture_batched_over_positions_and_t(codebook, dynamic,
                           dynamic.posterior_probs(z_t, x0, per_sample.expand(3, 4)))
 
 
+def span_by_paths(steps: list[list[list[float]]], t: int, s: int) -> list[list[float]]:
+    """q(z_t = i | z_s = j) by summing every path j → z_{s+1} → … → z_t = i of one-step moves."""
+    span = [[0.0] * (K + 1) for _ in range(K + 1)]
+    for j in range(K + 1):
+        for path in itertools.product(range(K + 1), repeat=t - s):
+            p, prev = 1.0, j
+            for r, state in enumerate(path, start=s + 1):
+                p *= steps[r][state][prev]
+                prev = state
+            span[path[-1]][j] += p
+    return span
+
+
+@pytest.mark.parametrize("t,s", [(5, 2), (4, 0), (3, 1), (5, 4)])
+def test_skip_posterior_matches_brute_force_paths(codebook, dynamic, marginals, t, s):
+    """q(z_s | z_t, z0) over a jump of Δ = t − s steps, by Bayes' rule on the path sums of one-step
+    matrices (q(z_s | z0) from the enumerated marginals), for every z_t and z0; and the mixture
+    under predicted x0 probabilities."""
+    steps = ref_step(codebook, "dynamic", "l2_rank", "linear", ETA)
+    span = span_by_paths(steps, t, s)
+    assert close(dynamic.span_matrix(t, s), span)
+    x0 = torch.softmax(torch.randn(K, generator=torch.Generator().manual_seed(t), dtype=torch.float64), dim=0)
+    for z_t in range(K + 1):
+        mixture = [0.0] * (K + 1)
+        for z0 in range(K):
+            joint = [marginals[z0][s][j] * span[z_t][j] for j in range(K + 1)]
+            total = sum(joint)
+            truth = [p / total for p in joint] if total > 0 else [0.0] * (K + 1)
+            onehot = torch.zeros(K, dtype=torch.float64)
+            onehot[z0] = 1.0
+            if total > 0:
+                assert close(dynamic.posterior_probs(torch.tensor(z_t), onehot, t, s), truth)
+            mixture = [m + float(x0[z0]) * p for m, p in zip(mixture, truth)]
+        assert close(dynamic.posterior_probs(torch.tensor(z_t), x0, t, s), mixture)
+
+
+def test_one_step_jumps_are_the_one_step_posterior(dynamic):
+    gen = torch.Generator().manual_seed(8)
+    z_t = torch.randint(0, K + 1, (7,), generator=gen)
+    x0 = torch.softmax(torch.randn(7, K, generator=gen, dtype=torch.float64), dim=-1)
+    for t in range(1, T + 1):
+        assert torch.equal(dynamic.posterior_probs(z_t, x0, t, t - 1), dynamic.posterior_probs(z_t, x0, t))
+        assert torch.equal(dynamic.span_matrix(t, t - 1), dynamic.step_matrix(t))
+    with pytest.raises(ValueError, match="0 <= s < t"):
+        dynamic.span_matrix(3, 3)
+
+
 def test_q_sample_frequencies_match_marginals(dynamic):
     z0 = torch.tensor([0, 3])
     draws = 20000
@@ -324,6 +371,27 @@ def test_loss_importance_weight_and_perfect_prediction(dynamic):
     plain = diffusion_loss(dynamic, random_logits, z0, z_t, 3)
     weighted = diffusion_loss(dynamic, random_logits, z0, z_t, 3, pt=torch.full((2,), 0.5 / T))
     assert torch.allclose(weighted.loss, 2 * plain.loss)
+
+
+def test_importance_weights_keep_the_loss_unbiased(dynamic):
+    """Drawing t from a learned, non-uniform p(t) and weighting each loss by 1/(T·p(t)) has the
+    expectation of uniform sampling: exactly over the distribution, and empirically over draws."""
+    gen = torch.Generator().manual_seed(9)
+    z0 = torch.randint(0, K, (1, 5), generator=gen)
+    logits = torch.randn(1, 5, K, generator=gen)
+    z_t = {t: dynamic.q_sample(z0, t, generator=gen) for t in range(1, T + 1)}
+    plain = {t: float(diffusion_loss(dynamic, logits, z0, z_t[t], t).loss) for t in range(1, T + 1)}
+    sampler = TimestepSampler(steps=T, mode="importance", warmup=0)
+    sampler.update(torch.arange(1, T + 1), torch.tensor([plain[t] * t for t in range(1, T + 1)]))
+    probs = sampler.probs()
+    assert float(probs.max() / probs.min()) > 2  # far from uniform
+    weighted = {t: float(diffusion_loss(dynamic, logits, z0, z_t[t], t, pt=probs[t - 1:t]).loss)
+                for t in range(1, T + 1)}
+    uniform_mean = sum(plain.values()) / T
+    assert abs(sum(float(probs[t - 1]) * weighted[t] for t in range(1, T + 1)) - uniform_mean) < 1e-6
+    draws, pt = sampler.sample(40000, generator=gen)
+    estimate = sum(weighted[int(t)] * float(probs[int(t) - 1]) / float(p) for t, p in zip(draws, pt)) / len(draws)
+    assert abs(estimate - uniform_mean) < 0.03 * uniform_mean
 
 
 def test_timestep_sampler():

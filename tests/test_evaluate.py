@@ -117,6 +117,21 @@ def test_resume_recomputes_only_missing_results(trained_project, evaluated, monk
     assert again["metrics"] == pytest.approx(kept["metrics"], rel=1e-4)  # same seeds, same tokens (float32 batches)
 
 
+def test_single_motion_alone_with_fewer_steps_and_the_no_multi_switch(trained_project, tiny_testset):
+    """--no-multi --single: the single-motion table alone (a learning curve's points), sampled with
+    the steps option; the multi table keeps only its reference rows."""
+    arguments = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--no-multi", "--single",
+                 "--repeats", "1", "--option", "steps=3", "--batch-size", "8"]
+    assert main(arguments) == 0
+    stage = trained_project / "runs" / "tiny" / "eval"
+    run_dir = stage / (stage / "latest").read_text(encoding="utf-8").strip()
+    table = json.loads((run_dir / "table.json").read_text(encoding="utf-8"))
+    assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction"}
+    assert np.isfinite(table["single"]["generated"]["fid"]["mean"]) and table["settings"]["multi"] is False
+    assert [p.name for p in (run_dir / "results").iterdir()] == ["single-r0.json"]
+    assert "3 of 8 steps" in " ".join(table["notes"])
+
+
 @pytest.fixture(scope="module")
 def other_dim_testset(tmp_path_factory) -> Path:
     """A test set of 251-d features (a KIT-ML-shaped dataset), for the dimension check."""
@@ -138,6 +153,8 @@ def other_dim_testset(tmp_path_factory) -> Path:
     (["--guo-evaluator", "guo"], "--guo-evaluator needs --glove DIR"),
     (["--resume", "some-run", "--repeats", "3"], "with its own settings; drop --repeats"),
     (["--resume", "no-such-run"], "no eval run 'no-such-run'"),
+    (["--no-multi"], "--no-multi leaves nothing to evaluate: add --single or --edit TASK"),
+    (["--option", "steps=9", "--single"], "steps must lie in 1..T = 8"),
 ])
 def test_bad_input_is_one_line_and_exit_2(trained_project, tiny_testset, other_dim_testset, capsys, arguments, message):
     arguments = [a.replace("{other}", str(other_dim_testset)) for a in arguments]

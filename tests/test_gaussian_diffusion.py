@@ -14,7 +14,8 @@ import pytest
 import torch
 
 from m2d2m.networks.config import ConfigError
-from m2d2m.processes.gaussian_diffusion import VARIANCES, GaussianDiffusion, linear_betas, timestep_buckets
+from m2d2m.processes.gaussian_diffusion import (VARIANCES, GaussianDiffusion, cosine_betas, linear_betas,
+                                              timestep_buckets)
 
 T = 1000
 
@@ -350,3 +351,44 @@ def test_timestep_buckets() -> None:
         timestep_buckets(torch.tensor([-1]), T)
     with pytest.raises(ConfigError):
         timestep_buckets(t, T, buckets=0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Options of ours: the cosine schedule, x_0-prediction
+
+
+def test_cosine_betas_follow_nichol_and_dhariwal_eq_17() -> None:
+    betas = cosine_betas(100)
+    s = 0.008
+    f = [math.cos((t / 100 + s) / (1 + s) * math.pi / 2) ** 2 for t in range(101)]
+    for t in (0, 1, 50, 98):  # ᾱ(t) = f(t)/f(0) as the product of (1 − β)
+        assert ref_alpha_bar(list(betas), t) == pytest.approx(f[t + 1] / f[0], rel=1e-9)
+    assert betas[-1] == pytest.approx(0.999)  # clipped at the end, where f reaches 0
+    assert np.all(np.diff(betas) > 0) and betas[0] > 0
+    with pytest.raises(ConfigError):
+        cosine_betas(0)
+
+
+def test_predict_eps_inverts_q_sample(process: GaussianDiffusion) -> None:
+    gen = torch.Generator().manual_seed(6)
+    x0 = torch.randn(3, 5, 2, dtype=torch.float64, generator=gen)
+    eps = torch.randn(3, 5, 2, dtype=torch.float64, generator=gen)
+    t = torch.tensor([0, 300, 999])
+    xt = process.q_sample(x0, t, eps)
+    torch.testing.assert_close(process.predict_eps(xt, t, x0), eps, rtol=0, atol=1e-6)
+
+
+def test_an_oracle_x0_predictor_samples_what_the_oracle_eps_predictor_does(process: GaussianDiffusion) -> None:
+    """A network that predicts x_0 is sampled through the ε its x_0 implies: the oracle E[x_0 | x_t]
+    fed through predict_eps gives E[ε | x_t], step for step."""
+    sampler = process.respaced(50)
+    gen = torch.Generator().manual_seed(7)
+    x = torch.randn(1000, dtype=torch.float64, generator=gen)
+    for i in reversed(range(sampler.num_steps)):
+        t = full(i, 1000)
+        network_t = sampler.network_steps(t)
+        eps = oracle_eps(process, x, network_t)
+        a_bar = torch.as_tensor(process.alphas_cumprod, dtype=torch.float64)[network_t]
+        x0 = (x - (1 - a_bar).sqrt() * eps) / a_bar.sqrt()  # E[x_0 | x_t], by the same eq. 3
+        torch.testing.assert_close(sampler.predict_eps(x, t, x0), eps, rtol=1e-6, atol=1e-6)
+        x = sampler.ddim_sample(x, t, eps, torch.zeros_like(x))

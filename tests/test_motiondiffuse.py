@@ -329,6 +329,40 @@ def test_module_logs_the_loss_per_quarter_of_the_steps():
     assert previews[0].shape == (12, D)
 
 
+def test_x0_prediction_and_the_cosine_schedule_are_what_the_module_trains_and_samples_with(tmp_path):
+    """``diffusion.prediction: x0`` makes x_0 the regression target; the generator turns the
+    network's x_0 into the ε it implies (``sample(prediction="x0")``), so a network whose output
+    is x_0 = 0 samples what an ε network predicting predict_eps(x_t, t, 0) does."""
+    diffusion = {"steps": 30, "schedule": "cosine", "prediction": "x0"}
+    module = MotionDiffuseModule({k: v for k, v in tiny_config().to_dict().items() if k not in ("feature_dim", "text_dim")},
+                                 {"kind": "learned", "dim": 16, "layers": 1, "heads": 2}, diffusion, {"lr": 1e-3}, D,
+                                 0.0, LearnedTextEncoder.build_vocabulary(SENTENCES))
+    assert module.process.betas[-1] == pytest.approx(0.999)  # the cosine schedule's clipped end
+    batch = {"motion": torch.randn(4, 16, D), "lengths": torch.tensor([16, 12, 16, 8]), "text": SENTENCES}
+    seen = {}
+    original = module.network.forward
+    module.network.forward = lambda *args: seen.setdefault("out", original(*args))
+    losses, _ = module._losses(batch, torch.Generator().manual_seed(0))
+    x0 = (batch["motion"] - module.feature_mean) / module.feature_scale
+    torch.testing.assert_close(losses, masked_mse(seen["out"].float(), x0, batch["lengths"]))
+    with pytest.raises(ConfigError, match="diffusion.prediction one of epsilon, x0"):
+        MotionDiffuseModule({}, {"kind": "learned", "dim": 16}, {"prediction": "v"}, {}, D, 0.0,
+                            LearnedTextEncoder.build_vocabulary(SENTENCES))
+
+    network = MotionDiffuseTransformer(tiny_config())  # a fresh network predicts 0 everywhere
+    encoder = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2)
+    text = network.encode_text(*encoder.encode(["a person jumps"]))
+    process = GaussianDiffusion(module.process.betas)
+    ddim = lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0)  # noqa: E731
+    request = [Request(12, (Term("a person jumps", 0, 12),), 3)]
+    as_x0 = sample(network, text, request, process, ddim, 0.0, prediction="x0")[0]
+    x = torch.randn(1, 12, D, generator=torch.Generator().manual_seed(3))
+    for index in reversed(range(process.num_steps)):
+        t = torch.full((1,), index)
+        x = ddim(x, t, process.predict_eps(x, t, torch.zeros_like(x)), torch.zeros_like(x))
+    torch.testing.assert_close(as_x0, x[0], rtol=1e-4, atol=1e-4)
+
+
 class _ToyEstimator(torch.nn.Module):
     """ε_θ(x_t, t) for scalar data: an MLP of x_t and a sinusoidal embedding of t."""
 

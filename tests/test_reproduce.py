@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import pytest
 
-from bench import reproduce
-from bench.reproduce import Scale, plot, report
 from orchestration.runs import new_run_dir, newest_run, write_run_info
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `stages` beside them
+import stages  # noqa: E402
+from bench.reproduce import Scale, _plain, plot, report  # noqa: E402
 
 SCALE = Scale(vq_steps=10, diffusion_steps=10, repeats=2, ts=(0, 90, 100))
 
@@ -50,18 +55,18 @@ def test_a_stopped_reproduction_continues_where_it_stopped(tmp_path, monkeypatch
         run_dir = newest_run("synthetic", "vq") if "--resume" in argv else new_run_dir("synthetic", "vq")
         write_run_info(run_dir, status="finished")
 
-    monkeypatch.setattr(reproduce, "run", killed_once)
+    monkeypatch.setattr(stages, "run", killed_once)
     state = tmp_path / "state.json"
     vq = ("train-vq", "--config", "demo")
     with pytest.raises(SystemExit):
-        reproduce.Progress(state, SCALE, restart=False).stage(
+        stages.Progress(state, _plain(SCALE), restart=False).stage(
             "vq", "vq", str, *vq, resume=(*vq, "--resume"))
-    progress = reproduce.Progress(state, SCALE, restart=False)
+    progress = stages.Progress(state, _plain(SCALE), restart=False)
     first = progress.stage("vq", "vq", str, *vq, resume=(*vq, "--resume"))
     assert calls == [vq, (*vq, "--resume")]
     assert first == str(newest_run("synthetic", "vq"))
     assert progress.stage("vq", "vq", str, *vq, resume=(*vq, "--resume")) == first and len(calls) == 2
 
-    with pytest.raises(SystemExit, match="another scale"):
-        reproduce.Progress(state, Scale(1, 1, 1, (90, 100)), restart=False)
-    assert reproduce.Progress(state, Scale(1, 1, 1, (90, 100)), restart=True).state["finished"] == {}
+    with pytest.raises(SystemExit, match="other settings"):
+        stages.Progress(state, _plain(Scale(1, 1, 1, (90, 100))), restart=False)
+    assert stages.Progress(state, _plain(Scale(1, 1, 1, (90, 100))), restart=True).state["finished"] == {}

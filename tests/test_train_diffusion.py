@@ -1,5 +1,6 @@
 """`m2d2m train-diffusion` end to end at toy size: tokenizes first, trains, previews, tracks."""
 
+import json
 from pathlib import Path
 
 import lightning.pytorch as pl
@@ -42,8 +43,27 @@ def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, ti
     model_files = {Path(a.path).name for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, "model")}
     assert {"model.pt", "best.ckpt", "last.ckpt", "config.yaml"} <= model_files
 
-    ablation = train_model("m2d2m", str(project / "diffusion.yaml"), overrides=["diffusion.kind=uniform"])
+    ablation = train_model("m2d2m", str(project / "diffusion.yaml"),
+                           overrides=["diffusion.kind=uniform", "denoiser.positions=action", "trainer.ema=0.5",
+                                      "trainer.snapshots=[1,3]"])
     assert read_run_info(ablation)["config"]["diffusion"]["kind"] == "uniform"
+    # snapshots: a model file per step, each loading as a generator, the weights differing between steps
+    from m2d2m.generators.m2d2m import M2D2MGenerator
+
+    seconds = json.loads((ablation / "snapshots" / "seconds.json").read_text(encoding="utf-8"))
+    assert sorted(seconds) == ["1", "3"] and 0 < seconds["1"] < seconds["3"]
+    snapshots = [M2D2MGenerator.load(ablation / "snapshots" / f"model-step{step}.pt") for step in (1, 3)]
+    assert snapshots[0].checkpoint.denoiser.config.positions == "action"
+    first, last = (dict(g.checkpoint.denoiser.state_dict()) for g in snapshots)
+    assert any(not torch.equal(first[name], last[name]) for name in first)
+    # the weight average is what validation and the checkpoints hold: the saved state is not the raw one
+    final = torch.load(ablation / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
+    averaged = final["state_dict"]["denoiser.head.bias"]
+    assert not torch.equal(averaged, final["current_model_state"]["denoiser.head.bias"])
+    with pytest.raises(UserError, match="trainer.snapshots must be a list of steps"):
+        train_model("m2d2m", str(project / "diffusion.yaml"), overrides=["trainer.snapshots=[9]"])
+    with pytest.raises(UserError, match=r"trainer.ema must be a decay in \[0, 1\)"):
+        train_model("m2d2m", str(project / "diffusion.yaml"), overrides=["trainer.ema=1.5"])
 
 
 def test_resume_after_a_kill_continues_at_the_same_step(project):

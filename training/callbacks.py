@@ -1,8 +1,10 @@
-"""Callbacks shared by the training stages: pictures of progress logged to MLflow, and a
-progress bar that counts the steps training is bounded by."""
+"""Callbacks shared by the training stages: pictures of progress logged to MLflow, a progress bar
+that counts the steps training is bounded by, and snapshots of the weights at chosen steps."""
 
 from __future__ import annotations
 
+import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +13,7 @@ import numpy as np
 from lightning.pytorch.callbacks import RichProgressBar
 from lightning.pytorch.loggers import MLFlowLogger
 
+from m2d2m.atomic import atomic_path
 from m2d2m.generators.token_model import TokenCodec
 from m2d2m.motion.render import render_comparison, render_motion
 from m2d2m.motion.representation import features_to_joints
@@ -120,3 +123,41 @@ class StepProgressBar(RichProgressBar):
         last = int(min(trainer.global_step + self.total_train_batches, trainer.max_steps))
         description = f"{f'Step {last}' if first == last else f'Steps {first}–{last}'} of {trainer.max_steps}"
         return f"{description:{len(self.validation_description)}}"  # as Lightning pads it, against flicker
+
+
+class StepSnapshots(pl.Callback):
+    """The weights after each of ``steps`` training steps, as ``<directory>/step-<N>.ckpt``, and the
+    training seconds it took to reach them (``seconds.json``): the points of a learning curve
+    (bench/learning_curves.py) from one run. Seconds are wall-clock from the start of training; a
+    resumed run continues from the last snapshot's count (the time after it until the stop is
+    lost)."""
+
+    SECONDS = "seconds.json"
+
+    def __init__(self, directory: str | Path, steps: list[int]) -> None:
+        self.directory = Path(directory)
+        self.steps = set(steps)
+        self._start = 0.0
+        self._offset = 0.0
+
+    def _recorded(self) -> dict[str, float]:
+        path = self.directory / self.SECONDS
+        return json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
+
+    def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self._start = time.perf_counter()
+        self._offset = max(self._recorded().values(), default=0.0)
+
+    def on_train_batch_end(self, trainer: pl.Trainer, module: pl.LightningModule, *args: Any) -> None:
+        step = trainer.global_step
+        if step not in self.steps:
+            return
+        self.directory.mkdir(parents=True, exist_ok=True)
+        # every rank takes part (Lightning writes on rank 0); a snapshot counts once its seconds are recorded.
+        # A whole checkpoint, so that a weight average (trainer.ema) puts its weights in the state dict.
+        trainer.save_checkpoint(self.directory / f"step-{step}.ckpt")
+        if not trainer.is_global_zero:
+            return
+        seconds = {**self._recorded(), str(step): self._offset + time.perf_counter() - self._start}
+        with atomic_path(self.directory / self.SECONDS) as path:
+            path.write_text(json.dumps(seconds, indent=1), encoding="utf-8")

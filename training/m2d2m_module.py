@@ -55,14 +55,16 @@ class M2D2MModule(pl.LightningModule):
 
         self.text_encoder = text_encoder_from_config(text, vocabulary)
 
-        config = {**denoiser, "codebook_size": num_codes, "steps": steps, "text_dim": self.text_encoder.dim}
+        config = {**denoiser, "codebook_size": num_codes, "code_dim": codebook.shape[1], "steps": steps,
+                  "text_dim": self.text_encoder.dim}
         if "text_dim" in denoiser and denoiser["text_dim"] != self.text_encoder.dim:
             raise ValueError(f"denoiser text_dim ({denoiser['text_dim']}) differs from the text encoder's "
                              f"dim ({self.text_encoder.dim})")
         if "steps" in denoiser and denoiser["steps"] != steps:
             raise ValueError(f"denoiser steps ({denoiser['steps']}) differ from diffusion steps ({steps})")
-        self.denoiser = MotionDenoiser(DenoiserConfig.from_dict(config))
+        self.denoiser = MotionDenoiser(DenoiserConfig.from_dict(config), codebook)
         self.aux_weight = float(diffusion.get("aux_weight", 5e-4))
+        self.adaptive_aux = bool(diffusion.get("adaptive_aux", False))
         self.timesteps = TimestepSampler(steps, diffusion.get("timestep_sampling", "uniform"))
         self.schedule: TransitionSchedule = self._build_schedule()
         # a loaded checkpoint brings its own codebook: rebuild the schedule from it
@@ -104,7 +106,8 @@ class M2D2MModule(pl.LightningModule):
         if drop_condition:
             text, text_mask = self.denoiser.drop_condition(text, text_mask, self.denoiser.config.condition_drop)
         logits = self.denoiser(z_t, valid, t, text, text_mask)
-        loss = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt)
+        loss = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt,
+                              adaptive_aux=self.adaptive_aux)
         return Denoised(z0, valid, z_t, logits, loss)
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:

@@ -10,7 +10,7 @@ import lightning.pytorch as pl
 import numpy as np
 import torch
 
-from m2d2m.generators.motiondiffuse_checkpoint import diffusion_from_config
+from m2d2m.generators.motiondiffuse_checkpoint import diffusion_from_config, prediction_of
 from m2d2m.generators.motiondiffuse_sampling import Request, Term, sample
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.config import ConfigError
@@ -34,7 +34,7 @@ def masked_mse(predicted: torch.Tensor, target: torch.Tensor, lengths: torch.Ten
 
 class MotionDiffuseModule(pl.LightningModule):
     """Uniform t, x_t from q(x_t | x_0) (eq. 3), MSE between ε and ε_θ(x_t, t, text) over the
-    valid frames (eq. 4); AdamW with the config's schedule (the paper: Adam, 2e-4). A fraction
+    valid frames (eq. 4; or between x_0 and the network's x_0 with ``diffusion.prediction: x0``); AdamW with the config's schedule (the paper: Adam, 2e-4). A fraction
     ``text_drop`` of the captions is replaced by the empty sentence, the null condition that
     editing without text asks for (ours, as MMM's). The dataset's normalisation is a buffer, so the
     DataModule hands over raw features and the module normalises them."""
@@ -53,6 +53,7 @@ class MotionDiffuseModule(pl.LightningModule):
             self.process = diffusion_from_config(diffusion)
         except ValueError as error:
             raise ConfigError(str(error)) from error
+        self.prediction = prediction_of(diffusion)
         self.register_buffer("feature_mean", torch.zeros(feature_dim))
         self.register_buffer("feature_scale", torch.ones(feature_dim))
 
@@ -75,7 +76,7 @@ class MotionDiffuseModule(pl.LightningModule):
         t = torch.randint(0, self.process.num_steps, (len(x0),), generator=generator).to(x0.device)
         noise = torch.randn(x0.shape, generator=generator).to(x0.device)
         predicted = self.network(self.process.q_sample(x0, t, noise), t, lengths, self._text(batch["text"], generator))
-        return masked_mse(predicted.float(), noise, lengths), t
+        return masked_mse(predicted.float(), noise if self.prediction == "epsilon" else x0, lengths), t
 
     def _log_losses(self, split: str, losses: torch.Tensor, t: torch.Tensor, **options: Any) -> torch.Tensor:
         loss = losses.mean()
@@ -114,7 +115,8 @@ class MotionDiffuseModule(pl.LightningModule):
             process = self.process.respaced(min(steps, self.process.num_steps))
             requests = [Request(n, (Term(prompt, 0, n),), seed) for prompt, n in zip(prompts, frames)]
             motions = sample(self.network, text, requests, process,
-                             lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0), 0.0)
+                             lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0), 0.0,
+                             prediction=self.prediction)
             return [(x * self.feature_scale + self.feature_mean).cpu().numpy() for x in motions]
         finally:
             self.train(was_training)

@@ -6,7 +6,7 @@ VQ-VAE decoder, from one self-contained checkpoint (:mod:`m2d2m.generators.m2d2m
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,8 @@ class M2D2MGenerator(TokenModelGenerator):
     def __init__(self, checkpoint: Checkpoint, source: Path) -> None:
         self.checkpoint = checkpoint
         self.source = source
+        # the paper's presets, sampled as the model's config chose (steps, truncation)
+        self.presets = {name: replace(preset, **checkpoint.sampling) for name, preset in type(self).presets.items()}
         self.codec, self.lengths, self.extra = checkpoint.codec, checkpoint.lengths, checkpoint.extra
         self.sampler = TokenSampler(checkpoint.denoiser, checkpoint.text_encoder, checkpoint.schedule)
 
@@ -52,7 +54,9 @@ class M2D2MGenerator(TokenModelGenerator):
         steps = self.checkpoint.schedule.steps
         eta = self.checkpoint.schedule.config.eta if options.eta is None else options.eta
         phases = f"T_s = {switch_step(options.ts, steps)} of T = {steps}, " if options.method == "tps" else ""
-        return f"{phases}η = {eta:g}, s = {options.guidance:g}"
+        truncation = f", r = {options.truncation:g}" if options.truncation < 1.0 else ""
+        taken = f", {options.steps} of {steps} steps" if options.steps not in (None, steps) else ""
+        return f"{phases}η = {eta:g}, s = {options.guidance:g}{truncation}{taken}"
 
     # ----------------------------------------------------------------------------- the call
     def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: SamplingOptions,
@@ -65,7 +69,7 @@ class M2D2MGenerator(TokenModelGenerator):
                     for sequence, tokens, seed, kept in zip(actions, lengths, seeds, keep)]
         steps = self.checkpoint.schedule.steps
         tokens = self.sampler.sample(requests, options,
-                                     None if progress is None else lambda t: progress((steps - t + 1) / steps))
+                                     None if progress is None else lambda s: progress((steps - s) / steps))
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
         return [self.decode(pieces, list(sequence), options, {**settings, "seed": int(seed)})
                 for pieces, sequence, seed in zip(tokens, actions, seeds)]

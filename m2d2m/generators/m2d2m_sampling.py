@@ -24,7 +24,15 @@ result does not depend on what else is in the batch, and ``tps`` with T_s = T re
 
 Rows of very different lengths are not padded to the longest: the denoiser runs once per group of
 rows of similar length (:func:`length_groups`), which on test sets of 10- to 50-token actions halves
-the work of a step. Padded positions never reach the posterior.
+the work of a step. Padded positions never reach the posterior. What does not change from step to
+step is computed once per phase: the text's features and every block's cross-attention keys and
+values (:class:`m2d2m.networks.m2d2m_denoiser.Condition`), for the conditional and the null rows
+of classifier-free guidance together.
+
+Fewer steps than the schedule's T (``steps``) jump from t to s < t with the exact posterior
+q(z_s | z_t, z0) (:meth:`TransitionSchedule.posterior_probs`; VQ-Diffusion's fast sampling
+approximates that jump by a one-step posterior at s), on a grid that keeps T_s one of its points
+(:func:`timesteps`); at ``steps`` = T it is the full sampler draw for draw.
 """
 
 from __future__ import annotations
@@ -36,7 +44,7 @@ import torch
 from torch import Tensor
 
 from m2d2m.generators.token_model import FREE
-from m2d2m.networks.m2d2m_denoiser import MotionDenoiser, guided_logits
+from m2d2m.networks.m2d2m_denoiser import Condition, MotionDenoiser, action_offsets, guided_logits
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import TextEncoder, encode_actions
 
@@ -51,8 +59,9 @@ class SamplingOptions:
     method: str = "tps"
     ts: int | None = None  # TPS switch: joint for t > ts, independent for t <= ts; None = 0.9·T (90 of 100)
     eta: float | None = None  # η of the dynamic transition at sampling; None = the η it was trained with
-    guidance: float = 2.0  # classifier-free guidance scale s
+    guidance: float = 2.0  # classifier-free guidance scale s of the paper's eq. 9 (0 = conditional alone)
     truncation: float = 1.0  # keep the most probable codes holding this much x0 mass (1 = off)
+    steps: int | None = None  # reverse steps taken, skipping with exact posteriors; None = all T
     handshake: int = 5  # shared tokens between neighbours (``handshake``); 5 tokens = 20 frames
     slerp: int = 2  # tokens left out before each later action (``slerp``); 2 tokens = 8 frames
 
@@ -68,6 +77,8 @@ class SamplingOptions:
             raise ValueError(f"guidance scale s must be >= 0, got {self.guidance}")
         if not 0.0 < self.truncation <= 1.0:
             raise ValueError(f"truncation r must lie in (0, 1], got {self.truncation}")
+        if self.steps is not None and not 1 <= self.steps <= steps:
+            raise ValueError(f"steps must lie in 1..T = {steps}, got {self.steps}")
         if self.handshake < 1 or self.slerp < 0:
             raise ValueError("handshake must be >= 1 token and slerp >= 0 tokens")
 
@@ -75,6 +86,9 @@ class SamplingOptions:
 MULTI_ACTION = SamplingOptions(method="tps", ts=None, eta=0.25, guidance=2.0)
 # one action has no joint phase: every method samples it alike, ``independent`` says so
 SINGLE_ACTION = SamplingOptions(method="independent", eta=0.5, guidance=4.0)
+# the knobs a model file may set for every preset (its config's ``sampling`` section): how it samples,
+# not what the paper's single- and multi-action settings are
+MODEL_DEFAULTS = ("steps", "truncation")
 
 
 @dataclass
@@ -104,11 +118,13 @@ class Request:
 
 @dataclass
 class _Row:
-    """A row of the batch: which request, which of its stream positions, which condition."""
+    """A row of the batch: which request, which of its stream positions, which condition, and the
+    lengths of the actions it holds in order (their offsets are the denoiser's ``action`` positions)."""
 
     request: int
     stream: slice  # positions in the request's per-step uniform stream
     condition: list[str]
+    actions: list[int]
 
 
 @dataclass
@@ -123,6 +139,30 @@ class _Layout:
 def switch_step(ts: int | None, steps: int) -> int:
     """T_s, defaulting to the paper's 90 of 100 steps scaled to the schedule's T."""
     return round(0.9 * steps) if ts is None else ts
+
+
+def timesteps(total: int, taken: int | None, switch: int) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """The reverse jumps (t, s) of the joint phase (t > ``switch``) and of the independent phase, for
+    ``taken`` of the schedule's ``total`` steps (None: all of them, every jump one step).
+
+    The phases share the steps in proportion to their spans (at least one each when its span is not
+    empty) and each is cut into jumps as even as whole steps allow, so T_s stays a point of the grid:
+    T_s scales with the number of steps."""
+    taken = total if taken is None else taken
+    if not 0 <= switch <= total or not 1 <= taken <= total:
+        raise ValueError(f"need 0 <= T_s <= T and 1 <= steps <= T = {total}, got T_s = {switch}, steps = {taken}")
+    joint_span, independent_span = total - switch, switch
+    joint = min(joint_span, max(1, round(taken * joint_span / total))) if joint_span else 0
+    independent = min(independent_span, max(1, taken - joint)) if independent_span else 0
+    return _jumps(total, switch, joint), _jumps(switch, 0, independent)
+
+
+def _jumps(start: int, stop: int, count: int) -> list[tuple[int, int]]:
+    """``count`` jumps from ``start`` down to ``stop``, their lengths as even as whole steps allow."""
+    if count == 0:
+        return []
+    points = [start - round(i * (start - stop) / count) for i in range(count + 1)]
+    return list(zip(points[:-1], points[1:]))
 
 
 def truncate(probs: Tensor, rate: float) -> Tensor:
@@ -172,20 +212,26 @@ class TokenSampler:
     rebuilds the dynamic schedule's matrices for that η (a few hundred milliseconds at K = 512, T = 100).
     """
 
-    def __init__(self, denoiser: MotionDenoiser, text_encoder: TextEncoder, schedule: TransitionSchedule) -> None:
+    def __init__(self, denoiser: MotionDenoiser, text_encoder: TextEncoder, schedule: TransitionSchedule,
+                 reuse_condition: bool = True) -> None:
         self.denoiser = denoiser
         self.text_encoder = text_encoder
         self.schedule = schedule
+        self.reuse_condition = reuse_condition  # False recomputes the text's keys and values every step
+        self._at_eta: dict[float, TransitionSchedule] = {}
 
     @property
     def device(self) -> torch.device:
         return next(self.denoiser.parameters()).device
 
     def _schedule(self, eta: float | None) -> TransitionSchedule:
-        """The schedule at ``eta`` on the model's device; a ``uniform`` schedule has no η to change."""
+        """The schedule at ``eta`` on the model's device, built once per η (with the jumps it has
+        taken cached in it); a ``uniform`` schedule has no η to change."""
         schedule = self.schedule
         if eta is not None and schedule.config.kind == "dynamic" and float(eta) != schedule.config.eta:
-            schedule = schedule.with_eta(eta)
+            if float(eta) not in self._at_eta:
+                self._at_eta[float(eta)] = schedule.with_eta(eta)
+            schedule = self._at_eta[float(eta)]
         return schedule.to(self.device) if schedule.device != self.device else schedule
 
     # ------------------------------------------------------------------------------------- public
@@ -194,7 +240,8 @@ class TokenSampler:
                progress: Callable[[int], None] | None = None) -> list[list[Tensor]]:
         """Tokens for each request, one (length,) long tensor per action (the *generated* tokens:
         under ``slerp`` later actions are ``slerp`` tokens shorter; under ``handshake`` the
-        shared tokens belong to the earlier action). ``progress(t)`` is called after each step."""
+        shared tokens belong to the earlier action). ``progress(s)`` is called after each jump
+        with the step s it reached (T − s of T done)."""
         options.check(self.schedule.steps)
         schedule = self._schedule(options.eta)
         if not requests:
@@ -227,85 +274,107 @@ class TokenSampler:
             state = [_copy_shared(z, _extended_lengths(r.lengths, overlap), overlap) for z, r in zip(state, requests)]
 
         joint_until = switch_step(options.ts, schedule.steps) if options.method == "tps" else schedule.steps
-        phases = [(schedule.steps, joint_until, _joint_layout(requests)),
-                  (joint_until, 0, _action_layout(requests, overlap))]
-        for start, stop, layout in phases:
-            if start > stop:
-                state = self._denoise(layout, state, given, generators, range(start, stop, -1), schedule,
-                                      options, overlap, requests, progress)
+        joint, independent = timesteps(schedule.steps, options.steps, joint_until)
+        for jumps, layout in ((joint, _joint_layout(requests)), (independent, _action_layout(requests, overlap))):
+            if jumps:
+                state = self._denoise(layout, state, given, generators, jumps, schedule, options, overlap, progress)
         return [_split_actions(z, r.lengths, overlap) for z, r in zip(state, requests)]
 
     def _denoise(self, layout: _Layout, state: list[Tensor], given: list[Tensor], generators: list[torch.Generator],
-                 steps: range, schedule: TransitionSchedule, options: SamplingOptions, overlap: int,
-                 requests: list[Request], progress: Callable[[int], None] | None) -> list[Tensor]:
-        """Run ``steps`` (descending t) on the rows of ``layout``; returns the requests' streams."""
+                 jumps: list[tuple[int, int]], schedule: TransitionSchedule, options: SamplingOptions, overlap: int,
+                 progress: Callable[[int], None] | None) -> list[Tensor]:
+        """Take the reverse ``jumps`` (t, s) on the rows of ``layout``; returns the requests' streams."""
         device, mask, codes = self.device, schedule.mask_index, schedule.num_codes
         rows, width = len(layout.rows), layout.length
         row_lengths = [row.stream.stop - row.stream.start for row in layout.rows]
         lengths = torch.tensor(row_lengths, device=device)
         valid = torch.arange(width, device=device)[None, :] < lengths[:, None]
+        offsets = action_offsets([row.actions for row in layout.rows], width, device)
         groups = [(torch.tensor(g, device=device), row_lengths[g[0]]) for g in length_groups(row_lengths)]
-        text, text_mask = encode_actions(self.text_encoder, [row.condition for row in layout.rows])
-        # an empty sentence asks for no text: the null condition of classifier-free guidance
-        unconditional = torch.tensor([not any(s.strip() for s in row.condition) for row in layout.rows])
-        if unconditional.any():
-            text, text_mask = self.denoiser.nullify(text, text_mask, unconditional)
+        text, text_mask = self._text(layout)
+        condition = self._condition(text, text_mask, options) if self.reuse_condition else None
         z = torch.full((rows, width), mask, dtype=torch.long, device=device)
         fixed = torch.full_like(z, FREE)
         for i, row in enumerate(layout.rows):
             n = row.stream.stop - row.stream.start
             z[i, :n] = state[row.request][row.stream]
             fixed[i, :n] = given[row.request][row.stream]
-        for t in steps:
+        for t, s in jumps:
             x0 = torch.zeros(rows, width, codes, dtype=torch.float64, device=device)
             for index, n in groups:
-                x0[index, :n] = self._x0(z[index, :n], valid[index, :n], t, text[index], text_mask[index], options)
+                rows_condition = (self._condition(text[index], text_mask[index], options) if condition is None
+                                  else condition.rows(_guided_rows(index, rows, options)))
+                x0[index, :n] = self._x0(z[index, :n], valid[index, :n], offsets[index, :n], t, rows_condition,
+                                         options)
             if overlap:
                 x0 = _blend_shared(x0, layout, overlap)
             probs = torch.zeros(rows, width, codes + 1, dtype=torch.float64, device=device)
-            probs[valid] = schedule.posterior_probs(z[valid], x0[valid], t)
+            probs[valid] = schedule.posterior_probs(z[valid], x0[valid], t, s)
             uniforms = torch.zeros(rows, width, dtype=torch.float64, device=device)
             draws = [torch.rand(streams, generator=g, dtype=torch.float64, device=device)
                      for streams, g in zip((s.numel() for s in state), generators)]
             for i, row in enumerate(layout.rows):
                 uniforms[i, : row.stream.stop - row.stream.start] = draws[row.request][row.stream]
             z = categorical(probs, uniforms)
-            if t == 1:  # no mask may survive the last step: a dead row takes the most likely code
+            if s == 0:  # no mask may survive the last step: a dead row takes the most likely code
                 z = torch.where(z == mask, x0.argmax(dim=-1), z)
             z = torch.where(fixed >= 0, fixed, z).masked_fill(~valid, mask)
             if overlap:
                 z = _copy_shared_rows(z, layout, overlap)
             if progress is not None:
-                progress(t)
-        out = [s.clone() for s in state]
+                progress(s)
+        out = [stream.clone() for stream in state]
         for i, row in enumerate(layout.rows):
             out[row.request][row.stream] = z[i, : row.stream.stop - row.stream.start]
         return out
 
-    def _x0(self, z: Tensor, valid: Tensor, t: int, text: Tensor, text_mask: Tensor,
+    def _text(self, layout: _Layout) -> tuple[Tensor, Tensor]:
+        """The rows' text features and mask; a row whose sentences are all empty asks for no text
+        and gets the null condition of classifier-free guidance."""
+        text, text_mask = encode_actions(self.text_encoder, [row.condition for row in layout.rows])
+        unconditional = torch.tensor([not any(s.strip() for s in row.condition) for row in layout.rows])
+        if unconditional.any():
+            text, text_mask = self.denoiser.nullify(text, text_mask, unconditional)
+        return text, text_mask
+
+    def _condition(self, text: Tensor, text_mask: Tensor, options: SamplingOptions) -> Condition:
+        """The denoiser's condition of the rows, followed, when guided, by as many null rows."""
+        if options.guidance == 0.0:
+            return self.denoiser.condition(text, text_mask)
+        rows = text.shape[0]
+        null_text, null_mask = self.denoiser.null_condition(rows)
+        pad = text.shape[1] - null_text.shape[1]
+        null_text = torch.nn.functional.pad(null_text, (0, 0, 0, pad))
+        null_mask = torch.nn.functional.pad(null_mask, (0, pad), value=False)
+        return self.denoiser.condition(torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
+
+    def _x0(self, z: Tensor, valid: Tensor, offsets: Tensor, t: int, condition: Condition,
             options: SamplingOptions) -> Tensor:
         """Guided, truncated p(z0 | z_t) (rows, width, K) in float64: one forward pass of the
-        conditional and null rows together."""
+        conditional and null rows together (``condition`` holds both when guided)."""
         rows = z.shape[0]
-        steps = torch.full((rows,), t, dtype=torch.long, device=z.device)
-        if options.guidance == 1.0:
-            logits = torch.log_softmax(self.denoiser(z, valid, steps, text, text_mask).float(), dim=-1)
+        repeat = 1 if options.guidance == 0.0 else 2
+        steps = torch.full((1,), t, dtype=torch.long, device=z.device)  # one t for every row: embedded once
+        logits = self.denoiser.denoise(z.repeat(repeat, 1), valid.repeat(repeat, 1), steps, condition,
+                                       offsets.repeat(repeat, 1, 1))
+        if repeat == 1:
+            logits = torch.log_softmax(logits.float(), dim=-1)
         else:
-            null_text, null_mask = self.denoiser.null_condition(rows)
-            pad = text.shape[1] - null_text.shape[1]
-            null_text = torch.nn.functional.pad(null_text, (0, 0, 0, pad))
-            null_mask = torch.nn.functional.pad(null_mask, (0, pad), value=False)
-            both = self.denoiser(z.repeat(2, 1), valid.repeat(2, 1), steps.repeat(2),
-                                 torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
-            logits = guided_logits(both[:rows], both[rows:], options.guidance)
+            logits = guided_logits(logits[:rows], logits[rows:], options.guidance)
         return truncate(logits.double().exp(), options.truncation)
+
+
+def _guided_rows(index: Tensor, rows: int, options: SamplingOptions) -> Tensor:
+    """The rows of a group in a condition built by :meth:`TokenSampler._condition`: the group's
+    conditional rows, then (when guided) their null rows ``rows`` further on."""
+    return index if options.guidance == 0.0 else torch.cat([index, index + rows])
 
 
 # --------------------------------------------------------------------------------------- layouts
 def _joint_layout(requests: list[Request]) -> _Layout:
     """One row per request: its whole stream, its actions' sentences concatenated in order."""
-    return _Layout([_Row(i, slice(0, sum(r.lengths)), [s for sentences in r.actions for s in sentences])
-                    for i, r in enumerate(requests)])
+    return _Layout([_Row(i, slice(0, sum(r.lengths)), [s for sentences in r.actions for s in sentences],
+                         list(r.lengths)) for i, r in enumerate(requests)])
 
 
 def _extended_lengths(lengths: list[int], overlap: int) -> list[int]:
@@ -319,7 +388,7 @@ def _action_layout(requests: list[Request], overlap: int) -> _Layout:
     for i, r in enumerate(requests):
         start = 0
         for sentences, n in zip(r.actions, _extended_lengths(r.lengths, overlap)):
-            rows.append(_Row(i, slice(start, start + n), sentences))
+            rows.append(_Row(i, slice(start, start + n), sentences, [n]))
             start += n
     return _Layout(rows)
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from m2d2m.generators.motiondiffuse_checkpoint import MotionDiffuseCheckpoint, load_motiondiffuse
+from m2d2m.generators.motiondiffuse_checkpoint import MotionDiffuseCheckpoint, load_motiondiffuse, prediction_of
 from m2d2m.generators.motiondiffuse_sampling import Request, Step, Term, sample
 from m2d2m.generators.protocol import MULTI, SINGLE, Keep, MotionGenerator
 from m2d2m.motion.body_parts import PARTS, part_mask
@@ -199,7 +199,8 @@ class MotionDiffuseGenerator(MotionGenerator):
             words, mask = text_encoder.encode([term.sentence for request in requests for term in request.terms])
             text = network.encode_text(words.to(self.device), mask.to(self.device))
         process, step = self._sampling(options)
-        return sample(network, text, requests, process, step, correction, progress)
+        return sample(network, text, requests, process, step, correction, progress,
+                      prediction_of(self.checkpoint.diffusion))
 
     def _motion(self, normalized: torch.Tensor, actions: list[str], ranges: list[tuple[int, int]],
                 settings: dict) -> Motion:

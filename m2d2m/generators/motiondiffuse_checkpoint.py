@@ -17,20 +17,33 @@ from m2d2m.model_files import (LengthPrior, cpu_state, read_model_file, text_enc
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, MotionDiffuseTransformer
-from m2d2m.processes.gaussian_diffusion import GaussianDiffusion
+from m2d2m.processes.gaussian_diffusion import PREDICTIONS, SCHEDULES, GaussianDiffusion, cosine_betas
 from m2d2m.text import TextEncoder
 
 FORMAT = "motiondiffuse/1"
-DIFFUSION_KEYS = ("steps", "beta_start", "beta_end")
+DIFFUSION_KEYS = ("steps", "beta_start", "beta_end", "schedule", "prediction")
 
 
 def diffusion_from_config(diffusion: dict[str, Any]) -> GaussianDiffusion:
-    """The process of a run's ``diffusion`` section (T, β_1, β_T; the paper's 1000, 1e-4, 0.02)."""
+    """The process of a run's ``diffusion`` section: T and the schedule (the paper's linear β from
+    1e-4 to 0.02 over 1000 steps, or ``cosine``); its ``prediction`` (ε, the paper's, or x0) is
+    checked here and read by :func:`prediction_of`."""
     unknown = sorted(set(diffusion) - set(DIFFUSION_KEYS))
     if unknown:
         raise ValueError(f"unknown diffusion keys: {', '.join(unknown)}")
-    return GaussianDiffusion.linear(int(diffusion.get("steps", 1000)), float(diffusion.get("beta_start", 1e-4)),
-                                    float(diffusion.get("beta_end", 0.02)))
+    schedule = diffusion.get("schedule", "linear")
+    if schedule not in SCHEDULES or prediction_of(diffusion) not in PREDICTIONS:
+        raise ValueError(f"diffusion.schedule must be one of {', '.join(SCHEDULES)} and diffusion.prediction one "
+                         f"of {', '.join(PREDICTIONS)}, got {schedule!r} and {prediction_of(diffusion)!r}")
+    steps = int(diffusion.get("steps", 1000))
+    if schedule == "cosine":
+        return GaussianDiffusion(cosine_betas(steps))
+    return GaussianDiffusion.linear(steps, float(diffusion.get("beta_start", 1e-4)), float(diffusion.get("beta_end", 0.02)))
+
+
+def prediction_of(diffusion: dict[str, Any]) -> str:
+    """What the network of a ``diffusion`` section predicts: ``epsilon`` (the paper's) or ``x0``."""
+    return diffusion.get("prediction", "epsilon")
 
 
 @dataclass

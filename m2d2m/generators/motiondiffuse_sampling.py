@@ -168,10 +168,12 @@ def _pad(rows: Sequence[torch.Tensor], frames: int) -> torch.Tensor:
 
 def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Sequence[Request],
            process: GaussianDiffusion, step: Step, correction: float,
-           progress: Callable[[float], None] | None = None) -> list[torch.Tensor]:
+           progress: Callable[[float], None] | None = None, prediction: str = "epsilon") -> list[torch.Tensor]:
     """Each request's normalised motion (frames, D), denoised from N(0, I) through every step of
     ``process`` with ``step`` (ancestral or DDIM); ``text`` holds one encoded sentence per term, in
-    the order of the requests and their terms; ``correction`` is λ."""
+    the order of the requests and their terms; ``correction`` is λ. A network that predicts x_0
+    (``prediction``) has each term's estimate turned into the ε it implies first, so the
+    combination and the correction work on ε as the paper's do."""
     device = text.sentence.device
     feature_dim = network.config.feature_dim
     layout = Layout(requests, feature_dim, network.config.max_frames, device)
@@ -201,6 +203,9 @@ def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Seque
         with torch.enable_grad() if guided else torch.no_grad():
             x_in = x.detach().requires_grad_(guided)
             eps = layout.estimate(network, x_in, network_t, text)
+            if prediction == "x0":
+                term_t = torch.full((len(eps),), index, dtype=torch.long, device=device)
+                eps = process.predict_eps(layout.terms_of(x_in), term_t, eps) * layout.valid[:, :, None]
             combined = layout.combine(eps)
             if guided:
                 gradient, = torch.autograd.grad(layout.disagreement(eps), x_in)

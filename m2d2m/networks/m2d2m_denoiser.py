@@ -10,10 +10,21 @@ the K codes (never the mask) come out. Each pre-norm block is
 
 Choices, each on purpose:
 
-- No absolute positions anywhere: the only positional signal is a T5-style bucketed relative bias,
+- No absolute positions in the sequence: its positional signal is a T5-style bucketed relative bias,
   so a model trained on single actions runs on the concatenated sequences of two-phase sampling.
   One bias table (``num_buckets`` x heads) is shared by all layers, as in T5, so the extrapolation
   behaviour is a property of one table rather than of twelve.
+- ``positions: relative`` (the paper, §4.4) stops there. Then an all-[MASK] input gives every
+  position the same logits: attention over identical values returns the same value whatever the
+  bias, and padded keys are masked, so the model knows neither where it is nor how long the clip is.
+  ``positions: action`` (ours, docs/training.md) adds to each token's embedding sinusoidal features
+  of its offsets from its action's first and last token. They are bounded by an action's length,
+  never by the sequence's, so the joint phase of Two-Phase Sampling (four actions in one row, each
+  with its own offsets) stays within what training showed, and the relative bias still spans the
+  boundaries.
+- ``embedding: learned`` (VQ-Diffusion's) gives every code a trained vector; ``embedding: codebook``
+  (ours, after MMM, Pinyoanuntapong et al. 2024, §3.2) embeds a code by a projection of its frozen
+  VQ codebook vector, so codes that decode alike start alike, and the mask by a trained vector.
 - AdaLN follows VQ-Diffusion: LayerNorm without affine parameters, scaled by ``1 + scale`` and
   shifted by ``shift``, both projected from a sinusoidal-then-MLP timestep embedding.
 - Classifier-free guidance uses a learned null condition: a single learned text token with mask
@@ -25,6 +36,7 @@ Choices, each on purpose:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
@@ -32,6 +44,10 @@ import torch.nn.functional as F
 from torch import nn
 
 from m2d2m.networks.config import ConfigError, NetworkConfig
+
+POSITIONS = ("relative", "action")
+EMBEDDINGS = ("learned", "codebook")
+KeysValues = tuple[torch.Tensor, torch.Tensor]
 
 
 @dataclass(frozen=True)
@@ -49,6 +65,9 @@ class DenoiserConfig(NetworkConfig):
     max_distance: int = 128
     num_buckets: int = 32
     condition_drop: float = 0.1
+    positions: str = "relative"  # the paper's; "action" adds offsets within the action (ours)
+    embedding: str = "learned"  # the paper's (VQ-Diffusion's); "codebook" projects the frozen code vectors (ours)
+    code_dim: int = 512  # the codebook vectors' width (read with embedding: codebook)
 
     def __post_init__(self) -> None:
         self.require_positive("codebook_size", "layers", "heads", "width", "ffn", "text_dim", "steps", "max_distance")
@@ -59,6 +78,9 @@ class DenoiserConfig(NetworkConfig):
             raise ConfigError(f"DenoiserConfig.max_distance must exceed num_buckets // 4 "
                              f"({self.num_buckets // 4}), got {self.max_distance}")
         self.require_fraction("dropout", "condition_drop")
+        self.require_choice("positions", POSITIONS)
+        self.require_choice("embedding", EMBEDDINGS)
+        self.require_positive("code_dim")
 
 
 def relative_position_bucket(relative: torch.Tensor, num_buckets: int, max_distance: int) -> torch.Tensor:
@@ -78,13 +100,48 @@ def relative_position_bucket(relative: torch.Tensor, num_buckets: int, max_dista
 
 
 def guided_logits(cond_logits: torch.Tensor, uncond_logits: torch.Tensor, scale: float) -> torch.Tensor:
-    """Classifier-free guidance in log space, as VQ-Diffusion does it: log_softmax(u + s (c - u)).
+    """Classifier-free guidance in log space with the paper's scale (eq. 9):
+    log_softmax((1 + s)·c − s·u), so s = 0 is the conditional model alone. (VQ-Diffusion's code
+    writes u + s'(c − u): its s' is our 1 + s.)
 
     Inputs may be raw logits or log-probabilities: a per-position constant offset of either input
     cancels in the final log_softmax. Computed in float32 so bf16 logits do not lose the difference.
     """
     cond, uncond = cond_logits.float(), uncond_logits.float()
-    return torch.log_softmax(uncond + scale * (cond - uncond), dim=-1)
+    return torch.log_softmax(cond + scale * (cond - uncond), dim=-1)
+
+
+def sinusoid(values: torch.Tensor, width: int) -> torch.Tensor:
+    """(..., width) sine and cosine features of ``values`` at geometric frequencies (Vaswani et al.
+    2017, §3.5); an odd width gets a zero last feature."""
+    half = width // 2
+    frequencies = torch.exp(-math.log(10000.0) * torch.arange(half, device=values.device) / max(half, 1))
+    angles = values.float()[..., None] * frequencies
+    features = torch.cat([angles.sin(), angles.cos()], dim=-1)
+    return F.pad(features, (0, width % 2))
+
+
+def action_offsets(actions: Sequence[Sequence[int]], width: int, device: torch.device | str = "cpu") -> torch.Tensor:
+    """(rows, width, 2) long: each position's distance from the first and to the last token of its
+    action, for rows laid out as consecutive actions of the given lengths (``actions[row]``);
+    positions past a row's actions (padding) get 0."""
+    offsets = torch.zeros(len(actions), width, 2, dtype=torch.long)
+    for row, lengths in enumerate(actions):
+        start = 0
+        for length in lengths:
+            inside = torch.arange(length)
+            offsets[row, start:start + length, 0] = inside
+            offsets[row, start:start + length, 1] = length - 1 - inside
+            start += length
+    return offsets.to(device)
+
+
+def row_offsets(padding_mask: torch.Tensor) -> torch.Tensor:
+    """:func:`action_offsets` when each row is one action: its real positions (True) from the start."""
+    lengths = padding_mask.sum(dim=1, keepdim=True)
+    inside = torch.arange(padding_mask.shape[1], device=padding_mask.device)[None, :].expand_as(padding_mask)
+    offsets = torch.stack([inside, (lengths - 1 - inside)], dim=-1)
+    return torch.where(padding_mask[..., None], offsets, 0)
 
 
 def _key_mask(valid: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
@@ -104,13 +161,7 @@ class TimestepEmbedding(nn.Module):
         self.mlp = nn.Sequential(nn.Linear(width, width), nn.SiLU(), nn.Linear(width, width))
 
     def forward(self, t: torch.Tensor) -> torch.Tensor:
-        half = self.width // 2
-        frequencies = torch.exp(-math.log(10000.0) * torch.arange(half, device=t.device) / half)
-        angles = t.float()[:, None] * self.scale * frequencies[None, :]
-        features = torch.cat([angles.sin(), angles.cos()], dim=-1)
-        if self.width % 2:
-            features = F.pad(features, (0, 1))
-        return self.mlp(features)
+        return self.mlp(sinusoid(t.float() * self.scale, self.width))
 
 
 class AdaLayerNorm(nn.Module):
@@ -127,7 +178,11 @@ class AdaLayerNorm(nn.Module):
 
 
 class Attention(nn.Module):
-    """Multi-head attention through ``scaled_dot_product_attention`` with an additive float mask."""
+    """Multi-head attention through ``scaled_dot_product_attention`` with an additive float mask.
+
+    The keys and values come from :meth:`context` apart from the queries, so a caller that attends
+    to the same context many times (the text, over every reverse step) projects it once.
+    """
 
     def __init__(self, width: int, heads: int, context_dim: int, dropout: float) -> None:
         super().__init__()
@@ -142,12 +197,31 @@ class Attention(nn.Module):
         batch, length, _ = x.shape
         return x.view(batch, length, self.heads, -1).transpose(1, 2)
 
-    def forward(self, x: torch.Tensor, context: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        q, k, v = self._split(self.query(x)), self._split(self.key(context)), self._split(self.value(context))
+    def context(self, context: torch.Tensor) -> KeysValues:
+        """The context's keys and values, each (B, heads, S, head_dim)."""
+        return self._split(self.key(context)), self._split(self.value(context))
+
+    def forward(self, x: torch.Tensor, keys_values: KeysValues, mask: torch.Tensor) -> torch.Tensor:
+        keys, values = keys_values
         attended = F.scaled_dot_product_attention(
-            q, k, v, attn_mask=mask.to(q.dtype), dropout_p=self.dropout if self.training else 0.0)
+            self._split(self.query(x)), keys, values, attn_mask=mask.to(x.dtype),
+            dropout_p=self.dropout if self.training else 0.0)
         batch, _, length, _ = attended.shape
         return self.out(attended.transpose(1, 2).reshape(batch, length, -1))
+
+
+@dataclass(frozen=True)
+class Condition:
+    """The text as every block's cross-attention sees it: its keys and values per block and the
+    additive mask of its padding (B, 1, 1, S). A sampler builds it once per phase
+    (:meth:`MotionDenoiser.condition`) and reuses it at every reverse step."""
+
+    keys_values: tuple[KeysValues, ...]
+    mask: torch.Tensor
+
+    def rows(self, index: torch.Tensor) -> "Condition":
+        """The condition of the rows ``index`` (in that order)."""
+        return Condition(tuple((keys[index], values[index]) for keys, values in self.keys_values), self.mask[index])
 
 
 class DenoiserBlock(nn.Module):
@@ -166,29 +240,44 @@ class DenoiserBlock(nn.Module):
         self.residual_dropout = nn.Dropout(config.dropout)
 
     def forward(self, x: torch.Tensor, time: torch.Tensor, self_mask: torch.Tensor,
-                text: torch.Tensor, cross_mask: torch.Tensor) -> torch.Tensor:
+                text: KeysValues, cross_mask: torch.Tensor) -> torch.Tensor:
         h = self.self_norm(x, time)
-        x = x + self.residual_dropout(self.self_attention(h, h, self_mask))
+        x = x + self.residual_dropout(self.self_attention(h, self.self_attention.context(h), self_mask))
         x = x + self.residual_dropout(self.cross_attention(self.cross_norm(x, time), text, cross_mask))
         return x + self.ffn(self.ffn_norm(x))
 
 
 class MotionDenoiser(nn.Module):
-    """p(z0 | z_t, t, text): logits (B, L, K) over the codes for every motion token."""
+    """p(z0 | z_t, t, text): logits (B, L, K) over the codes for every motion token. With
+    ``embedding: codebook`` it holds the frozen codebook (K, code_dim) as a buffer: pass it when
+    training starts; a saved state dict brings its own."""
 
-    def __init__(self, config: DenoiserConfig) -> None:
+    def __init__(self, config: DenoiserConfig, codebook: torch.Tensor | None = None) -> None:
         super().__init__()
         self.config = config
         self.mask_id = config.codebook_size
-        self.token_embedding = nn.Embedding(config.codebook_size + 1, config.width)
+        if config.embedding == "codebook":
+            shape = (config.codebook_size, config.code_dim)
+            if codebook is not None and tuple(codebook.shape) != shape:
+                raise ConfigError(f"the codebook is {tuple(codebook.shape)}, the config asks for {shape}")
+            self.register_buffer("codebook", torch.zeros(shape) if codebook is None else codebook.detach().float().clone())
+            self.code_projection = nn.Linear(config.code_dim, config.width)
+            self.mask_vector = nn.Parameter(torch.zeros(config.width))
+            self.token_embedding = None
+        else:
+            self.token_embedding = nn.Embedding(config.codebook_size + 1, config.width)
         self.time_embedding = TimestepEmbedding(config.width, config.steps)
         self.relative_bias = nn.Embedding(config.num_buckets, config.heads)
+        self.offset_embedding = nn.Linear(config.width, config.width) if config.positions == "action" else None
+        self._buckets: dict[tuple[int, str], torch.Tensor] = {}
         self.null_text = nn.Parameter(torch.zeros(1, 1, config.text_dim))
         self.blocks = nn.ModuleList(DenoiserBlock(config) for _ in range(config.layers))
         self.head_norm = nn.LayerNorm(config.width)
         self.head = nn.Linear(config.width, config.codebook_size)
         self.apply(self._init_weights)
         nn.init.normal_(self.null_text, std=0.02)
+        if self.token_embedding is None:
+            nn.init.normal_(self.mask_vector, std=0.02)
 
     @staticmethod
     def _init_weights(module: nn.Module) -> None:
@@ -233,34 +322,66 @@ class MotionDenoiser(nn.Module):
         rows = rows.to(text.device)
         return torch.where(rows[:, None, None], null_text, text), torch.where(rows[:, None], null_mask, text_mask)
 
+    def embed(self, tokens: torch.Tensor) -> torch.Tensor:
+        """(B, L, width) vectors of tokens in [0, K], K the mask."""
+        if self.token_embedding is not None:
+            return self.token_embedding(tokens)
+        codes = self.code_projection(self.codebook[tokens.clamp(max=self.mask_id - 1)])
+        return torch.where((tokens == self.mask_id)[..., None], self.mask_vector.to(codes.dtype), codes)
+
     def relative_position_bias(self, length: int, device: torch.device) -> torch.Tensor:
-        """(heads, L, L) learned bias indexed by the bucket of ``key - query``."""
-        positions = torch.arange(length, device=device)
-        buckets = relative_position_bucket(positions[None, :] - positions[:, None],
-                                           self.config.num_buckets, self.config.max_distance)
-        return self.relative_bias(buckets).permute(2, 0, 1)
+        """(heads, L, L) learned bias indexed by the bucket of ``key - query`` (the buckets of a
+        length are computed once: a sampler asks for the same lengths at every step)."""
+        key = (length, str(device))
+        if key not in self._buckets:
+            positions = torch.arange(length, device=device)
+            self._buckets[key] = relative_position_bucket(positions[None, :] - positions[:, None],
+                                                          self.config.num_buckets, self.config.max_distance)
+        return self.relative_bias(self._buckets[key]).permute(2, 0, 1)
+
+    def condition(self, text: torch.Tensor | None, text_mask: torch.Tensor | None,
+                  batch: int | None = None) -> Condition:
+        """The text condition (B, S, text_dim) with its mask (B, S), True = real (None: all real), as
+        the blocks attend to it; ``text=None`` is the null condition of ``batch`` rows."""
+        if text is None:
+            text, text_mask = self.null_condition(batch or 1)
+        elif text_mask is None:
+            text_mask = torch.ones(text.shape[:2], dtype=torch.bool, device=text.device)
+        keys_values = tuple(block.cross_attention.context(text) for block in self.blocks)
+        return Condition(keys_values, _key_mask(text_mask, torch.float32))
 
     def forward(self, tokens: torch.Tensor, padding_mask: torch.Tensor | None, t: torch.Tensor,
-                text: torch.Tensor | None = None, text_mask: torch.Tensor | None = None) -> torch.Tensor:
+                text: torch.Tensor | None = None, text_mask: torch.Tensor | None = None,
+                offsets: torch.Tensor | None = None) -> torch.Tensor:
         """Logits (B, L, K) for z0.
 
         ``tokens`` (B, L) long in [0, K]; ``padding_mask`` (B, L) bool, True = real (None: all real);
-        ``t`` (B,) long in [1, T]; ``text`` (B, S, text_dim) with ``text_mask`` (B, S) bool, or
-        ``text=None`` for the unconditional (null) condition.
+        ``t`` (B,) long in [1, T] (or (1,): one t for every row); ``text`` (B, S, text_dim) with ``text_mask`` (B, S) bool, or
+        ``text=None`` for the unconditional (null) condition; ``offsets`` see :meth:`denoise`.
         """
-        batch, length = tokens.shape
+        return self.denoise(tokens, padding_mask, t, self.condition(text, text_mask, tokens.shape[0]), offsets)
+
+    def denoise(self, tokens: torch.Tensor, padding_mask: torch.Tensor | None, t: torch.Tensor,
+                condition: Condition, offsets: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`forward` under a prepared :meth:`condition`. ``offsets`` (B, L, 2) are each
+        position's distances from its action's first and to its last token
+        (:func:`action_offsets`); None reads every row as one action. Only ``positions: action``
+        uses them."""
+        length = tokens.shape[1]
         if padding_mask is None:
             padding_mask = torch.ones_like(tokens, dtype=torch.bool)
-        if text is None:
-            text, text_mask = self.null_condition(batch)
-        elif text_mask is None:
-            text_mask = torch.ones(text.shape[:2], dtype=torch.bool, device=text.device)
         # Padded slots may hold anything; read them as the mask token so no index is out of range.
         tokens = tokens.masked_fill(~padding_mask, self.mask_id)
-        x = self.token_embedding(tokens)
+        x = self.embed(tokens)
+        if self.offset_embedding is not None:
+            if offsets is None:
+                offsets = row_offsets(padding_mask)
+            half = self.config.width // 2
+            features = torch.cat([sinusoid(offsets[..., 0], half), sinusoid(offsets[..., 1], self.config.width - half)],
+                                 dim=-1)
+            x = x + self.offset_embedding(features.to(x.dtype))
         time = self.time_embedding(t)
         self_mask = self.relative_position_bias(length, tokens.device)[None] + _key_mask(padding_mask, torch.float32)
-        cross_mask = _key_mask(text_mask, torch.float32)
-        for block in self.blocks:
-            x = block(x, time, self_mask, text, cross_mask)
+        for block, keys_values in zip(self.blocks, condition.keys_values):
+            x = block(x, time, self_mask, keys_values, condition.mask)
         return self.head(self.head_norm(x))

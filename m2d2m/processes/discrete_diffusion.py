@@ -178,6 +178,7 @@ class TransitionSchedule:
         self._distances = distances
         self._step = step
         self._cumulative = cumulative
+        self._spans: dict[tuple[int, int], Tensor] = {}
 
     @classmethod
     def build(cls, codebook: Tensor, steps: int = 100, kind: str = "dynamic", eta: float = 0.5,
@@ -222,6 +223,7 @@ class TransitionSchedule:
             self._distances = self._distances.to(device)
         self._step = self._step.to(device)
         self._cumulative = self._cumulative.to(device)
+        self._spans = {pair: span.to(device) for pair, span in self._spans.items()}
         return self
 
     @property
@@ -274,6 +276,20 @@ class TransitionSchedule:
             raise ValueError(f"t must lie in 0..{self.steps}, got {t}")
         return self._cumulative[t]
 
+    def span_matrix(self, t: int, s: int) -> Tensor:
+        """Q_{t|s} = Q_t ⋯ Q_{s+1}, i.e. q(z_t | z_s), float64 (K+1, K+1) for 0 <= s < t <= T; the
+        jump a sampler that skips from t to s takes. Products are cached per (t, s)."""
+        if not 0 <= s < t <= self.steps:
+            raise ValueError(f"need 0 <= s < t <= {self.steps}, got t = {t}, s = {s}")
+        if s == t - 1:
+            return self._step[t]
+        if (t, s) not in self._spans:
+            span = self._step[s + 1]
+            for r in range(s + 2, t + 1):
+                span = self._step[r] @ span
+            self._spans[t, s] = span
+        return self._spans[t, s]
+
     def _timesteps(self, t: int | Tensor, shape: torch.Size, low: int) -> Tensor:
         """t broadcast to ``shape`` as a long tensor on the schedule's device, checked to lie in low..T."""
         tt = torch.as_tensor(t, device=self.device).long()
@@ -307,13 +323,15 @@ class TransitionSchedule:
         codes = torch.randint(self.num_codes, shape, generator=generator, device=self.device)
         return torch.where(u < self.gamma_bar[-1], torch.full_like(codes, self.mask_index), codes)
 
-    def posterior_probs(self, z_t: Tensor, x0_probs: Tensor, t: int | Tensor) -> Tensor:
-        """p(z_{t−1} | z_t) = Σ_k q(z_{t−1} | z_t, z0 = k)·x0_probs[k], float64 (..., K+1), t = 1..T.
+    def posterior_probs(self, z_t: Tensor, x0_probs: Tensor, t: int | Tensor, s: int | None = None) -> Tensor:
+        """p(z_s | z_t) = Σ_k q(z_s | z_t, z0 = k)·x0_probs[k], float64 (..., K+1): the reverse step
+        from t (1..T) to s = t − 1 by default, or to an earlier ``s`` (0 <= s < t; ``t`` one int then):
+        the step-skipping sampler's jump, exact for any Δ = t − s.
 
-        With Bayes' rule q(z_{t−1} = j | z_t = i, k) = Q_t[i, j]·Q̄_{t−1}[j, k] / Q̄_t[i, k], the mixture
-        is Q_t[i, :] ⊙ (Q̄_{t−1} · (x0_probs / Q̄_t[i, :])): two row gathers and one matrix product per
-        distinct t in the batch. Codes k that cannot produce z_t (Q̄_t[i, k] = 0) get no weight.
-        Differentiable in x0_probs.
+        With Bayes' rule q(z_s = j | z_t = i, k) = Q_{t|s}[i, j]·Q̄_s[j, k] / Q̄_t[i, k] (Q_{t|t−1} = Q_t),
+        the mixture is Q_{t|s}[i, :] ⊙ (Q̄_s · (x0_probs / Q̄_t[i, :])): two row gathers and one matrix
+        product per distinct s in the batch. Codes k that cannot produce z_t (Q̄_t[i, k] = 0) get no
+        weight. Differentiable in x0_probs.
         """
         num_codes = self.num_codes
         z = self._codes(z_t, num_codes, "z_t")
@@ -321,13 +339,20 @@ class TransitionSchedule:
             raise ValueError(f"x0_probs must have shape {(*z.shape, num_codes)}, got {tuple(x0_probs.shape)}")
         tt = self._timesteps(t, z.shape, low=1).reshape(-1)
         zf = z.reshape(-1)
+        if s is None:
+            rows = self._step[tt, zf]  # (N, K+1): q(z_t | z_{t−1} = j)
+            earlier = tt - 1
+        else:
+            if not isinstance(t, int):
+                raise ValueError("a skip to s needs one t for every position")
+            rows = self.span_matrix(t, s)[zf]  # q(z_t | z_s = j)
+            earlier = torch.full_like(tt, s)
         probs = x0_probs.to(device=self.device, dtype=torch.float64).reshape(-1, num_codes)
-        rows = self._step[tt, zf]  # (N, K+1): q(z_t | z_{t−1} = j)
         reach = self._cumulative[tt, zf, :num_codes]  # (N, K): q(z_t | z0 = k)
         feasible = reach > 0
         weights = torch.where(feasible, probs / torch.where(feasible, reach, 1.0), 0.0)
         propagated = weights.new_zeros(weights.shape[0], num_codes + 1)
-        for s in torch.unique(tt).tolist():
-            chosen = torch.nonzero(tt == s).squeeze(1)
-            propagated[chosen] = weights[chosen] @ self._cumulative[s - 1, :, :num_codes].T
+        for r in torch.unique(earlier).tolist():
+            chosen = torch.nonzero(earlier == r).squeeze(1)
+            propagated[chosen] = weights[chosen] @ self._cumulative[r, :, :num_codes].T
         return (rows * propagated).reshape(*z.shape, num_codes + 1)

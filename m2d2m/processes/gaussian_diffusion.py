@@ -10,7 +10,12 @@ variance is fixed: β_t as in MotionDiffuse §3.3 (after eq. 4), or β̃_t, the 
 
 Schedule: linear β from 1e-4 to 0.02 over T = 1000 steps (Ho et al. §4), both ends scaled by 1000/T
 so that a shorter chain spans the same noise range (Nichol & Dhariwal 2021, the "linear" schedule of
-improved-diffusion).
+improved-diffusion); or ``cosine``, Nichol & Dhariwal's eq. 17, which destroys the signal more
+slowly at first and keeps fewer steps at pure noise (an option of ours for MotionDiffuse).
+
+What the network predicts: the noise ε (the paper, ``epsilon``), or x_0 itself (``x0``, as MDM,
+Tevet et al. 2023, does; ours as an option). Sampling needs ε; :meth:`GaussianDiffusion.predict_eps`
+turns a predicted x_0 into the ε it implies, so every sampler works with either.
 
 Fewer sampling steps (Nichol & Dhariwal 2021 §4, respacing): keep a subsequence s_0 < ... < s_{K-1}
 of the steps, leave ᾱ at those steps unchanged and set β'_i = 1 - ᾱ_{s_i} / ᾱ_{s_{i-1}}; the network
@@ -34,6 +39,8 @@ from m2d2m.networks.config import ConfigError
 
 # Σ_θ = β_t (the paper, §3.3 after eq. 4) or β̃_t (the public code's FIXED_SMALL)
 VARIANCES = ("beta", "posterior")
+SCHEDULES = ("linear", "cosine")
+PREDICTIONS = ("epsilon", "x0")
 
 
 def linear_betas(steps: int = 1000, start: float = 1e-4, end: float = 0.02) -> np.ndarray:
@@ -46,6 +53,16 @@ def linear_betas(steps: int = 1000, start: float = 1e-4, end: float = 0.02) -> n
     if scale * end >= 1.0:
         raise ConfigError(f"{steps} steps scale beta end {end!r} to {scale * end:.4g}, which must stay below 1")
     return np.linspace(scale * start, scale * end, steps, dtype=np.float64)
+
+
+def cosine_betas(steps: int = 1000, offset: float = 0.008, max_beta: float = 0.999) -> np.ndarray:
+    """β_0..β_{steps-1} of Nichol & Dhariwal 2021 eq. 17: ᾱ(t) = f(t)/f(0), f(t) = cos²(π/2·(t/T + s)/(1 + s)),
+    β_t = 1 − ᾱ(t)/ᾱ(t − 1) clipped at ``max_beta`` (their §3.2), float64."""
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ConfigError(f"diffusion steps must be a positive integer, got {steps!r}")
+    grid = np.arange(steps + 1, dtype=np.float64) / steps
+    cumulative = np.cos((grid + offset) / (1.0 + offset) * np.pi / 2.0) ** 2
+    return np.clip(1.0 - cumulative[1:] / cumulative[:-1], 0.0, max_beta)
 
 
 def timestep_buckets(t: Tensor, num_steps: int, buckets: int = 4) -> Tensor:
@@ -126,6 +143,11 @@ class GaussianDiffusion:
         """Mean and variance β̃_t of q(x_{t-1} | x_t, x_0) (Ho et al. eq. 6-7); at t = 0 it is x_0 exactly."""
         mean = self._at(self._posterior_coef_x0, t, x0) * x0 + self._at(self._posterior_coef_xt, t, xt) * xt
         return mean, self._at(self.posterior_variance, t, xt)
+
+    def predict_eps(self, xt: Tensor, t: Tensor, x0: Tensor) -> Tensor:
+        """The ε for which x_t = q_sample(x_0, t, ε): eq. 3 solved for ε (a predicted x_0's noise)."""
+        return ((self._at(np.sqrt(1.0 / self.alphas_cumprod), t, xt) * xt - x0)
+                / self._at(np.sqrt(1.0 / self.alphas_cumprod - 1.0), t, xt))
 
     def predict_x0(self, xt: Tensor, t: Tensor, eps: Tensor) -> Tensor:
         """The x_0 for which x_t = q_sample(x_0, t, eps): eq. 3 solved for x_0."""

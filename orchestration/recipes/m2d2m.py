@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from orchestration.recipes.token_data import export_model, prepare, token_training
+from orchestration.errors import UserError
 from orchestration.registry import model
 from orchestration.train import fit, open_run
 
@@ -21,12 +22,16 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
     ``ray_train``: this process is a Ray Train worker."""
     import lightning.pytorch as pl
 
-    from m2d2m.generators.m2d2m_checkpoint import save_checkpoint
+    from m2d2m.generators.m2d2m_checkpoint import sampling_defaults, save_checkpoint
     from training.callbacks import TokenSamplePreview
     from training.m2d2m_module import M2D2MModule
 
     entry = model(NAME)
     run_dir, config, run_id = open_run(entry.stage, entry.configs, config_name, overrides or [], resume, join)
+    try:  # before hours of training, not at its end
+        sampling = sampling_defaults(config.get("sampling") or {}, int(config["diffusion"]["steps"]))
+    except ValueError as error:
+        raise UserError(str(error)) from error
     data = token_training(config, lambda caption: caption["actions"] or [caption["text"]])
     pl.seed_everything(config["seed"], workers=True, verbose=False)
     module = M2D2MModule(config["denoiser"], config["text"], config["diffusion"], config["optim"],
@@ -41,5 +46,6 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
     export_model(run_dir, fitted, config, data, run_dir / entry.model_file,
                  lambda path, lengths, extra: save_checkpoint(path, module.denoiser, module.text_encoder,
                                                               config["text"], module.schedule.config,
-                                                              module.codebook, data.vq_path, lengths, extra))
+                                                              module.codebook, data.vq_path, lengths, extra,
+                                                              sampling), module)
     return run_dir

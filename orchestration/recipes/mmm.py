@@ -39,5 +39,5 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
         return run_dir
     export_model(run_dir, fitted, config, data, run_dir / entry.model_file,
                  lambda path, lengths, extra: save_mmm(path, module.transformer, module.text_encoder, config["text"],
-                                                       data.vq_path, lengths, extra))
+                                                       data.vq_path, lengths, extra), module)
     return run_dir

@@ -40,5 +40,5 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
     export_model(run_dir, fitted, config, data, run_dir / entry.model_file,
                  lambda path, lengths, extra: save_body_mmm(path, module.transformer, module.text_encoder,
                                                             config["text"], data.vq_path, data.lower_vq_path,
-                                                            lengths, extra))
+                                                            lengths, extra), module)
     return run_dir

@@ -11,7 +11,7 @@ from typing import Any
 from orchestration.errors import UserError
 from orchestration.recipes.token_data import caption_vocabulary
 from orchestration.registry import model
-from orchestration.train import finish, fit, open_run, validation_interval
+from orchestration.train import export_snapshots, finish, fit, open_run, validation_interval
 
 NAME = "motiondiffuse"
 
@@ -57,10 +57,16 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
         return run_dir
     model_file = run_dir / entry.model_file
     data_dir = str(Path(data["dir"]).resolve())
-    save_motiondiffuse(model_file, module.network, module.text_encoder, config["text"], config["diffusion"],
-                       datamodule.normalizer, datamodule.skeleton, length_prior(datamodule.urls("train"), 1),
-                       extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
-                              "data_dir": data_dir, "best_val_loss": float(fitted.checkpoints.best_model_score)})
+    lengths = length_prior(datamodule.urls("train"), 1)
+    extra = {"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
+             "data_dir": data_dir, "best_val_loss": float(fitted.checkpoints.best_model_score)}
+
+    def save(path: Path) -> Path:
+        return save_motiondiffuse(path, module.network, module.text_encoder, config["text"], config["diffusion"],
+                                  datamodule.normalizer, datamodule.skeleton, lengths, extra=extra)
+
+    save(model_file)
+    export_snapshots(run_dir, module, save)
     finish(run_dir, fitted, [model_file, Path(fitted.checkpoints.best_model_path), fitted.last,
                              run_dir / "config.yaml"], model=str(model_file.resolve()), data=data_dir)
     return run_dir

@@ -14,7 +14,7 @@ import torch
 
 from m2d2m.motion.body_parts import FULL, LOWER, UPPER
 from orchestration.errors import UserError
-from orchestration.train import ensure_tokens, finish, validation_interval, vq_file
+from orchestration.train import ensure_tokens, export_snapshots, finish, validation_interval, vq_file
 
 
 def prepare(config: dict[str, Any]) -> None:
@@ -129,16 +129,19 @@ def body_token_training(config: dict[str, Any], sentences: Callable[[dict[str, A
 
 
 def export_model(run_dir: Path, fitted: Any, config: dict[str, Any], data: TokenTraining, model_file: Path,
-                 save: Callable[..., Path]) -> None:
+                 save: Callable[..., Path], module: Any) -> None:
     """Write the model file with ``save(model_file, lengths, extra=...)`` (the length prior of the
-    training captions, and where the run, its data and tokens are), then finish the run with it."""
+    training captions, and where the run, its data and tokens are) from ``module``'s weights, and
+    one per snapshot of the run, then finish the run with it."""
     from training.data import length_prior
 
     datamodule = data.datamodule
-    save(model_file, length_prior(datamodule.urls("train"), datamodule.frames_per_token),
-         extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
-                "data_dir": str(data.data_dir.resolve()), **data.records(),
-                "best_val_loss": float(fitted.checkpoints.best_model_score)})
+    lengths = length_prior(datamodule.urls("train"), datamodule.frames_per_token)
+    extra = {"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
+             "data_dir": str(data.data_dir.resolve()), **data.records(),
+             "best_val_loss": float(fitted.checkpoints.best_model_score)}
+    save(model_file, lengths, extra)
+    export_snapshots(run_dir, module, lambda path: save(path, lengths, extra))
     finish(run_dir, fitted, [model_file, Path(fitted.checkpoints.best_model_path), fitted.last,
                              run_dir / "config.yaml"],
            model=str(model_file.resolve()), **data.records())
