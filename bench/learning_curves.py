@@ -21,7 +21,8 @@ Every training run and every evaluation goes through the `m2d2m` command line, s
 all (experiments ``synthetic/<model>`` and ``synthetic/eval``); the runs do not become ``latest``.
 Writes ``report.md`` and ``curves.png`` into ``runs/synthetic/learning-curves/`` after each
 evaluation, so a partial run is readable, and continues where it stopped when run again
-(``state.json``; ``--restart`` starts over). Needs the demo's data, VQ-VAE, tokens and evaluator
+(``state.json``; ``--restart`` starts over); calls with other ``--curves`` or with and without
+``--ablation`` add to the same report as long as the steps and repeats stay. Needs the demo's data, VQ-VAE, tokens and evaluator
 (`make demo`). docs/reproduction.md holds a measured copy.
 """
 
@@ -86,10 +87,12 @@ ABLATION = (
     Variant("ema", "+ EMA of the weights (decay 0.995 a step)", "m2d2m", "paper-demo", ("trainer.ema=0.995",)),
     Variant("codebook", "+ codes embedded by their frozen codebook vectors (embedding: codebook)", "m2d2m",
             "paper-demo", ("denoiser.embedding=codebook",)),
-    Variant("ours", "demo.yaml (ours: every change that measured better)", "m2d2m"),
+    # every row samples with all 100 steps, the paper's sampler; demo.yaml's own default is fewer
+    Variant("ours", "demo.yaml (ours: every change that measured better)", "m2d2m", options=("steps=100",)),
     # the same settings from another training seed: how far a row moves by chance alone
     Variant("paper-seed", "the paper's setting, training seed 124 (chance alone)", "m2d2m", "paper-demo", ("seed=124",)),
-    Variant("ours-seed", "demo.yaml, training seed 124 (chance alone)", "m2d2m", overrides=("seed=124",)),
+    Variant("ours-seed", "demo.yaml, training seed 124 (chance alone)", "m2d2m", overrides=("seed=124",),
+            options=("steps=100",)),
 )
 
 
@@ -271,8 +274,9 @@ def main() -> None:
     parser.add_argument("--restart", action="store_true", help="start over instead of continuing a stopped run")
     args = parser.parse_args()
     steps = [20, 40] if args.quick else sorted(set(args.steps))
-    settings = {"curves": args.curves, "steps": steps, "ablation": args.ablation,
-                "ablation_steps": 40 if args.quick else args.ablation_steps, "repeats": 1 if args.quick else args.repeats}
+    # what the recorded results depend on; which curves and whether the ablation run is each call's choice
+    settings = {"steps": steps, "ablation_steps": 40 if args.quick else args.ablation_steps,
+                "repeats": 1 if args.quick else args.repeats}
     progress = Progress(OUT / "state.json", settings, args.restart)
     results: dict[str, Any] = progress.state.setdefault("results", {"curves": {}, "ablation": {}})
 
@@ -291,7 +295,7 @@ def main() -> None:
         publish()
 
     run("testset", "--dataset", DATASET, "--n", "4", "--seed", "0")
-    if settings["ablation"]:
+    if args.ablation:
         ablation(progress, settings["ablation_steps"], settings["repeats"], on_row)
     for key in args.curves:
         curve(progress, CURVES[key], steps, settings["repeats"], on_point)

@@ -90,8 +90,15 @@ def test_aits_and_long_sequence_of_three_models_in_one_run(three_models, capsys)
 
 def test_steps_motiondiffuse_was_not_trained_with_are_refused(three_models):
     with pytest.raises(SystemExit, match="trained with T = 50 steps"):
-        main(["--dataset", "tiny", "--lengths", "8", "--action-frames", "24", "--md-steps", "1000", "100",
-              "--out", str(three_models / "refused")])
+        main(["--dataset", "tiny", "--lengths", "8", "--action-frames", "24", "--m2d2m-steps", "8",
+              "--md-steps", "1000", "100", "--out", str(three_models / "refused")])
+    assert not (three_models / "refused").exists()
+
+
+def test_steps_m2d2m_was_not_trained_with_are_refused(three_models):
+    with pytest.raises(SystemExit, match="m2d2m was trained with T = 8 steps; give --m2d2m-steps"):
+        main(["--dataset", "tiny", "--lengths", "8", "--action-frames", "24", "--m2d2m-steps", "100",
+              "--md-steps", "5", "--out", str(three_models / "refused")])
     assert not (three_models / "refused").exists()
 
 

@@ -209,7 +209,7 @@ class TokenSampler:
     """Reverse diffusion over motion tokens for a denoiser, its text encoder and its schedule.
 
     Works on the device the denoiser is on; the schedule is moved there. An η in the options
-    rebuilds the dynamic schedule's matrices for that η (a few hundred milliseconds at K = 512, T = 100).
+    builds the dynamic schedule's matrices for that η once (a few hundred milliseconds at K = 512, T = 100).
     """
 
     def __init__(self, denoiser: MotionDenoiser, text_encoder: TextEncoder, schedule: TransitionSchedule,
