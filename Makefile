@@ -17,7 +17,7 @@ DEMO    ?= runs/demo
 .DEFAULT_GOAL := help
 .PHONY: help setup demo test test-all bench corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
         train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
-        reproduce ui clean
+        reproduce learning-curves ui clean
 
 help:  ## list the verbs
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -169,8 +169,12 @@ sweep: $(STAMP)  ## Ray Tune sweep (SWEEP_CONFIG=demo: 2 eta x 3 T_s on the late
 	$(M2D2M) sweep --config $(SWEEP_CONFIG) $(foreach s,$(SET),--set $(s)) $(RAY_ADDRESS_ARG)
 
 REPRODUCE_ARGS ?=
-reproduce: $(STAMP)  ## the paper's Tables 5, 6 and a T_s curve on the embedded default, trained twice as long as the demo (about 100 min on 2 CPU cores; REPRODUCE_ARGS="--quick")
+reproduce: $(STAMP)  ## the paper's Tables 5, 6 and a T_s curve on the embedded default with the paper's exact setting (configs/m2d2m/paper-demo.yaml), trained twice as long as the demo (about 100 min on 2 CPU cores; REPRODUCE_ARGS="--quick")
 	$(BIN)/python bench/reproduce.py $(REPRODUCE_ARGS)
+
+CURVES_ARGS ?= --curves m2d2m mmm --ablation
+learning-curves: $(STAMP)  ## M2D2M's and MMM's learning curves on the same tokens and M2D2M's ablation, after make demo (hours on 2 CPU cores; CURVES_ARGS="--quick", "--curves m2d2m mmm motiondiffuse")
+	$(BIN)/python bench/learning_curves.py $(CURVES_ARGS)
 
 clean:  ## remove generated data and runs (keeps .venv)
 	rm -rf data runs mlruns mlflow.db

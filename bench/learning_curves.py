@@ -22,8 +22,9 @@ all (experiments ``synthetic/<model>`` and ``synthetic/eval``); the runs do not 
 Writes ``report.md`` and ``curves.png`` into ``runs/synthetic/learning-curves/`` after each
 evaluation, so a partial run is readable, and continues where it stopped when run again
 (``state.json``; ``--restart`` starts over); calls with other ``--curves`` or with and without
-``--ablation`` add to the same report as long as the steps and repeats stay. Needs the demo's data, VQ-VAE, tokens and evaluator
-(`make demo`). docs/reproduction.md holds a measured copy.
+``--ablation`` add to the same report as long as the steps and repeats stay. Needs the demo's data,
+VQ-VAE, tokens and evaluator (`make demo`); `make learning-curves` runs it. docs/reproduction.md,
+"M2D2M at parity with MMM", holds a measured copy.
 """
 
 from __future__ import annotations
