@@ -24,7 +24,7 @@ evaluation, so a partial run is readable, and continues where it stopped when ru
 (``state.json``; ``--restart`` starts over); calls with other ``--curves`` or with and without
 ``--ablation`` add to the same report as long as the steps and repeats stay. Needs the demo's data,
 VQ-VAE, tokens and evaluator (`make demo`); `make learning-curves` runs it. docs/reproduction.md,
-"M2D2M at parity with MMM", holds a measured copy.
+"M2D2M against MMM on the same tokens", holds a measured copy.
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ class Variant:
 
 
 CURVES = {variant.key: variant for variant in (
-    Variant("m2d2m", "M2D2M (demo.yaml, ours)", "m2d2m"),
+    Variant("m2d2m", "M2D2M (demo.yaml, ours; its 25 sampling steps)", "m2d2m"),
     Variant("m2d2m-paper", "M2D2M (paper-demo.yaml)", "m2d2m", "paper-demo"),
     Variant("mmm", "MMM", "mmm"),
     Variant("motiondiffuse", "MotionDiffuse (100 respaced steps, 1 repeat)", "motiondiffuse", options=("steps=100",),
@@ -205,6 +205,7 @@ def plot(path: Path, results: dict[str, Any]) -> None:
     """FID (log scale) and R-Top3 against steps and against seconds, one line per curve, with the
     codec's ceiling and the ground truth's R-Top3 dashed."""
     from matplotlib.figure import Figure
+    from matplotlib.ticker import NullFormatter
 
     figure = Figure(figsize=(10, 7), dpi=110, layout="constrained")
     axes = figure.subplots(2, 2)
@@ -224,14 +225,18 @@ def plot(path: Path, results: dict[str, Any]) -> None:
                     if value is not None and not (row_name == GT_SINGLE and metric == "fid"):
                         references[row_name, metric] = value
     labels = {RECONSTRUCTION: "VQ-VAE reconstruction", GT_SINGLE: "ground truth"}
+    steps = sorted({p["step"] for points in results.get("curves", {}).values() for p in points})
     for row, (metric, title) in enumerate((("fid", "FID ↓ (log)"), ("r_top3", "R-Top3 ↑"))):
-        for column, x_label in enumerate(("training steps", "training wall-clock seconds (2 CPU cores)")):
+        for column, x_label in enumerate(("training steps", "training wall-clock seconds")):
             ax = axes[row, column]
             for (row_name, which), value in references.items():
                 if which == metric:
                     ax.axhline(value, linestyle="--", linewidth=1, color="grey" if row_name == GT_SINGLE else "black",
                                label=labels[row_name])
             ax.set(xlabel=x_label, title=title, xscale="log")
+            if column == 0 and steps:  # the measured steps as plain numbers, no log-scale minor labels
+                ax.set_xticks(steps, [str(step) for step in steps])
+                ax.xaxis.set_minor_formatter(NullFormatter())
             if metric == "fid":
                 ax.set_yscale("log")
             ax.grid(alpha=0.3, which="both")
