@@ -21,7 +21,7 @@ import torch  # noqa: E402
 
 from m2d2m.motion.representation import features_to_joints, joints_to_features  # noqa: E402
 
-SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "humanml3d-sample"
+SAMPLE = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "humanml3d-sample"
 FRAMES = 196
 
 

@@ -1,4 +1,4 @@
-"""Shared fixtures: paths to the real HumanML3D sample files in ../shared."""
+"""Shared fixtures: the real HumanML3D sample files in tests/fixtures/humanml3d-sample."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from orchestration.train import train_evaluator, train_model, train_vq
 from tests.helpers import TINY_DIFFUSION, TINY_EVALUATOR, TINY_VQ_RUN, write_corpus
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
-HUMANML3D_SAMPLE = PROJECT_ROOT.parent / "shared" / "data" / "humanml3d-sample"
+HUMANML3D_SAMPLE = PROJECT_ROOT / "tests" / "fixtures" / "humanml3d-sample"
 
 
 @pytest.fixture(scope="session")

@@ -15,7 +15,7 @@ from m2d2m.motion.skeleton import KIT, T2M
 
 @pytest.fixture(scope="module")
 def clip(sample_joints: np.ndarray) -> np.ndarray:
-    """The first 24 frames of the real sample clip (conftest.py finds it in ../shared)."""
+    """The first 24 frames of the real sample clip (tests/fixtures/humanml3d-sample)."""
     return sample_joints[:24]
 
 
