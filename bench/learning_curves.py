@@ -135,8 +135,10 @@ def judge(progress: Progress, key: str, variant: Variant, model_file: Path, repe
 def curve(progress: Progress, variant: Variant, steps: list[int], repeats: int,
           on_point: Callable[[str, dict[str, Any]], None]) -> None:
     """Train the variant to the last of ``steps`` with snapshots, then judge each snapshot."""
+    from training.callbacks import StepSnapshots  # Lightning: imported when a curve is measured, not at start-up
+
     run_dir = train(progress, f"curve/{variant.key}/train", variant, max(steps), steps)
-    seconds = json.loads((run_dir / SNAPSHOTS / "seconds.json").read_text(encoding="utf-8"))
+    seconds = StepSnapshots.recorded(run_dir / SNAPSHOTS)
     for step in steps:
         table = judge(progress, f"curve/{variant.key}/{step}", variant,
                       run_dir / SNAPSHOTS / f"model-step{step}.pt", repeats)

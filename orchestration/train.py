@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import json
 import math
 import os
 from collections.abc import Callable, Iterator
@@ -281,8 +280,7 @@ def export_snapshots(run_dir: Path, module, save: Callable[[Path], Path]) -> lis
     from training.callbacks import StepSnapshots
 
     directory = run_dir / SNAPSHOTS
-    seconds = directory / StepSnapshots.SECONDS
-    steps = sorted(int(step) for step in json.loads(seconds.read_text(encoding="utf-8"))) if seconds.exists() else []
+    steps = sorted(int(step) for step in StepSnapshots.recorded(directory))
     written = []
     for step in steps:
         snapshot = torch.load(directory / f"step-{step}.ckpt", map_location="cpu", weights_only=True)

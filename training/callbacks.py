@@ -140,13 +140,15 @@ class StepSnapshots(pl.Callback):
         self._start = 0.0
         self._offset = 0.0
 
-    def _recorded(self) -> dict[str, float]:
-        path = self.directory / self.SECONDS
+    @classmethod
+    def recorded(cls, directory: str | Path) -> dict[str, float]:
+        """The seconds of the snapshots a run in ``directory`` has taken so far, by step ("500": s)."""
+        path = Path(directory) / cls.SECONDS
         return json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
 
     def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         self._start = time.perf_counter()
-        self._offset = max(self._recorded().values(), default=0.0)
+        self._offset = max(self.recorded(self.directory).values(), default=0.0)
 
     def on_train_batch_end(self, trainer: pl.Trainer, module: pl.LightningModule, *args: Any) -> None:
         step = trainer.global_step
@@ -158,6 +160,6 @@ class StepSnapshots(pl.Callback):
         trainer.save_checkpoint(self.directory / f"step-{step}.ckpt")
         if not trainer.is_global_zero:
             return
-        seconds = {**self._recorded(), str(step): self._offset + time.perf_counter() - self._start}
+        seconds = {**self.recorded(self.directory), str(step): self._offset + time.perf_counter() - self._start}
         with atomic_path(self.directory / self.SECONDS) as path:
             path.write_text(json.dumps(seconds, indent=1), encoding="utf-8")

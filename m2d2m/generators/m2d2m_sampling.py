@@ -341,11 +341,7 @@ class TokenSampler:
         """The denoiser's condition of the rows, followed, when guided, by as many null rows."""
         if options.guidance == 0.0:
             return self.denoiser.condition(text, text_mask)
-        rows = text.shape[0]
-        null_text, null_mask = self.denoiser.null_condition(rows)
-        pad = text.shape[1] - null_text.shape[1]
-        null_text = torch.nn.functional.pad(null_text, (0, 0, 0, pad))
-        null_mask = torch.nn.functional.pad(null_mask, (0, pad), value=False)
+        null_text, null_mask = self.denoiser.nullify(text, text_mask, torch.ones(text.shape[0], dtype=torch.bool))
         return self.denoiser.condition(torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
 
     def _x0(self, z: Tensor, valid: Tensor, offsets: Tensor, t: int, condition: Condition,
