@@ -312,7 +312,7 @@ def _testset(args: argparse.Namespace) -> None:
     from pipelines.testset import describe
 
     data = args.data or f"data/{args.dataset}"
-    summary = make_testset(data, args.dataset, args.n, args.seed, args.mirrors, args.force, args.first)
+    summary = make_testset(data, args.dataset, args.n, args.seed, args.mirrors, args.force, args.first, args.split)
     print(describe(summary))
     print(f"logged to MLflow run {summary['mlflow_run_id']} (experiment {args.dataset}/{TESTSET_STAGE})")
 
@@ -490,6 +490,9 @@ def _add_testset(verbs) -> None:
                               "(distinct), or is left out (exclude)")
     testset.add_argument("--first", type=_positive_int, metavar="K",
                          help="keep only the first K instances: a quick-look subset for sweeps (not the paper's)")
+    testset.add_argument("--split", default="test",
+                         help="the clips it is drawn from: test (default) or val, where sampling settings are "
+                              "chosen (written to n<N>-seed<S>-val)")
     testset.add_argument("--force", action="store_true", help="replace a test set built with other parameters")
     testset.set_defaults(run=_testset)
 

@@ -50,12 +50,13 @@ RESULTS = "results"
 
 # ---------------------------------------------------------------------------------- test sets
 def make_testset(data_dir: str | Path, dataset: str, n: int = DEFAULT_N, seed: int = DEFAULT_SEED,
-                 mirrors: str = "same", force: bool = False, limit: int | None = None) -> dict[str, Any]:
+                 mirrors: str = "same", force: bool = False, limit: int | None = None,
+                 split: str = "test") -> dict[str, Any]:
     """Build (or reuse) the N-action test set of a processed dataset and record it in MLflow
     (experiment ``<dataset>/testset``: its parameters, pool and instance counts, and its files,
     so an evaluation can name exactly what it ran on). Returns the summary with ``mlflow_run_id``."""
     try:
-        summary = build_testset(data_dir, n=n, seed=seed, mirrors=mirrors, force=force, limit=limit)
+        summary = build_testset(data_dir, n=n, seed=seed, mirrors=mirrors, force=force, limit=limit, split=split)
     except (FileNotFoundError, FileExistsError, ValueError) as error:
         raise UserError(str(error)) from error
     path, pool = Path(summary["path"]), summary["pool"]

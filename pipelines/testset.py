@@ -266,11 +266,12 @@ def _same_parameters(manifest: dict[str, Any], parameters: dict[str, Any]) -> bo
 
 
 def testset_dir(data_dir: str | Path, n: int, seed: int, out: str | Path | None = None,
-                limit: int | None = None, mirrors: str = "same") -> Path:
-    """Where ``build_testset`` writes: ``<out or data_dir/testsets>/n<N>-seed<S>[-<mirrors>][-first<L>]``,
-    the mirror rule named unless it is the default, so test sets drawn by other rules never collide."""
+                limit: int | None = None, mirrors: str = "same", split: str = "test") -> Path:
+    """Where ``build_testset`` writes: ``<out or data_dir/testsets>/n<N>-seed<S>[-<mirrors>][-first<L>][-<split>]``,
+    the mirror rule and the split named unless they are the defaults, so test sets drawn by other
+    rules or from another split never collide."""
     name = (f"n{n}-seed{seed}" + (f"-{mirrors}" if mirrors != "same" else "")
-            + (f"-first{limit}" if limit is not None else ""))
+            + (f"-first{limit}" if limit is not None else "") + (f"-{split}" if split != "test" else ""))
     return Path(out if out is not None else Path(data_dir) / TESTSETS) / name
 
 
@@ -281,7 +282,8 @@ def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Pa
     ``path`` and ``reused``. An existing test set with the same parameters (and source dataset
     checksum) is reused when it checks clean; one with other parameters, or damaged, is an error
     unless ``force`` replaces it. ``limit`` keeps only the first instances of the seed's draw: a
-    quick-look subset for sweeps, never the paper's table."""
+    quick-look subset for sweeps, never the paper's table. ``split="val"`` draws the same kind of
+    set from the validation clips, where sampling settings are chosen without seeing the test set."""
     data_dir = Path(data_dir).resolve()
     min_frames = _resolve_min_frames(data_dir, min_frames)
     if mirrors not in MIRROR_RULES:
@@ -290,7 +292,10 @@ def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Pa
         raise ValueError(f"n must be at least 1, got {n}")
     if limit is not None and limit < 2:
         raise ValueError(f"limit must be at least 2 instances, got {limit}")
-    target = testset_dir(data_dir, n, seed, out, limit, mirrors).resolve()
+    splits = read_manifest(data_dir)["shards"]
+    if split not in splits:
+        raise ValueError(f"{data_dir}: no {split!r} split; the dataset has {', '.join(splits)}")
+    target = testset_dir(data_dir, n, seed, out, limit, mirrors, split).resolve()
     parameters = _parameters(data_dir, n, seed, split, min_frames, mirrors, limit)
     if (target / MANIFEST).exists() and not force:
         existing = json.loads((target / MANIFEST).read_text(encoding="utf-8"))

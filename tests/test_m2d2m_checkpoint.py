@@ -1,7 +1,15 @@
-"""The M2D2M checkpoint keeps the whole transition schedule it was trained with: a configured
-ᾱ_T or γ̄_T comes back from the file, not the named schedule's default."""
+"""The M2D2M checkpoint keeps the whole transition schedule it was trained with (a configured ᾱ_T or
+γ̄_T comes back from the file, not the named schedule's default) and the sampling defaults its
+config chose."""
 
+from dataclasses import replace
+
+import pytest
+
+from m2d2m.generators.m2d2m import M2D2MGenerator
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint, save_checkpoint
+from m2d2m.generators.m2d2m_sampling import MULTI_ACTION, SINGLE_ACTION
+from m2d2m.generators.protocol import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
 from m2d2m.text import LearnedTextEncoder
 from tests.helpers import TINY_DIFFUSION, random_vq
@@ -19,3 +27,26 @@ def test_configured_schedule_endpoints_survive_the_round_trip(tiny_data, tmp_pat
     loaded = load_checkpoint(path)
     assert loaded.schedule.config == module.schedule.config
     assert loaded.schedule.gamma_bar[-1].item() == 0.5  # the matrices are rebuilt from it, not from "linear"
+
+
+def test_the_model_files_sampling_defaults_reach_every_preset(tiny_data, tmp_path):
+    """A config's ``sampling`` section travels in the file and is where every preset starts from;
+    what it does not name stays the paper's preset, and a knob it may not set is refused."""
+    vq, _ = random_vq(tmp_path / "vq.pt", tiny_data, seed=0)
+    module = M2D2MModule(TINY_DIFFUSION["denoiser"], TINY_DIFFUSION["text"], TINY_DIFFUSION["diffusion"],
+                         TINY_DIFFUSION["optim"], codebook=vq.codebook,
+                         vocabulary=LearnedTextEncoder.build_vocabulary(["a person walks"]))
+
+    def save(sampling):
+        return save_checkpoint(tmp_path / "model.pt", module.denoiser, module.text_encoder, TINY_DIFFUSION["text"],
+                               module.schedule.config, module.codebook, tmp_path / "vq.pt", LengthPrior({}, 5, 10),
+                               sampling=sampling)
+
+    generator = M2D2MGenerator.load(save({"steps": 3, "guidance": 1.0}))
+    for preset, paper in ((MULTI, MULTI_ACTION), (SINGLE, SINGLE_ACTION)):
+        assert generator.presets[preset] == replace(paper, steps=3, guidance=1.0)
+    assert M2D2MGenerator.load(save({})).presets[SINGLE] == SINGLE_ACTION
+    with pytest.raises(ValueError, match="sampling.eta: a model's sampling defaults are steps, truncation, guidance"):
+        save({"eta": 0.3})
+    with pytest.raises(ValueError, match="guidance scale s must be >= 0"):
+        save({"guidance": -1.0})

@@ -241,3 +241,14 @@ def test_on_the_pipelines_own_output(tiny_data, tmp_path):
     assert summary["instances"] == 1 and check_testset(summary["path"]) == []
     with pytest.raises(ValueError, match="fewer than n = 2"):
         build_testset(tiny_data, n=2, out=tmp_path)
+
+
+def test_another_split_draws_only_its_clips_into_a_directory_of_its_own(data, tmp_path):
+    """Sampling settings are chosen on a set drawn from another split (``--split val``): it holds that
+    split's clips alone and never lands where the test split's set of the same seed lives."""
+    summary = build_testset(data, n=1, seed=0, out=tmp_path, split="train")
+    assert Path(summary["path"]).name == "n1-seed0-train" and summary["split"] == "train"
+    assert [item["key"] for instance in instances(Path(summary["path"])) for item in instance["items"]] == ["000100"]
+    assert Path(build_testset(data, n=1, seed=0, out=tmp_path)["path"]).name == "n1-seed0"
+    with pytest.raises(ValueError, match="no 'dev' split; the dataset has val, train, test"):
+        build_testset(data, n=1, out=tmp_path, split="dev")

@@ -34,7 +34,7 @@ class M2D2MGenerator(TokenModelGenerator):
     def __init__(self, checkpoint: Checkpoint, source: Path) -> None:
         self.checkpoint = checkpoint
         self.source = source
-        # the paper's presets, sampled as the model's config chose (steps, truncation)
+        # the paper's presets, sampled as the model's config chose (steps, truncation, guidance)
         self.presets = {name: replace(preset, **checkpoint.sampling) for name, preset in type(self).presets.items()}
         self.codec, self.lengths, self.extra = checkpoint.codec, checkpoint.lengths, checkpoint.extra
         self.sampler = TokenSampler(checkpoint.denoiser, checkpoint.text_encoder, checkpoint.schedule)

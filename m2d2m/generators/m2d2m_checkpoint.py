@@ -2,8 +2,8 @@
 
 It holds the denoiser (config and weights), the text encoder (its kind and options; weights when
 it was trained, a path when it is the frozen CLIP tower), the transition settings and the codebook
-they are built from, the sampling defaults its config chose (``sampling``: the number of steps and
-the truncation every preset starts from), the VQ-VAE that decodes tokens (embedded, with its
+they are built from, the sampling defaults its config chose (``sampling``: the number of steps, the
+truncation and the guidance scale every preset starts from), the VQ-VAE that decodes tokens (embedded, with its
 normalisation and skeleton), and the corpus's length prior, so ``load_checkpoint(path)`` alone can
 turn text into motion on any machine.
 """

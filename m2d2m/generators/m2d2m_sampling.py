@@ -87,8 +87,8 @@ MULTI_ACTION = SamplingOptions(method="tps", ts=None, eta=0.25, guidance=2.0)
 # one action has no joint phase: every method samples it alike, ``independent`` says so
 SINGLE_ACTION = SamplingOptions(method="independent", eta=0.5, guidance=4.0)
 # the knobs a model file may set for every preset (its config's ``sampling`` section): how it samples,
-# not what the paper's single- and multi-action settings are
-MODEL_DEFAULTS = ("steps", "truncation")
+# chosen for that model on a validation split, not what the paper's single- and multi-action settings are
+MODEL_DEFAULTS = ("steps", "truncation", "guidance")
 
 
 @dataclass
