@@ -68,6 +68,8 @@ CURVES = {variant.key: variant for variant in (
     Variant("mmm", "MMM", "mmm"),
     Variant("motiondiffuse", "MotionDiffuse (100 respaced steps, 1 repeat)", "motiondiffuse", options=("steps=100",),
             repeats=1),
+    Variant("motiondiffuse-x0", "MotionDiffuse, x0-prediction (ours; 100 respaced steps, 1 repeat)", "motiondiffuse",
+            overrides=("diffusion.prediction=x0",), options=("steps=100",), repeats=1),
 )}
 
 PAPER = "paper"

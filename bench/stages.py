@@ -6,6 +6,7 @@ everything again."""
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -72,6 +73,7 @@ class Progress:
         earlier = self._run_started_by(key, stage)
         if earlier is None:  # never started, or stopped before its run folder existed
             self.state["started"][key] = time.time()
+            self.state.setdefault("process", {})[key] = os.getpid()
             self._write()
             run(*argv)
         elif read_run_info(earlier).get("status") != "finished":
@@ -81,13 +83,15 @@ class Progress:
         return self.state["finished"][key]
 
     def _run_started_by(self, key: str, stage: str) -> Path | None:
-        """The newest run of ``stage`` that began after ``key`` was started, if any."""
-        since = self.state["started"].get(key)
+        """The newest run of ``stage`` that the process which started ``key`` began after it, if
+        any: a run another command started meanwhile in the same stage is not this key's."""
+        since, process = self.state["started"].get(key), self.state.get("process", {}).get(key)
         folder = stage_dir(DATASET, stage)
         if since is None or not folder.exists():
             return None
-        runs = [(read_run_info(p).get("started", 0.0), p) for p in folder.iterdir() if (p / "run.json").exists()]
-        runs = [(started, p) for started, p in runs if started >= since]
+        infos = [(read_run_info(p), p) for p in folder.iterdir() if (p / "run.json").exists()]
+        runs = [(info.get("started", 0.0), p) for info, p in infos
+                if info.get("started", 0.0) >= since and process in (None, info.get("pid"))]
         return max(runs)[1] if runs else None
 
     def _write(self) -> None:

@@ -38,12 +38,13 @@ def stage_dir(dataset: str, stage: str) -> Path:
 
 
 def new_run_dir(dataset: str, stage: str) -> Path:
-    """A fresh, sortable run directory: ``<UTC time>-<random>``."""
+    """A fresh, sortable run directory: ``<UTC time>-<random>``, recording when and by which
+    process it was started (so a bench tells its own runs from those of a command run beside it)."""
     started = time.time()
     name = f"{time.strftime('%Y%m%d-%H%M%S', time.gmtime(started))}-{secrets.token_hex(2)}"
     path = stage_dir(dataset, stage) / name
     path.mkdir(parents=True)
-    write_run_info(path, started=started)
+    write_run_info(path, started=started, pid=os.getpid())
     return path
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestration.runs import new_run_dir, newest_run, write_run_info
+from orchestration.runs import new_run_dir, newest_run, read_run_info, write_run_info
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `stages` beside them
 import stages  # noqa: E402
@@ -70,3 +70,20 @@ def test_a_stopped_reproduction_continues_where_it_stopped(tmp_path, monkeypatch
     with pytest.raises(SystemExit, match="other settings"):
         stages.Progress(state, _plain(Scale(1, 1, 1, (90, 100))), restart=False)
     assert stages.Progress(state, _plain(Scale(1, 1, 1, (90, 100))), restart=True).state["finished"] == {}
+
+
+def test_a_run_another_command_starts_beside_a_bench_is_not_taken_for_the_benchs(tmp_path, monkeypatch):
+    """An evaluation run by hand while a bench evaluates lands in the same stage folder, later: the
+    bench must still record the run its own command made."""
+    monkeypatch.chdir(tmp_path)
+    made: list[Path] = []
+
+    def evaluate_beside_another(*argv: str) -> None:
+        made.append(new_run_dir("synthetic", "eval"))
+        write_run_info(made[-1], status="finished")
+        beside = new_run_dir("synthetic", "eval")  # started later, by another process
+        write_run_info(beside, status="finished", pid=-1, started=read_run_info(made[-1])["started"] + 1)
+
+    monkeypatch.setattr(stages, "run", evaluate_beside_another)
+    progress = stages.Progress(tmp_path / "state.json", _plain(SCALE), restart=False)
+    assert progress.stage("judge", "eval", str, "evaluate", resume=("evaluate", "--resume", "{run}")) == str(made[0])
