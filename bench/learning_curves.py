@@ -14,7 +14,8 @@ above; sampling-only changes reuse the paper model's run. MMM on the same tokens
 and the last row the shipped demo config (every change that measured better, docs/training.md), so
 that each cause's share of the gap is a number.
 
-    python bench/learning_curves.py [--curves m2d2m m2d2m-paper mmm motiondiffuse] [--steps 500 1000 2000 4000 8000]
+    python bench/learning_curves.py [--curves m2d2m m2d2m-paper mmm motiondiffuse motiondiffuse-x0]
+                                    [--steps 500 1000 2000 4000 8000]
                                     [--ablation] [--ablation-steps 2000] [--repeats 2] [--quick] [--restart]
 
 Every training run and every evaluation goes through the `m2d2m` command line, so MLflow holds them
@@ -66,10 +67,10 @@ CURVES = {variant.key: variant for variant in (
     Variant("m2d2m", "M2D2M (demo.yaml, ours; its 25 sampling steps)", "m2d2m"),
     Variant("m2d2m-paper", "M2D2M (paper-demo.yaml)", "m2d2m", "paper-demo"),
     Variant("mmm", "MMM", "mmm"),
-    Variant("motiondiffuse", "MotionDiffuse (100 respaced steps, 1 repeat)", "motiondiffuse", options=("steps=100",),
-            repeats=1),
-    Variant("motiondiffuse-x0", "MotionDiffuse, x0-prediction (ours; 100 respaced steps, 1 repeat)", "motiondiffuse",
-            overrides=("diffusion.prediction=x0",), options=("steps=100",), repeats=1),
+    Variant("motiondiffuse", "MotionDiffuse (paper-demo.yaml, ε; 100 respaced steps, 1 repeat)", "motiondiffuse",
+            "paper-demo", options=("steps=100",), repeats=1),
+    Variant("motiondiffuse-x0", "MotionDiffuse (demo.yaml, x0-prediction, ours; 100 respaced steps, 1 repeat)",
+            "motiondiffuse", options=("steps=100",), repeats=1),
 )}
 
 PAPER = "paper"
@@ -274,7 +275,8 @@ def track(results: dict[str, Any], settings: dict[str, Any]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--curves", nargs="*", default=["m2d2m", "m2d2m-paper", "mmm", "motiondiffuse"],
+    parser.add_argument("--curves", nargs="*",
+                        default=["m2d2m", "m2d2m-paper", "mmm", "motiondiffuse", "motiondiffuse-x0"],
                         choices=list(CURVES), help="the models whose learning curves to measure")
     parser.add_argument("--steps", type=int, nargs="+", default=[500, 1000, 2000, 4000, 8000])
     parser.add_argument("--ablation", action="store_true", help="also the ablation table (about 10 minutes a row)")
