@@ -212,7 +212,7 @@ def plot(path: Path, results: dict[str, Any]) -> None:
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullFormatter
 
-    figure = Figure(figsize=(10, 7), dpi=110, layout="constrained")
+    figure = Figure(figsize=(10, 8), dpi=110, layout="constrained")
     axes = figure.subplots(2, 2)
     references: dict[tuple[str, str], float] = {}
     for key, points in results.get("curves", {}).items():
@@ -245,7 +245,9 @@ def plot(path: Path, results: dict[str, Any]) -> None:
             if metric == "fid":
                 ax.set_yscale("log")
             ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize="small")
+    handles, names = axes[1, 0].get_legend_handles_labels()
+    if handles:  # one legend below the panels, where it covers no curve
+        figure.legend(handles, names, loc="outside lower center", ncols=2, fontsize="small")
     figure.savefig(path)
 
 
