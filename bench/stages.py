@@ -84,14 +84,15 @@ class Progress:
 
     def _run_started_by(self, key: str, stage: str) -> Path | None:
         """The newest run of ``stage`` that the process which started ``key`` began after it, if
-        any: a run another command started meanwhile in the same stage is not this key's."""
+        any: a run another command started meanwhile in the same stage is not this key's. (A key
+        recorded before processes were, and its runs, have none: they match each other only.)"""
         since, process = self.state["started"].get(key), self.state.get("process", {}).get(key)
         folder = stage_dir(DATASET, stage)
         if since is None or not folder.exists():
             return None
         infos = [(read_run_info(p), p) for p in folder.iterdir() if (p / "run.json").exists()]
         runs = [(info.get("started", 0.0), p) for info, p in infos
-                if info.get("started", 0.0) >= since and process in (None, info.get("pid"))]
+                if info.get("started", 0.0) >= since and info.get("pid") == process]
         return max(runs)[1] if runs else None
 
     def _write(self) -> None:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -87,3 +89,17 @@ def test_a_run_another_command_starts_beside_a_bench_is_not_taken_for_the_benchs
     monkeypatch.setattr(stages, "run", evaluate_beside_another)
     progress = stages.Progress(tmp_path / "state.json", _plain(SCALE), restart=False)
     assert progress.stage("judge", "eval", str, "evaluate", resume=("evaluate", "--resume", "{run}")) == str(made[0])
+
+
+def test_a_key_recorded_before_runs_named_their_process_keeps_its_own_run(tmp_path, monkeypatch):
+    """A state written before run folders recorded their process: its key still finds the run of
+    its time, not a newer one that a command started since (which names its process)."""
+    monkeypatch.chdir(tmp_path)
+    progress = stages.Progress(tmp_path / "state.json", _plain(SCALE), restart=False)
+    progress.state["started"]["vq"] = time.time()
+    own = new_run_dir("synthetic", "vq")
+    info = {key: value for key, value in read_run_info(own).items() if key != "pid"}
+    (own / "run.json").write_text(json.dumps({**info, "status": "finished"}), encoding="utf-8")
+    write_run_info(new_run_dir("synthetic", "vq"), status="finished")  # a later run, by this process
+    monkeypatch.setattr(stages, "run", lambda *argv: pytest.fail("a finished key's run was started again"))
+    assert progress.stage("vq", "vq", str, "train-vq", resume=("train-vq", "--resume")) == str(own)
