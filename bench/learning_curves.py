@@ -116,7 +116,7 @@ def train(progress: Progress, key: str, variant: Variant, steps: int, snapshots:
     with keeping_latest(entry.stage):
         return Path(progress.stage(key, entry.stage, str, entry.train_verb, "--config", variant.config, *sets,
                                    *schedule_overrides(steps, snapshots),
-                                   resume=(entry.train_verb, "--config", variant.config, "--resume")))
+                                   resume=(entry.train_verb, "--config", variant.config, "--resume", "{run}")))
 
 
 def judge(progress: Progress, key: str, variant: Variant, model_file: Path, repeats: int) -> dict[str, Any]:

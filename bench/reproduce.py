@@ -66,16 +66,17 @@ def train(scale: Scale, progress: Progress) -> dict[str, Path]:
         return lambda run_dir: str(run_dir / name)
 
     vq = progress.stage("vq", "vq", model_file("vq.pt"), "train-vq", "--config", "demo",
-                        *schedule_overrides(scale.vq_steps), resume=("train-vq", "--config", "demo", "--resume"))
+                        *schedule_overrides(scale.vq_steps),
+                        resume=("train-vq", "--config", "demo", "--resume", "{run}"))
     run("tokenize", "--vq", vq)
     progress.stage("evaluator", "evaluator", model_file("evaluator.pt"), "train-evaluator", "--config", "demo",
-                   resume=("train-evaluator", "--config", "demo", "--resume"))
+                   resume=("train-evaluator", "--config", "demo", "--resume", "{run}"))
     models = {}
     for kind in TRANSITIONS:
         models[kind] = Path(progress.stage(
             f"denoiser/{kind}", "m2d2m", model_file("model.pt"), "train-diffusion", "--config", "paper-demo",
             "--set", f"vq={vq}", "--set", f"diffusion.kind={kind}", *schedule_overrides(scale.diffusion_steps),
-            resume=("train-diffusion", "--config", "paper-demo", "--resume")))
+            resume=("train-diffusion", "--config", "paper-demo", "--resume", "{run}")))
     return models
 
 

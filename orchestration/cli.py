@@ -401,7 +401,9 @@ def _add_training_verb(verbs, name: str, configs: str, description: str, example
     parser.add_argument("--config", default="demo", help=f"configs/{configs}/<name>.yaml or a path (default demo)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help=f"override a config value, e.g. --set {example} (repeatable)")
-    parser.add_argument("--resume", action="store_true", help="continue the newest unfinished run of this config's dataset")
+    parser.add_argument("--resume", nargs="?", const=True, default=False, metavar="RUN",
+                        help="continue the newest unfinished run of this config's dataset, or RUN (its directory, "
+                             "name or MLflow run id)")
     parser.set_defaults(run=run, **defaults)
 
 

@@ -37,7 +37,7 @@ from m2d2m.motion.body_parts import FULL
 from orchestration.config import flatten, is_number, load_config
 from orchestration.errors import UserError
 from orchestration.registry import load_plugins, model, plugins_for_workers
-from orchestration.runs import (enter_project, mark_latest, new_run_dir, newest_run, read_run_info, run_file,
+from orchestration.runs import (enter_project, find_run, mark_latest, new_run_dir, newest_run, read_run_info, run_file,
                                  write_run_info)
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
@@ -134,7 +134,7 @@ def records_failure(stage: Callable[..., Path]) -> Callable[..., Path]:
     return recorded
 
 
-def open_run(stage: str, configs: str, config_name: str, overrides: list[str], resume: bool,
+def open_run(stage: str, configs: str, config_name: str, overrides: list[str], resume: bool | str,
              join: Path | None = None) -> tuple[Path, dict[str, Any], str | None]:
     """The run directory of ``stage``, its config (``configs/<configs>/<config_name>.yaml`` with
     the overrides) and its MLflow run id (None for a new run). A new run's config is written
@@ -154,8 +154,12 @@ def open_run(stage: str, configs: str, config_name: str, overrides: list[str], r
         return run_dir, config, None
     if overrides:
         raise UserError("--set cannot change a run being resumed; resume as it was, or start a new run")
-    run_dir = newest_run(config["dataset"], stage)
+    # a named run (a bench resuming the run it started), else the newest one of the stage
+    dataset = config["dataset"]
+    run_dir = find_run(resume, dataset, stage) if isinstance(resume, str) else newest_run(dataset, stage)
     info = read_run_info(run_dir)
+    if info.get("stage", stage) != stage:
+        raise UserError(f"{run_dir} is a {info['stage']} run, not a {stage} run")
     if info.get("status") == "finished":
         raise UserError(f"{run_dir} already finished; start a new run instead of --resume")
     write_run_info(run_dir, status="running")
@@ -216,7 +220,7 @@ def _joinable(run_dir: Path) -> Iterator[None]:
             os.environ[JOIN_RUN] = before
 
 
-def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, resume: bool, module, datamodule,
+def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, resume: bool | str, module, datamodule,
         monitor: str, callbacks: list, ray_train: bool = False) -> _Fitted:
     """What every training stage shares: the MLflow run and its params, best and last
     checkpoints, the trainer (DDP when it has several devices or Ray Train workers), resume, the
@@ -299,7 +303,7 @@ def finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -
 
 
 @records_failure
-def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
              extra_callbacks: list | None = None) -> Path:
     """Train the motion VQ-VAE; returns the run directory (with ``vq.pt`` on success).
     ``extra_callbacks`` join the trainer's (a sweep's reporting callback, for instance)."""
@@ -386,7 +390,7 @@ def ensure_tokens(vq_path: Path) -> tuple[Path, Path]:
 
 
 @records_failure
-def train_model(name: str, config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+def train_model(name: str, config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
                 extra_callbacks: list | None = None) -> Path:
     """Train the registered model ``name`` (``m2d2m train-diffusion`` for M2D2M) with its recipe;
     returns the run directory."""
@@ -426,7 +430,7 @@ def _ray_train_worker(config: dict[str, Any]) -> None:
 
 
 @records_failure
-def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
                     extra_callbacks: list | None = None) -> Path:
     """Train Guo et al.'s text–motion matching evaluator on the dataset's train split (best
     checkpoint by validation loss); returns the run directory, with ``evaluator.pt`` on success."""

@@ -95,6 +95,7 @@ def _training_cases() -> list[list[str]]:
                          "trainer.accelerator=abacus", "trainer.devices=0"):
             cases.append([verb, "--config", config, "--set", override])
         cases.append([verb, "--config", config, "--resume"])  # its only run has finished
+        cases.append([verb, "--config", config, "--resume", "no-such-run"])
     for verb, override in (("train-vq", "model.width=0"), ("train-vq", "model.activation=sigmoidal"),
                            ("train-evaluator", "model.embedding_dim=0"), ("train-diffusion", "denoiser.heads=3"),
                            ("train-diffusion", "diffusion.steps=0"), ("train-diffusion", "diffusion.kind=cubic"),

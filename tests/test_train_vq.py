@@ -72,6 +72,18 @@ def test_resume_after_a_kill_continues_at_the_same_step_with_the_optimizer_state
         train_vq(str(project / "tiny.yaml"), resume=True)
 
 
+def test_resume_of_a_named_run_continues_that_run_not_the_newest(project):
+    """`--resume RUN`: a bench resumes the run it started even when another run began later."""
+    for _ in range(2):
+        with pytest.raises(RuntimeError, match="killed"):
+            train_vq(str(project / "tiny.yaml"), extra_callbacks=[KillAt(step=4)])
+    first, newest = sorted((project / "runs" / "tiny" / "vq").iterdir(), key=lambda p: read_run_info(p)["started"])
+    assert train_vq(str(project / "tiny.yaml"), resume=first.name).resolve() == first.resolve()
+    assert read_run_info(first)["status"] == "finished" and read_run_info(newest)["status"] != "finished"
+    with pytest.raises(UserError, match="no vq run 'elsewhere'"):
+        train_vq(str(project / "tiny.yaml"), resume="elsewhere")
+
+
 class PoisonAt(pl.Callback):
     def __init__(self, step: int) -> None:
         self.step = step

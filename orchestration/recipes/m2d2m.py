@@ -15,7 +15,7 @@ __all__ = ["prepare", "train"]  # a recipe: prepare (the tokens, shared by token
 NAME = "m2d2m"
 
 
-def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
           extra_callbacks: list | None = None, join: Path | None = None, ray_train: bool = False) -> Path:
     """Train the denoiser; returns the run directory (with ``model.pt`` on success). ``join``: a run
     another process opened (its config is used, ``config_name`` and ``overrides`` are not);

@@ -15,7 +15,7 @@ __all__ = ["prepare", "train"]  # a recipe: prepare (the tokens, shared by token
 NAME = "mmm"
 
 
-def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
           extra_callbacks: list | None = None, join: Path | None = None, ray_train: bool = False) -> Path:
     """Train the masked transformer; returns the run directory (with ``model.pt`` on success).
     ``join`` and ``ray_train`` as for every recipe (orchestration/train.py)."""

@@ -16,7 +16,7 @@ __all__ = ["prepare", "train"]  # a recipe: prepare (both part tokenizers' token
 NAME = "mmm-body"
 
 
-def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
           extra_callbacks: list | None = None, join: Path | None = None, ray_train: bool = False) -> Path:
     """Train the upper-body editor; returns the run directory (with ``model.pt`` on success).
     ``join`` and ``ray_train`` as for every recipe (orchestration/train.py). No sample previews:

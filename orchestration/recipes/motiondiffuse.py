@@ -20,7 +20,7 @@ def prepare(config: dict[str, Any]) -> None:
     """Nothing to make before parallel trials: they read the processed dataset as it is."""
 
 
-def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool = False,
+def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
           extra_callbacks: list | None = None, join: Path | None = None, ray_train: bool = False) -> Path:
     """Train the noise estimator; returns the run directory (with ``model.pt`` on success).
     ``join`` and ``ray_train`` as for every recipe (orchestration/train.py)."""
