@@ -19,7 +19,8 @@ import torch
 
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
-from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions, TokenSampler
+from m2d2m.generators.m2d2m_options import M2D2MOptions
+from m2d2m.generators.m2d2m_sampling import Request, TokenSampler
 from m2d2m.text import LearnedTextEncoder
 from timing import wall_time
 
@@ -52,10 +53,10 @@ def main() -> None:
     for n in counts:
         request = [Request([["a person walks forward"]] * n, [TOKENS] * n, seed=0)]
         with autocast:
-            short.sample(request, SamplingOptions(ts=0))  # warm-up
-            joint = min(wall_time(lambda: short.sample(request, SamplingOptions(ts=0)), device) for _ in range(2)) / SHORT
-            indep = min(wall_time(lambda: short.sample(request, SamplingOptions(ts=SHORT)), device) for _ in range(2)) / SHORT
-            measured = wall_time(lambda: full.sample(request, SamplingOptions(ts=TS)), device) if (gpu or n <= 2) else None
+            short.sample(request, M2D2MOptions(ts=0))  # warm-up
+            joint = min(wall_time(lambda: short.sample(request, M2D2MOptions(ts=0)), device) for _ in range(2)) / SHORT
+            indep = min(wall_time(lambda: short.sample(request, M2D2MOptions(ts=SHORT)), device) for _ in range(2)) / SHORT
+            measured = wall_time(lambda: full.sample(request, M2D2MOptions(ts=TS)), device) if (gpu or n <= 2) else None
         total = (STEPS - TS) * joint + TS * indep
         totals.append(total)
         shown = f"{measured:.1f}" if measured is not None else "–"

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from orchestration.errors import UserError
-from orchestration.registry import models
+from orchestration.registry import DEFAULT_MODEL, models
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -228,11 +228,11 @@ def _export(args: argparse.Namespace) -> None:
 
 
 def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The sampling knobs given on the command line: the named shortcuts and every ``--option``."""
+    """The sampling knobs given on the command line: every ``--option`` and the shortcuts."""
     options = dict(args.option or [])
-    for knob in ("ts", "eta", "guidance", "truncation"):
-        if getattr(args, knob, None) is not None:
-            options[knob] = getattr(args, knob)
+    for name in args.shortcuts:
+        if getattr(args, _SHORTCUT + name) is not None:
+            options[name] = getattr(args, _SHORTCUT + name)
     return options
 
 
@@ -330,7 +330,7 @@ def _evaluate(args: argparse.Namespace) -> None:
             raise UserError(f"--resume continues {args.resume} with its own settings; drop {flags}")
         run_dir, settings = reopen(args.resume, args.dataset)
     else:
-        run_dir, settings = None, new_settings(args.dataset, args.model or "m2d2m", options=options, **given)
+        run_dir, settings = None, new_settings(args.dataset, args.model or DEFAULT_MODEL, options=options, **given)
     run_dir, _ = evaluate(settings, args.dataset, run_dir, args.batch_size)
     print((run_dir / TABLE_MD).read_text(encoding="utf-8"))
     print(f"wrote {run_dir} (table.md, table.json, fig5.png, results/); logged to MLflow "
@@ -429,35 +429,76 @@ def _add_tokenize(verbs) -> None:
     tokenize.set_defaults(run=_tokenize)
 
 
-def _add_model_choice(parser: argparse.ArgumentParser, default: str | None) -> None:
-    parser.add_argument("--model", default=default,
-                        help=f"a registered model: {', '.join(models())} (default m2d2m)")
-    parser.add_argument("--checkpoint", default="latest" if default else None,
+def _add_model_choice(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", default=DEFAULT_MODEL,
+                        help=f"a registered model: {', '.join(models())} (default {DEFAULT_MODEL})")
+    parser.add_argument("--checkpoint", default="latest",
                         help="the model's file, a run directory or name, or an MLflow run id (default: latest)")
 
 
+_SHORTCUT = "knob_"  # a shortcut's attribute: --eta is args.knob_eta, clear of every other option
+_KINDS = {"int": int, "float": float, "str": str}
+
+
+def _escaped(text: str) -> str:
+    return text.replace("%", "%%")  # argparse %-formats help texts
+
+
+def _knob_line(knob: Any, preset: Any) -> str:
+    """One knob of the sampling help: its name, kind, bounds, the multi-action preset's value and what it does."""
+    bounds = f", {knob.bounds}" if knob.bounds else ""
+    value = getattr(preset, knob.name)
+    return f"    {knob.name} ({knob.kind}{bounds}; preset {'none' if value is None else value}): {knob.help}"
+
+
+def sampling_help() -> str:
+    """Every model's methods and knobs, as the models declare them (m2d2m.generators.options):
+    the closing section of ``generate --help`` and ``evaluate --help``."""
+    from m2d2m.generators.options import MULTI
+
+    lines = ["sampling options by model (--option KEY=VALUE; unset ones keep the multi-action preset):"]
+    for entry in models().values():
+        sampling = entry.load("sampling")
+        preset = sampling.presets[MULTI]
+        lines.append(f"  {entry.name}: methods {', '.join(sampling.methods)} (default {preset.method})")
+        lines += [_knob_line(knob, preset) for knob in sampling.knobs()]
+    return "\n".join(lines)
+
+
+def _methods() -> str:
+    """Every model's multi-action methods, as declared: ``m2d2m: tps, independent, ...; mmm: ...``."""
+    return "; ".join(f"{name}: {', '.join(entry.load('sampling').methods)}" for name, entry in models().items())
+
+
 def _add_sampling_knobs(parser: argparse.ArgumentParser) -> None:
-    """M2D2M's knobs by name, and any model's as ``--option KEY=VALUE``; unset ones keep the
-    model's multi-action preset (the paper's: T_s = 90 % of T, η = 0.25, s = 2)."""
-    parser.add_argument("--ts", type=int, help="TPS switch step T_s (default 90 %% of T: 90 for T = 100)")
-    parser.add_argument("--eta", type=float, help="η of the dynamic transition at sampling (default 0.25)")
-    parser.add_argument("--guidance", type=float,
-                        help="classifier-free guidance scale s of the paper's eq. 9, 0 = none (default 2)")
+    """``--option KEY=VALUE`` for any model's knob, and the flags the models' entries declare as
+    shortcuts (M2D2M's ``--ts``, ``--eta``, ``--guidance``, ``--truncation``), each typed and
+    explained as its knob declares it."""
     parser.add_argument("--option", type=_option, action="append", metavar="KEY=VALUE",
-                        help="any sampling option of the model, e.g. --option steps=25 (repeatable)")
+                        help="any sampling option of the model, e.g. --option steps=25 (repeatable; listed below)")
+    owners: dict[str, list[tuple[str, Any]]] = {}
+    for name, entry in models().items():
+        sampling = entry.load("sampling")
+        for knob in entry.shortcuts:
+            owners.setdefault(knob, []).append((name, sampling.knob(knob)))
+    for name, declared in owners.items():
+        explained = "; ".join(f"{model}: {knob.help}" for model, knob in declared)
+        kind = declared[0][1].kind
+        parser.add_argument(f"--{name.replace('_', '-')}", dest=_SHORTCUT + name, type=_KINDS[kind],
+                            metavar=kind.upper(), help=_escaped(f"{explained}; short for --option {name}=…"))
+    parser.set_defaults(shortcuts=tuple(owners))
 
 
 def _add_generate(verbs) -> None:
-    generate = verbs.add_parser("generate", help="text to motion: one sequence doing the prompts in order")
+    generate = verbs.add_parser("generate", help="text to motion: one sequence doing the prompts in order",
+                                epilog=sampling_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
     generate.add_argument("prompts", nargs="*", help='one or more prompts, e.g. "a person walks forward" "a person jumps"')
     generate.add_argument("--seconds", type=float, nargs="+",
                           help="duration of each prompt, or one for all (default: the corpus's typical length per verb)")
-    generate.add_argument("--method", help="the multi-action method (m2d2m: tps (default), independent, handshake, slerp; "
-                          "mmm: transition, independent; motiondiffuse: time-varied, independent)")
+    generate.add_argument("--method", help=f"the multi-action method ({_methods()}; default: the model's first)")
     _add_sampling_knobs(generate)
-    generate.add_argument("--truncation", type=float, help="truncation rate r (default: the model file's; 1 = off)")
     generate.add_argument("--seed", type=int, default=0)
-    _add_model_choice(generate, "m2d2m")
+    _add_model_choice(generate)
     generate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     generate.add_argument("--out", help="a folder, or one file whose suffix (.npy .bvh .gif .mp4) is its format "
                           "(default: the folder runs/<dataset>/generate/<new run>)")
@@ -500,10 +541,11 @@ def _add_testset(verbs) -> None:
 
 
 def _add_evaluate(verbs) -> None:
-    evaluate = verbs.add_parser("evaluate", help="the paper's multi-motion (single-motion, editing) tables and Fig. 5")
+    evaluate = verbs.add_parser("evaluate", help="the paper's multi-motion (single-motion, editing) tables and Fig. 5",
+                                epilog=sampling_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
     evaluate.add_argument("--model", action="append", metavar="MODEL",
                           help=f"registered models to judge side by side in one table: {', '.join(models())}; "
-                               "repeatable or a comma list (default m2d2m)")
+                               f"repeatable or a comma list (default {DEFAULT_MODEL})")
     evaluate.add_argument("--checkpoint", action="append", metavar="REF",
                           help="the model's file, a run directory or name, or an MLflow run id (default: latest); "
                                "with several models MODEL=REF, once per model")
@@ -516,9 +558,8 @@ def _add_evaluate(verbs) -> None:
     evaluate.add_argument("--glove", metavar="DIR", help="Guo's glove/ directory (with --guo-evaluator)")
     evaluate.add_argument("--meta", metavar="DIR", help="the evaluator's mean.npy/std.npy (default CKPT_DIR/meta)")
     evaluate.add_argument("--method", dest="methods", action="append", metavar="METHOD",
-                          help="multi-action methods (m2d2m: tps, independent, handshake, slerp; mmm: transition, "
-                               "independent), each for every model that has it, or MODEL:METHOD for one; "
-                               "repeatable or a comma list (default: each model's first)")
+                          help=f"multi-action methods ({_methods()}), each for every model that has it, or "
+                               "MODEL:METHOD for one; repeatable or a comma list (default: each model's first)")
     _add_sampling_knobs(evaluate)
     evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
     evaluate.add_argument("--multi", action=argparse.BooleanOptionalAction,

@@ -30,7 +30,7 @@ from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
 from m2d2m.layout import MANIFEST
 from orchestration.errors import UserError
 from orchestration.generate import load_generator, resolve_model_file
-from orchestration.registry import model, models
+from orchestration.registry import DEFAULT_MODEL, model, models
 from orchestration.reports import (EDIT_TITLES, FIGURE, GENERATED, GT_CONCAT, GT_SINGLE, RECONSTRUCTION, ROW_TITLES,
                                    SINGLE_COLUMNS, TABLE_JSON, TABLE_MD, notes, plot_fig5, render_table, summarize_rows,
                                    table_metrics)
@@ -141,13 +141,13 @@ class EvalSettings:
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "EvalSettings":
         """Settings as run.json holds them. Runs recorded with one model at the top level (and,
-        before the model registry, M2D2M's ts / eta / guidance there too) read as one candidate."""
+        before the model registry, the default model's knobs there too) read as one candidate."""
         values = dict(values)
         if "candidates" not in values:
             if "model" not in values:
-                values["model"] = "m2d2m"
-                values["options"] = {key: values.pop(key) for key in ("ts", "eta", "guidance")
-                                     if values.get(key) is not None}
+                values["model"] = DEFAULT_MODEL
+                knobs = model(DEFAULT_MODEL).load("sampling").names()
+                values["options"] = {key: values.pop(key) for key in knobs if values.get(key) is not None}
             values["candidates"] = [{key: values.pop(key) for key in ("model", "checkpoint", "methods", "options")}]
         candidates = tuple(Candidate(**{**c, "methods": tuple(c["methods"]), "edits": tuple(c.get("edits", ()))})
                            for c in values.pop("candidates"))
@@ -220,7 +220,7 @@ def _checkpoints(names: Sequence[str], values: Sequence[str] | str | None) -> di
 
 def _named(generator: type[MotionGenerator], of: str) -> tuple[str, ...]:
     """A generator's methods or knobs (``of``)."""
-    return generator.methods if of == "methods" else generator.knobs()
+    return generator.sampling.methods if of == "methods" else generator.sampling.names()
 
 
 def _choices(generators: dict[str, type[MotionGenerator]], of: str) -> str:
@@ -259,7 +259,7 @@ def _methods(values: Sequence[str] | None, generators: dict[str, type[MotionGene
         if owner is not None and owner not in makers:
             raise UserError(f"{owner} edits motions and has no multi-action method; {generators[owner].needs_keep}")
     chosen = _assign(dict.fromkeys(entries), makers, "methods", ":/") if makers else {}
-    return {name: tuple(chosen[name] or generators[name].methods[:1]) if name in makers else ()
+    return {name: tuple(chosen[name] or generators[name].sampling.methods[:1]) if name in makers else ()
             for name in generators}
 
 
@@ -287,7 +287,7 @@ def _options(options: dict[str, Any], generators: dict[str, type[MotionGenerator
     return _assign(options, generators, "knobs", ".")
 
 
-def new_settings(dataset: str, model_name: str | Sequence[str] = "m2d2m",
+def new_settings(dataset: str, model_name: str | Sequence[str] = DEFAULT_MODEL,
                  checkpoint: str | Sequence[str] | None = None, testset: str | None = None,
                  evaluator: str | None = None, guo_evaluator: str | None = None, glove: str | None = None,
                  meta: str | None = None, methods: Sequence[str] | None = None, options: dict[str, Any] | None = None,

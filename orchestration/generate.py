@@ -32,7 +32,7 @@ from m2d2m.layout import NLP
 from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
 from m2d2m.motion.render import can_write_mp4
 from orchestration.errors import UserError
-from orchestration.registry import model, models
+from orchestration.registry import DEFAULT_MODEL, model, models
 from orchestration.runs import new_run_dir, run_file, write_run_info
 from orchestration.tracking import experiment_name, tracked_run
 
@@ -95,7 +95,7 @@ def resolve_model_file(name: str, reference: str | Path, dataset: str) -> Path:
                     entry.legacy_stages)
 
 
-def load_generator(name: str = "m2d2m", reference: str | Path = "latest", dataset: str = "synthetic",
+def load_generator(name: str = DEFAULT_MODEL, reference: str | Path = "latest", dataset: str = "synthetic",
                    device: str = "auto") -> MotionGenerator:
     """Model ``name``'s generator from its model file (on a GPU when there is one, by default)."""
     path = resolve_model_file(name, reference, dataset)

@@ -1,5 +1,5 @@
-"""The models the framework hosts, by name: where each one's network, noise process, generator,
-LightningModule, DataModule, training recipe and configs live. Generation, evaluation, sweeps and
+"""The models the framework hosts, by name: where each one's generator, sampling knobs, training
+recipe and configs live. Generation, evaluation, sweeps and
 the command line reach a model only through its entry here and its generator's protocol
 (:mod:`m2d2m.generators.protocol`), so a new model is its own files and one entry
 (docs/architecture.md, "How to add a model").
@@ -39,13 +39,13 @@ class ModelEntry:
     model_file: str  # what a finished run directory holds
     generator: str  # a MotionGenerator subclass with ``load(path, device)``
     recipe: str  # a module with train(...), prepare(config) (orchestration/train.py says what they do)
-    network: str
-    process: str
-    module: str
-    datamodule: str
+    # its knobs, methods and presets (an m2d2m.generators.options.Sampling, the generator's own),
+    # in a module that loads without torch: the command line's help and shortcuts come from it
+    sampling: str
+    shortcuts: tuple[str, ...] = ()  # knobs that get their own flag (``--eta`` for ``--option eta=``)
 
     def load(self, part: str) -> Any:
-        """The object a ``"module:attribute"`` field names (``part``: generator, recipe, network, ...)."""
+        """The object a ``"module:attribute"`` field names (``part``: generator, recipe, sampling)."""
         module_name, _, attribute = getattr(self, part).partition(":")
         module = importlib.import_module(module_name)
         return getattr(module, attribute) if attribute else module
@@ -53,6 +53,7 @@ class ModelEntry:
 
 _MODELS: dict[str, ModelEntry] = {}
 _loaded_plugins: list[str] = []
+DEFAULT_MODEL = "m2d2m"  # what --model means when not given: the project's own
 
 
 def register(entry: ModelEntry) -> ModelEntry:
@@ -65,33 +66,26 @@ register(ModelEntry(
     name="m2d2m", summary="M2D2M: discrete diffusion over VQ tokens, β(t, d), Two-Phase Sampling",
     stage="m2d2m", legacy_stages=("diffusion",), configs="m2d2m", train_verb="train-diffusion",
     model_file="model.pt", generator="m2d2m.generators.m2d2m:M2D2MGenerator",
-    recipe="orchestration.recipes.m2d2m", network="m2d2m.networks.m2d2m_denoiser:MotionDenoiser",
-    process="m2d2m.processes.discrete_diffusion:TransitionSchedule",
-    module="training.m2d2m_module:M2D2MModule", datamodule="training.data:TokenDataModule"))
+    recipe="orchestration.recipes.m2d2m", sampling="m2d2m.generators.m2d2m_options:SAMPLING",
+    shortcuts=("ts", "eta", "guidance", "truncation")))
 
 register(ModelEntry(
     name="mmm", summary="MMM: a masked motion model over VQ tokens, parallel decoding, transition tokens",
     stage="mmm", legacy_stages=(), configs="mmm", train_verb="train-mmm", model_file="model.pt",
     generator="m2d2m.generators.mmm:MMMGenerator", recipe="orchestration.recipes.mmm",
-    network="m2d2m.networks.mmm_transformer:MaskedMotionTransformer", process="m2d2m.processes.masking",
-    module="training.mmm_module:MMMModule", datamodule="training.data:TokenDataModule"))
+    sampling="m2d2m.generators.mmm_options:SAMPLING"))
 
 register(ModelEntry(
     name="mmm-body", summary="MMM's upper-body editor: new upper body from text, the lower body kept",
     stage="mmm-body", legacy_stages=(), configs="mmm-body", train_verb="train-mmm-body", model_file="model.pt",
     generator="m2d2m.generators.mmm_body:BodyMMMGenerator", recipe="orchestration.recipes.mmm_body",
-    network="m2d2m.networks.mmm_body_transformer:BodyMaskedTransformer", process="m2d2m.processes.masking",
-    module="training.mmm_body_module:BodyMMMModule", datamodule="training.data:BodyTokenDataModule"))
+    sampling="m2d2m.generators.mmm_options:BODY_SAMPLING"))
 
 register(ModelEntry(
     name="motiondiffuse", summary="MotionDiffuse: Gaussian diffusion on features, time-varied and body-part control",
     stage="motiondiffuse", legacy_stages=(), configs="motiondiffuse", train_verb="train-motiondiffuse",
     model_file="model.pt", generator="m2d2m.generators.motiondiffuse:MotionDiffuseGenerator",
-    recipe="orchestration.recipes.motiondiffuse",
-    network="m2d2m.networks.motiondiffuse_transformer:MotionDiffuseTransformer",
-    process="m2d2m.processes.gaussian_diffusion:GaussianDiffusion",
-    module="training.motiondiffuse_module:MotionDiffuseModule",
-    datamodule="training.evaluator_module:CaptionMotionDataModule"))
+    recipe="orchestration.recipes.motiondiffuse", sampling="m2d2m.generators.motiondiffuse_options:SAMPLING"))
 
 
 def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) -> list[str]:

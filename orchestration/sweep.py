@@ -27,7 +27,7 @@ from typing import Any
 
 from orchestration.config import apply_overrides, flatten, load_config
 from orchestration.errors import UserError
-from orchestration.registry import load_plugins, model, plugins_for_workers
+from orchestration.registry import DEFAULT_MODEL, load_plugins, model, plugins_for_workers
 from orchestration.runs import enter_project, stage_dir
 from orchestration.tracking import client as tracking_client
 from orchestration.tracking import experiment_name, finishing, start_run, tracking_uri
@@ -50,8 +50,9 @@ def trial_name(params: dict[str, Any]) -> str:
 
 
 def _upgrade(config: dict[str, Any]) -> dict[str, Any]:
-    """A sweep config written before the model registry: M2D2M, its config as ``diffusion_config``."""
-    config.setdefault("model", "m2d2m")
+    """A sweep config written before the model registry: of the default model, M2D2M, its config
+    as ``diffusion_config``."""
+    config.setdefault("model", DEFAULT_MODEL)
     if "diffusion_config" in config:
         config.setdefault("train_config", config.pop("diffusion_config"))
     config["resources"].setdefault("workers", 0)  # configs written before Ray Train workers existed
@@ -64,7 +65,7 @@ def _check(config: dict[str, Any]) -> None:
     space = config["space"]
     if not space or any(not isinstance(values, list) or not values for values in space.values()):
         raise UserError("space: give every knob a non-empty list of values")
-    knobs = model(config["model"]).load("generator").knobs()
+    knobs = model(config["model"]).load("sampling").names()
     if config["kind"] == "sampling" and set(space) - set(knobs):
         raise UserError(f"a sampling sweep of {config['model']} varies {', '.join(knobs)}; "
                         f"unknown: {', '.join(sorted(set(space) - set(knobs)))}")

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from m2d2m.generators.protocol import MULTI, SINGLE, Keep, MotionGenerator
+from m2d2m.generators.options import MULTI, SINGLE, Sampling, knob
+from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
@@ -23,8 +24,11 @@ NAME = "playback"
 
 @dataclass(frozen=True)
 class PlaybackOptions:
-    method: str = "concat"
-    offset: int = 0  # frames skipped at the start of every clip: a knob for sweeps to vary
+    method: str = knob("concat", "clips laid end to end", choices=("concat",))
+    offset: int = knob(0, "frames skipped at the start of every clip: a knob for sweeps to vary", minimum=0)
+
+
+SAMPLING = Sampling(NAME, PlaybackOptions, {SINGLE: PlaybackOptions(), MULTI: PlaybackOptions()})
 
 
 def save_playback(path: Path, clips: dict[str, np.ndarray]) -> Path:
@@ -36,9 +40,7 @@ def save_playback(path: Path, clips: dict[str, np.ndarray]) -> Path:
 
 class PlaybackGenerator(MotionGenerator):
     model = NAME
-    methods = ("concat",)
-    options_type = PlaybackOptions
-    presets = {SINGLE: PlaybackOptions(), MULTI: PlaybackOptions()}
+    sampling = SAMPLING
 
     def __init__(self, clips: dict[str, np.ndarray], source: Path) -> None:
         self.clips = clips
@@ -98,5 +100,5 @@ prepare = train
 register(ModelEntry(
     name=NAME, summary="ground truth played back (a test of the registry)", stage=NAME, legacy_stages=(),
     configs=NAME, train_verb="train-playback", model_file="playback.npz",
-    generator=f"{__name__}:PlaybackGenerator", recipe=__name__, network=__name__, process=__name__,
-    module=__name__, datamodule=__name__))
+    generator=f"{__name__}:PlaybackGenerator", recipe=__name__, sampling=f"{__name__}:SAMPLING",
+    shortcuts=("offset",)))

@@ -126,7 +126,7 @@ def test_the_command_writes_files_and_logs_to_mlflow(trained, capsys, monkeypatc
     (["a person jumps", "--seconds", "0.05"], "outside what this model supports"),
     (["a person jumps", "--ts", "9"], "T_s must lie in 0..T = 8"),
     (["a person jumps", "--eta", "-1"], "eta must be >= 0"),
-    (["a person jumps", "--guidance", "-2"], "guidance scale s must be >= 0"),
+    (["a person jumps", "--guidance", "-2"], "option guidance must be >= 0, got -2"),
     (["a person jumps", "--method", "blend"], "unknown method 'blend'"),
     (["a person jumps", "--checkpoint", "no-such-run"], "no m2d2m run 'no-such-run'"),
     (["a person jumps", "--checkpoint", "vq.yaml"], "vq.yaml is not an m2d2m denoiser checkpoint"),

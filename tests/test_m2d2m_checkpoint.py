@@ -8,7 +8,7 @@ import pytest
 
 from m2d2m.generators.m2d2m import M2D2MGenerator
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint, save_checkpoint
-from m2d2m.generators.m2d2m_sampling import MULTI_ACTION, SINGLE_ACTION
+from m2d2m.generators.m2d2m_options import MULTI_ACTION, SINGLE_ACTION
 from m2d2m.generators.protocol import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
 from m2d2m.text import LearnedTextEncoder
@@ -44,9 +44,9 @@ def test_the_model_files_sampling_defaults_reach_every_preset(tiny_data, tmp_pat
 
     generator = M2D2MGenerator.load(save({"steps": 3, "guidance": 1.0}))
     for preset, paper in ((MULTI, MULTI_ACTION), (SINGLE, SINGLE_ACTION)):
-        assert generator.presets[preset] == replace(paper, steps=3, guidance=1.0)
-    assert M2D2MGenerator.load(save({})).presets[SINGLE] == SINGLE_ACTION
+        assert generator.preset(preset) == replace(paper, steps=3, guidance=1.0)
+    assert M2D2MGenerator.load(save({})).preset(SINGLE) == SINGLE_ACTION
     with pytest.raises(ValueError, match="sampling.eta: a model's sampling defaults are steps, truncation, guidance"):
         save({"eta": 0.3})
-    with pytest.raises(ValueError, match="guidance scale s must be >= 0"):
+    with pytest.raises(ValueError, match="option guidance must be >= 0"):
         save({"guidance": -1.0})

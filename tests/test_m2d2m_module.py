@@ -6,7 +6,8 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions
+from m2d2m.generators.m2d2m_options import M2D2MOptions
+from m2d2m.generators.m2d2m_sampling import Request
 from m2d2m.text import LearnedTextEncoder
 from training.m2d2m_module import M2D2MModule
 from training.vq_module import NonFiniteLossError
@@ -117,8 +118,8 @@ def test_validation_is_deterministic(monkeypatch):
 def test_sampler_uses_the_modules_parts_and_restores_the_mode():
     module = make_module()
     requests = [Request([[SENTENCES[0]]], [7], seed=5), Request([[SENTENCES[1], SENTENCES[2]]], [3], seed=6)]
-    first = module.sampler().sample(requests, SamplingOptions(guidance=3.0, ts=0, eta=0.25))
-    second = module.sampler().sample(requests, SamplingOptions(guidance=3.0, ts=0, eta=0.25))
+    first = module.sampler().sample(requests, M2D2MOptions(guidance=3.0, ts=0, eta=0.25))
+    second = module.sampler().sample(requests, M2D2MOptions(guidance=3.0, ts=0, eta=0.25))
     assert [len(x[0]) for x in first] == [7, 3]
     for (a,), (b,) in zip(first, second):
         assert a.dtype == torch.long and int(a.min()) >= 0 and int(a.max()) < K
@@ -132,7 +133,7 @@ def test_other_schedules_and_importance_sampling(monkeypatch, options):
     monkeypatch.setattr(module, "log", lambda *a, **k: None)
     for _ in range(3):
         assert torch.isfinite(module.training_step(make_batch(), 0))
-    tokens = module.sampler().sample([Request([[SENTENCES[0]]], [5])], SamplingOptions(guidance=1.0, ts=0))
+    tokens = module.sampler().sample([Request([[SENTENCES[0]]], [5])], M2D2MOptions(guidance=1.0, ts=0))
     assert len(tokens[0][0]) == 5
 
 

@@ -91,6 +91,6 @@ def test_a_sequence_does_not_depend_on_its_batch(generator):
 def test_requests_it_cannot_serve_are_refused(generator):
     with pytest.raises(ValueError, match="at most 12 tokens"):
         generator.generate([[SENTENCES[0]]], [[60]], generator.options(SINGLE), [0])
-    with pytest.raises(ValueError, match="transition must be at least 1"):
+    with pytest.raises(ValueError, match="option transition must be >= 1"):
         generator.options(MULTI, transition=0)
     assert "2 transition tokens" in generator.describe(generator.options(MULTI))

@@ -6,7 +6,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from m2d2m.generators.m2d2m_sampling import (FREE, Request, SamplingOptions, TokenSampler, categorical, length_groups,
+from m2d2m.generators.m2d2m_options import M2D2MOptions
+from m2d2m.generators.m2d2m_sampling import (FREE, Request, TokenSampler, categorical, length_groups,
                                              truncate)
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
@@ -34,7 +35,7 @@ def sampler() -> TokenSampler:
 
 
 def run(sampler: TokenSampler, requests: list[Request], **options) -> list[list[torch.Tensor]]:
-    return sampler.sample(requests, SamplingOptions(**{"ts": 6, **options}))
+    return sampler.sample(requests, M2D2MOptions(**{"ts": 6, **options}))
 
 
 def flat(tokens: list[torch.Tensor]) -> torch.Tensor:
@@ -123,7 +124,7 @@ def test_seeds_matter_and_repeat(sampler):
 def test_eta_and_truncation_change_samples(sampler):
     request = [Request([WALK, JUMP], [8, 8], seed=2)]
     base = flat(run(sampler, request)[0])
-    assert not torch.equal(base, flat(sampler.sample(request, SamplingOptions(ts=6, eta=3.0))[0]))
+    assert not torch.equal(base, flat(sampler.sample(request, M2D2MOptions(ts=6, eta=3.0))[0]))
     assert not torch.equal(base, flat(run(sampler, request, truncation=0.3)[0]))
     assert sampler.schedule.config.eta == 0.5  # a sampling-time η never changes the model's schedule
 
@@ -136,7 +137,7 @@ def test_bad_options(sampler, options, message):
     with pytest.raises(ValueError, match=message):
         run(sampler, [Request([WALK], [4])], **options)
     with pytest.raises(ValueError, match="eta"):
-        sampler.sample([Request([WALK], [4])], SamplingOptions(eta=-0.1))
+        sampler.sample([Request([WALK], [4])], M2D2MOptions(eta=-0.1))
 
 
 def test_bad_requests():
@@ -196,7 +197,7 @@ def test_reusing_the_condition_changes_no_token(sampler, method, guidance):
     """The text's keys and values computed once per phase give what recomputing them at every step
     gives, token for token, for several requests of several lengths."""
     requests = [Request([WALK, JUMP, SIT], [6, 5, 7], seed=3), Request([SIT, WALK], [9, 6], seed=4)]
-    options = SamplingOptions(method=method, ts=6, guidance=guidance, handshake=2)
+    options = M2D2MOptions(method=method, ts=6, guidance=guidance, handshake=2)
     fresh = TokenSampler(sampler.denoiser, sampler.text_encoder, sampler.schedule, reuse_condition=False)
     reused = sampler.sample(requests, options)
     recomputed = fresh.sample(requests, options)
@@ -211,7 +212,7 @@ def test_all_steps_is_the_one_step_reverse_process_draw_for_draw(sampler):
     from m2d2m.text import encode_actions
 
     request = Request([JUMP], [9], seed=7)
-    sampled = sampler.sample([request], SamplingOptions(method="independent", guidance=2.0, steps=STEPS))[0][0]
+    sampled = sampler.sample([request], M2D2MOptions(method="independent", guidance=2.0, steps=STEPS))[0][0]
     schedule, denoiser = sampler.schedule, sampler.denoiser
     generator = torch.Generator().manual_seed(7)
     z = schedule.sample_prior((9,), generator=generator)
@@ -249,12 +250,12 @@ def test_timestep_grid_keeps_T_s_and_scales_both_phases():
 def test_fewer_steps_sample_every_position_reproducibly(sampler):
     requests = [Request([WALK, JUMP], [6, 8], seed=2)]
     for steps in (1, 3, STEPS // 2):
-        options = SamplingOptions(method="tps", ts=6, steps=steps)
+        options = M2D2MOptions(method="tps", ts=6, steps=steps)
         first, again = sampler.sample(requests, options), sampler.sample(requests, options)
         assert all(torch.equal(a, b) for a, b in zip(first[0], again[0]))
         assert all(0 <= int(x.min()) and int(x.max()) < CODES for x in first[0])
     seen = []
-    sampler.sample(requests, SamplingOptions(method="tps", ts=6, steps=4), progress=seen.append)
+    sampler.sample(requests, M2D2MOptions(method="tps", ts=6, steps=4), progress=seen.append)
     assert seen == sorted(seen, reverse=True) and seen[-1] == 0 and 6 in seen
     with pytest.raises(ValueError, match="steps must lie in 1..T"):
-        sampler.sample(requests, SamplingOptions(steps=STEPS + 1))
+        sampler.sample(requests, M2D2MOptions(steps=STEPS + 1))

@@ -10,7 +10,8 @@ import numpy as np
 import torch
 
 from m2d2m.generators.m2d2m_checkpoint import schedule_from_config
-from m2d2m.generators.m2d2m_sampling import Request, SamplingOptions, TokenSampler
+from m2d2m.generators.m2d2m_options import M2D2MOptions
+from m2d2m.generators.m2d2m_sampling import Request, TokenSampler
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
@@ -156,7 +157,7 @@ class M2D2MModule(pl.LightningModule):
                        guidance: float = 4.0) -> list[torch.Tensor]:
         """Tokens for each prompt, sampled with no joint phase at guidance ``guidance`` (previews)."""
         requests = [Request([[prompt]], [n], seed=seed) for prompt, n in zip(prompts, lengths)]
-        return [tokens for (tokens,) in self.sampler().sample(requests, SamplingOptions(guidance=guidance, ts=0))]
+        return [tokens for (tokens,) in self.sampler().sample(requests, M2D2MOptions(guidance=guidance, ts=0))]
 
     def sampler(self) -> TokenSampler:
         """The reverse process over this module's denoiser, text encoder and schedule (for previews)."""

@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 
 from m2d2m.generators.mmm import Row, decode_sentences
-from m2d2m.generators.mmm_decoding import DecodingOptions
+from m2d2m.generators.mmm_options import DecodingOptions
 from m2d2m.generators.token_model import FREE
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas

@@ -14,9 +14,9 @@ import numpy as np
 import torch
 
 from m2d2m.generators.m2d2m_checkpoint import Checkpoint, load_checkpoint
-from m2d2m.generators.m2d2m_sampling import (METHODS, MULTI_ACTION, SINGLE_ACTION, Request, SamplingOptions,
-                                             TokenSampler, switch_step)
-from m2d2m.generators.protocol import MULTI, SINGLE, Keep
+from m2d2m.generators.m2d2m_options import SAMPLING, M2D2MOptions
+from m2d2m.generators.m2d2m_sampling import Request, TokenSampler, switch_step
+from m2d2m.generators.protocol import Keep
 from m2d2m.generators.token_model import TokenModelGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.joining import slerp_join
@@ -27,15 +27,11 @@ class M2D2MGenerator(TokenModelGenerator):
     """A loaded M2D2M checkpoint behind the generator protocol."""
 
     model = "m2d2m"
-    methods = METHODS
-    options_type = SamplingOptions
-    presets = {MULTI: MULTI_ACTION, SINGLE: SINGLE_ACTION}
+    sampling = SAMPLING
 
     def __init__(self, checkpoint: Checkpoint, source: Path) -> None:
         self.checkpoint = checkpoint
         self.source = source
-        # the paper's presets, sampled as the model's config chose (steps, truncation, guidance)
-        self.presets = {name: replace(preset, **checkpoint.sampling) for name, preset in type(self).presets.items()}
         self.codec, self.lengths, self.extra = checkpoint.codec, checkpoint.lengths, checkpoint.extra
         self.sampler = TokenSampler(checkpoint.denoiser, checkpoint.text_encoder, checkpoint.schedule)
 
@@ -47,10 +43,14 @@ class M2D2MGenerator(TokenModelGenerator):
     def device(self) -> torch.device:
         return self.sampler.device
 
-    def check_options(self, options: SamplingOptions) -> None:
+    def preset(self, name: str) -> M2D2MOptions:
+        """The paper's preset, sampled as the model's config chose (steps, truncation, guidance)."""
+        return replace(super().preset(name), **self.checkpoint.sampling)
+
+    def check_options(self, options: M2D2MOptions) -> None:
         options.check(self.checkpoint.schedule.steps)
 
-    def describe(self, options: SamplingOptions) -> str:
+    def describe(self, options: M2D2MOptions) -> str:
         steps = self.checkpoint.schedule.steps
         eta = self.checkpoint.schedule.config.eta if options.eta is None else options.eta
         phases = f"T_s = {switch_step(options.ts, steps)} of T = {steps}, " if options.method == "tps" else ""
@@ -59,7 +59,7 @@ class M2D2MGenerator(TokenModelGenerator):
         return f"{phases}η = {eta:g}, s = {options.guidance:g}{truncation}{taken}"
 
     # ----------------------------------------------------------------------------- the call
-    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: SamplingOptions,
+    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: M2D2MOptions,
                  seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
                  progress: Callable[[float], None] | None = None) -> list[Motion]:
         """Sample every sequence in one batch of the sampler and decode each (see the protocol)."""
@@ -74,7 +74,7 @@ class M2D2MGenerator(TokenModelGenerator):
         return [self.decode(pieces, list(sequence), options, {**settings, "seed": int(seed)})
                 for pieces, sequence, seed in zip(tokens, actions, seeds)]
 
-    def decode(self, pieces: list[torch.Tensor], actions: list[str], options: SamplingOptions,
+    def decode(self, pieces: list[torch.Tensor], actions: list[str], options: M2D2MOptions,
                settings: dict[str, Any]) -> Motion:
         """Tokens per action → one Motion: decoded together, or (``slerp``) one by one and joined."""
         if options.method != "slerp":

@@ -16,7 +16,7 @@ from typing import Any
 
 import torch
 
-from m2d2m.generators.m2d2m_sampling import MODEL_DEFAULTS, SamplingOptions
+from m2d2m.generators.m2d2m_options import MODEL_DEFAULTS, SAMPLING, M2D2MOptions
 from m2d2m.generators.token_model import TokenCodec
 from m2d2m.model_files import (LengthPrior, cpu_state, read_model_file, text_encoder_from_payload, text_payload,
                                write_model_file)
@@ -91,5 +91,5 @@ def sampling_defaults(values: dict[str, Any], steps: int) -> dict[str, Any]:
     unknown = sorted(set(values) - set(MODEL_DEFAULTS))
     if unknown:
         raise ValueError(f"sampling.{unknown[0]}: a model's sampling defaults are {', '.join(MODEL_DEFAULTS)}")
-    replace(SamplingOptions(), **values).check(steps)
+    SAMPLING.changed(M2D2MOptions(), **values).check(steps)
     return dict(values)

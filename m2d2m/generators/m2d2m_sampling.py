@@ -43,53 +43,11 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
+from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.token_model import FREE
 from m2d2m.networks.m2d2m_denoiser import Condition, MotionDenoiser, action_offsets, guided_logits
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import TextEncoder, encode_actions
-
-METHODS = ("tps", "independent", "handshake", "slerp")
-
-
-@dataclass(frozen=True)
-class SamplingOptions:
-    """Knobs of the reverse process. :data:`MULTI_ACTION` and :data:`SINGLE_ACTION` are the paper's
-    settings (§5.1); the bare defaults sample with the η the model was trained with."""
-
-    method: str = "tps"
-    ts: int | None = None  # TPS switch: joint for t > ts, independent for t <= ts; None = 0.9·T (90 of 100)
-    eta: float | None = None  # η of the dynamic transition at sampling; None = the η it was trained with
-    guidance: float = 2.0  # classifier-free guidance scale s of the paper's eq. 9 (0 = conditional alone)
-    truncation: float = 1.0  # keep the most probable codes holding this much x0 mass (1 = off)
-    steps: int | None = None  # reverse steps taken, skipping with exact posteriors; None = all T
-    handshake: int = 5  # shared tokens between neighbours (``handshake``); 5 tokens = 20 frames
-    slerp: int = 2  # tokens left out before each later action (``slerp``); 2 tokens = 8 frames
-
-    def check(self, steps: int) -> None:
-        """Raise ValueError naming the first setting a schedule of ``steps`` steps cannot run."""
-        if self.method not in METHODS:
-            raise ValueError(f"unknown method {self.method!r}: choose one of {', '.join(METHODS)}")
-        if self.method == "tps" and self.ts is not None and not 0 <= self.ts <= steps:
-            raise ValueError(f"T_s must lie in 0..T = {steps}, got {self.ts}")
-        if self.eta is not None and self.eta < 0:
-            raise ValueError(f"eta must be >= 0, got {self.eta}")
-        if self.guidance < 0:
-            raise ValueError(f"guidance scale s must be >= 0, got {self.guidance}")
-        if not 0.0 < self.truncation <= 1.0:
-            raise ValueError(f"truncation r must lie in (0, 1], got {self.truncation}")
-        if self.steps is not None and not 1 <= self.steps <= steps:
-            raise ValueError(f"steps must lie in 1..T = {steps}, got {self.steps}")
-        if self.handshake < 1 or self.slerp < 0:
-            raise ValueError("handshake must be >= 1 token and slerp >= 0 tokens")
-
-
-MULTI_ACTION = SamplingOptions(method="tps", ts=None, eta=0.25, guidance=2.0)
-# one action has no joint phase: every method samples it alike, ``independent`` says so
-SINGLE_ACTION = SamplingOptions(method="independent", eta=0.5, guidance=4.0)
-# the knobs a model file may set for every preset (its config's ``sampling`` section): how it samples,
-# chosen for that model on a validation split, not what the paper's single- and multi-action settings are
-MODEL_DEFAULTS = ("steps", "truncation", "guidance")
-
 
 @dataclass
 class Request:
@@ -236,7 +194,7 @@ class TokenSampler:
 
     # ------------------------------------------------------------------------------------- public
     @torch.no_grad()
-    def sample(self, requests: list[Request], options: SamplingOptions = SamplingOptions(),
+    def sample(self, requests: list[Request], options: M2D2MOptions = M2D2MOptions(),
                progress: Callable[[int], None] | None = None) -> list[list[Tensor]]:
         """Tokens for each request, one (length,) long tensor per action (the *generated* tokens:
         under ``slerp`` later actions are ``slerp`` tokens shorter; under ``handshake`` the
@@ -260,7 +218,7 @@ class TokenSampler:
             self.text_encoder.train(was_training)
 
     # ----------------------------------------------------------------------------------- internals
-    def _run(self, requests: list[Request], options: SamplingOptions, schedule: TransitionSchedule,
+    def _run(self, requests: list[Request], options: M2D2MOptions, schedule: TransitionSchedule,
              progress: Callable[[int], None] | None) -> list[list[Tensor]]:
         device = self.device
         generators = [torch.Generator(device=device).manual_seed(int(r.seed)) for r in requests]
@@ -281,7 +239,7 @@ class TokenSampler:
         return [_split_actions(z, r.lengths, overlap) for z, r in zip(state, requests)]
 
     def _denoise(self, layout: _Layout, state: list[Tensor], given: list[Tensor], generators: list[torch.Generator],
-                 jumps: list[tuple[int, int]], schedule: TransitionSchedule, options: SamplingOptions, overlap: int,
+                 jumps: list[tuple[int, int]], schedule: TransitionSchedule, options: M2D2MOptions, overlap: int,
                  progress: Callable[[int], None] | None) -> list[Tensor]:
         """Take the reverse ``jumps`` (t, s) on the rows of ``layout``; returns the requests' streams."""
         device, mask, codes = self.device, schedule.mask_index, schedule.num_codes
@@ -337,7 +295,7 @@ class TokenSampler:
             text, text_mask = self.denoiser.nullify(text, text_mask, unconditional)
         return text, text_mask
 
-    def _condition(self, text: Tensor, text_mask: Tensor, options: SamplingOptions) -> Condition:
+    def _condition(self, text: Tensor, text_mask: Tensor, options: M2D2MOptions) -> Condition:
         """The denoiser's condition of the rows, followed, when guided, by as many null rows."""
         if options.guidance == 0.0:
             return self.denoiser.condition(text, text_mask)
@@ -345,7 +303,7 @@ class TokenSampler:
         return self.denoiser.condition(torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
 
     def _x0(self, z: Tensor, valid: Tensor, offsets: Tensor, t: int, condition: Condition,
-            options: SamplingOptions) -> Tensor:
+            options: M2D2MOptions) -> Tensor:
         """Guided, truncated p(z0 | z_t) (rows, width, K) in float64: one forward pass of the
         conditional and null rows together (``condition`` holds both when guided)."""
         rows = z.shape[0]
@@ -360,7 +318,7 @@ class TokenSampler:
         return truncate(logits.double().exp(), options.truncation)
 
 
-def _guided_rows(index: Tensor, rows: int, options: SamplingOptions) -> Tensor:
+def _guided_rows(index: Tensor, rows: int, options: M2D2MOptions) -> Tensor:
     """The rows of a group in a condition built by :meth:`TokenSampler._condition`: the group's
     conditional rows, then (when guided) their null rows ``rows`` further on."""
     return index if options.guidance == 0.0 else torch.cat([index, index + rows])

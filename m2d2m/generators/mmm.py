@@ -19,40 +19,20 @@ under ``independent``.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from m2d2m.generators.mmm_checkpoint import MMMCheckpoint, load_mmm
-from m2d2m.generators.mmm_decoding import DecodingOptions, decode
-from m2d2m.generators.protocol import MULTI, SINGLE, Keep
+from m2d2m.generators.mmm_decoding import decode
+from m2d2m.generators.mmm_options import SAMPLING, DecodingOptions, MMMOptions
+from m2d2m.generators.protocol import Keep
 from m2d2m.generators.token_model import FREE, TokenModelGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, canvas
 from m2d2m.text import TextEncoder
-
-METHODS = ("transition", "independent")
-
-
-@dataclass(frozen=True)
-class MMMOptions:
-    """Knobs of MMM's sampling; the defaults are the paper's (10 iterations for the longest
-    motion, cosine schedule, temperature 1, 2 transition tokens)."""
-
-    method: str = "transition"
-    iterations: int = 10
-    schedule: str = "cosine"
-    temperature: float = 1.0
-    top_k: int | None = None
-    top_p: float | None = None
-    transition: int = 2  # [MASK] tokens between neighbouring actions (``transition``)
-
-    def decoding(self, iterations: int | None = None) -> DecodingOptions:
-        return DecodingOptions(self.iterations if iterations is None else iterations, self.schedule,
-                               self.temperature, self.top_k, self.top_p)
-
 
 @dataclass
 class Row:
@@ -72,9 +52,7 @@ class MMMGenerator(TokenModelGenerator):
     """A loaded MMM model file behind the generator protocol."""
 
     model = "mmm"
-    methods = METHODS
-    options_type = MMMOptions
-    presets = {MULTI: MMMOptions(), SINGLE: MMMOptions(method="independent")}
+    sampling = SAMPLING
 
     def __init__(self, checkpoint: MMMCheckpoint, source: Path) -> None:
         self.checkpoint = checkpoint
@@ -92,11 +70,6 @@ class MMMGenerator(TokenModelGenerator):
     @property
     def max_tokens(self) -> int:
         return self.checkpoint.transformer.config.max_tokens
-
-    def check_options(self, options: MMMOptions) -> None:
-        options.decoding().check()
-        if options.transition < 1:
-            raise ValueError(f"transition must be at least 1 token, got {options.transition}")
 
     def describe(self, options: MMMOptions) -> str:
         sampling = ", ".join(f"{name} {value}" for name, value in
@@ -123,7 +96,7 @@ class MMMGenerator(TokenModelGenerator):
             pieces = torch.full((sum(tokens),), FREE) if given is None else given
             rows += [Row(sentence, piece, seed_of(seed, 0, j))
                      for j, (sentence, piece) in enumerate(zip(sequence, pieces.split(tokens)))]
-        decoded = iter(self._decode(rows, options.decoding()))
+        decoded = iter(self._decode(rows, options))
         pieces = [[next(decoded) for _ in sequence] for sequence in actions]
         if progress is not None:
             progress(0.5 if joined else 1.0)
@@ -148,7 +121,7 @@ class MMMGenerator(TokenModelGenerator):
                 given = torch.cat([before, torch.full((options.transition,), FREE), after])
                 rows.append(Row(sequence[j], given, seed_of(seed, 1, j)))
                 shapes.append(len(before))
-        filled = iter(zip(self._decode(rows, options.decoding(iterations=1)) if rows else [], shapes))
+        filled = iter(zip(self._decode(rows, replace(options, iterations=1)) if rows else [], shapes))
         return [[tokens[start:start + options.transition] for tokens, start in
                  (next(filled) for _ in range(len(sequence) - 1))] for sequence in actions]
 

@@ -18,7 +18,7 @@ body (method ``independent``); every frame's lower body must be kept.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -26,32 +26,13 @@ import torch
 
 from m2d2m.generators.mmm import MMMGenerator, Row, seed_of
 from m2d2m.generators.mmm_checkpoint import load_body_mmm
-from m2d2m.generators.mmm_decoding import DecodingOptions
-from m2d2m.generators.protocol import MULTI, SINGLE, Keep
+from m2d2m.generators.mmm_options import BODY_SAMPLING, BodyOptions
+from m2d2m.generators.protocol import Keep
 from m2d2m.generators.token_model import FREE
 from m2d2m.motion.body_parts import LOWER, part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.networks.mmm_body_transformer import body_canvas
 from m2d2m.processes.masking import random_positions
-
-# Our default, inside the training corruption (configs/mmm-body: masking.lower_most = 0.3): some
-# lower tokens masked, as the supplement's Fig. 14 (bottom) recommends without giving a number.
-DEFAULT_LOWER_MASK = 0.25
-
-
-@dataclass(frozen=True)
-class BodyOptions(DecodingOptions):
-    """MMM's decoding knobs (the paper's defaults) and ``lower_mask``, the fraction of the kept
-    lower-body tokens hidden from the transformer (supplement §I.2)."""
-
-    method: str = "independent"
-    lower_mask: float = DEFAULT_LOWER_MASK
-
-    def check(self) -> None:
-        super().check()
-        if not 0.0 <= self.lower_mask <= 1.0:
-            raise ValueError(f"lower_mask must lie in [0, 1], got {self.lower_mask}")
-
 
 def masked_lower(lower: torch.Tensor, fraction: float, mask_id: int, seed: int) -> torch.Tensor:
     """``lower`` (L,) with round(``fraction``·L) positions, drawn with ``seed``, set to ``mask_id``."""
@@ -67,9 +48,7 @@ class BodyMMMGenerator(MMMGenerator):
     :class:`Keep` of its lower body (:func:`~m2d2m.generators.protocol.keep_part`)."""
 
     model = "mmm-body"
-    methods = ("independent",)
-    options_type = BodyOptions
-    presets = {MULTI: BodyOptions(), SINGLE: BodyOptions()}
+    sampling = BODY_SAMPLING
     needs_keep = ("give the motion whose lower body to keep on every frame "
                   "(m2d2m generate --model mmm-body --edit SOURCE --keep-body lower)")
     edits = ("upper",)
@@ -77,9 +56,6 @@ class BodyMMMGenerator(MMMGenerator):
     @classmethod
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "BodyMMMGenerator":
         return cls(load_body_mmm(path, device), Path(path))
-
-    def check_options(self, options: BodyOptions) -> None:
-        options.check()
 
     def describe(self, options: BodyOptions) -> str:
         return (f"upper body by {options.iterations} iterations ({options.schedule}), temperature "

@@ -16,39 +16,14 @@ iteration, so a sequence's result does not depend on the rest of the batch.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
-
 import torch
 from torch import Tensor
 
+from m2d2m.generators.mmm_options import DecodingOptions
 from m2d2m.generators.token_model import FREE
-from m2d2m.processes.masking import SCHEDULES, dynamic_iterations, least_confident, masked_counts
+from m2d2m.processes.masking import dynamic_iterations, least_confident, masked_counts
 
 Predictor = Callable[[Tensor], Tensor]  # (B, L) tokens with [MASK] → (B, L, K) logits
-
-
-@dataclass(frozen=True)
-class DecodingOptions:
-    """Knobs of parallel decoding; the defaults are the paper's (10 iterations for the longest
-    motion, cosine schedule, temperature 1, no filtering)."""
-
-    iterations: int = 10
-    schedule: str = "cosine"
-    temperature: float = 1.0
-    top_k: int | None = None
-    top_p: float | None = None
-
-    def check(self) -> None:
-        if self.iterations < 1:
-            raise ValueError(f"iterations must be >= 1, got {self.iterations}")
-        if self.schedule not in SCHEDULES:
-            raise ValueError(f"unknown mask schedule {self.schedule!r}: choose one of {', '.join(SCHEDULES)}")
-        if not self.temperature > 0:
-            raise ValueError(f"temperature must be > 0, got {self.temperature}")
-        if self.top_k is not None and self.top_k < 1:
-            raise ValueError(f"top_k must be >= 1, got {self.top_k}")
-        if self.top_p is not None and not 0 < self.top_p <= 1:
-            raise ValueError(f"top_p must lie in (0, 1], got {self.top_p}")
 
 
 def filtered_probabilities(logits: Tensor, options: DecodingOptions) -> Tensor:

@@ -21,7 +21,7 @@ upper-body editing both work.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -29,40 +29,19 @@ import torch
 
 from m2d2m.generators.motiondiffuse_checkpoint import MotionDiffuseCheckpoint, load_motiondiffuse, prediction_of
 from m2d2m.generators.motiondiffuse_sampling import Request, Step, Term, sample
-from m2d2m.generators.protocol import MULTI, SINGLE, Keep, MotionGenerator
+from m2d2m.generators.motiondiffuse_options import SAMPLING, MotionDiffuseOptions
+from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.body_parts import PARTS, part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import Skeleton
-from m2d2m.processes.gaussian_diffusion import VARIANCES, GaussianDiffusion
-
-METHODS = ("time-varied", "independent")
-SAMPLERS = ("ddpm", "ddim")
-
-
-@dataclass(frozen=True)
-class MotionDiffuseOptions:
-    """Knobs of MotionDiffuse's sampling; the defaults are the paper's (all 1000 steps, ancestral,
-    Σ = β_t; λ1 = λ2 = 0.01, §4.3). ``steps`` below the trained T respaces the process (Nichol &
-    Dhariwal 2021, §4), with ``sampler: ddim`` (Song et al. 2021) or ancestral steps."""
-
-    method: str = "time-varied"
-    steps: int | None = None  # None: every step of the trained process (the paper's 1000)
-    sampler: str = "ddpm"
-    variance: str = "beta"  # ancestral steps' Σ: β_t (the paper) or the posterior's β̃_t (the public code)
-    ddim_eta: float = 0.0
-    overlap: int = 10  # frames each interval reaches into its neighbours (time-varied; ours)
-    lambda_time: float = 0.01  # λ2 of eq. 11
-    lambda_part: float = 0.01  # λ1 of eq. 10
-
+from m2d2m.processes.gaussian_diffusion import GaussianDiffusion
 
 class MotionDiffuseGenerator(MotionGenerator):
     """A loaded MotionDiffuse model file behind the generator protocol."""
 
     model = "motiondiffuse"
-    methods = METHODS
-    options_type = MotionDiffuseOptions
-    presets = {MULTI: MotionDiffuseOptions(), SINGLE: MotionDiffuseOptions(method="independent")}
+    sampling = SAMPLING
     edits = ("inbetween", "upper")  # any frames and dimensions can be kept (replacement inpainting)
     part_control = True
 
@@ -104,15 +83,6 @@ class MotionDiffuseGenerator(MotionGenerator):
     def check_options(self, options: MotionDiffuseOptions) -> None:
         if options.steps is not None and not 1 <= options.steps <= self.process.num_steps:
             raise ValueError(f"steps must lie in 1..{self.process.num_steps} (the trained T), got {options.steps}")
-        if options.sampler not in SAMPLERS:
-            raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)}, got {options.sampler!r}")
-        if options.variance not in VARIANCES:
-            raise ValueError(f"variance must be one of {', '.join(VARIANCES)}, got {options.variance!r}")
-        if not 0 <= options.ddim_eta <= 1:
-            raise ValueError(f"ddim_eta must lie in [0, 1], got {options.ddim_eta}")
-        for name in ("overlap", "lambda_time", "lambda_part"):
-            if getattr(options, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(options, name)}")
 
     def describe(self, options: MotionDiffuseOptions) -> str:
         if options.sampler == "ddim":

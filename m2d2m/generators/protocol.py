@@ -14,39 +14,17 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
+from m2d2m.generators.options import MULTI, SINGLE, Sampling
 from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.skeleton import Skeleton
-
-SINGLE, MULTI = "single", "multi"  # the presets every generator has
-
-
-def _checked(name: str, value: Any, annotation: str) -> Any:
-    """``value`` as the option's annotation (``int``, ``float``, ``str``, with ``| None``) has it,
-    or ValueError: a knob given as text or NaN must fail here, not deep inside sampling."""
-    if value is None:
-        if "None" not in annotation:
-            raise ValueError(f"option {name} cannot be empty")
-        return value
-    if annotation.startswith("str"):
-        if not isinstance(value, str):
-            raise ValueError(f"option {name} must be text, got {value!r}")
-        return value
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-        raise ValueError(f"option {name} must be a finite number, got {value!r}")
-    if annotation.startswith("int"):
-        if value != int(value):
-            raise ValueError(f"option {name} must be a whole number, got {value!r}")
-        return int(value)
-    return float(value)
-
 
 @dataclass(frozen=True)
 class Keep:
@@ -93,9 +71,9 @@ class MotionGenerator(ABC):
     evaluation and sweeps have. Subclasses set the class attributes and implement the methods."""
 
     model: ClassVar[str]  # the registry's name of the model
-    methods: ClassVar[tuple[str, ...]]  # its multi-action methods, the first the default
-    options_type: ClassVar[type]  # frozen dataclass of its sampling knobs; has a ``method`` field
-    presets: ClassVar[dict[str, Any]]  # SINGLE and MULTI: the paper's settings as options
+    # its knobs, multi-action methods and presets (its own ``<model>_options.py``, which the
+    # registry names too, so that the command line reads them without loading torch)
+    sampling: ClassVar[Sampling]
     # None for a model that generates from text alone; else what every request must keep, said as
     # an instruction (an editor: MMM's upper-body editor keeps a lower body), so that evaluation,
     # which asks for text alone, refuses it up front
@@ -151,25 +129,16 @@ class MotionGenerator(ABC):
         """The longest action it was trained on, in frames."""
 
     # --------------------------------------------------------------------------- its options
-    @classmethod
-    def knobs(cls) -> tuple[str, ...]:
-        """The sampling knobs a user or a sweep may set (every option but the method)."""
-        return tuple(f.name for f in fields(cls.options_type) if f.name != "method")
+    def preset(self, name: str) -> Any:
+        """The options of preset ``name`` (:data:`SINGLE`, :data:`MULTI`) for this model file: the
+        declared ones, or what the model file chose (M2D2M: its config's ``sampling`` section)."""
+        if name not in self.sampling.presets:
+            raise ValueError(f"unknown preset {name!r}: choose one of {', '.join(self.sampling.presets)}")
+        return self.sampling.presets[name]
 
     def options(self, preset: str = MULTI, **changes: Any) -> Any:
         """The options of ``preset`` with ``changes``; ValueError names an unknown or bad knob."""
-        if preset not in self.presets:
-            raise ValueError(f"unknown preset {preset!r}: choose one of {', '.join(self.presets)}")
-        unknown = sorted(set(changes) - set(self.knobs()) - {"method"})
-        if unknown:
-            raise ValueError(f"{self.model} has no sampling option {unknown[0]!r}; "
-                             f"its options: {', '.join(self.knobs())}")
-        kinds = {f.name: f.type for f in fields(self.options_type)}
-        changes = {name: _checked(name, value, str(kinds[name])) for name, value in changes.items()}
-        options = replace(self.presets[preset], **changes)
-        if options.method not in self.methods:
-            raise ValueError(f"unknown method {options.method!r} for {self.model}: "
-                             f"choose one of {', '.join(self.methods)}")
+        options = self.sampling.changed(self.preset(preset), **changes)
         self.check_options(options)
         return options
 

@@ -1,0 +1,49 @@
+"""M2D2M's sampling knobs and presets (:mod:`m2d2m.generators.options`): the reverse process's
+settings (the paper's §4.2–4.3, eq. 9) and how the actions of a sequence are joined."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from m2d2m.generators.options import MULTI, SINGLE, Sampling, check_knobs, knob
+
+METHODS = ("tps", "independent", "handshake", "slerp")
+
+
+@dataclass(frozen=True)
+class M2D2MOptions:
+    """Knobs of the reverse process. The presets are the paper's settings (§5.1); the bare
+    defaults sample with the η the model was trained with."""
+
+    method: str = knob("tps", "how the actions are joined: Two-Phase Sampling (tps), each alone (independent), "
+                              "shared tokens (handshake) or SLERP between them (slerp)", choices=METHODS)
+    ts: int | None = knob(None, "TPS switch step T_s: joint for t > T_s, independent below (default 90 % of T)",
+                          minimum=0)
+    eta: float | None = knob(None, "η of the dynamic transition at sampling (default: the trained η)", minimum=0)
+    guidance: float = knob(2.0, "classifier-free guidance scale s of the paper's eq. 9 (0: the conditional alone)",
+                           minimum=0)
+    truncation: float = knob(1.0, "keep the most probable codes holding this much x0 mass (1: off)",
+                             above=0, maximum=1)
+    steps: int | None = knob(None, "reverse steps taken, skipping with exact posteriors (default: all T)",
+                             minimum=1)
+    handshake: int = knob(5, "tokens shared between neighbours (handshake); 5 tokens = 20 frames", minimum=1)
+    slerp: int = knob(2, "tokens left out before each later action (slerp); 2 tokens = 8 frames", minimum=0)
+
+    def check(self, steps: int) -> None:
+        """Raise ValueError naming the first setting a schedule of ``steps`` steps cannot run
+        or its knobs refuse."""
+        check_knobs(self)
+        if self.method == "tps" and self.ts is not None and not 0 <= self.ts <= steps:
+            raise ValueError(f"T_s must lie in 0..T = {steps}, got {self.ts}")
+        if self.steps is not None and not 1 <= self.steps <= steps:
+            raise ValueError(f"steps must lie in 1..T = {steps}, got {self.steps}")
+
+
+MULTI_ACTION = M2D2MOptions(method="tps", ts=None, eta=0.25, guidance=2.0)
+# one action has no joint phase: every method samples it alike, ``independent`` says so
+SINGLE_ACTION = M2D2MOptions(method="independent", eta=0.5, guidance=4.0)
+# the knobs a model file may set for every preset (its config's ``sampling`` section): how it samples,
+# chosen for that model on a validation split, not what the paper's single- and multi-action settings are
+MODEL_DEFAULTS = ("steps", "truncation", "guidance")
+
+SAMPLING = Sampling("m2d2m", M2D2MOptions, {MULTI: MULTI_ACTION, SINGLE: SINGLE_ACTION})
