@@ -20,7 +20,7 @@ import torch
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import Request, TokenSampler
+from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler
 from m2d2m.text import LearnedTextEncoder
 from timing import wall_time
 
@@ -51,7 +51,7 @@ def main() -> None:
     print("| --- | --- | --- | --- | --- | --- |")
     totals = []
     for n in counts:
-        request = [Request([["a person walks forward"]] * n, [TOKENS] * n, seed=0)]
+        request = [TokenRequest([["a person walks forward"]] * n, [TOKENS] * n, seed=0)]
         with autocast:
             short.sample(request, M2D2MOptions(ts=0))  # warm-up
             joint = min(wall_time(lambda: short.sample(request, M2D2MOptions(ts=0)), device) for _ in range(2)) / SHORT

@@ -75,7 +75,8 @@ class LengthPrior:
     median: int
     longest: int
 
-    def tokens_for(self, verb: str | None) -> int:
+    def typical(self, verb: str | None) -> int:
+        """The typical length of an action with this verb, in the model's steps (the median without one)."""
         return self.per_verb.get(verb or "", self.median)
 
     def to_payload(self) -> dict[str, Any]:

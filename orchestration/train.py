@@ -230,7 +230,7 @@ def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, r
     from lightning.pytorch.callbacks import EMAWeightAveraging, LearningRateMonitor, ModelCheckpoint
 
     from training.callbacks import StepProgressBar, StepSnapshots
-    from training.vq_module import NonFiniteLossError
+    from training.losses import NonFiniteLossError
 
     trainer_cfg = config["trainer"]
     if trainer_cfg.get("ema"):

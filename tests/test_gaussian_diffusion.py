@@ -14,8 +14,7 @@ import pytest
 import torch
 
 from m2d2m.networks.config import ConfigError
-from m2d2m.processes.gaussian_diffusion import (VARIANCES, GaussianDiffusion, cosine_betas, linear_betas,
-                                              timestep_buckets)
+from m2d2m.processes.gaussian_diffusion import VARIANCES, GaussianDiffusion, cosine_betas, linear_betas
 
 T = 1000
 
@@ -334,23 +333,6 @@ def test_oracle_sampling_recovers_data(process: GaussianDiffusion, steps: int, m
     assert torch.isfinite(x).all()
     assert x.mean().item() == pytest.approx(MEAN, abs=0.02)
     assert x.std().item() == pytest.approx(STD, abs=std_tol)
-
-
-# ---------------------------------------------------------------------------------------------
-# Buckets
-
-
-def test_timestep_buckets() -> None:
-    t = torch.tensor([0, 249, 250, 499, 500, 749, 750, 999])
-    assert timestep_buckets(t, T).tolist() == [0, 0, 1, 1, 2, 2, 3, 3]
-    assert timestep_buckets(torch.tensor([0, 12, 13, 25, 37, 38, 49]), 50).tolist() == [0, 0, 1, 2, 2, 3, 3]
-    assert timestep_buckets(torch.tensor([0, 3, 9]), 10, buckets=10).tolist() == [0, 3, 9]
-    with pytest.raises(ValueError):
-        timestep_buckets(torch.tensor([T]), T)
-    with pytest.raises(ValueError):
-        timestep_buckets(torch.tensor([-1]), T)
-    with pytest.raises(ConfigError):
-        timestep_buckets(t, T, buckets=0)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -7,10 +7,10 @@ import torch
 from torch.utils.data import DataLoader
 
 from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import Request
+from m2d2m.generators.m2d2m_sampling import TokenRequest
 from m2d2m.text import LearnedTextEncoder
 from training.m2d2m_module import M2D2MModule
-from training.vq_module import NonFiniteLossError
+from training.losses import NonFiniteLossError
 
 K = 8
 STEPS = 10
@@ -65,7 +65,7 @@ def test_training_step_is_finite_and_reaches_denoiser_and_text_encoder(monkeypat
         assert grads and any(g.abs().sum() > 0 for g in grads)
     assert {"train/loss", "train/vlb", "train/aux"} <= set(recorder.logged)
     buckets = [name for name in recorder.logged if name.startswith("train/vlb_t")]
-    assert buckets and all(name in {f"train/vlb_t{b}" for b in range(1, 5)} for name in buckets)
+    assert buckets and set(buckets) <= {"train/vlb_t1-3", "train/vlb_t4-5", "train/vlb_t6-8", "train/vlb_t9-10"}
     assert module.timesteps.count.sum() == 3
 
 
@@ -117,7 +117,7 @@ def test_validation_is_deterministic(monkeypatch):
 
 def test_sampler_uses_the_modules_parts_and_restores_the_mode():
     module = make_module()
-    requests = [Request([[SENTENCES[0]]], [7], seed=5), Request([[SENTENCES[1], SENTENCES[2]]], [3], seed=6)]
+    requests = [TokenRequest([[SENTENCES[0]]], [7], seed=5), TokenRequest([[SENTENCES[1], SENTENCES[2]]], [3], seed=6)]
     first = module.sampler().sample(requests, M2D2MOptions(guidance=3.0, ts=0, eta=0.25))
     second = module.sampler().sample(requests, M2D2MOptions(guidance=3.0, ts=0, eta=0.25))
     assert [len(x[0]) for x in first] == [7, 3]
@@ -133,7 +133,7 @@ def test_other_schedules_and_importance_sampling(monkeypatch, options):
     monkeypatch.setattr(module, "log", lambda *a, **k: None)
     for _ in range(3):
         assert torch.isfinite(module.training_step(make_batch(), 0))
-    tokens = module.sampler().sample([Request([[SENTENCES[0]]], [5])], M2D2MOptions(guidance=1.0, ts=0))
+    tokens = module.sampler().sample([TokenRequest([[SENTENCES[0]]], [5])], M2D2MOptions(guidance=1.0, ts=0))
     assert len(tokens[0][0]) == 5
 
 

@@ -15,7 +15,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from m2d2m.generators.motiondiffuse import MotionDiffuseGenerator
 from m2d2m.generators.motiondiffuse_checkpoint import load_motiondiffuse, save_motiondiffuse
-from m2d2m.generators.motiondiffuse_sampling import Layout, Request, Term, sample
+from m2d2m.generators.motiondiffuse_sampling import Layout, FeatureRequest, Term, sample
 from m2d2m.generators.protocol import Keep, keep_part
 from m2d2m.model_files import LengthPrior
 from m2d2m.motion.body_parts import LOWER, UPPER, part_mask
@@ -134,7 +134,7 @@ def _layout(requests, feature_dim=6, max_term=64):
 def test_time_varied_combination_without_correction_is_the_masked_sum():
     """Eq. 11 with λ2 = 0 and intervals tiling the sequence: Σ_i pad(ε_i)."""
     terms = (Term("a", 0, 4), Term("b", 4, 9), Term("c", 9, 12))
-    layout = _layout([Request(12, terms, 0), Request(7, (Term("d", 0, 7),), 1)])
+    layout = _layout([FeatureRequest(12, terms, 0), FeatureRequest(7, (Term("d", 0, 7),), 1)])
     eps = torch.randn(4, layout.width, 6)
     expected = torch.zeros(2, 12, 6)
     for k, term in enumerate(terms):
@@ -147,7 +147,7 @@ def test_time_varied_combination_without_correction_is_the_masked_sum():
 
 
 def test_overlapping_intervals_are_averaged_where_they_overlap():
-    layout = _layout([Request(10, (Term("a", 0, 6), Term("b", 4, 10)), 0)])
+    layout = _layout([FeatureRequest(10, (Term("a", 0, 6), Term("b", 4, 10)), 0)])
     eps = torch.randn(2, layout.width, 6)
     combined = layout.combine(eps)[0]
     assert torch.allclose(combined[:4], eps[0, :4])
@@ -158,19 +158,19 @@ def test_overlapping_intervals_are_averaged_where_they_overlap():
 def test_body_part_combination_is_the_sum_of_masked_estimates_and_parts_must_cover_the_body():
     """Eq. 10 with λ1 = 0: Σ_i ε_i · M_i, the masks partitioning the dimensions."""
     upper, lower = part_mask(T2M, UPPER), part_mask(T2M, LOWER)
-    layout = _layout([Request(5, (Term("u", 0, 5, upper), Term("l", 0, 5, lower)), 0)], feature_dim=D)
+    layout = _layout([FeatureRequest(5, (Term("u", 0, 5, upper), Term("l", 0, 5, lower)), 0)], feature_dim=D)
     eps = torch.randn(2, 5, D)
     expected = eps[0] * torch.as_tensor(upper) + eps[1] * torch.as_tensor(lower)
     assert torch.allclose(layout.combine(eps)[0], expected)
     with pytest.raises(ValueError, match="without a sentence"):
-        _layout([Request(5, (Term("u", 0, 5, upper),), 0)], feature_dim=D)
+        _layout([FeatureRequest(5, (Term("u", 0, 5, upper),), 0)], feature_dim=D)
     with pytest.raises(ValueError, match="without a sentence"):
-        _layout([Request(10, (Term("a", 0, 4), Term("b", 6, 10)), 0)])
+        _layout([FeatureRequest(10, (Term("a", 0, 4), Term("b", 6, 10)), 0)])
 
 
 def test_terms_estimated_in_length_groups_equal_one_padded_call():
     network = awake(MotionDiffuseTransformer(tiny_config(feature_dim=6)))
-    requests = [Request(n, (Term("a", 0, n),), n) for n in range(3, 40)]  # 37 terms: two groups
+    requests = [FeatureRequest(n, (Term("a", 0, n),), n) for n in range(3, 40)]  # 37 terms: two groups
     layout = _layout(requests)
     x = torch.randn(len(requests), layout.frames, 6)
     text = network.encode_text(torch.randn(37, 2, 16), torch.ones(37, 2, dtype=torch.bool))
@@ -183,7 +183,7 @@ def test_terms_estimated_in_length_groups_equal_one_padded_call():
 
 
 def test_disagreement_is_the_sum_of_norms_over_shared_frames_both_orders():
-    layout = _layout([Request(10, (Term("a", 0, 6), Term("b", 4, 10), Term("c", 5, 10)), 0)])
+    layout = _layout([FeatureRequest(10, (Term("a", 0, 6), Term("b", 4, 10), Term("c", 5, 10)), 0)])
     eps = torch.randn(3, layout.width, 6)
     ab = torch.linalg.norm(eps[0, 4:6] - eps[1, 0:2])
     ac = torch.linalg.norm(eps[0, 5:6] - eps[2, 0:1])
@@ -211,7 +211,7 @@ def test_correction_moves_the_estimate_along_the_gradient_of_disagreement():
     from m2d2m.networks.motiondiffuse_transformer import EncodedText
 
     process = GaussianDiffusion(np.array([0.3]))  # one step: x_0 = (x_1 − √(1−ᾱ) ε̄)/√ᾱ
-    requests = [Request(6, (Term("a", 0, 4), Term("b", 2, 6)), 7)]
+    requests = [FeatureRequest(6, (Term("a", 0, 4), Term("b", 2, 6)), 7)]
     text = EncodedText(torch.zeros(2, 1, 16), torch.ones(2, 1, dtype=torch.bool), torch.tensor([[1.0], [3.0]]))
     network = _ShiftNetwork(4)
     step = lambda x, t, eps, noise: process.p_sample(x, t, eps, noise)  # noqa: E731
@@ -266,7 +266,7 @@ def test_independent_equals_each_action_sampled_alone(generator):
     words, mask = encoder.encode(SENTENCES[:2])
     text = network.encode_text(words, mask)
     process = generator.process.respaced(5)
-    requests = [Request(24, (Term(SENTENCES[0], 0, 10), Term(SENTENCES[1], 10, 24)), 3)]
+    requests = [FeatureRequest(24, (Term(SENTENCES[0], 0, 10), Term(SENTENCES[1], 10, 24)), 3)]
     direct = sample(network, text, requests, process,
                     lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0), 0.0)[0]
     assert np.allclose(joined.features, generator.checkpoint.normalizer.denormalize(direct.numpy()), atol=1e-5)
@@ -354,7 +354,7 @@ def test_x0_prediction_and_the_cosine_schedule_are_what_the_module_trains_and_sa
     text = network.encode_text(*encoder.encode(["a person jumps"]))
     process = GaussianDiffusion(module.process.betas)
     ddim = lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0)  # noqa: E731
-    request = [Request(12, (Term("a person jumps", 0, 12),), 3)]
+    request = [FeatureRequest(12, (Term("a person jumps", 0, 12),), 3)]
     as_x0 = sample(network, text, request, process, ddim, 0.0, prediction="x0")[0]
     x = torch.randn(1, 12, D, generator=torch.Generator().manual_seed(3))
     for index in reversed(range(process.num_steps)):

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import (FREE, Request, TokenSampler, categorical, length_groups,
+from m2d2m.generators.m2d2m_sampling import (FREE, TokenRequest, TokenSampler, categorical, length_groups,
                                              truncate)
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
@@ -34,7 +34,7 @@ def sampler() -> TokenSampler:
     return TokenSampler(denoiser, text, schedule)
 
 
-def run(sampler: TokenSampler, requests: list[Request], **options) -> list[list[torch.Tensor]]:
+def run(sampler: TokenSampler, requests: list[TokenRequest], **options) -> list[list[torch.Tensor]]:
     return sampler.sample(requests, M2D2MOptions(**{"ts": 6, **options}))
 
 
@@ -43,7 +43,7 @@ def flat(tokens: list[torch.Tensor]) -> torch.Tensor:
 
 
 def test_tps_with_ts_equal_to_T_is_independent_sampling(sampler):
-    request = Request([WALK, JUMP, SIT], [6, 5, 7], seed=3)
+    request = TokenRequest([WALK, JUMP, SIT], [6, 5, 7], seed=3)
     tps = run(sampler, [request], method="tps", ts=STEPS)[0]
     independent = run(sampler, [request], method="independent")[0]
     assert all(torch.equal(a, b) for a, b in zip(tps, independent))
@@ -51,7 +51,7 @@ def test_tps_with_ts_equal_to_T_is_independent_sampling(sampler):
 
 
 def test_tps_of_one_action_is_single_sampling(sampler):
-    request = Request([WALK], [9], seed=5)
+    request = TokenRequest([WALK], [9], seed=5)
     results = [run(sampler, [request], method="tps", ts=ts)[0][0] for ts in (0, 4, STEPS)]
     assert all(torch.equal(results[0], other) for other in results[1:])
     assert results[0].min() >= 0 and results[0].max() < CODES
@@ -62,8 +62,8 @@ def test_joint_phase_attends_across_the_boundary(sampler):
     some of five seeds: a draw may land on the same token either way)."""
     changed = []
     for seed in range(11, 16):
-        before = Request([WALK, JUMP], [8, 8], seed=seed)
-        after = Request([WALK, SIT], [8, 8], seed=seed)
+        before = TokenRequest([WALK, JUMP], [8, 8], seed=seed)
+        after = TokenRequest([WALK, SIT], [8, 8], seed=seed)
         independent = [run(sampler, [r], method="independent")[0][0] for r in (before, after)]
         assert torch.equal(*independent)
         tps = [run(sampler, [r], method="tps", ts=STEPS // 2)[0][0] for r in (before, after)]
@@ -81,8 +81,8 @@ def test_length_groups_cover_every_row_once_with_bounded_padding():
 
 
 def test_batched_sampling_matches_one_by_one(sampler):
-    requests = [Request([WALK, JUMP], [5, 7], seed=1), Request([SIT], [4], seed=2),
-                Request([JUMP, SIT, WALK], [3, 6, 2], seed=3)]
+    requests = [TokenRequest([WALK, JUMP], [5, 7], seed=1), TokenRequest([SIT], [4], seed=2),
+                TokenRequest([JUMP, SIT, WALK], [3, 6, 2], seed=3)]
     for method in ("tps", "independent", "handshake", "slerp"):
         extra = {"handshake": 2} if method == "handshake" else {}
         batched = run(sampler, requests, method=method, ts=6, **extra)
@@ -97,7 +97,7 @@ def test_editing_keeps_given_tokens(sampler, method):
     given = torch.full((12,), FREE)
     given[:3] = torch.tensor([1, 2, 3])  # prefix
     given[-2:] = torch.tensor([7, 0])  # suffix; the middle is in-betweened
-    tokens = flat(run(sampler, [Request([WALK, JUMP], lengths, seed=4, given=given)], method=method, ts=5,
+    tokens = flat(run(sampler, [TokenRequest([WALK, JUMP], lengths, seed=4, given=given)], method=method, ts=5,
                       handshake=2)[0])
     kept = given != FREE
     assert torch.equal(tokens[kept], given[kept])
@@ -105,7 +105,7 @@ def test_editing_keeps_given_tokens(sampler, method):
 
 
 def test_handshake_and_slerp_lengths(sampler):
-    request = Request([WALK, JUMP, SIT], [6, 5, 7], seed=0)
+    request = TokenRequest([WALK, JUMP, SIT], [6, 5, 7], seed=0)
     handshake = run(sampler, [request], method="handshake", handshake=3)[0]
     assert [len(x) for x in handshake] == [6, 5, 7]
     slerp = run(sampler, [request], method="slerp", slerp=2)[0]
@@ -115,14 +115,14 @@ def test_handshake_and_slerp_lengths(sampler):
 
 
 def test_seeds_matter_and_repeat(sampler):
-    first = run(sampler, [Request([WALK], [10], seed=0)])[0][0]
-    again = run(sampler, [Request([WALK], [10], seed=0)])[0][0]
-    other = run(sampler, [Request([WALK], [10], seed=1)])[0][0]
+    first = run(sampler, [TokenRequest([WALK], [10], seed=0)])[0][0]
+    again = run(sampler, [TokenRequest([WALK], [10], seed=0)])[0][0]
+    other = run(sampler, [TokenRequest([WALK], [10], seed=1)])[0][0]
     assert torch.equal(first, again) and not torch.equal(first, other)
 
 
 def test_eta_and_truncation_change_samples(sampler):
-    request = [Request([WALK, JUMP], [8, 8], seed=2)]
+    request = [TokenRequest([WALK, JUMP], [8, 8], seed=2)]
     base = flat(run(sampler, request)[0])
     assert not torch.equal(base, flat(sampler.sample(request, M2D2MOptions(ts=6, eta=3.0))[0]))
     assert not torch.equal(base, flat(run(sampler, request, truncation=0.3)[0]))
@@ -135,18 +135,18 @@ def test_eta_and_truncation_change_samples(sampler):
 ])
 def test_bad_options(sampler, options, message):
     with pytest.raises(ValueError, match=message):
-        run(sampler, [Request([WALK], [4])], **options)
+        run(sampler, [TokenRequest([WALK], [4])], **options)
     with pytest.raises(ValueError, match="eta"):
-        sampler.sample([Request([WALK], [4])], M2D2MOptions(eta=-0.1))
+        sampler.sample([TokenRequest([WALK], [4])], M2D2MOptions(eta=-0.1))
 
 
 def test_bad_requests():
     with pytest.raises(ValueError, match="one length per action"):
-        Request([WALK, JUMP], [4])
+        TokenRequest([WALK, JUMP], [4])
     with pytest.raises(ValueError, match="at least one token"):
-        Request([WALK], [0])
+        TokenRequest([WALK], [0])
     with pytest.raises(ValueError, match="given must hold 4"):
-        Request([WALK], [4], given=torch.zeros(5, dtype=torch.long))
+        TokenRequest([WALK], [4], given=torch.zeros(5, dtype=torch.long))
 
 
 def test_truncate_keeps_the_top_mass():
@@ -184,7 +184,7 @@ def test_an_empty_sentence_samples_under_the_null_condition(sampler, monkeypatch
         return original(self, condition, condition_mask, batch)
 
     monkeypatch.setattr(type(denoiser), "condition", spying)
-    run(sampler, [Request([[""]], [5], seed=1), Request([WALK], [5], seed=1)], method="independent", guidance=0.0)
+    run(sampler, [TokenRequest([[""]], [5], seed=1), TokenRequest([WALK], [5], seed=1)], method="independent", guidance=0.0)
     condition, condition_mask = seen[0]
     assert torch.equal(condition_mask[0], torch.arange(condition.shape[1]) == 0)
     assert torch.equal(condition[0, 0], denoiser.null_text.reshape(-1))
@@ -196,7 +196,7 @@ def test_an_empty_sentence_samples_under_the_null_condition(sampler, monkeypatch
 def test_reusing_the_condition_changes_no_token(sampler, method, guidance):
     """The text's keys and values computed once per phase give what recomputing them at every step
     gives, token for token, for several requests of several lengths."""
-    requests = [Request([WALK, JUMP, SIT], [6, 5, 7], seed=3), Request([SIT, WALK], [9, 6], seed=4)]
+    requests = [TokenRequest([WALK, JUMP, SIT], [6, 5, 7], seed=3), TokenRequest([SIT, WALK], [9, 6], seed=4)]
     options = M2D2MOptions(method=method, ts=6, guidance=guidance, handshake=2)
     fresh = TokenSampler(sampler.denoiser, sampler.text_encoder, sampler.schedule, reuse_condition=False)
     reused = sampler.sample(requests, options)
@@ -211,7 +211,7 @@ def test_all_steps_is_the_one_step_reverse_process_draw_for_draw(sampler):
     from m2d2m.networks.m2d2m_denoiser import guided_logits
     from m2d2m.text import encode_actions
 
-    request = Request([JUMP], [9], seed=7)
+    request = TokenRequest([JUMP], [9], seed=7)
     sampled = sampler.sample([request], M2D2MOptions(method="independent", guidance=2.0, steps=STEPS))[0][0]
     schedule, denoiser = sampler.schedule, sampler.denoiser
     generator = torch.Generator().manual_seed(7)
@@ -248,7 +248,7 @@ def test_timestep_grid_keeps_T_s_and_scales_both_phases():
 
 
 def test_fewer_steps_sample_every_position_reproducibly(sampler):
-    requests = [Request([WALK, JUMP], [6, 8], seed=2)]
+    requests = [TokenRequest([WALK, JUMP], [6, 8], seed=2)]
     for steps in (1, 3, STEPS // 2):
         options = M2D2MOptions(method="tps", ts=6, steps=steps)
         first, again = sampler.sample(requests, options), sampler.sample(requests, options)

@@ -28,7 +28,7 @@ from m2d2m.motion.normalization import Normalizer
 from training.data import (FeatureShardDataModule, Sample, caption_span, clip_metas, pad_clips, random_window,
                            worker_generator)
 from training.optim import configure_adamw
-from training.vq_module import NonFiniteLossError
+from training.losses import check_finite
 
 SHORTER_UNIT_CHANCE = 1 / 3  # Guo's "double" coin: one 4-frame unit less
 
@@ -173,8 +173,7 @@ class EvaluatorModule(pl.LightningModule):
         text, motion = self._embed(batch)
         batch_size = len(text)
         terms = contrastive_loss(text, motion, int(torch.randint(1, batch_size, ())), self.hparams.loss["margin"])
-        if not torch.isfinite(terms.total):
-            raise NonFiniteLossError(f"the training loss is {terms.total.item()} at step {self.global_step}")
+        check_finite(terms.total, self.global_step)
         self.log("train/loss", terms.total, batch_size=batch_size, prog_bar=True)
         self.log("train/positive", terms.positive, batch_size=batch_size)
         self.log("train/negative", terms.negative, batch_size=batch_size)

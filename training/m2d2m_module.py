@@ -11,15 +11,14 @@ import torch
 
 from m2d2m.generators.m2d2m_checkpoint import schedule_from_config
 from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import Request, TokenSampler
+from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
 from m2d2m.text import encode_actions, text_encoder_from_config
 from training.optim import configure_adamw
-from training.vq_module import NonFiniteLossError
+from training.losses import check_finite, log_by_quarter
 
-T_BUCKETS = 4
 
 
 class Denoised(NamedTuple):
@@ -117,17 +116,11 @@ class M2D2MModule(pl.LightningModule):
         t, pt = self.timesteps.sample(batch_size)
         t, pt = t.to(tokens.device), pt.to(tokens.device)
         out = self._denoise(batch, t, drop_condition=True, pt=pt).loss
-        if not torch.isfinite(out.loss):
-            raise NonFiniteLossError(f"the training loss is {out.loss.item()} at step {self.global_step}")
+        check_finite(out.loss, self.global_step)
         self.log("train/loss", out.loss, batch_size=batch_size, prog_bar=True)
         self.log("train/vlb", out.vlb.mean(), batch_size=batch_size)
         self.log("train/aux", out.aux.mean(), batch_size=batch_size)
-        # bucket b (1..4) holds t in ((b−1)·T/4, b·T/4]
-        buckets = torch.ceil(t.double() * T_BUCKETS / self.steps).long().clamp(1, T_BUCKETS)
-        for b in range(1, T_BUCKETS + 1):
-            chosen = buckets == b
-            if chosen.any():
-                self.log(f"train/vlb_t{b}", out.vlb[chosen].mean(), batch_size=int(chosen.sum()))
+        log_by_quarter(self, "train/vlb", out.vlb, t, first=1, steps=self.steps)
         self.timesteps.update(t, out.vlb)
         return out.loss
 
@@ -156,7 +149,7 @@ class M2D2MModule(pl.LightningModule):
     def preview_tokens(self, prompts: list[str], lengths: list[int], seed: int,
                        guidance: float = 4.0) -> list[torch.Tensor]:
         """Tokens for each prompt, sampled with no joint phase at guidance ``guidance`` (previews)."""
-        requests = [Request([[prompt]], [n], seed=seed) for prompt, n in zip(prompts, lengths)]
+        requests = [TokenRequest([[prompt]], [n], seed=seed) for prompt, n in zip(prompts, lengths)]
         return [tokens for (tokens,) in self.sampler().sample(requests, M2D2MOptions(guidance=guidance, ts=0))]
 
     def sampler(self) -> TokenSampler:

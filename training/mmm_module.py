@@ -18,7 +18,7 @@ from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransf
 from m2d2m.processes.masking import training_mask
 from m2d2m.text import text_encoder_from_config
 from training.optim import configure_adamw
-from training.vq_module import NonFiniteLossError
+from training.losses import check_finite
 
 
 def as_codebook(codebook: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -83,8 +83,7 @@ class MMMModule(pl.LightningModule):
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
         codes, masked, logits = self._predict(batch)
         loss = F.cross_entropy(logits[masked], codes[masked])
-        if not torch.isfinite(loss):
-            raise NonFiniteLossError(f"the training loss is {loss.item()} at step {self.global_step}")
+        check_finite(loss, self.global_step)
         self.log("train/loss", loss, batch_size=codes.shape[0], prog_bar=True)
         return loss
 

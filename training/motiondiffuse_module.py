@@ -11,17 +11,15 @@ import numpy as np
 import torch
 
 from m2d2m.generators.motiondiffuse_checkpoint import diffusion_from_config, prediction_of
-from m2d2m.generators.motiondiffuse_sampling import Request, Term, sample
+from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Term, sample
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, MotionDiffuseTransformer
-from m2d2m.processes.gaussian_diffusion import timestep_buckets
 from m2d2m.text import text_encoder_from_config
 from training.data import valid_frames
 from training.optim import configure_adamw
-from training.vq_module import NonFiniteLossError
+from training.losses import check_finite, log_by_quarter
 
-BUCKETS = 4  # the loss is logged per quarter of the steps: t near 0 is the hard, detailed end
 
 
 def masked_mse(predicted: torch.Tensor, target: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
@@ -81,21 +79,13 @@ class MotionDiffuseModule(pl.LightningModule):
     def _log_losses(self, split: str, losses: torch.Tensor, t: torch.Tensor, **options: Any) -> torch.Tensor:
         loss = losses.mean()
         self.log(f"{split}/loss", loss, batch_size=len(losses), prog_bar=True, **options)
-        steps = self.process.num_steps
-        buckets = timestep_buckets(t, steps, BUCKETS)
-        for bucket in range(BUCKETS):
-            chosen = buckets == bucket
-            if chosen.any():  # bucket b holds the t with t · BUCKETS // T = b
-                first, end = -(-bucket * steps // BUCKETS), -(-(bucket + 1) * steps // BUCKETS)
-                self.log(f"{split}/loss_t{first}-{end - 1}", losses[chosen].mean(), batch_size=int(chosen.sum()),
-                         **options)
+        log_by_quarter(self, f"{split}/loss", losses, t, first=0, steps=self.process.num_steps, **options)
         return loss
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
         losses, t = self._losses(batch)
         loss = self._log_losses("train", losses, t)
-        if not torch.isfinite(loss):
-            raise NonFiniteLossError(f"the training loss is {loss.item()} at step {self.global_step}")
+        check_finite(loss, self.global_step)
         return loss
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
@@ -113,7 +103,7 @@ class MotionDiffuseModule(pl.LightningModule):
                 words, mask = self.text_encoder.encode(list(prompts))
                 text = self.network.encode_text(words.to(self.device), mask.to(self.device))
             process = self.process.respaced(min(steps, self.process.num_steps))
-            requests = [Request(n, (Term(prompt, 0, n),), seed) for prompt, n in zip(prompts, frames)]
+            requests = [FeatureRequest(n, (Term(prompt, 0, n),), seed) for prompt, n in zip(prompts, frames)]
             motions = sample(self.network, text, requests, process,
                              lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0), 0.0,
                              prediction=self.prediction)

@@ -15,12 +15,8 @@ from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS
 from m2d2m.networks.vqvae import MotionVQVAE, VQConfig
+from training.losses import check_finite
 from training.optim import configure_adamw
-
-
-class NonFiniteLossError(FloatingPointError):
-    """The loss became NaN or infinite; raised before the optimiser step, so the weights and the
-    last checkpoint on disk are still the last good ones."""
 
 
 class VQVAEModule(pl.LightningModule):
@@ -70,8 +66,7 @@ class VQVAEModule(pl.LightningModule):
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         losses = self._losses(batch["motion"])
-        if not torch.isfinite(losses["loss"]):
-            raise NonFiniteLossError(f"the training loss is {losses['loss'].item()} at step {self.global_step}")
+        check_finite(losses["loss"], self.global_step)
         batch_size = len(batch["motion"])
         for name, value in losses.items():
             self.log(f"train/{name}", value, batch_size=batch_size, prog_bar=name == "loss")

@@ -15,7 +15,7 @@ import torch
 
 from m2d2m.generators.m2d2m_checkpoint import Checkpoint, load_checkpoint
 from m2d2m.generators.m2d2m_options import SAMPLING, M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import Request, TokenSampler, switch_step
+from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler, switch_step
 from m2d2m.generators.protocol import Keep
 from m2d2m.generators.token_model import TokenModelGenerator
 from m2d2m.motion.clip import Motion
@@ -65,7 +65,7 @@ class M2D2MGenerator(TokenModelGenerator):
         """Sample every sequence in one batch of the sampler and decode each (see the protocol)."""
         keep = [None] * len(actions) if keep is None else keep
         lengths = self.tokens_of(frames)
-        requests = [Request([[a] for a in sequence], tokens, int(seed), self.given_tokens(kept, sum(tokens)))
+        requests = [TokenRequest([[a] for a in sequence], tokens, int(seed), self.given_tokens(kept, sum(tokens)))
                     for sequence, tokens, seed, kept in zip(actions, lengths, seeds, keep)]
         steps = self.checkpoint.schedule.steps
         tokens = self.sampler.sample(requests, options,

@@ -50,7 +50,7 @@ from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import TextEncoder, encode_actions
 
 @dataclass
-class Request:
+class TokenRequest:
     """One sequence to generate: its actions in order, each action's length in tokens, a seed.
 
     ``given`` (optional, Σ lengths long): tokens to keep (in-betweening, prefix or suffix
@@ -194,7 +194,7 @@ class TokenSampler:
 
     # ------------------------------------------------------------------------------------- public
     @torch.no_grad()
-    def sample(self, requests: list[Request], options: M2D2MOptions = M2D2MOptions(),
+    def sample(self, requests: list[TokenRequest], options: M2D2MOptions = M2D2MOptions(),
                progress: Callable[[int], None] | None = None) -> list[list[Tensor]]:
         """Tokens for each request, one (length,) long tensor per action (the *generated* tokens:
         under ``slerp`` later actions are ``slerp`` tokens shorter; under ``handshake`` the
@@ -218,7 +218,7 @@ class TokenSampler:
             self.text_encoder.train(was_training)
 
     # ----------------------------------------------------------------------------------- internals
-    def _run(self, requests: list[Request], options: M2D2MOptions, schedule: TransitionSchedule,
+    def _run(self, requests: list[TokenRequest], options: M2D2MOptions, schedule: TransitionSchedule,
              progress: Callable[[int], None] | None) -> list[list[Tensor]]:
         device = self.device
         generators = [torch.Generator(device=device).manual_seed(int(r.seed)) for r in requests]
@@ -325,7 +325,7 @@ def _guided_rows(index: Tensor, rows: int, options: M2D2MOptions) -> Tensor:
 
 
 # --------------------------------------------------------------------------------------- layouts
-def _joint_layout(requests: list[Request]) -> _Layout:
+def _joint_layout(requests: list[TokenRequest]) -> _Layout:
     """One row per request: its whole stream, its actions' sentences concatenated in order."""
     return _Layout([_Row(i, slice(0, sum(r.lengths)), [s for sentences in r.actions for s in sentences],
                          list(r.lengths)) for i, r in enumerate(requests)])
@@ -336,7 +336,7 @@ def _extended_lengths(lengths: list[int], overlap: int) -> list[int]:
     return [n + (overlap if i else 0) for i, n in enumerate(lengths)]
 
 
-def _action_layout(requests: list[Request], overlap: int) -> _Layout:
+def _action_layout(requests: list[TokenRequest], overlap: int) -> _Layout:
     """One row per action of every request, in order, each with its own sentences."""
     rows = []
     for i, r in enumerate(requests):
@@ -347,7 +347,7 @@ def _action_layout(requests: list[Request], overlap: int) -> _Layout:
     return _Layout(rows)
 
 
-def _given_stream(request: Request, overlap: int, device: torch.device) -> Tensor:
+def _given_stream(request: TokenRequest, overlap: int, device: torch.device) -> Tensor:
     """``given`` laid out as the request's stream (shared tokens repeated under handshake)."""
     total = sum(request.lengths)
     given = torch.full((total,), FREE, dtype=torch.long) if request.given is None else request.given.long().cpu()
@@ -407,9 +407,9 @@ def _split_actions(stream: Tensor, lengths: list[int], overlap: int) -> list[Ten
     return pieces
 
 
-def _shortened(request: Request, window: int) -> Request:
+def _shortened(request: TokenRequest, window: int) -> TokenRequest:
     """The request with every action after the first ``window`` tokens shorter (at least 1 left)."""
     if request.given is not None:
         raise ValueError("editing with given tokens is not supported by the slerp baseline")
     lengths = [n if i == 0 else max(1, n - window) for i, n in enumerate(request.lengths)]
-    return Request(request.actions, lengths, request.seed)
+    return TokenRequest(request.actions, lengths, request.seed)

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from m2d2m.generators.motiondiffuse_checkpoint import MotionDiffuseCheckpoint, load_motiondiffuse, prediction_of
-from m2d2m.generators.motiondiffuse_sampling import Request, Step, Term, sample
+from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Step, Term, sample
 from m2d2m.generators.motiondiffuse_options import SAMPLING, MotionDiffuseOptions
 from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.body_parts import PARTS, part_mask
@@ -73,7 +73,7 @@ class MotionDiffuseGenerator(MotionGenerator):
         return Path(data_dir) if data_dir else None
 
     def typical_frames(self, verb: str | None) -> int:
-        return min(self.checkpoint.lengths.tokens_for(verb), self.longest_frames)
+        return min(self.checkpoint.lengths.typical(verb), self.longest_frames)
 
     @property
     def longest_frames(self) -> int:
@@ -117,7 +117,7 @@ class MotionDiffuseGenerator(MotionGenerator):
             spans = list(zip(bounds[:-1], bounds[1:]))
             terms = tuple(Term(sentence, *self._interval(start, end, total, overlap))
                           for sentence, (start, end) in zip(sequence, spans))
-            requests.append(Request(total, terms, int(seed), *self._kept(kept, total)))
+            requests.append(FeatureRequest(total, terms, int(seed), *self._kept(kept, total)))
             ranges.append(spans)
         normalized = self._sample(requests, options, options.lambda_time, progress)
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
@@ -137,7 +137,7 @@ class MotionDiffuseGenerator(MotionGenerator):
                                  + (f"unknown {', '.join(unknown)}" if unknown else f"missing {', '.join(missing)}"))
             total = self.round_frames(length)
             terms = tuple(Term(texts[part], 0, total, part_mask(self.skeleton, part)) for part in PARTS)
-            requests.append(Request(total, terms, int(seed)))
+            requests.append(FeatureRequest(total, terms, int(seed)))
         normalized = self._sample(requests, options, options.lambda_part, progress)
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source), "method": "body parts"}
         return [self._motion(x, [" | ".join(f"{part}: {texts[part]}" for part in PARTS)], [(0, len(x))],
@@ -162,7 +162,7 @@ class MotionDiffuseGenerator(MotionGenerator):
         features = self.checkpoint.normalizer.normalize(np.asarray(keep.features, dtype=np.float32))
         return torch.as_tensor(features), torch.as_tensor(keep.frames[:, None] & dims[None, :])
 
-    def _sample(self, requests: list[Request], options: MotionDiffuseOptions, correction: float,
+    def _sample(self, requests: list[FeatureRequest], options: MotionDiffuseOptions, correction: float,
                 progress: Callable[[float], None] | None) -> list[torch.Tensor]:
         network, text_encoder = self.checkpoint.network, self.checkpoint.text_encoder
         with torch.no_grad():

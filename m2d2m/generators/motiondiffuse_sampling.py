@@ -46,7 +46,7 @@ class Term:
 
 
 @dataclass(frozen=True)
-class Request:
+class FeatureRequest:
     """One sequence to sample: its length, its terms, its seed, and optionally normalised features
     (frames, D) to keep where ``keep_mask`` (frames, D) is True."""
 
@@ -69,7 +69,7 @@ class Layout:
     gather indices into the flattened frames, the term masks, the coverage counts, and the pairs
     of terms of one request that share frames and dimensions (the correction's)."""
 
-    def __init__(self, requests: Sequence[Request], feature_dim: int, max_term: int, device: torch.device) -> None:
+    def __init__(self, requests: Sequence[FeatureRequest], feature_dim: int, max_term: int, device: torch.device) -> None:
         self.frames = max(request.frames for request in requests)
         self.batch, self.feature_dim = len(requests), feature_dim
         terms = [(b, term) for b, request in enumerate(requests) for term in request.terms]
@@ -108,7 +108,7 @@ class Layout:
         """Per-term values (K, W, D) zeroed off each term's frames and dimensions."""
         return values * self.valid[:, :, None] * self.dims[:, None, :]
 
-    def _pairs(self, requests: Sequence[Request], terms: list[tuple[int, Term]], device: torch.device) -> None:
+    def _pairs(self, requests: Sequence[FeatureRequest], terms: list[tuple[int, Term]], device: torch.device) -> None:
         """For each pair of terms of one request sharing frames and dimensions: the flat indices
         of the shared frames in each term's estimate and the shared dimensions."""
         first, second, dims = [], [], []
@@ -166,7 +166,7 @@ def _pad(rows: Sequence[torch.Tensor], frames: int) -> torch.Tensor:
     return torch.stack([torch.nn.functional.pad(row, (0, 0, 0, frames - len(row))) for row in rows])
 
 
-def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Sequence[Request],
+def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Sequence[FeatureRequest],
            process: GaussianDiffusion, step: Step, correction: float,
            progress: Callable[[float], None] | None = None, prediction: str = "epsilon") -> list[torch.Tensor]:
     """Each request's normalised motion (frames, D), denoised from N(0, I) through every step of

@@ -162,7 +162,7 @@ class TokenModelGenerator(MotionGenerator):
         return self.codec.frames_per_token
 
     def typical_frames(self, verb: str | None) -> int:
-        return self.lengths.tokens_for(verb) * self.frame_step
+        return self.lengths.typical(verb) * self.frame_step
 
     @property
     def longest_frames(self) -> int:

@@ -65,18 +65,6 @@ def cosine_betas(steps: int = 1000, offset: float = 0.008, max_beta: float = 0.9
     return np.clip(1.0 - cumulative[1:] / cumulative[:-1], 0.0, max_beta)
 
 
-def timestep_buckets(t: Tensor, num_steps: int, buckets: int = 4) -> Tensor:
-    """Bucket 0..buckets-1 of each step index, equal parts of [0, num_steps), to log the loss per t range."""
-    if isinstance(num_steps, bool) or not isinstance(num_steps, int) or num_steps < 1:
-        raise ConfigError(f"num_steps must be a positive integer, got {num_steps!r}")
-    if isinstance(buckets, bool) or not isinstance(buckets, int) or buckets < 1:
-        raise ConfigError(f"buckets must be a positive integer, got {buckets!r}")
-    t = t.long()
-    if t.numel() and (int(t.min()) < 0 or int(t.max()) >= num_steps):
-        raise ValueError(f"step indices must lie in [0, {num_steps}), got [{int(t.min())}, {int(t.max())}]")
-    return t * buckets // num_steps
-
-
 class GaussianDiffusion:
     """The fixed schedule and the closed forms built from it; no network, no state besides arrays."""
 
