@@ -74,7 +74,8 @@ from typing import Any
 import torch
 from tqdm import tqdm
 
-from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
+from m2d2m.generators.options import MULTI, SINGLE
+from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.processes.masking import dynamic_iterations
 from orchestration.errors import UserError
 from orchestration.generate import load_generator
@@ -255,10 +256,10 @@ def check_steps(generators: dict[str, MotionGenerator], steps: dict[str, list[in
     """A one-line refusal of step counts a model's schedule cannot be sampled with."""
     for name in STEP_SERIES:
         trained = trained_steps(generators[name])
-        for count in [*steps[name], *([long_steps[name]] if name in long_steps else [])]:
-            if not 1 <= count <= trained:
+        for steps_asked in [*steps[name], *([long_steps[name]] if name in long_steps else [])]:
+            if not 1 <= steps_asked <= trained:
                 flag = "--md" if name == STEPPED else f"--{name}"
-                raise UserError(f"{count} steps: {name} was trained with T = {trained} steps; give {flag}-steps and "
+                raise UserError(f"{steps_asked} steps: {name} was trained with T = {trained} steps; give {flag}-steps and "
                                 f"{flag}-long-steps from 1 to {trained}")
 
 

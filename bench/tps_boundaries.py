@@ -40,7 +40,7 @@ import numpy as np
 
 from m2d2m.evaluation.measurements import JERK_FPS, WINDOW
 from m2d2m.evaluation.metrics import CI95_Z, jerk
-from m2d2m.generators.protocol import MULTI
+from m2d2m.generators.options import MULTI
 from m2d2m.motion.clip import Motion
 from orchestration.generate import load_generator
 from pipelines.testset import load_testset

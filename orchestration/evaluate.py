@@ -26,7 +26,8 @@ from tqdm import tqdm
 from m2d2m.evaluation.evaluator import TextMotionEvaluator, load_evaluator, load_guo_checkpoint
 from m2d2m.evaluation.measurements import (EDITS, JERK_FPS, MM_GENERATIONS, MM_PROMPTS, WINDOW, Evaluation,
                                            Reference, mean_profile)
-from m2d2m.generators.protocol import MULTI, SINGLE, MotionGenerator
+from m2d2m.generators.options import MULTI, SINGLE
+from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.layout import MANIFEST
 from orchestration.errors import UserError
 from orchestration.generate import load_generator, resolve_model_file

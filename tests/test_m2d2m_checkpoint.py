@@ -9,7 +9,7 @@ import pytest
 from m2d2m.generators.m2d2m import M2D2MGenerator
 from m2d2m.generators.m2d2m_checkpoint import load_checkpoint, save_checkpoint
 from m2d2m.generators.m2d2m_options import MULTI_ACTION, SINGLE_ACTION
-from m2d2m.generators.protocol import MULTI, SINGLE
+from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
 from m2d2m.text import LearnedTextEncoder
 from tests.helpers import TINY_DIFFUSION, random_vq

@@ -13,7 +13,8 @@ import torch
 from m2d2m.generators.mmm import MMMGenerator
 from m2d2m.generators.mmm_body import BodyMMMGenerator, masked_lower
 from m2d2m.generators.mmm_checkpoint import load_body_mmm, save_body_mmm, save_mmm
-from m2d2m.generators.protocol import SINGLE, Keep, keep_part
+from m2d2m.generators.options import SINGLE
+from m2d2m.generators.protocol import Keep, keep_part
 from m2d2m.model_files import LengthPrior
 from m2d2m.motion.body_parts import LOWER, UPPER
 from m2d2m.motion.normalization import Normalizer

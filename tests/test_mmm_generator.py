@@ -11,7 +11,8 @@ import torch
 
 from m2d2m.generators.mmm import MMMGenerator
 from m2d2m.generators.mmm_checkpoint import load_mmm, save_mmm
-from m2d2m.generators.protocol import MULTI, SINGLE, Keep
+from m2d2m.generators.options import MULTI, SINGLE
+from m2d2m.generators.protocol import Keep
 from m2d2m.model_files import LengthPrior
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas

@@ -41,7 +41,8 @@ from torch.nn.utils.rnn import pad_sequence
 from m2d2m.evaluation.evaluator import TextMotionEvaluator
 from m2d2m.evaluation.metrics import (DEFAULT_MIN_STEP, diversity, fid, frame_jerk, jerk, mean_frame_jerk, mm_dist,
                                       multimodality, peak_jerk_and_auj, r_precision, transition_windows)
-from m2d2m.generators.protocol import MULTI, SINGLE, Keep, MotionGenerator, keep_part
+from m2d2m.generators.options import MULTI, SINGLE
+from m2d2m.generators.protocol import Keep, MotionGenerator, keep_part
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.joining import slerp_join
 from m2d2m.motion.representation import features_to_joints

@@ -5,9 +5,9 @@ A generator turns a request — action sentences per sequence, each action's len
 a seed per sequence, optionally frames to keep — into one :class:`~m2d2m.motion.clip.Motion` per
 sequence. Lengths are frames whatever the model works on: a token model rounds them to whole
 tokens (:meth:`MotionGenerator.round_frames`). How the actions of one sequence are joined is the
-*method*, chosen among the generator's :attr:`~MotionGenerator.methods` in its options; the
-options are a frozen dataclass of the model's own sampling knobs, with named presets for the
-paper settings of single and multi-action generation.
+*method*, one of the options; the options are a frozen dataclass of the model's own sampling
+knobs, with named presets for the paper settings of single and multi-action generation, declared
+in the model's :class:`~m2d2m.generators.options.Sampling` (its ``sampling``).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
-from m2d2m.generators.options import MULTI, SINGLE, Sampling
+from m2d2m.generators.options import MULTI, Sampling
 from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.skeleton import Skeleton
