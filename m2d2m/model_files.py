@@ -1,7 +1,8 @@
 """Self-contained model files: one ``torch.save`` dict with a format tag, written atomically and
-read back with ``weights_only=True`` (so a file can never run code), shared by every model; and
-the parts every generator's file holds beside its network: the corpus's length prior and the
-text encoder."""
+read back with ``weights_only=True`` (so a file can never run code), shared by every model
+(:class:`ModelFileKind`: a kind of file is its tag and its name in errors); and the parts every
+generator's file holds beside its network: the network's config and weights, the text encoder,
+the corpus's length prior and free-form ``extra``."""
 
 from __future__ import annotations
 
@@ -36,33 +37,44 @@ def cpu_state(module: torch.nn.Module) -> dict[str, Any]:
     return {k: v.detach().cpu() if isinstance(v, torch.Tensor) else v for k, v in module.state_dict().items()}
 
 
-def write_model_file(path: str | Path, payload: dict[str, Any]) -> Path:
-    """Save ``payload`` to ``path`` through a temporary file, so readers never see half a file."""
-    check_plain(payload, "payload")
-    path = Path(path)
-    with atomic_path(path) as partial:
-        torch.save(payload, partial)
-    return path
+@dataclass(frozen=True)
+class ModelFileKind:
+    """One kind of model file: the format tag its payload carries and how errors name it (with its
+    article: ``an M2D2M model file``). A tag changes only when old files cannot be read as new ones."""
+
+    format: str
+    name: str
+
+    def write(self, path: str | Path, payload: dict[str, Any]) -> Path:
+        """Save ``payload`` tagged as this kind through a temporary file, so readers never see half a file."""
+        payload = {"format": self.format, **payload}
+        check_plain(payload, "payload")
+        path = Path(path)
+        with atomic_path(path) as partial:
+            torch.save(payload, partial)
+        return path
+
+    def read(self, path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+        """The payload of a file of this kind; FileNotFoundError, or ValueError naming the kind expected."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"no {self.name.split(' ', 1)[1]} at {path}")
+        try:
+            payload = torch.load(path, map_location=map_location, weights_only=True)
+        except Exception as error:  # any unreadable file is, for the caller, simply not this kind of file
+            # torch's own text runs to paragraphs (and advises weights_only=False): its first sentence
+            first = str(error).strip().split(". ", 1)[0].splitlines()[0].rstrip(".") if str(error).strip() else ""
+            raise ValueError(f"{path} is not {self.name}: truncated, damaged or not written by torch.save "
+                             f"({type(error).__name__}: {first})") from error
+        found = payload.get("format") if isinstance(payload, dict) else None
+        if found != self.format:
+            raise ValueError(f"{path} is not {self.name} (format {found!r}, expected {self.format!r})")
+        return payload
 
 
-def read_model_file(path: str | Path, expected_format: str, what: str,
-                    map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """The payload of a file written by :func:`write_model_file` whose format is ``expected_format``;
-    FileNotFoundError or ValueError (naming ``what`` was expected) otherwise."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no {what} at {path}")
-    try:
-        payload = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as error:  # any unreadable file is, for the caller, simply not this kind of file
-        # torch's own text runs to paragraphs (and advises weights_only=False): its first sentence
-        first = str(error).strip().split(". ", 1)[0].splitlines()[0].rstrip(".") if str(error).strip() else ""
-        raise ValueError(f"{path} is not an {what}: truncated, damaged or not written by torch.save "
-                         f"({type(error).__name__}: {first})") from error
-    found = payload.get("format") if isinstance(payload, dict) else None
-    if found != expected_format:
-        raise ValueError(f"{path} is not an {what} (format {found!r}, expected {expected_format!r})")
-    return payload
+def network_payload(network: torch.nn.Module) -> dict[str, Any]:
+    """A network in a model file: its config (a :class:`~m2d2m.networks.config.NetworkConfig`) and weights."""
+    return {"config": network.config.to_dict(), "state_dict": cpu_state(network)}
 
 
 @dataclass

@@ -13,7 +13,7 @@ import mlflow
 import pytest
 import yaml
 
-from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
+from m2d2m.generators.m2d2m_checkpoint import load_m2d2m
 from m2d2m.generators.mmm_checkpoint import load_mmm
 from m2d2m.generators.motiondiffuse_checkpoint import load_motiondiffuse
 from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE
@@ -23,7 +23,7 @@ WIDTHS = {"m2d2m": 16, "mmm": TINY_MMM["transformer"]["width"], "motiondiffuse":
 
 def width(model: str, path) -> int:
     if model == "m2d2m":
-        return load_checkpoint(path).denoiser.config.width
+        return load_m2d2m(path).denoiser.config.width
     if model == "mmm":
         return load_mmm(path).transformer.config.width
     return load_motiondiffuse(path).network.config.width

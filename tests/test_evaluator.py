@@ -89,7 +89,7 @@ def test_model_file_round_trip_gives_identical_embeddings(tmp_path):
     assert torch.equal(loaded.embed_text(TOKENS), model.embed_text(TOKENS))
     assert torch.equal(loaded.embed_motion(features, lengths), model.embed_motion(features, lengths))
     torch.save({"format": "other"}, tmp_path / "other.pt")
-    with pytest.raises(ValueError, match="not an m2d2m evaluator"):
+    with pytest.raises(ValueError, match="not an evaluator model file"):
         load_evaluator(tmp_path / "other.pt")
 
 

@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from m2d2m.generators.m2d2m import M2D2MGenerator
-from m2d2m.generators.m2d2m_checkpoint import load_checkpoint
+from m2d2m.generators.m2d2m_checkpoint import load_m2d2m
 from m2d2m.motion.clip import Motion
 from orchestration.cli import main
 from orchestration.errors import UserError
@@ -45,7 +45,7 @@ def test_the_checkpoint_is_self_contained(trained, tmp_path):
     model = next((trained / "runs" / "tiny" / "m2d2m").glob("*/model.pt"))
     moved = tmp_path / "elsewhere.pt"
     moved.write_bytes(model.read_bytes())  # no run directory, no vq.pt beside it
-    checkpoint = load_checkpoint(moved)
+    checkpoint = load_m2d2m(moved)
     assert checkpoint.codec.vq.config.codebook_size == checkpoint.denoiser.config.codebook_size == 16
     assert checkpoint.schedule.config.kind == "dynamic" and checkpoint.codec.skeleton.name == "t2m"
     assert checkpoint.lengths.median >= 1 and checkpoint.lengths.longest >= checkpoint.lengths.median
@@ -129,7 +129,7 @@ def test_the_command_writes_files_and_logs_to_mlflow(trained, capsys, monkeypatc
     (["a person jumps", "--guidance", "-2"], "option guidance must be >= 0, got -2"),
     (["a person jumps", "--method", "blend"], "unknown method 'blend'"),
     (["a person jumps", "--checkpoint", "no-such-run"], "no m2d2m run 'no-such-run'"),
-    (["a person jumps", "--checkpoint", "vq.yaml"], "vq.yaml is not an m2d2m denoiser checkpoint"),
+    (["a person jumps", "--checkpoint", "vq.yaml"], "vq.yaml is not an M2D2M model file"),
     (["a", "b", "--seconds", "1", "2", "3"], "one duration per prompt"),
 ])
 def test_bad_input_is_one_line_and_exit_2(trained, capsys, monkeypatch, arguments, message):

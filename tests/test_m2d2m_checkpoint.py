@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 
 from m2d2m.generators.m2d2m import M2D2MGenerator
-from m2d2m.generators.m2d2m_checkpoint import load_checkpoint, save_checkpoint
+from m2d2m.generators.m2d2m_checkpoint import load_m2d2m, save_m2d2m
 from m2d2m.generators.m2d2m_options import MULTI_ACTION, SINGLE_ACTION
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
@@ -22,9 +22,9 @@ def test_configured_schedule_endpoints_survive_the_round_trip(tiny_data, tmp_pat
     module = M2D2MModule(TINY_DIFFUSION["denoiser"], TINY_DIFFUSION["text"], diffusion, TINY_DIFFUSION["optim"],
                          codebook=vq.codebook, vocabulary=LearnedTextEncoder.build_vocabulary(["a person walks"]))
     assert (module.schedule.config.alpha_bar_end, module.schedule.config.gamma_bar_end) == (0.2, 0.5)
-    path = save_checkpoint(tmp_path / "model.pt", module.denoiser, module.text_encoder, TINY_DIFFUSION["text"],
+    path = save_m2d2m(tmp_path / "model.pt", module.denoiser, module.text_encoder, TINY_DIFFUSION["text"],
                            module.schedule.config, module.codebook, tmp_path / "vq.pt", LengthPrior({}, 5, 10))
-    loaded = load_checkpoint(path)
+    loaded = load_m2d2m(path)
     assert loaded.schedule.config == module.schedule.config
     assert loaded.schedule.gamma_bar[-1].item() == 0.5  # the matrices are rebuilt from it, not from "linear"
 
@@ -38,7 +38,7 @@ def test_the_model_files_sampling_defaults_reach_every_preset(tiny_data, tmp_pat
                          vocabulary=LearnedTextEncoder.build_vocabulary(["a person walks"]))
 
     def save(sampling):
-        return save_checkpoint(tmp_path / "model.pt", module.denoiser, module.text_encoder, TINY_DIFFUSION["text"],
+        return save_m2d2m(tmp_path / "model.pt", module.denoiser, module.text_encoder, TINY_DIFFUSION["text"],
                                module.schedule.config, module.codebook, tmp_path / "vq.pt", LengthPrior({}, 5, 10),
                                sampling=sampling)
 

@@ -116,7 +116,7 @@ def test_the_model_file_round_trips_with_both_tokenizers(model_file, generator):
     assert pairs.shape == (8, 2) and int(pairs[:, 0].max()) < K_UPPER and int(pairs[:, 1].max()) < K_LOWER
     decoded = again.codec.decode(pairs)
     assert decoded.shape == (32, 263)
-    with pytest.raises(ValueError, match="not an m2d2m MMM model file"):
+    with pytest.raises(ValueError, match="not an MMM model file"):
         MMMGenerator.load(model_file)  # a body file is not a whole-body MMM file, nor the other way round
 
 

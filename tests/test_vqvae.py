@@ -239,7 +239,7 @@ def test_save_load_round_trip_and_foreign_files(tmp_path):
     torch.save({"state_dict": model.state_dict()}, tmp_path / "lightning.ckpt")
     (tmp_path / "notes.txt").write_text("hello")
     for name in ("lightning.ckpt", "notes.txt"):
-        with pytest.raises(ValueError, match="not an m2d2m VQ model"):
+        with pytest.raises(ValueError, match="not a VQ-VAE model file"):
             load_vq(tmp_path / name)
     for bad in (np.zeros(3), np.float64(1.0)):
         with pytest.raises(TypeError, match="numpy|ndarray|float64"):

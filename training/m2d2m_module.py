@@ -9,7 +9,6 @@ import lightning.pytorch as pl
 import numpy as np
 import torch
 
-from m2d2m.generators.m2d2m_checkpoint import schedule_from_config
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
@@ -72,7 +71,7 @@ class M2D2MModule(pl.LightningModule):
 
     # ----------------------------------------------------------------------------------- schedule
     def _build_schedule(self) -> TransitionSchedule:
-        return schedule_from_config(self.codebook, self.hparams.diffusion)
+        return TransitionSchedule.from_config(self.codebook, self.hparams.diffusion)
 
     def _rebuild_schedule(self) -> None:
         self.schedule = self._build_schedule()

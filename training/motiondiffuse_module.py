@@ -10,11 +10,11 @@ import lightning.pytorch as pl
 import numpy as np
 import torch
 
-from m2d2m.generators.motiondiffuse_checkpoint import diffusion_from_config, prediction_of
 from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Term, sample
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, MotionDiffuseTransformer
+from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
 from m2d2m.text import text_encoder_from_config
 from training.data import valid_frames
 from training.optim import configure_adamw
@@ -48,7 +48,7 @@ class MotionDiffuseModule(pl.LightningModule):
         self.network = MotionDiffuseTransformer(MotionDiffuseConfig.from_dict(
             {**network, "feature_dim": feature_dim, "text_dim": self.text_encoder.dim}))
         try:
-            self.process = diffusion_from_config(diffusion)
+            self.process = GaussianDiffusion.from_config(diffusion)
         except ValueError as error:
             raise ConfigError(str(error)) from error
         self.prediction = prediction_of(diffusion)

@@ -37,11 +37,11 @@ import torch.nn.functional as F
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
-from m2d2m.model_files import read_model_file, write_model_file
+from m2d2m.model_files import ModelFileKind
 from m2d2m.networks.config import ConfigError, NetworkConfig
 from m2d2m.text import UNK, LearnedTextEncoder
 
-FORMAT = "m2d2m-evaluator/1"
+EVALUATOR_FILE = ModelFileKind("m2d2m-evaluator/1", "an evaluator model file")
 CONTACT_DIMS = 4  # the foot contacts, dropped from the motion input
 UNIT_LENGTH = 4  # frames per movement latent: two stride-2 convolutions
 
@@ -366,8 +366,7 @@ def contrastive_loss(text: torch.Tensor, motion: torch.Tensor, shift: int, margi
 def save_evaluator(path: str | Path, model: TextMotionEvaluator) -> Path:
     """One self-contained torch file (written atomically): sizes, vocabulary, and every weight,
     word vector and statistic — all that computing the metrics needs."""
-    return write_model_file(path, {
-        "format": FORMAT,
+    return EVALUATOR_FILE.write(path, {
         "config": model.config.to_dict(),
         "vocabulary": list(model.vocabulary),
         "state_dict": {key: value.detach().cpu() for key, value in model.state_dict().items()},
@@ -376,7 +375,7 @@ def save_evaluator(path: str | Path, model: TextMotionEvaluator) -> Path:
 
 def load_evaluator(path: str | Path, map_location: str | torch.device = "cpu") -> TextMotionEvaluator:
     """Read a file written by :func:`save_evaluator`; the model is in eval mode on ``map_location``."""
-    payload = read_model_file(path, FORMAT, "m2d2m evaluator file")
+    payload = EVALUATOR_FILE.read(path)
     config = EvaluatorConfig.from_dict(payload["config"])
     state = payload["state_dict"]
     vectors = state["words.weight"] if config.word_features == "glove" else None

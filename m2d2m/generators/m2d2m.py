@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from m2d2m.generators.m2d2m_checkpoint import Checkpoint, load_checkpoint
+from m2d2m.generators.m2d2m_checkpoint import M2D2MCheckpoint, load_m2d2m
 from m2d2m.generators.m2d2m_options import SAMPLING, M2D2MOptions
 from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler, switch_step
 from m2d2m.generators.protocol import Keep
@@ -29,7 +29,7 @@ class M2D2MGenerator(TokenModelGenerator):
     model = "m2d2m"
     sampling = SAMPLING
 
-    def __init__(self, checkpoint: Checkpoint, source: Path) -> None:
+    def __init__(self, checkpoint: M2D2MCheckpoint, source: Path) -> None:
         self.checkpoint = checkpoint
         self.source = source
         self.codec, self.lengths, self.extra = checkpoint.codec, checkpoint.lengths, checkpoint.extra
@@ -37,7 +37,7 @@ class M2D2MGenerator(TokenModelGenerator):
 
     @classmethod
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "M2D2MGenerator":
-        return cls(load_checkpoint(path, device), Path(path))
+        return cls(load_m2d2m(path, device), Path(path))
 
     @property
     def device(self) -> torch.device:

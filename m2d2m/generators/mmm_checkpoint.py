@@ -12,15 +12,14 @@ from typing import Any
 import torch
 
 from m2d2m.generators.token_model import BodyCodec, TokenCodec
-from m2d2m.model_files import (LengthPrior, cpu_state, read_model_file, text_encoder_from_payload, text_payload,
-                               write_model_file)
+from m2d2m.model_files import LengthPrior, ModelFileKind, network_payload, text_encoder_from_payload, text_payload
 from m2d2m.networks.mmm_body_transformer import BodyMaskedTransformer, BodyTransformerConfig
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig
-from m2d2m.networks.vqvae import FORMAT as VQ_FORMAT
+from m2d2m.networks.vqvae import VQ_FILE
 from m2d2m.text import TextEncoder
 
-FORMAT = "mmm-transformer/1"
-BODY_FORMAT = "mmm-body/1"
+MMM_FILE = ModelFileKind("mmm-transformer/1", "an MMM model file")
+BODY_FILE = ModelFileKind("mmm-body/1", "an MMM upper-body model file")
 
 
 @dataclass
@@ -34,15 +33,14 @@ class MMMCheckpoint:
     extra: dict[str, Any]
 
 
-def _payload(format_: str, transformer: MaskedMotionTransformer, text_encoder: TextEncoder, text: dict[str, Any],
+def _payload(transformer: MaskedMotionTransformer, text_encoder: TextEncoder, text: dict[str, Any],
              vq_files: dict[str, str | Path], lengths: LengthPrior, extra: dict[str, Any] | None) -> dict[str, Any]:
     """A model file's contents; the transformer's codebook buffers travel with its weights, each
     VQ-VAE of ``vq_files`` (payload key → file) whole."""
     return {
-        "format": format_,
-        "transformer": {"config": transformer.config.to_dict(), "state_dict": cpu_state(transformer)},
+        "transformer": network_payload(transformer),
         "text": text_payload(text_encoder, text),
-        **{key: read_model_file(path, VQ_FORMAT, "m2d2m VQ model file") for key, path in vq_files.items()},
+        **{key: VQ_FILE.read(path) for key, path in vq_files.items()},
         "lengths": lengths.to_payload(),
         "extra": {} if extra is None else extra,
     }
@@ -60,12 +58,12 @@ def save_mmm(path: str | Path, transformer: MaskedMotionTransformer, text_encode
              text: dict[str, Any], vq_file: str | Path, lengths: LengthPrior,
              extra: dict[str, Any] | None = None) -> Path:
     """Write a model file; ``text`` is the run's config section."""
-    return write_model_file(path, _payload(FORMAT, transformer, text_encoder, text, {"vq": vq_file}, lengths, extra))
+    return MMM_FILE.write(path, _payload(transformer, text_encoder, text, {"vq": vq_file}, lengths, extra))
 
 
 def load_mmm(path: str | Path, device: str | torch.device = "cpu") -> MMMCheckpoint:
     """Read a file written by :func:`save_mmm`, models in eval mode on ``device``."""
-    payload = read_model_file(path, FORMAT, "m2d2m MMM model file")
+    payload = MMM_FILE.read(path)
     state = payload["transformer"]["state_dict"]
     transformer = MaskedMotionTransformer(MaskedTransformerConfig.from_dict(payload["transformer"]["config"]),
                                           state["codebook"])
@@ -77,12 +75,12 @@ def save_body_mmm(path: str | Path, transformer: BodyMaskedTransformer, text_enc
                   extra: dict[str, Any] | None = None) -> Path:
     """Write an upper-body editor's model file, with both part tokenizers."""
     vq_files = {"upper_vq": upper_vq_file, "lower_vq": lower_vq_file}
-    return write_model_file(path, _payload(BODY_FORMAT, transformer, text_encoder, text, vq_files, lengths, extra))
+    return BODY_FILE.write(path, _payload(transformer, text_encoder, text, vq_files, lengths, extra))
 
 
 def load_body_mmm(path: str | Path, device: str | torch.device = "cpu") -> MMMCheckpoint:
     """Read a file written by :func:`save_body_mmm`; its codec is a :class:`BodyCodec`."""
-    payload = read_model_file(path, BODY_FORMAT, "m2d2m MMM upper-body model file")
+    payload = BODY_FILE.read(path)
     state = payload["transformer"]["state_dict"]
     transformer = BodyMaskedTransformer(BodyTransformerConfig.from_dict(payload["transformer"]["config"]),
                                         state["codebook"], state["lower_codebook"])

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from m2d2m.generators.motiondiffuse_checkpoint import MotionDiffuseCheckpoint, load_motiondiffuse, prediction_of
+from m2d2m.generators.motiondiffuse_checkpoint import MotionDiffuseCheckpoint, load_motiondiffuse
 from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Step, Term, sample
 from m2d2m.generators.motiondiffuse_options import SAMPLING, MotionDiffuseOptions
 from m2d2m.generators.protocol import Keep, MotionGenerator
@@ -35,7 +35,7 @@ from m2d2m.motion.body_parts import PARTS, part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import Skeleton
-from m2d2m.processes.gaussian_diffusion import GaussianDiffusion
+from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
 
 class MotionDiffuseGenerator(MotionGenerator):
     """A loaded MotionDiffuse model file behind the generator protocol."""

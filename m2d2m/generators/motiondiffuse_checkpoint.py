@@ -12,38 +12,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from m2d2m.model_files import (LengthPrior, cpu_state, read_model_file, text_encoder_from_payload, text_payload,
-                               write_model_file)
+from m2d2m.model_files import LengthPrior, ModelFileKind, network_payload, text_encoder_from_payload, text_payload
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, MotionDiffuseTransformer
-from m2d2m.processes.gaussian_diffusion import PREDICTIONS, SCHEDULES, GaussianDiffusion, cosine_betas
+from m2d2m.processes.gaussian_diffusion import GaussianDiffusion
 from m2d2m.text import TextEncoder
 
-FORMAT = "motiondiffuse/1"
-DIFFUSION_KEYS = ("steps", "beta_start", "beta_end", "schedule", "prediction")
-
-
-def diffusion_from_config(diffusion: dict[str, Any]) -> GaussianDiffusion:
-    """The process of a run's ``diffusion`` section: T and the schedule (the paper's linear β from
-    1e-4 to 0.02 over 1000 steps, or ``cosine``); its ``prediction`` (ε, the paper's, or x0) is
-    checked here and read by :func:`prediction_of`."""
-    unknown = sorted(set(diffusion) - set(DIFFUSION_KEYS))
-    if unknown:
-        raise ValueError(f"unknown diffusion keys: {', '.join(unknown)}")
-    schedule = diffusion.get("schedule", "linear")
-    if schedule not in SCHEDULES or prediction_of(diffusion) not in PREDICTIONS:
-        raise ValueError(f"diffusion.schedule must be one of {', '.join(SCHEDULES)} and diffusion.prediction one "
-                         f"of {', '.join(PREDICTIONS)}, got {schedule!r} and {prediction_of(diffusion)!r}")
-    steps = int(diffusion.get("steps", 1000))
-    if schedule == "cosine":
-        return GaussianDiffusion(cosine_betas(steps))
-    return GaussianDiffusion.linear(steps, float(diffusion.get("beta_start", 1e-4)), float(diffusion.get("beta_end", 0.02)))
-
-
-def prediction_of(diffusion: dict[str, Any]) -> str:
-    """What the network of a ``diffusion`` section predicts: ``epsilon`` (the paper's) or ``x0``."""
-    return diffusion.get("prediction", "epsilon")
+MOTIONDIFFUSE_FILE = ModelFileKind("motiondiffuse/1", "a MotionDiffuse model file")
 
 
 @dataclass
@@ -60,17 +36,16 @@ class MotionDiffuseCheckpoint:
 
     @property
     def process(self) -> GaussianDiffusion:
-        return diffusion_from_config(self.diffusion)
+        return GaussianDiffusion.from_config(self.diffusion)
 
 
 def save_motiondiffuse(path: str | Path, network: MotionDiffuseTransformer, text_encoder: TextEncoder,
                        text: dict[str, Any], diffusion: dict[str, Any], normalizer: Normalizer, skeleton: str,
                        lengths: LengthPrior, extra: dict[str, Any] | None = None) -> Path:
     """Write a model file; ``text`` and ``diffusion`` are the run's config sections."""
-    diffusion_from_config(diffusion)  # refuse a schedule the file could not be read back with
-    return write_model_file(path, {
-        "format": FORMAT,
-        "network": {"config": network.config.to_dict(), "state_dict": cpu_state(network)},
+    GaussianDiffusion.from_config(diffusion)  # refuse a schedule the file could not be read back with
+    return MOTIONDIFFUSE_FILE.write(path, {
+        "network": network_payload(network),
         "text": text_payload(text_encoder, text),
         "diffusion": dict(diffusion),
         "normalizer": {"mean": torch.as_tensor(np.asarray(normalizer.mean, dtype=np.float32)),
@@ -84,7 +59,7 @@ def save_motiondiffuse(path: str | Path, network: MotionDiffuseTransformer, text
 
 def load_motiondiffuse(path: str | Path, device: str | torch.device = "cpu") -> MotionDiffuseCheckpoint:
     """Read a file written by :func:`save_motiondiffuse`, models in eval mode on ``device``."""
-    payload = read_model_file(path, FORMAT, "m2d2m MotionDiffuse model file")
+    payload = MOTIONDIFFUSE_FILE.read(path)
     network = MotionDiffuseTransformer(MotionDiffuseConfig.from_dict(payload["network"]["config"]))
     network.load_state_dict(payload["network"]["state_dict"])
     text_encoder = text_encoder_from_payload(payload["text"])

@@ -30,13 +30,13 @@ import torch.distributed as dist
 import torch.nn.functional as F
 from torch import nn
 
-from m2d2m.model_files import cpu_state, read_model_file, write_model_file
+from m2d2m.model_files import ModelFileKind, cpu_state
 from m2d2m.motion.body_parts import FULL, PARTS, part_dims, skeleton_of_width
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.smoothing import gaussian_kernel
 from m2d2m.networks.config import ConfigError, NetworkConfig
 
-FORMAT = "m2d2m-vq/1"
+VQ_FILE = ModelFileKind("m2d2m-vq/1", "a VQ-VAE model file")
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "silu": nn.SiLU, "gelu": nn.GELU}
 
@@ -390,7 +390,6 @@ def save_vq(path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skelet
     """Write the model, its normalisation and its skeleton name as one self-contained torch file
     (written atomically), the hand-over from VQ training to tokenizing and the denoiser."""
     payload = {
-        "format": FORMAT,
         "config": model.config.to_dict(),
         "state_dict": cpu_state(model),
         "mean": torch.as_tensor(np.asarray(normalizer.mean, dtype=np.float32)),
@@ -399,7 +398,7 @@ def save_vq(path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skelet
         "skeleton": str(skeleton),
         "extra": {} if extra is None else extra,
     }
-    write_model_file(path, payload)
+    VQ_FILE.write(path, payload)
 
 
 def load_vq(path: str | Path,
@@ -407,7 +406,7 @@ def load_vq(path: str | Path,
     """Read a file written by :func:`save_vq`: the model (eval mode, on ``map_location``), its
     normaliser, and ``{"skeleton", "part", "extra"}`` (``part``: the body part it tokenizes);
     ValueError when the file is not one."""
-    payload = read_model_file(path, FORMAT, "m2d2m VQ model file", map_location)
+    payload = VQ_FILE.read(path, map_location)
     try:
         return vq_from_payload(payload, map_location)
     except ValueError as error:
@@ -416,7 +415,7 @@ def load_vq(path: str | Path,
 
 def vq_from_payload(payload: dict, map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
     """The model, normaliser and ``{"skeleton", "part", "extra"}`` of a VQ file's contents — also
-    used when a denoiser checkpoint carries its VQ-VAE inside it."""
+    used when a model file carries its VQ-VAE inside it."""
     try:
         model = MotionVQVAE(VQConfig.from_dict(payload["config"]))
         model.load_state_dict(payload["state_dict"])

@@ -16,7 +16,7 @@ uniform, i.e. VQ-Diffusion.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import torch
@@ -201,6 +201,15 @@ class TransitionSchedule:
         scalars = {name: value.to(device) for name, value in scalar_schedule(config).items()}
         distances = code_distances(codebook, distance) if kind == "dynamic" else None
         return cls._assemble(config, codebook.shape[0], scalars, distances)
+
+    @classmethod
+    def from_config(cls, codebook: Tensor, diffusion: dict[str, Any]) -> "TransitionSchedule":
+        """The schedule a run's ``diffusion`` section (or a saved :class:`ScheduleConfig`) builds
+        from its codebook, in float64; the section's keys that are not the schedule's (loss
+        weights, timestep sampling) are the training's, and ignored here."""
+        options = {f.name: diffusion[f.name] for f in fields(ScheduleConfig) if f.name in diffusion}
+        options["steps"] = int(options.get("steps", 100))
+        return cls.build(codebook.detach().double(), **options)
 
     @classmethod
     def _assemble(cls, config: ScheduleConfig, num_codes: int, scalars: dict[str, Tensor],

@@ -30,6 +30,7 @@ numpy arrays and converted to the input tensor's dtype and device when indexed.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -65,6 +66,14 @@ def cosine_betas(steps: int = 1000, offset: float = 0.008, max_beta: float = 0.9
     return np.clip(1.0 - cumulative[1:] / cumulative[:-1], 0.0, max_beta)
 
 
+DIFFUSION_KEYS = ("steps", "beta_start", "beta_end", "schedule", "prediction")  # a run's diffusion section
+
+
+def prediction_of(diffusion: dict[str, Any]) -> str:
+    """What the network of a ``diffusion`` section predicts: ``epsilon`` (the paper's) or ``x0``."""
+    return diffusion.get("prediction", "epsilon")
+
+
 class GaussianDiffusion:
     """The fixed schedule and the closed forms built from it; no network, no state besides arrays."""
 
@@ -92,6 +101,23 @@ class GaussianDiffusion:
         # Ho et al. eq. 7: μ̃_t = coef_x0 · x_0 + coef_xt · x_t
         self._posterior_coef_x0 = betas * np.sqrt(self.alphas_cumprod_prev) / (1.0 - self.alphas_cumprod)
         self._posterior_coef_xt = (1.0 - self.alphas_cumprod_prev) * np.sqrt(self.alphas) / (1.0 - self.alphas_cumprod)
+
+    @classmethod
+    def from_config(cls, diffusion: dict[str, Any]) -> GaussianDiffusion:
+        """The process of a run's ``diffusion`` section: T and the schedule (MotionDiffuse's linear
+        β from 1e-4 to 0.02 over 1000 steps, or ``cosine``); its ``prediction`` (ε, the paper's, or
+        x0) is checked here and read by :func:`prediction_of`. ValueError for anything else."""
+        unknown = sorted(set(diffusion) - set(DIFFUSION_KEYS))
+        if unknown:
+            raise ValueError(f"unknown diffusion keys: {', '.join(unknown)}")
+        schedule = diffusion.get("schedule", "linear")
+        if schedule not in SCHEDULES or prediction_of(diffusion) not in PREDICTIONS:
+            raise ValueError(f"diffusion.schedule must be one of {', '.join(SCHEDULES)} and diffusion.prediction "
+                             f"one of {', '.join(PREDICTIONS)}, got {schedule!r} and {prediction_of(diffusion)!r}")
+        steps = int(diffusion.get("steps", 1000))
+        if schedule == "cosine":
+            return cls(cosine_betas(steps))
+        return cls.linear(steps, float(diffusion.get("beta_start", 1e-4)), float(diffusion.get("beta_end", 0.02)))
 
     @classmethod
     def linear(cls, steps: int = 1000, start: float = 1e-4, end: float = 0.02) -> GaussianDiffusion:

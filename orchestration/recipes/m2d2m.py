@@ -22,7 +22,7 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
     ``ray_train``: this process is a Ray Train worker."""
     import lightning.pytorch as pl
 
-    from m2d2m.generators.m2d2m_checkpoint import sampling_defaults, save_checkpoint
+    from m2d2m.generators.m2d2m_checkpoint import sampling_defaults, save_m2d2m
     from training.callbacks import TokenSamplePreview
     from training.m2d2m_module import M2D2MModule
 
@@ -44,7 +44,7 @@ def train(config_name: str = "demo", overrides: list[str] | None = None, resume:
     if not fitted.primary:
         return run_dir
     export_model(run_dir, fitted, config, data, run_dir / entry.model_file,
-                 lambda path, lengths, extra: save_checkpoint(path, module.denoiser, module.text_encoder,
+                 lambda path, lengths, extra: save_m2d2m(path, module.denoiser, module.text_encoder,
                                                               config["text"], module.schedule.config,
                                                               module.codebook, data.vq_path, lengths, extra,
                                                               sampling), module)
