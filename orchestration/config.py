@@ -102,10 +102,32 @@ def with_defaults(config: dict[str, Any], defaults: dict[str, Any]) -> dict[str,
     return merged
 
 
+def rename_keys(config: dict[str, Any], renamed: dict[str, str], where: str) -> dict[str, Any]:
+    """A copy of ``config`` with each old dotted key of ``renamed`` moved to its new name, so that
+    configs written before a key was renamed still read; both names set is an error."""
+    result = copy.deepcopy(config)
+    for old, new in renamed.items():
+        *section_path, key = old.split(".")
+        section = result
+        for name in section_path:
+            section = section.get(name) if isinstance(section, dict) else None
+        if not isinstance(section, dict) or key not in section:
+            continue
+        *new_path, new_key = new.split(".")
+        target = result
+        for name in new_path:
+            target = target.setdefault(name, {})
+        if new_key in target:
+            raise UserError(f"{where}: both {old} and {new} are set; {new} replaces {old}, keep only it")
+        target[new_key] = section.pop(key)
+    return result
+
+
 def load_config(stage: str, name_or_path: str, overrides: list[str] | None = None,
-                defaults: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The resolved config of a stage: the YAML file over ``defaults`` (settings every file of the
-    stage may leave out, so an override can still name them), with the overrides applied."""
+                defaults: dict[str, Any] | None = None, renamed: dict[str, str] | None = None) -> dict[str, Any]:
+    """The resolved config of a stage: the YAML file, its keys of older names ``renamed`` (old
+    dotted key → new), over ``defaults`` (settings every file of the stage may leave out, so an
+    override can still name them), with the overrides applied."""
     path = resolve_config_path(stage, name_or_path)
     try:
         config = yaml.safe_load(path.read_text(encoding="utf-8"))
@@ -113,6 +135,7 @@ def load_config(stage: str, name_or_path: str, overrides: list[str] | None = Non
         raise UserError(f"{path}: not valid YAML ({yaml_problem(error)})") from error
     if not isinstance(config, dict):
         raise UserError(f"{path}: expected a mapping of settings at the top level")
+    config = rename_keys(config, renamed or {}, str(path))
     return apply_overrides(with_defaults(config, defaults or {}), overrides or [])
 
 

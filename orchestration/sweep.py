@@ -91,7 +91,8 @@ def _check_training_space(config: dict[str, Any]) -> None:
     unknown key or a value of the wrong kind is one line now, not a traceback inside a Ray trial."""
     from orchestration.train import TRAINING_DEFAULTS
 
-    base = load_config(model(config["model"]).configs, config["train_config"], [], TRAINING_DEFAULTS)
+    entry = model(config["model"])
+    base = load_config(entry.configs, config["train_config"], [], TRAINING_DEFAULTS, entry.load("recipe").renamed)
     for key, values in config["space"].items():
         for value in values:
             try:
@@ -105,7 +106,7 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
     returns the evaluation's metrics under their MLflow names (``multi/tps/jerk``, ``gt/jerk_concat``, ...)."""
     from orchestration.evaluate import ParentRun, evaluate, new_settings, table_metrics
-    from orchestration.train import train_model, train_on_workers
+    from orchestration.recipe import train_model, train_on_workers
 
     resources = context["resources"]
     enter_project(context["project"], context["tracking_uri"], resources["cpu"])
@@ -162,7 +163,8 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
         evaluation.update(checkpoint=resolved.candidates[0].checkpoint, evaluator=resolved.evaluator,
                           testset=resolved.testset)
     else:
-        entry.load("recipe").prepare(load_config(entry.configs, config["train_config"], []))
+        recipe = entry.load("recipe")
+        recipe.prepare(load_config(entry.configs, config["train_config"], [], renamed=recipe.renamed))
     return {"project": str(Path.cwd().resolve()), "tracking_uri": tracking_uri(), "dataset": dataset,
             "model": entry.name, "plugins": plugins_for_workers(), "kind": config["kind"], "knobs": list(config["space"]),
             "evaluation": evaluation, "train_config": config["train_config"], "resources": config["resources"],

@@ -2,20 +2,16 @@
 
 ``train_vq`` is ``m2d2m train-vq``: it resolves the config, opens (or, with ``resume``, reopens)
 the run directory and the MLflow run, trains with Lightning, and on success exports ``vq.pt`` —
-the plain model file later stages read — and marks the run as the stage's ``latest``. The
-generators' models train through :func:`train_model`: each registered model's *recipe* (a module
-under ``orchestration/recipes/``) has
-
-- ``train(config_name, overrides, resume, extra_callbacks, join=None, ray_train=False) -> Path``:
-  build its DataModule and LightningModule from the config, call :func:`open_run`, :func:`fit`
-  and :func:`finish`, and write its model file; returns the run directory;
-- ``prepare(config) -> None``: what must exist before trials train in parallel (M2D2M's tokens).
+the plain model file later stages read — and marks the run as the stage's ``latest``;
+``train_evaluator`` does the same for the evaluator. The generators' models train through one
+recipe (:mod:`orchestration.recipe`) built from the same pieces: :func:`open_run`, :func:`fit`,
+:func:`export_snapshots` and :func:`finish`.
 
 Several processes may train one run (DDP). Lightning's own launcher (``trainer.devices: 2``, or
 more GPUs) starts every rank after the first by re-running the command; those processes find the
 run in :data:`JOIN_RUN` and join it instead of opening another. Ray Train workers
-(:func:`train_on_workers`) are handed the run directory. Only global rank 0 writes run files,
-MLflow params and model files.
+(:func:`orchestration.recipe.train_on_workers`) are handed the run directory. Only global rank 0
+writes run files, MLflow params and model files.
 """
 
 from __future__ import annotations
@@ -34,10 +30,9 @@ import yaml
 
 from m2d2m.layout import VQ_FILE
 from m2d2m.motion.body_parts import FULL
-from orchestration.config import flatten, is_number, load_config
+from orchestration.config import flatten, is_number, load_config, rename_keys
 from orchestration.errors import UserError
-from orchestration.registry import load_plugins, model, plugins_for_workers
-from orchestration.runs import (enter_project, find_run, mark_latest, new_run_dir, newest_run, read_run_info, run_file,
+from orchestration.runs import (find_run, mark_latest, new_run_dir, newest_run, read_run_info, run_file,
                                  write_run_info)
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
@@ -134,24 +129,36 @@ def records_failure(stage: Callable[..., Path]) -> Callable[..., Path]:
     return recorded
 
 
+@dataclass(frozen=True)
+class OpenedRun:
+    """A run being trained: its stage, directory, config, MLflow run id (None for a new run) and
+    whether it resumes (``True``, or the run it was asked for by name)."""
+
+    stage: str
+    run_dir: Path
+    config: dict[str, Any]
+    run_id: str | None
+    resume: bool | str
+
+
 def open_run(stage: str, configs: str, config_name: str, overrides: list[str], resume: bool | str,
-             join: Path | None = None) -> tuple[Path, dict[str, Any], str | None]:
-    """The run directory of ``stage``, its config (``configs/<configs>/<config_name>.yaml`` with
-    the overrides) and its MLflow run id (None for a new run). A new run's config is written
-    before training, so processes that ``join`` it (or find it in :data:`JOIN_RUN`) train the
-    same thing."""
+             join: Path | None = None, renamed: dict[str, str] | None = None) -> OpenedRun:
+    """The run of ``stage`` to train, new or resumed, with its config (``configs/<configs>/<config_name>.yaml``
+    with the overrides; keys of older names ``renamed`` read under their new ones, in a file as
+    in a resumed run's record). A new run's config is written before training, so processes
+    that ``join`` it (or find it in :data:`JOIN_RUN`) train the same thing."""
     join = join or (Path(os.environ[JOIN_RUN]) if os.environ.get(JOIN_RUN) else None)
     if join is not None:
         info = read_run_info(join)
-        return join, info["config"], info.get("mlflow_run_id")
-    config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS)
+        return OpenedRun(stage, join, info["config"], info.get("mlflow_run_id"), resume)
+    config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS, renamed)
     _check_settings(config)
     if not resume:
         run_dir = new_run_dir(config["dataset"], stage)
         (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
         write_run_info(run_dir, stage=stage, dataset=config["dataset"], status="running", config=config)
         _opened.append(run_dir)
-        return run_dir, config, None
+        return OpenedRun(stage, run_dir, config, None, resume)
     if overrides:
         raise UserError("--set cannot change a run being resumed; resume as it was, or start a new run")
     # a named run (a bench resuming the run it started), else the newest one of the stage
@@ -164,7 +171,8 @@ def open_run(stage: str, configs: str, config_name: str, overrides: list[str], r
         raise UserError(f"{run_dir} already finished; start a new run instead of --resume")
     write_run_info(run_dir, status="running")
     _opened.append(run_dir)
-    return run_dir, info["config"], info.get("mlflow_run_id")
+    config = rename_keys(info["config"], renamed or {}, str(run_dir / "run.json"))
+    return OpenedRun(stage, run_dir, config, info.get("mlflow_run_id"), resume)
 
 
 def _mlflow_logger(dataset: str, stage: str, run_dir: Path, run_id: str | None):
@@ -220,8 +228,7 @@ def _joinable(run_dir: Path) -> Iterator[None]:
             os.environ[JOIN_RUN] = before
 
 
-def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, resume: bool | str, module, datamodule,
-        monitor: str, callbacks: list, ray_train: bool = False) -> _Fitted:
+def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_train: bool = False) -> _Fitted:
     """What every training stage shares: the MLflow run and its params, best and last
     checkpoints, the trainer (DDP when it has several devices or Ray Train workers), resume, the
     NaN stop, an exponential moving average of the weights (``trainer.ema``), snapshots at chosen
@@ -232,13 +239,14 @@ def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, r
     from training.callbacks import StepProgressBar, StepSnapshots
     from training.losses import NonFiniteLossError
 
+    config, run_dir = run.config, run.run_dir
     trainer_cfg = config["trainer"]
     if trainer_cfg.get("ema"):
         # validation, checkpoints (best, last, snapshots) and so the model file see the averaged weights
         callbacks = [*callbacks, EMAWeightAveraging(decay=trainer_cfg["ema"], use_buffers=False)]
     if trainer_cfg.get("snapshots"):
         callbacks = [*callbacks, StepSnapshots(run_dir / SNAPSHOTS, trainer_cfg["snapshots"])]
-    logger = _mlflow_logger(config["dataset"], stage, run_dir, run_id)
+    logger = _mlflow_logger(config["dataset"], run.stage, run_dir, run.run_id)
     checkpoints = ModelCheckpoint(dirpath=run_dir / "checkpoints", filename="best", monitor=monitor,
                                   mode="min", save_last=True, save_top_k=1)
     trainer = pl.Trainer(
@@ -260,11 +268,11 @@ def fit(stage: str, config: dict[str, Any], run_dir: Path, run_id: str | None, r
     fitted = _Fitted(trainer, checkpoints, logger, run_dir / "checkpoints" / "last.ckpt")
     if fitted.primary:
         write_run_info(run_dir, mlflow_run_id=logger.run_id, world_size=trainer.world_size)
-        if run_id is None:
+        if run.run_id is None:
             logger.log_hyperparams({**flatten(config), "world_size": trainer.world_size})
     try:
         with _joinable(run_dir):
-            trainer.fit(module, datamodule=datamodule, ckpt_path=fitted.last if resume and fitted.last.exists() else None)
+            trainer.fit(module, datamodule=datamodule, ckpt_path=fitted.last if run.resume and fitted.last.exists() else None)
     except NonFiniteLossError as error:
         if fitted.primary:
             write_run_info(run_dir, status="failed", error=str(error))
@@ -315,7 +323,8 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     from training.vq_module import VQVAEModule
 
     stage = vq_stage(load_config(VQ_STAGE, config_name, overrides or [], TRAINING_DEFAULTS)["model"].get("part", FULL))
-    run_dir, config, run_id = open_run(stage, VQ_STAGE, config_name, overrides or [], resume)
+    run = open_run(stage, VQ_STAGE, config_name, overrides or [], resume)
+    run_dir, config = run.run_dir, run.config
     data, trainer_cfg = config["data"], config["trainer"]
     try:
         datamodule = MotionWindowDataModule(
@@ -327,7 +336,7 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     pl.seed_everything(config["seed"], workers=True, verbose=False)
     module = VQVAEModule(config["model"], config["optim"], config["loss"], datamodule.feature_dim, datamodule.skeleton)
     module.set_normalizer(datamodule.normalizer)
-    fitted = fit(stage, config, run_dir, run_id, resume, module, datamodule, "val/recon_loss",
+    fitted = fit(run, module, datamodule, "val/recon_loss",
                  [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])])
     if not fitted.primary:
         return run_dir
@@ -390,46 +399,6 @@ def ensure_tokens(vq_path: Path) -> tuple[Path, Path]:
 
 
 @records_failure
-def train_model(name: str, config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
-                extra_callbacks: list | None = None) -> Path:
-    """Train the registered model ``name`` (``m2d2m train-diffusion`` for M2D2M) with its recipe;
-    returns the run directory."""
-    return model(name).load("recipe").train(config_name, overrides or [], resume, extra_callbacks)
-
-
-def train_on_workers(name: str, config_name: str, overrides: list[str], workers: int, use_gpu: bool,
-                     cpus_per_worker: float, storage: Path) -> Path:
-    """A registered model trained in DDP by ``workers`` Ray Train workers, one device each (the
-    GPUs of one node or of several); returns the run directory, whose files rank 0 wrote.
-    ``storage``, where Ray Train keeps its state, and the project directory must be seen by every
-    node alike."""
-    from ray.train import RunConfig, ScalingConfig
-    from ray.train.torch import TorchTrainer
-
-    entry = model(name)
-    run_dir, _, _ = open_run(entry.stage, entry.configs, config_name, overrides, resume=False)
-    trainer = TorchTrainer(
-        _ray_train_worker,
-        train_loop_config={"project": str(Path.cwd().resolve()), "run_dir": str(run_dir.resolve()),
-                           "tracking_uri": tracking_uri(), "cpus": cpus_per_worker, "model": name,
-                           "plugins": plugins_for_workers()},
-        scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu,
-                                     resources_per_worker={"CPU": cpus_per_worker}),
-        run_config=RunConfig(name=f"{entry.stage}-{run_dir.name}", storage_path=str(storage.resolve())))
-    trainer.fit()
-    if read_run_info(run_dir).get("status") != "finished":
-        raise UserError(f"{run_dir}: the Ray Train workers stopped before rank 0 finished the run")
-    return run_dir
-
-
-def _ray_train_worker(config: dict[str, Any]) -> None:
-    """One Ray Train worker: joins the run in the project directory and trains its DDP rank."""
-    enter_project(config["project"], config["tracking_uri"], config["cpus"])
-    load_plugins(**config["plugins"])
-    model(config["model"]).load("recipe").train(join=Path(config["run_dir"]), ray_train=True)
-
-
-@records_failure
 def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
                     extra_callbacks: list | None = None) -> Path:
     """Train Guo et al.'s text–motion matching evaluator on the dataset's train split (best
@@ -439,7 +408,8 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     from m2d2m.evaluation.evaluator import learned_vocabulary, load_glove, save_evaluator
     from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
 
-    run_dir, config, run_id = open_run(EVALUATOR_STAGE, EVALUATOR_STAGE, config_name, overrides or [], resume)
+    run = open_run(EVALUATOR_STAGE, EVALUATOR_STAGE, config_name, overrides or [], resume)
+    run_dir, config = run.run_dir, run.config
     data, trainer_cfg, network = config["data"], config["trainer"], config["model"]
     try:
         datamodule = CaptionMotionDataModule(
@@ -457,8 +427,7 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     pl.seed_everything(config["seed"], workers=True, verbose=False)
     module = EvaluatorModule(network, config["optim"], config["loss"], datamodule.feature_dim, vocabulary, vectors)
     module.set_normalizer(datamodule.normalizer)
-    fitted = fit(EVALUATOR_STAGE, config, run_dir, run_id, resume, module, datamodule, "val/loss",
-                 list(extra_callbacks or []))
+    fitted = fit(run, module, datamodule, "val/loss", list(extra_callbacks or []))
     if not fitted.primary:
         return run_dir
     save_evaluator(run_dir / EVALUATOR_FILE, module.model)

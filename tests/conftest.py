@@ -13,7 +13,8 @@ import yaml
 
 from m2d2m.motion.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
-from orchestration.train import train_evaluator, train_model, train_vq
+from orchestration.recipe import train_model
+from orchestration.train import train_evaluator, train_vq
 from tests.helpers import TINY_DIFFUSION, TINY_EVALUATOR, TINY_VQ_RUN, write_corpus
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]

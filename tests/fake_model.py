@@ -17,6 +17,7 @@ from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
+from orchestration.recipe import Recipe
 from orchestration.registry import ModelEntry, register
 
 NAME = "playback"
@@ -91,14 +92,10 @@ class PlaybackGenerator(MotionGenerator):
         return motions
 
 
-def train(*args, **kwargs) -> None:
-    raise NotImplementedError("playback has nothing to train")
-
-
-prepare = train
+RECIPE = Recipe()  # playback has nothing to train: the base recipe, which builds nothing
 
 register(ModelEntry(
     name=NAME, summary="ground truth played back (a test of the registry)", stage=NAME, legacy_stages=(),
     configs=NAME, train_verb="train-playback", model_file="playback.npz",
-    generator=f"{__name__}:PlaybackGenerator", recipe=__name__, sampling=f"{__name__}:SAMPLING",
+    generator=f"{__name__}:PlaybackGenerator", recipe=f"{__name__}:RECIPE", sampling=f"{__name__}:SAMPLING",
     shortcuts=("offset",)))

@@ -104,8 +104,9 @@ TINY_DIFFUSION = {
     "vq": "latest",
     "data": {"batch_size": 4, "num_workers": 0, "max_tokens": None},
     "text": {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
+    "text_drop": 0.1,
     "denoiser": {"layers": 1, "heads": 2, "width": 16, "ffn": 32, "dropout": 0.0, "max_distance": 16,
-                 "num_buckets": 8, "condition_drop": 0.1, "positions": "relative"},
+                 "num_buckets": 8, "positions": "relative"},
     "diffusion": {"steps": 8, "kind": "dynamic", "eta": 0.5, "distance": "l2_rank", "schedule": "linear",
                   "aux_weight": 5e-4, "timestep_sampling": "uniform"},
     "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1, "milestones": [100],
@@ -118,10 +119,10 @@ TINY_DIFFUSION = {
 # An MMM training config small enough for tests: the denoiser's data, text, optimiser and trainer
 # sections, MMM's own network and masking.
 TINY_MMM = {
-    **{key: TINY_DIFFUSION[key] for key in ("dataset", "seed", "vq", "data", "text", "optim", "trainer")},
+    **{key: TINY_DIFFUSION[key] for key in ("dataset", "seed", "vq", "data", "text", "text_drop", "optim", "trainer")},
     "transformer": {"width": 16, "heads": 2, "layers": 2, "cross_layers": 1, "ffn": 32, "dropout": 0.0,
                     "max_tokens": 50},
-    "masking": {"alpha": 0.5, "text_drop": 0.1},
+    "masking": {"alpha": 0.5},
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
 }
 

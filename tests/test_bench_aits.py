@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from orchestration.train import train_model
+from orchestration.recipe import train_model
 from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `timing` beside them

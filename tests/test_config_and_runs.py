@@ -2,8 +2,11 @@
 
 import pytest
 
-from orchestration.config import apply_overrides, flatten, load_config
+import yaml
+
+from orchestration.config import apply_overrides, flatten, load_config, rename_keys
 from orchestration.errors import UserError
+from orchestration.registry import model
 from orchestration.runs import find_run, latest_run, mark_latest, new_run_dir, newest_run, write_run_info
 
 BASE = {"seed": 1, "model": {"width": 128, "depth": 2}, "optim": {"betas": [0.9, 0.99], "lr": 2e-4}}
@@ -49,6 +52,30 @@ def test_the_demo_departs_from_the_papers_setting_only_where_docs_say_ours(stage
     misses the other would silently change what "the paper's setting" measures."""
     demo, paper = flatten(load_config(stage, "demo")), flatten(load_config(stage, "paper-demo"))
     assert {key for key in demo.keys() | paper.keys() if demo.get(key) != paper.get(key)} == ours
+
+
+def test_configs_written_before_a_key_was_renamed_read_under_the_new_name(tmp_path):
+    renamed = {"denoiser.condition_drop": "text_drop"}
+    old = {"seed": 1, "denoiser": {"layers": 2, "condition_drop": 0.2}}
+    assert rename_keys(old, renamed, "old.yaml") == {"seed": 1, "denoiser": {"layers": 2}, "text_drop": 0.2}
+    assert old["denoiser"]["condition_drop"] == 0.2  # the original is untouched
+    assert rename_keys({"text_drop": 0.3}, renamed, "new.yaml") == {"text_drop": 0.3}
+    with pytest.raises(UserError, match="both.yaml: both denoiser.condition_drop and text_drop are set"):
+        rename_keys({**old, "text_drop": 0.3}, renamed, "both.yaml")
+    path = tmp_path / "old.yaml"
+    path.write_text(yaml.safe_dump(old), encoding="utf-8")
+    # an override names the new key even though the file has the old one
+    assert load_config("m2d2m", str(path), ["text_drop=0.05"], renamed=renamed)["text_drop"] == 0.05
+
+
+@pytest.mark.parametrize("name", ["m2d2m", "mmm", "mmm-body", "motiondiffuse"])
+def test_every_renamed_key_is_renamed_to_a_key_of_the_models_configs(name):
+    """A recipe's ``renamed`` maps old names onto the shipped configs' names, never to a key they lack."""
+    entry = model(name)
+    for name in ("demo", "humanml3d", "kit"):
+        config = flatten(load_config(entry.configs, name))
+        for old, new in entry.load("recipe").renamed.items():
+            assert new in config and old not in config, (entry.name, name, old)
 
 
 def test_unknown_config_lists_the_available_ones():

@@ -39,6 +39,11 @@ def test_config_round_trip_and_rejects_unknown_keys():
         DenoiserConfig(width=30, heads=4)
 
 
+def test_model_files_written_before_text_drop_left_the_network_config_still_load():
+    """Older files hold ``condition_drop``, a training rate now the run config's ``text_drop``."""
+    assert DenoiserConfig.from_dict({**SMALL.to_dict(), "condition_drop": 0.1}) == SMALL
+
+
 def test_output_shape_excludes_the_mask_class():
     model = small_model()
     tokens, mask, t, text, text_mask = inputs()

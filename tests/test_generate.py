@@ -15,7 +15,8 @@ from m2d2m.motion.clip import Motion
 from orchestration.cli import main
 from orchestration.errors import UserError
 from orchestration.generate import PromptPlanner, edit, generate, load_generator
-from orchestration.train import train_model, train_vq
+from orchestration.recipe import train_model
+from orchestration.train import train_vq
 from tests.helpers import TINY_DIFFUSION, TINY_VQ_RUN
 
 PROMPTS = ["a person walks forward", "a person jumps", "a person waves their right hand"]

@@ -18,19 +18,19 @@ SENTENCES = ["a person walks forward", "a person jumps up high", "someone waves 
              "a man turns around and sits down"]
 
 
-def make_module(seed: int = 0, condition_drop: float = 0.1, **diffusion) -> M2D2MModule:
+def make_module(seed: int = 0, text_drop: float = 0.1, **diffusion) -> M2D2MModule:
     torch.manual_seed(seed)
     codebook = torch.randn(K, 4)
     return M2D2MModule(
         denoiser={"layers": 1, "heads": 2, "width": 32, "ffn": 64, "text_dim": 32, "num_buckets": 8,
-                  "max_distance": 16, "condition_drop": condition_drop},
+                  "max_distance": 16},
         text={"kind": "learned", "dim": 32, "layers": 1, "heads": 2, "dropout": 0.0},
         diffusion={"steps": STEPS, "kind": "dynamic", "eta": 0.5, "distance": "l2_rank", "schedule": "linear",
                    "aux_weight": 0.01, "timestep_sampling": "uniform", **diffusion},
         optim={"lr": 3e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 0, "milestones": [1000],
                "gamma": 0.1},
         codebook=codebook,
-        vocabulary=LearnedTextEncoder.build_vocabulary(SENTENCES))
+        vocabulary=LearnedTextEncoder.build_vocabulary(SENTENCES), text_drop=text_drop)
 
 
 def make_batch(seed: int = 0, lengths=(6, 4, 5)) -> dict:
@@ -54,7 +54,7 @@ class Recorder:
 
 
 def test_training_step_is_finite_and_reaches_denoiser_and_text_encoder(monkeypatch):
-    module = make_module(condition_drop=0.0)
+    module = make_module(text_drop=0.0)
     recorder = Recorder()
     monkeypatch.setattr(module, "log", recorder)
     loss = module.training_step(make_batch(), 0)
@@ -70,7 +70,7 @@ def test_training_step_is_finite_and_reaches_denoiser_and_text_encoder(monkeypat
 
 
 def test_overfits_one_batch(monkeypatch):
-    module = make_module(condition_drop=0.0)
+    module = make_module(text_drop=0.0)
     monkeypatch.setattr(module, "log", lambda *a, **k: None)
     batch = make_batch()
     optimizer = module.configure_optimizers()["optimizer"]

@@ -14,7 +14,7 @@ import yaml
 
 from orchestration.cli import main
 from orchestration.runs import latest_run, read_run_info
-from orchestration.train import train_model
+from orchestration.recipe import train_model
 from tests.helpers import TINY_MMM
 
 

@@ -18,7 +18,7 @@ from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_MMM, pose_clip
 from training.data import BodyTokenDataModule, TokenDataModule
 
-TINY_BODY = {**TINY_MMM, "vq": {UPPER: "latest", LOWER: "latest"}, "masking": {"alpha": 0.5, "lower_most": 0.3, "text_drop": 0.1}}
+TINY_BODY = {**TINY_MMM, "vq": {UPPER: "latest", LOWER: "latest"}, "masking": {"alpha": 0.5, "lower_most": 0.3}}
 del TINY_BODY["preview"]
 
 

@@ -11,6 +11,7 @@ import torch
 
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler
+from m2d2m.networks.config import ConfigError
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
@@ -41,9 +42,11 @@ class M2D2MModule(pl.LightningModule):
 
     def __init__(self, denoiser: dict[str, Any], text: dict[str, Any], diffusion: dict[str, Any],
                  optim: dict[str, Any], codebook: torch.Tensor | np.ndarray,
-                 vocabulary: list[str] | None = None) -> None:
+                 vocabulary: list[str] | None = None, text_drop: float = 0.1) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["codebook"])
+        if not 0.0 <= text_drop <= 1.0:
+            raise ConfigError(f"text_drop must lie in [0, 1], got {text_drop}")
         codebook = torch.as_tensor(np.asarray(codebook) if not torch.is_tensor(codebook) else codebook)
         codebook = codebook.detach().to(torch.float32).cpu()
         if codebook.dim() != 2:
@@ -94,7 +97,7 @@ class M2D2MModule(pl.LightningModule):
     def _denoise(self, batch: dict[str, Any], t: torch.Tensor, generator: torch.Generator | None = None,
                  drop_condition: bool = False, pt: torch.Tensor | None = None) -> Denoised:
         """Corrupt the batch's tokens to z_t ~ q(z_t | z0) at ``t`` (padding becomes the mask), denoise
-        them under the text condition — dropped at the denoiser's rate when ``drop_condition``, for
+        them under the text condition — dropped at the rate ``text_drop`` when ``drop_condition``, for
         classifier-free guidance — and score the logits. Training and validation differ only in
         where t and the noise come from, so both go through here."""
         schedule = self.schedule_on_device()
@@ -103,7 +106,7 @@ class M2D2MModule(pl.LightningModule):
         z_t = z_t.masked_fill(~valid, schedule.mask_index)
         text, text_mask = self._condition(batch["actions"])
         if drop_condition:
-            text, text_mask = self.denoiser.drop_condition(text, text_mask, self.denoiser.config.condition_drop)
+            text, text_mask = self.denoiser.drop_condition(text, text_mask, self.hparams.text_drop)
         logits = self.denoiser(z_t, valid, t, text, text_mask)
         loss = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt,
                               adaptive_aux=self.adaptive_aux)

@@ -25,8 +25,8 @@ class BodyMMMModule(MMMModule):
 
     def __init__(self, transformer: dict[str, Any], text: dict[str, Any], masking: dict[str, Any],
                  optim: dict[str, Any], codebook: Codebook, lower_codebook: Codebook,
-                 vocabulary: list[str] | None = None) -> None:
-        super().__init__(transformer, text, masking, optim, (codebook, lower_codebook), vocabulary)
+                 vocabulary: list[str] | None = None, text_drop: float = 0.0) -> None:
+        super().__init__(transformer, text, masking, optim, (codebook, lower_codebook), vocabulary, text_drop)
         self.lower_most = float(masking.get("lower_most", 0.3))
         if not 0.0 <= self.lower_most <= 1.0:
             raise ConfigError(f"masking.lower_most must lie in [0, 1], got {self.lower_most}")

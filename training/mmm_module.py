@@ -31,7 +31,7 @@ def as_codebook(codebook: torch.Tensor | np.ndarray) -> torch.Tensor:
 
 class MMMModule(pl.LightningModule):
     """Cross-entropy of the masked tokens, r ~ U(α, 1) of each caption's tokens masked; AdamW
-    with warm-up and step decay. A fraction ``text_drop`` of the captions is replaced by the
+    with warm-up and step decay. A fraction ``text_drop`` (the config's top-level key) of the captions is replaced by the
     empty sentence, the null condition (ours: the paper's Table 3 edits "w/o text" but does not
     say how its model learned to). The tokenizer's codebook embeds the codes and is never trained.
     Each training sample is one caption and its segment of the tokens; the condition is the
@@ -39,16 +39,16 @@ class MMMModule(pl.LightningModule):
 
     def __init__(self, transformer: dict[str, Any], text: dict[str, Any], masking: dict[str, Any],
                  optim: dict[str, Any], codebook: torch.Tensor | np.ndarray,
-                 vocabulary: list[str] | None = None) -> None:
+                 vocabulary: list[str] | None = None, text_drop: float = 0.0) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["codebook", "lower_codebook"])
         self.text_encoder = text_encoder_from_config(text, vocabulary)
         self.transformer = self.build_transformer(transformer, codebook)
         self.alpha = float(masking.get("alpha", 0.5))
-        self.text_drop = float(masking.get("text_drop", 0.0))
-        for name, value in (("alpha", self.alpha), ("text_drop", self.text_drop)):
+        self.text_drop = float(text_drop)
+        for name, value in (("masking.alpha", self.alpha), ("text_drop", self.text_drop)):
             if not 0.0 <= value <= 1.0:
-                raise ConfigError(f"masking.{name} must lie in [0, 1], got {value}")
+                raise ConfigError(f"{name} must lie in [0, 1], got {value}")
 
     def build_transformer(self, settings: dict[str, Any], codebook: torch.Tensor | np.ndarray
                           ) -> MaskedMotionTransformer:

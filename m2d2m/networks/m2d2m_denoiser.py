@@ -54,6 +54,8 @@ KeysValues = tuple[torch.Tensor, torch.Tensor]
 class DenoiserConfig(NetworkConfig):
     """Architecture of the denoiser; the defaults are the paper's (12 x 16 heads x 512, FFN 2048)."""
 
+    RETIRED = frozenset({"condition_drop"})  # a training rate, now the run config's top-level text_drop
+
     codebook_size: int = 512
     layers: int = 12
     heads: int = 16
@@ -64,7 +66,6 @@ class DenoiserConfig(NetworkConfig):
     steps: int = 100
     max_distance: int = 128
     num_buckets: int = 32
-    condition_drop: float = 0.1
     positions: str = "relative"  # the paper's; "action" adds offsets within the action (ours)
     embedding: str = "learned"  # the paper's (VQ-Diffusion's); "codebook" projects the frozen code vectors (ours)
     code_dim: int = 512  # the codebook vectors' width (read with embedding: codebook)
@@ -77,7 +78,7 @@ class DenoiserConfig(NetworkConfig):
         if self.max_distance <= self.num_buckets // 4:
             raise ConfigError(f"DenoiserConfig.max_distance must exceed num_buckets // 4 "
                              f"({self.num_buckets // 4}), got {self.max_distance}")
-        self.require_fraction("dropout", "condition_drop")
+        self.require_fraction("dropout")
         self.require_choice("positions", POSITIONS)
         self.require_choice("embedding", EMBEDDINGS)
         self.require_positive("code_dim")

@@ -4,48 +4,47 @@ tokens of a VQ-VAE run, tokenizing first when its tokens are missing or stale.""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, ClassVar
 
-from orchestration.recipes.token_data import export_model, prepare, token_training
-from orchestration.errors import UserError
-from orchestration.registry import model
-from orchestration.train import fit, open_run
-
-__all__ = ["prepare", "train"]  # a recipe: prepare (the tokens, shared by token models) and train
-
-NAME = "m2d2m"
+from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
+from orchestration.train import OpenedRun
 
 
-def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
-          extra_callbacks: list | None = None, join: Path | None = None, ray_train: bool = False) -> Path:
-    """Train the denoiser; returns the run directory (with ``model.pt`` on success). ``join``: a run
-    another process opened (its config is used, ``config_name`` and ``overrides`` are not);
-    ``ray_train``: this process is a Ray Train worker."""
-    import lightning.pytorch as pl
+def _sampling(config: dict[str, Any]) -> dict[str, Any]:
+    """The config's sampling defaults, checked against its diffusion steps (ValueError)."""
+    from m2d2m.generators.m2d2m_checkpoint import sampling_defaults
 
-    from m2d2m.generators.m2d2m_checkpoint import sampling_defaults, save_m2d2m
-    from training.callbacks import TokenSamplePreview
-    from training.m2d2m_module import M2D2MModule
+    return sampling_defaults(config.get("sampling") or {}, int(config["diffusion"]["steps"]))
 
-    entry = model(NAME)
-    run_dir, config, run_id = open_run(entry.stage, entry.configs, config_name, overrides or [], resume, join)
-    try:  # before hours of training, not at its end
-        sampling = sampling_defaults(config.get("sampling") or {}, int(config["diffusion"]["steps"]))
-    except ValueError as error:
-        raise UserError(str(error)) from error
-    data = token_training(config, lambda caption: caption["actions"] or [caption["text"]])
-    pl.seed_everything(config["seed"], workers=True, verbose=False)
-    module = M2D2MModule(config["denoiser"], config["text"], config["diffusion"], config["optim"],
-                         codebook=data.codebook, vocabulary=data.vocabulary)
-    preview = config["preview"]
-    fitted = fit(entry.stage, config, run_dir, run_id, resume, module, data.datamodule, "val/loss",
-                 [TokenSamplePreview(run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
-                                     every=config["trainer"]["gif_every"], guidance=preview["guidance"]),
-                  *(extra_callbacks or [])], ray_train=ray_train)
-    if not fitted.primary:
-        return run_dir
-    export_model(run_dir, fitted, config, data, run_dir / entry.model_file,
-                 lambda path, lengths, extra: save_m2d2m(path, module.denoiser, module.text_encoder,
-                                                              config["text"], module.schedule.config,
-                                                              module.codebook, data.vq_path, lengths, extra,
-                                                              sampling), module)
-    return run_dir
+
+class M2D2MRecipe(TokenRecipe):
+    renamed: ClassVar[dict[str, str]] = {"denoiser.condition_drop": "text_drop"}
+
+    def check(self, config: dict[str, Any]) -> None:
+        _sampling(config)
+
+    def data(self, config: dict[str, Any]) -> TokenTraining:
+        return token_training(config, lambda caption: caption["actions"] or [caption["text"]])
+
+    def module(self, config: dict[str, Any], data: TokenTraining) -> Any:
+        from training.m2d2m_module import M2D2MModule
+
+        return M2D2MModule(config["denoiser"], config["text"], config["diffusion"], config["optim"],
+                           codebook=data.codebook, vocabulary=data.vocabulary, text_drop=config["text_drop"])
+
+    def callbacks(self, run: OpenedRun, data: TokenTraining) -> list:
+        from training.callbacks import TokenSamplePreview
+
+        preview = run.config["preview"]
+        return [TokenSamplePreview(run.run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
+                                   every=run.config["trainer"]["gif_every"], guidance=preview["guidance"])]
+
+    def save(self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any,
+             extra: dict[str, Any]) -> Path:
+        from m2d2m.generators.m2d2m_checkpoint import save_m2d2m
+
+        return save_m2d2m(path, module.denoiser, module.text_encoder, config["text"], module.schedule.config,
+                          module.codebook, data.vq_path, lengths, extra, _sampling(config))
+
+
+RECIPE = M2D2MRecipe()

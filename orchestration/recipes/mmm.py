@@ -5,39 +5,36 @@ first when its tokens are missing or stale."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, ClassVar
 
-from orchestration.recipes.token_data import export_model, prepare, token_training
-from orchestration.registry import model
-from orchestration.train import fit, open_run
-
-__all__ = ["prepare", "train"]  # a recipe: prepare (the tokens, shared by token models) and train
-
-NAME = "mmm"
+from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
+from orchestration.train import OpenedRun
 
 
-def train(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
-          extra_callbacks: list | None = None, join: Path | None = None, ray_train: bool = False) -> Path:
-    """Train the masked transformer; returns the run directory (with ``model.pt`` on success).
-    ``join`` and ``ray_train`` as for every recipe (orchestration/train.py)."""
-    import lightning.pytorch as pl
+class MMMRecipe(TokenRecipe):
+    renamed: ClassVar[dict[str, str]] = {"masking.text_drop": "text_drop"}
 
-    from m2d2m.generators.mmm_checkpoint import save_mmm
-    from training.callbacks import TokenSamplePreview
-    from training.mmm_module import MMMModule
+    def data(self, config: dict[str, Any]) -> TokenTraining:
+        return token_training(config, lambda caption: [caption["text"]], max_tokens=config["transformer"]["max_tokens"])
 
-    entry = model(NAME)
-    run_dir, config, run_id = open_run(entry.stage, entry.configs, config_name, overrides or [], resume, join)
-    data = token_training(config, lambda caption: [caption["text"]], max_tokens=config["transformer"]["max_tokens"])
-    pl.seed_everything(config["seed"], workers=True, verbose=False)
-    module = MMMModule(config["transformer"], config["text"], config["masking"], config["optim"],
-                       codebook=data.codebook, vocabulary=data.vocabulary)
-    preview = config["preview"]
-    fitted = fit(entry.stage, config, run_dir, run_id, resume, module, data.datamodule, "val/loss",
-                 [TokenSamplePreview(run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
-                                     every=config["trainer"]["gif_every"]), *(extra_callbacks or [])], ray_train=ray_train)
-    if not fitted.primary:
-        return run_dir
-    export_model(run_dir, fitted, config, data, run_dir / entry.model_file,
-                 lambda path, lengths, extra: save_mmm(path, module.transformer, module.text_encoder, config["text"],
-                                                       data.vq_path, lengths, extra), module)
-    return run_dir
+    def module(self, config: dict[str, Any], data: TokenTraining) -> Any:
+        from training.mmm_module import MMMModule
+
+        return MMMModule(config["transformer"], config["text"], config["masking"], config["optim"],
+                         codebook=data.codebook, vocabulary=data.vocabulary, text_drop=config["text_drop"])
+
+    def callbacks(self, run: OpenedRun, data: TokenTraining) -> list:
+        from training.callbacks import TokenSamplePreview
+
+        preview = run.config["preview"]
+        return [TokenSamplePreview(run.run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
+                                   every=run.config["trainer"]["gif_every"])]
+
+    def save(self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any,
+             extra: dict[str, Any]) -> Path:
+        from m2d2m.generators.mmm_checkpoint import save_mmm
+
+        return save_mmm(path, module.transformer, module.text_encoder, config["text"], data.vq_path, lengths, extra)
+
+
+RECIPE = MMMRecipe()

@@ -1,7 +1,6 @@
-"""What the training recipes of models over VQ tokens (M2D2M, MMM, MMM's upper-body editor) share:
-the VQ-VAE a run names, its token set (made first when missing or stale), the DataModule over it,
-the vocabulary of a learned text encoder, and the model file a finished run exports with what it
-records."""
+"""The data side of the training recipes of models over VQ tokens (M2D2M, MMM, MMM's upper-body
+editor): the VQ-VAE a run names, its token set (made first when missing or stale), the DataModule
+over it and the vocabulary of a learned text encoder."""
 
 from __future__ import annotations
 
@@ -13,29 +12,38 @@ from typing import Any
 import torch
 
 from m2d2m.motion.body_parts import FULL, LOWER, UPPER
-from orchestration.errors import UserError
-from orchestration.train import ensure_tokens, export_snapshots, finish, validation_interval, vq_file
+from orchestration.recipe import Recipe, TrainingData, caption_vocabulary
+from orchestration.train import ensure_tokens, validation_interval, vq_file
 
 
-def prepare(config: dict[str, Any]) -> None:
-    """The tokens every trial of a training sweep reads, made once by the sweep's driver."""
-    ensure_tokens(vq_file(config["vq"], config["dataset"]))
+class TokenRecipe(Recipe):
+    """A recipe over the tokens of one whole-body tokenizer (``config["vq"]``)."""
+
+    def prepare(self, config: dict[str, Any]) -> None:
+        """The tokens every trial of a training sweep reads, made once by the sweep's driver."""
+        ensure_tokens(vq_file(config["vq"], config["dataset"]))
 
 
-def prepare_body(config: dict[str, Any]) -> None:
-    """:func:`prepare` for the upper-body editor: the tokens of both part tokenizers."""
-    for part in (UPPER, LOWER):
-        ensure_tokens(vq_file(config["vq"][part], config["dataset"], part))
+class BodyTokenRecipe(Recipe):
+    """A recipe over the token pairs of an upper- and a lower-body tokenizer (``config["vq"]``)."""
+
+    def prepare(self, config: dict[str, Any]) -> None:
+        """The tokens of both part tokenizers, made once by a sweep's driver."""
+        for part in (UPPER, LOWER):
+            ensure_tokens(vq_file(config["vq"][part], config["dataset"], part))
 
 
 @dataclass
-class TokenTraining:
+class TokenTraining(TrainingData):
+    """A token model's data: its DataModule is a ``training.data.TokenDataModule``."""
+
     vq_path: Path
     codebook: torch.Tensor
-    data_dir: Path
     tokens_dir: Path
-    datamodule: Any  # training.data.TokenDataModule
-    vocabulary: list[str] | None  # for a learned text encoder; None for CLIP
+
+    @property
+    def frames_per_unit(self) -> int:
+        return self.datamodule.frames_per_token
 
     def records(self) -> dict[str, str]:
         """Where the run's tokenizer and tokens are, for its run.json."""
@@ -60,27 +68,11 @@ def _tokenizer(reference: str, dataset: str, part: str) -> tuple[Path, Any, Path
     from m2d2m.networks.vqvae import load_vq
 
     path = vq_file(reference, dataset, part)
-    try:
-        vq, _, meta = load_vq(path)
-        if meta["part"] != part:
-            raise ValueError(f"{path} tokenizes the {meta['part']} body, not the {part} body"
-                             + ("; whole-body models need a whole-body VQ-VAE (make train-vq)" if part == FULL else ""))
-        return (path, vq, *ensure_tokens(path))
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-
-
-def caption_vocabulary(config: dict[str, Any], datamodule: Any, sentences: Callable[[dict[str, Any]], Iterable[str]]
-                ) -> list[str] | None:
-    """The words of a learned text encoder: those of ``sentences(caption)`` over the train captions."""
-    from m2d2m.text import LearnedTextEncoder
-    from training.data import clip_metas
-
-    if config["text"]["kind"] != "learned":
-        return None
-    return LearnedTextEncoder.build_vocabulary(
-        text for meta in clip_metas(datamodule.urls("train")) for caption in meta["captions"]
-        for text in sentences(caption))
+    vq, _, meta = load_vq(path)
+    if meta["part"] != part:
+        raise ValueError(f"{path} tokenizes the {meta['part']} body, not the {part} body"
+                         + ("; whole-body models need a whole-body VQ-VAE (make train-vq)" if part == FULL else ""))
+    return (path, vq, *ensure_tokens(path))
 
 
 def _loader_settings(config: dict[str, Any], max_tokens: int | None) -> dict[str, Any]:
@@ -99,12 +91,9 @@ def token_training(config: dict[str, Any], sentences: Callable[[dict[str, Any]],
     from training.data import TokenDataModule
 
     vq_path, vq, data_dir, tokens_dir = _tokenizer(config["vq"], config["dataset"], FULL)
-    try:
-        datamodule = TokenDataModule(tokens_dir, **_loader_settings(config, max_tokens))
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    return TokenTraining(vq_path, vq.codebook, data_dir, tokens_dir, datamodule,
-                         caption_vocabulary(config, datamodule, sentences))
+    datamodule = TokenDataModule(tokens_dir, **_loader_settings(config, max_tokens))
+    return TokenTraining(datamodule, data_dir, caption_vocabulary(config, datamodule, sentences), vq_path,
+                         vq.codebook, tokens_dir)
 
 
 def body_token_training(config: dict[str, Any], sentences: Callable[[dict[str, Any]], Iterable[str]],
@@ -115,33 +104,11 @@ def body_token_training(config: dict[str, Any], sentences: Callable[[dict[str, A
 
     vqs = config["vq"]
     if not isinstance(vqs, dict) or set(vqs) != {UPPER, LOWER}:
-        raise UserError(f"vq must name an upper and a lower part tokenizer (vq.upper, vq.lower), got {vqs!r}")
+        raise ValueError(f"vq must name an upper and a lower part tokenizer (vq.upper, vq.lower), got {vqs!r}")
     upper_path, upper, data_dir, upper_tokens = _tokenizer(vqs[UPPER], config["dataset"], UPPER)
     lower_path, lower, lower_data, lower_tokens = _tokenizer(vqs[LOWER], config["dataset"], LOWER)
     if data_dir.resolve() != lower_data.resolve():
-        raise UserError(f"the part tokenizers were trained on different datasets ({data_dir}, {lower_data})")
-    try:
-        datamodule = BodyTokenDataModule(upper_tokens, lower_tokens, **_loader_settings(config, max_tokens))
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    return BodyTokenTraining(upper_path, upper.codebook, data_dir, upper_tokens, datamodule,
-                             caption_vocabulary(config, datamodule, sentences), lower_path, lower.codebook, lower_tokens)
-
-
-def export_model(run_dir: Path, fitted: Any, config: dict[str, Any], data: TokenTraining, model_file: Path,
-                 save: Callable[..., Path], module: Any) -> None:
-    """Write the model file with ``save(model_file, lengths, extra=...)`` (the length prior of the
-    training captions, and where the run, its data and tokens are) from ``module``'s weights, and
-    one per snapshot of the run, then finish the run with it."""
-    from training.data import length_prior
-
-    datamodule = data.datamodule
-    lengths = length_prior(datamodule.urls("train"), datamodule.frames_per_token)
-    extra = {"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
-             "data_dir": str(data.data_dir.resolve()), **data.records(),
-             "best_val_loss": float(fitted.checkpoints.best_model_score)}
-    save(model_file, lengths, extra)
-    export_snapshots(run_dir, module, lambda path: save(path, lengths, extra))
-    finish(run_dir, fitted, [model_file, Path(fitted.checkpoints.best_model_path), fitted.last,
-                             run_dir / "config.yaml"],
-           model=str(model_file.resolve()), **data.records())
+        raise ValueError(f"the part tokenizers were trained on different datasets ({data_dir}, {lower_data})")
+    datamodule = BodyTokenDataModule(upper_tokens, lower_tokens, **_loader_settings(config, max_tokens))
+    return BodyTokenTraining(datamodule, data_dir, caption_vocabulary(config, datamodule, sentences), upper_path,
+                             upper.codebook, upper_tokens, lower_path, lower.codebook, lower_tokens)

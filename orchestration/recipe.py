@@ -1,0 +1,162 @@
+"""One training recipe for every registered model: :func:`run_recipe` does what all of them share
+(the run directory and MLflow run, the settings check, seeding, the trainer with its checkpoints,
+DDP and resume, the model file, its snapshots and the run's record); a model's :class:`Recipe`
+says only how its config becomes data, a LightningModule and a model file
+(docs/architecture.md, "How to add a model")."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+from orchestration.errors import UserError
+from orchestration.registry import ModelEntry, load_plugins, model, plugins_for_workers
+from orchestration.runs import enter_project, read_run_info
+from orchestration.tracking import tracking_uri
+from orchestration.train import OpenedRun, export_snapshots, finish, fit, open_run, records_failure
+
+
+@dataclass
+class TrainingData:
+    """The data side of a run: its DataModule, the processed dataset it reads and the vocabulary of
+    a learned text encoder (None for CLIP)."""
+
+    datamodule: Any
+    data_dir: Path
+    vocabulary: list[str] | None
+
+    @property
+    def frames_per_unit(self) -> int:
+        """The frames one unit of the model's sequences holds, the length prior's unit: 1 for a
+        model on features, a token's frames for a model over tokens."""
+        return 1
+
+    def records(self) -> dict[str, str]:
+        """Where the run's inputs are, for its ``run.json`` and its model file's ``extra``."""
+        return {"data": str(self.data_dir.resolve())}
+
+
+class Recipe:
+    """What one model's training differs in. Subclasses give :meth:`data`, :meth:`module` and
+    :meth:`save`; the rest have defaults that most models keep."""
+
+    monitor = "val/loss"  # the validation metric whose minimum is the run's best checkpoint
+    renamed: ClassVar[dict[str, str]] = {}  # config keys of older names (old dotted key → new), still read
+
+    def prepare(self, config: dict[str, Any]) -> None:
+        """What must exist before trials train in parallel (made once by a sweep's driver)."""
+
+    def check(self, config: dict[str, Any]) -> None:
+        """Refuse (ValueError) a setting this model cannot use, before any training."""
+
+    def data(self, config: dict[str, Any]) -> TrainingData:
+        """The run's data; FileNotFoundError or ValueError become one-line errors."""
+        raise NotImplementedError
+
+    def module(self, config: dict[str, Any], data: TrainingData) -> Any:
+        """The LightningModule, built after seeding."""
+        raise NotImplementedError
+
+    def callbacks(self, run: OpenedRun, data: TrainingData) -> list:
+        """The model's own trainer callbacks (sample previews, for instance)."""
+        return []
+
+    def save(self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, lengths: Any,
+             extra: dict[str, Any]) -> Path:
+        """Write the model file at ``path`` from ``module``'s current weights, with the length
+        prior of the training captions and ``extra`` (where the run and its inputs are)."""
+        raise NotImplementedError
+
+
+def caption_vocabulary(config: dict[str, Any], datamodule: Any, sentences: Callable[[dict[str, Any]], Iterable[str]]
+                       ) -> list[str] | None:
+    """The words of a learned text encoder: those of ``sentences(caption)`` over the train captions
+    (None when the config's text encoder is not a learned one)."""
+    from m2d2m.text import LearnedTextEncoder
+    from training.data import clip_metas
+
+    if config["text"]["kind"] != "learned":
+        return None
+    return LearnedTextEncoder.build_vocabulary(
+        text for meta in clip_metas(datamodule.urls("train")) for caption in meta["captions"]
+        for text in sentences(caption))
+
+
+def run_recipe(entry: ModelEntry, config_name: str = "demo", overrides: list[str] | None = None,
+               resume: bool | str = False, extra_callbacks: list | None = None, join: Path | None = None,
+               ray_train: bool = False) -> Path:
+    """Train ``entry``'s model with its recipe; returns the run directory (with the model file on
+    success). ``join``: a run another process opened (its config is used, ``config_name`` and
+    ``overrides`` are not); ``ray_train``: this process is a Ray Train worker; ``extra_callbacks``
+    join the trainer's (a test's kill switch, for instance)."""
+    import lightning.pytorch as pl
+
+    from training.data import length_prior
+
+    recipe: Recipe = entry.load("recipe")
+    run = open_run(entry.stage, entry.configs, config_name, overrides or [], resume, join, recipe.renamed)
+    config = run.config
+    try:  # before hours of training, not at their end
+        recipe.check(config)
+        data = recipe.data(config)
+    except (FileNotFoundError, ValueError) as error:
+        raise UserError(str(error)) from error
+    pl.seed_everything(config["seed"], workers=True, verbose=False)
+    module = recipe.module(config, data)
+    fitted = fit(run, module, data.datamodule, recipe.monitor,
+                 [*recipe.callbacks(run, data), *(extra_callbacks or [])], ray_train=ray_train)
+    if not fitted.primary:
+        return run.run_dir
+    lengths = length_prior(data.datamodule.urls("train"), data.frames_per_unit)
+    extra = {"run": run.run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
+             "data_dir": str(data.data_dir.resolve()), **data.records(),
+             "best_val_loss": float(fitted.checkpoints.best_model_score)}
+    model_file = run.run_dir / entry.model_file
+    recipe.save(model_file, module, config, data, lengths, extra)
+    export_snapshots(run.run_dir, module, lambda path: recipe.save(path, module, config, data, lengths, extra))
+    finish(run.run_dir, fitted, [model_file, Path(fitted.checkpoints.best_model_path), fitted.last,
+                                 run.run_dir / "config.yaml"], model=str(model_file.resolve()), **data.records())
+    return run.run_dir
+
+
+@records_failure
+def train_model(name: str, config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
+                extra_callbacks: list | None = None) -> Path:
+    """Train the registered model ``name`` (``m2d2m train-diffusion`` for M2D2M); returns the run directory."""
+    return run_recipe(model(name), config_name, overrides, resume, extra_callbacks)
+
+
+def train_on_workers(name: str, config_name: str, overrides: list[str], workers: int, use_gpu: bool,
+                     cpus_per_worker: float, storage: Path) -> Path:
+    """A registered model trained in DDP by ``workers`` Ray Train workers, one device each (the
+    GPUs of one node or of several); returns the run directory, whose files rank 0 wrote.
+    ``storage``, where Ray Train keeps its state, and the project directory must be seen by every
+    node alike."""
+    from ray.train import RunConfig, ScalingConfig
+    from ray.train.torch import TorchTrainer
+
+    entry = model(name)
+    run_dir = open_run(entry.stage, entry.configs, config_name, overrides, resume=False,
+                       renamed=entry.load("recipe").renamed).run_dir
+    trainer = TorchTrainer(
+        _ray_train_worker,
+        train_loop_config={"project": str(Path.cwd().resolve()), "run_dir": str(run_dir.resolve()),
+                           "tracking_uri": tracking_uri(), "cpus": cpus_per_worker, "model": name,
+                           "plugins": plugins_for_workers()},
+        scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu,
+                                     resources_per_worker={"CPU": cpus_per_worker}),
+        run_config=RunConfig(name=f"{entry.stage}-{run_dir.name}", storage_path=str(storage.resolve())))
+    trainer.fit()
+    if read_run_info(run_dir).get("status") != "finished":
+        raise UserError(f"{run_dir}: the Ray Train workers stopped before rank 0 finished the run")
+    return run_dir
+
+
+def _ray_train_worker(config: dict[str, Any]) -> None:
+    """One Ray Train worker: joins the run in the project directory and trains its DDP rank."""
+    enter_project(config["project"], config["tracking_uri"], config["cpus"])
+    load_plugins(**config["plugins"])
+    run_recipe(model(config["model"]), join=Path(config["run_dir"]), ray_train=True)
+
