@@ -318,7 +318,8 @@ def _testset(args: argparse.Namespace) -> None:
 
 
 def _evaluate(args: argparse.Namespace) -> None:
-    from orchestration.evaluate import EVAL_STAGE, KNOBS, TABLE_MD, evaluate, new_settings, reopen
+    from orchestration.evaluate import EVAL_STAGE, KNOBS, evaluate, new_settings, reopen
+    from orchestration.reports import TABLE_MD
 
     options = _sampling_options(args)
     given = {knob: getattr(args, knob) for knob in KNOBS if getattr(args, knob) is not None}

@@ -105,7 +105,8 @@ def _check_training_space(config: dict[str, Any]) -> None:
 def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, float]:
     """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
     returns the evaluation's metrics under their MLflow names (``multi/tps/jerk``, ``gt/jerk_concat``, ...)."""
-    from orchestration.evaluate import ParentRun, evaluate, new_settings, table_metrics
+    from orchestration.evaluate import ParentRun, evaluate, new_settings
+    from orchestration.reports import table_metrics
     from orchestration.recipe import train_model, train_on_workers
 
     resources = context["resources"]

@@ -1,0 +1,56 @@
+"""What an evaluation computes, cut into jobs (a candidate's row of one table in one repeat),
+and the result file each finished job leaves under the run's ``results/``: the jobs without one
+are what a resumed run still has to do."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from orchestration.evaluate.settings import Candidate, EvalSettings
+from orchestration.reports import GENERATED
+
+RESULTS = "results"
+
+
+@dataclass(frozen=True)
+class Job:
+    """One result file's worth of work: a candidate's row of one table in one repeat."""
+
+    candidate: Candidate
+    table: str  # "multi", "single" or "editing"
+    row: str  # the table's row (the candidate's only one in the single-motion table)
+    repeat: int
+    method: str | None = None  # multi: the method
+    task: str | None = None  # editing: the task and whether with text
+    text: bool = True
+
+    @property
+    def batches(self) -> str:
+        """Which batch count of :func:`evaluate`'s progress bar a job advances by."""
+        return "multi" if self.table == "multi" else "items" if self.table == "editing" else "single"
+
+
+def jobs(settings: EvalSettings) -> list[Job]:
+    jobs = [Job(c, "multi", settings.row(c, m), r, method=m) for c, m in settings.rows() for r in range(settings.repeats)
+            if settings.multi]
+    if settings.single:
+        jobs += [Job(c, "single", settings.single_row(c), r) for c in settings.candidates if c.methods
+                 for r in range(settings.repeats)]
+    return jobs + [Job(c, "editing", row, r, task=task, text=text) for c in settings.candidates
+                   for task, text, row in settings.edit_rows(c) for r in range(settings.repeats)]
+
+
+def result_file(run_dir: Path, job: Job) -> Path:
+    """results/multi-<row>-r<repeat>.json, single-[<model>-]r<repeat>.json, edit-<row>-r<repeat>.json."""
+    if job.table == "single":
+        owner = "" if job.row == GENERATED else f"{job.candidate.model}-"
+        return run_dir / RESULTS / f"single-{owner}r{job.repeat}.json"
+    prefix = "edit" if job.table == "editing" else "multi"
+    return run_dir / RESULTS / f"{prefix}-{job.row.replace('/', '-')}-r{job.repeat}.json"
+
+
+def read_result(path: Path) -> dict[str, Any]:
+    return json.loads(path.read_text(encoding="utf-8"))

@@ -1,0 +1,137 @@
+"""An evaluation's settings: every knob that changes the numbers, resolved to files when a run
+starts and fixed for it (``--resume`` continues with exactly these), and read back from the
+run records of older versions."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from orchestration.errors import UserError
+from orchestration.evaluate.options import (assign_edits, assign_methods, assign_options, parse_checkpoints,
+                                            split_list)
+from orchestration.generate import resolve_model_file
+from orchestration.registry import DEFAULT_MODEL, model
+from orchestration.reports import GENERATED
+from orchestration.runs import find_run, read_run_info, run_file
+from orchestration.train import EVALUATOR_FILE, EVALUATOR_STAGE
+
+EVAL_STAGE = "eval"
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One model file under evaluation and the rows it contributes: its multi-action methods,
+    sampled with its multi-action preset changed by ``options`` (for M2D2M: ts, eta, ...)."""
+
+    model: str
+    checkpoint: str
+    methods: tuple[str, ...]  # none for an editor (a model that needs something to keep)
+    options: dict[str, Any]
+    edits: tuple[str, ...] = ()  # its tasks of the editing table
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """Every knob that changes the numbers. Recorded in run.json, table.json and the MLflow
+    params, and fixed for a run: ``--resume`` continues with exactly these. One evaluation may
+    judge several models (``candidates``) on the same test set with the same evaluator and seeds."""
+
+    candidates: tuple[Candidate, ...]
+    testset: str | None  # None: the default test set of the first model's dataset, resolved by evaluate
+    evaluator: str
+    glove: str | None  # Guo's published evaluator: its GloVe and meta directories
+    meta: str | None
+    repeats: int
+    single: bool
+    editing: tuple[str, ...] = ()  # tasks of the editing table (MMM Table 3), each with and without text
+    multi: bool = True  # the multi-motion table's generated rows (False: single-motion or editing only)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "EvalSettings":
+        """Settings as run.json holds them. Runs recorded with one model at the top level (and,
+        before the model registry, the default model's knobs there too) read as one candidate."""
+        values = dict(values)
+        if "candidates" not in values:
+            if "model" not in values:
+                values["model"] = DEFAULT_MODEL
+                knobs = model(DEFAULT_MODEL).load("sampling").names()
+                values["options"] = {key: values.pop(key) for key in knobs if values.get(key) is not None}
+            values["candidates"] = [{key: values.pop(key) for key in ("model", "checkpoint", "methods", "options")}]
+        candidates = tuple(Candidate(**{**c, "methods": tuple(c["methods"]), "edits": tuple(c.get("edits", ()))})
+                           for c in values.pop("candidates"))
+        return cls(candidates=candidates, **{**values, "editing": tuple(values.get("editing", ()))})
+
+    @property
+    def models(self) -> tuple[str, ...]:
+        return tuple(c.model for c in self.candidates)
+
+    def row(self, candidate: Candidate, method: str) -> str:
+        """The table row of a candidate's method: the method's name when one model is judged,
+        ``<model>/<method>`` when several are."""
+        return method if len(self.candidates) == 1 else f"{candidate.model}/{method}"
+
+    def rows(self) -> list[tuple[Candidate, str]]:
+        """Every (candidate, method) of the multi-motion table, in order."""
+        return [(candidate, method) for candidate in self.candidates for method in candidate.methods]
+
+    def single_row(self, candidate: Candidate) -> str:
+        """The single-motion table's row of a candidate's generations."""
+        return GENERATED if len(self.candidates) == 1 else f"{GENERATED}/{candidate.model}"
+
+    def edit_rows(self, candidate: Candidate) -> list[tuple[str, bool, str]]:
+        """The editing table's rows of a candidate: (task, with text, row)."""
+        owner = "" if len(self.candidates) == 1 else f"{candidate.model}/"
+        return [(task, text, f"{owner}{task}/{'text' if text else 'no_text'}")
+                for task in candidate.edits for text in (True, False)]
+
+
+def new_settings(dataset: str, model_name: str | Sequence[str] = DEFAULT_MODEL,
+                 checkpoint: str | Sequence[str] | None = None, testset: str | None = None,
+                 evaluator: str | None = None, guo_evaluator: str | None = None, glove: str | None = None,
+                 meta: str | None = None, methods: Sequence[str] | None = None, options: dict[str, Any] | None = None,
+                 repeats: int = 10, single: bool = False, editing: Sequence[str] | None = None,
+                 multi: bool = True) -> EvalSettings:
+    """The settings of a new evaluation of one model or several (``model_name``: a name, a
+    comma list or a list; ``checkpoint``: ``REF`` or ``MODEL=REF`` entries, ``latest`` for a
+    model not named), with references resolved to files (so that a later ``latest``
+    cannot change what a resumed run measures). Defaults: each model's first method, its
+    multi-action preset (the paper's T_s = 0.9·T, η = 0.25, s = 2 for M2D2M), 10 repeats."""
+    names = split_list(model_name)
+    if not names:
+        raise UserError("--model: no model given")
+    generators = {name: model(name).load("generator") for name in names}
+    if repeats < 1:
+        raise UserError(f"--repeats must be at least 1, got {repeats}")
+    tasks = tuple(split_list(editing))
+    if not (multi or single or tasks):
+        raise UserError("--no-multi leaves nothing to evaluate: add --single or --edit TASK")
+    chosen_edits = assign_edits(tasks, generators)
+    checkpoints = parse_checkpoints(names, checkpoint)
+    chosen_methods, chosen_options = assign_methods(methods, generators), assign_options(dict(options or {}), generators)
+    if guo_evaluator is not None:
+        if evaluator is not None:
+            raise UserError("give --evaluator or --guo-evaluator, not both")
+        if glove is None:
+            raise UserError("--guo-evaluator needs --glove DIR (text-to-motion's glove/ directory)")
+        evaluator_path = Path(guo_evaluator).resolve()
+        meta = str(Path(meta or evaluator_path / "meta").resolve())
+        glove = str(Path(glove).resolve())
+    else:
+        if glove is not None or meta is not None:
+            raise UserError("--glove and --meta go with --guo-evaluator")
+        evaluator_path = run_file(evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE,
+                                  "make train-evaluator").resolve()
+    candidates = tuple(Candidate(name, str(resolve_model_file(name, checkpoints[name], dataset).resolve()),
+                                 chosen_methods[name], chosen_options[name], chosen_edits[name]) for name in names)
+    return EvalSettings(candidates=candidates, testset=None if testset is None else str(Path(testset).resolve()),
+                        evaluator=str(evaluator_path), glove=glove, meta=meta, repeats=int(repeats),
+                        single=bool(single), editing=tasks, multi=bool(multi))
+
+
+def reopen(reference: str, dataset: str) -> tuple[Path, EvalSettings]:
+    """An earlier evaluation run (directory, name or MLflow id) and its settings, to resume."""
+    run_dir = find_run(reference, dataset, EVAL_STAGE)
+    return run_dir, EvalSettings.from_dict(read_run_info(run_dir)["settings"])
