@@ -4,7 +4,7 @@ Real capture is never as smooth as eased animation curves: its joint acceleratio
 spectrum up to the Nyquist rate, and the transition metrics (the M2D2M paper's Jerk, eq. 10;
 FlowMDM's PJ and AUJ) are dominated by that band. This script measures, per joint group, the
 acceleration spectrum of the real HumanML3D clip 012314 (`--real`) and of synthetic clips,
-and solves for the texture levels (:class:`pipelines.synthetic_motion.Texture`) that give the
+and solves for the texture levels (:class:`pipelines.synthetic.program.Texture`) that give the
 synthetic clips the real clip's ratio of high-band (5–10 Hz) to low-band (1.25–2.5 Hz) power:
 a ratio, so that the real clip's livelier pace (it moves about twice as fast as the corpus's
 average) does not count as texture. Noise power adds, so the levels solve a non-negative linear
@@ -26,7 +26,7 @@ import numpy as np
 
 from m2d2m.evaluation.metrics import frame_jerk, jerk
 from pipelines.synthetic import make_clip
-from pipelines.synthetic_motion import FPS, Texture
+from pipelines.synthetic import FPS, Texture
 
 GROUPS = {
     "root": [0],

@@ -7,7 +7,7 @@ import pytest
 
 from bench.calibrate_corpus import CALIBRATED, band_ratio, group_spectra, synthetic
 from pipelines.synthetic import TEXTURE
-from pipelines.synthetic_motion import Texture
+from pipelines.synthetic import Texture
 from tests.conftest import HUMANML3D_SAMPLE
 
 

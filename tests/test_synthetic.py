@@ -380,7 +380,7 @@ def test_families_are_separable_from_the_motion(tmp_path):
 
 
 def test_band_noise_has_unit_acceleration_and_nothing_below_its_band():
-    from pipelines.synthetic_motion import FPS, band_noise
+    from pipelines.synthetic import FPS, band_noise
 
     x = band_noise(400, (3,), np.random.default_rng(0), low_hz=4.0)
     assert x.shape == (400, 3)
@@ -392,7 +392,7 @@ def test_band_noise_has_unit_acceleration_and_nothing_below_its_band():
 
 
 def test_texture_adds_high_frequencies_only_where_asked_and_keeps_the_body_rigid():
-    from pipelines.synthetic_motion import Texture
+    from pipelines.synthetic import Texture
 
     smooth = syn.make_clip(3, seed=5, texture=Texture()).joints
     textured = syn.make_clip(3, seed=5).joints
