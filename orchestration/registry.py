@@ -6,8 +6,10 @@ the command line reach a model only through its entry here and its generator's p
 
 Entries name code as ``"module:attribute"`` and load it on first use: listing the models (the
 command line does) imports neither torch nor Lightning. Models outside this repository register
-themselves from a plugin module named in ``M2D2M_MODELS`` (comma-separated), imported on first
-use; Ray trials and workers import the same plugins as their driver (:func:`plugins_for_workers`).
+themselves from a plugin module named in ``M2D2M_PLUGINS`` (comma-separated; ``M2D2M_MODELS``,
+its older name, is read too), imported on first use; the same modules may register metrics
+(:mod:`m2d2m.evaluation.sequence_metrics`). Ray trials and workers import the same plugins as
+their driver (:func:`plugins_for_workers`).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from typing import Any
 
 from orchestration.errors import UserError
 
-PLUGINS_VARIABLE = "M2D2M_MODELS"
+PLUGINS_VARIABLE = "M2D2M_PLUGINS"
+OLD_PLUGINS_VARIABLE = "M2D2M_MODELS"  # its name when plugins could only add models, still read
 
 
 @dataclass(frozen=True)
@@ -89,10 +92,11 @@ register(ModelEntry(
 
 
 def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) -> list[str]:
-    """Import the plugin modules (default: those named in ``M2D2M_MODELS``) once each, looking in
-    ``paths`` too; returns every plugin imported so far."""
+    """Import the plugin modules (default: those named in ``M2D2M_PLUGINS`` and ``M2D2M_MODELS``)
+    once each, looking in ``paths`` too; returns every plugin imported so far."""
     if modules is None:
-        modules = [m.strip() for m in os.environ.get(PLUGINS_VARIABLE, "").split(",") if m.strip()]
+        named = ",".join(os.environ.get(variable, "") for variable in (PLUGINS_VARIABLE, OLD_PLUGINS_VARIABLE))
+        modules = list(dict.fromkeys(m.strip() for m in named.split(",") if m.strip()))
     sys.path.extend(path for path in paths if path not in sys.path)
     for name in modules:
         if name in _loaded_plugins:
@@ -100,7 +104,7 @@ def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) ->
         try:
             importlib.import_module(name)
         except ImportError as error:
-            raise UserError(f"{PLUGINS_VARIABLE}: cannot import the model plugin {name!r} ({error})") from error
+            raise UserError(f"{PLUGINS_VARIABLE}: cannot import the plugin {name!r} ({error})") from error
         _loaded_plugins.append(name)
     return list(_loaded_plugins)
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from m2d2m.evaluation.measurements import R_PRECISION_BATCH, WINDOW, Reference
 from m2d2m.evaluation.metrics import mean_confidence_interval
+from m2d2m.evaluation.sequence_metrics import sequence_metrics
 
 TABLE_MD, TABLE_JSON, FIGURE = "table.md", "table.json", "fig5.png"
 GT_SINGLE, GT_CONCAT, RECONSTRUCTION, GENERATED = "gt_single", "gt_concat", "reconstruction", "generated"
@@ -27,6 +28,13 @@ EDIT_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID
 EDIT_TITLES = {"inbetween": "In-betweening", "upper": "Upper-body editing"}
 ROW_TITLES = {GT_SINGLE: "Ground truth (single)", GT_CONCAT: "Ground truth (concat)",
               RECONSTRUCTION: "VQ-VAE reconstruction", GENERATED: "Generated (single action)"}
+
+
+def multi_columns(table: dict[str, Any]) -> tuple[tuple[str, str], ...]:
+    """The multi-motion table's columns: the paper's, then each registered sequence metric the
+    table holds (:mod:`m2d2m.evaluation.sequence_metrics`)."""
+    held = {metric for values in table["multi"].values() for metric in values}
+    return MULTI_COLUMNS + tuple((m.name, m.title) for m in sequence_metrics() if m.name in held)
 
 
 def _summary(values: Sequence[float]) -> dict[str, float | None]:
@@ -69,7 +77,7 @@ def render_table(table: dict[str, Any]) -> str:
     lines = [f"# Evaluation of {judged}", "",
              f"Test set {testset['path']}: {testset['instances']} instances of N = {testset['n']} actions. "
              f"Mean ± 95 % CI over {settings['repeats']} repeats.", ""]
-    lines += _markdown("Multi-motion (paper Tables 1–2)", MULTI_COLUMNS, table["multi"], titles)
+    lines += _markdown("Multi-motion (paper Tables 1–2)", multi_columns(table), table["multi"], titles)
     if "single" in table:
         lines += _markdown("Single-motion (paper Table 3)", SINGLE_COLUMNS, table["single"], titles)
     if "editing" in table:

@@ -4,6 +4,7 @@ the tables, Fig. 5, MLflow, resuming without recomputing, and one-line errors wi
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import mlflow
@@ -169,3 +170,51 @@ def test_a_missing_evaluator_says_what_to_run(trained_project, tmp_path, monkeyp
     model = next((trained_project / "runs" / "tiny" / "m2d2m").glob("*/model.pt"))
     assert main(["evaluate", "--dataset", "tiny", "--checkpoint", str(model)]) == 2
     assert "run `make train-evaluator` first" in capsys.readouterr().err
+
+
+def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow(
+        trained_project, tiny_testset, monkeypatch):
+    """tests/fake_metric.py's root travel, measured on the playback model (tests/fake_model.py),
+    whose sequences are known: each row's value is the hand-computed mean over its sequences."""
+    import m2d2m.evaluation.sequence_metrics as sequence_metrics
+    from m2d2m.motion.representation import features_to_joints
+    from m2d2m.motion.skeleton import SKELETONS
+    from orchestration.registry import load_plugins
+    from pipelines.testset import load_testset
+
+    # the plugin is imported afresh by the registry, and its metric leaves with this test
+    monkeypatch.setattr(sequence_metrics, "_REGISTERED", {})
+    monkeypatch.delitem(sys.modules, "tests.fake_metric", raising=False)
+    monkeypatch.setattr("orchestration.registry._loaded_plugins", [])
+    monkeypatch.chdir(trained_project)
+    monkeypatch.setenv("M2D2M_PLUGINS", "tests.fake_model,tests.fake_metric")
+    load_plugins()
+    assert [metric.name for metric in sequence_metrics.sequence_metrics()] == ["root_travel"]
+    from tests.fake_metric import root_travel
+    from tests.fake_model import save_playback
+
+    testset = load_testset(tiny_testset)
+    clips = {item.action: testset.features(instance.index, p)
+             for instance in testset for p, item in enumerate(instance.items)}
+    model_file = save_playback(trained_project / "playback-metric.npz", clips)
+    expected = []  # what playback lays end to end for each instance, measured by hand
+    for instance in testset:
+        pieces = []
+        for p, item in enumerate(instance.items):
+            stored, frames = clips[item.action], len(testset.features(instance.index, p))
+            pieces.append(stored[np.minimum(np.arange(frames), len(stored) - 1)])
+        expected.append(root_travel(features_to_joints(np.concatenate(pieces), SKELETONS["t2m"]), [], None))
+
+    assert main(["evaluate", "--model", "playback", "--checkpoint", str(model_file), "--dataset", "tiny",
+                 "--testset", str(tiny_testset), "--repeats", "1"]) == 0
+    stage = trained_project / "runs" / "tiny" / "eval"
+    run_dir = stage / (stage / "latest").read_text(encoding="utf-8").strip()
+    table = json.loads((run_dir / "table.json").read_text(encoding="utf-8"))
+    assert table["multi"]["concat"]["root_travel"]["mean"] == pytest.approx(np.mean(expected), rel=1e-5)
+    assert table["multi"]["gt_concat"]["root_travel"]["mean"] > 0  # the ground truth joined, measured alike
+    header = next(line for line in (run_dir / "table.md").read_text(encoding="utf-8").splitlines()
+                  if line.startswith("| Method"))
+    assert header.endswith("| Root travel (m) |")
+    run_id = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))["mlflow_run_id"]
+    logged = mlflow_client(trained_project).get_run(run_id).data.metrics
+    assert logged["multi/concat/root_travel"] == pytest.approx(np.mean(expected), rel=1e-5)

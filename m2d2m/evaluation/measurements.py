@@ -39,8 +39,20 @@ import torch
 from torch.nn.utils.rnn import pad_sequence
 
 from m2d2m.evaluation.evaluator import TextMotionEvaluator
-from m2d2m.evaluation.metrics import (DEFAULT_MIN_STEP, diversity, fid, frame_jerk, jerk, mean_frame_jerk, mm_dist,
-                                      multimodality, peak_jerk_and_auj, r_precision, transition_windows)
+from m2d2m.evaluation.metrics import (
+    DEFAULT_MIN_STEP,
+    diversity,
+    fid,
+    frame_jerk,
+    jerk,
+    mean_frame_jerk,
+    mm_dist,
+    multimodality,
+    peak_jerk_and_auj,
+    r_precision,
+    transition_windows,
+)
+from m2d2m.evaluation.sequence_metrics import measure_sequences
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.generators.protocol import Keep, MotionGenerator, keep_part
 from m2d2m.motion.clip import Motion
@@ -142,6 +154,7 @@ class MultiMeasures:
     curves: list[np.ndarray] = field(default_factory=list)  # frame_jerk of each full window
     profiles: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     bones: list[float] = field(default_factory=list)
+    registered: dict[str, list[float]] = field(default_factory=dict)  # per metric of sequence_metrics()
 
     def add(self, motions: Sequence[Motion], evaluator: TextMotionEvaluator, skeleton: Any) -> None:
         self.segments.append(embed_clips(evaluator, [m.features[a:b] for m in motions for a, b in m.ranges]))
@@ -151,6 +164,8 @@ class MultiMeasures:
         self.curves += [frame_jerk(w) for m in motions for w in full_windows(m.joints, m.boundaries)]
         self.profiles += [p for m in motions for p in transition_profiles(m.joints, m.boundaries)]
         self.bones += [bone_length_spread(m.joints, skeleton)["mean"] for m in motions]
+        for name, values in measure_sequences([(m.joints, m.boundaries) for m in motions], skeleton).items():
+            self.registered.setdefault(name, []).extend(values)
 
     def metrics(self, reference: "Reference", repeat: int) -> dict[str, float]:
         """The multi-motion table's row for repeat ``repeat`` (its shuffle and diversity draws)."""
@@ -162,7 +177,8 @@ class MultiMeasures:
                 "transition_fid": fid(window_emb, reference.windows),
                 "transition_diversity": diversity(window_emb, _pairs(len(window_emb)), seed=repeat),
                 "jerk": _nanmean(self.jerks), **flowmdm_jerk(self.curves, reference.frame_jerk_mean),
-                "bone_std": _nanmean(self.bones)}
+                "bone_std": _nanmean(self.bones),
+                **{name: _nanmean(values) for name, values in self.registered.items()}}
 
 
 def _single_metrics(reference: "Reference", embedded: np.ndarray, order: np.ndarray, repeat: int) -> dict[str, float]:
@@ -208,6 +224,7 @@ class Reference:
     flowmdm_concat: dict[str, float]  # PJ and AUJ at the boundaries of the concatenated items
     concat_profile: dict[str, Any]
     bone_std: float  # mm, of the ground-truth segments' joints as recovered from their features
+    registered_concat: dict[str, float]  # each registered sequence metric of the concatenated items
     features: list[list[np.ndarray]] = field(default_factory=list)  # each segment cut to its generated length
     reconstructions: dict[str, Reconstruction] = field(default_factory=dict)  # by the models sharing a codec
 
@@ -252,6 +269,7 @@ class Reference:
             flowmdm_concat=flowmdm_jerk(concat_curves, constant),
             concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]),
             bone_std=_nanmean([bone_length_spread(j, skeleton)["mean"] for clips in joints for j in clips]),
+            registered_concat={name: _nanmean(values) for name, values in measure_sequences(concat, skeleton).items()},
             features=features)
         return reference
 
@@ -291,7 +309,7 @@ class Reference:
 
     def concat_row(self) -> dict[str, float]:
         """The "ground truth (concat)" row: its transition jerks, the same in every repeat."""
-        return {"jerk": self.jerk_concat, **self.flowmdm_concat}
+        return {"jerk": self.jerk_concat, **self.flowmdm_concat, **self.registered_concat}
 
 
 class Evaluation:
