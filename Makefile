@@ -15,7 +15,7 @@ RAW     ?= data/raw/$(DATASET)
 DEMO    ?= runs/demo
 
 .DEFAULT_GOAL := help
-.PHONY: help setup demo test test-all bench corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
+.PHONY: help setup demo test test-all lint bench corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
         train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
         reproduce learning-curves ui clean
 
@@ -57,6 +57,10 @@ demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus: data, models
 
 test: $(STAMP)  ## run the test suite (slow end-to-end tests excluded)
 	$(BIN)/pytest -m "not slow"
+
+lint: $(STAMP)  ## check formatting and lint (ruff, pyproject.toml); `.venv/bin/ruff format .` fixes formatting
+	$(BIN)/ruff format --check .
+	$(BIN)/ruff check .
 
 test-all: $(STAMP)  ## run every test, slow end-to-end ones included
 	$(BIN)/pytest

@@ -72,6 +72,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from timing import interleaved_times, publish
 from tqdm import tqdm
 
 from m2d2m.generators.options import MULTI, SINGLE
@@ -79,7 +80,6 @@ from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.processes.masking import dynamic_iterations
 from orchestration.errors import UserError
 from orchestration.generate import load_generator
-from timing import interleaved_times, publish
 
 PROMPTS = ("a person walks forward", "a person jumps", "a person waves their right hand", "a person sits down")
 LONG_METHODS = {"mmm": "transition", "m2d2m": "tps", "motiondiffuse": "time-varied"}  # in plotting order
@@ -148,12 +148,16 @@ def parameter_counts(generator: MotionGenerator) -> dict[str, int]:
     codec = getattr(generator, "codec", None)
     if codec is not None:
         modules["vq"] = codec.vq
-    return {name: sum(p.numel() for p in module.parameters())
-            for name, module in modules.items() if isinstance(module, torch.nn.Module)}
+    return {
+        name: sum(p.numel() for p in module.parameters())
+        for name, module in modules.items()
+        if isinstance(module, torch.nn.Module)
+    }
 
 
-def series_of(generators: dict[str, MotionGenerator], batches: list[int], steps: dict[str, list[int]],
-              md_batches: list[int]) -> list[Series]:
+def series_of(
+    generators: dict[str, MotionGenerator], batches: list[int], steps: dict[str, list[int]], md_batches: list[int]
+) -> list[Series]:
     """The figure's curves: each model with its single-action preset, M2D2M and MotionDiffuse once
     per number of steps in ``steps[model]`` (MotionDiffuse at ``md_batches``), the others at ``batches``."""
     series = []
@@ -162,8 +166,10 @@ def series_of(generators: dict[str, MotionGenerator], batches: list[int], steps:
         if name not in steps:
             series.append(Series(name, name, generator, generator.options(SINGLE), batch_sizes))
             continue
-        series += [Series(f"{name} ({count} steps)", name, generator, generator.options(SINGLE, steps=count),
-                          batch_sizes) for count in steps[name]]
+        series += [
+            Series(f"{name} ({count} steps)", name, generator, generator.options(SINGLE, steps=count), batch_sizes)
+            for count in steps[name]
+        ]
     return series
 
 
@@ -190,10 +196,17 @@ def measure_aits(series: list[Series], lengths: list[int], warmup: int, repeats:
     batches = dict.fromkeys(batch for s in series for batch in s.batches)
     settings = [(batch, s, frames) for batch in batches for s in series if batch in s.batches for frames in lengths]
     device = series[0].generator.device
-    times = interleaved_times([sentence_call(s.generator, batch, frames, s.options) for batch, s, frames in settings],
-                              warmup, repeats, device, desc="AITS")
-    return [Timing(s.model, s.label, batch, frames, sampler_passes(s.generator, s.options, frames), seconds)
-            for (batch, s, frames), seconds in zip(settings, times)]
+    times = interleaved_times(
+        [sentence_call(s.generator, batch, frames, s.options) for batch, s, frames in settings],
+        warmup,
+        repeats,
+        device,
+        desc="AITS",
+    )
+    return [
+        Timing(s.model, s.label, batch, frames, sampler_passes(s.generator, s.options, frames), seconds)
+        for (batch, s, frames), seconds in zip(settings, times)
+    ]
 
 
 def long_plan(minutes: float, fps: float, frame_step: int, action_frames: int) -> list[int]:
@@ -212,13 +225,16 @@ def long_options(generator: MotionGenerator, long_steps: dict[str, int]) -> Any:
     return generator.options(MULTI, method=LONG_METHODS[generator.model], **changes)
 
 
-def measure_long(generators: dict[str, MotionGenerator], frames: list[int], repeats: int,
-                 long_steps: dict[str, int]) -> dict[str, list[float]]:
+def measure_long(
+    generators: dict[str, MotionGenerator], frames: list[int], repeats: int, long_steps: dict[str, int]
+) -> dict[str, list[float]]:
     """Seconds per call of each model's long-sequence method on one sequence of ``frames``, after
     a warm-up call that checks the length."""
     actions = [[PROMPTS[j % len(PROMPTS)] for j in range(len(frames))]]
-    runs = {name: partial(generator.generate, actions, [frames], long_options(generator, long_steps), [0])
-            for name, generator in generators.items()}
+    runs = {
+        name: partial(generator.generate, actions, [frames], long_options(generator, long_steps), [0])
+        for name, generator in generators.items()
+    }
     for name, run in tqdm(runs.items(), desc="long sequence, warm-up", unit="model"):
         made = len(run()[0].features)
         if made != sum(frames):
@@ -245,29 +261,39 @@ def check_lengths(generators: dict[str, MotionGenerator], lengths: list[int], ac
     for name, generator in generators.items():
         for frames in [*lengths, action_frames]:
             if not generator.frame_step <= frames <= generator.longest_frames or frames % generator.frame_step:
-                raise UserError(f"{frames} frames: {name} generates multiples of {generator.frame_step} frames "
-                                f"up to {generator.longest_frames}")
+                raise UserError(
+                    f"{frames} frames: {name} generates multiples of {generator.frame_step} frames "
+                    f"up to {generator.longest_frames}"
+                )
     if len({generator.fps for generator in generators.values()}) > 1:
         raise UserError("the models run at different frame rates; compare models of one dataset")
 
 
-def check_steps(generators: dict[str, MotionGenerator], steps: dict[str, list[int]],
-                long_steps: dict[str, int]) -> None:
+def check_steps(
+    generators: dict[str, MotionGenerator], steps: dict[str, list[int]], long_steps: dict[str, int]
+) -> None:
     """A one-line refusal of step counts a model's schedule cannot be sampled with."""
     for name in STEP_SERIES:
         trained = trained_steps(generators[name])
         for steps_asked in [*steps[name], *([long_steps[name]] if name in long_steps else [])]:
             if not 1 <= steps_asked <= trained:
                 flag = "--md" if name == STEPPED else f"--{name}"
-                raise UserError(f"{steps_asked} steps: {name} was trained with T = {trained} steps; give {flag}-steps and "
-                                f"{flag}-long-steps from 1 to {trained}")
+                raise UserError(
+                    f"{steps_asked} steps: {name} was trained with T = {trained} steps; give {flag}-steps and "
+                    f"{flag}-long-steps from 1 to {trained}"
+                )
 
 
 def machine(device: torch.device) -> dict[str, Any]:
     """What the times were measured on, and how loaded it was (the machine may be shared)."""
     name = torch.cuda.get_device_name(device) if device.type == "cuda" else platform.processor() or platform.machine()
-    return {"device": name, "cores": os.cpu_count(), "torch_threads": torch.get_num_threads(),
-            "torch": torch.__version__, "load": list(os.getloadavg())}
+    return {
+        "device": name,
+        "cores": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "load": list(os.getloadavg()),
+    }
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -290,21 +316,42 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         "date": datetime.now().isoformat(timespec="minutes"),
         "fps": first.fps,
         "machine": {**started, "load_after": list(os.getloadavg())},
-        "models": {name: {"checkpoint": str(generator.source), "parameters": parameter_counts(generator),
-                          "single": "; ".join(s.generator.describe(s.options) for s in series if s.model == name),
-                          "long": generator.describe(long_options(generator, long_steps))}
-                   for name, generator in generators.items()},
-        "settings": {"warmup": args.warmup, "repeats": args.repeats, "long_repeats": args.long_repeats,
-                     "m2d2m_steps": args.m2d2m_steps, "m2d2m_long_steps": args.m2d2m_long_steps,
-                     "md_steps": args.md_steps, "md_batches": args.md_batches, "md_long_steps": args.md_long_steps},
+        "models": {
+            name: {
+                "checkpoint": str(generator.source),
+                "parameters": parameter_counts(generator),
+                "single": "; ".join(s.generator.describe(s.options) for s in series if s.model == name),
+                "long": generator.describe(long_options(generator, long_steps)),
+            }
+            for name, generator in generators.items()
+        },
+        "settings": {
+            "warmup": args.warmup,
+            "repeats": args.repeats,
+            "long_repeats": args.long_repeats,
+            "m2d2m_steps": args.m2d2m_steps,
+            "m2d2m_long_steps": args.m2d2m_long_steps,
+            "md_steps": args.md_steps,
+            "md_batches": args.md_batches,
+            "md_long_steps": args.md_long_steps,
+        },
         "aits": [timing.record() for timing in timings],
-        "long": {"minutes": sum(frames) / first.fps / 60, "actions": len(frames), "frames": frames,
-                 "methods": LONG_METHODS, "times": long, "median": medians,
-                 "ratio": medians["m2d2m"] / medians["mmm"],
-                 "ratios": {name: median / medians["mmm"] for name, median in medians.items()},
-                 STEPPED: {"steps": args.md_long_steps, "trained_steps": trained,
-                           "extrapolated": medians[STEPPED] * trained / args.md_long_steps},
-                 "mmm_paper": {"minutes": MMM_MINUTES, "seconds": MMM_SECONDS, "gpu": MMM_GPU}},
+        "long": {
+            "minutes": sum(frames) / first.fps / 60,
+            "actions": len(frames),
+            "frames": frames,
+            "methods": LONG_METHODS,
+            "times": long,
+            "median": medians,
+            "ratio": medians["m2d2m"] / medians["mmm"],
+            "ratios": {name: median / medians["mmm"] for name, median in medians.items()},
+            STEPPED: {
+                "steps": args.md_long_steps,
+                "trained_steps": trained,
+                "extrapolated": medians[STEPPED] * trained / args.md_long_steps,
+            },
+            "mmm_paper": {"minutes": MMM_MINUTES, "seconds": MMM_SECONDS, "gpu": MMM_GPU},
+        },
     }
 
 
@@ -313,12 +360,16 @@ def report(result: dict[str, Any]) -> str:
     and what respacing buys MotionDiffuse), then the long sequence."""
     timings = [Timing(**{f.name: row[f.name] for f in fields(Timing)}) for row in result["aits"]]
     info = result["machine"]
-    lines = [f"{result['date']}; {info['device']}, {info['cores']} cores, {info['torch_threads']} torch threads, "
-             f"torch {info['torch']}; load average {info['load'][0]:.2f} before, {info['load_after'][0]:.2f} after; "
-             f"median [min–max] of {result['settings']['repeats']} calls after {result['settings']['warmup']} "
-             "warm-ups"]
-    lines += [f"- {name}: {model['checkpoint']}, parameters {model['parameters']}; single: {model['single']}"
-              for name, model in result["models"].items()]
+    lines = [
+        f"{result['date']}; {info['device']}, {info['cores']} cores, {info['torch_threads']} torch threads, "
+        f"torch {info['torch']}; load average {info['load'][0]:.2f} before, {info['load_after'][0]:.2f} after; "
+        f"median [min–max] of {result['settings']['repeats']} calls after {result['settings']['warmup']} "
+        "warm-ups"
+    ]
+    lines += [
+        f"- {name}: {model['checkpoint']}, parameters {model['parameters']}; single: {model['single']}"
+        for name, model in result["models"].items()
+    ]
     for batch in dict.fromkeys(t.batch for t in timings):
         rows = {(t.series, t.frames): t for t in timings if t.batch == batch}
         series = list(dict.fromkeys(t.series for t in timings if t.batch == batch))
@@ -327,45 +378,67 @@ def report(result: dict[str, Any]) -> str:
             by_model.setdefault(rows[(name, timings[0].frames)].model, []).append(name)
         ratios = [(name, series[0]) for name in series[1:]]
         header = " | ".join(f"{name} passes | {name} AITS (ms) | {name} per pass (ms)" for name in series)
-        lines += ["", f"AITS, {batch} sentence(s) per call", "",
-                  f"| frames | {header} | {' | '.join(f'{a} / {b}' for a, b in ratios)} |",
-                  "| --- " * (1 + 3 * len(series) + len(ratios)) + "|"]
+        lines += [
+            "",
+            f"AITS, {batch} sentence(s) per call",
+            "",
+            f"| frames | {header} | {' | '.join(f'{a} / {b}' for a, b in ratios)} |",
+            "| --- " * (1 + 3 * len(series) + len(ratios)) + "|",
+        ]
         for frames in dict.fromkeys(t.frames for t in timings):
             cells = []
             for name in series:
                 t = rows[(name, frames)]
                 low, high = t.spread
-                cells.append(f"{t.passes} | {1e3 * t.aits:.1f} [{1e3 * low:.1f}–{1e3 * high:.1f}] | "
-                             f"{1e3 * t.aits / t.passes:.2f}")
+                cells.append(
+                    f"{t.passes} | {1e3 * t.aits:.1f} [{1e3 * low:.1f}–{1e3 * high:.1f}] | "
+                    f"{1e3 * t.aits / t.passes:.2f}"
+                )
             cells += [f"{rows[(a, frames)].aits / rows[(b, frames)].aits:.1f}" for a, b in ratios]
             lines.append(f"| {frames} | {' | '.join(cells)} |")
         for model, stepped in by_model.items():
             if len(stepped) < 2:
                 continue
             most, fewest = rows[(stepped[0], timings[0].frames)].passes, rows[(stepped[-1], timings[0].frames)].passes
-            lines += ["", f"Fewer steps: {most} → {fewest} ({most / fewest:.1f}× fewer) makes {model}'s call "
-                      + ", ".join(f"{rows[(stepped[0], f)].aits / rows[(stepped[-1], f)].aits:.1f}×"
-                                  for f in dict.fromkeys(t.frames for t in timings))
-                      + " faster over the lengths above."]
+            lines += [
+                "",
+                f"Fewer steps: {most} → {fewest} ({most / fewest:.1f}× fewer) makes {model}'s call "
+                + ", ".join(
+                    f"{rows[(stepped[0], f)].aits / rows[(stepped[-1], f)].aits:.1f}×"
+                    for f in dict.fromkeys(t.frames for t in timings)
+                )
+                + " faster over the lengths above.",
+            ]
     long = result["long"]
     md = long[STEPPED]
-    lines += ["", f"Long sequence: {long['minutes']:.3f} min in {long['actions']} actions "
-              f"({', '.join(f'{n} × {f}' for f, n in sorted(Counter(long['frames']).items(), reverse=True))} frames), "
-              f"{len(next(iter(long['times'].values())))} calls after a warm-up", "",
-              "| model | method | median (s) | range (s) | / mmm |", "| --- | --- | --- | --- | --- |"]
+    lines += [
+        "",
+        f"Long sequence: {long['minutes']:.3f} min in {long['actions']} actions "
+        f"({', '.join(f'{n} × {f}' for f, n in sorted(Counter(long['frames']).items(), reverse=True))} frames), "
+        f"{len(next(iter(long['times'].values())))} calls after a warm-up",
+        "",
+        "| model | method | median (s) | range (s) | / mmm |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     for name, times in long["times"].items():
         method = long["methods"][name]
         if name == STEPPED:
             method += f", {md['steps']} of T = {md['trained_steps']} steps"
-        lines.append(f"| {name} | {method} | {long['median'][name]:.2f} | {min(times):.2f}–{max(times):.2f} | "
-                     f"{long['ratios'][name]:.1f} |")
+        lines.append(
+            f"| {name} | {method} | {long['median'][name]:.2f} | {min(times):.2f}–{max(times):.2f} | "
+            f"{long['ratios'][name]:.1f} |"
+        )
     paper = long["mmm_paper"]
-    lines += ["", f"m2d2m / mmm: {long['ratio']:.1f}×; MMM's paper: {paper['minutes']} min in {paper['seconds']} s "
-              f"on an {paper['gpu']}",
-              f"{STEPPED} ran {md['steps']} of its T = {md['trained_steps']} steps (--md-long-steps): all "
-              f"{md['trained_steps']} would take about {md['extrapolated']:.1f} s (× T / steps, not measured: a step "
-              "costs the same whatever their number). Its time-varied correction adds a backward pass per step "
-              "where intervals overlap.", ""]
+    lines += [
+        "",
+        f"m2d2m / mmm: {long['ratio']:.1f}×; MMM's paper: {paper['minutes']} min in {paper['seconds']} s "
+        f"on an {paper['gpu']}",
+        f"{STEPPED} ran {md['steps']} of its T = {md['trained_steps']} steps (--md-long-steps): all "
+        f"{md['trained_steps']} would take about {md['extrapolated']:.1f} s (× T / steps, not measured: a step "
+        "costs the same whatever their number). Its time-varied correction adds a backward pass per step "
+        "where intervals overlap.",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -381,24 +454,46 @@ def plot(path: Path, result: dict[str, Any]) -> None:
         x = [row["frames"] for row in rows]
         y = [row["aits"] for row in rows]
         error = [[row["aits"] - row["spread"][0] for row in rows], [row["spread"][1] - row["aits"] for row in rows]]
-        axes.errorbar(x, y, yerr=error, marker="o" if batch == 1 else "s", capsize=3, color=colours[series],
-                      linestyle="-" if batch == 1 else "--", label=f"{series}, batch {batch}")
+        axes.errorbar(
+            x,
+            y,
+            yerr=error,
+            marker="o" if batch == 1 else "s",
+            capsize=3,
+            color=colours[series],
+            linestyle="-" if batch == 1 else "--",
+            label=f"{series}, batch {batch}",
+        )
         if batch == 1:
             for row in rows:
-                axes.annotate(str(row["passes"]), (row["frames"], row["aits"]), textcoords="offset points",
-                              xytext=(5, 3), ha="left", fontsize="x-small", color=colours[series])
+                axes.annotate(
+                    str(row["passes"]),
+                    (row["frames"], row["aits"]),
+                    textcoords="offset points",
+                    xytext=(5, 3),
+                    ha="left",
+                    fontsize="x-small",
+                    color=colours[series],
+                )
     long = result["long"]
     info = result["machine"]
     steps = {STEPPED: f" ({long[STEPPED]['steps']} steps)"}
-    axes.set(xlabel=f"frames ({result['fps']:g} fps)\nover the points: sampler iterations "
-                    "(MMM's T_dyn, M2D2M's T, MotionDiffuse's steps)",
-             ylabel="AITS (s): median, range", yscale="log")
-    axes.set_title(f"AITS by motion length, {info['device']}, {info['cores']} cores, "
-                   f"{info['torch_threads']} torch thread(s)\n"
-                   f"{long['minutes']:.3f} min in {long['actions']} actions: "
-                   + ", ".join(f"{name} {long['methods'][name]}{steps.get(name, '')} {seconds:.2f} s"
-                               for name, seconds in long["median"].items()),
-                   fontsize="small")
+    axes.set(
+        xlabel=f"frames ({result['fps']:g} fps)\nover the points: sampler iterations "
+        "(MMM's T_dyn, M2D2M's T, MotionDiffuse's steps)",
+        ylabel="AITS (s): median, range",
+        yscale="log",
+    )
+    axes.set_title(
+        f"AITS by motion length, {info['device']}, {info['cores']} cores, "
+        f"{info['torch_threads']} torch thread(s)\n"
+        f"{long['minutes']:.3f} min in {long['actions']} actions: "
+        + ", ".join(
+            f"{name} {long['methods'][name]}{steps.get(name, '')} {seconds:.2f} s"
+            for name, seconds in long["median"].items()
+        ),
+        fontsize="small",
+    )
     axes.grid(alpha=0.3, which="both")
     axes.legend(fontsize="x-small")
     figure.savefig(path)
@@ -407,21 +502,45 @@ def plot(path: Path, result: dict[str, Any]) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     for name, hint in TRAIN.items():
-        parser.add_argument(f"--{name}", default="latest",
-                            help=f"{name}'s model: latest, a run or its model.pt ({hint})")
+        parser.add_argument(
+            f"--{name}", default="latest", help=f"{name}'s model: latest, a run or its model.pt ({hint})"
+        )
     parser.add_argument("--dataset", default="synthetic")
     parser.add_argument("--lengths", type=int, nargs="+", default=[40, 80, 120, 160, 196], help="frames per sentence")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 32], help="sentences per call")
-    parser.add_argument("--m2d2m-steps", type=int, nargs="+", default=[100, 50, 25, 10],
-                        help="M2D2M's sampling steps, one series each (below T: jumps with exact posteriors)")
-    parser.add_argument("--m2d2m-long-steps", type=int, default=None,
-                        help="M2D2M's steps on the long sequence (default: those its model file samples with)")
-    parser.add_argument("--md-steps", type=int, nargs="+", default=[1000, 100],
-                        help="MotionDiffuse's sampling steps, one series each (below T: respaced)")
-    parser.add_argument("--md-batches", type=int, nargs="+", default=[1],
-                        help="sentences per call at which MotionDiffuse is timed (1000 steps at 32: minutes a call)")
-    parser.add_argument("--md-long-steps", type=int, default=50,
-                        help="MotionDiffuse's steps on the long sequence (the paper's 1000 would take about an hour)")
+    parser.add_argument(
+        "--m2d2m-steps",
+        type=int,
+        nargs="+",
+        default=[100, 50, 25, 10],
+        help="M2D2M's sampling steps, one series each (below T: jumps with exact posteriors)",
+    )
+    parser.add_argument(
+        "--m2d2m-long-steps",
+        type=int,
+        default=None,
+        help="M2D2M's steps on the long sequence (default: those its model file samples with)",
+    )
+    parser.add_argument(
+        "--md-steps",
+        type=int,
+        nargs="+",
+        default=[1000, 100],
+        help="MotionDiffuse's sampling steps, one series each (below T: respaced)",
+    )
+    parser.add_argument(
+        "--md-batches",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="sentences per call at which MotionDiffuse is timed (1000 steps at 32: minutes a call)",
+    )
+    parser.add_argument(
+        "--md-long-steps",
+        type=int,
+        default=50,
+        help="MotionDiffuse's steps on the long sequence (the paper's 1000 would take about an hour)",
+    )
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--long-minutes", type=float, default=MMM_MINUTES)
@@ -430,11 +549,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=os.cpu_count(), help="torch threads")
     parser.add_argument("--out", default=None, help="where aits.json and aits.png go (runs/<dataset>/bench/aits)")
     args = parser.parse_args(argv)
-    if min(args.batches + args.md_batches + args.md_steps + args.m2d2m_steps
-           + [args.md_long_steps, args.m2d2m_long_steps or 1, args.repeats, args.long_repeats, args.threads]) < 1 \
-            or args.warmup < 0 or not args.long_minutes > 0:
-        parser.error("batches, steps, repeats and threads must be at least 1, --warmup at least 0, --long-minutes "
-                     "positive")
+    if (
+        min(
+            args.batches
+            + args.md_batches
+            + args.md_steps
+            + args.m2d2m_steps
+            + [args.md_long_steps, args.m2d2m_long_steps or 1, args.repeats, args.long_repeats, args.threads]
+        )
+        < 1
+        or args.warmup < 0
+        or not args.long_minutes > 0
+    ):
+        parser.error(
+            "batches, steps, repeats and threads must be at least 1, --warmup at least 0, --long-minutes positive"
+        )
     # the paper's many steps first, each respacing after
     args.md_steps, args.m2d2m_steps = (sorted(set(steps), reverse=True) for steps in (args.md_steps, args.m2d2m_steps))
 

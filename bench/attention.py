@@ -68,11 +68,15 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from timing import interleaved_times, publish
 from tqdm import tqdm
 
-from m2d2m.networks.motiondiffuse_transformer import (MotionDiffuseConfig, MotionDiffuseTransformer,
-                                                       efficient_attention, softmax_attention)
-from timing import interleaved_times, publish
+from m2d2m.networks.motiondiffuse_transformer import (
+    MotionDiffuseConfig,
+    MotionDiffuseTransformer,
+    efficient_attention,
+    softmax_attention,
+)
 
 KINDS = ("linear", "softmax")  # MotionDiffuseConfig.attention's values, in plotting order
 SCOPES = ("attention", "network")
@@ -96,11 +100,19 @@ class Size:
 
     def config(self, kind: str, max_frames: int) -> MotionDiffuseConfig:
         text_width = max(1, self.width // 2)
-        return MotionDiffuseConfig(width=self.width, heads=self.heads, layers=self.layers, ffn=2 * self.width,
-                                   text_dim=self.text_dim, text_width=text_width,
-                                   text_heads=math.gcd(text_width, max(1, self.heads // 2)),
-                                   text_ffn=4 * self.width, text_layers=self.text_layers, max_frames=max_frames,
-                                   attention=kind)
+        return MotionDiffuseConfig(
+            width=self.width,
+            heads=self.heads,
+            layers=self.layers,
+            ffn=2 * self.width,
+            text_dim=self.text_dim,
+            text_width=text_width,
+            text_heads=math.gcd(text_width, max(1, self.heads // 2)),
+            text_ffn=4 * self.width,
+            text_layers=self.text_layers,
+            max_frames=max_frames,
+            attention=kind,
+        )
 
 
 @dataclass(frozen=True)
@@ -123,8 +135,7 @@ def matrix_bytes(kind: str, frames: int, size: Size) -> int:
 def attention_call(kind: str, frames: int, size: Size) -> partial:
     """One call of ``kind``'s attention over ``frames`` positions, on inputs drawn once."""
     generator = torch.Generator().manual_seed(frames)
-    q, k, v = (torch.randn(BATCH, size.heads, frames, size.width // size.heads, generator=generator)
-               for _ in range(3))
+    q, k, v = (torch.randn(BATCH, size.heads, frames, size.width // size.heads, generator=generator) for _ in range(3))
     return partial(ATTEND[kind], q, k, v, torch.ones(BATCH, frames, dtype=torch.bool))
 
 
@@ -178,31 +189,44 @@ def measure_memory(settings: list[Setting], size: Size, max_frames: int, threads
     return probes
 
 
-def measure_times(settings: list[Setting], size: Size, max_frames: int, warmup: int,
-                  repeats: int) -> list[list[float]]:
+def measure_times(settings: list[Setting], size: Size, max_frames: int, warmup: int, repeats: int) -> list[list[float]]:
     """Seconds per call of every setting, in interleaved rounds after the warm-up calls."""
-    networks = ({kind: build_network(kind, size, max_frames) for kind in KINDS}
-                if any(s.scope == "network" for s in settings) else {})
+    networks = (
+        {kind: build_network(kind, size, max_frames) for kind in KINDS}
+        if any(s.scope == "network" for s in settings)
+        else {}
+    )
     if networks:
         networks["softmax"].load_state_dict(networks["linear"].state_dict())
-    runs = [attention_call(s.kind, s.frames, size) if s.scope == "attention"
-            else network_call(networks[s.kind], s.frames) for s in settings]
+    runs = [
+        attention_call(s.kind, s.frames, size) if s.scope == "attention" else network_call(networks[s.kind], s.frames)
+        for s in settings
+    ]
     with torch.no_grad():
         return interleaved_times(runs, warmup, repeats, torch.device("cpu"), desc="time")
 
 
 def machine() -> dict[str, Any]:
     """What the times were measured on, and how loaded it was (the machine may be shared)."""
-    return {"device": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-            "torch_threads": torch.get_num_threads(), "torch": torch.__version__, "load": list(os.getloadavg())}
+    return {
+        "device": platform.processor() or platform.machine(),
+        "cores": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "load": list(os.getloadavg()),
+    }
 
 
 def settings_of(args: argparse.Namespace) -> list[Setting]:
     """Every (scope, kind, length); the network's only up to ``--network-max-actions`` actions."""
     cap = args.network_max_actions or max(args.lengths_actions)
-    return [Setting(scope, kind, actions, actions * args.action_frames)
-            for scope in SCOPES for actions in args.lengths_actions for kind in KINDS
-            if scope == "attention" or actions <= cap]
+    return [
+        Setting(scope, kind, actions, actions * args.action_frames)
+        for scope in SCOPES
+        for actions in args.lengths_actions
+        for kind in KINDS
+        if scope == "attention" or actions <= cap
+    ]
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -215,49 +239,80 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     times = measure_times(settings, size, max_frames, args.warmup, args.repeats)
     with torch.device("meta"):  # shapes alone: nothing allocated or initialised
         parameters = sum(p.numel() for p in MotionDiffuseTransformer(size.config("linear", max_frames)).parameters())
-    rows = [{**asdict(s), "times": seconds, "median": statistics.median(seconds),
-             "spread": [min(seconds), max(seconds)], **probe, "matrix_bytes": matrix_bytes(s.kind, s.frames, size)}
-            for s, seconds, probe in zip(settings, times, probes)]
+    rows = [
+        {
+            **asdict(s),
+            "times": seconds,
+            "median": statistics.median(seconds),
+            "spread": [min(seconds), max(seconds)],
+            **probe,
+            "matrix_bytes": matrix_bytes(s.kind, s.frames, size),
+        }
+        for s, seconds, probe in zip(settings, times, probes)
+    ]
     return {
         "date": datetime.now().isoformat(timespec="minutes"),
         "machine": {**started, "load_after": list(os.getloadavg())},
-        "size": {**asdict(size), "network_config": size.config("linear", max_frames).to_dict(),
-                 "parameters": parameters, "batch": BATCH, "text_tokens": TEXT_TOKENS},
-        "settings": {"action_frames": args.action_frames, "lengths_actions": args.lengths_actions,
-                     "network_max_actions": args.network_max_actions, "warmup": args.warmup,
-                     "repeats": args.repeats},
+        "size": {
+            **asdict(size),
+            "network_config": size.config("linear", max_frames).to_dict(),
+            "parameters": parameters,
+            "batch": BATCH,
+            "text_tokens": TEXT_TOKENS,
+        },
+        "settings": {
+            "action_frames": args.action_frames,
+            "lengths_actions": args.lengths_actions,
+            "network_max_actions": args.network_max_actions,
+            "warmup": args.warmup,
+            "repeats": args.repeats,
+        },
         "rows": rows,
     }
 
 
 def mib(n: float) -> str:
-    return f"{n / 2 ** 20:.2f}"
+    return f"{n / 2**20:.2f}"
 
 
 def report(result: dict[str, Any]) -> str:
     """The measurements as Markdown: one table per scope, the kinds side by side."""
     info, size = result["machine"], result["size"]
-    lines = [f"{result['date']}; {info['device']}, {info['cores']} cores, {info['torch_threads']} torch threads, "
-             f"torch {info['torch']}; load average {info['load'][0]:.2f} before, {info['load_after'][0]:.2f} after; "
-             f"median [min–max] of {result['settings']['repeats']} calls after {result['settings']['warmup']} "
-             f"warm-up(s); peak RSS growth of one call in a fresh process",
-             f"- width {size['width']}, {size['heads']} heads, {size['layers']} layers, text {size['text_dim']}-d "
-             f"through {size['text_layers']} layers; network {size['parameters']:,} parameters; batch {size['batch']}"]
+    lines = [
+        f"{result['date']}; {info['device']}, {info['cores']} cores, {info['torch_threads']} torch threads, "
+        f"torch {info['torch']}; load average {info['load'][0]:.2f} before, {info['load_after'][0]:.2f} after; "
+        f"median [min–max] of {result['settings']['repeats']} calls after {result['settings']['warmup']} "
+        f"warm-up(s); peak RSS growth of one call in a fresh process",
+        f"- width {size['width']}, {size['heads']} heads, {size['layers']} layers, text {size['text_dim']}-d "
+        f"through {size['text_layers']} layers; network {size['parameters']:,} parameters; batch {size['batch']}",
+    ]
     for scope, title in (("attention", "One attention call"), ("network", "One forward pass of the whole network")):
         rows = {(row["kind"], row["frames"]): row for row in result["rows"] if row["scope"] == scope}
-        lines += ["", title, "",
-                  "| actions | frames | linear (ms) | softmax (ms) | softmax / linear | linear RSS growth (MiB) | "
-                  "softmax RSS growth (MiB) | softmax n×n matrix (MiB) |", "| --- " * 8 + "|"]
+        lines += [
+            "",
+            title,
+            "",
+            "| actions | frames | linear (ms) | softmax (ms) | softmax / linear | linear RSS growth (MiB) | "
+            "softmax RSS growth (MiB) | softmax n×n matrix (MiB) |",
+            "| --- " * 8 + "|",
+        ]
         for frames in dict.fromkeys(frames for _, frames in rows):
             linear, softmax = rows[("linear", frames)], rows[("softmax", frames)]
-            cells = [f"{1e3 * row['median']:.2f} [{1e3 * row['spread'][0]:.2f}–{1e3 * row['spread'][1]:.2f}]"
-                     for row in (linear, softmax)]
-            lines.append(f"| {linear['actions']} | {frames} | {' | '.join(cells)} | "
-                         f"{softmax['median'] / linear['median']:.2f} | {mib(linear['rss_growth'])} | "
-                         f"{mib(softmax['rss_growth'])} | {mib(softmax['matrix_bytes'])} |")
+            cells = [
+                f"{1e3 * row['median']:.2f} [{1e3 * row['spread'][0]:.2f}–{1e3 * row['spread'][1]:.2f}]"
+                for row in (linear, softmax)
+            ]
+            lines.append(
+                f"| {linear['actions']} | {frames} | {' | '.join(cells)} | "
+                f"{softmax['median'] / linear['median']:.2f} | {mib(linear['rss_growth'])} | "
+                f"{mib(softmax['rss_growth'])} | {mib(softmax['matrix_bytes'])} |"
+            )
     if result["settings"]["network_max_actions"]:
-        lines += ["", f"Whole-network rows capped at {result['settings']['network_max_actions']} actions "
-                  "(--network-max-actions)."]
+        lines += [
+            "",
+            f"Whole-network rows capped at {result['settings']['network_max_actions']} actions "
+            "(--network-max-actions).",
+        ]
     return "\n".join(lines + [""])
 
 
@@ -277,15 +332,36 @@ def plot(path: Path, result: dict[str, Any]) -> None:
                 continue
             marker, line = styles[scope]
             x = [row["frames"] for row in rows]
-            error = [[row["median"] - row["spread"][0] for row in rows],
-                     [row["spread"][1] - row["median"] for row in rows]]
-            timing.errorbar(x, [row["median"] for row in rows], yerr=error, marker=marker, linestyle=line, capsize=3,
-                            color=colours[kind], label=f"{kind}, {scope}")
-            memory.plot(x, [max(row["rss_growth"], 1) / 2 ** 20 for row in rows], marker=marker, linestyle=line,
-                        color=colours[kind], label=f"{kind}, {scope}: peak RSS growth")
+            error = [
+                [row["median"] - row["spread"][0] for row in rows],
+                [row["spread"][1] - row["median"] for row in rows],
+            ]
+            timing.errorbar(
+                x,
+                [row["median"] for row in rows],
+                yerr=error,
+                marker=marker,
+                linestyle=line,
+                capsize=3,
+                color=colours[kind],
+                label=f"{kind}, {scope}",
+            )
+            memory.plot(
+                x,
+                [max(row["rss_growth"], 1) / 2**20 for row in rows],
+                marker=marker,
+                linestyle=line,
+                color=colours[kind],
+                label=f"{kind}, {scope}: peak RSS growth",
+            )
     analytic = [row for row in result["rows"] if row["scope"] == "attention" and row["kind"] == "softmax"]
-    memory.plot([row["frames"] for row in analytic], [row["matrix_bytes"] / 2 ** 20 for row in analytic], color="k",
-                linestyle=":", label="softmax n×n matrix (analytic; one call, one layer)")
+    memory.plot(
+        [row["frames"] for row in analytic],
+        [row["matrix_bytes"] / 2**20 for row in analytic],
+        color="k",
+        linestyle=":",
+        label="softmax n×n matrix (analytic; one call, one layer)",
+    )
     frames = result["settings"]["action_frames"]
     info, size = result["machine"], result["size"]
     for axes, label in ((timing, "seconds per call: median, range"), (memory, "MiB")):
@@ -294,34 +370,61 @@ def plot(path: Path, result: dict[str, Any]) -> None:
         axes.legend(fontsize="x-small")
     timing.set_title("time", fontsize="medium")
     memory.set_title("memory of one call", fontsize="medium")
-    figure.suptitle(f"linear (eq. 8) against softmax attention, width {size['width']}, {size['heads']} heads, "
-                    f"{size['layers']} layers; {info['device']}, {info['torch_threads']} torch thread(s)",
-                    fontsize="medium")
+    figure.suptitle(
+        f"linear (eq. 8) against softmax attention, width {size['width']}, {size['heads']} heads, "
+        f"{size['layers']} layers; {info['device']}, {info['torch_threads']} torch thread(s)",
+        fontsize="medium",
+    )
     figure.savefig(path)
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--lengths-actions", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32],
-                        help="sequence lengths in actions")
-    parser.add_argument("--action-frames", type=int, default=98,
-                        help="frames per action (98 = 4.9 s at 20 fps, a median HumanML3D action)")
-    parser.add_argument("--network-max-actions", type=int, default=None,
-                        help="time the whole network only up to this many actions (default: every length)")
+    parser.add_argument(
+        "--lengths-actions", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32], help="sequence lengths in actions"
+    )
+    parser.add_argument(
+        "--action-frames",
+        type=int,
+        default=98,
+        help="frames per action (98 = 4.9 s at 20 fps, a median HumanML3D action)",
+    )
+    parser.add_argument(
+        "--network-max-actions",
+        type=int,
+        default=None,
+        help="time the whole network only up to this many actions (default: every length)",
+    )
     parser.add_argument("--warmup", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=os.cpu_count(), help="torch threads")
     size = Size()
     for name in ("width", "heads", "layers", "text_dim", "text_layers"):
-        parser.add_argument(f"--{name.replace('_', '-')}", type=int, default=getattr(size, name),
-                            help="the paper's by default")
+        parser.add_argument(
+            f"--{name.replace('_', '-')}", type=int, default=getattr(size, name), help="the paper's by default"
+        )
     parser.add_argument("--out", default="runs/bench/attention", help="where attention.json and attention.png go")
     args = parser.parse_args(argv)
-    if min(args.lengths_actions + [args.action_frames, args.repeats, args.threads, args.width, args.heads,
-                                   args.layers, args.text_dim, args.network_max_actions or 1]) < 1 \
-            or min(args.warmup, args.text_layers) < 0:
-        parser.error("lengths, frames, repeats, threads and sizes must be at least 1, --warmup and --text-layers "
-                     "at least 0")
+    if (
+        min(
+            args.lengths_actions
+            + [
+                args.action_frames,
+                args.repeats,
+                args.threads,
+                args.width,
+                args.heads,
+                args.layers,
+                args.text_dim,
+                args.network_max_actions or 1,
+            ]
+        )
+        < 1
+        or min(args.warmup, args.text_layers) < 0
+    ):
+        parser.error(
+            "lengths, frames, repeats, threads and sizes must be at least 1, --warmup and --text-layers at least 0"
+        )
     if args.width % args.heads:
         parser.error(f"--width ({args.width}) must be divisible by --heads ({args.heads})")
     args.lengths_actions = sorted(set(args.lengths_actions))

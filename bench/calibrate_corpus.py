@@ -25,8 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from m2d2m.evaluation.metrics import frame_jerk, jerk
-from pipelines.synthetic import make_clip
-from pipelines.synthetic import FPS, Texture
+from pipelines.synthetic import FPS, Texture, make_clip
 
 GROUPS = {
     "root": [0],
@@ -96,9 +95,9 @@ def solve_levels(clips: int, seed: int, real: dict[str, np.ndarray]) -> tuple[Te
         probed = group_spectra(synthetic(replace(Texture(), **{channel: probe}), clips, seed))
         for i, g in enumerate(CALIBRATED):
             response[i, j] = (probed[g][HIGH_BAND].mean() - smooth[g][HIGH_BAND].mean()) / probe**2
-    target = np.array([
-        band_ratio(real[g]) * smooth[g][LOW_BAND].mean() - smooth[g][HIGH_BAND].mean() for g in CALIBRATED
-    ])
+    target = np.array(
+        [band_ratio(real[g]) * smooth[g][LOW_BAND].mean() - smooth[g][HIGH_BAND].mean() for g in CALIBRATED]
+    )
     squares = _nnls(response, np.maximum(target, 0.0))
     levels = dict(zip(channels, np.sqrt(squares)))
     return Texture(**{k: float(f"{v:.3g}") for k, v in levels.items()}), smooth
@@ -140,14 +139,20 @@ def main() -> None:
         print(f"| {g} | {band_ratio(real[g]):.3f} | {band_ratio(smooth[g]):.3f} | {band_ratio(textured[g]):.3f} |")
 
     print("\nwhat the metrics see")
-    rows = {"real 012314": clip_statistics([real_joints]),
-            "synthetic, smooth": clip_statistics(synthetic(Texture(), args.clips, args.seed)),
-            "synthetic, textured": clip_statistics(textured_clips)}
-    print("| clips | Jerk windows | Jerk mean [p10, p90] | mean frame jerk (m/frame³) | speed first / middle / last (m/s) |")
+    rows = {
+        "real 012314": clip_statistics([real_joints]),
+        "synthetic, smooth": clip_statistics(synthetic(Texture(), args.clips, args.seed)),
+        "synthetic, textured": clip_statistics(textured_clips),
+    }
+    print(
+        "| clips | Jerk windows | Jerk mean [p10, p90] | mean frame jerk (m/frame³) | speed first / middle / last (m/s) |"
+    )
     print("| --- | --- | --- | --- | --- |")
     for name, s in rows.items():
-        print(f"| {name} | {s['windows']} | {s['jerk_mean']:.2f} [{s['jerk_p10']:.2f}, {s['jerk_p90']:.2f}] | "
-              f"{s['mean_frame_jerk']:.4f} | {s['speed_start']:.2f} / {s['speed_middle']:.2f} / {s['speed_end']:.2f} |")
+        print(
+            f"| {name} | {s['windows']} | {s['jerk_mean']:.2f} [{s['jerk_p10']:.2f}, {s['jerk_p90']:.2f}] | "
+            f"{s['mean_frame_jerk']:.4f} | {s['speed_start']:.2f} / {s['speed_middle']:.2f} / {s['speed_end']:.2f} |"
+        )
     print(f"(FlowMDM's HumanML3D test-set mean frame jerk: {FLOWMDM_HUMANML3D_MEAN_FRAME_JERK})")
     if args.figure:
         _plot(args.figure, real, smooth, textured)
@@ -162,8 +167,11 @@ def _plot(path: Path, real: dict, smooth: dict, textured: dict) -> None:
     FigureCanvasAgg(figure)
     for i, g in enumerate(GROUPS):
         ax = figure.add_subplot(1, len(GROUPS), i + 1)
-        for spectra, label, style in ((real, "real (012314)", "k-"), (smooth, "synthetic, smooth", "C0--"),
-                                      (textured, "synthetic, textured", "C1-")):
+        for spectra, label, style in (
+            (real, "real (012314)", "k-"),
+            (smooth, "synthetic, smooth", "C0--"),
+            (textured, "synthetic, textured", "C1-"),
+        ):
             s = spectra[g] / spectra[g][LOW_BAND].mean()
             ax.semilogy(FREQS[1:], s[1:], style, label=label)
         ax.set_title(g)

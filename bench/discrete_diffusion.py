@@ -13,11 +13,11 @@ import os
 from collections.abc import Callable
 
 import torch
+from timing import best_time
 
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser, guided_logits
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import diffusion_loss
-from timing import best_time
 
 CODES, STEPS, TOKENS, TEXT_TOKENS, TEXT_DIM = 512, 100, 49, 32, 512
 
@@ -49,6 +49,7 @@ class Bench:
                 logits = self.denoiser(z_t, None, self.t, self.text)
             diffusion_loss(schedule, logits.float(), self.z0, z_t, self.t).loss.backward()
             self.optimizer.step()
+
         return step
 
     def loss_only(self, schedule: TransitionSchedule) -> Callable[[], None]:
@@ -69,6 +70,7 @@ class Bench:
             x0 = guided_logits(cond.float(), uncond.float(), 2.0).exp()
             probs = schedule.posterior_probs(z, x0, step).clamp_min(0.0)
             torch.multinomial(probs.reshape(-1, CODES + 1), 1)
+
         return run
 
 
@@ -78,11 +80,13 @@ def main() -> None:
     torch.set_num_threads(2)
     torch.manual_seed(0)
     name = torch.cuda.get_device_name() if gpu else f"CPU, {os.cpu_count()} cores, 2 torch threads"
-    print(f"device: {name}; paper-size denoiser (12 layers x 512, 16 heads), K = {CODES}, T = {STEPS}, "
-          f"{TOKENS} tokens, {'bf16 autocast' if gpu else 'float32'}")
+    print(
+        f"device: {name}; paper-size denoiser (12 layers x 512, 16 heads), K = {CODES}, T = {STEPS}, "
+        f"{TOKENS} tokens, {'bf16 autocast' if gpu else 'float32'}"
+    )
     print("| measurement | dynamic β(t, d) | uniform β_t | dynamic / uniform |\n| --- | --- | --- | --- |")
     repeats = 10 if gpu else 3
-    for batch in ([32, 256] if gpu else [32]):
+    for batch in [32, 256] if gpu else [32]:
         bench = Bench(batch, device)
         schedules = {kind: bench.schedule(kind) for kind in ("dynamic", "uniform")}
         rows = {
@@ -92,8 +96,10 @@ def main() -> None:
         }
         for label, make in rows.items():
             times = {kind: best_time(make(schedule), repeats, device) for kind, schedule in schedules.items()}
-            print(f"| {label} | {1e3 * times['dynamic']:.1f} | {1e3 * times['uniform']:.1f} | "
-                  f"{times['dynamic'] / times['uniform']:.2f} |")
+            print(
+                f"| {label} | {1e3 * times['dynamic']:.1f} | {1e3 * times['uniform']:.1f} | "
+                f"{times['dynamic'] / times['uniform']:.2f} |"
+            )
         if batch == 32:
             single = Bench(1, device)
             step = best_time(single.sampling_step(single.schedule("dynamic")), repeats, device)

@@ -37,10 +37,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from stages import DATASET, RUNS, Progress, keeping_latest, run
+
 from orchestration.registry import model
 from orchestration.reports import GENERATED, GT_SINGLE, RECONSTRUCTION, cell
 from orchestration.train import SNAPSHOTS
-from stages import DATASET, RUNS, Progress, keeping_latest, run
 
 OUT = RUNS / "learning-curves"
 TESTSET = Path("data") / DATASET / "testsets" / "n4-seed0"
@@ -63,47 +64,92 @@ class Variant:
     repeats: int | None = None
 
 
-CURVES = {variant.key: variant for variant in (
-    Variant("m2d2m", "M2D2M (demo.yaml, ours; its 25 sampling steps)", "m2d2m"),
-    Variant("m2d2m-paper", "M2D2M (paper-demo.yaml)", "m2d2m", "paper-demo"),
-    Variant("mmm", "MMM", "mmm"),
-    Variant("motiondiffuse", "MotionDiffuse (paper-demo.yaml, ε; 100 respaced steps, 1 repeat)", "motiondiffuse",
-            "paper-demo", options=("steps=100",), repeats=1),
-    Variant("motiondiffuse-x0", "MotionDiffuse (demo.yaml, x0-prediction, ours; 100 respaced steps, 1 repeat)",
-            "motiondiffuse", options=("steps=100",), repeats=1),
-)}
+CURVES = {
+    variant.key: variant
+    for variant in (
+        Variant("m2d2m", "M2D2M (demo.yaml, ours; its 25 sampling steps)", "m2d2m"),
+        Variant("m2d2m-paper", "M2D2M (paper-demo.yaml)", "m2d2m", "paper-demo"),
+        Variant("mmm", "MMM", "mmm"),
+        Variant(
+            "motiondiffuse",
+            "MotionDiffuse (paper-demo.yaml, ε; 100 respaced steps, 1 repeat)",
+            "motiondiffuse",
+            "paper-demo",
+            options=("steps=100",),
+            repeats=1,
+        ),
+        Variant(
+            "motiondiffuse-x0",
+            "MotionDiffuse (demo.yaml, x0-prediction, ours; 100 respaced steps, 1 repeat)",
+            "motiondiffuse",
+            options=("steps=100",),
+            repeats=1,
+        ),
+    )
+}
 
 PAPER = "paper"
 ABLATION = (
     Variant(PAPER, "the paper's setting (paper-demo.yaml)", "m2d2m", "paper-demo"),
     Variant("mmm", "MMM (demo.yaml) on the same tokens: the target", "mmm"),
     Variant("truncation", "+ truncation r = 0.86 at sampling", "m2d2m", options=("truncation=0.86",), trained_as=PAPER),
-    Variant("guidance-3", "guidance s = 3 at sampling (VQ-Diffusion's scale 4)", "m2d2m", options=("guidance=3",),
-            trained_as=PAPER),
-    Variant("action-offsets", "+ offsets within the action (positions: action)", "m2d2m", "paper-demo",
-            ("denoiser.positions=action",)),
+    Variant(
+        "guidance-3",
+        "guidance s = 3 at sampling (VQ-Diffusion's scale 4)",
+        "m2d2m",
+        options=("guidance=3",),
+        trained_as=PAPER,
+    ),
+    Variant(
+        "action-offsets",
+        "+ offsets within the action (positions: action)",
+        "m2d2m",
+        "paper-demo",
+        ("denoiser.positions=action",),
+    ),
     Variant("aux-1", "+ auxiliary weight λ = 1 (paper 5e-4)", "m2d2m", "paper-demo", ("diffusion.aux_weight=1.0",)),
-    Variant("importance", "+ importance sampling of t", "m2d2m", "paper-demo",
-            ("diffusion.timestep_sampling=importance",)),
+    Variant(
+        "importance", "+ importance sampling of t", "m2d2m", "paper-demo", ("diffusion.timestep_sampling=importance",)
+    ),
     Variant("adaptive-aux", "+ adaptive auxiliary weight", "m2d2m", "paper-demo", ("diffusion.adaptive_aux=true",)),
-    Variant("absorbing", "+ absorbing schedule (VQ-Diffusion's endpoints)", "m2d2m", "paper-demo",
-            ("diffusion.schedule=absorbing",)),
+    Variant(
+        "absorbing",
+        "+ absorbing schedule (VQ-Diffusion's endpoints)",
+        "m2d2m",
+        "paper-demo",
+        ("diffusion.schedule=absorbing",),
+    ),
     Variant("ema", "+ EMA of the weights (decay 0.995 a step)", "m2d2m", "paper-demo", ("trainer.ema=0.995",)),
-    Variant("codebook", "+ codes embedded by their frozen codebook vectors (embedding: codebook)", "m2d2m",
-            "paper-demo", ("denoiser.embedding=codebook",)),
+    Variant(
+        "codebook",
+        "+ codes embedded by their frozen codebook vectors (embedding: codebook)",
+        "m2d2m",
+        "paper-demo",
+        ("denoiser.embedding=codebook",),
+    ),
     # every row samples with all 100 steps, the paper's sampler; demo.yaml's own default is fewer
     Variant("ours", "demo.yaml (ours: every change that measured better)", "m2d2m", options=("steps=100",)),
     # the same settings from another training seed: how far a row moves by chance alone
-    Variant("paper-seed", "the paper's setting, training seed 124 (chance alone)", "m2d2m", "paper-demo", ("seed=124",)),
-    Variant("ours-seed", "demo.yaml, training seed 124 (chance alone)", "m2d2m", overrides=("seed=124",),
-            options=("steps=100",)),
+    Variant(
+        "paper-seed", "the paper's setting, training seed 124 (chance alone)", "m2d2m", "paper-demo", ("seed=124",)
+    ),
+    Variant(
+        "ours-seed",
+        "demo.yaml, training seed 124 (chance alone)",
+        "m2d2m",
+        overrides=("seed=124",),
+        options=("steps=100",),
+    ),
 )
 
 
 def schedule_overrides(steps: int, snapshots: list[int] | None = None) -> list[str]:
     """The demo's schedule stretched to ``steps`` (decay at 75 %), with snapshots when given."""
-    settings = [f"trainer.max_steps={steps}", f"optim.milestones=[{int(0.75 * steps)}]",
-                f"trainer.val_every_steps={min(500, steps)}"]
+    settings = [
+        f"trainer.max_steps={steps}",
+        f"optim.milestones=[{int(0.75 * steps)}]",
+        f"trainer.val_every_steps={min(500, steps)}",
+    ]
     if snapshots:
         settings.append(f"trainer.snapshots=[{','.join(map(str, snapshots))}]")
     return [arg for setting in settings for arg in ("--set", setting)]
@@ -114,14 +160,25 @@ def train(progress: Progress, key: str, variant: Variant, steps: int, snapshots:
     entry = model(variant.model)
     sets = [arg for override in variant.overrides for arg in ("--set", override)]
     with keeping_latest(entry.stage):
-        return Path(progress.stage(key, entry.stage, str, entry.train_verb, "--config", variant.config, *sets,
-                                   *schedule_overrides(steps, snapshots),
-                                   resume=(entry.train_verb, "--config", variant.config, "--resume", "{run}")))
+        return Path(
+            progress.stage(
+                key,
+                entry.stage,
+                str,
+                entry.train_verb,
+                "--config",
+                variant.config,
+                *sets,
+                *schedule_overrides(steps, snapshots),
+                resume=(entry.train_verb, "--config", variant.config, "--resume", "{run}"),
+            )
+        )
 
 
 def judge(progress: Progress, key: str, variant: Variant, model_file: Path, repeats: int) -> dict[str, Any]:
     """The single-motion table of one model file: the generated row, the ground truth and (token
     models) the codec's ceiling, as ``{row: {metric: {mean, ci}}}``."""
+
     def rows(run_dir: Path) -> dict[str, Any]:
         single = json.loads((run_dir / "table.json").read_text(encoding="utf-8"))["single"]
         return {row: values for row, values in single.items() if row in (GENERATED, GT_SINGLE, RECONSTRUCTION)}
@@ -129,22 +186,44 @@ def judge(progress: Progress, key: str, variant: Variant, model_file: Path, repe
     options = [arg for option in variant.options for arg in ("--option", option)]
     repeats = min(repeats, variant.repeats or repeats)
     with keeping_latest("eval"):
-        return progress.stage(key, "eval", rows, "evaluate", "--dataset", DATASET, "--model", variant.model,
-                              "--checkpoint", str(model_file), "--testset", str(TESTSET), "--no-multi", "--single",
-                              "--repeats", str(repeats), *options,
-                              resume=("evaluate", "--dataset", DATASET, "--resume", "{run}"))
+        return progress.stage(
+            key,
+            "eval",
+            rows,
+            "evaluate",
+            "--dataset",
+            DATASET,
+            "--model",
+            variant.model,
+            "--checkpoint",
+            str(model_file),
+            "--testset",
+            str(TESTSET),
+            "--no-multi",
+            "--single",
+            "--repeats",
+            str(repeats),
+            *options,
+            resume=("evaluate", "--dataset", DATASET, "--resume", "{run}"),
+        )
 
 
-def curve(progress: Progress, variant: Variant, steps: list[int], repeats: int,
-          on_point: Callable[[str, dict[str, Any]], None]) -> None:
+def curve(
+    progress: Progress,
+    variant: Variant,
+    steps: list[int],
+    repeats: int,
+    on_point: Callable[[str, dict[str, Any]], None],
+) -> None:
     """Train the variant to the last of ``steps`` with snapshots, then judge each snapshot."""
     from training.callbacks import StepSnapshots  # Lightning: imported when a curve is measured, not at start-up
 
     run_dir = train(progress, f"curve/{variant.key}/train", variant, max(steps), steps)
     seconds = StepSnapshots.recorded(run_dir / SNAPSHOTS)
     for step in steps:
-        table = judge(progress, f"curve/{variant.key}/{step}", variant,
-                      run_dir / SNAPSHOTS / f"model-step{step}.pt", repeats)
+        table = judge(
+            progress, f"curve/{variant.key}/{step}", variant, run_dir / SNAPSHOTS / f"model-step{step}.pt", repeats
+        )
         on_point(variant.key, {"step": step, "seconds": seconds[str(step)], "table": table})
 
 
@@ -156,8 +235,9 @@ def ablation(progress: Progress, steps: int, repeats: int, on_row: Callable[[str
         if source not in runs:
             trained = next(v for v in ABLATION if v.key == source)
             runs[source] = train(progress, f"ablation/{source}/train", trained, steps)
-        table = judge(progress, f"ablation/{variant.key}", variant,
-                      runs[source] / model(variant.model).model_file, repeats)
+        table = judge(
+            progress, f"ablation/{variant.key}", variant, runs[source] / model(variant.model).model_file, repeats
+        )
         on_row(variant.key, table)
 
 
@@ -169,39 +249,69 @@ def _metric(table: dict[str, Any], metric: str, row: str = GENERATED) -> float |
 def report(results: dict[str, Any], settings: dict[str, Any]) -> str:
     """The Markdown report: each curve's points, then the ablation with each row's change of FID
     and R-Top3 against the paper's setting. Cells not measured yet read "–"."""
-    lines = ["# Learning curves and ablation on the embedded default", "",
-             f"Single-motion protocol on {TESTSET} ({settings['repeats']} repeats; mean ± 95 % CI).", ""]
+    lines = [
+        "# Learning curves and ablation on the embedded default",
+        "",
+        f"Single-motion protocol on {TESTSET} ({settings['repeats']} repeats; mean ± 95 % CI).",
+        "",
+    ]
     for key, points in results.get("curves", {}).items():
-        lines += [f"## {CURVES[key].label}", "", "| steps | seconds | " + " | ".join(t for _, t in COLUMNS) + " |",
-                  "| --- " * (len(COLUMNS) + 2) + "|"]
+        lines += [
+            f"## {CURVES[key].label}",
+            "",
+            "| steps | seconds | " + " | ".join(t for _, t in COLUMNS) + " |",
+            "| --- " * (len(COLUMNS) + 2) + "|",
+        ]
         for point in sorted(points, key=lambda p: p["step"]):
             generated = point["table"].get(GENERATED, {})
-            lines.append(f"| {point['step']} | {point['seconds']:.0f} | "
-                         + " | ".join(cell(generated.get(name)) for name, _ in COLUMNS) + " |")
+            lines.append(
+                f"| {point['step']} | {point['seconds']:.0f} | "
+                + " | ".join(cell(generated.get(name)) for name, _ in COLUMNS)
+                + " |"
+            )
         lines.append("")
     rows = results.get("ablation", {})
     if rows:
         paper = rows.get(PAPER, {})
-        lines += [f"## Ablation at {settings['ablation_steps']} steps", "",
-                  "| change | " + " | ".join(t for _, t in COLUMNS) + " | Δ FID | Δ R-Top3 |",
-                  "| --- " * (len(COLUMNS) + 3) + "|"]
+        lines += [
+            f"## Ablation at {settings['ablation_steps']} steps",
+            "",
+            "| change | " + " | ".join(t for _, t in COLUMNS) + " | Δ FID | Δ R-Top3 |",
+            "| --- " * (len(COLUMNS) + 3) + "|",
+        ]
         for variant in ABLATION:
             table = rows.get(variant.key)
             if table is None:
                 continue
             generated = table.get(GENERATED, {})
-            deltas = [None if _metric(table, m) is None or _metric(paper, m) is None
-                      else _metric(table, m) - _metric(paper, m) for m in ("fid", "r_top3")]
-            lines.append(f"| {variant.label} | " + " | ".join(cell(generated.get(name)) for name, _ in COLUMNS)
-                         + " | " + " | ".join("–" if d is None else f"{d:+.3f}" for d in deltas) + " |")
+            deltas = [
+                None
+                if _metric(table, m) is None or _metric(paper, m) is None
+                else _metric(table, m) - _metric(paper, m)
+                for m in ("fid", "r_top3")
+            ]
+            lines.append(
+                f"| {variant.label} | "
+                + " | ".join(cell(generated.get(name)) for name, _ in COLUMNS)
+                + " | "
+                + " | ".join("–" if d is None else f"{d:+.3f}" for d in deltas)
+                + " |"
+            )
         reference = next(iter(rows.values()))
-        for row, title in ((RECONSTRUCTION, "VQ-VAE reconstruction (the token models' ceiling)"),
-                           (GT_SINGLE, "ground truth")):
+        for row, title in (
+            (RECONSTRUCTION, "VQ-VAE reconstruction (the token models' ceiling)"),
+            (GT_SINGLE, "ground truth"),
+        ):
             if row in reference:
-                lines.append(f"| {title} | " + " | ".join(cell(reference[row].get(name)) for name, _ in COLUMNS)
-                             + " | | |")
-        lines += ["", "± is over the sampling repeats of one trained model; how far a row moves by chance in "
-                  "training is what the seed-124 rows show against their seed-123 twins.", ""]
+                lines.append(
+                    f"| {title} | " + " | ".join(cell(reference[row].get(name)) for name, _ in COLUMNS) + " | | |"
+                )
+        lines += [
+            "",
+            "± is over the sampling repeats of one trained model; how far a row moves by chance in "
+            "training is what the seed-124 rows show against their seed-123 twins.",
+            "",
+        ]
     lines += ["![FID and R-Top3 against training steps and seconds](curves.png)", ""]
     return "\n".join(lines)
 
@@ -236,8 +346,13 @@ def plot(path: Path, results: dict[str, Any]) -> None:
             ax = axes[row, column]
             for (row_name, which), value in references.items():
                 if which == metric:
-                    ax.axhline(value, linestyle="--", linewidth=1, color="grey" if row_name == GT_SINGLE else "black",
-                               label=labels[row_name])
+                    ax.axhline(
+                        value,
+                        linestyle="--",
+                        linewidth=1,
+                        color="grey" if row_name == GT_SINGLE else "black",
+                        label=labels[row_name],
+                    )
             ax.set(xlabel=x_label, title=title, xscale="log")
             if column == 0 and steps:  # the measured steps as plain numbers, no log-scale minor labels
                 ax.set_xticks(steps, [str(step) for step in steps])
@@ -259,13 +374,24 @@ def track(results: dict[str, Any], settings: dict[str, Any]) -> str:
 
     from orchestration.tracking import experiment_name, log_batch, tracked_run
 
-    metrics = [Metric(f"curve/{key}/{name}", value, 0, point["step"])
-               for key, points in results.get("curves", {}).items() for point in points
-               for name, _ in COLUMNS if (value := _metric(point["table"], name)) is not None]
-    metrics += [Metric(f"curve/{key}/seconds", point["seconds"], 0, point["step"])
-                for key, points in results.get("curves", {}).items() for point in points]
-    rows = {f"ablation/{key}/{name}": value for key, table in results.get("ablation", {}).items()
-            for name, _ in COLUMNS if (value := _metric(table, name)) is not None}
+    metrics = [
+        Metric(f"curve/{key}/{name}", value, 0, point["step"])
+        for key, points in results.get("curves", {}).items()
+        for point in points
+        for name, _ in COLUMNS
+        if (value := _metric(point["table"], name)) is not None
+    ]
+    metrics += [
+        Metric(f"curve/{key}/seconds", point["seconds"], 0, point["step"])
+        for key, points in results.get("curves", {}).items()
+        for point in points
+    ]
+    rows = {
+        f"ablation/{key}/{name}": value
+        for key, table in results.get("ablation", {}).items()
+        for name, _ in COLUMNS
+        if (value := _metric(table, name)) is not None
+    }
     tags = {"dataset": DATASET, "stage": "bench"}
     with tracked_run(experiment_name(DATASET, "bench"), "learning-curves", tags, settings) as (client, run_id):
         client.log_batch(run_id, metrics=metrics)
@@ -277,9 +403,13 @@ def track(results: dict[str, Any], settings: dict[str, Any]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--curves", nargs="*",
-                        default=["m2d2m", "m2d2m-paper", "mmm", "motiondiffuse", "motiondiffuse-x0"],
-                        choices=list(CURVES), help="the models whose learning curves to measure")
+    parser.add_argument(
+        "--curves",
+        nargs="*",
+        default=["m2d2m", "m2d2m-paper", "mmm", "motiondiffuse", "motiondiffuse-x0"],
+        choices=list(CURVES),
+        help="the models whose learning curves to measure",
+    )
     parser.add_argument("--steps", type=int, nargs="+", default=[500, 1000, 2000, 4000, 8000])
     parser.add_argument("--ablation", action="store_true", help="also the ablation table (about 10 minutes a row)")
     parser.add_argument("--ablation-steps", type=int, default=2000)
@@ -289,8 +419,11 @@ def main() -> None:
     args = parser.parse_args()
     steps = [20, 40] if args.quick else sorted(set(args.steps))
     # what the recorded results depend on; which curves and whether the ablation run is each call's choice
-    settings = {"steps": steps, "ablation_steps": 40 if args.quick else args.ablation_steps,
-                "repeats": 1 if args.quick else args.repeats}
+    settings = {
+        "steps": steps,
+        "ablation_steps": 40 if args.quick else args.ablation_steps,
+        "repeats": 1 if args.quick else args.repeats,
+    }
     progress = Progress(OUT / "state.json", settings, args.restart)
     results: dict[str, Any] = progress.state.setdefault("results", {"curves": {}, "ablation": {}})
 

@@ -55,7 +55,9 @@ def stage_throughput(workers: int, rows: list[dict]) -> float:
     with tempfile.TemporaryDirectory() as out:
         config = DataConfig(dataset="synthetic", raw=str(RAW), out=out, workers=workers, samples_per_shard=500)
         started = time.perf_counter()
-        results = run_shard_tasks(config, plan_shards(rows, config.samples_per_shard, make_mirror=True), make_mirror=True)
+        results = run_shard_tasks(
+            config, plan_shards(rows, config.samples_per_shard, make_mirror=True), make_mirror=True
+        )
         elapsed = time.perf_counter() - started
     assert sum(r["counts"]["inputs_seen"] for r in results) == len(rows)
     return len(rows) / elapsed

@@ -32,14 +32,21 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from orchestration.reports import cell, plot_against_knob
 from stages import DATASET, RUNS, Progress, run
+
+from orchestration.reports import cell, plot_against_knob
 
 TESTSET = Path("data") / DATASET / "testsets" / "n4-seed0-distinct"
 OUT = RUNS / "reproduction"
 TRANSITIONS = {"uniform": "β_t (uniform)", "dynamic": "β(t, d) (dynamic)"}
-COLUMNS = (("fid", "FID ↓"), ("transition_fid", "Transition FID ↓"), ("jerk", "Jerk →"),
-           ("peak_jerk", "PJ →"), ("auj", "AUJ ↓"), ("r_top3", "R-Top3 ↑"))
+COLUMNS = (
+    ("fid", "FID ↓"),
+    ("transition_fid", "Transition FID ↓"),
+    ("jerk", "Jerk →"),
+    ("peak_jerk", "PJ →"),
+    ("auj", "AUJ ↓"),
+    ("r_top3", "R-Top3 ↑"),
+)
 
 
 @dataclass(frozen=True)
@@ -56,41 +63,92 @@ def _plain(scale: Scale) -> dict[str, Any]:
 
 def schedule_overrides(steps: int) -> list[str]:
     """The demo's schedule stretched to ``steps``: warm-up as before, the decay at 80 %."""
-    return ["--set", f"trainer.max_steps={steps}", "--set", f"optim.milestones=[{int(0.8 * steps)}]",
-            "--set", f"trainer.val_every_steps={max(steps // 6, 1)}"]
+    return [
+        "--set",
+        f"trainer.max_steps={steps}",
+        "--set",
+        f"optim.milestones=[{int(0.8 * steps)}]",
+        "--set",
+        f"trainer.val_every_steps={max(steps // 6, 1)}",
+    ]
 
 
 def train(scale: Scale, progress: Progress) -> dict[str, Path]:
     """The VQ-VAE, its tokens, the evaluator and one denoiser per transition kind."""
+
     def model_file(name: str) -> Callable[[Path], str]:
         return lambda run_dir: str(run_dir / name)
 
-    vq = progress.stage("vq", "vq", model_file("vq.pt"), "train-vq", "--config", "demo",
-                        *schedule_overrides(scale.vq_steps),
-                        resume=("train-vq", "--config", "demo", "--resume", "{run}"))
+    vq = progress.stage(
+        "vq",
+        "vq",
+        model_file("vq.pt"),
+        "train-vq",
+        "--config",
+        "demo",
+        *schedule_overrides(scale.vq_steps),
+        resume=("train-vq", "--config", "demo", "--resume", "{run}"),
+    )
     run("tokenize", "--vq", vq)
-    progress.stage("evaluator", "evaluator", model_file("evaluator.pt"), "train-evaluator", "--config", "demo",
-                   resume=("train-evaluator", "--config", "demo", "--resume", "{run}"))
+    progress.stage(
+        "evaluator",
+        "evaluator",
+        model_file("evaluator.pt"),
+        "train-evaluator",
+        "--config",
+        "demo",
+        resume=("train-evaluator", "--config", "demo", "--resume", "{run}"),
+    )
     models = {}
     for kind in TRANSITIONS:
-        models[kind] = Path(progress.stage(
-            f"denoiser/{kind}", "m2d2m", model_file("model.pt"), "train-diffusion", "--config", "paper-demo",
-            "--set", f"vq={vq}", "--set", f"diffusion.kind={kind}", *schedule_overrides(scale.diffusion_steps),
-            resume=("train-diffusion", "--config", "paper-demo", "--resume", "{run}")))
+        models[kind] = Path(
+            progress.stage(
+                f"denoiser/{kind}",
+                "m2d2m",
+                model_file("model.pt"),
+                "train-diffusion",
+                "--config",
+                "paper-demo",
+                "--set",
+                f"vq={vq}",
+                "--set",
+                f"diffusion.kind={kind}",
+                *schedule_overrides(scale.diffusion_steps),
+                resume=("train-diffusion", "--config", "paper-demo", "--resume", "{run}"),
+            )
+        )
     return models
 
 
-def evaluate(progress: Progress, key: str, model: Path, methods: Sequence[str], ts: int,
-             repeats: int) -> dict[str, Any]:
+def evaluate(
+    progress: Progress, key: str, model: Path, methods: Sequence[str], ts: int, repeats: int
+) -> dict[str, Any]:
     """One `m2d2m evaluate` run (multi-motion table only), or the rest of an interrupted one;
     its table.json's multi-motion rows."""
+
     def table(run_dir: Path) -> dict[str, Any]:
         return json.loads((run_dir / "table.json").read_text(encoding="utf-8"))["multi"]
 
-    return progress.stage(key, "eval", table, "evaluate", "--dataset", DATASET, "--checkpoint", str(model),
-                          "--testset", str(TESTSET), "--method", ",".join(methods), "--ts", str(ts),
-                          "--repeats", str(repeats), "--no-single",
-                          resume=("evaluate", "--dataset", DATASET, "--resume", "{run}"))
+    return progress.stage(
+        key,
+        "eval",
+        table,
+        "evaluate",
+        "--dataset",
+        DATASET,
+        "--checkpoint",
+        str(model),
+        "--testset",
+        str(TESTSET),
+        "--method",
+        ",".join(methods),
+        "--ts",
+        str(ts),
+        "--repeats",
+        str(repeats),
+        "--no-single",
+        resume=("evaluate", "--dataset", DATASET, "--resume", "{run}"),
+    )
 
 
 def table(rows: list[tuple[str, dict[str, Any]]]) -> list[str]:
@@ -102,24 +160,39 @@ def table(rows: list[tuple[str, dict[str, Any]]]) -> list[str]:
 def report(results: dict[str, dict[int, dict[str, Any]]], baselines: dict[str, Any], scale: Scale) -> str:
     """The Markdown report: Tables 5 and 6, the T_s table behind the curve, the ground truth.
     Cells not measured yet read "–", so a report written midway is already readable."""
+
     def tps(kind: str, ts: int) -> dict[str, Any]:
         return results.get(kind, {}).get(ts, {}).get("tps", {})
 
-    lines = ["# Reproduction on the embedded default", "",
-             f"VQ-VAE {scale.vq_steps} steps, denoisers {scale.diffusion_steps} steps each; test set "
-             f"{TESTSET} (N = 4); mean ± 95 % CI over {scale.repeats} repeats.", "",
-             "## Table 5: transition × T_s", ""]
+    lines = [
+        "# Reproduction on the embedded default",
+        "",
+        f"VQ-VAE {scale.vq_steps} steps, denoisers {scale.diffusion_steps} steps each; test set "
+        f"{TESTSET} (N = 4); mean ± 95 % CI over {scale.repeats} repeats.",
+        "",
+        "## Table 5: transition × T_s",
+        "",
+    ]
     lines += table([(f"{TRANSITIONS[k]}, T_s = {ts}", tps(k, ts)) for k in TRANSITIONS for ts in (100, 90)])
     lines += ["", "## Table 6: multi-motion methods on the β(t, d) model", ""]
-    lines += table([("handshake", baselines.get("handshake", {})), ("slerp", baselines.get("slerp", {})),
-                    ("TPS, T_s = 90", tps("dynamic", 90))])
+    lines += table(
+        [
+            ("handshake", baselines.get("handshake", {})),
+            ("slerp", baselines.get("slerp", {})),
+            ("TPS, T_s = 90", tps("dynamic", 90)),
+        ]
+    )
     # every evaluation measures the same reference rows; take them from any finished one
     measured = [baselines] + [r for runs in results.values() for r in runs.values()]
     reference = next((m for m in measured if "gt_single" in m), {})
     lines += ["", "## Ground truth and the codec's ceiling", ""]
-    lines += table([("ground truth (single)", reference.get("gt_single", {})),
-                    ("ground truth (concat)", reference.get("gt_concat", {})),
-                    ("VQ-VAE reconstruction", reference.get("reconstruction", {}))])
+    lines += table(
+        [
+            ("ground truth (single)", reference.get("gt_single", {})),
+            ("ground truth (concat)", reference.get("gt_concat", {})),
+            ("VQ-VAE reconstruction", reference.get("reconstruction", {})),
+        ]
+    )
     lines += ["", "## Jerk and FID against T_s (TPS; T_s = 100 is independent sampling)", ""]
     lines += table([(f"{TRANSITIONS[k]}, T_s = {ts}", tps(k, ts)) for k in TRANSITIONS for ts in scale.ts])
     lines += ["", "![Jerk and FID against T_s](ts-curve.png)", ""]
@@ -128,9 +201,13 @@ def report(results: dict[str, dict[int, dict[str, Any]]], baselines: dict[str, A
 
 def plot(path: Path, results: dict[str, dict[int, dict[str, Any]]]) -> None:
     """Jerk and FID against T_s, one line per transition, with the 95 % intervals as bars."""
-    series = {metric: {label: [(ts, r["tps"][metric]["mean"], r["tps"][metric]["ci"])
-                               for ts, r in results.get(kind, {}).items()]
-                       for kind, label in TRANSITIONS.items()} for metric in ("jerk", "fid")}
+    series = {
+        metric: {
+            label: [(ts, r["tps"][metric]["mean"], r["tps"][metric]["ci"]) for ts, r in results.get(kind, {}).items()]
+            for kind, label in TRANSITIONS.items()
+        }
+        for metric in ("jerk", "fid")
+    }
     plot_against_knob(path, series, "T_s (joint phase for t > T_s)")
 
 
@@ -143,8 +220,11 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="toy sizes: checks the pipeline in minutes")
     parser.add_argument("--restart", action="store_true", help="start over instead of continuing a stopped run")
     args = parser.parse_args()
-    scale = (Scale(60, 60, 2, (90, 100)) if args.quick
-             else Scale(args.vq_steps, args.diffusion_steps, args.repeats, tuple(sorted({*args.ts, 90, 100}))))
+    scale = (
+        Scale(60, 60, 2, (90, 100))
+        if args.quick
+        else Scale(args.vq_steps, args.diffusion_steps, args.repeats, tuple(sorted({*args.ts, 90, 100})))
+    )
 
     progress = Progress(OUT / "state.json", _plain(scale), args.restart)
     run("synthesize", "--out", f"data/raw/{DATASET}", "--clips", "2000", "--seed", "0")
@@ -159,8 +239,9 @@ def main() -> None:
     order += [(kind, ts) for ts in scale.ts if ts not in (90, 100) for kind in models]
     for kind, ts in order:
         if kind == "baselines":
-            baselines = evaluate(progress, "eval/baselines", models["dynamic"], ["handshake", "slerp"], ts,
-                                 scale.repeats)
+            baselines = evaluate(
+                progress, "eval/baselines", models["dynamic"], ["handshake", "slerp"], ts, scale.repeats
+            )
         else:
             results[kind][ts] = evaluate(progress, f"eval/{kind}/{ts}", models[kind], ["tps"], ts, scale.repeats)
         plot(OUT / "ts-curve.png", results)

@@ -16,13 +16,13 @@ import os
 
 import numpy as np
 import torch
+from timing import wall_time
 
-from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler
+from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import LearnedTextEncoder
-from timing import wall_time
 
 CODES, STEPS, TS, TOKENS = 512, 100, 90, 49
 SHORT = 4  # steps of the short schedules used to time one step of each phase
@@ -47,7 +47,9 @@ def main() -> None:
     autocast = torch.autocast("cuda", dtype=torch.bfloat16, enabled=gpu)
     counts = [1, 2, 4, 8, 16, 32]
     print(f"device: {name}; {TOKENS} tokens (196 frames) per action, T = {STEPS}, T_s = {TS}, guidance 2")
-    print("| N actions | motion (s) | joint step (ms) | independent step (ms) | TPS, T = 100 (s) | measured full run (s) |")
+    print(
+        "| N actions | motion (s) | joint step (ms) | independent step (ms) | TPS, T = 100 (s) | measured full run (s) |"
+    )
     print("| --- | --- | --- | --- | --- | --- |")
     totals = []
     for n in counts:
@@ -55,7 +57,9 @@ def main() -> None:
         with autocast:
             short.sample(request, M2D2MOptions(ts=0))  # warm-up
             joint = min(wall_time(lambda: short.sample(request, M2D2MOptions(ts=0)), device) for _ in range(2)) / SHORT
-            indep = min(wall_time(lambda: short.sample(request, M2D2MOptions(ts=SHORT)), device) for _ in range(2)) / SHORT
+            indep = (
+                min(wall_time(lambda: short.sample(request, M2D2MOptions(ts=SHORT)), device) for _ in range(2)) / SHORT
+            )
             measured = wall_time(lambda: full.sample(request, M2D2MOptions(ts=TS)), device) if (gpu or n <= 2) else None
         total = (STEPS - TS) * joint + TS * indep
         totals.append(total)
@@ -66,8 +70,10 @@ def main() -> None:
     r2 = 1.0 - np.sum((np.asarray(totals) - predicted) ** 2) / np.sum((np.asarray(totals) - np.mean(totals)) ** 2)
     actions = MMM_SECONDS / (196 / 20)
     print(f"\nlinear fit: time = {slope:.3f} s × N + {intercept:.3f} s (R² = {r2:.4f})")
-    print(f"MMM's 10.9 min of motion = {actions:.0f} actions of 196 frames: {slope * actions + intercept:.1f} s here "
-          f"(MMM: {MMM_WALL} s on an RTX A5000)")
+    print(
+        f"MMM's 10.9 min of motion = {actions:.0f} actions of 196 frames: {slope * actions + intercept:.1f} s here "
+        f"(MMM: {MMM_WALL} s on an RTX A5000)"
+    )
 
 
 if __name__ == "__main__":

@@ -54,8 +54,10 @@ class Progress:
         self.path = path
         recorded = json.loads(path.read_text(encoding="utf-8")) if path.exists() and not restart else None
         if recorded is not None and recorded["scale"] != settings:
-            raise SystemExit(f"{path} records a run at other settings ({recorded['scale']}); "
-                             "run it with the same arguments to continue, or add --restart to start over")
+            raise SystemExit(
+                f"{path} records a run at other settings ({recorded['scale']}); "
+                "run it with the same arguments to continue, or add --restart to start over"
+            )
         self.state = recorded or {"scale": settings, "started": {}, "finished": {}}
         self._write()
 
@@ -91,8 +93,11 @@ class Progress:
         if since is None or not folder.exists():
             return None
         infos = [(read_run_info(p), p) for p in folder.iterdir() if (p / "run.json").exists()]
-        runs = [(info.get("started", 0.0), p) for info, p in infos
-                if info.get("started", 0.0) >= since and info.get("pid") == process]
+        runs = [
+            (info.get("started", 0.0), p)
+            for info, p in infos
+            if info.get("started", 0.0) >= since and info.get("pid") == process
+        ]
         return max(runs)[1] if runs else None
 
     def _write(self) -> None:

@@ -30,8 +30,9 @@ def best_time(run: Callable[[], object], repeats: int, device: torch.device) -> 
     return min(wall_time(run, device) for _ in range(repeats))
 
 
-def interleaved_times(runs: list[Callable[[], object]], warmup: int, repeats: int, device: torch.device,
-                      desc: str = "timing") -> list[list[float]]:
+def interleaved_times(
+    runs: list[Callable[[], object]], warmup: int, repeats: int, device: torch.device, desc: str = "timing"
+) -> list[list[float]]:
     """Each run's wall times over ``repeats`` rounds that call every run once, after ``warmup``
     untimed calls of each (first calls allocate and pick kernels), in seconds: on a shared
     machine, load that comes and goes then slows every run alike rather than all the calls of a few."""
@@ -48,8 +49,13 @@ def interleaved_times(runs: list[Callable[[], object]], warmup: int, repeats: in
     return times
 
 
-def publish(out: Path, name: str, result: dict[str, Any], plot: Callable[[Path, dict[str, Any]], None],
-            report: Callable[[dict[str, Any]], str]) -> None:
+def publish(
+    out: Path,
+    name: str,
+    result: dict[str, Any],
+    plot: Callable[[Path, dict[str, Any]], None],
+    report: Callable[[dict[str, Any]], str],
+) -> None:
     """Write a bench's ``<name>.json`` and ``<name>.png`` into ``out`` and print its Markdown report."""
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")

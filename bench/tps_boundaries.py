@@ -110,9 +110,14 @@ def repeats_for(sigma: float, instances: int, half_width: float = POWER_TARGET) 
 def another_seed(independent: Paired, instances: int) -> np.ndarray:
     """:func:`changed_by_distance` between each seed's sequences and the next seed's of the same
     instances (seed-major order): the share of tokens two draws of the model differ in anyway."""
+
     def part(chosen: slice) -> Paired:
-        return Paired(independent.tokens[chosen], independent.token_boundaries[chosen],
-                      independent.boundary_jerk[chosen], independent.middle_jerk[chosen])
+        return Paired(
+            independent.tokens[chosen],
+            independent.token_boundaries[chosen],
+            independent.boundary_jerk[chosen],
+            independent.middle_jerk[chosen],
+        )
 
     return changed_by_distance(part(slice(instances, None)), part(slice(None, -instances)))
 
@@ -154,44 +159,89 @@ def main(argv: list[str] | None = None) -> None:
         changed = curves[f"T_s = {ts}"] = changed_by_distance(tps, independent)
         boundary = paired_difference(tps.boundary_jerk, independent.boundary_jerk)
         middle = paired_difference(tps.middle_jerk, independent.middle_jerk)
-        per_boundary = [paired_difference(tps.boundary_jerk[:, k], independent.boundary_jerk[:, k])
-                        for k in range(tps.boundary_jerk.shape[1])]
-        rows.append((ts, 1 - float(schedule.gamma_bar[ts]), float(schedule.alpha_bar[ts]), changed,
-                     boundary, middle, per_boundary))
+        per_boundary = [
+            paired_difference(tps.boundary_jerk[:, k], independent.boundary_jerk[:, k])
+            for k in range(tps.boundary_jerk.shape[1])
+        ]
+        rows.append(
+            (
+                ts,
+                1 - float(schedule.gamma_bar[ts]),
+                float(schedule.alpha_bar[ts]),
+                changed,
+                boundary,
+                middle,
+                per_boundary,
+            )
+        )
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    text = report(rows, spreads, curves.get("independent, another seed"), len(testset), args.seeds,
-                  float(np.nanmean(independent.boundary_jerk)), float(np.nanmean(independent.middle_jerk)),
-                  schedule.steps, args)
+    text = report(
+        rows,
+        spreads,
+        curves.get("independent, another seed"),
+        len(testset),
+        args.seeds,
+        float(np.nanmean(independent.boundary_jerk)),
+        float(np.nanmean(independent.middle_jerk)),
+        schedule.steps,
+        args,
+    )
     (out / "boundaries.md").write_text(text, encoding="utf-8")
     plot(out / "boundaries.png", curves)
     print(text)
 
 
-def report(rows, spreads: dict[str, float], reference: np.ndarray | None, instances: int, seeds: int,
-           independent_boundary: float, independent_middle: float, steps: int, args: argparse.Namespace) -> str:
+def report(
+    rows,
+    spreads: dict[str, float],
+    reference: np.ndarray | None,
+    instances: int,
+    seeds: int,
+    independent_boundary: float,
+    independent_middle: float,
+    steps: int,
+    args: argparse.Namespace,
+) -> str:
     pm = "{:+.3f} ± {:.3f}".format
-    lines = [f"# TPS against independent sampling, paired ({args.checkpoint}, {args.testset})", "",
-             f"{instances} instances × {seeds} seeds; T = {steps}. Independent sampling (T_s = T): Jerk "
-             f"{independent_boundary:.3f} at the boundaries, {independent_middle:.3f} in the middles of the actions.",
-             "", "| T_s | decided at T_s (1 − γ̄) | data at T_s (ᾱ) | tokens changed: next to a boundary | "
-             f"3 tokens away | ≥ {NEAREST} away | Δ Jerk, boundaries | Δ Jerk, middles (control) | "
-             "Δ Jerk per boundary (1st, 2nd, …) |", "| --- " * 9 + "|"]
+    lines = [
+        f"# TPS against independent sampling, paired ({args.checkpoint}, {args.testset})",
+        "",
+        f"{instances} instances × {seeds} seeds; T = {steps}. Independent sampling (T_s = T): Jerk "
+        f"{independent_boundary:.3f} at the boundaries, {independent_middle:.3f} in the middles of the actions.",
+        "",
+        "| T_s | decided at T_s (1 − γ̄) | data at T_s (ᾱ) | tokens changed: next to a boundary | "
+        f"3 tokens away | ≥ {NEAREST} away | Δ Jerk, boundaries | Δ Jerk, middles (control) | "
+        "Δ Jerk per boundary (1st, 2nd, …) |",
+        "| --- " * 9 + "|",
+    ]
     for ts, decided, data, changed, boundary, middle, per_boundary in rows:
-        lines.append(f"| {ts} | {decided:.3f} | {data:.3f} | {changed[0]:.3f} | {changed[3]:.3f} | "
-                     f"{changed[NEAREST]:.3f} | {pm(*boundary)} | {pm(*middle)} | "
-                     + ", ".join(pm(*b) for b in per_boundary) + " |")
+        lines.append(
+            f"| {ts} | {decided:.3f} | {data:.3f} | {changed[0]:.3f} | {changed[3]:.3f} | "
+            f"{changed[NEAREST]:.3f} | {pm(*boundary)} | {pm(*middle)} | "
+            + ", ".join(pm(*b) for b in per_boundary)
+            + " |"
+        )
     if reference is not None:
-        lines.append(f"| independent, another seed | | | {reference[0]:.3f} | {reference[3]:.3f} | "
-                     f"{reference[NEAREST]:.3f} | | | |")
-    lines += ["", "Δ = TPS minus independent sampling on the same instance and seed; ± is the 95 % half-width "
-              "over the pairs. Tokens changed: the share that differs from independent sampling at the same "
-              "seed (last row: between two seeds of independent sampling).", "",
-              "![tokens changed by distance from the boundary](boundaries.png)", "",
-              f"Power: σ is a sequence's Jerk's seed-to-seed standard deviation; R is the number of repeats "
-              f"of these {instances} instances that gives `m2d2m evaluate` a Jerk half-width of {POWER_TARGET}.",
-              "", "| sampling | σ | R |", "| --- | --- | --- |"]
+        lines.append(
+            f"| independent, another seed | | | {reference[0]:.3f} | {reference[3]:.3f} | "
+            f"{reference[NEAREST]:.3f} | | | |"
+        )
+    lines += [
+        "",
+        "Δ = TPS minus independent sampling on the same instance and seed; ± is the 95 % half-width "
+        "over the pairs. Tokens changed: the share that differs from independent sampling at the same "
+        "seed (last row: between two seeds of independent sampling).",
+        "",
+        "![tokens changed by distance from the boundary](boundaries.png)",
+        "",
+        f"Power: σ is a sequence's Jerk's seed-to-seed standard deviation; R is the number of repeats "
+        f"of these {instances} instances that gives `m2d2m evaluate` a Jerk half-width of {POWER_TARGET}.",
+        "",
+        "| sampling | σ | R |",
+        "| --- | --- | --- |",
+    ]
     lines += [f"| {name} | {sigma:.3f} | {repeats_for(sigma, instances)} |" for name, sigma in spreads.items()]
     lines += [""]
     return "\n".join(lines)
@@ -205,8 +255,12 @@ def plot(path: Path, curves: dict[str, np.ndarray]) -> None:
     for label, changed in curves.items():
         style = {"color": "black", "linestyle": "--"} if label.startswith("independent") else {}
         axes.plot(np.arange(NEAREST + 1), changed, marker="o", label=label, **style)
-    axes.set(xlabel=f"tokens from the nearest boundary (last point: {NEAREST} or more)",
-             ylabel="share of tokens ≠ independent", title="Where the joint phase changes tokens", ylim=(0, 1))
+    axes.set(
+        xlabel=f"tokens from the nearest boundary (last point: {NEAREST} or more)",
+        ylabel="share of tokens ≠ independent",
+        title="Where the joint phase changes tokens",
+        ylim=(0, 1),
+    )
     axes.grid(alpha=0.3)
     axes.legend(fontsize="small")
     figure.savefig(path)

@@ -48,7 +48,14 @@ def training_throughput(datamodule: MotionWindowDataModule, gpu: bool) -> float:
     defaults.pop("feature_dim")
     module = VQVAEModule(
         defaults,
-        {"lr": 2e-4, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1000, "milestones": [200000], "gamma": 0.05},
+        {
+            "lr": 2e-4,
+            "betas": [0.9, 0.99],
+            "weight_decay": 0.0,
+            "warmup_steps": 1000,
+            "milestones": [200000],
+            "gamma": 0.05,
+        },
         {"recon": 1.0, "joint": 0.5, "commit": 0.02},
         datamodule.feature_dim,
         datamodule.skeleton,
@@ -56,9 +63,16 @@ def training_throughput(datamodule: MotionWindowDataModule, gpu: bool) -> float:
     module.set_normalizer(datamodule.normalizer)
     timer = _StepTimer()
     trainer = pl.Trainer(
-        max_steps=WARMUP + MEASURED, accelerator="gpu" if gpu else "cpu", devices=1,
-        precision="bf16-mixed" if gpu else "32-true", logger=False, enable_checkpointing=False,
-        enable_progress_bar=False, enable_model_summary=False, limit_val_batches=0, callbacks=[timer],
+        max_steps=WARMUP + MEASURED,
+        accelerator="gpu" if gpu else "cpu",
+        devices=1,
+        precision="bf16-mixed" if gpu else "32-true",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+        callbacks=[timer],
     )
     trainer.fit(module, datamodule=datamodule)
     return MEASURED * datamodule.batch_size / (timer.finished - timer.started)
@@ -70,15 +84,21 @@ def main() -> None:
     batch = 256 if gpu else 32
     workers = min(8, os.cpu_count() or 1) if gpu else 2
     device = torch.cuda.get_device_name() if gpu else f"CPU, {os.cpu_count()} cores, 2 torch threads"
-    print(f"device: {device}; batch {batch}, window 64; paper-size VQ-VAE "
-          f"(width {VQConfig().width}, {VQConfig().codebook_size} codes)")
+    print(
+        f"device: {device}; batch {batch}, window 64; paper-size VQ-VAE "
+        f"(width {VQConfig().width}, {VQConfig().codebook_size} codes)"
+    )
     print("| measurement | samples/s |\n| --- | --- |")
     for num_workers in sorted({0, workers}):
-        datamodule = MotionWindowDataModule(DATA, window=64, batch_size=batch, num_workers=num_workers, steps_per_epoch=10_000)
+        datamodule = MotionWindowDataModule(
+            DATA, window=64, batch_size=batch, num_workers=num_workers, steps_per_epoch=10_000
+        )
         training = training_throughput(datamodule, gpu)
         loader = loader_throughput(datamodule, batches=100)
         print(f"| training, Lightning loop with the WebDataset loader, {num_workers} loader workers | {training:.1f} |")
-        print(f"| data loader alone, {num_workers} workers | {loader:.0f} ({loader / training:.0f}× what training consumes) |")
+        print(
+            f"| data loader alone, {num_workers} workers | {loader:.0f} ({loader / training:.0f}× what training consumes) |"
+        )
 
 
 if __name__ == "__main__":

@@ -26,7 +26,6 @@ from m2d2m.motion.skeleton import SKELETONS
 from m2d2m.motion.smoothing import gaussian_smooth
 from m2d2m.networks.vqvae import load_vq
 
-
 SPECTRUM_FRAMES = 56  # the error spectrum's window: every clip of ≥ 60 frames has it
 
 
@@ -73,7 +72,8 @@ def main() -> None:
         for s in args.sigmas:
             smoothed = features_to_joints(gaussian_smooth(decoded, s).astype(np.float32), skeleton)
             rows[f"reconstruction, features low-passed σ={s:g}"].append(
-                (middle_jerk(smoothed), aligned_mpjpe_mm(smoothed, truth)))
+                (middle_jerk(smoothed), aligned_mpjpe_mm(smoothed, truth))
+            )
         error_velocity = np.diff(joints - truth, axis=0)
         if len(error_velocity) >= SPECTRUM_FRAMES:
             segment = error_velocity[:SPECTRUM_FRAMES].reshape(SPECTRUM_FRAMES, -1)
@@ -90,7 +90,9 @@ def main() -> None:
     for f in (0.25, 0.5):
         i = int(np.argmin(np.abs(frequencies - f)))
         neighbours = spectrum[[max(i - 2, 0), min(i + 2, len(spectrum) - 1)]].mean() if f < 0.5 else spectrum[i - 2]
-        print(f"error velocity power at {frequencies[i]:.3f} cycle/frame: {spectrum[i] / neighbours:.2f} × its neighbours")
+        print(
+            f"error velocity power at {frequencies[i]:.3f} cycle/frame: {spectrum[i] / neighbours:.2f} × its neighbours"
+        )
 
 
 if __name__ == "__main__":

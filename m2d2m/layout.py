@@ -32,15 +32,21 @@ def shard_urls(directory: str | Path, split: str) -> list[str]:
     """Absolute paths of a split's shards, from the manifest (the only trusted listing), each
     checked against its record first (:func:`m2d2m.integrity.verified_paths`)."""
     directory = Path(directory).resolve()
-    return verified_paths(directory / SHARDS, read_manifest(directory)["shards"][split],
-                          f"the dataset changed after it was built (`m2d2m data --check {directory}` lists every "
-                          "problem; `m2d2m data --force` rebuilds it)")
+    return verified_paths(
+        directory / SHARDS,
+        read_manifest(directory)["shards"][split],
+        f"the dataset changed after it was built (`m2d2m data --check {directory}` lists every "
+        "problem; `m2d2m data --force` rebuilds it)",
+    )
 
 
 def token_shard_urls(directory: str | Path, split: str) -> list[str]:
     """Absolute paths of a split's token shards, which sit in the token set's directory itself,
     each checked against its record first."""
     directory = Path(directory).resolve()
-    return verified_paths(directory, read_manifest(directory)["shards"][split],
-                          f"the token set changed after it was made (`m2d2m tokenize --check {directory}` lists "
-                          "every problem; `m2d2m tokenize` remakes it)")
+    return verified_paths(
+        directory,
+        read_manifest(directory)["shards"][split],
+        f"the token set changed after it was made (`m2d2m tokenize --check {directory}` lists "
+        "every problem; `m2d2m tokenize` remakes it)",
+    )

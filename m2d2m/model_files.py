@@ -28,8 +28,9 @@ def check_plain(value: Any, where: str = "extra") -> None:
             check_plain(item, f"{where}[{i}]")
     # Exact types: NumPy scalars subclass float but are not loadable with weights_only.
     elif not (value is None or type(value) in (str, int, float, bool) or isinstance(value, torch.Tensor)):
-        raise TypeError(f"{where}: {type(value).__name__} cannot be stored in a model file "
-                        "(use plain Python values or tensors)")
+        raise TypeError(
+            f"{where}: {type(value).__name__} cannot be stored in a model file (use plain Python values or tensors)"
+        )
 
 
 def cpu_state(module: torch.nn.Module) -> dict[str, Any]:
@@ -64,8 +65,10 @@ class ModelFileKind:
         except Exception as error:  # any unreadable file is, for the caller, simply not this kind of file
             # torch's own text runs to paragraphs (and advises weights_only=False): its first sentence
             first = str(error).strip().split(". ", 1)[0].splitlines()[0].rstrip(".") if str(error).strip() else ""
-            raise ValueError(f"{path} is not {self.name}: truncated, damaged or not written by torch.save "
-                             f"({type(error).__name__}: {first})") from error
+            raise ValueError(
+                f"{path} is not {self.name}: truncated, damaged or not written by torch.save "
+                f"({type(error).__name__}: {first})"
+            ) from error
         found = payload.get("format") if isinstance(payload, dict) else None
         if found != self.format:
             raise ValueError(f"{path} is not {self.name} (format {found!r}, expected {self.format!r})")
@@ -98,8 +101,11 @@ class LengthPrior:
 def text_payload(encoder: TextEncoder, text: dict[str, Any]) -> dict[str, Any]:
     """A text encoder in a model file: its kind and options (the run's ``text`` section), and its
     weights when it was trained (the frozen CLIP tower is found again by its path)."""
-    return {"kind": text.get("kind", "learned"), "options": {k: v for k, v in text.items() if k != "kind"},
-            "state_dict": cpu_state(encoder) if encoder.trainable else None}
+    return {
+        "kind": text.get("kind", "learned"),
+        "options": {k: v for k, v in text.items() if k != "kind"},
+        "state_dict": cpu_state(encoder) if encoder.trainable else None,
+    }
 
 
 def text_encoder_from_payload(payload: dict[str, Any]) -> TextEncoder:

@@ -65,12 +65,13 @@ class CLIPTextEncoder(TextEncoder):
             raise FileNotFoundError(
                 f"CLIP text weights not found in {path!r} (local directory or Hugging Face cache; nothing is "
                 f"downloaded): fetch them once with `hf download {CLIP_DEFAULT}` or save CLIPTextModel and "
-                f"CLIPTokenizer there with save_pretrained") from error
+                f"CLIPTokenizer there with save_pretrained"
+            ) from error
         self.model = model.eval().requires_grad_(False)
         self.dim = model.config.hidden_size
         self.max_length = min(max_length, model.config.max_position_embeddings)
 
-    def train(self, mode: bool = True) -> "CLIPTextEncoder":
+    def train(self, mode: bool = True) -> CLIPTextEncoder:
         """Stays in eval mode: the tower is frozen, so a trainer's ``.train()`` must not wake dropout."""
         return super().train(False)
 
@@ -82,8 +83,9 @@ class CLIPTextEncoder(TextEncoder):
     def encode_pooled(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Token features, mask and CLIP's pooled sentence feature (the end-of-text token's, after
         the final layer norm), all from one pass of the tower."""
-        batch = self.tokenizer(list(sentences), padding=True, truncation=True, max_length=self.max_length,
-                               return_tensors="pt").to(self.device)
+        batch = self.tokenizer(
+            list(sentences), padding=True, truncation=True, max_length=self.max_length, return_tensors="pt"
+        ).to(self.device)
         output = self.model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"])
         return output.last_hidden_state, batch["attention_mask"].bool(), output.pooler_output
 
@@ -108,12 +110,20 @@ class LearnedTextEncoder(TextEncoder):
 
     trainable = True
 
-    def __init__(self, vocabulary: list[str], dim: int = 256, layers: int = 2, heads: int = 4,
-                 dropout: float = 0.1, max_length: int = 77) -> None:
+    def __init__(
+        self,
+        vocabulary: list[str],
+        dim: int = 256,
+        layers: int = 2,
+        heads: int = 4,
+        dropout: float = 0.1,
+        max_length: int = 77,
+    ) -> None:
         super().__init__()
         if vocabulary[:2] != [PAD, UNK]:
-            raise ValueError(f"vocabulary must start with {PAD!r}, {UNK!r}: build it with "
-                             "LearnedTextEncoder.build_vocabulary")
+            raise ValueError(
+                f"vocabulary must start with {PAD!r}, {UNK!r}: build it with LearnedTextEncoder.build_vocabulary"
+            )
         if dim % heads:
             raise ValueError(f"learned text encoder dim ({dim}) must be divisible by heads ({heads})")
         self.vocabulary = list(vocabulary)
@@ -122,16 +132,18 @@ class LearnedTextEncoder(TextEncoder):
         self.dim = dim
         self.max_length = max_length
         self.embedding = nn.Embedding(len(self.vocabulary), dim, padding_idx=0)
-        layer = nn.TransformerEncoderLayer(dim, heads, 4 * dim, dropout, activation="gelu", batch_first=True,
-                                           norm_first=True)
+        layer = nn.TransformerEncoderLayer(
+            dim, heads, 4 * dim, dropout, activation="gelu", batch_first=True, norm_first=True
+        )
         self.encoder = nn.TransformerEncoder(layer, layers, norm=nn.LayerNorm(dim), enable_nested_tensor=False)
 
     @staticmethod
     def build_vocabulary(sentences: Iterable[str], min_count: int = 1) -> list[str]:
         """<pad>, <unk>, then the corpus words seen at least ``min_count`` times, most frequent first."""
         counts = Counter(word for sentence in sentences for word in _words(sentence))
-        kept = sorted((word for word, count in counts.items() if count >= min_count),
-                      key=lambda word: (-counts[word], word))
+        kept = sorted(
+            (word for word, count in counts.items() if count >= min_count), key=lambda word: (-counts[word], word)
+        )
         return [PAD, UNK, *kept]
 
     def tokenize(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -153,15 +165,17 @@ class LearnedTextEncoder(TextEncoder):
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
         if state["vocabulary"] != self.vocabulary or state["options"] != self.options:
-            raise ValueError("checkpoint's text vocabulary or sizes differ from this encoder's: build it with "
-                             "LearnedTextEncoder.from_state_dict")
+            raise ValueError(
+                "checkpoint's text vocabulary or sizes differ from this encoder's: build it with "
+                "LearnedTextEncoder.from_state_dict"
+            )
 
     @classmethod
-    def from_state_dict(cls, state_dict: dict[str, Any], prefix: str = "") -> "LearnedTextEncoder":
+    def from_state_dict(cls, state_dict: dict[str, Any], prefix: str = "") -> LearnedTextEncoder:
         """Rebuild from a ``state_dict`` (optionally nested under ``prefix``) with no other file."""
         extra = state_dict[f"{prefix}_extra_state"]
         encoder = cls(extra["vocabulary"], **extra["options"])
-        own = {key[len(prefix):]: value for key, value in state_dict.items() if key.startswith(prefix)}
+        own = {key[len(prefix) :]: value for key, value in state_dict.items() if key.startswith(prefix)}
         encoder.load_state_dict(own)
         return encoder
 
@@ -194,8 +208,10 @@ def text_encoder_from_config(text: dict[str, Any], vocabulary: list[str] | None 
     kind = text.get("kind", "learned")
     if kind == "learned":
         if vocabulary is None:
-            raise ValueError("a 'learned' text encoder needs a vocabulary "
-                             "(LearnedTextEncoder.build_vocabulary over the training captions)")
+            raise ValueError(
+                "a 'learned' text encoder needs a vocabulary "
+                "(LearnedTextEncoder.build_vocabulary over the training captions)"
+            )
         options["vocabulary"] = list(vocabulary)
     return build_text_encoder(kind, **options)
 

@@ -73,7 +73,7 @@ def _body_part(text: str) -> tuple[str, str]:
     """``PART=TEXT`` of ``generate --part``."""
     part, separator, sentence = text.partition("=")
     if not separator or not part.strip() or not sentence.strip():
-        raise argparse.ArgumentTypeError(f"expected PART=TEXT, e.g. upper=\"a person waves\", got {text!r}")
+        raise argparse.ArgumentTypeError(f'expected PART=TEXT, e.g. upper="a person waves", got {text!r}')
     return part.strip(), sentence.strip()
 
 
@@ -86,16 +86,21 @@ def _synthesize(args: argparse.Namespace) -> None:
     families = args.families.split(",") if args.families else None
     unknown = sorted(set(families or ()) - set(FAMILIES))
     if unknown:
-        raise UserError(f"unknown famil{'ies' if len(unknown) > 1 else 'y'} {', '.join(unknown)}; choose from {', '.join(FAMILIES)}")
+        raise UserError(
+            f"unknown famil{'ies' if len(unknown) > 1 else 'y'} {', '.join(unknown)}; choose from {', '.join(FAMILIES)}"
+        )
     try:
         if not args.force and existing_corpus(args.out, args.clips, args.seed, families):
-            print(f"{args.out}: the corpus is already there (seed {args.seed}, {args.clips} clips); --force rebuilds it")
+            print(
+                f"{args.out}: the corpus is already there (seed {args.seed}, {args.clips} clips); --force rebuilds it"
+            )
             return
     except ValueError as error:
         raise UserError(str(error)) from error
     started = time.perf_counter()
-    summary = generate_corpus(args.out, clips=args.clips, seed=args.seed, families=families, workers=args.workers,
-                              progress=True)
+    summary = generate_corpus(
+        args.out, clips=args.clips, seed=args.seed, families=families, workers=args.workers, progress=True
+    )
     splits = summary["splits"]
     print(
         f"wrote {summary['clips']} clips to {args.out} in {time.perf_counter() - started:.1f} s: "
@@ -128,10 +133,18 @@ def _data(args: argparse.Namespace) -> None:
     if not raw.exists():
         if args.dataset != "synthetic":
             raise UserError(f"{raw}: no such corpus; pass --raw /path/to/{args.dataset} (HumanML3D layout)")
-        _synthesize(argparse.Namespace(out=str(raw), clips=2000, seed=0, families=None, workers=args.workers, force=False))
+        _synthesize(
+            argparse.Namespace(out=str(raw), clips=2000, seed=0, families=None, workers=args.workers, force=False)
+        )
     config = DataConfig(
-        dataset=args.dataset, raw=str(raw), out=str(out), samples_per_shard=args.samples_per_shard,
-        min_frames=args.min_frames, max_frames=args.max_frames, workers=args.workers, ray_address=args.ray_address,
+        dataset=args.dataset,
+        raw=str(raw),
+        out=str(out),
+        samples_per_shard=args.samples_per_shard,
+        min_frames=args.min_frames,
+        max_frames=args.max_frames,
+        workers=args.workers,
+        ray_address=args.ray_address,
     )
     existing = None if args.force else reusable_dataset(config)
     if existing is not None:
@@ -141,13 +154,17 @@ def _data(args: argparse.Namespace) -> None:
     try:
         require_replaceable(config, args.replace)
         if (out / "manifest.json").exists():
-            print(f"{out}: built with another config; building the new one beside it (the old one stays until "
-                  "the new one is complete)")
+            print(
+                f"{out}: built with another config; building the new one beside it (the old one stays until "
+                "the new one is complete)"
+            )
         manifest = build_dataset(config, replace_other=args.replace)
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
     print_summary(manifest, out)
-    print(f"wrote {out} ({sum(len(v) for v in manifest['shards'].values())} shards); verify with: m2d2m data --check {out}")
+    print(
+        f"wrote {out} ({sum(len(v) for v in manifest['shards'].values())} shards); verify with: m2d2m data --check {out}"
+    )
 
 
 def _train_vq(args: argparse.Namespace) -> None:
@@ -201,7 +218,11 @@ def _render(args: argparse.Namespace) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         render_motion(
-            motion.joints, out, skeleton=motion.skeleton, fps=args.fps, segments=motion.segments or None,
+            motion.joints,
+            out,
+            skeleton=motion.skeleton,
+            fps=args.fps,
+            segments=motion.segments or None,
             title=motion.caption,
         )
     except RuntimeError as error:  # no MP4 encoder on this machine, or the encoder failed
@@ -245,8 +266,10 @@ def _generate(args: argparse.Namespace) -> None:
     if not args.prompts:
         raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
     if (args.edit is None) != (args.keep_body is None):
-        raise UserError("--edit SOURCE and --keep-body PART go together: the motion to edit and the body part of it "
-                        "to keep, e.g. --model mmm-body --edit motion.features.npy --keep-body lower")
+        raise UserError(
+            "--edit SOURCE and --keep-body PART go together: the motion to edit and the body part of it "
+            "to keep, e.g. --model mmm-body --edit motion.features.npy --keep-body lower"
+        )
     if args.edit is not None and args.seconds is not None:
         raise UserError("--seconds does not go with --edit: the edited motion is as long as the source")
     output = plan_output(args.out, args.name, args.formats)
@@ -256,11 +279,26 @@ def _generate(args: argparse.Namespace) -> None:
         options["method"] = args.method
     max_seconds = DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
     if args.edit is not None:
-        motion = edit_part(generator, load_features(args.edit, generator.skeleton), args.prompts, args.keep_body,
-                           seed=args.seed, split=not args.no_split, max_seconds=max_seconds, **options)
+        motion = edit_part(
+            generator,
+            load_features(args.edit, generator.skeleton),
+            args.prompts,
+            args.keep_body,
+            seed=args.seed,
+            split=not args.no_split,
+            max_seconds=max_seconds,
+            **options,
+        )
     else:
-        motion = generate(generator, args.prompts, seconds=args.seconds, seed=args.seed, split=not args.no_split,
-                          max_seconds=max_seconds, **options)
+        motion = generate(
+            generator,
+            args.prompts,
+            seconds=args.seconds,
+            seed=args.seed,
+            split=not args.no_split,
+            max_seconds=max_seconds,
+            **options,
+        )
     _report(motion, output, args.prompts, args)
 
 
@@ -288,8 +326,14 @@ def _generate_parts(args: argparse.Namespace) -> None:
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     max_seconds = DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
-    motion = generate_parts(generator, parts, seconds=args.seconds[0] if args.seconds else None, seed=args.seed,
-                            max_seconds=max_seconds, **options)
+    motion = generate_parts(
+        generator,
+        parts,
+        seconds=args.seconds[0] if args.seconds else None,
+        seed=args.seed,
+        max_seconds=max_seconds,
+        **options,
+    )
     _report(motion, output, [f"{part}: {text}" for part, text in parts.items()], args)
 
 
@@ -300,9 +344,11 @@ def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespa
     files, run_id = save_generation(motion, output, prompts, args.dataset, track=not args.no_track)
     for text, (first, end) in zip(motion.actions, motion.ranges):
         print(f"  {first / motion.fps:5.1f}–{end / motion.fps:5.1f} s  {text}")
-    print(f"wrote {', '.join(str(path) for path in files.values())} ({motion.seconds:.1f} s, "
-          f"{motion.settings['method']}; bone-length spread {motion.quality['bone_length_std_mm_mean']:.1f} mm "
-          "before the rigid skeleton)")
+    print(
+        f"wrote {', '.join(str(path) for path in files.values())} ({motion.seconds:.1f} s, "
+        f"{motion.settings['method']}; bone-length spread {motion.quality['bone_length_std_mm_mean']:.1f} mm "
+        "before the rigid skeleton)"
+    )
     if run_id is not None:
         print(f"logged to MLflow run {run_id} (experiment {args.dataset}/{GENERATE_STAGE}); `make ui` to browse")
 
@@ -334,8 +380,10 @@ def _evaluate(args: argparse.Namespace) -> None:
         run_dir, settings = None, new_settings(args.dataset, args.model or DEFAULT_MODEL, options=options, **given)
     run_dir, _ = evaluate(settings, args.dataset, run_dir, args.batch_size)
     print((run_dir / TABLE_MD).read_text(encoding="utf-8"))
-    print(f"wrote {run_dir} (table.md, table.json, fig5.png, results/); logged to MLflow "
-          f"(experiment {args.dataset}/{EVAL_STAGE}); `make ui` to browse")
+    print(
+        f"wrote {run_dir} (table.md, table.json, fig5.png, results/); logged to MLflow "
+        f"(experiment {args.dataset}/{EVAL_STAGE}); `make ui` to browse"
+    )
 
 
 def _sweep(args: argparse.Namespace) -> None:
@@ -390,8 +438,9 @@ def _add_data(verbs) -> None:
     data.add_argument("--min-frames", type=_positive_int, help="keep clips with at least this many feature frames")
     data.add_argument("--max-frames", type=_positive_int, help="keep clips with fewer feature frames than this")
     data.add_argument("--force", action="store_true", help="rebuild even if an identical dataset exists")
-    data.add_argument("--replace", action="store_true",
-                      help="replace an --out built from another raw corpus (or holding no dataset)")
+    data.add_argument(
+        "--replace", action="store_true", help="replace an --out built from another raw corpus (or holding no dataset)"
+    )
     data.add_argument("--check", metavar="DIR", help="verify a processed dataset against its manifest and exit")
     data.set_defaults(run=_data)
 
@@ -400,28 +449,54 @@ def _add_training_verb(verbs, name: str, configs: str, description: str, example
     """The options every training stage takes: a config, overrides, and resuming."""
     parser = verbs.add_parser(name, help=description)
     parser.add_argument("--config", default="demo", help=f"configs/{configs}/<name>.yaml or a path (default demo)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help=f"override a config value, e.g. --set {example} (repeatable)")
-    parser.add_argument("--resume", nargs="?", const=True, default=False, metavar="RUN",
-                        help="continue the newest unfinished run of this config's dataset, or RUN (its directory, "
-                             "name or MLflow run id)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help=f"override a config value, e.g. --set {example} (repeatable)",
+    )
+    parser.add_argument(
+        "--resume",
+        nargs="?",
+        const=True,
+        default=False,
+        metavar="RUN",
+        help="continue the newest unfinished run of this config's dataset, or RUN (its directory, "
+        "name or MLflow run id)",
+    )
     parser.set_defaults(run=run, **defaults)
 
 
 def _add_training_verbs(verbs) -> None:
-    _add_training_verb(verbs, "train-vq", "vq", "train the motion VQ-VAE (Lightning, tracked in MLflow)",
-                       "optim.lr=1e-4", _train_vq)
+    _add_training_verb(
+        verbs, "train-vq", "vq", "train the motion VQ-VAE (Lightning, tracked in MLflow)", "optim.lr=1e-4", _train_vq
+    )
     for entry in models().values():
-        _add_training_verb(verbs, entry.train_verb, entry.configs, f"train {entry.summary}", "optim.lr=1e-4",
-                           _train_model, model=entry.name)
-    _add_training_verb(verbs, "train-evaluator", "evaluator",
-                       "train the text-motion evaluator of Guo et al. for the paper's metrics", "optim.lr=1e-4",
-                       _train_evaluator)
+        _add_training_verb(
+            verbs,
+            entry.train_verb,
+            entry.configs,
+            f"train {entry.summary}",
+            "optim.lr=1e-4",
+            _train_model,
+            model=entry.name,
+        )
+    _add_training_verb(
+        verbs,
+        "train-evaluator",
+        "evaluator",
+        "train the text-motion evaluator of Guo et al. for the paper's metrics",
+        "optim.lr=1e-4",
+        _train_evaluator,
+    )
 
 
 def _add_tokenize(verbs) -> None:
     tokenize = verbs.add_parser("tokenize", help="encode every motion into VQ tokens (Ray Data)")
-    tokenize.add_argument("--vq", help="vq.pt, a checkpoint, a run directory or name, or an MLflow run id (default: latest)")
+    tokenize.add_argument(
+        "--vq", help="vq.pt, a checkpoint, a run directory or name, or an MLflow run id (default: latest)"
+    )
     tokenize.add_argument("--dataset", default="synthetic", help="whose latest VQ run to use by default")
     tokenize.add_argument("--data", help="processed dataset directory (default: the one the VQ-VAE was trained on)")
     tokenize.add_argument("--workers", type=_positive_int, default=2)
@@ -431,10 +506,14 @@ def _add_tokenize(verbs) -> None:
 
 
 def _add_model_choice(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--model", default=DEFAULT_MODEL,
-                        help=f"a registered model: {', '.join(models())} (default {DEFAULT_MODEL})")
-    parser.add_argument("--checkpoint", default="latest",
-                        help="the model's file, a run directory or name, or an MLflow run id (default: latest)")
+    parser.add_argument(
+        "--model", default=DEFAULT_MODEL, help=f"a registered model: {', '.join(models())} (default {DEFAULT_MODEL})"
+    )
+    parser.add_argument(
+        "--checkpoint",
+        default="latest",
+        help="the model's file, a run directory or name, or an MLflow run id (default: latest)",
+    )
 
 
 _SHORTCUT = "knob_"  # a shortcut's attribute: --eta is args.knob_eta, clear of every other option
@@ -475,8 +554,13 @@ def _add_sampling_knobs(parser: argparse.ArgumentParser) -> None:
     """``--option KEY=VALUE`` for any model's knob, and the flags the models' entries declare as
     shortcuts (M2D2M's ``--ts``, ``--eta``, ``--guidance``, ``--truncation``), each typed and
     explained as its knob declares it."""
-    parser.add_argument("--option", type=_option, action="append", metavar="KEY=VALUE",
-                        help="any sampling option of the model, e.g. --option steps=25 (repeatable; listed below)")
+    parser.add_argument(
+        "--option",
+        type=_option,
+        action="append",
+        metavar="KEY=VALUE",
+        help="any sampling option of the model, e.g. --option steps=25 (repeatable; listed below)",
+    )
     owners: dict[str, list[tuple[str, Any]]] = {}
     for name, entry in models().items():
         sampling = entry.load("sampling")
@@ -485,40 +569,70 @@ def _add_sampling_knobs(parser: argparse.ArgumentParser) -> None:
     for name, declared in owners.items():
         explained = "; ".join(f"{model}: {knob.help}" for model, knob in declared)
         kind = declared[0][1].kind
-        parser.add_argument(f"--{name.replace('_', '-')}", dest=_SHORTCUT + name, type=_KINDS[kind],
-                            metavar=kind.upper(), help=_escaped(f"{explained}; short for --option {name}=…"))
+        parser.add_argument(
+            f"--{name.replace('_', '-')}",
+            dest=_SHORTCUT + name,
+            type=_KINDS[kind],
+            metavar=kind.upper(),
+            help=_escaped(f"{explained}; short for --option {name}=…"),
+        )
     parser.set_defaults(shortcuts=tuple(owners))
 
 
 def _add_generate(verbs) -> None:
-    generate = verbs.add_parser("generate", help="text to motion: one sequence doing the prompts in order",
-                                epilog=sampling_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
-    generate.add_argument("prompts", nargs="*", help='one or more prompts, e.g. "a person walks forward" "a person jumps"')
-    generate.add_argument("--seconds", type=float, nargs="+",
-                          help="duration of each prompt, or one for all (default: the corpus's typical length per verb)")
+    generate = verbs.add_parser(
+        "generate",
+        help="text to motion: one sequence doing the prompts in order",
+        epilog=sampling_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    generate.add_argument(
+        "prompts", nargs="*", help='one or more prompts, e.g. "a person walks forward" "a person jumps"'
+    )
+    generate.add_argument(
+        "--seconds",
+        type=float,
+        nargs="+",
+        help="duration of each prompt, or one for all (default: the corpus's typical length per verb)",
+    )
     generate.add_argument("--method", help=f"the multi-action method ({_methods()}; default: the model's first)")
     _add_sampling_knobs(generate)
     generate.add_argument("--seed", type=int, default=0)
     _add_model_choice(generate)
     generate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
-    generate.add_argument("--out", help="a folder, or one file whose suffix (.npy .bvh .gif .mp4) is its format "
-                          "(default: the folder runs/<dataset>/generate/<new run>)")
+    generate.add_argument(
+        "--out",
+        help="a folder, or one file whose suffix (.npy .bvh .gif .mp4) is its format "
+        "(default: the folder runs/<dataset>/generate/<new run>)",
+    )
     generate.add_argument("--name", default="motion", help="file name stem in the --out folder (default motion)")
     generate.add_argument("--formats", nargs="+", help="any of npy bvh gif mp4 (default npy bvh gif)")
-    generate.add_argument("--max-seconds", type=float,
-                          help="refuse, before sampling, a motion longer than this (default 60; 0 = no cap)")
+    generate.add_argument(
+        "--max-seconds", type=float, help="refuse, before sampling, a motion longer than this (default 60; 0 = no cap)"
+    )
     generate.add_argument("--no-split", action="store_true", help="keep each prompt one action even with several verbs")
-    generate.add_argument("--edit", metavar="SOURCE",
-                          help="edit this motion instead: a .npy of features (the .features.npy generate writes) "
-                               "or joints; the prompts share its length (with --keep-body)")
-    generate.add_argument("--keep-body", metavar="PART",
-                          help="the body part (upper, lower) of --edit's motion to keep on every frame; the rest "
-                               "follows the prompts "
-                               "(--model mmm-body keeps lower: MMM's upper-body editing; --option lower_mask=0.25)")
-    generate.add_argument("--part", type=_body_part, action="append", metavar="PART=TEXT",
-                          help="body-part control: this part (upper, lower) does TEXT, the prompt drives the other "
-                               "parts, e.g. \"a person runs\" --part upper=\"a person waves their hands\" "
-                               "(--model motiondiffuse; repeatable)")
+    generate.add_argument(
+        "--edit",
+        metavar="SOURCE",
+        help="edit this motion instead: a .npy of features (the .features.npy generate writes) "
+        "or joints; the prompts share its length (with --keep-body)",
+    )
+    generate.add_argument(
+        "--keep-body",
+        metavar="PART",
+        help="the body part (upper, lower) of --edit's motion to keep on every frame; the rest "
+        "follows the prompts "
+        "(--model mmm-body keeps lower: MMM's upper-body editing; --option lower_mask=0.25)",
+    )
+    generate.add_argument(
+        "--part",
+        type=_body_part,
+        action="append",
+        metavar="PART=TEXT",
+        help="body-part control: this part (upper, lower) does TEXT, the prompt drives the other "
+        'parts, e.g. "a person runs" --part upper="a person waves their hands" '
+        "(--model motiondiffuse; repeatable)",
+    )
     generate.add_argument("--no-track", action="store_true", help="do not log this generation to MLflow")
     generate.set_defaults(run=_generate)
 
@@ -529,54 +643,102 @@ def _add_testset(verbs) -> None:
     testset.add_argument("--seed", type=int, default=0)
     testset.add_argument("--dataset", default="synthetic", help="names the MLflow experiment <dataset>/testset")
     testset.add_argument("--data", help="processed dataset directory (default data/<dataset>)")
-    testset.add_argument("--mirrors", default="same",
-                         help="a mirrored clip counts as its original (same, default), as its own motion "
-                              "(distinct), or is left out (exclude)")
-    testset.add_argument("--first", type=_positive_int, metavar="K",
-                         help="keep only the first K instances: a quick-look subset for sweeps (not the paper's)")
-    testset.add_argument("--split", default="test",
-                         help="the clips it is drawn from: test (default) or val, where sampling settings are "
-                              "chosen (written to n<N>-seed<S>-val)")
+    testset.add_argument(
+        "--mirrors",
+        default="same",
+        help="a mirrored clip counts as its original (same, default), as its own motion "
+        "(distinct), or is left out (exclude)",
+    )
+    testset.add_argument(
+        "--first",
+        type=_positive_int,
+        metavar="K",
+        help="keep only the first K instances: a quick-look subset for sweeps (not the paper's)",
+    )
+    testset.add_argument(
+        "--split",
+        default="test",
+        help="the clips it is drawn from: test (default) or val, where sampling settings are "
+        "chosen (written to n<N>-seed<S>-val)",
+    )
     testset.add_argument("--force", action="store_true", help="replace a test set built with other parameters")
     testset.set_defaults(run=_testset)
 
 
 def _add_evaluate(verbs) -> None:
-    evaluate = verbs.add_parser("evaluate", help="the paper's multi-motion (single-motion, editing) tables and Fig. 5",
-                                epilog=sampling_help(), formatter_class=argparse.RawDescriptionHelpFormatter)
-    evaluate.add_argument("--model", action="append", metavar="MODEL",
-                          help=f"registered models to judge side by side in one table: {', '.join(models())}; "
-                               f"repeatable or a comma list (default {DEFAULT_MODEL})")
-    evaluate.add_argument("--checkpoint", action="append", metavar="REF",
-                          help="the model's file, a run directory or name, or an MLflow run id (default: latest); "
-                               "with several models MODEL=REF, once per model")
-    evaluate.add_argument("--testset", help="test set directory (default: n4-seed0 of the model's dataset, "
-                                            "data/<dataset>/testsets/n4-seed0, built if missing)")
-    evaluate.add_argument("--evaluator", help="evaluator.pt, or an evaluator run directory, name or MLflow run id "
-                                              "(default: latest; `make train-evaluator` makes one)")
-    evaluate.add_argument("--guo-evaluator", metavar="CKPT_DIR",
-                          help="Guo et al.'s published evaluator (text_mot_match/), for published-comparable numbers")
+    evaluate = verbs.add_parser(
+        "evaluate",
+        help="the paper's multi-motion (single-motion, editing) tables and Fig. 5",
+        epilog=sampling_help(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    evaluate.add_argument(
+        "--model",
+        action="append",
+        metavar="MODEL",
+        help=f"registered models to judge side by side in one table: {', '.join(models())}; "
+        f"repeatable or a comma list (default {DEFAULT_MODEL})",
+    )
+    evaluate.add_argument(
+        "--checkpoint",
+        action="append",
+        metavar="REF",
+        help="the model's file, a run directory or name, or an MLflow run id (default: latest); "
+        "with several models MODEL=REF, once per model",
+    )
+    evaluate.add_argument(
+        "--testset",
+        help="test set directory (default: n4-seed0 of the model's dataset, "
+        "data/<dataset>/testsets/n4-seed0, built if missing)",
+    )
+    evaluate.add_argument(
+        "--evaluator",
+        help="evaluator.pt, or an evaluator run directory, name or MLflow run id "
+        "(default: latest; `make train-evaluator` makes one)",
+    )
+    evaluate.add_argument(
+        "--guo-evaluator",
+        metavar="CKPT_DIR",
+        help="Guo et al.'s published evaluator (text_mot_match/), for published-comparable numbers",
+    )
     evaluate.add_argument("--glove", metavar="DIR", help="Guo's glove/ directory (with --guo-evaluator)")
     evaluate.add_argument("--meta", metavar="DIR", help="the evaluator's mean.npy/std.npy (default CKPT_DIR/meta)")
-    evaluate.add_argument("--method", dest="methods", action="append", metavar="METHOD",
-                          help=f"multi-action methods ({_methods()}), each for every model that has it, or "
-                               "MODEL:METHOD for one; repeatable or a comma list (default: each model's first)")
+    evaluate.add_argument(
+        "--method",
+        dest="methods",
+        action="append",
+        metavar="METHOD",
+        help=f"multi-action methods ({_methods()}), each for every model that has it, or "
+        "MODEL:METHOD for one; repeatable or a comma list (default: each model's first)",
+    )
     _add_sampling_knobs(evaluate)
     evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
-    evaluate.add_argument("--multi", action=argparse.BooleanOptionalAction,
-                          help="the multi-motion table's generated rows (default on; --no-multi with --single "
-                               "judges single actions alone, as a learning curve does)")
-    evaluate.add_argument("--single", action=argparse.BooleanOptionalAction,
-                          help="also the single-motion table (paper Table 3; the model's single-action preset, "
-                               "for m2d2m s = 4, η = 0.5)")
-    evaluate.add_argument("--edit", dest="editing", action="append", metavar="TASK",
-                          help="also the editing table (MMM Table 3) for these tasks, each with and without text: "
-                               "inbetween (the middle 50 %% given the first and last 25 %%), upper (the upper body "
-                               "given the lower; mmm-body); repeatable or a comma list")
-    evaluate.add_argument("--batch-size", type=_positive_int, default=64,
-                          help="sequences generated at once (default 64)")
-    evaluate.add_argument("--resume", metavar="RUN", help="finish an evaluation run (directory, name or MLflow id) "
-                                                         "with its own settings")
+    evaluate.add_argument(
+        "--multi",
+        action=argparse.BooleanOptionalAction,
+        help="the multi-motion table's generated rows (default on; --no-multi with --single "
+        "judges single actions alone, as a learning curve does)",
+    )
+    evaluate.add_argument(
+        "--single",
+        action=argparse.BooleanOptionalAction,
+        help="also the single-motion table (paper Table 3; the model's single-action preset, for m2d2m s = 4, η = 0.5)",
+    )
+    evaluate.add_argument(
+        "--edit",
+        dest="editing",
+        action="append",
+        metavar="TASK",
+        help="also the editing table (MMM Table 3) for these tasks, each with and without text: "
+        "inbetween (the middle 50 %% given the first and last 25 %%), upper (the upper body "
+        "given the lower; mmm-body); repeatable or a comma list",
+    )
+    evaluate.add_argument(
+        "--batch-size", type=_positive_int, default=64, help="sequences generated at once (default 64)"
+    )
+    evaluate.add_argument(
+        "--resume", metavar="RUN", help="finish an evaluation run (directory, name or MLflow id) with its own settings"
+    )
     evaluate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     evaluate.set_defaults(run=_evaluate)
 
@@ -584,11 +746,19 @@ def _add_evaluate(verbs) -> None:
 def _add_sweep(verbs) -> None:
     sweep = verbs.add_parser("sweep", help="a Ray Tune sweep over sampling or training settings, tracked in MLflow")
     sweep.add_argument("--config", default="demo", help="configs/sweep/<name>.yaml or a path (default demo)")
-    sweep.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                       help="override a config value, e.g. --set space.eta=[0.1,0.5] (repeatable)")
+    sweep.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config value, e.g. --set space.eta=[0.1,0.5] (repeatable)",
+    )
     sweep.add_argument("--name", help="the sweep's folder and parent run name (default: the config's file name)")
-    sweep.add_argument("--restart", action="store_true",
-                       help="discard the sweep of this name (its Tune experiment and folder) and start it over")
+    sweep.add_argument(
+        "--restart",
+        action="store_true",
+        help="discard the sweep of this name (its Tune experiment and folder) and start it over",
+    )
     _add_ray_address(sweep)
     sweep.set_defaults(run=_sweep)
 
@@ -601,9 +771,10 @@ def _add_ui(verbs) -> None:
 
 
 def _add_viewers(verbs) -> None:
-    for name, description, run in (("render", "draw a motion as a stick-figure GIF or MP4", _render),
-                                   ("export", "write a motion as BVH (for Blender, game engines) or npy + json",
-                                    _export)):
+    for name, description, run in (
+        ("render", "draw a motion as a stick-figure GIF or MP4", _render),
+        ("export", "write a motion as BVH (for Blender, game engines) or npy + json", _export),
+    ):
         parser = verbs.add_parser(name, help=description)
         parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
         parser.add_argument("--id", help="clip id when SOURCE is a corpus directory")
@@ -616,8 +787,18 @@ def _add_viewers(verbs) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = _OneLineParser(prog="m2d2m", description=__doc__.splitlines()[0])
     verbs = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
-    for add in (_add_synthesize, _add_data, _add_training_verbs, _add_tokenize, _add_generate, _add_testset,
-                _add_evaluate, _add_sweep, _add_ui, _add_viewers):
+    for add in (
+        _add_synthesize,
+        _add_data,
+        _add_training_verbs,
+        _add_tokenize,
+        _add_generate,
+        _add_testset,
+        _add_evaluate,
+        _add_sweep,
+        _add_ui,
+        _add_viewers,
+    ):
         add(verbs)
     return parser
 

@@ -97,8 +97,11 @@ def with_defaults(config: dict[str, Any], defaults: dict[str, Any]) -> dict[str,
     """``config`` with every key of ``defaults`` it lacks, section by section (its own values win)."""
     merged = copy.deepcopy(defaults)
     for key, value in config.items():
-        merged[key] = with_defaults(value, merged[key]) if isinstance(value, dict) and isinstance(
-            merged.get(key), dict) else value
+        merged[key] = (
+            with_defaults(value, merged[key])
+            if isinstance(value, dict) and isinstance(merged.get(key), dict)
+            else value
+        )
     return merged
 
 
@@ -123,8 +126,13 @@ def rename_keys(config: dict[str, Any], renamed: dict[str, str], where: str) -> 
     return result
 
 
-def load_config(stage: str, name_or_path: str, overrides: list[str] | None = None,
-                defaults: dict[str, Any] | None = None, renamed: dict[str, str] | None = None) -> dict[str, Any]:
+def load_config(
+    stage: str,
+    name_or_path: str,
+    overrides: list[str] | None = None,
+    defaults: dict[str, Any] | None = None,
+    renamed: dict[str, str] | None = None,
+) -> dict[str, Any]:
     """The resolved config of a stage: the YAML file, its keys of older names ``renamed`` (old
     dotted key → new), over ``defaults`` (settings every file of the stage may leave out, so an
     override can still name them), with the overrides applied."""

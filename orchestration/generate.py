@@ -63,27 +63,36 @@ def plan_output(out: str | Path | None, name: str, formats: Sequence[str] | None
     chosen = tuple(dict.fromkeys(formats or ()))
     unknown = [f for f in chosen if f not in FORMATS]
     if unknown:
-        raise UserError(f"unknown format{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}: "
-                        f"choose from {', '.join(FORMATS)}")
+        raise UserError(
+            f"unknown format{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}: choose from {', '.join(FORMATS)}"
+        )
     directory = None if out is None else Path(out)
     if directory is not None and directory.suffix.lower().lstrip(".") in FORMATS:
         suffix = directory.suffix.lower().lstrip(".")
         if chosen and chosen != (suffix,):
-            raise UserError(f"--out {out} names one .{suffix} file; drop --formats, or give a folder as --out "
-                            f"to write {', '.join(chosen)}")
+            raise UserError(
+                f"--out {out} names one .{suffix} file; drop --formats, or give a folder as --out "
+                f"to write {', '.join(chosen)}"
+            )
         if directory.is_dir():
-            raise UserError(f"--out {out} is a folder; give a new file name, or --out {directory.parent} "
-                            f"--name {directory.stem} --formats {suffix}")
+            raise UserError(
+                f"--out {out} is a folder; give a new file name, or --out {directory.parent} "
+                f"--name {directory.stem} --formats {suffix}"
+            )
         directory, name, chosen = directory.parent, directory.stem, (suffix,)
     elif directory is not None and directory.exists() and not directory.is_dir():
-        raise UserError(f"--out {out} is an existing file, not a folder; give a folder, or a file name "
-                        f"ending in .{', .'.join(FORMATS)}")
+        raise UserError(
+            f"--out {out} is an existing file, not a folder; give a folder, or a file name "
+            f"ending in .{', .'.join(FORMATS)}"
+        )
     if not name or Path(name).name != name:
         raise UserError(f"--name must be a plain file name, got {name!r}")
     chosen = chosen or DEFAULT_FORMATS
     if "mp4" in chosen and not can_write_mp4():
-        raise UserError("mp4 needs ffmpeg, and none is here (on PATH or from imageio-ffmpeg): "
-                        "pip install imageio-ffmpeg, or choose gif")
+        raise UserError(
+            "mp4 needs ffmpeg, and none is here (on PATH or from imageio-ffmpeg): "
+            "pip install imageio-ffmpeg, or choose gif"
+        )
     return Output(directory, name, chosen)
 
 
@@ -91,12 +100,12 @@ def resolve_model_file(name: str, reference: str | Path, dataset: str) -> Path:
     """The model file of model ``name`` from a path, a run directory, ``latest``, a run name or an
     MLflow run id."""
     entry = model(name)
-    return run_file(reference, dataset, entry.stage, entry.model_file, f"make {entry.train_verb}",
-                    entry.legacy_stages)
+    return run_file(reference, dataset, entry.stage, entry.model_file, f"make {entry.train_verb}", entry.legacy_stages)
 
 
-def load_generator(name: str = DEFAULT_MODEL, reference: str | Path = "latest", dataset: str = "synthetic",
-                   device: str = "auto") -> MotionGenerator:
+def load_generator(
+    name: str = DEFAULT_MODEL, reference: str | Path = "latest", dataset: str = "synthetic", device: str = "auto"
+) -> MotionGenerator:
     """Model ``name``'s generator from its model file (on a GPU when there is one, by default)."""
     path = resolve_model_file(name, reference, dataset)
     if device == "auto":
@@ -130,11 +139,14 @@ class PromptPlanner:
             except FileNotFoundError as error:
                 raise UserError(f"{error} (or pass --no-split)") from error
         parts = decompose(prompt, tagger=self._tagger)
-        verbs: list[str | None] = list(parts.verbs) if len(parts.verbs) == len(parts.actions) else [None] * len(parts.actions)
+        verbs: list[str | None] = (
+            list(parts.verbs) if len(parts.verbs) == len(parts.actions) else [None] * len(parts.actions)
+        )
         return list(parts.actions), verbs
 
-    def plan(self, prompts: Sequence[str], seconds: Sequence[float] | None = None,
-             split: bool = True) -> tuple[list[str], list[int]]:
+    def plan(
+        self, prompts: Sequence[str], seconds: Sequence[float] | None = None, split: bool = True
+    ) -> tuple[list[str], list[int]]:
         """The action sentences and their lengths in frames for ``prompts``.
 
         With ``split`` a prompt with several verbs becomes several actions; a prompt's ``seconds``
@@ -156,8 +168,9 @@ class PromptPlanner:
             if seconds is not None:
                 wanted = float(seconds[0] if len(seconds) == 1 else seconds[index])
                 if not lo <= wanted <= hi * len(parts):
-                    raise UserError(f"{wanted:g} s for {prompt!r} is outside what this model supports "
-                                    f"({lo:g}–{hi:g} s per action)")
+                    raise UserError(
+                        f"{wanted:g} s for {prompt!r} is outside what this model supports ({lo:g}–{hi:g} s per action)"
+                    )
                 typical = share(max(len(parts), round(wanted * self.generator.fps / step)), typical)
             actions.extend(parts)
             frames.extend(n * step for n in typical)
@@ -179,9 +192,11 @@ def check_length(frames: Sequence[int], fps: float, max_seconds: float | None) -
         raise UserError(f"--max-seconds must be a positive number (0 for no cap), got {max_seconds:g}")
     total = sum(frames) / fps
     if max_seconds is not None and total > max_seconds:
-        raise UserError(f"the prompts make {total:.1f} s of motion in {len(frames)} action(s), over the "
-                        f"{max_seconds:g}-s cap; give fewer or shorter prompts (--seconds), or --max-seconds "
-                        f"{math.ceil(total)} to make it anyway")
+        raise UserError(
+            f"the prompts make {total:.1f} s of motion in {len(frames)} action(s), over the "
+            f"{max_seconds:g}-s cap; give fewer or shorter prompts (--seconds), or --max-seconds "
+            f"{math.ceil(total)} to make it anyway"
+        )
 
 
 @contextmanager
@@ -192,9 +207,15 @@ def _progress(description: str) -> Iterator[Callable[[float], None]]:
         yield lambda done: bar.update(round(100 * done) - bar.n)
 
 
-def generate(generator: MotionGenerator, prompts: str | Sequence[str], seconds: float | Sequence[float] | None = None,
-             seed: int = 0, split: bool = True, max_seconds: float | None = DEFAULT_MAX_SECONDS,
-             **options: Any) -> Motion:
+def generate(
+    generator: MotionGenerator,
+    prompts: str | Sequence[str],
+    seconds: float | Sequence[float] | None = None,
+    seed: int = 0,
+    split: bool = True,
+    max_seconds: float | None = DEFAULT_MAX_SECONDS,
+    **options: Any,
+) -> Motion:
     """One motion doing ``prompts`` in order, with the generator's multi-action preset changed by
     ``options`` (for M2D2M: method, ts, eta, guidance, truncation), on one rigid skeleton
     (:meth:`Motion.on_rigid_skeleton`; the decoded spread of bone lengths is in ``quality``)."""
@@ -211,8 +232,14 @@ def generate(generator: MotionGenerator, prompts: str | Sequence[str], seconds: 
         raise UserError(str(error)) from error
 
 
-def edit(generator: MotionGenerator, motion: Motion, keep: Sequence[tuple[float, float]],
-         actions: Sequence[str] | None = None, seed: int = 0, **options: Any) -> Motion:
+def edit(
+    generator: MotionGenerator,
+    motion: Motion,
+    keep: Sequence[tuple[float, float]],
+    actions: Sequence[str] | None = None,
+    seed: int = 0,
+    **options: Any,
+) -> Motion:
     """Regenerate ``motion`` except the time spans ``keep`` (seconds): keep the start and the end
     to in-between, the start alone to complete a prefix. ``actions`` may replace the texts of the
     motion's actions, one each; every action keeps its frames."""
@@ -222,14 +249,23 @@ def edit(generator: MotionGenerator, motion: Motion, keep: Sequence[tuple[float,
     starts = [first for first, _ in motion.ranges] + [len(motion.features)]
     frames = [end - start for start, end in zip(starts[:-1], starts[1:])]
     try:
-        return generator.generate([actions], [frames], generator.options(**options), [seed],
-                                  [keep_spans(motion, keep)])[0].on_rigid_skeleton()
+        return generator.generate(
+            [actions], [frames], generator.options(**options), [seed], [keep_spans(motion, keep)]
+        )[0].on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error
 
 
-def edit_part(generator: MotionGenerator, features: np.ndarray, prompts: Sequence[str], part: str, seed: int = 0,
-              split: bool = True, max_seconds: float | None = DEFAULT_MAX_SECONDS, **options: Any) -> Motion:
+def edit_part(
+    generator: MotionGenerator,
+    features: np.ndarray,
+    prompts: Sequence[str],
+    part: str,
+    seed: int = 0,
+    split: bool = True,
+    max_seconds: float | None = DEFAULT_MAX_SECONDS,
+    **options: Any,
+) -> Motion:
     """Keep body part ``part`` of ``features`` (F, D) on every frame and generate the rest of the
     body doing ``prompts`` (MMM's upper-body editing keeps ``lower``; docs/generation.md). The
     motion is cut to whole steps of the generator; its actions share its length in proportion to
@@ -244,14 +280,21 @@ def edit_part(generator: MotionGenerator, features: np.ndarray, prompts: Sequenc
     check_length(frames, generator.fps, max_seconds)
     try:
         keep = keep_part(features, generator.skeleton, part)
-        return generator.generate([actions], [frames], generator.options(**options), [seed],
-                                  [keep])[0].on_rigid_skeleton()
+        return generator.generate([actions], [frames], generator.options(**options), [seed], [keep])[
+            0
+        ].on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error
 
 
-def generate_parts(generator: MotionGenerator, parts: Mapping[str, str], seconds: float | None = None, seed: int = 0,
-                   max_seconds: float | None = DEFAULT_MAX_SECONDS, **options: Any) -> Motion:
+def generate_parts(
+    generator: MotionGenerator,
+    parts: Mapping[str, str],
+    seconds: float | None = None,
+    seed: int = 0,
+    max_seconds: float | None = DEFAULT_MAX_SECONDS,
+    **options: Any,
+) -> Motion:
     """One motion in which every body part does its own sentence (``parts``: part → sentence; the
     parts of :mod:`m2d2m.motion.body_parts`), ``seconds`` long or the corpus's median action, for
     a model with body-part control (MotionDiffuse's eq. 10; docs/generation.md)."""
@@ -293,8 +336,9 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def save_generation(motion: Motion, output: Output, prompts: Sequence[str], dataset: str,
-                    track: bool = True) -> tuple[dict[str, Path], str | None]:
+def save_generation(
+    motion: Motion, output: Output, prompts: Sequence[str], dataset: str, track: bool = True
+) -> tuple[dict[str, Path], str | None]:
     """Write ``motion``'s files (a progress bar on stderr while animations render) and, with
     ``track``, log them to MLflow; returns format → path and the MLflow run id.
 
@@ -305,12 +349,21 @@ def save_generation(motion: Motion, output: Output, prompts: Sequence[str], data
     run_dir = output.directory is None
     directory = new_run_dir(dataset, GENERATE_STAGE) if run_dir else output.directory
     if run_dir:
-        write_run_info(directory, stage=GENERATE_STAGE, dataset=dataset, status="running", prompts=list(prompts),
-                       actions=motion.actions, settings=motion.settings)
+        write_run_info(
+            directory,
+            stage=GENERATE_STAGE,
+            dataset=dataset,
+            status="running",
+            prompts=list(prompts),
+            actions=motion.actions,
+            settings=motion.settings,
+        )
     frames = len(motion.joints) * sum(kind in ANIMATIONS for kind in output.formats)
     try:
-        with _sigterm_as_interrupt(), tqdm(total=frames, unit="frame", desc="rendering", leave=False,
-                                           disable=None if frames else True) as bar:  # None: on a terminal only
+        with (
+            _sigterm_as_interrupt(),
+            tqdm(total=frames, unit="frame", desc="rendering", leave=False, disable=None if frames else True) as bar,
+        ):  # None: on a terminal only
             files = motion.save(directory, output.name, output.formats, progress=lambda _: bar.update())
             run_id = log_generation(motion, prompts, files, dataset) if track else None
     except BaseException as error:
@@ -320,8 +373,13 @@ def save_generation(motion: Motion, output: Output, prompts: Sequence[str], data
             raise UserError(str(error)) from error
         raise
     if run_dir:
-        write_run_info(directory, status="finished", files={k: str(v) for k, v in files.items()},
-                       mlflow_run_id=run_id, quality=motion.quality)
+        write_run_info(
+            directory,
+            status="finished",
+            files={k: str(v) for k, v in files.items()},
+            mlflow_run_id=run_id,
+            quality=motion.quality,
+        )
     return files, run_id
 
 
@@ -329,10 +387,18 @@ def log_generation(motion: Motion, prompts: Sequence[str], files: dict[str, Path
     """Record one generation in MLflow (experiment ``<dataset>/generate``): prompts, actions,
     settings as params, the quality figures as metrics, each file once as an artifact; returns
     the MLflow run id."""
-    params = {**{k: str(v) for k, v in motion.settings.items()}, "prompts": " | ".join(prompts)[:500],
-              "actions": " | ".join(motion.actions)[:500], "seconds": f"{motion.seconds:.2f}"}
-    tags = {"dataset": dataset, "stage": GENERATE_STAGE, "model": str(motion.settings.get("model")),
-            "method": str(motion.settings.get("method"))}
+    params = {
+        **{k: str(v) for k, v in motion.settings.items()},
+        "prompts": " | ".join(prompts)[:500],
+        "actions": " | ".join(motion.actions)[:500],
+        "seconds": f"{motion.seconds:.2f}",
+    }
+    tags = {
+        "dataset": dataset,
+        "stage": GENERATE_STAGE,
+        "model": str(motion.settings.get("model")),
+        "method": str(motion.settings.get("method")),
+    }
     with tracked_run(experiment_name(dataset, GENERATE_STAGE), tags=tags, params=params) as (client, run_id):
         for name, value in motion.quality.items():
             client.log_metric(run_id, name, value)

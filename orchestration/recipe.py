@@ -63,15 +63,17 @@ class Recipe:
         """The model's own trainer callbacks (sample previews, for instance)."""
         return []
 
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, lengths: Any,
-             extra: dict[str, Any]) -> Path:
+    def save(
+        self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, lengths: Any, extra: dict[str, Any]
+    ) -> Path:
         """Write the model file at ``path`` from ``module``'s current weights, with the length
         prior of the training captions and ``extra`` (where the run and its inputs are)."""
         raise NotImplementedError
 
 
-def caption_vocabulary(config: dict[str, Any], datamodule: Any, sentences: Callable[[dict[str, Any]], Iterable[str]]
-                       ) -> list[str] | None:
+def caption_vocabulary(
+    config: dict[str, Any], datamodule: Any, sentences: Callable[[dict[str, Any]], Iterable[str]]
+) -> list[str] | None:
     """The words of a learned text encoder: those of ``sentences(caption)`` over the train captions
     (None when the config's text encoder is not a learned one)."""
     from m2d2m.text import LearnedTextEncoder
@@ -80,13 +82,22 @@ def caption_vocabulary(config: dict[str, Any], datamodule: Any, sentences: Calla
     if config["text"]["kind"] != "learned":
         return None
     return LearnedTextEncoder.build_vocabulary(
-        text for meta in clip_metas(datamodule.urls("train")) for caption in meta["captions"]
-        for text in sentences(caption))
+        text
+        for meta in clip_metas(datamodule.urls("train"))
+        for caption in meta["captions"]
+        for text in sentences(caption)
+    )
 
 
-def run_recipe(entry: ModelEntry, config_name: str = "demo", overrides: list[str] | None = None,
-               resume: bool | str = False, extra_callbacks: list | None = None, join: Path | None = None,
-               ray_train: bool = False) -> Path:
+def run_recipe(
+    entry: ModelEntry,
+    config_name: str = "demo",
+    overrides: list[str] | None = None,
+    resume: bool | str = False,
+    extra_callbacks: list | None = None,
+    join: Path | None = None,
+    ray_train: bool = False,
+) -> Path:
     """Train ``entry``'s model with its recipe; returns the run directory (with the model file on
     success). ``join``: a run another process opened (its config is used, ``config_name`` and
     ``overrides`` are not); ``ray_train``: this process is a Ray Train worker; ``extra_callbacks``
@@ -105,31 +116,59 @@ def run_recipe(entry: ModelEntry, config_name: str = "demo", overrides: list[str
         raise UserError(str(error)) from error
     pl.seed_everything(config["seed"], workers=True, verbose=False)
     module = recipe.module(config, data)
-    fitted = fit(run, module, data.datamodule, recipe.monitor,
-                 [*recipe.callbacks(run, data), *(extra_callbacks or [])], ray_train=ray_train)
+    fitted = fit(
+        run,
+        module,
+        data.datamodule,
+        recipe.monitor,
+        [*recipe.callbacks(run, data), *(extra_callbacks or [])],
+        ray_train=ray_train,
+    )
     if not fitted.primary:
         return run.run_dir
     lengths = length_prior(data.datamodule.urls("train"), data.frames_per_unit)
-    extra = {"run": run.run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
-             "data_dir": str(data.data_dir.resolve()), **data.records(),
-             "best_val_loss": float(fitted.checkpoints.best_model_score)}
+    extra = {
+        "run": run.run_dir.name,
+        "mlflow_run_id": fitted.logger.run_id,
+        "dataset": config["dataset"],
+        "data_dir": str(data.data_dir.resolve()),
+        **data.records(),
+        "best_val_loss": float(fitted.checkpoints.best_model_score),
+    }
     model_file = run.run_dir / entry.model_file
     recipe.save(model_file, module, config, data, lengths, extra)
     export_snapshots(run.run_dir, module, lambda path: recipe.save(path, module, config, data, lengths, extra))
-    finish(run.run_dir, fitted, [model_file, Path(fitted.checkpoints.best_model_path), fitted.last,
-                                 run.run_dir / "config.yaml"], model=str(model_file.resolve()), **data.records())
+    finish(
+        run.run_dir,
+        fitted,
+        [model_file, Path(fitted.checkpoints.best_model_path), fitted.last, run.run_dir / "config.yaml"],
+        model=str(model_file.resolve()),
+        **data.records(),
+    )
     return run.run_dir
 
 
 @records_failure
-def train_model(name: str, config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
-                extra_callbacks: list | None = None) -> Path:
+def train_model(
+    name: str,
+    config_name: str = "demo",
+    overrides: list[str] | None = None,
+    resume: bool | str = False,
+    extra_callbacks: list | None = None,
+) -> Path:
     """Train the registered model ``name`` (``m2d2m train-diffusion`` for M2D2M); returns the run directory."""
     return run_recipe(model(name), config_name, overrides, resume, extra_callbacks)
 
 
-def train_on_workers(name: str, config_name: str, overrides: list[str], workers: int, use_gpu: bool,
-                     cpus_per_worker: float, storage: Path) -> Path:
+def train_on_workers(
+    name: str,
+    config_name: str,
+    overrides: list[str],
+    workers: int,
+    use_gpu: bool,
+    cpus_per_worker: float,
+    storage: Path,
+) -> Path:
     """A registered model trained in DDP by ``workers`` Ray Train workers, one device each (the
     GPUs of one node or of several); returns the run directory, whose files rank 0 wrote.
     ``storage``, where Ray Train keeps its state, and the project directory must be seen by every
@@ -138,16 +177,24 @@ def train_on_workers(name: str, config_name: str, overrides: list[str], workers:
     from ray.train.torch import TorchTrainer
 
     entry = model(name)
-    run_dir = open_run(entry.stage, entry.configs, config_name, overrides, resume=False,
-                       renamed=entry.load("recipe").renamed).run_dir
+    run_dir = open_run(
+        entry.stage, entry.configs, config_name, overrides, resume=False, renamed=entry.load("recipe").renamed
+    ).run_dir
     trainer = TorchTrainer(
         _ray_train_worker,
-        train_loop_config={"project": str(Path.cwd().resolve()), "run_dir": str(run_dir.resolve()),
-                           "tracking_uri": tracking_uri(), "cpus": cpus_per_worker, "model": name,
-                           "plugins": plugins_for_workers()},
-        scaling_config=ScalingConfig(num_workers=workers, use_gpu=use_gpu,
-                                     resources_per_worker={"CPU": cpus_per_worker}),
-        run_config=RunConfig(name=f"{entry.stage}-{run_dir.name}", storage_path=str(storage.resolve())))
+        train_loop_config={
+            "project": str(Path.cwd().resolve()),
+            "run_dir": str(run_dir.resolve()),
+            "tracking_uri": tracking_uri(),
+            "cpus": cpus_per_worker,
+            "model": name,
+            "plugins": plugins_for_workers(),
+        },
+        scaling_config=ScalingConfig(
+            num_workers=workers, use_gpu=use_gpu, resources_per_worker={"CPU": cpus_per_worker}
+        ),
+        run_config=RunConfig(name=f"{entry.stage}-{run_dir.name}", storage_path=str(storage.resolve())),
+    )
     trainer.fit()
     if read_run_info(run_dir).get("status") != "finished":
         raise UserError(f"{run_dir}: the Ray Train workers stopped before rank 0 finished the run")
@@ -159,4 +206,3 @@ def _ray_train_worker(config: dict[str, Any]) -> None:
     enter_project(config["project"], config["tracking_uri"], config["cpus"])
     load_plugins(**config["plugins"])
     run_recipe(model(config["model"]), join=Path(config["run_dir"]), ray_train=True)
-

@@ -65,30 +65,66 @@ def register(entry: ModelEntry) -> ModelEntry:
     return entry
 
 
-register(ModelEntry(
-    name="m2d2m", summary="M2D2M: discrete diffusion over VQ tokens, β(t, d), Two-Phase Sampling",
-    stage="m2d2m", legacy_stages=("diffusion",), configs="m2d2m", train_verb="train-diffusion",
-    model_file="model.pt", generator="m2d2m.generators.m2d2m:M2D2MGenerator",
-    recipe="orchestration.recipes.m2d2m:RECIPE", sampling="m2d2m.generators.m2d2m_options:SAMPLING",
-    shortcuts=("ts", "eta", "guidance", "truncation")))
+register(
+    ModelEntry(
+        name="m2d2m",
+        summary="M2D2M: discrete diffusion over VQ tokens, β(t, d), Two-Phase Sampling",
+        stage="m2d2m",
+        legacy_stages=("diffusion",),
+        configs="m2d2m",
+        train_verb="train-diffusion",
+        model_file="model.pt",
+        generator="m2d2m.generators.m2d2m:M2D2MGenerator",
+        recipe="orchestration.recipes.m2d2m:RECIPE",
+        sampling="m2d2m.generators.m2d2m_options:SAMPLING",
+        shortcuts=("ts", "eta", "guidance", "truncation"),
+    )
+)
 
-register(ModelEntry(
-    name="mmm", summary="MMM: a masked motion model over VQ tokens, parallel decoding, transition tokens",
-    stage="mmm", legacy_stages=(), configs="mmm", train_verb="train-mmm", model_file="model.pt",
-    generator="m2d2m.generators.mmm:MMMGenerator", recipe="orchestration.recipes.mmm:RECIPE",
-    sampling="m2d2m.generators.mmm_options:SAMPLING"))
+register(
+    ModelEntry(
+        name="mmm",
+        summary="MMM: a masked motion model over VQ tokens, parallel decoding, transition tokens",
+        stage="mmm",
+        legacy_stages=(),
+        configs="mmm",
+        train_verb="train-mmm",
+        model_file="model.pt",
+        generator="m2d2m.generators.mmm:MMMGenerator",
+        recipe="orchestration.recipes.mmm:RECIPE",
+        sampling="m2d2m.generators.mmm_options:SAMPLING",
+    )
+)
 
-register(ModelEntry(
-    name="mmm-body", summary="MMM's upper-body editor: new upper body from text, the lower body kept",
-    stage="mmm-body", legacy_stages=(), configs="mmm-body", train_verb="train-mmm-body", model_file="model.pt",
-    generator="m2d2m.generators.mmm_body:BodyMMMGenerator", recipe="orchestration.recipes.mmm_body:RECIPE",
-    sampling="m2d2m.generators.mmm_options:BODY_SAMPLING"))
+register(
+    ModelEntry(
+        name="mmm-body",
+        summary="MMM's upper-body editor: new upper body from text, the lower body kept",
+        stage="mmm-body",
+        legacy_stages=(),
+        configs="mmm-body",
+        train_verb="train-mmm-body",
+        model_file="model.pt",
+        generator="m2d2m.generators.mmm_body:BodyMMMGenerator",
+        recipe="orchestration.recipes.mmm_body:RECIPE",
+        sampling="m2d2m.generators.mmm_options:BODY_SAMPLING",
+    )
+)
 
-register(ModelEntry(
-    name="motiondiffuse", summary="MotionDiffuse: Gaussian diffusion on features, time-varied and body-part control",
-    stage="motiondiffuse", legacy_stages=(), configs="motiondiffuse", train_verb="train-motiondiffuse",
-    model_file="model.pt", generator="m2d2m.generators.motiondiffuse:MotionDiffuseGenerator",
-    recipe="orchestration.recipes.motiondiffuse:RECIPE", sampling="m2d2m.generators.motiondiffuse_options:SAMPLING"))
+register(
+    ModelEntry(
+        name="motiondiffuse",
+        summary="MotionDiffuse: Gaussian diffusion on features, time-varied and body-part control",
+        stage="motiondiffuse",
+        legacy_stages=(),
+        configs="motiondiffuse",
+        train_verb="train-motiondiffuse",
+        model_file="model.pt",
+        generator="m2d2m.generators.motiondiffuse:MotionDiffuseGenerator",
+        recipe="orchestration.recipes.motiondiffuse:RECIPE",
+        sampling="m2d2m.generators.motiondiffuse_options:SAMPLING",
+    )
+)
 
 
 def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) -> list[str]:

@@ -18,16 +18,41 @@ TABLE_MD, TABLE_JSON, FIGURE = "table.md", "table.json", "fig5.png"
 GT_SINGLE, GT_CONCAT, RECONSTRUCTION, GENERATED = "gt_single", "gt_concat", "reconstruction", "generated"
 
 # (metric, column title) of each table, in the paper's order
-MULTI_COLUMNS = (("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MMdist ↓"), ("diversity", "Div →"),
-                 ("transition_fid", "Transition FID ↓"), ("transition_diversity", "Transition Div →"),
-                 ("jerk", "Jerk →"), ("peak_jerk", "PJ →"), ("auj", "AUJ ↓"), ("bone_std", "Bone σ (mm) ↓"))
-SINGLE_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top2", "R-Top2 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"),
-                  ("mm_dist", "MM-Dist ↓"), ("diversity", "Diversity →"), ("mmodality", "MModality ↑"))
-EDIT_COLUMNS = (("r_top1", "R-Top1 ↑"), ("r_top3", "R-Top3 ↑"), ("fid", "FID ↓"), ("mm_dist", "MM-Dist ↓"),
-                ("diversity", "Diversity →"))  # MMM Table 3's, and R-Top3 as every table here has
+MULTI_COLUMNS = (
+    ("r_top3", "R-Top3 ↑"),
+    ("fid", "FID ↓"),
+    ("mm_dist", "MMdist ↓"),
+    ("diversity", "Div →"),
+    ("transition_fid", "Transition FID ↓"),
+    ("transition_diversity", "Transition Div →"),
+    ("jerk", "Jerk →"),
+    ("peak_jerk", "PJ →"),
+    ("auj", "AUJ ↓"),
+    ("bone_std", "Bone σ (mm) ↓"),
+)
+SINGLE_COLUMNS = (
+    ("r_top1", "R-Top1 ↑"),
+    ("r_top2", "R-Top2 ↑"),
+    ("r_top3", "R-Top3 ↑"),
+    ("fid", "FID ↓"),
+    ("mm_dist", "MM-Dist ↓"),
+    ("diversity", "Diversity →"),
+    ("mmodality", "MModality ↑"),
+)
+EDIT_COLUMNS = (
+    ("r_top1", "R-Top1 ↑"),
+    ("r_top3", "R-Top3 ↑"),
+    ("fid", "FID ↓"),
+    ("mm_dist", "MM-Dist ↓"),
+    ("diversity", "Diversity →"),
+)  # MMM Table 3's, and R-Top3 as every table here has
 EDIT_TITLES = {"inbetween": "In-betweening", "upper": "Upper-body editing"}
-ROW_TITLES = {GT_SINGLE: "Ground truth (single)", GT_CONCAT: "Ground truth (concat)",
-              RECONSTRUCTION: "VQ-VAE reconstruction", GENERATED: "Generated (single action)"}
+ROW_TITLES = {
+    GT_SINGLE: "Ground truth (single)",
+    GT_CONCAT: "Ground truth (concat)",
+    RECONSTRUCTION: "VQ-VAE reconstruction",
+    GENERATED: "Generated (single action)",
+}
 
 
 def multi_columns(table: dict[str, Any]) -> tuple[tuple[str, str], ...]:
@@ -49,8 +74,10 @@ def _summary(values: Sequence[float]) -> dict[str, float | None]:
 def summarize_rows(per_repeat: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, dict[str, float | None]]]:
     """Row → metric → mean and CI, from each row's per-repeat metric dicts (a repeat written
     before a metric existed, continued by ``--resume``, leaves that metric undefined)."""
-    return {row: {metric: _summary([r.get(metric, np.nan) for r in repeats]) for metric in repeats[0]}
-            for row, repeats in per_repeat.items()}
+    return {
+        row: {metric: _summary([r.get(metric, np.nan) for r in repeats]) for metric in repeats[0]}
+        for row, repeats in per_repeat.items()
+    }
 
 
 def cell(summary: dict[str, float | None] | None) -> str:
@@ -60,10 +87,15 @@ def cell(summary: dict[str, float | None] | None) -> str:
     return f"{summary['mean']:.3f} ± {summary['ci']:.3f}"
 
 
-def _markdown(title: str, columns: tuple[tuple[str, str], ...], rows: dict[str, dict[str, Any]],
-              titles: dict[str, str]) -> list[str]:
-    lines = [f"## {title}", "", "| Method | " + " | ".join(name for _, name in columns) + " |",
-             "| --- |" + " --- |" * len(columns)]
+def _markdown(
+    title: str, columns: tuple[tuple[str, str], ...], rows: dict[str, dict[str, Any]], titles: dict[str, str]
+) -> list[str]:
+    lines = [
+        f"## {title}",
+        "",
+        "| Method | " + " | ".join(name for _, name in columns) + " |",
+        "| --- |" + " --- |" * len(columns),
+    ]
     for row, values in rows.items():
         name = titles.get(row, ROW_TITLES.get(row, row))
         lines.append(f"| {name} | " + " | ".join(cell(values.get(m)) for m, _ in columns) + " |")
@@ -74,9 +106,13 @@ def render_table(table: dict[str, Any]) -> str:
     """table.md: the paper's tables, then the conventions a reader needs to compare them."""
     settings, testset, titles = table["settings"], table["testset"], table.get("titles", {})
     judged = ", ".join(c["checkpoint"] for c in settings["candidates"])
-    lines = [f"# Evaluation of {judged}", "",
-             f"Test set {testset['path']}: {testset['instances']} instances of N = {testset['n']} actions. "
-             f"Mean ± 95 % CI over {settings['repeats']} repeats.", ""]
+    lines = [
+        f"# Evaluation of {judged}",
+        "",
+        f"Test set {testset['path']}: {testset['instances']} instances of N = {testset['n']} actions. "
+        f"Mean ± 95 % CI over {settings['repeats']} repeats.",
+        "",
+    ]
     lines += _markdown("Multi-motion (paper Tables 1–2)", multi_columns(table), table["multi"], titles)
     if "single" in table:
         lines += _markdown("Single-motion (paper Table 3)", SINGLE_COLUMNS, table["single"], titles)
@@ -89,19 +125,23 @@ def render_table(table: dict[str, Any]) -> str:
 def notes(sampling: str, single_sampling: str | None, reference: Reference) -> list[str]:
     """The conventions a reader needs: the sampling settings as the generator describes them
     (``single_sampling`` when the single-motion table was made), the windows, the Jerk's units."""
-    lines = [f"sampling: {sampling}" + (f"; single-motion: {single_sampling}" if single_sampling else ""),
-             f"transition: the {WINDOW} frames around each boundary; ground truth (single) = the middle "
-             f"{WINDOW} frames of every ground-truth item",
-             "Jerk: paper eq. 10 averaged over joints and boundaries, time measured in frames (fps = 1)",
-             "PJ, AUJ: FlowMDM's (Barquero et al., CVPR 2024; not the paper's Jerk): per frame, the L1 norm of "
-             "each joint's third difference, max over joints, averaged over the full transition windows; PJ its "
-             "peak, AUJ Σ |curve − c| with c = {:.6f} m/frame³, this test set's ground-truth mean (FlowMDM's "
-             "for HumanML3D: 0.033031363)".format(reference.frame_jerk_mean),
-             "Bone σ: each bone's standard deviation of length over a sequence's decoded joints, mean over "
-             "bones and sequences, in mm (0 = one rigid skeleton; `m2d2m generate` puts its files on one)"]
+    lines = [
+        f"sampling: {sampling}" + (f"; single-motion: {single_sampling}" if single_sampling else ""),
+        f"transition: the {WINDOW} frames around each boundary; ground truth (single) = the middle "
+        f"{WINDOW} frames of every ground-truth item",
+        "Jerk: paper eq. 10 averaged over joints and boundaries, time measured in frames (fps = 1)",
+        "PJ, AUJ: FlowMDM's (Barquero et al., CVPR 2024; not the paper's Jerk): per frame, the L1 norm of "
+        "each joint's third difference, max over joints, averaged over the full transition windows; PJ its "
+        f"peak, AUJ Σ |curve − c| with c = {reference.frame_jerk_mean:.6f} m/frame³, this test set's ground-truth mean (FlowMDM's "
+        "for HumanML3D: 0.033031363)",
+        "Bone σ: each bone's standard deviation of length over a sequence's decoded joints, mean over "
+        "bones and sequences, in mm (0 = one rigid skeleton; `m2d2m generate` puts its files on one)",
+    ]
     if reference.rp_batch < R_PRECISION_BATCH:
-        lines.append(f"R-precision over groups of {reference.rp_batch}, not {R_PRECISION_BATCH}: the test set has only "
-                     f"{reference.items} items (not comparable with published R-Top numbers)")
+        lines.append(
+            f"R-precision over groups of {reference.rp_batch}, not {R_PRECISION_BATCH}: the test set has only "
+            f"{reference.items} items (not comparable with published R-Top numbers)"
+        )
     return lines
 
 
@@ -119,8 +159,10 @@ def plot_fig5(path: Path, curves: dict[str, dict[str, Any]]) -> Path:
         velocity, jerk_curve = np.asarray(profile["velocity"]), np.asarray(profile["jerk"])
         speed_axes.plot(np.arange(len(velocity)) - WINDOW // 2 + 0.5, velocity, label=label, **style)
         jerk_axes.plot(np.arange(len(jerk_curve)) - WINDOW // 2 + 1.5, jerk_curve, label=label, **style)
-    for axes, title, unit in ((speed_axes, "(a) Velocity", "mean joint speed (m/frame)"),
-                              (jerk_axes, "(b) Jerk", "‖jerk‖ / peak speed (frame⁻²)")):
+    for axes, title, unit in (
+        (speed_axes, "(a) Velocity", "mean joint speed (m/frame)"),
+        (jerk_axes, "(b) Jerk", "‖jerk‖ / peak speed (frame⁻²)"),
+    ):
         axes.axvline(0, color="grey", linewidth=0.8)
         axes.set(title=title, xlabel="frames from the boundary", ylabel=unit)
         axes.legend(fontsize="small")
@@ -129,8 +171,11 @@ def plot_fig5(path: Path, curves: dict[str, dict[str, Any]]) -> Path:
 
 
 Point = tuple[float, float, float | None]  # a knob's value, a metric's mean, its 95 % half-width (or None)
-KNOB_METRICS = (("jerk", "Jerk (transitions)"), ("fid", "FID (individual motions)"),
-                ("r_top3", "R-Top3 (individual motions)"))
+KNOB_METRICS = (
+    ("jerk", "Jerk (transitions)"),
+    ("fid", "FID (individual motions)"),
+    ("r_top3", "R-Top3 (individual motions)"),
+)
 
 
 def plot_against_knob(path: Path, series: dict[str, dict[str, list[Point]]], knob: str) -> Path:
@@ -163,8 +208,11 @@ def table_metrics(table: dict[str, Any]) -> dict[str, float]:
     names = {}
     sections = [("multi", row, values) for row, values in table["multi"].items()]
     sections += [("single", row, values) for row, values in table.get("single", {}).items() if row != GT_SINGLE]
-    sections += [("edit", row, values) for row, values in table.get("editing", {}).items()
-                 if row != GT_SINGLE and not row.startswith(RECONSTRUCTION)]
+    sections += [
+        ("edit", row, values)
+        for row, values in table.get("editing", {}).items()
+        if row != GT_SINGLE and not row.startswith(RECONSTRUCTION)
+    ]
     for section, row, values in sections:
         for metric, summary in values.items():
             if summary["mean"] is None:

@@ -83,7 +83,11 @@ def latest_run(dataset: str, stage: str, made_by: str, legacy: tuple[str, ...] =
 
 def newest_run(dataset: str, stage: str) -> Path:
     """The most recently started run of a stage, finished or not (what ``--resume`` continues)."""
-    runs = [p for p in stage_dir(dataset, stage).iterdir() if (p / RUN_FILE).exists()] if stage_dir(dataset, stage).exists() else []
+    runs = (
+        [p for p in stage_dir(dataset, stage).iterdir() if (p / RUN_FILE).exists()]
+        if stage_dir(dataset, stage).exists()
+        else []
+    )
     if not runs:
         raise UserError(f"nothing to resume: no {stage} run for dataset {dataset!r} under {stage_dir(dataset, stage)}")
     return max(runs, key=lambda p: read_run_info(p).get("started", 0.0))
@@ -102,11 +106,14 @@ def find_run(reference: str, dataset: str, stage: str, legacy: tuple[str, ...] =
         for run_file in stage_dir(dataset, name).glob(f"*/{RUN_FILE}"):
             if json.loads(run_file.read_text(encoding="utf-8")).get("mlflow_run_id") == reference:
                 return run_file.parent
-    raise UserError(f"no {stage} run {reference!r} for dataset {dataset!r} (a run directory, its name, or its MLflow run id)")
+    raise UserError(
+        f"no {stage} run {reference!r} for dataset {dataset!r} (a run directory, its name, or its MLflow run id)"
+    )
 
 
-def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by: str,
-             legacy: tuple[str, ...] = ()) -> Path:
+def run_file(
+    reference: str | Path, dataset: str, stage: str, name: str, made_by: str, legacy: tuple[str, ...] = ()
+) -> Path:
     """The file ``name`` of a run given as that file itself, ``latest``, a run directory, its name
     or its MLflow run id — downloaded from the tracking store (every stage logs its model files
     under ``model/``) when no local run has that id; a run without the file did not finish,
@@ -118,8 +125,11 @@ def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by
     if (path / name).is_file():  # a run directory, or a copy of one without run.json
         return path / name
     try:
-        run_dir = (latest_run(dataset, stage, made_by, legacy) if str(reference) == "latest"
-                   else find_run(str(reference), dataset, stage, legacy))
+        run_dir = (
+            latest_run(dataset, stage, made_by, legacy)
+            if str(reference) == "latest"
+            else find_run(str(reference), dataset, stage, legacy)
+        )
     except UserError:
         if not MLFLOW_ID.match(str(reference)):
             raise

@@ -37,8 +37,9 @@ def check_port_free(host: str, port: int) -> None:
         try:
             probe.bind(address)
         except OSError as error:
-            raise UserError(f"cannot listen on {host}:{port} ({error.strerror}); "
-                            f"choose another port with --port") from error
+            raise UserError(
+                f"cannot listen on {host}:{port} ({error.strerror}); choose another port with --port"
+            ) from error
 
 
 class _Stopped(Exception):

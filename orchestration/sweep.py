@@ -67,8 +67,10 @@ def _check(config: dict[str, Any]) -> None:
         raise UserError("space: give every knob a non-empty list of values")
     knobs = model(config["model"]).load("sampling").names()
     if config["kind"] == "sampling" and set(space) - set(knobs):
-        raise UserError(f"a sampling sweep of {config['model']} varies {', '.join(knobs)}; "
-                        f"unknown: {', '.join(sorted(set(space) - set(knobs)))}")
+        raise UserError(
+            f"a sampling sweep of {config['model']} varies {', '.join(knobs)}; "
+            f"unknown: {', '.join(sorted(set(space) - set(knobs)))}"
+        )
     if config["search"] not in ("grid", "random"):
         raise UserError(f"search must be grid or random, got {config['search']!r}")
     workers = config["resources"]["workers"]
@@ -106,8 +108,8 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
     returns the evaluation's metrics under their MLflow names (``multi/tps/jerk``, ``gt/jerk_concat``, ...)."""
     from orchestration.evaluate import ParentRun, evaluate, new_settings
-    from orchestration.reports import table_metrics
     from orchestration.recipe import train_model, train_on_workers
+    from orchestration.reports import table_metrics
 
     resources = context["resources"]
     enter_project(context["project"], context["tracking_uri"], resources["cpu"])
@@ -117,8 +119,15 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     if context["kind"] == "training":
         overrides = training_overrides(params)
         if resources["workers"]:
-            run_dir = train_on_workers(name, context["train_config"], overrides, resources["workers"],
-                                       resources["gpu"] > 0, resources["cpu"], Path(context["train_storage"]))
+            run_dir = train_on_workers(
+                name,
+                context["train_config"],
+                overrides,
+                resources["workers"],
+                resources["gpu"] > 0,
+                resources["cpu"],
+                Path(context["train_storage"]),
+            )
         else:
             run_dir = train_model(name, context["train_config"], overrides)
         evaluation["checkpoint"] = str(run_dir / model(name).model_file)
@@ -135,9 +144,11 @@ def _mark_interrupted(parent: Any) -> None:
     """A trial run again after its driver died: its earlier child run never finished; say so
     (KILLED) rather than leave it looking alive beside the new one."""
     mlflow_client = tracking_client()
-    earlier = mlflow_client.search_runs([parent.experiment_id],
-                                 f"tags.mlflow.parentRunId = '{parent.run_id}' and attributes.status = 'RUNNING' "
-                                 f"and attributes.run_name = '{parent.child_name}'")
+    earlier = mlflow_client.search_runs(
+        [parent.experiment_id],
+        f"tags.mlflow.parentRunId = '{parent.run_id}' and attributes.status = 'RUNNING' "
+        f"and attributes.run_name = '{parent.child_name}'",
+    )
     for run in earlier:
         mlflow_client.set_terminated(run.info.run_id, "KILLED")
 
@@ -157,19 +168,35 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
     from orchestration.evaluate import new_settings
 
     dataset, entry = config["dataset"], model(config["model"])
-    evaluation = {"testset": config["testset"], "evaluator": config["evaluator"], "methods": [config["method"]],
-                  "repeats": config["repeats"]}
+    evaluation = {
+        "testset": config["testset"],
+        "evaluator": config["evaluator"],
+        "methods": [config["method"]],
+        "repeats": config["repeats"],
+    }
     if config["kind"] == "sampling":
         resolved = new_settings(dataset, entry.name, checkpoint=config["checkpoint"], **evaluation)
-        evaluation.update(checkpoint=resolved.candidates[0].checkpoint, evaluator=resolved.evaluator,
-                          testset=resolved.testset)
+        evaluation.update(
+            checkpoint=resolved.candidates[0].checkpoint, evaluator=resolved.evaluator, testset=resolved.testset
+        )
     else:
         recipe = entry.load("recipe")
         recipe.prepare(load_config(entry.configs, config["train_config"], [], renamed=recipe.renamed))
-    return {"project": str(Path.cwd().resolve()), "tracking_uri": tracking_uri(), "dataset": dataset,
-            "model": entry.name, "plugins": plugins_for_workers(), "kind": config["kind"], "knobs": list(config["space"]),
-            "evaluation": evaluation, "train_config": config["train_config"], "resources": config["resources"],
-            "train_storage": str(sweep_dir / "train"), "experiment_id": parent[0], "parent_run_id": parent[1]}
+    return {
+        "project": str(Path.cwd().resolve()),
+        "tracking_uri": tracking_uri(),
+        "dataset": dataset,
+        "model": entry.name,
+        "plugins": plugins_for_workers(),
+        "kind": config["kind"],
+        "knobs": list(config["space"]),
+        "evaluation": evaluation,
+        "train_config": config["train_config"],
+        "resources": config["resources"],
+        "train_storage": str(sweep_dir / "train"),
+        "experiment_id": parent[0],
+        "parent_run_id": parent[1],
+    }
 
 
 def _trial_resources(resources: dict[str, Any]) -> dict[str, float]:
@@ -194,13 +221,17 @@ def _check_resumable(sweep_dir: Path, config: dict[str, Any]) -> None:
     if saved is None:
         return
     if "model" not in saved["config"]:  # its Tune experiment holds trials of the older layout
-        raise UserError(f"{sweep_dir} was started by an m2d2m without the model registry and cannot be "
-                        f"resumed; --restart replaces it")
+        raise UserError(
+            f"{sweep_dir} was started by an m2d2m without the model registry and cannot be "
+            f"resumed; --restart replaces it"
+        )
     before, now = flatten(_upgrade(saved["config"])), flatten(json.loads(json.dumps(config)))
     changed = sorted(key for key in before.keys() | now.keys() if before.get(key, ()) != now.get(key, ()))
     if changed:
-        raise UserError(f"{sweep_dir} was started with another config ({', '.join(changed)} changed); "
-                        f"give this sweep a new --name, or --restart to replace that one")
+        raise UserError(
+            f"{sweep_dir} was started with another config ({', '.join(changed)} changed); "
+            f"give this sweep a new --name, or --restart to replace that one"
+        )
 
 
 def _discard(sweep_dir: Path) -> None:
@@ -224,20 +255,36 @@ def _parent_run(sweep_dir: Path, name: str, config: dict[str, Any]) -> tuple[str
     saved = _recorded(sweep_dir)
     if saved is not None:
         return saved["experiment_id"], saved["parent_run_id"]
-    params = {"model": config["model"], "kind": config["kind"], "method": config["method"],
-              "repeats": config["repeats"], "search": config["search"],
-              **{f"space.{k}": json.dumps(v) for k, v in config["space"].items()}}
-    run_id = start_run(experiment_name(config["dataset"], SWEEP_STAGE), name,
-                       {"dataset": config["dataset"], "stage": SWEEP_STAGE, "sweep_kind": config["kind"]}, params)
+    params = {
+        "model": config["model"],
+        "kind": config["kind"],
+        "method": config["method"],
+        "repeats": config["repeats"],
+        "search": config["search"],
+        **{f"space.{k}": json.dumps(v) for k, v in config["space"].items()},
+    }
+    run_id = start_run(
+        experiment_name(config["dataset"], SWEEP_STAGE),
+        name,
+        {"dataset": config["dataset"], "stage": SWEEP_STAGE, "sweep_kind": config["kind"]},
+        params,
+    )
     experiment_id = tracking_client().get_run(run_id).info.experiment_id
     sweep_dir.mkdir(parents=True, exist_ok=True)
-    (sweep_dir / SWEEP_FILE).write_text(json.dumps({"experiment_id": experiment_id, "parent_run_id": run_id,
-                                                    "config": config}, indent=2), encoding="utf-8")
+    (sweep_dir / SWEEP_FILE).write_text(
+        json.dumps({"experiment_id": experiment_id, "parent_run_id": run_id, "config": config}, indent=2),
+        encoding="utf-8",
+    )
     return experiment_id, run_id
 
 
-def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str | None = None,
-          name: str | None = None, restart: bool = False) -> Path:
+def sweep(
+    config_name: str,
+    overrides: list[str] | None = None,
+    ray_address: str | None = None,
+    name: str | None = None,
+    restart: bool = False,
+) -> Path:
     """Run (or resume) the sweep ``name`` (default: the config's file name), or with ``restart``
     start it over; returns its directory with the summary table and plot."""
     from ray import tune
@@ -264,22 +311,37 @@ def sweep(config_name: str, overrides: list[str] | None = None, ray_address: str
             print(f"resuming the sweep in {storage / name}")
             tuner = tune.Tuner.restore(str(storage / name), trainable, resume_errored=True)
         else:
-            space = {key: (tune.grid_search(values) if config["search"] == "grid" else tune.choice(values))
-                     for key, values in config["space"].items()}
+            space = {
+                key: (tune.grid_search(values) if config["search"] == "grid" else tune.choice(values))
+                for key, values in config["space"].items()
+            }
             tuner = tune.Tuner(
-                trainable, param_space={**space, "context": context},
-                tune_config=tune.TuneConfig(num_samples=1 if config["search"] == "grid" else config["samples"],
-                                            max_concurrent_trials=config["max_concurrent"]),
-                run_config=tune.RunConfig(name=name, storage_path=str(storage), verbose=1,
-                                          failure_config=tune.FailureConfig(max_failures=config["max_failures"])))
+                trainable,
+                param_space={**space, "context": context},
+                tune_config=tune.TuneConfig(
+                    num_samples=1 if config["search"] == "grid" else config["samples"],
+                    max_concurrent_trials=config["max_concurrent"],
+                ),
+                run_config=tune.RunConfig(
+                    name=name,
+                    storage_path=str(storage),
+                    verbose=1,
+                    failure_config=tune.FailureConfig(max_failures=config["max_failures"]),
+                ),
+            )
         results = tuner.fit()
         failed = [result for result in results if result.error is not None]
-        rows = [{**{k: result.config[k] for k in context["knobs"]}, **result.metrics}
-                for result in results if result.error is None and result.metrics]
+        rows = [
+            {**{k: result.config[k] for k in context["knobs"]}, **result.metrics}
+            for result in results
+            if result.error is None and result.metrics
+        ]
         summarize(sweep_dir, rows, config, parent[1])
         if failed:
-            raise UserError(f"{len(failed)} of {len(results)} trials failed after {config['max_failures']} retries; "
-                            f"see {storage / name}")
+            raise UserError(
+                f"{len(failed)} of {len(results)} trials failed after {config['max_failures']} retries; "
+                f"see {storage / name}"
+            )
     return sweep_dir
 
 
@@ -293,15 +355,23 @@ def summarize(sweep_dir: Path, rows: list[dict[str, Any]], config: dict[str, Any
     kept.sort(key=lambda row: tuple(row[k] for k in knobs))
     (sweep_dir / SUMMARY_JSON).write_text(json.dumps(kept, indent=2), encoding="utf-8")
     lines = ["| " + " | ".join(knobs + metric_names) + " |", "|" + " --- |" * (len(knobs) + len(metric_names))]
-    lines += ["| " + " | ".join(str(row[k]) for k in knobs) + " | "
-              + " | ".join("–" if row[m] is None else f"{row[m]:.3f}" for m in metric_names) + " |" for row in kept]
+    lines += [
+        "| "
+        + " | ".join(str(row[k]) for k in knobs)
+        + " | "
+        + " | ".join("–" if row[m] is None else f"{row[m]:.3f}" for m in metric_names)
+        + " |"
+        for row in kept
+    ]
     (sweep_dir / SUMMARY_MD).write_text("\n".join(lines) + "\n", encoding="utf-8")
     client = tracking_client()
     client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_MD))
     client.log_artifact(parent_run_id, str(sweep_dir / SUMMARY_JSON))
     if config["kind"] == "sampling":
         x = knobs[-1]
-        path = plot_against(sweep_dir / summary_plot(x), kept, config["method"], x, knobs[0] if len(knobs) > 1 else None)
+        path = plot_against(
+            sweep_dir / summary_plot(x), kept, config["method"], x, knobs[0] if len(knobs) > 1 else None
+        )
         client.log_artifact(parent_run_id, str(path))
 
 
@@ -310,7 +380,13 @@ def plot_against(path: Path, rows: list[dict[str, Any]], method: str, x: str, li
     from orchestration.reports import KNOB_METRICS, plot_against_knob
 
     values = sorted({row[line] for row in rows}) if line else [None]
-    series = {metric: {(f"{line} = {value}" if line else method): [
-        (row[x], row[f"multi/{method}/{metric}"], None) for row in rows if line is None or row[line] == value]
-        for value in values} for metric, _ in KNOB_METRICS}
+    series = {
+        metric: {
+            (f"{line} = {value}" if line else method): [
+                (row[x], row[f"multi/{method}/{metric}"], None) for row in rows if line is None or row[line] == value
+            ]
+            for value in values
+        }
+        for metric, _ in KNOB_METRICS
+    }
     return plot_against_knob(path, series, x)

@@ -48,8 +48,11 @@ def log_batch(mlflow_client, run_id: str, params: dict | None = None, metrics: d
     from mlflow.entities import Metric, Param
 
     now = int(time.time() * 1000)
-    mlflow_client.log_batch(run_id, params=[Param(k, str(v)) for k, v in (params or {}).items()],
-                            metrics=[Metric(k, float(v), now, 0) for k, v in (metrics or {}).items()])
+    mlflow_client.log_batch(
+        run_id,
+        params=[Param(k, str(v)) for k, v in (params or {}).items()],
+        metrics=[Metric(k, float(v), now, 0) for k, v in (metrics or {}).items()],
+    )
 
 
 def ensure_experiment(name: str) -> str:
@@ -61,8 +64,13 @@ def ensure_experiment(name: str) -> str:
     return client_.create_experiment(name, artifact_location=artifact_location(name))
 
 
-def start_run(experiment: str, run_name: str | None = None, tags: dict[str, str] | None = None,
-              params: dict[str, Any] | None = None, parent: tuple[str, str] | None = None) -> str:
+def start_run(
+    experiment: str,
+    run_name: str | None = None,
+    tags: dict[str, str] | None = None,
+    params: dict[str, Any] | None = None,
+    parent: tuple[str, str] | None = None,
+) -> str:
     """A new MLflow run in the experiment named ``experiment`` — or, given ``parent`` (experiment
     id, run id), a child run of that run in its experiment — with its tags and params; its id."""
     client_ = client()
@@ -91,8 +99,12 @@ def finishing(run_id: str) -> Iterator[Any]:
 
 
 @contextlib.contextmanager
-def tracked_run(experiment: str, run_name: str | None = None, tags: dict[str, str] | None = None,
-                params: dict[str, Any] | None = None) -> Iterator[tuple[Any, str]]:
+def tracked_run(
+    experiment: str,
+    run_name: str | None = None,
+    tags: dict[str, str] | None = None,
+    params: dict[str, Any] | None = None,
+) -> Iterator[tuple[Any, str]]:
     """:func:`start_run` and :func:`finishing` in one: the client and the new run's id."""
     run_id = start_run(experiment, run_name, tags, params)
     with finishing(run_id) as client_:
@@ -117,5 +129,15 @@ def ui_command(host: str, port: int) -> list[str]:
     import sys
 
     mlflow = shutil.which("mlflow", path=str(Path(sys.executable).parent)) or "mlflow"
-    return [mlflow, "server", "--backend-store-uri", tracking_uri(), "--host", host, "--port", str(port),
-            "--workers", "1"]
+    return [
+        mlflow,
+        "server",
+        "--backend-store-uri",
+        tracking_uri(),
+        "--host",
+        host,
+        "--port",
+        str(port),
+        "--workers",
+        "1",
+    ]

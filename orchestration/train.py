@@ -32,8 +32,7 @@ from m2d2m.layout import VQ_FILE
 from m2d2m.motion.body_parts import FULL
 from orchestration.config import flatten, is_number, load_config, rename_keys
 from orchestration.errors import UserError
-from orchestration.runs import (find_run, mark_latest, new_run_dir, newest_run, read_run_info, run_file,
-                                 write_run_info)
+from orchestration.runs import find_run, mark_latest, new_run_dir, newest_run, read_run_info, run_file, write_run_info
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
 VQ_STAGE = "vq"
@@ -77,16 +76,23 @@ def _check_settings(config: dict[str, Any]) -> None:
     if not (_is_finite_number(ema) and 0.0 <= ema < 1.0):
         raise UserError(f"trainer.ema must be a decay in [0, 1) (0: off), got {ema!r}")
     snapshots = trainer_cfg.get("snapshots") or []
-    if not isinstance(snapshots, list) or not all(_is_count(step) and step <= trainer_cfg["max_steps"]
-                                                  for step in snapshots):
-        raise UserError(f"trainer.snapshots must be a list of steps from 1 to trainer.max_steps "
-                        f"({trainer_cfg['max_steps']}), got {snapshots!r}")
+    if not isinstance(snapshots, list) or not all(
+        _is_count(step) and step <= trainer_cfg["max_steps"] for step in snapshots
+    ):
+        raise UserError(
+            f"trainer.snapshots must be a list of steps from 1 to trainer.max_steps "
+            f"({trainer_cfg['max_steps']}), got {snapshots!r}"
+        )
     if trainer_cfg["accelerator"] not in ACCELERATORS:
-        raise UserError(f"trainer.accelerator must be one of {', '.join(ACCELERATORS)}, "
-                        f"got {trainer_cfg['accelerator']!r}")
+        raise UserError(
+            f"trainer.accelerator must be one of {', '.join(ACCELERATORS)}, got {trainer_cfg['accelerator']!r}"
+        )
     devices = trainer_cfg["devices"]
-    if not (devices in ("auto", -1) or _is_count(devices)
-            or (isinstance(devices, list) and devices and all(isinstance(d, int) and d >= 0 for d in devices))):
+    if not (
+        devices in ("auto", -1)
+        or _is_count(devices)
+        or (isinstance(devices, list) and devices and all(isinstance(d, int) and d >= 0 for d in devices))
+    ):
         raise UserError(f"trainer.devices must be auto, -1, a count >= 1 or a list of device indices, got {devices!r}")
     if not _is_finite_number(optim["lr"]) or not optim["lr"] > 0:
         raise UserError(f"optim.lr must be a number > 0, got {optim['lr']!r}")
@@ -118,8 +124,11 @@ def records_failure(stage: Callable[..., Path]) -> Callable[..., Path]:
         except BaseException as error:
             for run_dir in _opened[depth:]:
                 if read_run_info(run_dir).get("status") == "running":
-                    write_run_info(run_dir, status="interrupted" if isinstance(error, KeyboardInterrupt) else "failed",
-                                   error=f"{type(error).__name__}: {error}"[:1000])
+                    write_run_info(
+                        run_dir,
+                        status="interrupted" if isinstance(error, KeyboardInterrupt) else "failed",
+                        error=f"{type(error).__name__}: {error}"[:1000],
+                    )
             if isinstance(error, ConfigError):
                 raise UserError(str(error)) from error
             raise
@@ -141,8 +150,15 @@ class OpenedRun:
     resume: bool | str
 
 
-def open_run(stage: str, configs: str, config_name: str, overrides: list[str], resume: bool | str,
-             join: Path | None = None, renamed: dict[str, str] | None = None) -> OpenedRun:
+def open_run(
+    stage: str,
+    configs: str,
+    config_name: str,
+    overrides: list[str],
+    resume: bool | str,
+    join: Path | None = None,
+    renamed: dict[str, str] | None = None,
+) -> OpenedRun:
     """The run of ``stage`` to train, new or resumed, with its config (``configs/<configs>/<config_name>.yaml``
     with the overrides; keys of older names ``renamed`` read under their new ones, in a file as
     in a resumed run's record). A new run's config is written before training, so processes
@@ -210,8 +226,12 @@ def _placement(trainer_cfg: dict[str, Any], ray_train: bool) -> dict[str, Any]:
         return {"accelerator": trainer_cfg["accelerator"], "devices": trainer_cfg["devices"]}
     from ray.train.lightning import RayDDPStrategy, RayLightningEnvironment
 
-    return {"accelerator": trainer_cfg["accelerator"], "devices": "auto", "strategy": RayDDPStrategy(),
-            "plugins": [RayLightningEnvironment()]}
+    return {
+        "accelerator": trainer_cfg["accelerator"],
+        "devices": "auto",
+        "strategy": RayDDPStrategy(),
+        "plugins": [RayLightningEnvironment()],
+    }
 
 
 @contextlib.contextmanager
@@ -247,8 +267,9 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
     if trainer_cfg.get("snapshots"):
         callbacks = [*callbacks, StepSnapshots(run_dir / SNAPSHOTS, trainer_cfg["snapshots"])]
     logger = _mlflow_logger(config["dataset"], run.stage, run_dir, run.run_id)
-    checkpoints = ModelCheckpoint(dirpath=run_dir / "checkpoints", filename="best", monitor=monitor,
-                                  mode="min", save_last=True, save_top_k=1)
+    checkpoints = ModelCheckpoint(
+        dirpath=run_dir / "checkpoints", filename="best", monitor=monitor, mode="min", save_last=True, save_top_k=1
+    )
     trainer = pl.Trainer(
         **_placement(trainer_cfg, ray_train),
         max_steps=trainer_cfg["max_steps"],
@@ -272,12 +293,16 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
             logger.log_hyperparams({**flatten(config), "world_size": trainer.world_size})
     try:
         with _joinable(run_dir):
-            trainer.fit(module, datamodule=datamodule, ckpt_path=fitted.last if run.resume and fitted.last.exists() else None)
+            trainer.fit(
+                module, datamodule=datamodule, ckpt_path=fitted.last if run.resume and fitted.last.exists() else None
+            )
     except NonFiniteLossError as error:
         if fitted.primary:
             write_run_info(run_dir, status="failed", error=str(error))
-        raise UserError(f"{error}; training stopped. The last good checkpoint is {fitted.last} "
-                        "(lower optim.lr or set optim.grad_clip, then start a new run)") from error
+        raise UserError(
+            f"{error}; training stopped. The last good checkpoint is {fitted.last} "
+            "(lower optim.lr or set optim.grad_clip, then start a new run)"
+        ) from error
     if fitted.primary:
         best = torch.load(checkpoints.best_model_path, map_location="cpu", weights_only=True)
         module.load_state_dict(best["state_dict"])
@@ -311,8 +336,12 @@ def finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -
 
 
 @records_failure
-def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
-             extra_callbacks: list | None = None) -> Path:
+def train_vq(
+    config_name: str = "demo",
+    overrides: list[str] | None = None,
+    resume: bool | str = False,
+    extra_callbacks: list | None = None,
+) -> Path:
     """Train the motion VQ-VAE; returns the run directory (with ``vq.pt`` on success).
     ``extra_callbacks`` join the trainer's (a sweep's reporting callback, for instance)."""
     import lightning.pytorch as pl
@@ -328,25 +357,52 @@ def train_vq(config_name: str = "demo", overrides: list[str] | None = None, resu
     data, trainer_cfg = config["data"], config["trainer"]
     try:
         datamodule = MotionWindowDataModule(
-            data["dir"], window=data["window"], batch_size=data["batch_size"], num_workers=data["num_workers"],
-            steps_per_epoch=validation_interval(trainer_cfg), seed=config["seed"],
+            data["dir"],
+            window=data["window"],
+            batch_size=data["batch_size"],
+            num_workers=data["num_workers"],
+            steps_per_epoch=validation_interval(trainer_cfg),
+            seed=config["seed"],
         )
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
     pl.seed_everything(config["seed"], workers=True, verbose=False)
     module = VQVAEModule(config["model"], config["optim"], config["loss"], datamodule.feature_dim, datamodule.skeleton)
     module.set_normalizer(datamodule.normalizer)
-    fitted = fit(run, module, datamodule, "val/recon_loss",
-                 [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])])
+    fitted = fit(
+        run,
+        module,
+        datamodule,
+        "val/recon_loss",
+        [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])],
+    )
     if not fitted.primary:
         return run_dir
-    save_vq(run_dir / VQ_FILE, module.model, datamodule.normalizer, datamodule.skeleton,
-            extra={"run": run_dir.name, "mlflow_run_id": fitted.logger.run_id, "dataset": config["dataset"],
-                   "data_dir": str(Path(data["dir"]).resolve()),
-                   "best_val_recon_loss": float(fitted.checkpoints.best_model_score)})
-    finish(run_dir, fitted, [run_dir / VQ_FILE, Path(fitted.checkpoints.best_model_path), fitted.last,
-                             run_dir / "config.yaml", Path(data["dir"]) / "stats.npz"],
-           vq=str((run_dir / VQ_FILE).resolve()))
+    save_vq(
+        run_dir / VQ_FILE,
+        module.model,
+        datamodule.normalizer,
+        datamodule.skeleton,
+        extra={
+            "run": run_dir.name,
+            "mlflow_run_id": fitted.logger.run_id,
+            "dataset": config["dataset"],
+            "data_dir": str(Path(data["dir"]).resolve()),
+            "best_val_recon_loss": float(fitted.checkpoints.best_model_score),
+        },
+    )
+    finish(
+        run_dir,
+        fitted,
+        [
+            run_dir / VQ_FILE,
+            Path(fitted.checkpoints.best_model_path),
+            fitted.last,
+            run_dir / "config.yaml",
+            Path(data["dir"]) / "stats.npz",
+        ],
+        vq=str((run_dir / VQ_FILE).resolve()),
+    )
     return run_dir
 
 
@@ -364,8 +420,11 @@ def vq_file(reference: str | Path, dataset: str, part: str = FULL) -> Path:
     path = Path(reference)
     if path.suffix == ".ckpt" and path.is_file():
         reference = path.resolve().parent.parent  # <run>/checkpoints/<name>.ckpt
-    made_by = ("make train-vq" if part == FULL
-               else f"m2d2m train-vq --config mmm-{part}-{'demo' if dataset == 'synthetic' else dataset}")
+    made_by = (
+        "make train-vq"
+        if part == FULL
+        else f"m2d2m train-vq --config mmm-{part}-{'demo' if dataset == 'synthetic' else dataset}"
+    )
     return run_file(reference, dataset, vq_stage(part), VQ_FILE, made_by)
 
 
@@ -399,8 +458,12 @@ def ensure_tokens(vq_path: Path) -> tuple[Path, Path]:
 
 
 @records_failure
-def train_evaluator(config_name: str = "demo", overrides: list[str] | None = None, resume: bool | str = False,
-                    extra_callbacks: list | None = None) -> Path:
+def train_evaluator(
+    config_name: str = "demo",
+    overrides: list[str] | None = None,
+    resume: bool | str = False,
+    extra_callbacks: list | None = None,
+) -> Path:
     """Train Guo et al.'s text–motion matching evaluator on the dataset's train split (best
     checkpoint by validation loss); returns the run directory, with ``evaluator.pt`` on success."""
     import lightning.pytorch as pl
@@ -413,9 +476,14 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     data, trainer_cfg, network = config["data"], config["trainer"], config["model"]
     try:
         datamodule = CaptionMotionDataModule(
-            data["dir"], batch_size=data["batch_size"], num_workers=data["num_workers"],
-            steps_per_epoch=validation_interval(trainer_cfg), min_frames=data["min_frames"],
-            max_frames=data["max_frames"], seed=config["seed"])
+            data["dir"],
+            batch_size=data["batch_size"],
+            num_workers=data["num_workers"],
+            steps_per_epoch=validation_interval(trainer_cfg),
+            min_frames=data["min_frames"],
+            max_frames=data["max_frames"],
+            seed=config["seed"],
+        )
         if network["word_features"] == "glove":
             if not config.get("glove_dir"):
                 raise ValueError("model.word_features: glove needs glove_dir (Guo's glove/ directory)")
@@ -431,6 +499,10 @@ def train_evaluator(config_name: str = "demo", overrides: list[str] | None = Non
     if not fitted.primary:
         return run_dir
     save_evaluator(run_dir / EVALUATOR_FILE, module.model)
-    finish(run_dir, fitted, [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
-           evaluator=str((run_dir / EVALUATOR_FILE).resolve()))
+    finish(
+        run_dir,
+        fitted,
+        [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
+        evaluator=str((run_dir / EVALUATOR_FILE).resolve()),
+    )
     return run_dir

@@ -60,8 +60,10 @@ def load_features(source: str | Path, skeleton: Skeleton) -> np.ndarray:
         return array.astype(np.float32)
     if array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3) and len(array) >= 2:
         return joints_to_features(array, skeleton)
-    raise UserError(f"{path}: shape {array.shape} is neither {skeleton.feature_dim}-d features nor joints "
-                    f"(T >= 2, {skeleton.num_joints}, 3) of the model's skeleton {skeleton.name!r}")
+    raise UserError(
+        f"{path}: shape {array.shape} is neither {skeleton.feature_dim}-d features nor joints "
+        f"(T >= 2, {skeleton.num_joints}, 3) of the model's skeleton {skeleton.name!r}"
+    )
 
 
 def _load_npy(path: Path) -> np.ndarray:

@@ -64,8 +64,14 @@ def list_corpus(raw: str | Path) -> list[dict[str, Any]]:
             if not motion_id or motion_id in seen:
                 continue
             seen.add(motion_id)
-            rows.append({"id": motion_id, "split": split, **_motion_location(raw, motion_id),
-                         "text_path": str(raw / "texts" / f"{motion_id}.txt")})
+            rows.append(
+                {
+                    "id": motion_id,
+                    "split": split,
+                    **_motion_location(raw, motion_id),
+                    "text_path": str(raw / "texts" / f"{motion_id}.txt"),
+                }
+            )
     return rows
 
 

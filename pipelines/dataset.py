@@ -75,7 +75,9 @@ def check_dataset(directory: str | Path) -> list[str]:
         if in_shards != counts["samples_written"]:
             problems.append(f"{split}: shards hold {in_shards} samples, manifest counts {counts['samples_written']}")
         if counts["inputs_seen"] != counts["originals"] + counts["quarantined"]:
-            problems.append(f"{split}: inputs seen {counts['inputs_seen']} != written {counts['originals']} + quarantined {counts['quarantined']}")
+            problems.append(
+                f"{split}: inputs seen {counts['inputs_seen']} != written {counts['originals']} + quarantined {counts['quarantined']}"
+            )
     quarantined = sum(manifest["splits"][s]["quarantined"] for s in SPLITS)
     quarantine_path = directory / QUARANTINE
     lines = quarantine_path.read_text(encoding="utf-8").splitlines() if quarantine_path.exists() else []
@@ -105,9 +107,11 @@ def stage_counts(manifest: dict[str, Any]) -> str:
     seen = sum(c["inputs_seen"] for c in splits)
     originals, mirrors = sum(c["originals"] for c in splits), sum(c["mirrors"] for c in splits)
     shards = sum(len(v) for v in manifest["shards"].values())
-    return (f"read {seen} inputs ({rejected['read']} rejected) · validate {rejected['validate']} rejected · "
-            f"features {originals} motions + {mirrors} mirrors ({rejected['features']} rejected) · "
-            f"language {sum(c['captions'] for c in splits)} captions · write {shards} shards")
+    return (
+        f"read {seen} inputs ({rejected['read']} rejected) · validate {rejected['validate']} rejected · "
+        f"features {originals} motions + {mirrors} mirrors ({rejected['features']} rejected) · "
+        f"language {sum(c['captions'] for c in splits)} captions · write {shards} shards"
+    )
 
 
 def summary_table(manifest: dict[str, Any], quarantine: list[dict[str, Any]]) -> str:
@@ -120,8 +124,18 @@ def summary_table(manifest: dict[str, Any], quarantine: list[dict[str, Any]]) ->
         c = manifest["splits"][split]
         reasons = Counter(reason_kind(q["reason"]) for q in quarantine if q["split"] == split)
         detail = ", ".join(f"{n} {r}" for r, n in sorted(reasons.items())) or "-"
-        rows.append([split, c["originals"], c["mirrors"], c["frames"], f"{c['frames'] / fps / 3600:.2f}",
-                     c["captions"], c["single_verb_captions"], f"{c['quarantined']} ({detail})" if c["quarantined"] else "0"])
+        rows.append(
+            [
+                split,
+                c["originals"],
+                c["mirrors"],
+                c["frames"],
+                f"{c['frames'] / fps / 3600:.2f}",
+                c["captions"],
+                c["single_verb_captions"],
+                f"{c['quarantined']} ({detail})" if c["quarantined"] else "0",
+            ]
+        )
     cells = [header] + [[str(v) for v in row] for row in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
     lines = ["  ".join(v.ljust(w) for v, w in zip(row, widths)).rstrip() for row in cells]

@@ -19,10 +19,11 @@ import secrets
 import shutil
 import subprocess
 from collections import Counter
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -87,7 +88,10 @@ def code_version() -> str:
     """Package version plus the git commit when run from a checkout."""
     try:
         commit = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=5,
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            timeout=5,
             cwd=Path(__file__).resolve().parent,
         ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
@@ -101,12 +105,24 @@ def _language(caption: dict[str, Any]) -> dict[str, Any]:
 
 
 def _mirrored_caption(caption: dict[str, Any]) -> dict[str, Any]:
-    return {**caption, "text": mirror_caption(caption["text"]), "tokens": [mirror_caption(t) for t in caption["tokens"]]}
+    return {
+        **caption,
+        "text": mirror_caption(caption["text"]),
+        "tokens": [mirror_caption(t) for t in caption["tokens"]],
+    }
 
 
-def _sample(key: str, source: str, features: np.ndarray, captions: list[dict], fps: float, mirrored: bool) -> dict[str, Any]:
-    meta = {"id": key, "source": source, "fps": fps, "frames": len(features), "mirrored": mirrored,
-            "captions": [_language(c) for c in captions]}
+def _sample(
+    key: str, source: str, features: np.ndarray, captions: list[dict], fps: float, mirrored: bool
+) -> dict[str, Any]:
+    meta = {
+        "id": key,
+        "source": source,
+        "fps": fps,
+        "frames": len(features),
+        "mirrored": mirrored,
+        "captions": [_language(c) for c in captions],
+    }
     return {"key": key, "status": "ok", **encode_sample(features, meta)}
 
 
@@ -118,7 +134,9 @@ def _to_features(motion: np.ndarray, kind: str, skeleton: Skeleton, bounds: Fram
     return features
 
 
-def process_motion(row: dict[str, Any], skeleton: Skeleton, bounds: FrameBounds, make_mirror: bool) -> list[dict[str, Any]]:
+def process_motion(
+    row: dict[str, Any], skeleton: Skeleton, bounds: FrameBounds, make_mirror: bool
+) -> list[dict[str, Any]]:
     """One corpus row → its sample (and mirror), or one quarantine record saying why not."""
     try:
         motion = load_motion(row, skeleton)
@@ -128,8 +146,11 @@ def process_motion(row: dict[str, Any], skeleton: Skeleton, bounds: FrameBounds,
         if make_mirror:
             joints = motion if row["kind"] == "joints" else features_to_joints(motion, skeleton)
             mirrored = _to_features(mirror_joints(joints, skeleton), "joints", skeleton, bounds)
-            samples.append(_sample(f"M{row['id']}", row["id"], mirrored,
-                                   [_mirrored_caption(c) for c in captions], skeleton.fps, True))
+            samples.append(
+                _sample(
+                    f"M{row['id']}", row["id"], mirrored, [_mirrored_caption(c) for c in captions], skeleton.fps, True
+                )
+            )
         return samples
     except Rejected as rejected:
         return [{"key": row["id"], "status": "quarantined", "stage": rejected.stage, "reason": rejected.reason}]
@@ -145,8 +166,11 @@ def init_ray(address: str | None, workers: int) -> None:
     address = address or os.environ.get("RAY_ADDRESS")
     if address:
         ray.init(address=address, logging_level="ERROR")
-        print(f"Ray: joined the cluster at {ray.get_runtime_context().gcs_address} "
-              f"({int(ray.cluster_resources().get('CPU', 0))} CPUs)", flush=True)
+        print(
+            f"Ray: joined the cluster at {ray.get_runtime_context().gcs_address} "
+            f"({int(ray.cluster_resources().get('CPU', 0))} CPUs)",
+            flush=True,
+        )
     else:
         # "local" ignores a stale cluster file that a killed `ray start --head` can leave behind.
         ray.init(address="local", num_cpus=workers, include_dashboard=False, logging_level="ERROR")
@@ -166,7 +190,7 @@ class SplitCounts:
     def samples_written(self) -> int:
         return self.originals + self.mirrors
 
-    def add(self, other: "SplitCounts") -> None:
+    def add(self, other: SplitCounts) -> None:
         for name, value in asdict(other).items():
             setattr(self, name, getattr(self, name) + value)
 
@@ -192,14 +216,18 @@ def write_shard(task: dict[str, Any], config: DataConfig, make_mirror: bool) -> 
     counts = SplitCounts()
     moments = RunningMoments(skeleton.feature_dim)
     quarantine, tagged = [], []
-    writer = ShardWriter(Path(config.out).resolve() / SHARDS, split, config.samples_per_shard, first_index=task["index"])
+    writer = ShardWriter(
+        Path(config.out).resolve() / SHARDS, split, config.samples_per_shard, first_index=task["index"]
+    )
     with writer:
         for row in task["rows"]:
             counts.inputs_seen += 1
             for record in process_motion(row, skeleton, bounds, make_mirror):
                 if record["status"] == "quarantined":
                     counts.quarantined += 1
-                    quarantine.append({"id": record["key"], "split": split, "stage": record["stage"], "reason": record["reason"]})
+                    quarantine.append(
+                        {"id": record["key"], "split": split, "stage": record["stage"], "reason": record["reason"]}
+                    )
                     continue
                 meta = json.loads(record["meta.json"])
                 counts.mirrors += meta["mirrored"]
@@ -223,14 +251,23 @@ def write_shard(task: dict[str, Any], config: DataConfig, make_mirror: bool) -> 
     }
 
 
-def _run_json_batch(batch: dict[str, np.ndarray], fn: Callable[..., dict[str, Any]], fn_kwargs: dict[str, Any]) -> dict[str, Any]:
+def _run_json_batch(
+    batch: dict[str, np.ndarray], fn: Callable[..., dict[str, Any]], fn_kwargs: dict[str, Any]
+) -> dict[str, Any]:
     """Ray Data ``map_batches`` adapter: one planned task (as JSON) in, its result (as JSON) out."""
-    return {"position": batch["position"],
-            "result": [json.dumps(fn(json.loads(task), **fn_kwargs)) for task in batch["task"]]}
+    return {
+        "position": batch["position"],
+        "result": [json.dumps(fn(json.loads(task), **fn_kwargs)) for task in batch["task"]],
+    }
 
 
-def run_json_tasks(fn: Callable[..., dict[str, Any]], tasks: list[dict[str, Any]], workers: int,
-                   ray_address: str | None = None, **fn_kwargs: Any) -> list[dict[str, Any]]:
+def run_json_tasks(
+    fn: Callable[..., dict[str, Any]],
+    tasks: list[dict[str, Any]],
+    workers: int,
+    ray_address: str | None = None,
+    **fn_kwargs: Any,
+) -> list[dict[str, Any]]:
     """``fn(task, **fn_kwargs)`` for every JSON-able planned task, as Ray Data tasks of one CPU
     each (at most ``workers`` at a time); returns the JSON-able results in plan order, whatever
     order the tasks finished in, so the driver's output never depends on scheduling."""
@@ -252,7 +289,9 @@ def run_json_tasks(fn: Callable[..., dict[str, Any]], tasks: list[dict[str, Any]
 
 def run_shard_tasks(config: DataConfig, tasks: list[dict[str, Any]], make_mirror: bool) -> list[dict[str, Any]]:
     """Write every planned shard with Ray Data tasks; returns their results in plan order."""
-    return run_json_tasks(write_shard, tasks, config.workers, config.ray_address, config=config, make_mirror=make_mirror)
+    return run_json_tasks(
+        write_shard, tasks, config.workers, config.ray_address, config=config, make_mirror=make_mirror
+    )
 
 
 def _corpus_statistics(raw: Path, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray] | None:
@@ -360,12 +399,15 @@ def require_replaceable(config: DataConfig, replace_other: bool = False) -> None
         return
     raw = config.recorded()["raw"]
     if not (out / MANIFEST).exists():
-        raise ValueError(f"{out}: not a dataset (no {MANIFEST}); pass --replace to replace it with one built "
-                         f"from {raw}, or choose another --out")
+        raise ValueError(
+            f"{out}: not a dataset (no {MANIFEST}); pass --replace to replace it with one built "
+            f"from {raw}, or choose another --out"
+        )
     built_from = json.loads((out / MANIFEST).read_text(encoding="utf-8")).get("config", {}).get("raw")
     if built_from != raw:
-        raise ValueError(f"{out}: built from {built_from}, not {raw}; pass --replace to replace it, "
-                         "or choose another --out")
+        raise ValueError(
+            f"{out}: built from {built_from}, not {raw}; pass --replace to replace it, or choose another --out"
+        )
 
 
 def _no_statistics(raw: Path, quarantine: list[dict[str, Any]]) -> ValueError:
@@ -434,7 +476,9 @@ def _build(config: DataConfig) -> dict[str, Any]:
         "mirrors_made_by_pipeline": make_mirror,
         "stats_source": "corpus Mean.npy/Std.npy" if provided is not None else "train split",
         "tagger": tagger,
-        "splits": {split: {**asdict(counts[split]), "samples_written": counts[split].samples_written} for split in SPLITS},
+        "splits": {
+            split: {**asdict(counts[split]), "samples_written": counts[split].samples_written} for split in SPLITS
+        },
         "quarantine_reasons": dict(Counter(f"{q['stage']}: {reason_kind(q['reason'])}" for q in quarantine)),
         "shards": shards,
         "config": config.recorded(),

@@ -80,9 +80,7 @@ _ORDER_WORDS = frozenset({"before", "after", "until", "till", "when", "while", "
 _ANAPHORS = frozenset({"that", "this", "which"})  # "after that" is a plain sequence marker
 _RELATIVES = frozenset({"where", "who", "which", "whom", "whose", "what"})
 _NEGATIONS = frozenset({"not", "n't"})
-_PASSIVE_AUX = frozenset(
-    {"is", "are", "was", "were", "be", "been", "being", "get", "gets", "got", "getting"}
-)
+_PASSIVE_AUX = frozenset({"is", "are", "was", "were", "be", "been", "being", "get", "gets", "got", "getting"})
 _NP_POS = frozenset({"DET", "NOUN", "PROPN", "PRON", "ADJ", "NUM"})
 _SUBJECTS = frozenset(
     {"person", "man", "woman", "figure", "human", "someone", "somebody", "guy", "boy", "girl"}
@@ -227,9 +225,7 @@ def _tokens_from_tags(caption: str, tagged: Sequence[tuple[str, str]]) -> list[_
     if aligned is not None:
         surfaces = _surface_tokens(caption, [t.text for t in aligned])
         if surfaces is not None:
-            return [
-                t._replace(text=s, space=sp) for t, (s, sp) in zip(aligned, surfaces, strict=True)
-            ]
+            return [t._replace(text=s, space=sp) for t, (s, sp) in zip(aligned, surfaces, strict=True)]
     return [_Tok(w.lower(), w.lower(), pos, i > 0) for i, (w, pos) in enumerate(tagged)]
 
 
@@ -240,10 +236,7 @@ def _tokens_from_tagger(caption: str, tagger: Tagger) -> list[_Tok]:
     surfaces = _surface_tokens(caption, [w for w, _, _ in tagged])
     if surfaces is None:
         surfaces = [(w.lower(), i > 0) for i, (w, _, _) in enumerate(tagged)]
-    return [
-        _Tok(s, lemma.lower(), pos, sp)
-        for (s, sp), (_, lemma, pos) in zip(surfaces, tagged, strict=True)
-    ]
+    return [_Tok(s, lemma.lower(), pos, sp) for (s, sp), (_, lemma, pos) in zip(surfaces, tagged, strict=True)]
 
 
 # ---------------------------------------------------------------------------- decomposition rules
@@ -251,9 +244,7 @@ def _tokens_from_tagger(caption: str, tagger: Tagger) -> list[_Tok]:
 
 def _past_or_participle(tok: _Tok) -> bool:
     """A verb form that is neither base, 3rd person present nor gerund ("raised", "held")."""
-    return tok.text not in (tok.lemma, inflect_third_person(tok.lemma)) and not tok.text.endswith(
-        "ing"
-    )
+    return tok.text not in (tok.lemma, inflect_third_person(tok.lemma)) and not tok.text.endswith("ing")
 
 
 def _is_separator(toks: Sequence[_Tok], i: int, dropped: set[int]) -> bool:
@@ -309,9 +300,7 @@ def _is_modifier(toks: Sequence[_Tok], i: int) -> bool:
 def _find_actions(toks: Sequence[_Tok]) -> tuple[list[int], set[int]]:
     """Indices of the action verbs, and of the catenative words ("starts to") to drop."""
     candidates = [
-        i
-        for i, t in enumerate(toks)
-        if t.pos == "VERB" and t.text not in _DIRECTIONS and not _is_modifier(toks, i)
+        i for i, t in enumerate(toks) if t.pos == "VERB" and t.text not in _DIRECTIONS and not _is_modifier(toks, i)
     ]
     verbs = set(candidates)
     dropped: set[int] = set()
@@ -342,9 +331,7 @@ def _split(toks: Sequence[_Tok], prev_verb: int, verb: int, dropped: set[int]) -
     j = verb
     while j - 1 > prev_verb and preverbal(j - 1) and not _is_separator(toks, j - 1, dropped):
         j -= 1
-    while (
-        j - 1 > prev_verb and toks[j - 1].pos in _NP_POS and not _is_separator(toks, j - 1, dropped)
-    ):
+    while j - 1 > prev_verb and toks[j - 1].pos in _NP_POS and not _is_separator(toks, j - 1, dropped):
         j -= 1
     separators_end = j
     while j - 1 > prev_verb and _is_separator(toks, j - 1, dropped):
@@ -374,11 +361,7 @@ def _is_punct(tok: _Tok) -> bool:
 
 def _trim(toks: list[_Tok]) -> list[_Tok]:
     """Drop punctuation, conjunctions and sequence adverbs left at the end of a clause."""
-    while toks and (
-        _is_punct(toks[-1])
-        or toks[-1].pos in ("CCONJ", "SCONJ")
-        or toks[-1].text in _SEQUENCE_ADVERBS
-    ):
+    while toks and (_is_punct(toks[-1]) or toks[-1].pos in ("CCONJ", "SCONJ") or toks[-1].text in _SEQUENCE_ADVERBS):
         toks.pop()
     return toks
 
@@ -392,9 +375,7 @@ def _action_sentence(lead_in: Sequence[_Tok], verb: _Tok, rest: list[_Tok]) -> s
         preverbal.insert(0, t)
     adverbs = [t.text for t in preverbal if t.pos == "ADV" and t.text not in _NEGATIONS]
     negated = any(t.text in _NEGATIONS for t in preverbal)
-    passive = _past_or_participle(verb) and any(
-        t.pos == "AUX" and t.text in _PASSIVE_AUX for t in preverbal
-    )
+    passive = _past_or_participle(verb) and any(t.pos == "AUX" and t.text in _PASSIVE_AUX for t in preverbal)
     if passive:
         verb_words = ["is not" if negated else "is", verb.text]
     elif negated:
@@ -409,9 +390,7 @@ def _action_sentence(lead_in: Sequence[_Tok], verb: _Tok, rest: list[_Tok]) -> s
 def _order_marker(toks: Sequence[_Tok], start: int, end: int) -> str | None:
     """ "after" / "before" when it introduces the clause in toks[start:end] (not "after that")."""
     for i in range(start, end):
-        if toks[i].text in ("after", "before") and not (
-            i + 1 < len(toks) and toks[i + 1].text in _ANAPHORS
-        ):
+        if toks[i].text in ("after", "before") and not (i + 1 < len(toks) and toks[i + 1].text in _ANAPHORS):
             return toks[i].text
     return None
 
@@ -432,9 +411,7 @@ def _neutral_subject(toks: Sequence[_Tok]) -> str:
 def _possessive_subject(lead_in: Sequence[_Tok]) -> bool:
     """Whether the subject is a body part ("a person's arms", "his legs"): then the caption's own
     words are kept, since "a person" cannot take its verb."""
-    return any(t.text in ("'s", "'") for t in lead_in) or (
-        bool(lead_in) and lead_in[0].text in _POSSESSIVES
-    )
+    return any(t.text in ("'s", "'") for t in lead_in) or (bool(lead_in) and lead_in[0].text in _POSSESSIVES)
 
 
 def _decompose_tokens(toks: Sequence[_Tok]) -> Decomposition:
@@ -458,9 +435,7 @@ def _decompose_tokens(toks: Sequence[_Tok]) -> Decomposition:
         previous_at = at
     if len(sentences) > 1 and _order_marker(toks, 0, actions[0]) == "before":
         sentences.insert(1, sentences.pop(0))
-    return Decomposition(
-        actions=tuple(s for s, _ in sentences), verbs=tuple(v for _, v in sentences)
-    )
+    return Decomposition(actions=tuple(s for s, _ in sentences), verbs=tuple(v for _, v in sentences))
 
 
 def decompose(
@@ -482,9 +457,7 @@ def decompose(
     else:
         raise ValueError("decompose needs the caption's tagged tokens or a Tagger")
     if not toks:  # an empty tag field that cannot align: the caption as it is
-        return Decomposition(
-            actions=(" ".join(caption.lower().split()).rstrip(".,;:!? "),), verbs=()
-        )
+        return Decomposition(actions=(" ".join(caption.lower().split()).rstrip(".,;:!? "),), verbs=())
     return _decompose_tokens(toks)
 
 
@@ -518,9 +491,7 @@ class Tagger:
         """(surface, lemma, UPOS) for each token of ``text``."""
         return self._triples(self.nlp(text))
 
-    def tag_many(
-        self, texts: Iterable[str], batch_size: int = 256
-    ) -> list[list[tuple[str, str, str]]]:
+    def tag_many(self, texts: Iterable[str], batch_size: int = 256) -> list[list[tuple[str, str, str]]]:
         """:meth:`tag` for many texts, batched through ``nlp.pipe``."""
         return [self._triples(doc) for doc in self.nlp.pipe(texts, batch_size=batch_size)]
 
@@ -593,13 +564,9 @@ def train_tagger(
             lemmas=[t.lemma for t in aligned],
         )
         examples.append(Example(Doc(nlp.vocab, words=words, spaces=spaces), reference))
-        lemma_counts.update(
-            (f"{t.pos} {t.text}", t.lemma) for t in aligned if t.pos in _LEMMATISED_POS
-        )
+        lemma_counts.update((f"{t.pos} {t.text}", t.lemma) for t in aligned if t.pos in _LEMMATISED_POS)
     if not examples:
-        raise ValueError(
-            f"none of the {seen} tagged captions aligns with its text: nothing to train"
-        )
+        raise ValueError(f"none of the {seen} tagged captions aligns with its text: nothing to train")
     optimizer = nlp.initialize(lambda: examples)
     order = random.Random(seed)
     for _ in range(epochs):

@@ -12,9 +12,10 @@ import io
 import json
 import os
 import tarfile
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import numpy as np
 import webdataset as wds
@@ -107,7 +108,7 @@ class ShardWriter:
             self._stream = self._tar = None
             partial.unlink(missing_ok=True)
 
-    def __enter__(self) -> "ShardWriter":
+    def __enter__(self) -> ShardWriter:
         return self
 
     def __exit__(self, exc_type, exc, traceback) -> None:

@@ -61,9 +61,10 @@ import tarfile
 import tempfile
 import zipfile
 from collections import Counter, defaultdict
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -196,14 +197,16 @@ def _scan_pool(data_dir: Path, split: str, min_frames: int, mirrors: str) -> tup
             if motion is None:
                 counts.mirrors_excluded += 1
                 continue
-            pool.append(PoolEntry(meta["id"], motion, index, caption["text"], caption["actions"][0],
-                                  caption["verbs"][0], *span))
+            pool.append(
+                PoolEntry(meta["id"], motion, index, caption["text"], caption["actions"][0], caption["verbs"][0], *span)
+            )
     pool.sort(key=lambda e: (e.motion, e.key, e.caption_index))
     return pool, counts
 
 
-def single_verb_pool(data_dir: str | Path, split: str = "test", min_frames: int | None = None,
-                     mirrors: str = "same") -> list[PoolEntry]:
+def single_verb_pool(
+    data_dir: str | Path, split: str = "test", min_frames: int | None = None, mirrors: str = "same"
+) -> list[PoolEntry]:
     """Every single-verb caption of the split's clips with a usable span, sorted by motion, key
     and caption index (the order never depends on shard layout). ``min_frames`` None = the
     dataset's own lower frame bound (its manifest's config), else 40."""
@@ -228,7 +231,7 @@ def draw_instances(pool: list[PoolEntry], n: int, seed: int) -> list[list[PoolEn
     for position in rng.permutation(len(motions)):
         choices = by_motion[motions[position]]
         picks.append(choices[int(rng.integers(len(choices)))])
-    return [picks[i:i + n] for i in range(0, len(picks) - n + 1, n)]
+    return [picks[i : i + n] for i in range(0, len(picks) - n + 1, n)]
 
 
 def item_name(instance: int, position: int) -> str:
@@ -237,9 +240,17 @@ def item_name(instance: int, position: int) -> str:
 
 
 def _item_record(entry: PoolEntry) -> dict[str, Any]:
-    return {"key": entry.key, "motion": entry.motion, "caption_index": entry.caption_index,
-            "caption": entry.caption, "action": entry.action, "verb": entry.verb,
-            "first": entry.first, "end": entry.end, "length": entry.length}
+    return {
+        "key": entry.key,
+        "motion": entry.motion,
+        "caption_index": entry.caption_index,
+        "caption": entry.caption,
+        "action": entry.action,
+        "verb": entry.verb,
+        "first": entry.first,
+        "end": entry.end,
+        "length": entry.length,
+    }
 
 
 def _write_npz(path: Path, arrays: list[tuple[str, np.ndarray]]) -> None:
@@ -254,30 +265,57 @@ def _file_record(path: Path) -> dict[str, Any]:
     return {"bytes": path.stat().st_size, "sha256": sha256_of(path)}
 
 
-def _parameters(data_dir: Path, n: int, seed: int, split: str, min_frames: int, mirrors: str,
-                limit: int | None) -> dict[str, Any]:
+def _parameters(
+    data_dir: Path, n: int, seed: int, split: str, min_frames: int, mirrors: str, limit: int | None
+) -> dict[str, Any]:
     source = data_dir / MANIFEST
-    return {"n": n, "seed": seed, "split": split, "min_frames": min_frames, "mirrors": mirrors, "limit": limit,
-            "source": {"dir": str(data_dir), "manifest_sha256": sha256_of(source)}}
+    return {
+        "n": n,
+        "seed": seed,
+        "split": split,
+        "min_frames": min_frames,
+        "mirrors": mirrors,
+        "limit": limit,
+        "source": {"dir": str(data_dir), "manifest_sha256": sha256_of(source)},
+    }
 
 
 def _same_parameters(manifest: dict[str, Any], parameters: dict[str, Any]) -> bool:
     return all(manifest.get(name) == value for name, value in parameters.items())
 
 
-def testset_dir(data_dir: str | Path, n: int, seed: int, out: str | Path | None = None,
-                limit: int | None = None, mirrors: str = "same", split: str = "test") -> Path:
+def testset_dir(
+    data_dir: str | Path,
+    n: int,
+    seed: int,
+    out: str | Path | None = None,
+    limit: int | None = None,
+    mirrors: str = "same",
+    split: str = "test",
+) -> Path:
     """Where ``build_testset`` writes: ``<out or data_dir/testsets>/n<N>-seed<S>[-<mirrors>][-first<L>][-<split>]``,
     the mirror rule and the split named unless they are the defaults, so test sets drawn by other
     rules or from another split never collide."""
-    name = (f"n{n}-seed{seed}" + (f"-{mirrors}" if mirrors != "same" else "")
-            + (f"-first{limit}" if limit is not None else "") + (f"-{split}" if split != "test" else ""))
+    name = (
+        f"n{n}-seed{seed}"
+        + (f"-{mirrors}" if mirrors != "same" else "")
+        + (f"-first{limit}" if limit is not None else "")
+        + (f"-{split}" if split != "test" else "")
+    )
     return Path(out if out is not None else Path(data_dir) / TESTSETS) / name
 
 
-def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Path | None = None,
-                  min_frames: int | None = None, split: str = "test", mirrors: str = "same",
-                  force: bool = False, limit: int | None = None) -> dict[str, Any]:
+def build_testset(
+    data_dir: str | Path,
+    n: int = 4,
+    seed: int = 0,
+    out: str | Path | None = None,
+    min_frames: int | None = None,
+    split: str = "test",
+    mirrors: str = "same",
+    force: bool = False,
+    limit: int | None = None,
+) -> dict[str, Any]:
     """Build (or reuse) the N-action test set of a processed dataset; returns its manifest plus
     ``path`` and ``reused``. An existing test set with the same parameters (and source dataset
     checksum) is reused when it checks clean; one with other parameters, or damaged, is an error
@@ -300,20 +338,25 @@ def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Pa
     if (target / MANIFEST).exists() and not force:
         existing = json.loads((target / MANIFEST).read_text(encoding="utf-8"))
         if not _same_parameters(existing, parameters):
-            raise FileExistsError(f"{target}: a test set built with other parameters or from another version "
-                                  "of the dataset is there; pass force=True (--force) to replace it")
+            raise FileExistsError(
+                f"{target}: a test set built with other parameters or from another version "
+                "of the dataset is there; pass force=True (--force) to replace it"
+            )
         problems = check_testset(target)
         if problems:
-            raise FileExistsError(f"{target}: the existing test set is damaged ({problems[0]}); "
-                                  "pass force=True (--force) to rebuild it")
+            raise FileExistsError(
+                f"{target}: the existing test set is damaged ({problems[0]}); pass force=True (--force) to rebuild it"
+            )
         return {**existing, "path": str(target), "reused": True}
 
     source_manifest = read_manifest(data_dir)
     pool, counts = _scan_pool(data_dir, split, min_frames, mirrors)
     instances = draw_instances(pool, n, seed)[:limit]
     if not instances:
-        raise ValueError(f"{data_dir}: only {len({e.motion for e in pool})} distinct {split} motions have a "
-                         f"usable single-verb caption, fewer than n = {n}")
+        raise ValueError(
+            f"{data_dir}: only {len({e.motion for e in pool})} distinct {split} motions have a "
+            f"usable single-verb caption, fewer than n = {n}"
+        )
     wanted = {entry.key for group in instances for entry in group}
     features: dict[str, np.ndarray] = {}
     for url in shard_urls(data_dir, split):
@@ -324,12 +367,19 @@ def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Pa
     target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
     try:
-        lines = [json_bytes({"index": index, "items": [_item_record(e) for e in group]}) + b"\n"
-                 for index, group in enumerate(instances)]
+        lines = [
+            json_bytes({"index": index, "items": [_item_record(e) for e in group]}) + b"\n"
+            for index, group in enumerate(instances)
+        ]
         (staging / INSTANCES).write_bytes(b"".join(lines))
-        _write_npz(staging / MOTIONS, [
-            (item_name(index, position), np.ascontiguousarray(features[e.key][e.first:e.end], dtype=np.float32))
-            for index, group in enumerate(instances) for position, e in enumerate(group)])
+        _write_npz(
+            staging / MOTIONS,
+            [
+                (item_name(index, position), np.ascontiguousarray(features[e.key][e.first : e.end], dtype=np.float32))
+                for index, group in enumerate(instances)
+                for position, e in enumerate(group)
+            ],
+        )
         manifest = {
             "kind": KIND,
             "schema_version": SCHEMA_VERSION,
@@ -338,10 +388,14 @@ def build_testset(data_dir: str | Path, n: int = 4, seed: int = 0, out: str | Pa
             "fps": source_manifest.get("fps"),
             "feature_dim": source_manifest.get("feature_dim"),
             "rule": "exactly one VERB tag in the caption's tokens, agreeing with its decomposition "
-                    "(one verb, the same lemma, one action sentence); span >= min_frames; "
-                    f"no motion twice (mirrors: {mirrors})",
-            "pool": {**asdict(counts), "entries": len(pool), "keys": len({e.key for e in pool}),
-                     "motions": len({e.motion for e in pool})},
+            "(one verb, the same lemma, one action sentence); span >= min_frames; "
+            f"no motion twice (mirrors: {mirrors})",
+            "pool": {
+                **asdict(counts),
+                "entries": len(pool),
+                "keys": len({e.key for e in pool}),
+                "motions": len({e.motion for e in pool}),
+            },
             "instances": len(instances),
             "items": len(instances) * n,
             "verbs": dict(sorted(Counter(e.verb for g in instances for e in g).items())),
@@ -433,7 +487,7 @@ class TestSet:
             self._npz.close()
             self._npz = None
 
-    def __enter__(self) -> "TestSet":
+    def __enter__(self) -> TestSet:
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -499,8 +553,10 @@ def check_testset(path: str | Path) -> list[str]:
                 for position, item in enumerate(record["items"]):
                     seen[item["motion"]] += 1
                     if item["end"] - item["first"] != item["length"] or item["length"] < min_frames:
-                        problems.append(f"{INSTANCES}: instance {number} item {position}: span "
-                                        f"[{item['first']}, {item['end']}) length {item['length']} (min {min_frames})")
+                        problems.append(
+                            f"{INSTANCES}: instance {number} item {position}: span "
+                            f"[{item['first']}, {item['end']}) length {item['length']} (min {min_frames})"
+                        )
                     names[item_name(number, position)] = item["length"]
             except (KeyError, TypeError) as error:
                 problems.append(f"{INSTANCES}: instance {number} malformed ({error})")
@@ -512,14 +568,22 @@ def check_testset(path: str | Path) -> list[str]:
             with np.load(path / MOTIONS, allow_pickle=False) as arrays:
                 stored = set(arrays.files)
                 if names and stored != set(names):
-                    problems.append(f"{MOTIONS}: {len(stored)} arrays, {len(names)} items "
-                                    f"({len(stored - set(names))} extra, {len(set(names) - stored)} missing)")
+                    problems.append(
+                        f"{MOTIONS}: {len(stored)} arrays, {len(names)} items "
+                        f"({len(stored - set(names))} extra, {len(set(names) - stored)} missing)"
+                    )
                 for name in sorted(stored & set(names)):
                     array = arrays[name]
-                    if array.dtype != np.float32 or array.ndim != 2 or len(array) != names[name] or (
-                            feature_dim is not None and array.shape[1] != feature_dim):
-                        problems.append(f"{MOTIONS}: {name} is {array.dtype} {array.shape}, expected float32 "
-                                        f"({names[name]}, {feature_dim})")
+                    if (
+                        array.dtype != np.float32
+                        or array.ndim != 2
+                        or len(array) != names[name]
+                        or (feature_dim is not None and array.shape[1] != feature_dim)
+                    ):
+                        problems.append(
+                            f"{MOTIONS}: {name} is {array.dtype} {array.shape}, expected float32 "
+                            f"({names[name]}, {feature_dim})"
+                        )
         except (OSError, ValueError, zipfile.BadZipFile) as error:
             problems.append(f"{MOTIONS}: unreadable ({error})")
     source = Path(manifest.get("source", {}).get("dir", "")) / MANIFEST
@@ -532,8 +596,10 @@ def check_testset(path: str | Path) -> list[str]:
 def describe(summary: dict[str, Any]) -> str:
     """One line for people: where, how many instances, from what pool."""
     pool = summary["pool"]
-    return (f"{summary['path']}: {summary['instances']} instances of {summary['n']} actions "
-            f"({'reused' if summary.get('reused') else 'built'}; seed {summary['seed']}) from {pool['entries']} "
-            f"single-verb {summary['split']} captions of {pool['motions']} motions ({pool['keys']} clips, "
-            f"mirrors {summary['mirrors']}); {pool['disagreements']} tag/decomposition disagreements and "
-            f"{pool['too_short']} spans < {summary['min_frames']} frames dropped")
+    return (
+        f"{summary['path']}: {summary['instances']} instances of {summary['n']} actions "
+        f"({'reused' if summary.get('reused') else 'built'}; seed {summary['seed']}) from {pool['entries']} "
+        f"single-verb {summary['split']} captions of {pool['motions']} motions ({pool['keys']} clips, "
+        f"mirrors {summary['mirrors']}); {pool['disagreements']} tag/decomposition disagreements and "
+        f"{pool['too_short']} spans < {summary['min_frames']} frames dropped"
+    )

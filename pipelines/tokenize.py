@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls, token_shard_urls
+from m2d2m.layout import MANIFEST, STATS, TOKENS_KIND, VQ_FILE, read_manifest, shard_urls, token_shard_urls
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.vqvae import MotionVQVAE, load_vq
 from pipelines.corpora import SPLITS
@@ -48,8 +48,10 @@ MAX_CODEBOOK_SIZE = 2**15  # tokens are stored as int16
 
 def _source_shards(dataset_manifest: dict[str, Any]) -> dict[str, list[dict[str, str]]]:
     """The identity of a dataset build: every motion shard's name and checksum, per split."""
-    return {split: [{"name": s["name"], "sha256": s["sha256"]} for s in dataset_manifest["shards"][split]]
-            for split in SPLITS}
+    return {
+        split: [{"name": s["name"], "sha256": s["sha256"]} for s in dataset_manifest["shards"][split]]
+        for split in SPLITS
+    }
 
 
 def _require_vq_file(vq_path: Path) -> None:
@@ -57,8 +59,9 @@ def _require_vq_file(vq_path: Path) -> None:
         raise FileNotFoundError(f"{vq_path}: no VQ model file; train one with `m2d2m train-vq` or pass --vq")
 
 
-def current_tokens(data_dir: str | Path, vq_path: str | Path, out_dir: str | Path,
-                   samples_per_shard: int | None = None) -> dict[str, Any] | None:
+def current_tokens(
+    data_dir: str | Path, vq_path: str | Path, out_dir: str | Path, samples_per_shard: int | None = None
+) -> dict[str, Any] | None:
     """The manifest of ``out_dir`` when it holds the tokens of exactly this dataset build and
     this VQ file (same shard checksums, same sha256, same sharding) and its token shards still
     match it, else None: a damaged token set is made again rather than read."""
@@ -84,7 +87,9 @@ def current_tokens(data_dir: str | Path, vq_path: str | Path, out_dir: str | Pat
     return existing
 
 
-def plan_token_shards(data_dir: Path, dataset_manifest: dict[str, Any], samples_per_shard: int | None) -> list[dict[str, Any]]:
+def plan_token_shards(
+    data_dir: Path, dataset_manifest: dict[str, Any], samples_per_shard: int | None
+) -> list[dict[str, Any]]:
     """One task per motion shard, in split and shard order. Each task owns the range of token
     shard numbers its samples fill, so with ``samples_per_shard=None`` the token shard has the
     motion shard's name, and otherwise a split's tokens stay in the motion order. The motion
@@ -129,8 +134,12 @@ def encode_shard(task: dict[str, Any], out_dir: str, vq_path: str, vq_sha256: st
             samples += 1
             tokens += len(codes)
     source = Path(task["source"]).name
-    return {"split": task["split"], "samples": samples, "tokens": tokens,
-            "shards": [{**record, "source": source} for record in shard_records(writer.shards)]}
+    return {
+        "split": task["split"],
+        "samples": samples,
+        "tokens": tokens,
+        "shards": [{**record, "source": source} for record in shard_records(writer.shards)],
+    }
 
 
 def _clear(out_dir: Path) -> None:
@@ -141,8 +150,14 @@ def _clear(out_dir: Path) -> None:
             path.unlink()
 
 
-def tokenize_dataset(data_dir: str | Path, vq_path: str | Path, out_dir: str | Path, workers: int = 2,
-                     ray_address: str | None = None, samples_per_shard: int | None = None) -> dict[str, Any]:
+def tokenize_dataset(
+    data_dir: str | Path,
+    vq_path: str | Path,
+    out_dir: str | Path,
+    workers: int = 2,
+    ray_address: str | None = None,
+    samples_per_shard: int | None = None,
+) -> dict[str, Any]:
     """Encode every motion of every split of ``data_dir`` with the VQ model file ``vq_path`` into
     token shards in ``out_dir`` (one token shard per motion shard unless ``samples_per_shard`` caps
     them); returns the manifest. A complete token set of the same dataset build and VQ file is
@@ -159,10 +174,14 @@ def tokenize_dataset(data_dir: str | Path, vq_path: str | Path, out_dir: str | P
     model, _, _ = load_vq(vq_path)
     config = model.config
     if config.feature_dim != dataset_manifest["feature_dim"]:
-        raise ValueError(f"{vq_path}: the VQ-VAE encodes {config.feature_dim}-d features but {data_dir} holds "
-                         f"{dataset_manifest['feature_dim']}-d ones; train one on this dataset with `m2d2m train-vq`")
+        raise ValueError(
+            f"{vq_path}: the VQ-VAE encodes {config.feature_dim}-d features but {data_dir} holds "
+            f"{dataset_manifest['feature_dim']}-d ones; train one on this dataset with `m2d2m train-vq`"
+        )
     if config.codebook_size > MAX_CODEBOOK_SIZE:
-        raise ValueError(f"{vq_path}: {config.codebook_size} codes do not fit int16 tokens (at most {MAX_CODEBOOK_SIZE})")
+        raise ValueError(
+            f"{vq_path}: {config.codebook_size} codes do not fit int16 tokens (at most {MAX_CODEBOOK_SIZE})"
+        )
 
     tasks = plan_token_shards(data_dir, dataset_manifest, samples_per_shard)  # before anything is removed
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -173,8 +192,15 @@ def tokenize_dataset(data_dir: str | Path, vq_path: str | Path, out_dir: str | P
     np.save(out_dir / CODEBOOK, model.codebook.detach().cpu().numpy().astype(np.float32))
     vq_sha256 = sha256_of(out_dir / VQ_FILE)
 
-    results = run_json_tasks(encode_shard, tasks, workers, ray_address,
-                             out_dir=str(out_dir), vq_path=str(out_dir / VQ_FILE), vq_sha256=vq_sha256)
+    results = run_json_tasks(
+        encode_shard,
+        tasks,
+        workers,
+        ray_address,
+        out_dir=str(out_dir),
+        vq_path=str(out_dir / VQ_FILE),
+        vq_sha256=vq_sha256,
+    )
     splits = {split: {"samples": 0, "tokens": 0} for split in SPLITS}
     shards: dict[str, list[dict[str, Any]]] = {split: [] for split in SPLITS}
     for result in results:
@@ -227,8 +253,9 @@ def token_sample_problems(key: str, members: dict[str, bytes], codebook_size: in
     if meta.get("id") != key:
         problems.append(f"meta.json id {meta.get('id')!r} differs from the key")
     if len(tokens) != math.ceil(meta["frames"] / frames_per_token):
-        problems.append(f"{len(tokens)} tokens for {meta['frames']} frames, expected "
-                        f"{math.ceil(meta['frames'] / frames_per_token)}")
+        problems.append(
+            f"{len(tokens)} tokens for {meta['frames']} frames, expected {math.ceil(meta['frames'] / frames_per_token)}"
+        )
     return problems
 
 

@@ -12,9 +12,9 @@ import torch
 import yaml
 
 from m2d2m.motion.skeleton import T2M
-from pipelines.features import DataConfig, build_dataset
 from orchestration.recipe import train_model
 from orchestration.train import train_evaluator, train_vq
+from pipelines.features import DataConfig, build_dataset
 from tests.helpers import TINY_DIFFUSION, TINY_EVALUATOR, TINY_VQ_RUN, write_corpus
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
@@ -77,13 +77,22 @@ def project(tmp_path, tiny_data, monkeypatch) -> Path:
 
 
 TINY_EVALUATOR_RUN = {
-    "dataset": "tiny", "seed": 7,
+    "dataset": "tiny",
+    "seed": 7,
     "data": {"dir": None, "batch_size": 4, "num_workers": 0, "min_frames": 40, "max_frames": 196},
     "model": {**TINY_EVALUATOR, "max_text_len": 20, "dropout": 0.0},
-    "glove_dir": None, "min_word_count": 1, "loss": {"margin": 10.0},
+    "glove_dir": None,
+    "min_word_count": 1,
+    "loss": {"margin": 10.0},
     "optim": {"lr": 1e-3, "betas": [0.9, 0.999], "weight_decay": 0.0, "grad_clip": 0.5},
-    "trainer": {"max_steps": 4, "val_every_steps": 2, "val_batches": 1, "accelerator": "cpu", "devices": 1,
-                "precision": "32-true"},
+    "trainer": {
+        "max_steps": 4,
+        "val_every_steps": 2,
+        "val_batches": 1,
+        "accelerator": "cpu",
+        "devices": 1,
+        "precision": "32-true",
+    },
 }
 
 
@@ -96,9 +105,11 @@ def trained_store(tmp_path_factory, ray_local) -> Path:
     write_corpus(root / "raw", {"train": 6, "val": 2, "test": 8}, T2M)
     data = root / "data"
     build_dataset(DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(data), samples_per_shard=4))
-    configs = {"vq": {**TINY_VQ_RUN, "data": {**TINY_VQ_RUN["data"], "dir": str(data)}},
-               "diffusion": TINY_DIFFUSION,
-               "evaluator": {**TINY_EVALUATOR_RUN, "data": {**TINY_EVALUATOR_RUN["data"], "dir": str(data)}}}
+    configs = {
+        "vq": {**TINY_VQ_RUN, "data": {**TINY_VQ_RUN["data"], "dir": str(data)}},
+        "diffusion": TINY_DIFFUSION,
+        "evaluator": {**TINY_EVALUATOR_RUN, "data": {**TINY_EVALUATOR_RUN["data"], "dir": str(data)}},
+    }
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # tiny models: more intra-op threads only contend
     with pytest.MonkeyPatch.context() as patch:

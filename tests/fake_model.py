@@ -48,7 +48,7 @@ class PlaybackGenerator(MotionGenerator):
         self.source = source
 
     @classmethod
-    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "PlaybackGenerator":
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> PlaybackGenerator:
         with np.load(path, allow_pickle=False) as arrays:
             clips = {str(s): arrays[f"clip{i}"] for i, s in enumerate(arrays["sentences"])}
         return cls(clips, Path(path))
@@ -75,27 +75,51 @@ class PlaybackGenerator(MotionGenerator):
     def describe(self, options: PlaybackOptions) -> str:
         return f"ground truth played back from frame {options.offset}"
 
-    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: PlaybackOptions,
-                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
-                 progress: Callable[[float], None] | None = None) -> list[Motion]:
+    def generate(
+        self,
+        actions: Sequence[Sequence[str]],
+        frames: Sequence[Sequence[int]],
+        options: PlaybackOptions,
+        seeds: Sequence[int],
+        keep: Sequence[Keep | None] | None = None,
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Motion]:
         motions = []
         for sequence, lengths in zip(actions, frames):
             pieces = []
             for action, n in zip(sequence, lengths):
-                clip = self.clips[action][options.offset:]
+                clip = self.clips[action][options.offset :]
                 pieces.append(clip[np.minimum(np.arange(n), len(clip) - 1)])
             features = np.concatenate(pieces)
             ends = np.cumsum([len(p) for p in pieces])
-            motions.append(Motion(features, features_to_joints(features, self.skeleton), self.fps, "t2m",
-                                  list(sequence), [(int(e - len(p)), int(e)) for p, e in zip(pieces, ends)],
-                                  {"model": NAME, "method": options.method, "offset": options.offset}))
+            motions.append(
+                Motion(
+                    features,
+                    features_to_joints(features, self.skeleton),
+                    self.fps,
+                    "t2m",
+                    list(sequence),
+                    [(int(e - len(p)), int(e)) for p, e in zip(pieces, ends)],
+                    {"model": NAME, "method": options.method, "offset": options.offset},
+                )
+            )
         return motions
 
 
 RECIPE = Recipe()  # playback has nothing to train: the base recipe, which builds nothing
 
-register(ModelEntry(
-    name=NAME, summary="ground truth played back (a test of the registry)", stage=NAME, legacy_stages=(),
-    configs=NAME, train_verb="train-playback", model_file="playback.npz",
-    generator=f"{__name__}:PlaybackGenerator", recipe=f"{__name__}:RECIPE", sampling=f"{__name__}:SAMPLING",
-    shortcuts=("offset",)))
+register(
+    ModelEntry(
+        name=NAME,
+        summary="ground truth played back (a test of the registry)",
+        stage=NAME,
+        legacy_stages=(),
+        configs=NAME,
+        train_verb="train-playback",
+        model_file="playback.npz",
+        generator=f"{__name__}:PlaybackGenerator",
+        recipe=f"{__name__}:RECIPE",
+        sampling=f"{__name__}:SAMPLING",
+        shortcuts=("offset",),
+    )
+)

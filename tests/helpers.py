@@ -87,13 +87,34 @@ TINY_VQ_RUN = {
     "dataset": "tiny",
     "seed": 1,
     "data": {"dir": None, "window": 32, "batch_size": 4, "num_workers": 0},
-    "model": {"width": 16, "depth": 1, "dilation_growth": 3, "down_t": 2, "code_dim": 8,
-              "codebook_size": 16, "ema_decay": 0.99},
+    "model": {
+        "width": 16,
+        "depth": 1,
+        "dilation_growth": 3,
+        "down_t": 2,
+        "code_dim": 8,
+        "codebook_size": 16,
+        "ema_decay": 0.99,
+    },
     "loss": {"recon": 1.0, "joint": 0.5, "commit": 0.02},
-    "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 2,
-              "milestones": [100], "gamma": 0.05, "grad_clip": None},
-    "trainer": {"max_steps": 6, "val_every_steps": 3, "val_batches": 1, "gif_every": 1,
-                "accelerator": "cpu", "devices": 1, "precision": "auto"},
+    "optim": {
+        "lr": 1e-3,
+        "betas": [0.9, 0.99],
+        "weight_decay": 0.0,
+        "warmup_steps": 2,
+        "milestones": [100],
+        "gamma": 0.05,
+        "grad_clip": None,
+    },
+    "trainer": {
+        "max_steps": 6,
+        "val_every_steps": 3,
+        "val_batches": 1,
+        "gif_every": 1,
+        "accelerator": "cpu",
+        "devices": 1,
+        "precision": "auto",
+    },
 }
 
 
@@ -105,14 +126,43 @@ TINY_DIFFUSION = {
     "data": {"batch_size": 4, "num_workers": 0, "max_tokens": None},
     "text": {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
     "text_drop": 0.1,
-    "denoiser": {"layers": 1, "heads": 2, "width": 16, "ffn": 32, "dropout": 0.0, "max_distance": 16,
-                 "num_buckets": 8, "positions": "relative"},
-    "diffusion": {"steps": 8, "kind": "dynamic", "eta": 0.5, "distance": "l2_rank", "schedule": "linear",
-                  "aux_weight": 5e-4, "timestep_sampling": "uniform"},
-    "optim": {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1, "milestones": [100],
-              "gamma": 0.1, "grad_clip": 1.0},
-    "trainer": {"max_steps": 4, "val_every_steps": 2, "val_batches": 1, "gif_every": 2, "accelerator": "cpu",
-                "devices": 1, "precision": "auto"},
+    "denoiser": {
+        "layers": 1,
+        "heads": 2,
+        "width": 16,
+        "ffn": 32,
+        "dropout": 0.0,
+        "max_distance": 16,
+        "num_buckets": 8,
+        "positions": "relative",
+    },
+    "diffusion": {
+        "steps": 8,
+        "kind": "dynamic",
+        "eta": 0.5,
+        "distance": "l2_rank",
+        "schedule": "linear",
+        "aux_weight": 5e-4,
+        "timestep_sampling": "uniform",
+    },
+    "optim": {
+        "lr": 1e-3,
+        "betas": [0.9, 0.99],
+        "weight_decay": 0.0,
+        "warmup_steps": 1,
+        "milestones": [100],
+        "gamma": 0.1,
+        "grad_clip": 1.0,
+    },
+    "trainer": {
+        "max_steps": 4,
+        "val_every_steps": 2,
+        "val_batches": 1,
+        "gif_every": 2,
+        "accelerator": "cpu",
+        "devices": 1,
+        "precision": "auto",
+    },
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0], "guidance": 2.0},
 }
 
@@ -120,8 +170,15 @@ TINY_DIFFUSION = {
 # sections, MMM's own network and masking.
 TINY_MMM = {
     **{key: TINY_DIFFUSION[key] for key in ("dataset", "seed", "vq", "data", "text", "text_drop", "optim", "trainer")},
-    "transformer": {"width": 16, "heads": 2, "layers": 2, "cross_layers": 1, "ffn": 32, "dropout": 0.0,
-                    "max_tokens": 50},
+    "transformer": {
+        "width": 16,
+        "heads": 2,
+        "layers": 2,
+        "cross_layers": 1,
+        "ffn": 32,
+        "dropout": 0.0,
+        "max_tokens": 50,
+    },
     "masking": {"alpha": 0.5},
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
 }
@@ -129,19 +186,41 @@ TINY_MMM = {
 # A MotionDiffuse training config small enough for tests (data.dir is filled in per test): 50 diffusion
 # steps, so that sampling with every step stays quick.
 TINY_MOTIONDIFFUSE = {
-    "dataset": "tiny", "seed": 1,
+    "dataset": "tiny",
+    "seed": 1,
     "data": {"dir": None, "batch_size": 4, "num_workers": 0, "min_frames": 20, "max_frames": 120},
-    "text": TINY_DIFFUSION["text"], "text_drop": 0.1,
-    "network": {"width": 16, "layers": 1, "heads": 2, "ffn": 32, "dropout": 0.0, "text_width": 16, "text_layers": 1,
-                "text_heads": 2, "text_ffn": 32, "max_frames": 160, "attention": "linear"},
+    "text": TINY_DIFFUSION["text"],
+    "text_drop": 0.1,
+    "network": {
+        "width": 16,
+        "layers": 1,
+        "heads": 2,
+        "ffn": 32,
+        "dropout": 0.0,
+        "text_width": 16,
+        "text_layers": 1,
+        "text_heads": 2,
+        "text_ffn": 32,
+        "max_frames": 160,
+        "attention": "linear",
+    },
     "diffusion": {"steps": 50, "beta_start": 1e-4, "beta_end": 0.02},
-    "optim": TINY_DIFFUSION["optim"], "trainer": TINY_DIFFUSION["trainer"],
+    "optim": TINY_DIFFUSION["optim"],
+    "trainer": TINY_DIFFUSION["trainer"],
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
 }
 
 # Evaluator sizes small enough for tests (EvaluatorConfig fields).
-TINY_EVALUATOR = {"movement_hidden": 16, "movement_latent": 16, "motion_hidden": 24, "text_hidden": 16,
-                  "embedding_dim": 8, "word_dim": 12, "word_features": "learned", "max_motion_length": 48}
+TINY_EVALUATOR = {
+    "movement_hidden": 16,
+    "movement_latent": 16,
+    "motion_hidden": 24,
+    "text_hidden": 16,
+    "embedding_dim": 8,
+    "word_dim": 12,
+    "word_features": "learned",
+    "max_motion_length": 48,
+}
 
 
 def free_port() -> int:

@@ -41,18 +41,52 @@ def test_mmm_long_sequence_is_split_into_the_fewest_even_actions():
 
 def test_aits_and_long_sequence_of_three_models_in_one_run(three_models, capsys):
     out = three_models / "aits"
-    main(["--dataset", "tiny", "--lengths", "8", "16", "--batches", "1", "2", "--warmup", "0", "--repeats", "2",
-          "--m2d2m-steps", "8", "2", "--m2d2m-long-steps", "4",
-          "--md-steps", "10", "50", "--md-batches", "1", "--md-long-steps", "5",
-          "--long-minutes", "0.05", "--action-frames", "24", "--long-repeats", "1", "--threads", "1",
-          "--out", str(out)])
+    main(
+        [
+            "--dataset",
+            "tiny",
+            "--lengths",
+            "8",
+            "16",
+            "--batches",
+            "1",
+            "2",
+            "--warmup",
+            "0",
+            "--repeats",
+            "2",
+            "--m2d2m-steps",
+            "8",
+            "2",
+            "--m2d2m-long-steps",
+            "4",
+            "--md-steps",
+            "10",
+            "50",
+            "--md-batches",
+            "1",
+            "--md-long-steps",
+            "5",
+            "--long-minutes",
+            "0.05",
+            "--action-frames",
+            "24",
+            "--long-repeats",
+            "1",
+            "--threads",
+            "1",
+            "--out",
+            str(out),
+        ]
+    )
     result = json.loads((out / "aits.json").read_text(encoding="utf-8"))
     rows = {(row["series"], row["batch"], row["frames"]): row for row in result["aits"]}
     md = ("motiondiffuse (50 steps)", "motiondiffuse (10 steps)")
     m2 = ("m2d2m (8 steps)", "m2d2m (2 steps)")
     # M2D2M at --batches and MotionDiffuse at --md-batches, once per number of steps (most first)
-    assert set(rows) == ({(m, b, f) for m in ("mmm", *m2) for b in (1, 2) for f in (8, 16)}
-                         | {(m, 1, f) for m in md for f in (8, 16)})
+    assert set(rows) == (
+        {(m, b, f) for m in ("mmm", *m2) for b in (1, 2) for f in (8, 16)} | {(m, 1, f) for m in md for f in (8, 16)}
+    )
     assert list(dict.fromkeys(row["series"] for row in result["aits"])) == ["mmm", *m2, *md]
     for (series, batch, _), row in rows.items():
         assert row["model"] == series.split(" ")[0]
@@ -90,15 +124,44 @@ def test_aits_and_long_sequence_of_three_models_in_one_run(three_models, capsys)
 
 def test_steps_motiondiffuse_was_not_trained_with_are_refused(three_models):
     with pytest.raises(SystemExit, match="trained with T = 50 steps"):
-        main(["--dataset", "tiny", "--lengths", "8", "--action-frames", "24", "--m2d2m-steps", "8",
-              "--md-steps", "1000", "100", "--out", str(three_models / "refused")])
+        main(
+            [
+                "--dataset",
+                "tiny",
+                "--lengths",
+                "8",
+                "--action-frames",
+                "24",
+                "--m2d2m-steps",
+                "8",
+                "--md-steps",
+                "1000",
+                "100",
+                "--out",
+                str(three_models / "refused"),
+            ]
+        )
     assert not (three_models / "refused").exists()
 
 
 def test_steps_m2d2m_was_not_trained_with_are_refused(three_models):
     with pytest.raises(SystemExit, match="m2d2m was trained with T = 8 steps; give --m2d2m-steps"):
-        main(["--dataset", "tiny", "--lengths", "8", "--action-frames", "24", "--m2d2m-steps", "100",
-              "--md-steps", "5", "--out", str(three_models / "refused")])
+        main(
+            [
+                "--dataset",
+                "tiny",
+                "--lengths",
+                "8",
+                "--action-frames",
+                "24",
+                "--m2d2m-steps",
+                "100",
+                "--md-steps",
+                "5",
+                "--out",
+                str(three_models / "refused"),
+            ]
+        )
     assert not (three_models / "refused").exists()
 
 

@@ -14,15 +14,23 @@ from orchestration.runs import mark_latest, new_run_dir, write_run_info
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `stages` beside them
 import stages  # noqa: E402
+
 from bench import learning_curves  # noqa: E402
 from bench.learning_curves import ABLATION, CURVES, PAPER, plot, report, schedule_overrides  # noqa: E402
 
 
 def single_table(fid: float, r_top3: float) -> dict:
-    row = {"fid": {"mean": fid, "ci": 0.1}, "r_top3": {"mean": r_top3, "ci": 0.01},
-           "mm_dist": {"mean": 2.0, "ci": 0.1}, "mmodality": {"mean": 1.0, "ci": 0.1}}
-    return {"generated": row, "gt_single": {**row, "fid": {"mean": None, "ci": None}, "r_top3": {"mean": 0.8, "ci": 0}},
-            "reconstruction": {**row, "fid": {"mean": 0.07, "ci": 0}}}
+    row = {
+        "fid": {"mean": fid, "ci": 0.1},
+        "r_top3": {"mean": r_top3, "ci": 0.01},
+        "mm_dist": {"mean": 2.0, "ci": 0.1},
+        "mmodality": {"mean": 1.0, "ci": 0.1},
+    }
+    return {
+        "generated": row,
+        "gt_single": {**row, "fid": {"mean": None, "ci": None}, "r_top3": {"mean": 0.8, "ci": 0}},
+        "reconstruction": {**row, "fid": {"mean": 0.07, "ci": 0}},
+    }
 
 
 @pytest.fixture
@@ -56,10 +64,23 @@ def fake_commands(tmp_path, monkeypatch) -> list[tuple[str, ...]]:
 
 def test_schedule_overrides_stretch_the_demo_schedule():
     assert schedule_overrides(8000, [500, 8000]) == [
-        "--set", "trainer.max_steps=8000", "--set", "optim.milestones=[6000]", "--set", "trainer.val_every_steps=500",
-        "--set", "trainer.snapshots=[500,8000]"]
-    assert schedule_overrides(40) == ["--set", "trainer.max_steps=40", "--set", "optim.milestones=[30]",
-                                      "--set", "trainer.val_every_steps=40"]
+        "--set",
+        "trainer.max_steps=8000",
+        "--set",
+        "optim.milestones=[6000]",
+        "--set",
+        "trainer.val_every_steps=500",
+        "--set",
+        "trainer.snapshots=[500,8000]",
+    ]
+    assert schedule_overrides(40) == [
+        "--set",
+        "trainer.max_steps=40",
+        "--set",
+        "optim.milestones=[30]",
+        "--set",
+        "trainer.val_every_steps=40",
+    ]
 
 
 def test_a_curve_trains_once_and_judges_every_snapshot_without_moving_latest(fake_commands, tmp_path):
@@ -92,19 +113,28 @@ def test_the_ablation_trains_each_change_once_and_samples_the_paper_model_for_sa
     assert ("--set", "denoiser.positions=action") == tuple(trainings[2][3:5])  # the paper's config, one change
     sampling_only = [c for c in fake_commands if c[0] == "evaluate" and "truncation=0.86" in c]
     paper_run = json.loads((tmp_path / "state.json").read_text())["finished"][f"ablation/{PAPER}/train"]
-    assert len(sampling_only) == 1 and sampling_only[0][sampling_only[0].index("--checkpoint") + 1] == \
-        str(Path(paper_run) / "model.pt")
+    assert len(sampling_only) == 1 and sampling_only[0][sampling_only[0].index("--checkpoint") + 1] == str(
+        Path(paper_run) / "model.pt"
+    )
 
 
 def test_report_and_figure_from_partial_results(tmp_path):
-    results = {"curves": {"m2d2m": [{"step": 500, "seconds": 60.0, "table": single_table(20.0, 0.6)},
-                                    {"step": 1000, "seconds": 120.0, "table": single_table(5.0, 0.7)}],
-                          "mmm": [{"step": 500, "seconds": 50.0, "table": single_table(1.0, 0.8)}]},
-               "ablation": {PAPER: single_table(24.0, 0.68), "aux-1": single_table(4.0, 0.78)}}
+    results = {
+        "curves": {
+            "m2d2m": [
+                {"step": 500, "seconds": 60.0, "table": single_table(20.0, 0.6)},
+                {"step": 1000, "seconds": 120.0, "table": single_table(5.0, 0.7)},
+            ],
+            "mmm": [{"step": 500, "seconds": 50.0, "table": single_table(1.0, 0.8)}],
+        },
+        "ablation": {PAPER: single_table(24.0, 0.68), "aux-1": single_table(4.0, 0.78)},
+    }
     text = report(results, {"repeats": 2, "ablation_steps": 2000})
     assert "| 1000 | 120 | 5.000 ± 0.100 | 0.700 ± 0.010 |" in text
-    assert "| + auxiliary weight λ = 1 (paper 5e-4) | 4.000 ± 0.100 | 0.780 ± 0.010 | 2.000 ± 0.100 | " \
-           "1.000 ± 0.100 | -20.000 | +0.100 |" in text
+    assert (
+        "| + auxiliary weight λ = 1 (paper 5e-4) | 4.000 ± 0.100 | 0.780 ± 0.010 | 2.000 ± 0.100 | "
+        "1.000 ± 0.100 | -20.000 | +0.100 |" in text
+    )
     assert "VQ-VAE reconstruction (the token models' ceiling) | 0.070 ± 0.000" in text
     assert "+ importance sampling" not in text  # rows not measured yet are left out
     plot(tmp_path / "curves.png", results)
@@ -117,9 +147,10 @@ def test_the_summary_run_holds_the_curves_by_step(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     monkeypatch.setattr(learning_curves, "OUT", tmp_path)
-    results = {"curves": {"mmm": [{"step": s, "seconds": s / 10, "table": single_table(10.0 / s, 0.7)}
-                                  for s in (500, 1000)]},
-               "ablation": {PAPER: single_table(24.0, 0.68)}}
+    results = {
+        "curves": {"mmm": [{"step": s, "seconds": s / 10, "table": single_table(10.0 / s, 0.7)} for s in (500, 1000)]},
+        "ablation": {PAPER: single_table(24.0, 0.68)},
+    }
     (tmp_path / "report.md").write_text(report(results, {"repeats": 1, "ablation_steps": 2000}))
     plot(tmp_path / "curves.png", results)
     run_id = learning_curves.track(results, {"repeats": 1})

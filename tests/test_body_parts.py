@@ -13,8 +13,8 @@ from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import KIT, T2M
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.vqvae import MotionVQVAE, VQConfig, load_vq, save_vq
-from training.vq_module import VQVAEModule
 from tests.helpers import TINY_VQ_RUN
+from training.vq_module import VQVAEModule
 
 
 @pytest.mark.parametrize("skeleton, upper, lower", [(T2M, 156, 107), (KIT, 120, 131)])

@@ -12,10 +12,24 @@ from orchestration.cli import main
 def test_the_installed_entry_point_ends_a_user_error_in_one_line(tmp_path):
     """The one case run as a real process; the rest call ``main`` in this one (the same code,
     seconds cheaper each)."""
-    result = subprocess.run([sys.executable, "-m", "orchestration.cli", "render", str(tmp_path / "no.npy"),
-                             "--out", str(tmp_path / "x.gif")], capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "orchestration.cli",
+            "render",
+            str(tmp_path / "no.npy"),
+            "--out",
+            str(tmp_path / "x.gif"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 2 and "Traceback" not in result.stderr
-    assert result.stderr.strip().splitlines() == [f"m2d2m render: error: {tmp_path / 'no.npy'}: no such file or directory"]
+    assert result.stderr.strip().splitlines() == [
+        f"m2d2m render: error: {tmp_path / 'no.npy'}: no such file or directory"
+    ]
 
 
 @pytest.mark.parametrize(

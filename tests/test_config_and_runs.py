@@ -1,7 +1,6 @@
 """Configs with checked overrides, and run directories with their `latest` marker."""
 
 import pytest
-
 import yaml
 
 from orchestration.config import apply_overrides, flatten, load_config, rename_keys
@@ -42,11 +41,16 @@ def test_repository_configs_load_and_flatten():
     assert load_config("vq", "humanml3d")["model"]["codebook_size"] == 512
 
 
-@pytest.mark.parametrize(("stage", "ours"), [
-    ("m2d2m", {"denoiser.positions", "diffusion.aux_weight", "sampling.steps", "sampling.guidance",
-               "preview.guidance"}),
-    ("motiondiffuse", {"diffusion.prediction"}),
-])
+@pytest.mark.parametrize(
+    ("stage", "ours"),
+    [
+        (
+            "m2d2m",
+            {"denoiser.positions", "diffusion.aux_weight", "sampling.steps", "sampling.guidance", "preview.guidance"},
+        ),
+        ("motiondiffuse", {"diffusion.prediction"}),
+    ],
+)
 def test_the_demo_departs_from_the_papers_setting_only_where_docs_say_ours(stage, ours):
     """``paper-demo.yaml`` is a copy of ``demo.yaml`` with the paper's values: an edit to one that
     misses the other would silently change what "the paper's setting" measures."""
@@ -118,8 +122,19 @@ def test_runs_of_the_old_diffusion_stage_still_resolve(tmp_path, monkeypatch):
 def test_evaluation_settings_recorded_before_the_registry_read_as_m2d2m():
     from orchestration.evaluate import EvalSettings
 
-    recorded = {"checkpoint": "model.pt", "testset": None, "evaluator": "evaluator.pt", "glove": None, "meta": None,
-                "methods": ["tps"], "ts": 80, "eta": 0.25, "guidance": 2.0, "repeats": 2, "single": False}
+    recorded = {
+        "checkpoint": "model.pt",
+        "testset": None,
+        "evaluator": "evaluator.pt",
+        "glove": None,
+        "meta": None,
+        "methods": ["tps"],
+        "ts": 80,
+        "eta": 0.25,
+        "guidance": 2.0,
+        "repeats": 2,
+        "single": False,
+    }
     settings = EvalSettings.from_dict(recorded)
     (only,) = settings.candidates
     assert only.model == "m2d2m" and only.options == {"ts": 80, "eta": 0.25, "guidance": 2.0}
@@ -131,8 +146,18 @@ def test_one_model_evaluation_settings_read_as_one_candidate_and_round_trip():
 
     from orchestration.evaluate import EvalSettings
 
-    recorded = {"model": "mmm", "checkpoint": "model.pt", "testset": None, "evaluator": "evaluator.pt", "glove": None,
-                "meta": None, "methods": ["transition"], "options": {"temperature": 0.5}, "repeats": 1, "single": True}
+    recorded = {
+        "model": "mmm",
+        "checkpoint": "model.pt",
+        "testset": None,
+        "evaluator": "evaluator.pt",
+        "glove": None,
+        "meta": None,
+        "methods": ["transition"],
+        "options": {"temperature": 0.5},
+        "repeats": 1,
+        "single": True,
+    }
     settings = EvalSettings.from_dict(recorded)
     assert settings.models == ("mmm",) and settings.candidates[0].options == {"temperature": 0.5}
     assert EvalSettings.from_dict(asdict(settings)) == settings
@@ -146,17 +171,22 @@ def test_sweep_configs_written_before_the_registry_still_load():
     assert config["resources"]["workers"] == 0
 
 
-@pytest.mark.parametrize("override, message", [
-    ("optim.lr=abc", "optim.lr takes a number, got 'abc'"),
-    ("optim.betas=0.9", "optim.betas takes a list"),
-    ("model.width=[1]", "model.width takes a number"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("optim.lr=abc", "optim.lr takes a number, got 'abc'"),
+        ("optim.betas=0.9", "optim.betas takes a list"),
+        ("model.width=[1]", "model.width takes a number"),
+    ],
+)
 def test_a_value_of_another_kind_than_the_files_is_refused(override, message):
     with pytest.raises(UserError, match=message.replace("[", r"\[")):
         apply_overrides(BASE, [override])
 
 
 def test_texts_and_nulls_in_a_file_take_any_value():
-    config = apply_overrides({"trainer": {"devices": "auto", "clip": None, "lr": 1.0}},
-                             ["trainer.devices=2", "trainer.clip=0.5", "trainer.lr=null"])
+    config = apply_overrides(
+        {"trainer": {"devices": "auto", "clip": None, "lr": 1.0}},
+        ["trainer.devices=2", "trainer.clip=0.5", "trainer.lr=null"],
+    )
     assert config["trainer"] == {"devices": 2, "clip": 0.5, "lr": None}

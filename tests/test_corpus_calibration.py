@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from bench.calibrate_corpus import CALIBRATED, band_ratio, group_spectra, synthetic
-from pipelines.synthetic import TEXTURE
-from pipelines.synthetic import Texture
+from pipelines.synthetic import TEXTURE, Texture
 from tests.conftest import HUMANML3D_SAMPLE
 
 

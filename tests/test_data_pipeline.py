@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import webdataset as wds
 
+from m2d2m.layout import shard_urls
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import joints_to_features
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
-from m2d2m.layout import shard_urls
-from pipelines.dataset import check_dataset, sample_problems
 from pipelines.corpora import list_corpus
+from pipelines.dataset import check_dataset, sample_problems
 from pipelines.features import DataConfig, build_dataset, plan_shards
 from tests.helpers import pose_clip, write_corpus
 
@@ -104,7 +104,7 @@ def test_captions_carry_their_verb_decomposition(built):
 
 def test_bad_inputs_are_quarantined_with_their_reasons_and_nothing_else_is(built):
     root, raw, ids, bad, config, manifest = built
-    lines = [json.loads(l) for l in (root / "out" / "quarantine.jsonl").read_text().splitlines()]
+    lines = [json.loads(line) for line in (root / "out" / "quarantine.jsonl").read_text().splitlines()]
     assert {q["id"] for q in lines} == set(bad)
     for q in lines:
         assert bad[q["id"]] in q["reason"], q
@@ -154,12 +154,18 @@ def test_shard_plan_never_exceeds_the_shard_size(built):
     root, raw, ids, bad, config, manifest = built
     assert all(s["samples"] <= config.samples_per_shard for split in manifest["shards"].values() for s in split)
     plan = plan_shards(list_corpus(raw), samples_per_shard=5, make_mirror=True)
-    assert [(t["split"], t["index"], len(t["rows"])) for t in plan][:3] == [("train", 0, 2), ("train", 1, 2), ("train", 2, 2)]
+    assert [(t["split"], t["index"], len(t["rows"])) for t in plan][:3] == [
+        ("train", 0, 2),
+        ("train", 1, 2),
+        ("train", 2, 2),
+    ]
     assert sum(len(t["rows"]) for t in plan) == len(list_corpus(raw))
 
 
 def test_sample_schema_rejects_wrong_members():
-    assert sample_problems("x", {"motion.npy": b""}, 263) == ["members ['motion.npy'], expected ['meta.json', 'motion.npy']"]
+    assert sample_problems("x", {"motion.npy": b""}, 263) == [
+        "members ['motion.npy'], expected ['meta.json', 'motion.npy']"
+    ]
 
 
 def test_processed_layout_reads_features_and_ships_its_own_stats(tmp_path, ray_local):
@@ -183,11 +189,15 @@ def test_processed_layout_reads_features_and_ships_its_own_stats(tmp_path, ray_l
 def test_cli_reuses_a_complete_dataset_and_checks_it(built, capsys, tmp_path):
     root, raw, *_ = built
     out = tmp_path / "cli"
-    assert main(["data", "--dataset", "synthetic", "--raw", str(raw), "--out", str(out), "--samples-per-shard", "5"]) == 0
+    assert (
+        main(["data", "--dataset", "synthetic", "--raw", str(raw), "--out", str(out), "--samples-per-shard", "5"]) == 0
+    )
     first = capsys.readouterr().out
     assert "read 21 inputs (2 rejected) · validate 6 rejected · features 13 motions + 13 mirrors" in first
     assert "train  8        8" in first  # the summary table: motions and mirrors per split
-    assert main(["data", "--dataset", "synthetic", "--raw", str(raw), "--out", str(out), "--samples-per-shard", "5"]) == 0
+    assert (
+        main(["data", "--dataset", "synthetic", "--raw", str(raw), "--out", str(out), "--samples-per-shard", "5"]) == 0
+    )
     assert "reusing it" in capsys.readouterr().out
     assert main(["data", "--check", str(out)]) == 0
     (out / "manifest.json").unlink()

@@ -15,7 +15,7 @@ from m2d2m.integrity import verified_paths
 from m2d2m.layout import MANIFEST, read_manifest
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
-from pipelines.shards import ShardWriter, shard_records, sha256_of
+from pipelines.shards import ShardWriter, sha256_of, shard_records
 from pipelines.testset import build_testset
 from pipelines.tokenize import tokenize_dataset
 from tests.helpers import random_vq, write_corpus
@@ -24,7 +24,9 @@ from training.data import TokenDataModule
 
 def checksums(directory: Path) -> dict[str, str]:
     """Every file under ``directory`` by relative path, with its sha256."""
-    return {str(path.relative_to(directory)): sha256_of(path) for path in sorted(directory.rglob("*")) if path.is_file()}
+    return {
+        str(path.relative_to(directory)): sha256_of(path) for path in sorted(directory.rglob("*")) if path.is_file()
+    }
 
 
 def flip_byte(path: Path, offset: int = 1000) -> None:
@@ -117,11 +119,14 @@ def test_training_refuses_a_shard_changed_after_the_build(project, tmp_path, tin
     assert "train-000001.tar: sha256 differs" in error and f"m2d2m data --check {data}" in error
 
 
-@pytest.mark.parametrize("damage, expected", [
-    (flip_byte, (ValueError, "sha256 differs")),
-    (lambda path: path.write_bytes(path.read_bytes()[:-1]), (ValueError, "bytes, the manifest records")),
-    (Path.unlink, (FileNotFoundError, "missing, though the manifest lists it")),
-])
+@pytest.mark.parametrize(
+    "damage, expected",
+    [
+        (flip_byte, (ValueError, "sha256 differs")),
+        (lambda path: path.write_bytes(path.read_bytes()[:-1]), (ValueError, "bytes, the manifest records")),
+        (Path.unlink, (FileNotFoundError, "missing, though the manifest lists it")),
+    ],
+)
 def test_a_read_checks_size_always_and_sha256_once(tmp_path, monkeypatch, damage, expected):
     with ShardWriter(tmp_path, "train", 2) as writer:
         for key in ("a", "b", "c"):

@@ -30,9 +30,14 @@ def width(model: str, path) -> int:
 
 
 # MMM's and MotionDiffuse's runs take the same code path as M2D2M's (orchestration/train.py's fit)
-@pytest.mark.parametrize("model, verb", [("m2d2m", "train-diffusion"),
-                                         pytest.param("mmm", "train-mmm", marks=pytest.mark.slow),
-                                         pytest.param("motiondiffuse", "train-motiondiffuse", marks=pytest.mark.slow)])
+@pytest.mark.parametrize(
+    "model, verb",
+    [
+        ("m2d2m", "train-diffusion"),
+        pytest.param("mmm", "train-mmm", marks=pytest.mark.slow),
+        pytest.param("motiondiffuse", "train-motiondiffuse", marks=pytest.mark.slow),
+    ],
+)
 def test_two_ddp_ranks_train_one_run(trained_project, model, verb):
     runs = trained_project / "runs" / "tiny" / model
     before = {path for path in runs.iterdir() if path.is_dir()} if runs.exists() else set()
@@ -45,10 +50,21 @@ def test_two_ddp_ranks_train_one_run(trained_project, model, verb):
     else:
         config = trained_project / "diffusion.yaml"
     env = {key: value for key, value in os.environ.items() if key != "MLFLOW_TRACKING_URI"}
-    command = [sys.executable, "-m", "orchestration.cli", verb, "--config", str(config),
-               "--set", "trainer.accelerator=cpu", "--set", "trainer.devices=2"]
-    result = subprocess.run(command, cwd=trained_project, env={**env, "OMP_NUM_THREADS": "1"},
-                            capture_output=True, text=True, timeout=600)
+    command = [
+        sys.executable,
+        "-m",
+        "orchestration.cli",
+        verb,
+        "--config",
+        str(config),
+        "--set",
+        "trainer.accelerator=cpu",
+        "--set",
+        "trainer.devices=2",
+    ]
+    result = subprocess.run(
+        command, cwd=trained_project, env={**env, "OMP_NUM_THREADS": "1"}, capture_output=True, text=True, timeout=600
+    )
     assert result.returncode == 0, result.stderr[-3000:]
 
     (run_dir,) = {path for path in runs.iterdir() if path.is_dir()} - before

@@ -9,8 +9,9 @@ import torch
 
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser, guided_logits, relative_position_bucket
 
-SMALL = DenoiserConfig(codebook_size=16, layers=2, heads=4, width=32, ffn=64, text_dim=24, steps=10,
-                       max_distance=16, num_buckets=8)
+SMALL = DenoiserConfig(
+    codebook_size=16, layers=2, heads=4, width=32, ffn=64, text_dim=24, steps=10, max_distance=16, num_buckets=8
+)
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -100,8 +101,9 @@ def test_drop_condition_with_p_one_is_null_for_every_sample_and_p_zero_for_none(
     dropped_text, dropped_mask = model.drop_condition(text, text_mask, 1.0, generator)
     assert dropped_text.shape == text.shape
     assert dropped_mask[:, 0].all() and not dropped_mask[:, 1:].any()
-    torch.testing.assert_close(model(tokens, mask, t, dropped_text, dropped_mask), model(tokens, mask, t),
-                               atol=1e-5, rtol=0)
+    torch.testing.assert_close(
+        model(tokens, mask, t, dropped_text, dropped_mask), model(tokens, mask, t), atol=1e-5, rtol=0
+    )
 
 
 def test_drop_condition_rate_and_generator_reproducibility():
@@ -116,8 +118,7 @@ def test_drop_condition_rate_and_generator_reproducibility():
 
 
 def test_relative_buckets_saturate_beyond_max_distance():
-    offsets = torch.tensor([-10_000, -SMALL.max_distance, 0, 1, SMALL.max_distance - 1, SMALL.max_distance,
-                            10_000])
+    offsets = torch.tensor([-10_000, -SMALL.max_distance, 0, 1, SMALL.max_distance - 1, SMALL.max_distance, 10_000])
     buckets = relative_position_bucket(offsets, SMALL.num_buckets, SMALL.max_distance).tolist()
     half = SMALL.num_buckets // 2
     assert buckets[0] == buckets[1] == half - 1
@@ -137,8 +138,10 @@ def test_runs_on_four_times_the_training_length():
     assert torch.isfinite(logits).all()
     # Far apart pairs all read the last bucket's bias, so the model never meets an unseen position.
     bias = model.relative_position_bias(4 * train_length, torch.device("cpu"))
-    torch.testing.assert_close(bias[:, 0, SMALL.max_distance:], model.relative_bias.weight[-1][:, None].expand(
-        -1, 4 * train_length - SMALL.max_distance))
+    torch.testing.assert_close(
+        bias[:, 0, SMALL.max_distance :],
+        model.relative_bias.weight[-1][:, None].expand(-1, 4 * train_length - SMALL.max_distance),
+    )
 
 
 def test_guided_logits_is_the_papers_eq_9():
@@ -258,8 +261,14 @@ def test_a_joint_row_of_two_actions_sees_each_actions_offsets():
     with torch.no_grad():
         joint = model(tokens, None, t, text, text_mask, action_offsets([[4, 6]], 10))
         whole = model(tokens, None, t, text, text_mask)
-        padded = model(torch.cat([tokens, tokens[:, :3]], 1), torch.arange(13)[None] < 10, t, text, text_mask,
-                       action_offsets([[4, 6]], 13))
+        padded = model(
+            torch.cat([tokens, tokens[:, :3]], 1),
+            torch.arange(13)[None] < 10,
+            t,
+            text,
+            text_mask,
+            action_offsets([[4, 6]], 13),
+        )
     assert not torch.allclose(joint, whole, atol=1e-3)
     torch.testing.assert_close(padded[:, :10], joint, atol=1e-5, rtol=0)
 
@@ -280,6 +289,8 @@ def test_codebook_embedding_projects_the_frozen_code_vectors_and_travels_in_the_
     torch.testing.assert_close(again.codebook, codebook)
     tokens, mask, t, text, text_mask = inputs()
     with torch.no_grad():
-        torch.testing.assert_close(again.eval()(tokens, mask, t, text, text_mask), model(tokens, mask, t, text, text_mask))
+        torch.testing.assert_close(
+            again.eval()(tokens, mask, t, text, text_mask), model(tokens, mask, t, text, text_mask)
+        )
     with pytest.raises(ValueError, match=r"the codebook is \(16, 5\), the config asks for \(16, 6\)"):
         MotionDenoiser(config, torch.zeros(SMALL.codebook_size, 5))

@@ -118,8 +118,16 @@ def close(a: torch.Tensor, b: list, tol: float = 1e-6) -> bool:
 
 
 @pytest.mark.parametrize("schedule", ["linear", "absorbing"])
-@pytest.mark.parametrize("kind,distance", [("uniform", "l2_rank"), ("dynamic", "l2_rank"), ("dynamic", "l2"),
-                                           ("dynamic", "cosine"), ("dynamic", "cosine_rank")])
+@pytest.mark.parametrize(
+    "kind,distance",
+    [
+        ("uniform", "l2_rank"),
+        ("dynamic", "l2_rank"),
+        ("dynamic", "l2"),
+        ("dynamic", "cosine"),
+        ("dynamic", "cosine_rank"),
+    ],
+)
 def test_step_and_cumulative_matrices(codebook, kind, distance, schedule):
     sched = TransitionSchedule.build(codebook, steps=T, kind=kind, eta=ETA, distance=distance, schedule=schedule)
     steps = ref_step(codebook, kind, distance, schedule, ETA)
@@ -247,8 +255,9 @@ def test_posterior_probs_mixture_batched_over_positions_and_t(codebook, dynamic,
             assert abs(float(got[b, n].sum()) - 1) < 1e-9
     # a per-sample t broadcast over positions gives the same as t spelled out per position
     per_sample = torch.tensor([[2], [5], [1]])
-    assert torch.allclose(dynamic.posterior_probs(z_t, x0, per_sample),
-                          dynamic.posterior_probs(z_t, x0, per_sample.expand(3, 4)))
+    assert torch.allclose(
+        dynamic.posterior_probs(z_t, x0, per_sample), dynamic.posterior_probs(z_t, x0, per_sample.expand(3, 4))
+    )
 
 
 def span_by_paths(steps: list[list[list[float]]], t: int, s: int) -> list[list[float]]:
@@ -385,8 +394,9 @@ def test_importance_weights_keep_the_loss_unbiased(dynamic):
     sampler.update(torch.arange(1, T + 1), torch.tensor([plain[t] * t for t in range(1, T + 1)]))
     probs = sampler.probs()
     assert float(probs.max() / probs.min()) > 2  # far from uniform
-    weighted = {t: float(diffusion_loss(dynamic, logits, z0, z_t[t], t, pt=probs[t - 1:t]).loss)
-                for t in range(1, T + 1)}
+    weighted = {
+        t: float(diffusion_loss(dynamic, logits, z0, z_t[t], t, pt=probs[t - 1 : t]).loss) for t in range(1, T + 1)
+    }
     uniform_mean = sum(plain.values()) / T
     assert abs(sum(float(probs[t - 1]) * weighted[t] for t in range(1, T + 1)) - uniform_mean) < 1e-6
     draws, pt = sampler.sample(40000, generator=gen)
@@ -403,7 +413,7 @@ def test_timestep_sampler():
         ts = torch.arange(1, T + 1)
         sampler.update(ts, ts.double())  # loss of t is t, so sqrt(EMA of loss²) grows with t
     probs = sampler.probs()
-    weights = torch.arange(1, T + 1, dtype=torch.float64) * math.sqrt(1 - 0.9 ** 3) + 1e-4
+    weights = torch.arange(1, T + 1, dtype=torch.float64) * math.sqrt(1 - 0.9**3) + 1e-4
     weights[0] = weights[1]
     assert torch.allclose(probs, weights / weights.sum())
     t, pt = sampler.sample(5, generator=gen)

@@ -23,8 +23,24 @@ METHODS = ("tps", "slerp")
 @pytest.fixture(scope="module")
 def evaluated(trained_project, tiny_testset) -> Path:
     """The run directory of `m2d2m evaluate` with two methods, two repeats and the single table."""
-    arguments = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--method", "tps",
-                 "--method", "slerp", "--repeats", "2", "--ts", "4", "--single", "--batch-size", "4"]
+    arguments = [
+        "evaluate",
+        "--dataset",
+        "tiny",
+        "--testset",
+        str(tiny_testset),
+        "--method",
+        "tps",
+        "--method",
+        "slerp",
+        "--repeats",
+        "2",
+        "--ts",
+        "4",
+        "--single",
+        "--batch-size",
+        "4",
+    ]
     assert main(arguments) == 0
     stage = trained_project / "runs" / "tiny" / "eval"
     return stage / (stage / "latest").read_text(encoding="utf-8").strip()
@@ -35,8 +51,21 @@ def mlflow_client(trained_project: Path) -> mlflow.MlflowClient:
 
 
 def test_the_testset_command_builds_and_logs_the_counts(trained_project, capsys):
-    code = main(["testset", "--dataset", "tiny", "--data", str(trained_project / "data"), "--n", "2", "--seed", "1",
-                 "--mirrors", "distinct"])
+    code = main(
+        [
+            "testset",
+            "--dataset",
+            "tiny",
+            "--data",
+            str(trained_project / "data"),
+            "--n",
+            "2",
+            "--seed",
+            "1",
+            "--mirrors",
+            "distinct",
+        ]
+    )
     printed = capsys.readouterr().out
     assert code == 0 and "8 instances of 2 actions" in printed
     run = mlflow_client(trained_project).get_run(printed.split("logged to MLflow run ")[1].split()[0])
@@ -58,13 +87,14 @@ def test_evaluate_writes_both_tables_and_fig5(evaluated):
     assert table["multi"]["tps"]["jerk"] != table["multi"]["slerp"]["jerk"]  # each method really ran
     assert set(table["multi"]["gt_single"]) >= {"r_top3", "mm_dist", "diversity", "transition_diversity", "jerk"}
     for metric in ("jerk", "peak_jerk", "auj"):  # deterministic: no repeat changes them
-        assert np.isfinite(table["multi"]["gt_concat"][metric]["mean"]) and table["multi"]["gt_concat"][metric]["ci"] == 0
+        assert (
+            np.isfinite(table["multi"]["gt_concat"][metric]["mean"]) and table["multi"]["gt_concat"][metric]["ci"] == 0
+        )
     assert any(note.startswith("PJ, AUJ: FlowMDM's") and "c = " in note for note in table["notes"])
     for metric, _ in MULTI_COLUMNS:  # the codec's ceiling, measured like a method
         summary = table["multi"]["reconstruction"][metric]
         assert np.isfinite(summary["mean"]) and summary["ci"] >= 0, metric
-    assert all(np.isfinite(table["single"]["reconstruction"][m]["mean"])
-               for m, _ in SINGLE_COLUMNS if m != "mmodality")
+    assert all(np.isfinite(table["single"]["reconstruction"][m]["mean"]) for m, _ in SINGLE_COLUMNS if m != "mmodality")
     for row in ("gt_single", "generated"):
         columns = [m for m, _ in SINGLE_COLUMNS if row == "generated" or m not in ("fid", "mmodality")]
         assert all(np.isfinite(table["single"][row][metric]["mean"]) for metric in columns), row
@@ -83,8 +113,16 @@ def test_evaluate_logs_every_metric_and_knob_to_mlflow(trained_project, evaluate
     for method in METHODS:
         for metric, _ in MULTI_COLUMNS:
             assert f"multi/{method}/{metric}" in metrics and f"multi/{method}/{metric}_ci" in metrics
-    for name in ("gt/jerk_single", "gt/jerk_concat", "gt/r_top3_single", "single/r_top1", "single/fid",
-                 "single/mmodality_ci", "multi/reconstruction/jerk", "single/reconstruction/fid"):
+    for name in (
+        "gt/jerk_single",
+        "gt/jerk_concat",
+        "gt/r_top3_single",
+        "single/r_top1",
+        "single/fid",
+        "single/mmodality_ci",
+        "multi/reconstruction/jerk",
+        "single/reconstruction/fid",
+    ):
         assert name in metrics, name
     assert params["methods"] == "tps,slerp" and params["repeats"] == "2" and params["ts"] == "4"
     assert params["sampling"] == "T_s = 4 of T = 8, η = 0.25, s = 2" and params["model"] == "m2d2m"
@@ -121,8 +159,21 @@ def test_resume_recomputes_only_missing_results(trained_project, evaluated, monk
 def test_single_motion_alone_with_fewer_steps_and_the_no_multi_switch(trained_project, tiny_testset):
     """--no-multi --single: the single-motion table alone (a learning curve's points), sampled with
     the steps option; the multi table keeps only its reference rows."""
-    arguments = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--no-multi", "--single",
-                 "--repeats", "1", "--option", "steps=3", "--batch-size", "8"]
+    arguments = [
+        "evaluate",
+        "--dataset",
+        "tiny",
+        "--testset",
+        str(tiny_testset),
+        "--no-multi",
+        "--single",
+        "--repeats",
+        "1",
+        "--option",
+        "steps=3",
+        "--batch-size",
+        "8",
+    ]
     assert main(arguments) == 0
     stage = trained_project / "runs" / "tiny" / "eval"
     run_dir = stage / (stage / "latest").read_text(encoding="utf-8").strip()
@@ -142,21 +193,24 @@ def other_dim_testset(tmp_path_factory) -> Path:
     return Path(build_testset(data, n=2)["path"])
 
 
-@pytest.mark.parametrize("arguments, message", [
-    (["--method", "tps,blend"], "unknown method 'blend' for m2d2m; choose from tps, independent, handshake, slerp"),
-    (["--repeats", "0"], "--repeats must be at least 1"),
-    (["--testset", "nowhere"], "no test set there; build one with `m2d2m testset`"),
-    (["--testset", "{other}"], "holds 251-d features but the model works on 263-d ones"),
-    (["--evaluator", "no-such-run"], "no evaluator run 'no-such-run'"),
-    (["--checkpoint", "no-such-run"], "no m2d2m run 'no-such-run'"),
-    (["--ts", "9"], "T_s must lie in 0..T = 8"),
-    (["--glove", "glove"], "--glove and --meta go with --guo-evaluator"),
-    (["--guo-evaluator", "guo"], "--guo-evaluator needs --glove DIR"),
-    (["--resume", "some-run", "--repeats", "3"], "with its own settings; drop --repeats"),
-    (["--resume", "no-such-run"], "no eval run 'no-such-run'"),
-    (["--no-multi"], "--no-multi leaves nothing to evaluate: add --single or --edit TASK"),
-    (["--option", "steps=9", "--single"], "steps must lie in 1..T = 8"),
-])
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["--method", "tps,blend"], "unknown method 'blend' for m2d2m; choose from tps, independent, handshake, slerp"),
+        (["--repeats", "0"], "--repeats must be at least 1"),
+        (["--testset", "nowhere"], "no test set there; build one with `m2d2m testset`"),
+        (["--testset", "{other}"], "holds 251-d features but the model works on 263-d ones"),
+        (["--evaluator", "no-such-run"], "no evaluator run 'no-such-run'"),
+        (["--checkpoint", "no-such-run"], "no m2d2m run 'no-such-run'"),
+        (["--ts", "9"], "T_s must lie in 0..T = 8"),
+        (["--glove", "glove"], "--glove and --meta go with --guo-evaluator"),
+        (["--guo-evaluator", "guo"], "--guo-evaluator needs --glove DIR"),
+        (["--resume", "some-run", "--repeats", "3"], "with its own settings; drop --repeats"),
+        (["--resume", "no-such-run"], "no eval run 'no-such-run'"),
+        (["--no-multi"], "--no-multi leaves nothing to evaluate: add --single or --edit TASK"),
+        (["--option", "steps=9", "--single"], "steps must lie in 1..T = 8"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(trained_project, tiny_testset, other_dim_testset, capsys, arguments, message):
     arguments = [a.replace("{other}", str(other_dim_testset)) for a in arguments]
     given = [] if {"--testset", "--resume"} & set(arguments) else ["--testset", str(tiny_testset)]
@@ -173,7 +227,8 @@ def test_a_missing_evaluator_says_what_to_run(trained_project, tmp_path, monkeyp
 
 
 def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow(
-        trained_project, tiny_testset, monkeypatch):
+    trained_project, tiny_testset, monkeypatch
+):
     """tests/fake_metric.py's root travel, measured on the playback model (tests/fake_model.py),
     whose sequences are known: each row's value is the hand-computed mean over its sequences."""
     import m2d2m.evaluation.sequence_metrics as sequence_metrics
@@ -194,8 +249,11 @@ def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow
     from tests.fake_model import save_playback
 
     testset = load_testset(tiny_testset)
-    clips = {item.action: testset.features(instance.index, p)
-             for instance in testset for p, item in enumerate(instance.items)}
+    clips = {
+        item.action: testset.features(instance.index, p)
+        for instance in testset
+        for p, item in enumerate(instance.items)
+    }
     model_file = save_playback(trained_project / "playback-metric.npz", clips)
     expected = []  # what playback lays end to end for each instance, measured by hand
     for instance in testset:
@@ -205,15 +263,32 @@ def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow
             pieces.append(stored[np.minimum(np.arange(frames), len(stored) - 1)])
         expected.append(root_travel(features_to_joints(np.concatenate(pieces), SKELETONS["t2m"]), [], None))
 
-    assert main(["evaluate", "--model", "playback", "--checkpoint", str(model_file), "--dataset", "tiny",
-                 "--testset", str(tiny_testset), "--repeats", "1"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                "playback",
+                "--checkpoint",
+                str(model_file),
+                "--dataset",
+                "tiny",
+                "--testset",
+                str(tiny_testset),
+                "--repeats",
+                "1",
+            ]
+        )
+        == 0
+    )
     stage = trained_project / "runs" / "tiny" / "eval"
     run_dir = stage / (stage / "latest").read_text(encoding="utf-8").strip()
     table = json.loads((run_dir / "table.json").read_text(encoding="utf-8"))
     assert table["multi"]["concat"]["root_travel"]["mean"] == pytest.approx(np.mean(expected), rel=1e-5)
     assert table["multi"]["gt_concat"]["root_travel"]["mean"] > 0  # the ground truth joined, measured alike
-    header = next(line for line in (run_dir / "table.md").read_text(encoding="utf-8").splitlines()
-                  if line.startswith("| Method"))
+    header = next(
+        line for line in (run_dir / "table.md").read_text(encoding="utf-8").splitlines() if line.startswith("| Method")
+    )
     assert header.endswith("| Root travel (m) |")
     run_id = json.loads((run_dir / "run.json").read_text(encoding="utf-8"))["mlflow_run_id"]
     logged = mlflow_client(trained_project).get_run(run_id).data.metrics

@@ -12,9 +12,17 @@ import pytest
 import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 
-from m2d2m.evaluation.evaluator import (POS_INDEX, EvaluatorConfig, TextMotionEvaluator, contrastive_loss,
-                                        learned_vocabulary, load_evaluator, load_glove, load_guo_checkpoint,
-                                        save_evaluator)
+from m2d2m.evaluation.evaluator import (
+    POS_INDEX,
+    EvaluatorConfig,
+    TextMotionEvaluator,
+    contrastive_loss,
+    learned_vocabulary,
+    load_evaluator,
+    load_glove,
+    load_guo_checkpoint,
+    save_evaluator,
+)
 from tests.helpers import CAPTIONS, TINY_EVALUATOR
 from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
 
@@ -73,8 +81,9 @@ def test_word_features_follow_guo():
     assert lengths.tolist() == [6, 22]  # sos + tokens (cropped to 20) + eos
     assert model.vocabulary[words[0, 0]] == "<sos>" and model.vocabulary[words[0, 5]] == "<eos>"
     assert model.vocabulary[words[0, 4]] == "<unk>"  # a word the vocabulary has never seen
-    assert pos[0, :6].tolist() == [POS_INDEX[name] for name in ("OTHER", "Act_VIP", "Loc_VIP", "OTHER", "OTHER",
-                                                                    "OTHER")]
+    assert pos[0, :6].tolist() == [
+        POS_INDEX[name] for name in ("OTHER", "Act_VIP", "Loc_VIP", "OTHER", "OTHER", "OTHER")
+    ]
     assert pos[1, 1].item() == POS_INDEX["DET"]
     with pytest.raises(ValueError, match="word/POS"):
         model.tokenize([["walk"]])
@@ -130,25 +139,43 @@ def guo_weights(feature_dim: int = D) -> dict[str, dict[str, torch.Tensor]]:
     g = torch.Generator().manual_seed(0)
 
     def bigru(input_dim: int, hidden: int, out: int, extra: dict) -> dict[str, tuple[int, ...]]:
-        shapes = {"input_emb.weight": (hidden, input_dim), "input_emb.bias": (hidden,), "hidden": (2, 1, hidden),
-                  "output_net.0.weight": (hidden, 2 * hidden), "output_net.0.bias": (hidden,),
-                  "output_net.1.weight": (hidden,), "output_net.1.bias": (hidden,),
-                  "output_net.3.weight": (out, hidden), "output_net.3.bias": (out,), **extra}
+        shapes = {
+            "input_emb.weight": (hidden, input_dim),
+            "input_emb.bias": (hidden,),
+            "hidden": (2, 1, hidden),
+            "output_net.0.weight": (hidden, 2 * hidden),
+            "output_net.0.bias": (hidden,),
+            "output_net.1.weight": (hidden,),
+            "output_net.1.bias": (hidden,),
+            "output_net.3.weight": (out, hidden),
+            "output_net.3.bias": (out,),
+            **extra,
+        }
         for suffix in ("", "_reverse"):
-            shapes |= {f"gru.weight_ih_l0{suffix}": (3 * hidden, hidden),
-                       f"gru.weight_hh_l0{suffix}": (3 * hidden, hidden),
-                       f"gru.bias_ih_l0{suffix}": (3 * hidden,), f"gru.bias_hh_l0{suffix}": (3 * hidden,)}
+            shapes |= {
+                f"gru.weight_ih_l0{suffix}": (3 * hidden, hidden),
+                f"gru.weight_hh_l0{suffix}": (3 * hidden, hidden),
+                f"gru.bias_ih_l0{suffix}": (3 * hidden,),
+                f"gru.bias_hh_l0{suffix}": (3 * hidden,),
+            }
         return shapes
 
     shapes = {
-        "movement_encoder": {"main.0.weight": (512, feature_dim - 4, 4), "main.0.bias": (512,),
-                             "main.3.weight": (512, 512, 4), "main.3.bias": (512,),
-                             "out_net.weight": (512, 512), "out_net.bias": (512,)},
+        "movement_encoder": {
+            "main.0.weight": (512, feature_dim - 4, 4),
+            "main.0.bias": (512,),
+            "main.3.weight": (512, 512, 4),
+            "main.3.bias": (512,),
+            "out_net.weight": (512, 512),
+            "out_net.bias": (512,),
+        },
         "text_encoder": bigru(300, 512, 512, {"pos_emb.weight": (300, 15), "pos_emb.bias": (300,)}),
         "motion_encoder": bigru(512, 1024, 512, {}),
     }
-    return {module: {key: 0.02 * torch.randn(shape, generator=g) for key, shape in layers.items()}
-            for module, layers in shapes.items()}
+    return {
+        module: {key: 0.02 * torch.randn(shape, generator=g) for key, shape in layers.items()}
+        for module, layers in shapes.items()
+    }
 
 
 @pytest.fixture
@@ -193,8 +220,11 @@ def test_guo_checkpoint_of_other_shapes_is_refused_clearly(guo_files):
     run, glove, _ = guo_files
     kit = guo_weights(feature_dim=251)  # a KIT-ML evaluator with HumanML3D's statistics
     torch.save(kit, run / "model" / "finest.tar")
-    with pytest.raises(ValueError, match=r"movement_encoder\.main\.0\.weight has shape \(512, 247, 4\), "
-                                         r"expected \(512, 259, 4\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"movement_encoder\.main\.0\.weight has shape \(512, 247, 4\), "
+        r"expected \(512, 259, 4\)",
+    ):
         load_guo_checkpoint(run, glove, run / "meta")
     del kit["motion_encoder"]
     torch.save(kit, run / "model" / "finest.tar")
@@ -209,20 +239,34 @@ def test_guo_checkpoint_of_other_shapes_is_refused_clearly(guo_files):
 
 
 def test_training_runs_end_to_end_on_a_tiny_dataset(tiny_data, tmp_path, one_torch_thread):
-    datamodule = CaptionMotionDataModule(tiny_data, batch_size=4, num_workers=0, steps_per_epoch=3,
-                                         val_batch_size=4, min_frames=40, seed=0)
+    datamodule = CaptionMotionDataModule(
+        tiny_data, batch_size=4, num_workers=0, steps_per_epoch=3, val_batch_size=4, min_frames=40, seed=0
+    )
     assert datamodule.train_clips > 0 and all("/" in t for c in datamodule.train_captions() for t in c)
     batch = next(iter(datamodule.train_dataloader()))
     assert batch["motion"].shape[0] == 4 and all(int(n) % 4 == 0 and int(n) >= 36 for n in batch["lengths"])
     pl.seed_everything(0, verbose=False)
-    module = EvaluatorModule(model=dict(TINY_EVALUATOR), optim={"lr": 1e-3, "betas": [0.9, 0.999], "weight_decay": 0.0},
-                             loss={"margin": 10.0}, feature_dim=datamodule.feature_dim,
-                             vocabulary=learned_vocabulary(datamodule.train_captions()))
+    module = EvaluatorModule(
+        model=dict(TINY_EVALUATOR),
+        optim={"lr": 1e-3, "betas": [0.9, 0.999], "weight_decay": 0.0},
+        loss={"margin": 10.0},
+        feature_dim=datamodule.feature_dim,
+        vocabulary=learned_vocabulary(datamodule.train_captions()),
+    )
     module.set_normalizer(datamodule.normalizer)
     checkpoints = ModelCheckpoint(dirpath=tmp_path, filename="best", monitor="val/loss", mode="min")
-    trainer = pl.Trainer(max_steps=6, accelerator="cpu", devices=1, logger=False, callbacks=[checkpoints],
-                         enable_progress_bar=False, enable_model_summary=False, num_sanity_val_steps=0,
-                         gradient_clip_val=0.5, default_root_dir=tmp_path)
+    trainer = pl.Trainer(
+        max_steps=6,
+        accelerator="cpu",
+        devices=1,
+        logger=False,
+        callbacks=[checkpoints],
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        num_sanity_val_steps=0,
+        gradient_clip_val=0.5,
+        default_root_dir=tmp_path,
+    )
     trainer.fit(module, datamodule=datamodule)
     metrics = trainer.callback_metrics
     assert all(torch.isfinite(metrics[name]) for name in ("train/loss", "val/loss", "val/matching_score"))

@@ -101,9 +101,7 @@ def bvh_forward_kinematics(bvh: Bvh) -> tuple[np.ndarray, np.ndarray]:
         if parent < 0:
             positions[:, joint], rotations[:, joint] = translation, local
         else:
-            positions[:, joint] = positions[:, parent] + np.einsum(
-                "tij,tj->ti", rotations[:, parent], translation
-            )
+            positions[:, joint] = positions[:, parent] + np.einsum("tij,tj->ti", rotations[:, parent], translation)
             rotations[:, joint] = rotations[:, parent] @ local
     return positions, rotations
 
@@ -117,14 +115,16 @@ def build_rigid_clip(skeleton: Skeleton, n_frames: int = 60, seed: int = 0):
     phase = rng.uniform(0.0, 2 * np.pi, (1, skeleton.num_joints, 3))
     angles = amplitude * np.sin(2 * np.pi * 0.4 * t + phase)
     angles[:, 0, 0] += np.linspace(0.0, 270.0, n_frames)  # the root turns well past 180°
-    local = axis_rotation("Z", angles[..., 0]) @ axis_rotation("Y", angles[..., 1]) @ axis_rotation(
-        "X", angles[..., 2]
-    )
+    local = axis_rotation("Z", angles[..., 0]) @ axis_rotation("Y", angles[..., 1]) @ axis_rotation("X", angles[..., 2])
     offsets = skeleton.offsets()
     scale = skeleton.bone_lengths.max()
     root_path = np.stack(
-        [np.linspace(0, 4 * scale, n_frames), 2 * scale + 0.1 * scale * np.sin(t[:, 0, 0]),
-         np.linspace(0, -3 * scale, n_frames)], axis=1
+        [
+            np.linspace(0, 4 * scale, n_frames),
+            2 * scale + 0.1 * scale * np.sin(t[:, 0, 0]),
+            np.linspace(0, -3 * scale, n_frames),
+        ],
+        axis=1,
     )
     world = np.empty_like(local)
     joints = np.empty((n_frames, skeleton.num_joints, 3))
@@ -148,9 +148,7 @@ def test_bvh_reproduces_rigid_fk_clip(tmp_path: Path, skeleton: Skeleton) -> Non
     ]
     assert bvh.frame_time == pytest.approx(1 / 25.0)
     assert len(bvh.motion) == len(joints)
-    assert bvh.channels[0] == [
-        "Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"
-    ]
+    assert bvh.channels[0] == ["Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"]
     assert all(c == ["Zrotation", "Yrotation", "Xrotation"] for c in bvh.channels[1:])
     unit = skeleton.bone_lengths.max()  # tolerances relative to the body, so KIT's units work
     np.testing.assert_allclose(bvh.offsets[order[1:]], skeleton.offsets()[1:], atol=1e-5 * unit)

@@ -76,12 +76,27 @@ def _bad_files(verb: str, first: list[str], files: tuple[str, ...], *rest: str) 
     return [[verb, *first, "{tmp}/" + name, *rest] for name in files]
 
 
-BAD_MOTIONS = ("empty.npy", "truncated.npy", "text.npy", "nan.npy", "inf.npy", "no-frames-joints.npy",
-               "no-frames-features.npy", "wrong-shape.npy", "one-dimensional.npy", "objects.npy", "nowhere.npy")
+BAD_MOTIONS = (
+    "empty.npy",
+    "truncated.npy",
+    "text.npy",
+    "nan.npy",
+    "inf.npy",
+    "no-frames-joints.npy",
+    "no-frames-features.npy",
+    "wrong-shape.npy",
+    "one-dimensional.npy",
+    "objects.npy",
+    "nowhere.npy",
+)
 BAD_MODEL_FILES = ("empty.pt", "random.pt", "a-dict.pt", "a-tensor.pt", "nowhere.pt")
 BAD_CONFIGS = ("empty.yaml", "broken.yaml", "list.yaml", "nowhere.yaml")
-TRAINING = {"train-vq": "{root}/vq.yaml", "train-diffusion": "{root}/diffusion.yaml",
-            "train-evaluator": "{root}/evaluator.yaml", "train-mmm": "{root}/mmm.yaml"}
+TRAINING = {
+    "train-vq": "{root}/vq.yaml",
+    "train-diffusion": "{root}/diffusion.yaml",
+    "train-evaluator": "{root}/evaluator.yaml",
+    "train-mmm": "{root}/mmm.yaml",
+}
 
 
 def _training_cases() -> list[list[str]]:
@@ -89,18 +104,36 @@ def _training_cases() -> list[list[str]]:
     for verb, config in TRAINING.items():
         cases += _bad_files(verb, ["--config"], BAD_CONFIGS)
         cases += [[verb, "--config", "no-such-config"]]
-        for override in ("optim.lr=abc", "optim.lr=-1", "optim.lr", "trainer.max_steps=-1", "trainer.max_steps=x",
-                         "trainer.val_every_steps=0", "no.such.key=1", "seed=x", "data.batch_size=0",
-                         "data.dir={tmp}/nowhere", "data.dir={tmp}/no-manifest", "data.dir={tmp}/bad-manifest",
-                         "trainer.accelerator=abacus", "trainer.devices=0"):
+        for override in (
+            "optim.lr=abc",
+            "optim.lr=-1",
+            "optim.lr",
+            "trainer.max_steps=-1",
+            "trainer.max_steps=x",
+            "trainer.val_every_steps=0",
+            "no.such.key=1",
+            "seed=x",
+            "data.batch_size=0",
+            "data.dir={tmp}/nowhere",
+            "data.dir={tmp}/no-manifest",
+            "data.dir={tmp}/bad-manifest",
+            "trainer.accelerator=abacus",
+            "trainer.devices=0",
+        ):
             cases.append([verb, "--config", config, "--set", override])
         cases.append([verb, "--config", config, "--resume"])  # its only run has finished
         cases.append([verb, "--config", config, "--resume", "no-such-run"])
-    for verb, override in (("train-vq", "model.width=0"), ("train-vq", "model.activation=sigmoidal"),
-                           ("train-evaluator", "model.embedding_dim=0"), ("train-diffusion", "denoiser.heads=3"),
-                           ("train-diffusion", "diffusion.steps=0"), ("train-diffusion", "diffusion.kind=cubic"),
-                           ("train-mmm", "transformer.heads=3"), ("train-mmm", "transformer.cross_layers=9"),
-                           ("train-mmm", "masking.alpha=2")):
+    for verb, override in (
+        ("train-vq", "model.width=0"),
+        ("train-vq", "model.activation=sigmoidal"),
+        ("train-evaluator", "model.embedding_dim=0"),
+        ("train-diffusion", "denoiser.heads=3"),
+        ("train-diffusion", "diffusion.steps=0"),
+        ("train-diffusion", "diffusion.kind=cubic"),
+        ("train-mmm", "transformer.heads=3"),
+        ("train-mmm", "transformer.cross_layers=9"),
+        ("train-mmm", "masking.alpha=2"),
+    ):
         cases.append([verb, "--config", TRAINING[verb], "--set", override])
     for verb in ("train-diffusion", "train-mmm"):
         for name in (*BAD_MODEL_FILES, "truncated-vq.pt", "model.pt"):
@@ -111,71 +144,153 @@ def _training_cases() -> list[list[str]]:
 
 BAD_ARGUMENTS: list[list[str]] = [
     ["no-such-verb"],
-    ["synthesize", "--clips", "0"], ["synthesize", "--clips", "x"], ["synthesize", "--workers", "0"],
-    ["synthesize", "--families", "walk,moonwalk"], ["synthesize", "--seed", "x"],
+    ["synthesize", "--clips", "0"],
+    ["synthesize", "--clips", "x"],
+    ["synthesize", "--workers", "0"],
+    ["synthesize", "--families", "walk,moonwalk"],
+    ["synthesize", "--seed", "x"],
     ["synthesize", "--out", "{tmp}/joints.npy", "--clips", "3"],
-    ["data", "--workers", "0"], ["data", "--samples-per-shard", "0"], ["data", "--min-frames", "0"],
-    ["data", "--max-frames", "x"], ["data", "--dataset", "amass"],
-    ["data", "--dataset", "humanml3d", "--raw", "{tmp}/nowhere"], ["data", "--raw", "{tmp}/joints.npy"],
+    ["data", "--workers", "0"],
+    ["data", "--samples-per-shard", "0"],
+    ["data", "--min-frames", "0"],
+    ["data", "--max-frames", "x"],
+    ["data", "--dataset", "amass"],
+    ["data", "--dataset", "humanml3d", "--raw", "{tmp}/nowhere"],
+    ["data", "--raw", "{tmp}/joints.npy"],
     ["data", "--raw", "{root}/raw", "--out", "{tmp}/new", "--min-frames", "100", "--max-frames", "50"],
     ["data", "--raw", "{tmp}/joints-only", "--out", "{tmp}/new"],
     ["data", "--raw", "{root}/raw", "--out", "{tmp}/joints.npy"],
-    ["data", "--check", "{tmp}/nowhere"], ["data", "--check", "{tmp}/bad-manifest"],
+    ["data", "--check", "{tmp}/nowhere"],
+    ["data", "--check", "{tmp}/bad-manifest"],
     ["data", "--check", "{tmp}/no-manifest"],
     *_training_cases(),
-    ["tokenize", "--workers", "0"], ["tokenize", "--dataset", "tiny", "--vq", "no-such-run"],
+    ["tokenize", "--workers", "0"],
+    ["tokenize", "--dataset", "tiny", "--vq", "no-such-run"],
     *_bad_files("tokenize", ["--dataset", "tiny", "--vq"], (*BAD_MODEL_FILES, "truncated-vq.pt")),
     ["tokenize", "--dataset", "tiny", "--vq", "{model}"],
     ["tokenize", "--dataset", "tiny", "--data", "{tmp}/nowhere"],
     ["tokenize", "--dataset", "tiny", "--data", "{tmp}/bad-manifest"],
-    ["tokenize", "--check", "{tmp}/nowhere"], ["tokenize", "--check", "{tmp}/bad-manifest"],
-    ["testset", "--n", "0"], ["testset", "--n", "x"], ["testset", "--seed", "x"], ["testset", "--first", "0"],
+    ["tokenize", "--check", "{tmp}/nowhere"],
+    ["tokenize", "--check", "{tmp}/bad-manifest"],
+    ["testset", "--n", "0"],
+    ["testset", "--n", "x"],
+    ["testset", "--seed", "x"],
+    ["testset", "--first", "0"],
     ["testset", "--dataset", "tiny", "--data", "{root}/data", "--mirrors", "sometimes"],
     ["testset", "--dataset", "tiny", "--data", "{root}/data", "--n", "500"],
     ["testset", "--dataset", "tiny", "--data", "{tmp}/nowhere"],
     ["testset", "--dataset", "tiny", "--data", "{tmp}/bad-manifest"],
     ["testset", "--dataset", "tiny", "--data", "{tmp}/no-manifest"],
-    *[["evaluate", "--dataset", "tiny", *more] for more in (
-        ["--model", "no-such-model"], ["--method", "teleport"], ["--ts", "-1"], ["--ts", "100000"], ["--ts", "x"],
-        ["--eta", "nan"], ["--eta", "-1"], ["--guidance", "-1"], ["--repeats", "0"], ["--batch-size", "0"],
-        ["--option", "no_such_knob=1"], ["--option", "truncation=abc"], ["--testset", "{tmp}/nowhere"],
-        ["--testset", "{tmp}/bad-manifest"], ["--evaluator", "{tmp}/nowhere"], ["--evaluator", "{tmp}/empty.pt"],
-        ["--evaluator", "{tmp}/truncated-evaluator.pt"], ["--evaluator", "{model}"],
-        ["--checkpoint", "{tmp}/empty.pt"], ["--checkpoint", "{tmp}/truncated-model.pt"],
-        ["--checkpoint", "{vq}"], ["--resume", "no-such-run"], ["--resume", "no-such-run", "--ts", "3"],
-        ["--guo-evaluator", "{tmp}/nowhere"],
-    )],
-    *[["generate", "--dataset", "tiny", "--out", "{tmp}/generated", *more] for more in (
-        [], ["   "], ["a person walks", "--seconds", "-1"], ["a person walks", "--seconds", "0"],
-        ["a person walks", "a person jumps", "--seconds", "1", "2", "3"],
-        ["a person walks", "--seconds", "100000"], ["a person walks", "--seconds", "nan"],
-        ["a person walks", "--method", "teleport"], ["a person walks", "--ts", "-1"],
-        ["a person walks", "--eta", "-0.5"], ["a person walks", "--option", "eta=abc"], ["a person walks", "--guidance", "-2"],
-        ["a person walks", "--truncation", "0"], ["a person walks", "--truncation", "2"],
-        ["a person walks", "--formats", "xyz"], ["a person walks", "--model", "no-such-model"],
-        ["a person walks", "--option", "no_such_knob=1"], ["a person walks", "--seed", "x"],
-        ["a person walks", "--name", "a/b"], ["a person walks", "--max-seconds", "-5"],
-        ["a person walks", "--max-seconds", "nan"], ["a person walks", "--max-seconds", "0.1"],
-        *[["a person walks", "--checkpoint", path] for path in
-          ("{tmp}/empty.pt", "{tmp}/random.pt", "{tmp}/a-dict.pt", "{tmp}/truncated-model.pt", "{vq}",
-           "{tmp}/nowhere.pt")],
-    )],
+    *[
+        ["evaluate", "--dataset", "tiny", *more]
+        for more in (
+            ["--model", "no-such-model"],
+            ["--method", "teleport"],
+            ["--ts", "-1"],
+            ["--ts", "100000"],
+            ["--ts", "x"],
+            ["--eta", "nan"],
+            ["--eta", "-1"],
+            ["--guidance", "-1"],
+            ["--repeats", "0"],
+            ["--batch-size", "0"],
+            ["--option", "no_such_knob=1"],
+            ["--option", "truncation=abc"],
+            ["--testset", "{tmp}/nowhere"],
+            ["--testset", "{tmp}/bad-manifest"],
+            ["--evaluator", "{tmp}/nowhere"],
+            ["--evaluator", "{tmp}/empty.pt"],
+            ["--evaluator", "{tmp}/truncated-evaluator.pt"],
+            ["--evaluator", "{model}"],
+            ["--checkpoint", "{tmp}/empty.pt"],
+            ["--checkpoint", "{tmp}/truncated-model.pt"],
+            ["--checkpoint", "{vq}"],
+            ["--resume", "no-such-run"],
+            ["--resume", "no-such-run", "--ts", "3"],
+            ["--guo-evaluator", "{tmp}/nowhere"],
+        )
+    ],
+    *[
+        ["generate", "--dataset", "tiny", "--out", "{tmp}/generated", *more]
+        for more in (
+            [],
+            ["   "],
+            ["a person walks", "--seconds", "-1"],
+            ["a person walks", "--seconds", "0"],
+            ["a person walks", "a person jumps", "--seconds", "1", "2", "3"],
+            ["a person walks", "--seconds", "100000"],
+            ["a person walks", "--seconds", "nan"],
+            ["a person walks", "--method", "teleport"],
+            ["a person walks", "--ts", "-1"],
+            ["a person walks", "--eta", "-0.5"],
+            ["a person walks", "--option", "eta=abc"],
+            ["a person walks", "--guidance", "-2"],
+            ["a person walks", "--truncation", "0"],
+            ["a person walks", "--truncation", "2"],
+            ["a person walks", "--formats", "xyz"],
+            ["a person walks", "--model", "no-such-model"],
+            ["a person walks", "--option", "no_such_knob=1"],
+            ["a person walks", "--seed", "x"],
+            ["a person walks", "--name", "a/b"],
+            ["a person walks", "--max-seconds", "-5"],
+            ["a person walks", "--max-seconds", "nan"],
+            ["a person walks", "--max-seconds", "0.1"],
+            *[
+                ["a person walks", "--checkpoint", path]
+                for path in (
+                    "{tmp}/empty.pt",
+                    "{tmp}/random.pt",
+                    "{tmp}/a-dict.pt",
+                    "{tmp}/truncated-model.pt",
+                    "{vq}",
+                    "{tmp}/nowhere.pt",
+                )
+            ],
+        )
+    ],
     ["generate", "a person walks", "--dataset", "tiny", "--out", "{tmp}/joints.npy", "--formats", "gif"],
-    ["sweep", "--config", "no-such-sweep"], *_bad_files("sweep", ["--config"], BAD_CONFIGS),
-    *[["sweep", "--set", "dataset=tiny", "--set", override] for override in (
-        "space.no_such_knob=[1,2]", "space.eta=[]", "space.eta=0.5", "kind=other", "repeats=0", "bogus",
-        "search=sometimes", "model=no-such-model", "max_concurrent=0", "no_such_key=1")],
-    *[["render", "{tmp}/joints.npy", "--out", "{tmp}/out.gif", *more] for more in (
-        ["--fps", "0"], ["--fps", "-1"], ["--fps", "nan"], ["--fps", "inf"], ["--fps", "x"],
-        ["--skeleton", "smpl"])],
-    ["render", "{tmp}/joints.npy", "--out", "{tmp}/out.png"], ["render", "{root}/raw", "--out", "{tmp}/out.gif"],
+    ["sweep", "--config", "no-such-sweep"],
+    *_bad_files("sweep", ["--config"], BAD_CONFIGS),
+    *[
+        ["sweep", "--set", "dataset=tiny", "--set", override]
+        for override in (
+            "space.no_such_knob=[1,2]",
+            "space.eta=[]",
+            "space.eta=0.5",
+            "kind=other",
+            "repeats=0",
+            "bogus",
+            "search=sometimes",
+            "model=no-such-model",
+            "max_concurrent=0",
+            "no_such_key=1",
+        )
+    ],
+    *[
+        ["render", "{tmp}/joints.npy", "--out", "{tmp}/out.gif", *more]
+        for more in (
+            ["--fps", "0"],
+            ["--fps", "-1"],
+            ["--fps", "nan"],
+            ["--fps", "inf"],
+            ["--fps", "x"],
+            ["--skeleton", "smpl"],
+        )
+    ],
+    ["render", "{tmp}/joints.npy", "--out", "{tmp}/out.png"],
+    ["render", "{root}/raw", "--out", "{tmp}/out.gif"],
     ["render", "{root}/raw", "--id", "no-such-clip", "--out", "{tmp}/out.gif"],
     *_bad_files("render", [], BAD_MOTIONS, "--out", "{tmp}/out.gif"),
-    *[["export", "{tmp}/joints.npy", "--out", "{tmp}/out.bvh", *more] for more in (
-        ["--fps", "0"], ["--fps", "-1"], ["--fps", "nan"])],
+    *[
+        ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.bvh", *more]
+        for more in (["--fps", "0"], ["--fps", "-1"], ["--fps", "nan"])
+    ],
     ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.fbx"],
     *_bad_files("export", [], BAD_MOTIONS, "--out", "{tmp}/out.bvh"),
-    ["ui", "--port", "99999"], ["ui", "--port", "-1"], ["ui", "--port", "x"], ["ui", "--port", "{busy_port}"],
+    ["ui", "--port", "99999"],
+    ["ui", "--port", "-1"],
+    ["ui", "--port", "x"],
+    ["ui", "--port", "{busy_port}"],
 ]
 
 
@@ -217,9 +332,13 @@ def matrix_project(trained_project: Path, tmp_path_factory) -> Iterator[dict[str
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
-        yield {"root": str(trained_project), "tmp": str(tmp), "busy_port": str(busy.getsockname()[1]),
-               "vq": str(next((trained_project / "runs" / "tiny" / "vq").glob("*/vq.pt"))),
-               "model": str(next((trained_project / "runs" / "tiny" / "m2d2m").glob("*/model.pt")))}
+        yield {
+            "root": str(trained_project),
+            "tmp": str(tmp),
+            "busy_port": str(busy.getsockname()[1]),
+            "vq": str(next((trained_project / "runs" / "tiny" / "vq").glob("*/vq.pt"))),
+            "model": str(next((trained_project / "runs" / "tiny" / "m2d2m").glob("*/model.pt"))),
+        }
 
 
 def _case_id(argv: list[str]) -> str:
@@ -249,8 +368,15 @@ def test_a_user_error_is_one_line_with_exit_2_and_leaves_nothing_that_looks_done
 def cli_process(argv: list[str], cwd: Path) -> subprocess.Popen:
     """``m2d2m`` in its own session, so that a kill reaches what it started (Ray, workers)."""
     env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "RAY_ADDRESS")}
-    return subprocess.Popen([sys.executable, "-m", "orchestration.cli", *argv], cwd=cwd, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "orchestration.cli", *argv],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
 
 
 def kill_when(argv: list[str], cwd: Path, reached: Callable[[], bool], timeout: float = 300.0) -> None:
@@ -273,8 +399,11 @@ def run_to_the_end(argv: list[str], cwd: Path) -> None:
 
 
 def tree_digest(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def test_a_killed_synthesize_leaves_a_corpus_a_rerun_completes_to_the_clean_one(tmp_path):
@@ -292,16 +421,20 @@ def test_a_killed_rebuild_leaves_the_dataset_whole_and_a_rerun_equals_a_clean_bu
     from pipelines.synthetic import generate_corpus
 
     generate_corpus(tmp_path / "raw", clips=60, seed=4)
-    build_dataset(DataConfig(dataset="synthetic", raw=str(tmp_path / "raw"), out=str(tmp_path / "data"),
-                             samples_per_shard=8, workers=1))
+    build_dataset(
+        DataConfig(
+            dataset="synthetic", raw=str(tmp_path / "raw"), out=str(tmp_path / "data"), samples_per_shard=8, workers=1
+        )
+    )
     clean = tree_digest(tmp_path / "data")
     argv = ["data", "--raw", "raw", "--out", "data", "--samples-per-shard", "8", "--workers", "1", "--force"]
     kill_when(argv, tmp_path, lambda: any(tmp_path.glob(".data.building-*/shards/*.tar")))
     assert tree_digest(tmp_path / "data") == clean  # the old dataset, untouched
     run_to_the_end(argv, tmp_path)
     rebuilt = tree_digest(tmp_path / "data")
-    assert {k: v for k, v in rebuilt.items() if k.startswith("shards/") or k == "stats.npz"} == \
-        {k: v for k, v in clean.items() if k.startswith("shards/") or k == "stats.npz"}
+    assert {k: v for k, v in rebuilt.items() if k.startswith("shards/") or k == "stats.npz"} == {
+        k: v for k, v in clean.items() if k.startswith("shards/") or k == "stats.npz"
+    }
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".data.")) == [".data.lock"]
     assert main(["data", "--check", str(tmp_path / "data")]) == 0
 
@@ -315,8 +448,21 @@ def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_pr
     def a_new_checkpoint() -> bool:
         return any(list(run.glob("checkpoints/*.ckpt")) for run in set(marker.parent.iterdir()) - before)
 
-    kill_when(["train-vq", "--config", "vq.yaml", "--set", "trainer.max_steps=30", "--set",
-               "trainer.val_every_steps=2", "--set", "trainer.gif_every=100"], root, a_new_checkpoint)
+    kill_when(
+        [
+            "train-vq",
+            "--config",
+            "vq.yaml",
+            "--set",
+            "trainer.max_steps=30",
+            "--set",
+            "trainer.val_every_steps=2",
+            "--set",
+            "trainer.gif_every=100",
+        ],
+        root,
+        a_new_checkpoint,
+    )
     (killed,) = set(marker.parent.iterdir()) - before
     assert json.loads((killed / "run.json").read_text())["status"] == "running"
     assert marker.read_text() == finished and not (killed / "vq.pt").exists()
@@ -335,8 +481,19 @@ def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
     def writing_the_gif() -> bool:
         return any("gif" in path.name for run in set(runs.glob("*")) - before for path in run.iterdir())
 
-    argv = ["generate", "a person walks forward", "a person jumps", "--seconds", "4", "--dataset", "tiny",
-            "--formats", "npy", "gif", "--no-track"]
+    argv = [
+        "generate",
+        "a person walks forward",
+        "a person jumps",
+        "--seconds",
+        "4",
+        "--dataset",
+        "tiny",
+        "--formats",
+        "npy",
+        "gif",
+        "--no-track",
+    ]
     kill_when(argv, root, writing_the_gif)
     (killed,) = set(runs.iterdir()) - before
     assert json.loads((killed / "run.json").read_text())["status"] != "finished"

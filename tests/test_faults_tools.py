@@ -15,8 +15,7 @@ from lightning.pytorch.callbacks import RichProgressBar
 
 from m2d2m.generators.m2d2m_checkpoint import M2D2M_FILE
 from m2d2m.motion.normalization import Normalizer
-from m2d2m.networks.vqvae import VQ_FILE
-from m2d2m.networks.vqvae import MotionVQVAE, save_vq
+from m2d2m.networks.vqvae import VQ_FILE, MotionVQVAE, save_vq
 from orchestration.cli import main
 from tests.helpers import TINY_VQ
 from training.callbacks import StepProgressBar
@@ -37,8 +36,12 @@ def broken_motions(folder: Path, sample_joints: np.ndarray, sample_features: np.
     with_nan, with_inf = sample_joints[:10].copy(), sample_features[:10].copy()
     with_nan[3, 2, 1] = np.nan
     with_inf[5, 7] = np.inf
-    arrays = {"nan-joints": with_nan, "inf-features": with_inf, "no-joints": np.zeros((0, 22, 3), np.float32),
-              "no-features": np.zeros((0, 263), np.float32)}
+    arrays = {
+        "nan-joints": with_nan,
+        "inf-features": with_inf,
+        "no-joints": np.zeros((0, 22, 3), np.float32),
+        "no-features": np.zeros((0, 263), np.float32),
+    }
     files = {}
     for name, array in arrays.items():
         np.save(folder / f"{name}.npy", array)
@@ -50,8 +53,13 @@ def broken_motions(folder: Path, sample_joints: np.ndarray, sample_features: np.
 
 @pytest.mark.parametrize("verb, suffix", [("render", "gif"), ("export", "bvh")])
 def test_motions_that_cannot_be_drawn_are_one_line(tmp_path, capsys, sample_joints, sample_features, verb, suffix):
-    expected = {"nan-joints": "NaN or infinite", "inf-features": "NaN or infinite", "no-joints": "no frames",
-                "no-features": "no frames", "zero-bytes": "not a readable .npy"}
+    expected = {
+        "nan-joints": "NaN or infinite",
+        "inf-features": "NaN or infinite",
+        "no-joints": "no frames",
+        "no-features": "no frames",
+        "zero-bytes": "not a readable .npy",
+    }
     for name, path in broken_motions(tmp_path, sample_joints, sample_features).items():
         assert expected[name] in one_line_error([verb, str(path), "--out", str(tmp_path / f"out.{suffix}")], capsys)
     assert not list(tmp_path.glob("out.*"))
@@ -62,7 +70,8 @@ def test_the_frame_rate_must_be_a_positive_number(tmp_path, capsys, sample_joint
     np.save(tmp_path / "clip.npy", sample_joints[:10])
     out = tmp_path / ("out.gif" if verb == "render" else "out.bvh")
     assert "--fps: must be a positive number" in one_line_error(
-        [verb, str(tmp_path / "clip.npy"), "--fps", fps, "--out", str(out)], capsys)
+        [verb, str(tmp_path / "clip.npy"), "--fps", fps, "--out", str(out)], capsys
+    )
     assert not out.exists()
 
 
@@ -71,15 +80,22 @@ def vq_payload(tmp_path_factory) -> tuple[Path, dict]:
     """A real tiny VQ model file and its contents, to spoil."""
     path = tmp_path_factory.mktemp("vq") / "vq.pt"
     torch.manual_seed(0)
-    save_vq(path, MotionVQVAE(TINY_VQ), Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)), "t2m",
-            extra={"data_dir": str(path.parent / "data")})
+    save_vq(
+        path,
+        MotionVQVAE(TINY_VQ),
+        Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)),
+        "t2m",
+        extra={"data_dir": str(path.parent / "data")},
+    )
     return path, torch.load(path, weights_only=True)
 
 
 def spoiled_vq_files(folder: Path, vq: Path, payload: dict) -> dict[str, Path]:
     data = vq.read_bytes()
-    files = {name: folder / f"{name}.pt" for name in
-             ("truncated", "random-bytes", "empty", "plain-dict", "denoiser", "no-extra", "other-weights")}
+    files = {
+        name: folder / f"{name}.pt"
+        for name in ("truncated", "random-bytes", "empty", "plain-dict", "denoiser", "no-extra", "other-weights")
+    }
     files["truncated"].write_bytes(data[: len(data) // 2])
     files["random-bytes"].write_bytes(np.random.default_rng(0).bytes(4096))
     files["empty"].write_bytes(b"")
@@ -110,14 +126,21 @@ class _Line(pl.LightningModule):
         return torch.optim.SGD(self.parameters(), lr=0.1)
 
 
-def test_the_progress_bar_counts_steps_where_lightning_says_epoch_0_of_minus_2(tmp_path, monkeypatch,
-                                                                             one_torch_thread):
+def test_the_progress_bar_counts_steps_where_lightning_says_epoch_0_of_minus_2(tmp_path, monkeypatch, one_torch_thread):
     """Five steps in epochs of two batches, as training runs (max_steps, no max_epochs)."""
     bar, shown = StepProgressBar(), []
     label = bar._get_train_description
     monkeypatch.setattr(bar, "_get_train_description", lambda epoch: shown.append(label(epoch)) or shown[-1])
-    trainer = pl.Trainer(max_steps=5, limit_train_batches=2, callbacks=[bar], logger=False, accelerator="cpu",
-                         enable_checkpointing=False, enable_model_summary=False, default_root_dir=tmp_path)
+    trainer = pl.Trainer(
+        max_steps=5,
+        limit_train_batches=2,
+        callbacks=[bar],
+        logger=False,
+        accelerator="cpu",
+        enable_checkpointing=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+    )
     data = torch.utils.data.DataLoader(torch.utils.data.TensorDataset(torch.ones(8, 1)), batch_size=1)
     trainer.fit(_Line(), data)
     assert trainer.global_step == 5 and trainer.max_epochs == -1

@@ -64,32 +64,37 @@ def test_schedule_arrays_against_loops(process: GaussianDiffusion) -> None:
         a_bar, a_bar_prev = ref_alpha_bar(betas, t), ref_alpha_bar(betas, t - 1)
         assert process.alphas_cumprod[t] == pytest.approx(a_bar, rel=1e-10)
         assert process.alphas_cumprod_prev[t] == pytest.approx(a_bar_prev, rel=1e-10)
-        assert process.posterior_variance[t] == pytest.approx(betas[t] * (1 - a_bar_prev) / (1 - a_bar),
-                                                              rel=1e-10, abs=1e-300)
+        assert process.posterior_variance[t] == pytest.approx(
+            betas[t] * (1 - a_bar_prev) / (1 - a_bar), rel=1e-10, abs=1e-300
+        )
     assert process.alphas_cumprod_prev[0] == 1.0 and process.posterior_variance[0] == 0.0
     assert np.array_equal(process.timesteps, np.arange(T))
 
 
-@pytest.mark.parametrize(("betas", "timesteps"), [
-    (np.array([]), None),
-    (np.full((2, 3), 0.1), None),
-    (np.array([0.1, 0.0]), None),
-    (np.array([0.1, 1.0]), None),
-    (np.array([0.1, -0.2]), None),
-    (np.array([0.1, np.nan]), None),
-    (np.array([0.1, 0.2]), [0]),
-    (np.array([0.1, 0.2]), [5, 5]),
-    (np.array([0.1, 0.2]), [7, 3]),
-    (np.array([0.1, 0.2]), [-1, 3]),
-    (np.array([0.1, 0.2]), [0.0, 1.5]),
-])
+@pytest.mark.parametrize(
+    ("betas", "timesteps"),
+    [
+        (np.array([]), None),
+        (np.full((2, 3), 0.1), None),
+        (np.array([0.1, 0.0]), None),
+        (np.array([0.1, 1.0]), None),
+        (np.array([0.1, -0.2]), None),
+        (np.array([0.1, np.nan]), None),
+        (np.array([0.1, 0.2]), [0]),
+        (np.array([0.1, 0.2]), [5, 5]),
+        (np.array([0.1, 0.2]), [7, 3]),
+        (np.array([0.1, 0.2]), [-1, 3]),
+        (np.array([0.1, 0.2]), [0.0, 1.5]),
+    ],
+)
 def test_bad_schedules_raise(betas: np.ndarray, timesteps: list | None) -> None:
     with pytest.raises(ConfigError):
         GaussianDiffusion(betas, timesteps)
 
 
-@pytest.mark.parametrize("kwargs", [{"steps": 0}, {"steps": -3}, {"steps": 2.0}, {"steps": 10},
-                                    {"start": 0.0}, {"start": 0.03, "end": 0.02}])
+@pytest.mark.parametrize(
+    "kwargs", [{"steps": 0}, {"steps": -3}, {"steps": 2.0}, {"steps": 10}, {"start": 0.0}, {"start": 0.03, "end": 0.02}]
+)
 def test_bad_linear_settings_raise(kwargs: dict) -> None:
     with pytest.raises(ConfigError):
         linear_betas(**kwargs)
@@ -108,8 +113,9 @@ def test_q_mean_variance_closed_form(process: GaussianDiffusion) -> None:
     for row, t in enumerate(steps):
         a_bar = ref_alpha_bar(betas, t)
         torch.testing.assert_close(mean[row], math.sqrt(a_bar) * x0[row], rtol=1e-10, atol=1e-12)
-        torch.testing.assert_close(var[row].expand(5, 7), torch.full((5, 7), 1 - a_bar, dtype=torch.float64),
-                                   rtol=1e-10, atol=1e-14)
+        torch.testing.assert_close(
+            var[row].expand(5, 7), torch.full((5, 7), 1 - a_bar, dtype=torch.float64), rtol=1e-10, atol=1e-14
+        )
 
 
 def test_q_sample_matches_q_in_distribution(process: GaussianDiffusion) -> None:
@@ -169,8 +175,10 @@ def test_posterior_by_bayes_rule(process: GaussianDiffusion) -> None:
         precision = 1 / (1 - a_bar_prev) + alpha / beta
         assert var[row].item() == pytest.approx(1 / precision, rel=1e-9)
         for col in range(3):
-            ref = (math.sqrt(a_bar_prev) * x0[row, col].item() / (1 - a_bar_prev)
-                   + math.sqrt(alpha) * xt[row, col].item() / beta) / precision
+            ref = (
+                math.sqrt(a_bar_prev) * x0[row, col].item() / (1 - a_bar_prev)
+                + math.sqrt(alpha) * xt[row, col].item() / beta
+            ) / precision
             assert mean[row, col].item() == pytest.approx(ref, rel=1e-9, abs=1e-12)
 
 
@@ -250,8 +258,12 @@ def test_ddim_eta1_is_the_ancestral_step_with_posterior_variance(process: Gaussi
     gen = torch.Generator().manual_seed(8)
     t = torch.tensor([0, 3, 600, 999])
     xt, eps, noise = (torch.randn(4, 5, dtype=torch.float64, generator=gen) for _ in range(3))
-    torch.testing.assert_close(process.ddim_sample(xt, t, eps, noise, eta=1.0),
-                               process.p_sample(xt, t, eps, noise, "posterior"), rtol=1e-9, atol=1e-9)
+    torch.testing.assert_close(
+        process.ddim_sample(xt, t, eps, noise, eta=1.0),
+        process.p_sample(xt, t, eps, noise, "posterior"),
+        rtol=1e-9,
+        atol=1e-9,
+    )
     for eta in (-0.1, 1.5):
         with pytest.raises(ConfigError):
             process.ddim_sample(xt, t, eps, noise, eta=eta)
@@ -268,8 +280,7 @@ def test_respaced_keeps_alpha_bar(process: GaussianDiffusion) -> None:
     assert np.all(np.diff(short.timesteps) > 0)
     assert np.allclose(short.alphas_cumprod, process.alphas_cumprod[short.timesteps], rtol=1e-12, atol=0)
     assert np.allclose(short.alphas_cumprod_prev[1:], process.alphas_cumprod[short.timesteps[:-1]], rtol=1e-12)
-    assert torch.equal(short.network_steps(torch.tensor([0, 1, 49])),
-                       torch.tensor([0, short.timesteps[1], T - 1]))
+    assert torch.equal(short.network_steps(torch.tensor([0, 1, 49])), torch.tensor([0, short.timesteps[1], T - 1]))
     # β'_i = 1 − ᾱ_{s_i}/ᾱ_{s_{i-1}} with ᾱ from the loops
     betas = ref_betas(T)
     for i in (1, 25, 49):
@@ -323,11 +334,14 @@ def sample(process: GaussianDiffusion, sampler: GaussianDiffusion, method: str, 
 # Exact (linear-Gaussian) end points of these chains, for the tolerances: 1000-step ancestral gives
 # N(1.49998, 0.5008²); 50-step ancestral std 0.518; 50-step DDIM mean 1.4955, std 0.472 — the coarse
 # chains' own discretisation bias, on top of the sampling error (≈ 0.0035 on the mean, 0.0025 on the std).
-@pytest.mark.parametrize(("steps", "method", "std_tol"), [
-    (T, "ancestral", 0.015),
-    (50, "ancestral", 0.04),
-    (50, "ddim", 0.045),
-])
+@pytest.mark.parametrize(
+    ("steps", "method", "std_tol"),
+    [
+        (T, "ancestral", 0.015),
+        (50, "ancestral", 0.04),
+        (50, "ddim", 0.045),
+    ],
+)
 def test_oracle_sampling_recovers_data(process: GaussianDiffusion, steps: int, method: str, std_tol: float) -> None:
     x = sample(process, process.respaced(steps), method, seed=steps)
     assert torch.isfinite(x).all()

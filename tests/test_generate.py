@@ -81,8 +81,9 @@ def test_lengths_default_to_the_corpus_prior(generator):
 
 def test_editing_keeps_the_kept_span(generator):
     source = generate(generator, PROMPTS[:2], seconds=[2.0, 2.0], ts=4, split=False, seed=1)
-    edited = edit(generator, source, keep=[(0.0, 1.0), (3.6, 4.0)], actions=["a person jumps", "a person sits down"],
-                  ts=4, seed=2)
+    edited = edit(
+        generator, source, keep=[(0.0, 1.0), (3.6, 4.0)], actions=["a person jumps", "a person sits down"], ts=4, seed=2
+    )
     vq, normalizer = generator.codec.vq, generator.codec.normalizer
     with torch.no_grad():
         encoded = vq.encode(torch.as_tensor(normalizer.normalize(source.features))[None])[0].numpy()
@@ -93,8 +94,10 @@ def test_editing_keeps_the_kept_span(generator):
 
 def test_reconstruction_decodes_the_segments_tokens_together(generator):
     """The evaluation's codec row: each segment's own tokens, concatenated, decoded in one call."""
-    first, second = (generate(generator, [p], seconds=[s], split=False, seed=3).features for p, s in
-                     ((PROMPTS[0], 1.6), (PROMPTS[1], 1.2)))
+    first, second = (
+        generate(generator, [p], seconds=[s], split=False, seed=3).features
+        for p, s in ((PROMPTS[0], 1.6), (PROMPTS[1], 1.2))
+    )
     (motion,) = generator.reconstruct([[first, second]])
     tokens = torch.cat([generator.codec.encode(first), generator.codec.encode(second)])
     assert motion.ranges == [(0, 32), (32, 56)] and np.array_equal(motion.tokens, tokens.numpy())
@@ -105,8 +108,23 @@ def test_reconstruction_decodes_the_segments_tokens_together(generator):
 def test_the_command_writes_files_and_logs_to_mlflow(trained, capsys, monkeypatch):
     monkeypatch.chdir(trained)
     out = trained / "out"
-    code = main(["generate", *PROMPTS[:2], "--seconds", "1.5", "--dataset", "tiny", "--ts", "4", "--no-split",
-                 "--out", str(out), "--name", "walk-jump"])
+    code = main(
+        [
+            "generate",
+            *PROMPTS[:2],
+            "--seconds",
+            "1.5",
+            "--dataset",
+            "tiny",
+            "--ts",
+            "4",
+            "--no-split",
+            "--out",
+            str(out),
+            "--name",
+            "walk-jump",
+        ]
+    )
     assert code == 0
     printed = capsys.readouterr().out
     assert "a person walks forward" in printed and "logged to MLflow run" in printed
@@ -121,18 +139,21 @@ def test_the_command_writes_files_and_logs_to_mlflow(trained, capsys, monkeypatc
     assert {"walk-jump.gif", "walk-jump.npy", "walk-jump.bvh", "walk-jump.json"} <= names
 
 
-@pytest.mark.parametrize("arguments, message", [
-    ([], "give at least one prompt"),
-    (["a person jumps", "--seconds", "60"], "outside what this model supports"),
-    (["a person jumps", "--seconds", "0.05"], "outside what this model supports"),
-    (["a person jumps", "--ts", "9"], "T_s must lie in 0..T = 8"),
-    (["a person jumps", "--eta", "-1"], "eta must be >= 0"),
-    (["a person jumps", "--guidance", "-2"], "option guidance must be >= 0, got -2"),
-    (["a person jumps", "--method", "blend"], "unknown method 'blend'"),
-    (["a person jumps", "--checkpoint", "no-such-run"], "no m2d2m run 'no-such-run'"),
-    (["a person jumps", "--checkpoint", "vq.yaml"], "vq.yaml is not an M2D2M model file"),
-    (["a", "b", "--seconds", "1", "2", "3"], "one duration per prompt"),
-])
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        ([], "give at least one prompt"),
+        (["a person jumps", "--seconds", "60"], "outside what this model supports"),
+        (["a person jumps", "--seconds", "0.05"], "outside what this model supports"),
+        (["a person jumps", "--ts", "9"], "T_s must lie in 0..T = 8"),
+        (["a person jumps", "--eta", "-1"], "eta must be >= 0"),
+        (["a person jumps", "--guidance", "-2"], "option guidance must be >= 0, got -2"),
+        (["a person jumps", "--method", "blend"], "unknown method 'blend'"),
+        (["a person jumps", "--checkpoint", "no-such-run"], "no m2d2m run 'no-such-run'"),
+        (["a person jumps", "--checkpoint", "vq.yaml"], "vq.yaml is not an M2D2M model file"),
+        (["a", "b", "--seconds", "1", "2", "3"], "one duration per prompt"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(trained, capsys, monkeypatch, arguments, message):
     monkeypatch.chdir(trained)
     code = main(["generate", *arguments, "--dataset", "tiny", "--no-split", "--no-track", "--out", "bad"])

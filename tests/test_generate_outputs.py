@@ -99,8 +99,13 @@ def read_bvh(path: Path) -> dict[str, np.ndarray]:
     while tokens[at] != "MOTION":
         token = tokens[at]
         if token in ("ROOT", "JOINT", "End"):
-            nodes.append({"name": tokens[at + 1] if token != "End" else None,
-                          "parent": open_nodes[-1] if open_nodes else None, "channels": []})
+            nodes.append(
+                {
+                    "name": tokens[at + 1] if token != "End" else None,
+                    "parent": open_nodes[-1] if open_nodes else None,
+                    "channels": [],
+                }
+            )
             at += 2
         elif token == "{":
             open_nodes.append(len(nodes) - 1)
@@ -109,16 +114,16 @@ def read_bvh(path: Path) -> dict[str, np.ndarray]:
             open_nodes.pop()
             at += 1
         elif token == "OFFSET":
-            nodes[open_nodes[-1]]["offset"] = np.array(tokens[at + 1:at + 4], dtype=float)
+            nodes[open_nodes[-1]]["offset"] = np.array(tokens[at + 1 : at + 4], dtype=float)
             at += 4
         elif token == "CHANNELS":
             count = int(tokens[at + 1])
-            nodes[open_nodes[-1]]["channels"] = tokens[at + 2:at + 2 + count]
+            nodes[open_nodes[-1]]["channels"] = tokens[at + 2 : at + 2 + count]
             at += 2 + count
         else:
             raise AssertionError(f"unexpected BVH token {token!r}")
     frames = int(tokens[at + 2])  # MOTION Frames: n Frame Time: dt
-    rows = np.array(tokens[at + 6:], dtype=float).reshape(frames, -1)
+    rows = np.array(tokens[at + 6 :], dtype=float).reshape(frames, -1)
     positions: dict[str, list[np.ndarray]] = {}
     for row in rows:
         column, world = 0, {}
@@ -165,14 +170,17 @@ def _loading_fails(monkeypatch) -> None:
     monkeypatch.setattr(orchestration.generate, "load_generator", refuse)
 
 
-@pytest.mark.parametrize("arguments, message", [
-    (["--formats", "xyz"], "unknown format xyz: choose from npy, bvh, gif, mp4"),
-    (["--formats", "gif", "mp4"], "mp4 needs ffmpeg"),
-    (["--out", "notes.txt"], "--out notes.txt is an existing file, not a folder"),
-    (["--out", "clip.gif", "--formats", "bvh"], "--out clip.gif names one .gif file; drop --formats"),
-    (["--out", "made.gif"], "--out made.gif is a folder"),
-    (["--name", "a/b"], "--name must be a plain file name"),
-])
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["--formats", "xyz"], "unknown format xyz: choose from npy, bvh, gif, mp4"),
+        (["--formats", "gif", "mp4"], "mp4 needs ffmpeg"),
+        (["--out", "notes.txt"], "--out notes.txt is an existing file, not a folder"),
+        (["--out", "clip.gif", "--formats", "bvh"], "--out clip.gif names one .gif file; drop --formats"),
+        (["--out", "made.gif"], "--out made.gif is a folder"),
+        (["--name", "a/b"], "--name must be a plain file name"),
+    ],
+)
 def test_bad_outputs_are_one_line_before_loading(tmp_path, monkeypatch, capsys, arguments, message):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(render, "_find_ffmpeg", lambda: None)
@@ -246,14 +254,16 @@ def test_an_interrupted_animation_leaves_the_old_file_or_none(tmp_path):
 def test_sigterm_while_rendering_marks_the_run_failed_and_leaves_no_gif(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     joints = pose_clip(T2M, 12, seed=0)
-    motion = Motion(np.zeros((12, T2M.feature_dim), np.float32), joints, 20.0, "t2m", ["a person jumps"],
-                    [(0, 12)]).on_rigid_skeleton()
+    motion = Motion(
+        np.zeros((12, T2M.feature_dim), np.float32), joints, 20.0, "t2m", ["a person jumps"], [(0, 12)]
+    ).on_rigid_skeleton()
     real = render.render_motion
 
     def killed_at_frame_3(*args, progress=None, **options):
         def tick(t: int) -> None:
             if t == 3:
                 os.kill(os.getpid(), signal.SIGTERM)
+
         return real(*args, progress=tick, **{**options, "size": 64})
 
     monkeypatch.setattr("m2d2m.motion.clip.render_motion", killed_at_frame_3)

@@ -19,11 +19,25 @@ from training.m2d2m_module import M2D2MModule
 def test_configured_schedule_endpoints_survive_the_round_trip(tiny_data, tmp_path):
     vq, _ = random_vq(tmp_path / "vq.pt", tiny_data, seed=0)
     diffusion = {**TINY_DIFFUSION["diffusion"], "alpha_bar_end": 0.2, "gamma_bar_end": 0.5}
-    module = M2D2MModule(TINY_DIFFUSION["denoiser"], TINY_DIFFUSION["text"], diffusion, TINY_DIFFUSION["optim"],
-                         codebook=vq.codebook, vocabulary=LearnedTextEncoder.build_vocabulary(["a person walks"]))
+    module = M2D2MModule(
+        TINY_DIFFUSION["denoiser"],
+        TINY_DIFFUSION["text"],
+        diffusion,
+        TINY_DIFFUSION["optim"],
+        codebook=vq.codebook,
+        vocabulary=LearnedTextEncoder.build_vocabulary(["a person walks"]),
+    )
     assert (module.schedule.config.alpha_bar_end, module.schedule.config.gamma_bar_end) == (0.2, 0.5)
-    path = save_m2d2m(tmp_path / "model.pt", module.denoiser, module.text_encoder, TINY_DIFFUSION["text"],
-                           module.schedule.config, module.codebook, tmp_path / "vq.pt", LengthPrior({}, 5, 10))
+    path = save_m2d2m(
+        tmp_path / "model.pt",
+        module.denoiser,
+        module.text_encoder,
+        TINY_DIFFUSION["text"],
+        module.schedule.config,
+        module.codebook,
+        tmp_path / "vq.pt",
+        LengthPrior({}, 5, 10),
+    )
     loaded = load_m2d2m(path)
     assert loaded.schedule.config == module.schedule.config
     assert loaded.schedule.gamma_bar[-1].item() == 0.5  # the matrices are rebuilt from it, not from "linear"
@@ -33,14 +47,27 @@ def test_the_model_files_sampling_defaults_reach_every_preset(tiny_data, tmp_pat
     """A config's ``sampling`` section travels in the file and is where every preset starts from;
     what it does not name stays the paper's preset, and a knob it may not set is refused."""
     vq, _ = random_vq(tmp_path / "vq.pt", tiny_data, seed=0)
-    module = M2D2MModule(TINY_DIFFUSION["denoiser"], TINY_DIFFUSION["text"], TINY_DIFFUSION["diffusion"],
-                         TINY_DIFFUSION["optim"], codebook=vq.codebook,
-                         vocabulary=LearnedTextEncoder.build_vocabulary(["a person walks"]))
+    module = M2D2MModule(
+        TINY_DIFFUSION["denoiser"],
+        TINY_DIFFUSION["text"],
+        TINY_DIFFUSION["diffusion"],
+        TINY_DIFFUSION["optim"],
+        codebook=vq.codebook,
+        vocabulary=LearnedTextEncoder.build_vocabulary(["a person walks"]),
+    )
 
     def save(sampling):
-        return save_m2d2m(tmp_path / "model.pt", module.denoiser, module.text_encoder, TINY_DIFFUSION["text"],
-                               module.schedule.config, module.codebook, tmp_path / "vq.pt", LengthPrior({}, 5, 10),
-                               sampling=sampling)
+        return save_m2d2m(
+            tmp_path / "model.pt",
+            module.denoiser,
+            module.text_encoder,
+            TINY_DIFFUSION["text"],
+            module.schedule.config,
+            module.codebook,
+            tmp_path / "vq.pt",
+            LengthPrior({}, 5, 10),
+            sampling=sampling,
+        )
 
     generator = M2D2MGenerator.load(save({"steps": 3, "guidance": 1.0}))
     for preset, paper in ((MULTI, MULTI_ACTION), (SINGLE, SINGLE_ACTION)):

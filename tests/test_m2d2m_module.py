@@ -9,28 +9,55 @@ from torch.utils.data import DataLoader
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.m2d2m_sampling import TokenRequest
 from m2d2m.text import LearnedTextEncoder
-from training.m2d2m_module import M2D2MModule
 from training.losses import NonFiniteLossError
+from training.m2d2m_module import M2D2MModule
 
 K = 8
 STEPS = 10
-SENTENCES = ["a person walks forward", "a person jumps up high", "someone waves the left hand",
-             "a man turns around and sits down"]
+SENTENCES = [
+    "a person walks forward",
+    "a person jumps up high",
+    "someone waves the left hand",
+    "a man turns around and sits down",
+]
 
 
 def make_module(seed: int = 0, text_drop: float = 0.1, **diffusion) -> M2D2MModule:
     torch.manual_seed(seed)
     codebook = torch.randn(K, 4)
     return M2D2MModule(
-        denoiser={"layers": 1, "heads": 2, "width": 32, "ffn": 64, "text_dim": 32, "num_buckets": 8,
-                  "max_distance": 16},
+        denoiser={
+            "layers": 1,
+            "heads": 2,
+            "width": 32,
+            "ffn": 64,
+            "text_dim": 32,
+            "num_buckets": 8,
+            "max_distance": 16,
+        },
         text={"kind": "learned", "dim": 32, "layers": 1, "heads": 2, "dropout": 0.0},
-        diffusion={"steps": STEPS, "kind": "dynamic", "eta": 0.5, "distance": "l2_rank", "schedule": "linear",
-                   "aux_weight": 0.01, "timestep_sampling": "uniform", **diffusion},
-        optim={"lr": 3e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 0, "milestones": [1000],
-               "gamma": 0.1},
+        diffusion={
+            "steps": STEPS,
+            "kind": "dynamic",
+            "eta": 0.5,
+            "distance": "l2_rank",
+            "schedule": "linear",
+            "aux_weight": 0.01,
+            "timestep_sampling": "uniform",
+            **diffusion,
+        },
+        optim={
+            "lr": 3e-3,
+            "betas": [0.9, 0.99],
+            "weight_decay": 0.0,
+            "warmup_steps": 0,
+            "milestones": [1000],
+            "gamma": 0.1,
+        },
         codebook=codebook,
-        vocabulary=LearnedTextEncoder.build_vocabulary(SENTENCES), text_drop=text_drop)
+        vocabulary=LearnedTextEncoder.build_vocabulary(SENTENCES),
+        text_drop=text_drop,
+    )
 
 
 def make_batch(seed: int = 0, lengths=(6, 4, 5)) -> dict:
@@ -41,8 +68,14 @@ def make_batch(seed: int = 0, lengths=(6, 4, 5)) -> dict:
     tokens = torch.randint(K, (batch, length), generator=g).masked_fill(~mask, 0)
     actions = [[SENTENCES[i % len(SENTENCES)]] for i in range(batch)]
     actions[-1] = [SENTENCES[1], SENTENCES[2]]  # a two-action caption
-    return {"tokens": tokens, "padding_mask": mask, "lengths": lengths_t, "actions": actions,
-            "text": [" and ".join(a) for a in actions], "keys": [f"k{i}" for i in range(batch)]}
+    return {
+        "tokens": tokens,
+        "padding_mask": mask,
+        "lengths": lengths_t,
+        "actions": actions,
+        "text": [" and ".join(a) for a in actions],
+        "keys": [f"k{i}" for i in range(batch)],
+    }
 
 
 class Recorder:
@@ -93,9 +126,19 @@ def test_validation_in_trainer_logs_accuracy(tmp_path):
     module = make_module()
     batches = [make_batch(seed) for seed in range(3)]
     loader = DataLoader(batches, batch_size=None)
-    trainer = pl.Trainer(max_steps=2, limit_val_batches=2, val_check_interval=2, accelerator="cpu",
-                         devices=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                         enable_model_summary=False, default_root_dir=tmp_path, num_sanity_val_steps=0)
+    trainer = pl.Trainer(
+        max_steps=2,
+        limit_val_batches=2,
+        val_check_interval=2,
+        accelerator="cpu",
+        devices=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        default_root_dir=tmp_path,
+        num_sanity_val_steps=0,
+    )
     trainer.fit(module, train_dataloaders=loader, val_dataloaders=loader)
     metrics = trainer.callback_metrics
     assert 0.0 <= float(metrics["val/token_accuracy"]) <= 1.0

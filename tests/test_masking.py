@@ -25,12 +25,15 @@ def test_dynamic_iterations_grow_with_the_length():
     assert dynamic_iterations(60, 49, 10) == 10  # longer than M (a long sequence's piece): capped at T
 
 
-@pytest.mark.parametrize("schedule, expected", [
-    # L = 10, T = 4: ⌈γ(t/4) · 10⌉ for t = 1..4
-    ("cosine", [9, 8, 4, 0]),  # ⌈9.24⌉ = 10 → 9 (one token decided per iteration at least), ⌈7.07⌉, ⌈3.83⌉, 0
-    ("linear", [8, 5, 3, 0]),  # ⌈7.5⌉, 5, ⌈2.5⌉, 0
-    ("square", [9, 8, 5, 0]),  # ⌈9.375⌉ = 10 → 9, ⌈7.5⌉, ⌈4.375⌉, 0
-])
+@pytest.mark.parametrize(
+    "schedule, expected",
+    [
+        # L = 10, T = 4: ⌈γ(t/4) · 10⌉ for t = 1..4
+        ("cosine", [9, 8, 4, 0]),  # ⌈9.24⌉ = 10 → 9 (one token decided per iteration at least), ⌈7.07⌉, ⌈3.83⌉, 0
+        ("linear", [8, 5, 3, 0]),  # ⌈7.5⌉, 5, ⌈2.5⌉, 0
+        ("square", [9, 8, 5, 0]),  # ⌈9.375⌉ = 10 → 9, ⌈7.5⌉, ⌈4.375⌉, 0
+    ],
+)
 def test_masked_counts_by_hand(schedule, expected):
     assert masked_counts(10, 4, schedule) == expected
 

@@ -130,18 +130,24 @@ def test_multimodality_is_zero_for_repeats_and_averages_prompts():
 def test_r_precision_counts_known_ranks_and_drops_the_incomplete_group():
     # One-dimensional embeddings; group 1 has motions at 0, 10, 20, 30.
     motions = np.array([0.0, 10.0, 20.0, 30.0, 0.0, 10.0, 20.0, 30.0, 0.0, 10.0, 20.0])[:, None]
-    texts = np.array([
-        0.0,     # own motion nearest: rank 0
-        16.0,    # 20 (distance 4) is closer than its own 10 (distance 6): rank 1
-        0.0,     # 0 and 10 are closer than its own 20: rank 2
-        -100.0,  # every other motion is closer: rank 3
-        0.0, 10.0, 20.0, 30.0,  # group 2: all exact, rank 0
-        30.0, 30.0, 30.0,       # incomplete group, all wrong: dropped
-    ])[:, None]
+    texts = np.array(
+        [
+            0.0,  # own motion nearest: rank 0
+            16.0,  # 20 (distance 4) is closer than its own 10 (distance 6): rank 1
+            0.0,  # 0 and 10 are closer than its own 20: rank 2
+            -100.0,  # every other motion is closer: rank 3
+            0.0,
+            10.0,
+            20.0,
+            30.0,  # group 2: all exact, rank 0
+            30.0,
+            30.0,
+            30.0,  # incomplete group, all wrong: dropped
+        ]
+    )[:, None]
     expected = np.array([1 + 4, 2 + 4, 3 + 4]) / 8
     np.testing.assert_allclose(r_precision(texts, motions, top_k=3, batch=4), expected)
-    np.testing.assert_allclose(r_precision(torch.tensor(texts), torch.tensor(motions), top_k=3, batch=4),
-                               expected)
+    np.testing.assert_allclose(r_precision(torch.tensor(texts), torch.tensor(motions), top_k=3, batch=4), expected)
 
 
 def test_r_precision_breaks_ties_like_a_stable_argsort():
@@ -157,7 +163,7 @@ def test_r_precision_matches_an_argsort_of_scipy_distances():
     texts = motions + rng.normal(scale=1.2, size=(100, 16))
     hits = np.zeros(3)
     for start in range(0, 96, 32):
-        order = np.argsort(cdist(texts[start:start + 32], motions[start:start + 32]), axis=1, kind="stable")
+        order = np.argsort(cdist(texts[start : start + 32], motions[start : start + 32]), axis=1, kind="stable")
         position = np.argmax(order == np.arange(32)[:, None], axis=1)
         hits += [(position < k).sum() for k in (1, 2, 3)]
     np.testing.assert_allclose(r_precision(texts, motions), hits / 96)
@@ -203,7 +209,7 @@ def test_jerk_averages_joints_and_boundaries_of_their_windows():
     rng = np.random.default_rng(9)
     clip = np.cumsum(rng.normal(size=(150, 4, 3)), axis=0) * 0.01
     boundaries = [40, 100]
-    per_window = [np.log(dimensionless_jerk(clip[b - 20:b + 20], 20.0)).mean() for b in boundaries]
+    per_window = [np.log(dimensionless_jerk(clip[b - 20 : b + 20], 20.0)).mean() for b in boundaries]
     assert jerk(clip, 20.0, boundaries) == pytest.approx(np.mean(per_window), rel=1e-12)
     # An average, not eq. 10's literal sum: 22 copies of one joint give that joint's value.
     one = clip[:, :1]
@@ -255,8 +261,7 @@ def test_transition_windows_centre_on_boundaries_and_clip_to_the_sequence():
     np.testing.assert_array_equal(windows[1], np.arange(0, 30))
     np.testing.assert_array_equal(windows[2], np.arange(75, 100))
     features = torch.arange(40.0).reshape(20, 2)
-    np.testing.assert_array_equal(transition_windows(features, [10], window=4)[0],
-                                  features[8:12].numpy())
+    np.testing.assert_array_equal(transition_windows(features, [10], window=4)[0], features[8:12].numpy())
 
 
 # ------------------------------------------------------------------------------- reporting
@@ -273,27 +278,30 @@ def test_mean_confidence_interval_uses_1_96_std_over_root_n():
 # ------------------------------------------------------------------------------- bad inputs
 
 
-@pytest.mark.parametrize("call, message", [
-    (lambda: fid(np.zeros((5, 3)), np.zeros((5, 4))), "same feature size"),
-    (lambda: fid(np.zeros((1, 3)), np.zeros((5, 3))), "at least 2 samples"),
-    (lambda: fid(np.zeros(5), np.zeros((5, 1))), "2 dimensions"),
-    (lambda: fid(np.full((5, 2), np.nan), np.zeros((5, 2))), "NaN"),
-    (lambda: diversity(np.zeros((50, 3))), "smaller pairs"),
-    (lambda: multimodality(np.zeros((4, 5, 3)), pairs=10), "at least 10 generations"),
-    (lambda: multimodality(np.zeros((4, 3)), pairs=2), "3 dimensions"),
-    (lambda: r_precision(np.zeros((10, 3)), np.zeros((10, 3))), "smaller batch"),
-    (lambda: r_precision(np.zeros((40, 3)), np.zeros((40, 4))), "row by row"),
-    (lambda: r_precision(np.zeros((40, 3)), np.zeros((40, 3)), top_k=0), "top_k"),
-    (lambda: mm_dist(np.zeros((3, 2)), np.zeros((4, 2))), "row by row"),
-    (lambda: jerk(np.zeros((50, 22)), 20.0, [25]), "3 dimensions"),
-    (lambda: jerk(np.zeros((50, 22, 2)), 20.0, [25]), "(frames, joints, 3)"),
-    (lambda: jerk(np.zeros((50, 2, 3)), 20.0, []), "at least one boundary"),
-    (lambda: jerk(np.zeros((50, 2, 3)), 20.0, [50]), "outside"),
-    (lambda: jerk(np.zeros((50, 2, 3)), 20.0, [2.5]), "integer"),
-    (lambda: jerk(np.zeros((50, 2, 3)), 20.0, [1], window=4), "at least 4"),
-    (lambda: jerk(np.zeros((50, 2, 3)), 0.0, [25]), "fps"),
-    (lambda: mean_confidence_interval([]), "at least one replication"),
-])
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda: fid(np.zeros((5, 3)), np.zeros((5, 4))), "same feature size"),
+        (lambda: fid(np.zeros((1, 3)), np.zeros((5, 3))), "at least 2 samples"),
+        (lambda: fid(np.zeros(5), np.zeros((5, 1))), "2 dimensions"),
+        (lambda: fid(np.full((5, 2), np.nan), np.zeros((5, 2))), "NaN"),
+        (lambda: diversity(np.zeros((50, 3))), "smaller pairs"),
+        (lambda: multimodality(np.zeros((4, 5, 3)), pairs=10), "at least 10 generations"),
+        (lambda: multimodality(np.zeros((4, 3)), pairs=2), "3 dimensions"),
+        (lambda: r_precision(np.zeros((10, 3)), np.zeros((10, 3))), "smaller batch"),
+        (lambda: r_precision(np.zeros((40, 3)), np.zeros((40, 4))), "row by row"),
+        (lambda: r_precision(np.zeros((40, 3)), np.zeros((40, 3)), top_k=0), "top_k"),
+        (lambda: mm_dist(np.zeros((3, 2)), np.zeros((4, 2))), "row by row"),
+        (lambda: jerk(np.zeros((50, 22)), 20.0, [25]), "3 dimensions"),
+        (lambda: jerk(np.zeros((50, 22, 2)), 20.0, [25]), "(frames, joints, 3)"),
+        (lambda: jerk(np.zeros((50, 2, 3)), 20.0, []), "at least one boundary"),
+        (lambda: jerk(np.zeros((50, 2, 3)), 20.0, [50]), "outside"),
+        (lambda: jerk(np.zeros((50, 2, 3)), 20.0, [2.5]), "integer"),
+        (lambda: jerk(np.zeros((50, 2, 3)), 20.0, [1], window=4), "at least 4"),
+        (lambda: jerk(np.zeros((50, 2, 3)), 0.0, [25]), "fps"),
+        (lambda: mean_confidence_interval([]), "at least one replication"),
+    ],
+)
 def test_bad_inputs_raise_a_clear_value_error(call, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(")", r"\)")):
         call()
@@ -328,12 +336,15 @@ def test_the_datasets_constant_is_the_mean_over_every_frame_of_every_clip():
     assert mean_frame_jerk([_stepped_clip(), cubic]) == pytest.approx((5.9 + 0.1) / 8)  # 7 frames + 1
 
 
-@pytest.mark.parametrize("call, message", [
-    (lambda: frame_jerk(np.zeros((3, 2, 3))), "at least 4 frames"),
-    (lambda: frame_jerk(np.zeros((5, 2, 2))), "(frames, joints, 3)"),
-    (lambda: mean_frame_jerk([]), "at least one clip"),
-    (lambda: peak_jerk_and_auj(np.zeros((0, 5)), 0.0), "at least one transition"),
-])
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda: frame_jerk(np.zeros((3, 2, 3))), "at least 4 frames"),
+        (lambda: frame_jerk(np.zeros((5, 2, 2))), "(frames, joints, 3)"),
+        (lambda: mean_frame_jerk([]), "at least one clip"),
+        (lambda: peak_jerk_and_auj(np.zeros((0, 5)), 0.0), "at least one transition"),
+    ],
+)
 def test_flowmdm_metrics_refuse_what_they_cannot_measure(call, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         call()

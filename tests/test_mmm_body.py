@@ -45,12 +45,20 @@ def model_file(tmp_path_factory) -> Path:
     upper, lower = part_vq(UPPER, K_UPPER, 0), part_vq(LOWER, K_LOWER, 1)
     save_vq(folder / "upper.pt", upper, normalizer, "t2m")
     save_vq(folder / "lower.pt", lower, normalizer, "t2m")
-    config = BodyTransformerConfig(codebook_size=K_UPPER, code_dim=8, lower_codebook_size=K_LOWER, lower_code_dim=8,
-                                   text_dim=16, **NETWORK)
+    config = BodyTransformerConfig(
+        codebook_size=K_UPPER, code_dim=8, lower_codebook_size=K_LOWER, lower_code_dim=8, text_dim=16, **NETWORK
+    )
     transformer = BodyMaskedTransformer(config, upper.codebook, lower.codebook)
     text = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2, dropout=0.0)
-    return save_body_mmm(folder / "model.pt", transformer, text, TEXT, folder / "upper.pt", folder / "lower.pt",
-                         LengthPrior({"wave": 6}, 5, 12))
+    return save_body_mmm(
+        folder / "model.pt",
+        transformer,
+        text,
+        TEXT,
+        folder / "upper.pt",
+        folder / "lower.pt",
+        LengthPrior({"wave": 6}, 5, 12),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -89,12 +97,15 @@ def test_the_body_transformer_embeds_pairs_and_never_attends_to_padding(generato
 
 def test_the_training_step_scores_masked_upper_tokens_only(model_file):
     checkpoint = load_body_mmm(model_file)
-    module = BodyMMMModule(NETWORK, TEXT, {"alpha": 0.5, "lower_most": 0.3},
-                           {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1,
-                            "milestones": [10], "gamma": 0.1},
-                           codebook=checkpoint.transformer.codebook,
-                           lower_codebook=checkpoint.transformer.lower_codebook,
-                           vocabulary=LearnedTextEncoder.build_vocabulary(SENTENCES))
+    module = BodyMMMModule(
+        NETWORK,
+        TEXT,
+        {"alpha": 0.5, "lower_most": 0.3},
+        {"lr": 1e-3, "betas": [0.9, 0.99], "weight_decay": 0.0, "warmup_steps": 1, "milestones": [10], "gamma": 0.1},
+        codebook=checkpoint.transformer.codebook,
+        lower_codebook=checkpoint.transformer.lower_codebook,
+        vocabulary=LearnedTextEncoder.build_vocabulary(SENTENCES),
+    )
     pairs = torch.stack([torch.randint(0, K_UPPER, (3, 10)), torch.randint(0, K_LOWER, (3, 10))], dim=-1)
     lengths = torch.tensor([10, 7, 4])
     batch = {"tokens": pairs, "padding_mask": torch.arange(10)[None] < lengths[:, None], "text": SENTENCES}
@@ -104,8 +115,15 @@ def test_the_training_step_scores_masked_upper_tokens_only(model_file):
     loss = module.training_step(batch, 0)
     assert torch.isfinite(loss) and loss.requires_grad
     with pytest.raises(ValueError, match="lower_most"):
-        BodyMMMModule(NETWORK, TEXT, {"lower_most": 1.5}, {}, checkpoint.transformer.codebook,
-                      checkpoint.transformer.lower_codebook, LearnedTextEncoder.build_vocabulary(SENTENCES))
+        BodyMMMModule(
+            NETWORK,
+            TEXT,
+            {"lower_most": 1.5},
+            {},
+            checkpoint.transformer.codebook,
+            checkpoint.transformer.lower_codebook,
+            LearnedTextEncoder.build_vocabulary(SENTENCES),
+        )
 
 
 def test_the_model_file_round_trips_with_both_tokenizers(model_file, generator):
@@ -169,20 +187,24 @@ def test_requests_it_cannot_serve_are_refused(generator):
     with pytest.raises(ValueError, match="lower body to keep on every frame"):
         generator.generate([[SENTENCES[0]]], [[32]], generator.options(SINGLE), [0])  # nothing to keep
     with pytest.raises(ValueError, match="lower body to keep on every frame"):  # whole frames, not the lower body
-        generator.generate([[SENTENCES[0]]], [[32]], generator.options(SINGLE), [0],
-                           keep=[Keep(features, np.ones(32, dtype=bool))])
+        generator.generate(
+            [[SENTENCES[0]]], [[32]], generator.options(SINGLE), [0], keep=[Keep(features, np.ones(32, dtype=bool))]
+        )
     with pytest.raises(ValueError, match="holds 8 tokens but the request asks for 5"):
-        generator.generate([[SENTENCES[0]]], [[20]], generator.options(SINGLE), [0],
-                           keep=[keep_part(features, T2M, LOWER)])
+        generator.generate(
+            [[SENTENCES[0]]], [[20]], generator.options(SINGLE), [0], keep=[keep_part(features, T2M, LOWER)]
+        )
 
 
 def test_whole_body_models_refuse_to_keep_a_part(tmp_path):
     vq = MotionVQVAE(VQConfig(width=16, code_dim=8, codebook_size=16, depth=1))
     save_vq(tmp_path / "vq.pt", vq, Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)), "t2m")
-    transformer = MaskedMotionTransformer(MaskedTransformerConfig(codebook_size=16, code_dim=8, text_dim=16,
-                                                                  **NETWORK), vq.codebook)
+    transformer = MaskedMotionTransformer(
+        MaskedTransformerConfig(codebook_size=16, code_dim=8, text_dim=16, **NETWORK), vq.codebook
+    )
     text = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2, dropout=0.0)
-    whole = MMMGenerator.load(save_mmm(tmp_path / "model.pt", transformer, text, TEXT, tmp_path / "vq.pt",
-                                       LengthPrior({}, 5, 12)))
+    whole = MMMGenerator.load(
+        save_mmm(tmp_path / "model.pt", transformer, text, TEXT, tmp_path / "vq.pt", LengthPrior({}, 5, 12))
+    )
     with pytest.raises(ValueError, match="keeps whole frames, not a body part"):
         whole.generate([[SENTENCES[0]]], [[32]], whole.options(SINGLE), [0], keep=[keep_part(source(), T2M, LOWER)])

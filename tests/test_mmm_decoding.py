@@ -16,10 +16,14 @@ K, MASK = 6, 8  # 6 codes; [END] 6, [PAD] 7, [MASK] 8
 
 def peaked(targets: torch.Tensor, sharpness: torch.Tensor | float = 50.0):
     """A predictor whose distribution at each position puts almost all mass on ``targets``."""
+
     def predict(tokens: torch.Tensor) -> torch.Tensor:
         logits = torch.zeros(*tokens.shape, K)
-        logits.scatter_(-1, targets.expand_as(tokens)[..., None], torch.as_tensor(sharpness).expand_as(tokens)[..., None].float())
+        logits.scatter_(
+            -1, targets.expand_as(tokens)[..., None], torch.as_tensor(sharpness).expand_as(tokens)[..., None].float()
+        )
         return logits
+
     return predict
 
 
@@ -29,7 +33,8 @@ def test_filtering_by_hand():
     assert filtered_probabilities(logits, DecodingOptions(top_k=1)).tolist() == pytest.approx([1, 0, 0, 0])
     squared = torch.tensor([0.25, 0.09, 0.0225, 0.0025])
     assert filtered_probabilities(logits, DecodingOptions(temperature=0.5)).tolist() == pytest.approx(
-        (squared / squared.sum()).tolist())
+        (squared / squared.sum()).tolist()
+    )
 
 
 def test_decoding_fills_exactly_the_free_positions_and_keeps_the_rest():
@@ -53,8 +58,15 @@ def test_the_least_confident_stay_masked():
         return predict(tokens)
 
     given = torch.full((1, 4), FREE)
-    decode(recording, given, torch.ones(1, 4, dtype=torch.bool), MASK, longest=4,
-           options=DecodingOptions(iterations=2, schedule="linear", top_k=1), seeds=[0])
+    decode(
+        recording,
+        given,
+        torch.ones(1, 4, dtype=torch.bool),
+        MASK,
+        longest=4,
+        options=DecodingOptions(iterations=2, schedule="linear", top_k=1),
+        seeds=[0],
+    )
     assert len(seen) == 2
     assert seen[1].tolist() == [[1, MASK, 3, MASK]]
 
@@ -67,8 +79,15 @@ def test_iterations_scale_with_the_length():
         return peaked(torch.zeros(1, 1, dtype=torch.long))(tokens)
 
     given = torch.full((1, 5), FREE)
-    decode(counting, given, torch.ones(1, 5, dtype=torch.bool), MASK, longest=10,
-           options=DecodingOptions(iterations=10), seeds=[0])
+    decode(
+        counting,
+        given,
+        torch.ones(1, 5, dtype=torch.bool),
+        MASK,
+        longest=10,
+        options=DecodingOptions(iterations=10),
+        seeds=[0],
+    )
     assert len(calls) == 5  # T_dyn = 10 · 5 / 10
     table = schedule_table([5, 10, 0], longest=10, options=DecodingOptions(iterations=10))
     assert table.shape == (3, 10) and table[0, 4] == 0 and table[1, -1] == 0 and table[2].sum() == 0
@@ -90,8 +109,12 @@ def test_a_sequence_does_not_depend_on_its_batch():
 
 
 def test_bad_options_are_refused():
-    for options, message in ((DecodingOptions(iterations=0), "iterations"), (DecodingOptions(schedule="cubic"), "schedule"),
-                             (DecodingOptions(temperature=0.0), "temperature"), (DecodingOptions(top_p=1.5), "top_p")):
+    for options, message in (
+        (DecodingOptions(iterations=0), "iterations"),
+        (DecodingOptions(schedule="cubic"), "schedule"),
+        (DecodingOptions(temperature=0.0), "temperature"),
+        (DecodingOptions(top_p=1.5), "top_p"),
+    ):
         with pytest.raises(ValueError, match=message):
             options.check()
     assert math.isfinite(DecodingOptions().temperature)

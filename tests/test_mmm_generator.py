@@ -31,8 +31,18 @@ def model_file(tmp_path_factory) -> Path:
     vq = MotionVQVAE(TINY_VQ)
     vq.quantizer.codebook.normal_()
     save_vq(folder / "vq.pt", vq, Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)), "t2m")
-    config = MaskedTransformerConfig(codebook_size=32, code_dim=16, width=32, heads=4, layers=2, cross_layers=1,
-                                     ffn=64, dropout=0.0, text_dim=16, max_tokens=12)
+    config = MaskedTransformerConfig(
+        codebook_size=32,
+        code_dim=16,
+        width=32,
+        heads=4,
+        layers=2,
+        cross_layers=1,
+        ffn=64,
+        dropout=0.0,
+        text_dim=16,
+        max_tokens=12,
+    )
     transformer = MaskedMotionTransformer(config, vq.codebook)
     text = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2, dropout=0.0)
     return save_mmm(folder / "model.pt", transformer, text, TEXT, folder / "vq.pt", LengthPrior({"walk": 6}, 5, 12))
@@ -48,8 +58,10 @@ def test_the_model_file_round_trips(model_file, generator):
     config = again.transformer.config
     tokens = canvas(torch.tensor([[1, config.mask_id, 3]]), torch.tensor([3]), config)
     words, mask, sentence = again.text_encoder.encode_pooled(["a person jumps"])
-    torch.testing.assert_close(again.transformer(tokens, sentence, words, mask),
-                               generator.checkpoint.transformer(tokens, sentence, words, mask))
+    torch.testing.assert_close(
+        again.transformer(tokens, sentence, words, mask),
+        generator.checkpoint.transformer(tokens, sentence, words, mask),
+    )
     assert generator.typical_frames("walk") == 24 and generator.longest_frames == 48
 
 
@@ -65,8 +77,9 @@ def test_transitions_join_shortened_actions_to_the_asked_length(generator):
     assert len(motion.tokens) == 15 and len(motion.features) == 60
     assert motion.ranges == [(0, 20), (28, 40), (48, 60)]
     assert motion.boundaries == [24, 44]  # the middle of each transition
-    (independent,) = generator.generate([SENTENCES], [[20, 20, 20]], generator.options(MULTI, method="independent"),
-                                        [1])
+    (independent,) = generator.generate(
+        [SENTENCES], [[20, 20, 20]], generator.options(MULTI, method="independent"), [1]
+    )
     assert independent.ranges == [(0, 20), (20, 40), (40, 60)]
 
 
@@ -75,11 +88,18 @@ def test_kept_tokens_come_back_bit_exact(generator):
     frames = np.zeros(32, dtype=bool)
     frames[:8] = frames[-8:] = True  # in-betweening: keep the first and last 2 tokens
     kept = generator.codec.encode(features)
-    (motion,) = generator.generate([[SENTENCES[1]]], [[32]], generator.options(SINGLE), [2], keep=[Keep(features, frames)])
+    (motion,) = generator.generate(
+        [[SENTENCES[1]]], [[32]], generator.options(SINGLE), [2], keep=[Keep(features, frames)]
+    )
     assert np.array_equal(motion.tokens[[0, 1, 6, 7]], kept[[0, 1, 6, 7]].numpy())
     with pytest.raises(ValueError, match="one action at a time"):
-        generator.generate([SENTENCES[:2]], [[32, 20]], generator.options(MULTI), [2],
-                           keep=[Keep(np.zeros((52, 263), np.float32), np.zeros(52, dtype=bool))])
+        generator.generate(
+            [SENTENCES[:2]],
+            [[32, 20]],
+            generator.options(MULTI),
+            [2],
+            keep=[Keep(np.zeros((52, 263), np.float32), np.zeros(52, dtype=bool))],
+        )
 
 
 def test_a_sequence_does_not_depend_on_its_batch(generator):

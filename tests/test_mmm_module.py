@@ -15,8 +15,14 @@ OPTIM = {"lr": 3e-3}
 
 def module() -> MMMModule:
     torch.manual_seed(0)
-    return MMMModule(TRANSFORMER, TEXT, {"alpha": 0.5}, OPTIM, codebook=torch.randn(12, 4),
-                     vocabulary=LearnedTextEncoder.build_vocabulary(CAPTIONS))
+    return MMMModule(
+        TRANSFORMER,
+        TEXT,
+        {"alpha": 0.5},
+        OPTIM,
+        codebook=torch.randn(12, 4),
+        vocabulary=LearnedTextEncoder.build_vocabulary(CAPTIONS),
+    )
 
 
 def batch() -> dict:

@@ -8,8 +8,18 @@ import torch
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig
 
-CONFIG = MaskedTransformerConfig(codebook_size=16, code_dim=4, width=32, heads=4, layers=3, cross_layers=1, ffn=64,
-                                 dropout=0.0, text_dim=8, max_tokens=10)
+CONFIG = MaskedTransformerConfig(
+    codebook_size=16,
+    code_dim=4,
+    width=32,
+    heads=4,
+    layers=3,
+    cross_layers=1,
+    ffn=64,
+    dropout=0.0,
+    text_dim=8,
+    max_tokens=10,
+)
 
 
 @pytest.fixture
@@ -20,8 +30,11 @@ def model() -> MaskedMotionTransformer:
 
 def text(batch: int, words: int = 5) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     generator = torch.Generator().manual_seed(1)
-    return (torch.randn(batch, 8, generator=generator), torch.randn(batch, words, 8, generator=generator),
-            torch.ones(batch, words, dtype=torch.bool))
+    return (
+        torch.randn(batch, 8, generator=generator),
+        torch.randn(batch, words, 8, generator=generator),
+        torch.ones(batch, words, dtype=torch.bool),
+    )
 
 
 def test_logits_cover_the_codes_at_every_position(model):

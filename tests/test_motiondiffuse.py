@@ -15,15 +15,20 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from m2d2m.generators.motiondiffuse import MotionDiffuseGenerator
 from m2d2m.generators.motiondiffuse_checkpoint import load_motiondiffuse, save_motiondiffuse
-from m2d2m.generators.motiondiffuse_sampling import Layout, FeatureRequest, Term, sample
+from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Layout, Term, sample
 from m2d2m.generators.protocol import Keep, keep_part
 from m2d2m.model_files import LengthPrior
 from m2d2m.motion.body_parts import LOWER, UPPER, part_mask
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import T2M
 from m2d2m.networks.config import ConfigError
-from m2d2m.networks.motiondiffuse_transformer import (MotionDiffuseConfig, MotionDiffuseTransformer,
-                                                      efficient_attention, softmax_attention, timestep_embedding)
+from m2d2m.networks.motiondiffuse_transformer import (
+    MotionDiffuseConfig,
+    MotionDiffuseTransformer,
+    efficient_attention,
+    softmax_attention,
+    timestep_embedding,
+)
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion
 from m2d2m.text import LearnedTextEncoder
 from training.motiondiffuse_module import MotionDiffuseModule, masked_mse
@@ -33,8 +38,19 @@ D = T2M.feature_dim
 
 
 def tiny_config(**changes) -> MotionDiffuseConfig:
-    values = {"feature_dim": D, "width": 16, "layers": 2, "heads": 2, "ffn": 32, "text_dim": 16, "text_width": 16,
-              "text_layers": 1, "text_heads": 2, "text_ffn": 32, "max_frames": 64}
+    values = {
+        "feature_dim": D,
+        "width": 16,
+        "layers": 2,
+        "heads": 2,
+        "ffn": 32,
+        "text_dim": 16,
+        "text_width": 16,
+        "text_layers": 1,
+        "text_heads": 2,
+        "text_ffn": 32,
+        "max_frames": 64,
+    }
     return MotionDiffuseConfig(**{**values, **changes})
 
 
@@ -139,7 +155,7 @@ def test_time_varied_combination_without_correction_is_the_masked_sum():
     expected = torch.zeros(2, 12, 6)
     for k, term in enumerate(terms):
         padded = torch.zeros(12, 6)
-        padded[term.start:term.end] = eps[k, :term.end - term.start]
+        padded[term.start : term.end] = eps[k, : term.end - term.start]
         expected[0] += padded
     expected[1, :7] = eps[3, :7]
     assert torch.allclose(layout.combine(eps), expected)
@@ -227,15 +243,22 @@ def test_correction_moves_the_estimate_along_the_gradient_of_disagreement():
 # ------------------------------------------------------------------------------------- generator
 @pytest.fixture(scope="module")
 def generator(tmp_path_factory) -> MotionDiffuseGenerator:
-    encoder = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2,
-                                 dropout=0.0)
+    encoder = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2, dropout=0.0)
     network = awake(MotionDiffuseTransformer(tiny_config()), seed=3, scale=0.05)
     rng = np.random.default_rng(0)
     normalizer = Normalizer(rng.normal(size=D).astype(np.float32), rng.uniform(0.5, 2.0, D).astype(np.float32))
     path = tmp_path_factory.mktemp("motiondiffuse") / "model.pt"
-    save_motiondiffuse(path, network, encoder, {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
-                       {"steps": 20, "beta_start": 1e-4, "beta_end": 0.01}, normalizer, "t2m",
-                       LengthPrior({"walk": 30}, 24, 60), extra={"data_dir": "/nowhere"})
+    save_motiondiffuse(
+        path,
+        network,
+        encoder,
+        {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
+        {"steps": 20, "beta_start": 1e-4, "beta_end": 0.01},
+        normalizer,
+        "t2m",
+        LengthPrior({"walk": 30}, 24, 60),
+        extra={"data_dir": "/nowhere"},
+    )
     return MotionDiffuseGenerator.load(path)
 
 
@@ -267,8 +290,9 @@ def test_independent_equals_each_action_sampled_alone(generator):
     text = network.encode_text(words, mask)
     process = generator.process.respaced(5)
     requests = [FeatureRequest(24, (Term(SENTENCES[0], 0, 10), Term(SENTENCES[1], 10, 24)), 3)]
-    direct = sample(network, text, requests, process,
-                    lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0), 0.0)[0]
+    direct = sample(
+        network, text, requests, process, lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0), 0.0
+    )[0]
     assert np.allclose(joined.features, generator.checkpoint.normalizer.denormalize(direct.numpy()), atol=1e-5)
 
 
@@ -290,9 +314,14 @@ def test_body_part_request_and_editing_keep_what_they_must(generator):
 
 
 def test_bad_options_are_refused(generator):
-    for changes, message in (({"steps": 21}, "steps must lie in 1..20"), ({"sampler": "euler"}, "sampler"),
-                             ({"variance": "learned"}, "variance"), ({"ddim_eta": 2.0}, "ddim_eta"),
-                             ({"overlap": -1}, "overlap"), ({"method": "tps"}, "unknown method")):
+    for changes, message in (
+        ({"steps": 21}, "steps must lie in 1..20"),
+        ({"sampler": "euler"}, "sampler"),
+        ({"variance": "learned"}, "variance"),
+        ({"ddim_eta": 2.0}, "ddim_eta"),
+        ({"overlap": -1}, "overlap"),
+        ({"method": "tps"}, "unknown method"),
+    ):
         with pytest.raises(ValueError, match=message):
             generator.options(**changes)
     assert "ancestral" in generator.describe(generator.options())
@@ -310,14 +339,22 @@ def test_masked_mse_ignores_padding_and_weighs_motions_alike():
 
 
 def test_module_logs_the_loss_per_quarter_of_the_steps():
-    module = MotionDiffuseModule({k: v for k, v in tiny_config().to_dict().items()
-                                  if k not in ("feature_dim", "text_dim")},
-                                 {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
-                                 {"steps": 40}, {"lr": 1e-3}, D, 0.1, LearnedTextEncoder.build_vocabulary(SENTENCES))
+    module = MotionDiffuseModule(
+        {k: v for k, v in tiny_config().to_dict().items() if k not in ("feature_dim", "text_dim")},
+        {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
+        {"steps": 40},
+        {"lr": 1e-3},
+        D,
+        0.1,
+        LearnedTextEncoder.build_vocabulary(SENTENCES),
+    )
     logged = {}
     module.log = lambda name, value, **kwargs: logged.__setitem__(name, float(value.detach()))
-    batch = {"motion": torch.randn(8, 30, D), "lengths": torch.tensor([30, 20, 10, 30, 25, 30, 12, 30]),
-             "text": SENTENCES * 2}
+    batch = {
+        "motion": torch.randn(8, 30, D),
+        "lengths": torch.tensor([30, 20, 10, 30, 25, 30, 12, 30]),
+        "text": SENTENCES * 2,
+    }
     module.validation_step(batch, 0)
     first = dict(logged)
     module.validation_step(batch, 0)
@@ -334,9 +371,15 @@ def test_x0_prediction_and_the_cosine_schedule_are_what_the_module_trains_and_sa
     network's x_0 into the ε it implies (``sample(prediction="x0")``), so a network whose output
     is x_0 = 0 samples what an ε network predicting predict_eps(x_t, t, 0) does."""
     diffusion = {"steps": 30, "schedule": "cosine", "prediction": "x0"}
-    module = MotionDiffuseModule({k: v for k, v in tiny_config().to_dict().items() if k not in ("feature_dim", "text_dim")},
-                                 {"kind": "learned", "dim": 16, "layers": 1, "heads": 2}, diffusion, {"lr": 1e-3}, D,
-                                 0.0, LearnedTextEncoder.build_vocabulary(SENTENCES))
+    module = MotionDiffuseModule(
+        {k: v for k, v in tiny_config().to_dict().items() if k not in ("feature_dim", "text_dim")},
+        {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
+        diffusion,
+        {"lr": 1e-3},
+        D,
+        0.0,
+        LearnedTextEncoder.build_vocabulary(SENTENCES),
+    )
     assert module.process.betas[-1] == pytest.approx(0.999)  # the cosine schedule's clipped end
     batch = {"motion": torch.randn(4, 16, D), "lengths": torch.tensor([16, 12, 16, 8]), "text": SENTENCES}
     seen = {}
@@ -346,8 +389,15 @@ def test_x0_prediction_and_the_cosine_schedule_are_what_the_module_trains_and_sa
     x0 = (batch["motion"] - module.feature_mean) / module.feature_scale
     torch.testing.assert_close(losses, masked_mse(seen["out"].float(), x0, batch["lengths"]))
     with pytest.raises(ConfigError, match="diffusion.prediction one of epsilon, x0"):
-        MotionDiffuseModule({}, {"kind": "learned", "dim": 16}, {"prediction": "v"}, {}, D, 0.0,
-                            LearnedTextEncoder.build_vocabulary(SENTENCES))
+        MotionDiffuseModule(
+            {},
+            {"kind": "learned", "dim": 16},
+            {"prediction": "v"},
+            {},
+            D,
+            0.0,
+            LearnedTextEncoder.build_vocabulary(SENTENCES),
+        )
 
     network = MotionDiffuseTransformer(tiny_config())  # a fresh network predicts 0 everywhere
     encoder = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2)
@@ -368,8 +418,9 @@ class _ToyEstimator(torch.nn.Module):
 
     def __init__(self) -> None:
         super().__init__()
-        self.net = torch.nn.Sequential(torch.nn.Linear(17, 64), torch.nn.SiLU(), torch.nn.Linear(64, 64),
-                                       torch.nn.SiLU(), torch.nn.Linear(64, 1))
+        self.net = torch.nn.Sequential(
+            torch.nn.Linear(17, 64), torch.nn.SiLU(), torch.nn.Linear(64, 64), torch.nn.SiLU(), torch.nn.Linear(64, 1)
+        )
 
     def forward(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat([x, timestep_embedding(t, 16)], dim=-1))

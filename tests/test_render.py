@@ -22,10 +22,7 @@ def clip(sample_joints: np.ndarray) -> np.ndarray:
 def gif_frames(path: Path) -> list[np.ndarray]:
     with Image.open(path) as im:
         assert im.format == "GIF" and im.is_animated
-        return [
-            np.asarray(frame.convert("RGB"), dtype=np.int16)
-            for frame in ImageSequence.Iterator(im)
-        ]
+        return [np.asarray(frame.convert("RGB"), dtype=np.int16) for frame in ImageSequence.Iterator(im)]
 
 
 def test_gif_has_every_frame_and_shows_motion(tmp_path: Path, clip: np.ndarray) -> None:
@@ -42,13 +39,12 @@ def test_gif_has_every_frame_and_shows_motion(tmp_path: Path, clip: np.ndarray) 
 
 def test_segments_and_title(tmp_path: Path, clip: np.ndarray) -> None:
     segments = [(0, 10, "a person walks forward"), (14, 24, "then waves, a long caption " * 4)]
-    path = render_motion(
-        clip, tmp_path / "seg.gif", segments=segments, title="demo", size=200, fps=10
-    )
+    path = render_motion(clip, tmp_path / "seg.gif", segments=segments, title="demo", size=200, fps=10)
     frames = gif_frames(path)
     assert len(frames) == len(clip)
     with Image.open(path) as im:
         assert im.info["duration"] == pytest.approx(100, abs=10)
+
     # Each segment colours the figure: blue for the first, orange for the second.
     def red_minus_blue(frame: np.ndarray) -> float:
         saturated = frame[np.ptp(frame, axis=-1) > 80]
@@ -99,8 +95,15 @@ def test_mp4_written(tmp_path: Path, clip: np.ndarray) -> None:
 
 
 def test_contact_sheet(tmp_path: Path, clip: np.ndarray) -> None:
-    path = render_frames(clip, tmp_path / "sheet.png", frames=[0, 5, 10, 23, 23], size=100,
-                         columns=3, title="sheet", segments=[(0, 12, "walk")])
+    path = render_frames(
+        clip,
+        tmp_path / "sheet.png",
+        frames=[0, 5, 10, 23, 23],
+        size=100,
+        columns=3,
+        title="sheet",
+        segments=[(0, 12, "walk")],
+    )
     with Image.open(path) as im:
         assert im.format == "PNG"
         width, height = im.size
@@ -112,8 +115,12 @@ def test_contact_sheet(tmp_path: Path, clip: np.ndarray) -> None:
 
 
 def test_comparison_plays_motions_side_by_side(tmp_path, sample_joints):
-    path = render_comparison([sample_joints[:30], sample_joints[:20] + 0.1], ["ground truth", "reconstruction"],
-                             tmp_path / "pair.gif", size=160)
+    path = render_comparison(
+        [sample_joints[:30], sample_joints[:20] + 0.1],
+        ["ground truth", "reconstruction"],
+        tmp_path / "pair.gif",
+        size=160,
+    )
     with Image.open(path) as gif:
         assert gif.n_frames == 30 and gif.size == (320, 160)
     with pytest.raises(ValueError, match="one label per motion"):

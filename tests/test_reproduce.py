@@ -13,6 +13,7 @@ from orchestration.runs import new_run_dir, newest_run, read_run_info, write_run
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `stages` beside them
 import stages  # noqa: E402
+
 from bench.reproduce import Scale, _plain, plot, report  # noqa: E402
 
 SCALE = Scale(vq_steps=10, diffusion_steps=10, repeats=2, ts=(0, 90, 100))
@@ -35,8 +36,13 @@ def test_a_report_written_midway_marks_what_is_missing(tmp_path):
 
 def test_a_complete_report_has_both_tables_and_every_point_of_the_curve():
     results = {kind: {ts: {"tps": metrics(ts / 100)} for ts in SCALE.ts} for kind in ("uniform", "dynamic")}
-    baselines = {"handshake": metrics(0.7), "slerp": metrics(1.5), "gt_single": metrics(1.0),
-                 "gt_concat": metrics(1.2), "reconstruction": metrics(1.0)}
+    baselines = {
+        "handshake": metrics(0.7),
+        "slerp": metrics(1.5),
+        "gt_single": metrics(1.0),
+        "gt_concat": metrics(1.2),
+        "reconstruction": metrics(1.0),
+    }
     text = report(results, baselines, SCALE)
     for heading in ("## Table 5", "## Table 6", "## Ground truth", "## Jerk and FID against T_s"):
         assert heading in text
@@ -61,8 +67,7 @@ def test_a_stopped_reproduction_continues_where_it_stopped(tmp_path, monkeypatch
     state = tmp_path / "state.json"
     vq = ("train-vq", "--config", "demo")
     with pytest.raises(SystemExit):
-        stages.Progress(state, _plain(SCALE), restart=False).stage(
-            "vq", "vq", str, *vq, resume=(*vq, "--resume"))
+        stages.Progress(state, _plain(SCALE), restart=False).stage("vq", "vq", str, *vq, resume=(*vq, "--resume"))
     progress = stages.Progress(state, _plain(SCALE), restart=False)
     first = progress.stage("vq", "vq", str, *vq, resume=(*vq, "--resume"))
     assert calls == [vq, (*vq, "--resume")]

@@ -7,8 +7,7 @@ import pytest
 import torch
 
 from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import (FREE, TokenRequest, TokenSampler, categorical, length_groups,
-                                             truncate)
+from m2d2m.generators.m2d2m_sampling import FREE, TokenRequest, TokenSampler, categorical, length_groups, truncate
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import LearnedTextEncoder
@@ -23,14 +22,26 @@ def sampler() -> TokenSampler:
     torch.manual_seed(0)
     words = LearnedTextEncoder.build_vocabulary(WALK + JUMP + SIT)
     text = LearnedTextEncoder(words, dim=16, layers=1, heads=2, dropout=0.0)
-    denoiser = MotionDenoiser(DenoiserConfig(codebook_size=CODES, layers=2, heads=2, width=32, ffn=64,
-                                             text_dim=16, steps=STEPS, max_distance=16, num_buckets=8))
+    denoiser = MotionDenoiser(
+        DenoiserConfig(
+            codebook_size=CODES,
+            layers=2,
+            heads=2,
+            width=32,
+            ffn=64,
+            text_dim=16,
+            steps=STEPS,
+            max_distance=16,
+            num_buckets=8,
+        )
+    )
     with torch.no_grad():
         for module in (text, denoiser):
             for parameter in module.parameters():
                 parameter.normal_(0.0, 0.3)
-    schedule = TransitionSchedule.build(torch.randn(CODES, 4, generator=torch.Generator().manual_seed(1)),
-                                        steps=STEPS, kind="dynamic", eta=0.5)
+    schedule = TransitionSchedule.build(
+        torch.randn(CODES, 4, generator=torch.Generator().manual_seed(1)), steps=STEPS, kind="dynamic", eta=0.5
+    )
     return TokenSampler(denoiser, text, schedule)
 
 
@@ -81,8 +92,11 @@ def test_length_groups_cover_every_row_once_with_bounded_padding():
 
 
 def test_batched_sampling_matches_one_by_one(sampler):
-    requests = [TokenRequest([WALK, JUMP], [5, 7], seed=1), TokenRequest([SIT], [4], seed=2),
-                TokenRequest([JUMP, SIT, WALK], [3, 6, 2], seed=3)]
+    requests = [
+        TokenRequest([WALK, JUMP], [5, 7], seed=1),
+        TokenRequest([SIT], [4], seed=2),
+        TokenRequest([JUMP, SIT, WALK], [3, 6, 2], seed=3),
+    ]
     for method in ("tps", "independent", "handshake", "slerp"):
         extra = {"handshake": 2} if method == "handshake" else {}
         batched = run(sampler, requests, method=method, ts=6, **extra)
@@ -97,8 +111,9 @@ def test_editing_keeps_given_tokens(sampler, method):
     given = torch.full((12,), FREE)
     given[:3] = torch.tensor([1, 2, 3])  # prefix
     given[-2:] = torch.tensor([7, 0])  # suffix; the middle is in-betweened
-    tokens = flat(run(sampler, [TokenRequest([WALK, JUMP], lengths, seed=4, given=given)], method=method, ts=5,
-                      handshake=2)[0])
+    tokens = flat(
+        run(sampler, [TokenRequest([WALK, JUMP], lengths, seed=4, given=given)], method=method, ts=5, handshake=2)[0]
+    )
     kept = given != FREE
     assert torch.equal(tokens[kept], given[kept])
     assert tokens.min() >= 0 and tokens.max() < CODES
@@ -129,10 +144,15 @@ def test_eta_and_truncation_change_samples(sampler):
     assert sampler.schedule.config.eta == 0.5  # a sampling-time η never changes the model's schedule
 
 
-@pytest.mark.parametrize("options, message", [
-    ({"method": "blend"}, "unknown method"), ({"ts": STEPS + 1}, "T_s must lie"),
-    ({"guidance": -1.0}, "guidance"), ({"truncation": 0.0}, "truncation"),
-])
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"method": "blend"}, "unknown method"),
+        ({"ts": STEPS + 1}, "T_s must lie"),
+        ({"guidance": -1.0}, "guidance"),
+        ({"truncation": 0.0}, "truncation"),
+    ],
+)
 def test_bad_options(sampler, options, message):
     with pytest.raises(ValueError, match=message):
         run(sampler, [TokenRequest([WALK], [4])], **options)
@@ -184,7 +204,12 @@ def test_an_empty_sentence_samples_under_the_null_condition(sampler, monkeypatch
         return original(self, condition, condition_mask, batch)
 
     monkeypatch.setattr(type(denoiser), "condition", spying)
-    run(sampler, [TokenRequest([[""]], [5], seed=1), TokenRequest([WALK], [5], seed=1)], method="independent", guidance=0.0)
+    run(
+        sampler,
+        [TokenRequest([[""]], [5], seed=1), TokenRequest([WALK], [5], seed=1)],
+        method="independent",
+        guidance=0.0,
+    )
     condition, condition_mask = seen[0]
     assert torch.equal(condition_mask[0], torch.arange(condition.shape[1]) == 0)
     assert torch.equal(condition[0, 0], denoiser.null_text.reshape(-1))

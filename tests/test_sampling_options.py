@@ -24,23 +24,35 @@ class Toy:
 TOY = Sampling("toy", Toy, {MULTI: Toy(), SINGLE: Toy(method="b")})
 
 
-@pytest.mark.parametrize("changes, expected", [
-    ({"count": 3.0}, Toy(count=3)), ({"share": 1}, Toy(share=1.0)), ({"share": None}, Toy()),
-    ({"method": "b", "count": 1}, Toy(method="b", count=1)),
-])
+@pytest.mark.parametrize(
+    "changes, expected",
+    [
+        ({"count": 3.0}, Toy(count=3)),
+        ({"share": 1}, Toy(share=1.0)),
+        ({"share": None}, Toy()),
+        ({"method": "b", "count": 1}, Toy(method="b", count=1)),
+    ],
+)
 def test_changes_are_taken_as_their_knob_declares(changes, expected):
     changed = TOY.changed(TOY.presets[MULTI], **changes)
     assert changed == expected and type(changed.count) is int
 
 
-@pytest.mark.parametrize("changes, message", [
-    ({"count": 0}, "option count must be >= 1, got 0"), ({"count": 2.5}, "must be a whole number"),
-    ({"count": "3"}, "must be a finite number"), ({"count": True}, "must be a finite number"),
-    ({"count": float("nan")}, "must be a finite number"), ({"count": None}, "option count cannot be empty"),
-    ({"share": 0.0}, r"option share must be \(0, 1\], got 0"), ({"share": 1.5}, r"\(0, 1\]"),
-    ({"method": "c"}, "unknown method 'c' for toy: choose one of a, b"),
-    ({"width": 1}, "toy has no sampling option 'width'; its options: count, share"),
-])
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        ({"count": 0}, "option count must be >= 1, got 0"),
+        ({"count": 2.5}, "must be a whole number"),
+        ({"count": "3"}, "must be a finite number"),
+        ({"count": True}, "must be a finite number"),
+        ({"count": float("nan")}, "must be a finite number"),
+        ({"count": None}, "option count cannot be empty"),
+        ({"share": 0.0}, r"option share must be \(0, 1\], got 0"),
+        ({"share": 1.5}, r"\(0, 1\]"),
+        ({"method": "c"}, "unknown method 'c' for toy: choose one of a, b"),
+        ({"width": 1}, "toy has no sampling option 'width'; its options: count, share"),
+    ],
+)
 def test_a_bad_change_is_one_sentence(changes, message):
     with pytest.raises(ValueError, match=message):
         TOY.changed(TOY.presets[MULTI], **changes)
@@ -49,7 +61,9 @@ def test_a_bad_change_is_one_sentence(changes, message):
 def test_the_declaration_lists_knobs_methods_and_defaults():
     assert TOY.methods == ("a", "b") and TOY.names() == ("count", "share")
     assert [(k.name, k.kind, k.optional, k.bounds) for k in TOY.knobs()] == [
-        ("count", "int", False, ">= 1"), ("share", "float", True, "(0, 1]")]
+        ("count", "int", False, ">= 1"),
+        ("share", "float", True, "(0, 1]"),
+    ]
     assert TOY.defaults(SINGLE) == {"method": "b", "count": 2, "share": None}
     with pytest.raises(ValueError, match="option count must be >= 1"):
         check_knobs(Toy(count=0))
@@ -76,8 +90,10 @@ def test_declared_choices_are_the_processes_own():
 
 
 def test_the_declarations_and_the_command_line_load_without_torch():
-    code = ("import sys; from orchestration.cli import build_parser, sampling_help; build_parser(); sampling_help(); "
-            "assert 'torch' not in sys.modules, 'torch imported'")
+    code = (
+        "import sys; from orchestration.cli import build_parser, sampling_help; build_parser(); sampling_help(); "
+        "assert 'torch' not in sys.modules, 'torch imported'"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -88,8 +104,7 @@ def test_a_plugins_shortcut_and_knobs_reach_the_command_line(monkeypatch, capsys
     monkeypatch.setenv("M2D2M_MODELS", "tests.fake_model")
     load_plugins()
     parser = build_parser()
-    args = parser.parse_args(["generate", "a person walks", "--model", "playback", "--offset", "3",
-                              "--option", "x=1"])
+    args = parser.parse_args(["generate", "a person walks", "--model", "playback", "--offset", "3", "--option", "x=1"])
     assert _sampling_options(args) == {"x": 1, "offset": 3}
     assert _sampling_options(parser.parse_args(["generate", "x", "--eta", "0.5"])) == {"eta": 0.5}
     with pytest.raises(SystemExit):

@@ -11,7 +11,10 @@ def samples(n: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     for i in range(n):
         motion = rng.normal(size=(10 + i, 5)).astype(np.float32)
-        yield f"{i:06d}", {"motion.npy": npy_bytes(motion), "meta.json": json_bytes({"id": f"{i:06d}", "frames": 10 + i})}
+        yield (
+            f"{i:06d}",
+            {"motion.npy": npy_bytes(motion), "meta.json": json_bytes({"id": f"{i:06d}", "frames": 10 + i})},
+        )
 
 
 def write(directory, n=7, per_shard=3):

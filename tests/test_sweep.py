@@ -22,10 +22,24 @@ M2D2M_DEMO = Path(__file__).resolve().parents[1] / "configs" / "m2d2m" / "demo.y
 
 
 def sweep_config(testset: Path, **changes) -> dict:
-    return {"dataset": "tiny", "kind": "sampling", "model": "m2d2m", "checkpoint": "latest", "train_config": "unused",
-            "evaluator": "latest", "testset": str(testset), "method": "tps", "repeats": 1, "search": "grid",
-            "samples": 1, "space": {"eta": [0.25], "ts": [2, 4]}, "resources": {"cpu": 1, "gpu": 0},
-            "max_concurrent": 2, "max_failures": 1, **changes}
+    return {
+        "dataset": "tiny",
+        "kind": "sampling",
+        "model": "m2d2m",
+        "checkpoint": "latest",
+        "train_config": "unused",
+        "evaluator": "latest",
+        "testset": str(testset),
+        "method": "tps",
+        "repeats": 1,
+        "search": "grid",
+        "samples": 1,
+        "space": {"eta": [0.25], "ts": [2, 4]},
+        "resources": {"cpu": 1, "gpu": 0},
+        "max_concurrent": 2,
+        "max_failures": 1,
+        **changes,
+    }
 
 
 def child_runs(trained_project: Path, parent_run_id: str) -> list:
@@ -52,8 +66,10 @@ def test_a_two_trial_sweep_nests_its_trials_under_one_parent_and_resumes(trained
     artifacts = {Path(a.path).name for a in client.list_artifacts(parent_run_id)}
     assert {SUMMARY_MD, SUMMARY_JSON, SUMMARY_PNG} <= artifacts
     children = child_runs(trained_project, parent_run_id)
-    assert [run.info.run_name for run in children] == [trial_name({"eta": 0.25, "ts": 2}),
-                                                        trial_name({"eta": 0.25, "ts": 4})]
+    assert [run.info.run_name for run in children] == [
+        trial_name({"eta": 0.25, "ts": 2}),
+        trial_name({"eta": 0.25, "ts": 4}),
+    ]
     for run, ts in zip(children, (2, 4)):
         assert run.data.params["ts"] == str(ts) and run.data.params["eta"] == "0.25"
         assert "multi/tps/jerk" in run.data.metrics and run.data.tags["stage"] == "eval"
@@ -63,8 +79,9 @@ def test_a_two_trial_sweep_nests_its_trials_under_one_parent_and_resumes(trained
     assert len(child_runs(trained_project, parent_run_id)) == 2
 
     # an edited config is refused: a restored experiment would run the old space
-    (trained_project / "two.yaml").write_text(yaml.safe_dump(sweep_config(tiny_testset, space={"eta": [0.25], "ts": [3]})),
-                                              encoding="utf-8")
+    (trained_project / "two.yaml").write_text(
+        yaml.safe_dump(sweep_config(tiny_testset, space={"eta": [0.25], "ts": [3]})), encoding="utf-8"
+    )
     with pytest.raises(UserError, match=r"\(space.ts changed\).*--restart"):
         sweep(str(trained_project / "two.yaml"))
     # --restart replaces it: a new parent run over the new space only
@@ -73,11 +90,14 @@ def test_a_two_trial_sweep_nests_its_trials_under_one_parent_and_resumes(trained
     assert [row["ts"] for row in yaml.safe_load((sweep_dir / SUMMARY_JSON).read_text(encoding="utf-8"))] == [3]
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"kind": "inference"}, "sweep kind must be one of"),
-    ({"space": {"eta": []}}, "non-empty list"),
-    ({"space": {"width": [1, 2]}}, "unknown: width"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"kind": "inference"}, "sweep kind must be one of"),
+        ({"space": {"eta": []}}, "non-empty list"),
+        ({"space": {"width": [1, 2]}}, "unknown: width"),
+    ],
+)
 def test_bad_sweep_configs_are_one_line_errors(trained_project, tiny_testset, capsys, monkeypatch, change, message):
     monkeypatch.chdir(trained_project)
     (trained_project / "bad.yaml").write_text(yaml.safe_dump(sweep_config(tiny_testset, **change)), encoding="utf-8")
@@ -88,15 +108,22 @@ def test_bad_sweep_configs_are_one_line_errors(trained_project, tiny_testset, ca
 
 def test_a_training_sweep_trains_each_trial_then_evaluates_it(trained_project, tiny_testset, monkeypatch):
     monkeypatch.chdir(trained_project)
-    config = sweep_config(tiny_testset, kind="training", train_config=str(trained_project / "diffusion.yaml"),
-                          space={"diffusion.kind": ["uniform", "dynamic"]})
+    config = sweep_config(
+        tiny_testset,
+        kind="training",
+        train_config=str(trained_project / "diffusion.yaml"),
+        space={"diffusion.kind": ["uniform", "dynamic"]},
+    )
     (trained_project / "ablation.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
     sweep_dir = sweep(str(trained_project / "ablation.yaml"))
     summary = yaml.safe_load((sweep_dir / SUMMARY_JSON).read_text(encoding="utf-8"))
     assert [row["diffusion.kind"] for row in summary] == ["dynamic", "uniform"]
     assert all(row["multi/tps/jerk"] is not None for row in summary)
-    trained = [yaml.safe_load((run / "run.json").read_text())["config"]["diffusion"]["kind"]
-               for run in (trained_project / "runs" / "tiny" / "m2d2m").iterdir() if (run / "run.json").exists()]
+    trained = [
+        yaml.safe_load((run / "run.json").read_text())["config"]["diffusion"]["kind"]
+        for run in (trained_project / "runs" / "tiny" / "m2d2m").iterdir()
+        if (run / "run.json").exists()
+    ]
     assert trained.count("uniform") == 1 and trained.count("dynamic") >= 2  # the fixture's run, and the trial's
 
 
@@ -104,8 +131,13 @@ def test_a_training_trial_can_train_on_two_ray_train_workers(trained_project, ti
     """Ray Train's TorchTrainer, two CPU workers in DDP (gloo), inside a Tune trial: one run
     trained by both ranks, its model evaluated by the trial."""
     monkeypatch.chdir(trained_project)
-    config = sweep_config(tiny_testset, kind="training", train_config=str(trained_project / "diffusion.yaml"),
-                          space={"diffusion.eta": [0.5]}, resources={"cpu": 0.5, "gpu": 0, "workers": 2})
+    config = sweep_config(
+        tiny_testset,
+        kind="training",
+        train_config=str(trained_project / "diffusion.yaml"),
+        space={"diffusion.eta": [0.5]},
+        resources={"cpu": 0.5, "gpu": 0, "workers": 2},
+    )
     (trained_project / "workers.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
     before = set((trained_project / "runs" / "tiny" / "m2d2m").iterdir())
     sweep_dir = sweep(str(trained_project / "workers.yaml"))
@@ -126,7 +158,8 @@ def test_workers_are_for_training_sweeps(trained_project, tiny_testset, capsys, 
 
 
 def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sweep(
-        trained_project, tiny_testset, monkeypatch, capsys):
+    trained_project, tiny_testset, monkeypatch, capsys
+):
     """The registry and the generator protocol are all that evaluation and sweeps know of a model:
     a plugin's playback model (tests/fake_model.py) runs through both unchanged."""
     from orchestration.registry import load_plugins, models
@@ -138,12 +171,31 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     load_plugins()
     assert "playback" in models()
     testset = load_testset(tiny_testset)
-    clips = {item.action: testset.features(instance.index, p)
-             for instance in testset for p, item in enumerate(instance.items)}
+    clips = {
+        item.action: testset.features(instance.index, p)
+        for instance in testset
+        for p, item in enumerate(instance.items)
+    }
     model_file = save_playback(trained_project / "playback.npz", clips)
 
-    assert main(["evaluate", "--model", "playback", "--checkpoint", str(model_file), "--dataset", "tiny",
-                 "--testset", str(tiny_testset), "--repeats", "1"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                "playback",
+                "--checkpoint",
+                str(model_file),
+                "--dataset",
+                "tiny",
+                "--testset",
+                str(tiny_testset),
+                "--repeats",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert "ground truth played back from frame 0" in capsys.readouterr().out
     stage = trained_project / "runs" / "tiny" / "eval"
     table = yaml.safe_load((stage / (stage / "latest").read_text().strip() / "table.json").read_text())
@@ -151,8 +203,9 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     assert judged["model"] == "playback" and judged["methods"] == ["concat"]
     assert all(np.isfinite(summary["mean"]) for summary in table["multi"]["concat"].values())
 
-    config = sweep_config(tiny_testset, model="playback", checkpoint=str(model_file), method="concat",
-                          space={"offset": [0, 3]})
+    config = sweep_config(
+        tiny_testset, model="playback", checkpoint=str(model_file), method="concat", space={"offset": [0, 3]}
+    )
     (trained_project / "playback.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
     summary = yaml.safe_load((sweep(str(trained_project / "playback.yaml")) / SUMMARY_JSON).read_text())
     assert [row["offset"] for row in summary] == [0, 3]
@@ -167,12 +220,16 @@ def one_line_sweep_error(argv: list[str], capsys) -> str:
     return err
 
 
-@pytest.mark.parametrize("space, message", [
-    ({"diffusion.nope": [1]}, "no key 'nope' in diffusion"),
-    ({"diffusion.kind": ["uniform"], "optim.lr": [1e-3, "fast"]}, "optim.lr takes a number, got 'fast'"),
-])
-def test_a_training_sweep_key_its_training_config_lacks_is_one_line_before_ray(tmp_path, capsys, monkeypatch,
-                                                                               space, message):
+@pytest.mark.parametrize(
+    "space, message",
+    [
+        ({"diffusion.nope": [1]}, "no key 'nope' in diffusion"),
+        ({"diffusion.kind": ["uniform"], "optim.lr": [1e-3, "fast"]}, "optim.lr takes a number, got 'fast'"),
+    ],
+)
+def test_a_training_sweep_key_its_training_config_lacks_is_one_line_before_ray(
+    tmp_path, capsys, monkeypatch, space, message
+):
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     config = sweep_config(tmp_path / "testset", kind="training", train_config=str(M2D2M_DEMO), space=space)
@@ -188,14 +245,17 @@ def test_a_rerun_whose_config_changed_is_refused_before_ray(tmp_path, capsys, mo
     config = {**sweep_config(tmp_path / "testset"), "resources": {"cpu": 1, "gpu": 0, "workers": 0}}
     sweep_dir = tmp_path / "runs" / "tiny" / "sweep" / "grid"
     sweep_dir.mkdir(parents=True)
-    (sweep_dir / "sweep.json").write_text(json.dumps({"experiment_id": "1", "parent_run_id": "0" * 32,
-                                                      "config": config}), encoding="utf-8")
+    (sweep_dir / "sweep.json").write_text(
+        json.dumps({"experiment_id": "1", "parent_run_id": "0" * 32, "config": config}), encoding="utf-8"
+    )
     (tmp_path / "grid.yaml").write_text(yaml.safe_dump({**config, "repeats": 3}), encoding="utf-8")
     err = one_line_sweep_error(["--config", str(tmp_path / "grid.yaml")], capsys)
     assert "(repeats changed)" in err and "--name" in err and "--restart" in err
-    err = one_line_sweep_error(["--config", str(tmp_path / "grid.yaml"), "--set", "repeats=1",
-                                "--set", "space.eta=[0.5]"], capsys)
+    err = one_line_sweep_error(
+        ["--config", str(tmp_path / "grid.yaml"), "--set", "repeats=1", "--set", "space.eta=[0.5]"], capsys
+    )
     assert "(space.eta changed)" in err
-    assert "plain folder name" in one_line_sweep_error(["--config", str(tmp_path / "grid.yaml"), "--name", "../x"],
-                                                       capsys)
+    assert "plain folder name" in one_line_sweep_error(
+        ["--config", str(tmp_path / "grid.yaml"), "--name", "../x"], capsys
+    )
     assert sorted(p.name for p in sweep_dir.iterdir()) == ["sweep.json"]

@@ -42,8 +42,14 @@ def _text_lines(out: Path, clip_id: str) -> list[str]:
 def _inflections(lemma: str) -> set[str]:
     """Regular -s / -ing forms of a lemma, and the irregular ones this vocabulary uses."""
     stem = lemma[:-1] if lemma.endswith("e") else lemma
-    return {lemma + "s", lemma + "es", lemma[:-1] + "ies", stem + "ing", lemma + lemma[-1] + "ing",
-            {"foot": "feet", "do": "does"}.get(lemma, "")}
+    return {
+        lemma + "s",
+        lemma + "es",
+        lemma[:-1] + "ies",
+        stem + "ing",
+        lemma + lemma[-1] + "ing",
+        {"foot": "feet", "do": "does"}.get(lemma, ""),
+    }
 
 
 def _heading(joints: np.ndarray) -> np.ndarray:
@@ -111,14 +117,24 @@ def test_caption_lines_follow_humanml3d(corpus, annotations):
 def test_lemmas_and_tags_in_humanml3d_style(corpus, annotations):
     out, _ = corpus
     tokens = " ".join(line.split("#")[1] for a in annotations for line in _text_lines(out, a["id"]))
-    for inflected in ("walks/VERB", "walking/VERB", "sits/VERB", "steps/NOUN", "hands/NOUN",
-                      "times/NOUN", "is/VERB", "his/DET", "feet/NOUN"):
+    for inflected in (
+        "walks/VERB",
+        "walking/VERB",
+        "sits/VERB",
+        "steps/NOUN",
+        "hands/NOUN",
+        "times/NOUN",
+        "is/VERB",
+        "his/DET",
+        "feet/NOUN",
+    ):
         assert inflected not in tokens
     rng = np.random.default_rng(0)
-    plans = [[("walk", {"steps": 4, "speed": "slow"}), ("sit_down", {"speed": "normal"})],
-             [("wave", {"side": "left", "count": 3}), ("turn", {"side": "left", "angle": 90})]]
-    lines = [syn.caption_line(c) for _ in range(20) for plan in plans
-             for c in syn.make_captions(plan, rng)]
+    plans = [
+        [("walk", {"steps": 4, "speed": "slow"}), ("sit_down", {"speed": "normal"})],
+        [("wave", {"side": "left", "count": 3}), ("turn", {"side": "left", "angle": 90})],
+    ]
+    lines = [syn.caption_line(c) for _ in range(20) for plan in plans for c in syn.make_captions(plan, rng)]
     joined = "\n".join(lines)
     assert "sit/VERB down/ADP" in joined and "left/ADJ hand/NOUN" in joined
     assert "turn/VERB left/ADV" in joined or "to/ADP the/DET left/NOUN" in joined
@@ -137,9 +153,7 @@ def test_multi_verb_share_at_the_default_mix(corpus, annotations):
     out, summary = corpus
     assert summary["multi_verb_share"] >= 0.3
     assert summary["captions"] == 3 * CLIPS
-    counted = sum(
-        line.split("#")[1].count("/VERB") >= 2 for a in annotations for line in _text_lines(out, a["id"])
-    )
+    counted = sum(line.split("#")[1].count("/VERB") >= 2 for a in annotations for line in _text_lines(out, a["id"]))
     assert counted / (3 * CLIPS) == pytest.approx(summary["multi_verb_share"], abs=1e-3)
 
 
@@ -165,8 +179,10 @@ def test_same_seed_same_bytes_whatever_the_workers(corpus, tmp_path):
     for i in range(10):
         for rel in (f"joints/{i:06d}.npy", f"texts/{i:06d}.txt"):
             assert (out / rel).read_bytes() == (tmp_path / "again" / rel).read_bytes()
-    differs = [(out / f"joints/{i:06d}.npy").read_bytes()
-               != (tmp_path / "other" / f"joints/{i:06d}.npy").read_bytes() for i in range(10)]
+    differs = [
+        (out / f"joints/{i:06d}.npy").read_bytes() != (tmp_path / "other" / f"joints/{i:06d}.npy").read_bytes()
+        for i in range(10)
+    ]
     assert all(differs)
 
 
@@ -351,9 +367,15 @@ def _clip_features(joints: np.ndarray) -> np.ndarray:
     velocity = np.linalg.norm(np.diff(local, axis=0), axis=-1)
     third = len(joints) // 3
     rise = joints[-third:, 0, 1].mean() - joints[:third, 0, 1].mean()
-    return np.concatenate([local.mean(0).ravel(), local.std(0).ravel(), velocity.mean(0), [rise],
-                           [speed.mean(), speed.std(), np.abs(np.diff(yaw)).sum(),
-                            joints[:, 0, 1].min(), np.diff(yaw).sum()]])
+    return np.concatenate(
+        [
+            local.mean(0).ravel(),
+            local.std(0).ravel(),
+            velocity.mean(0),
+            [rise],
+            [speed.mean(), speed.std(), np.abs(np.diff(yaw)).sum(), joints[:, 0, 1].min(), np.diff(yaw).sum()],
+        ]
+    )
 
 
 def test_families_are_separable_from_the_motion(tmp_path):
@@ -362,8 +384,7 @@ def test_families_are_separable_from_the_motion(tmp_path):
     summary = syn.generate_corpus(tmp_path, clips=270, seed=5, max_actions=1)
     records = [json.loads(x) for x in (tmp_path / "annotations.jsonl").read_text().splitlines()]
     labels = {r["id"]: r["actions"][0]["family"] for r in records}
-    features = {i: _clip_features(np.load(tmp_path / "joints" / f"{i}.npy").astype(np.float64))
-                for i in labels}
+    features = {i: _clip_features(np.load(tmp_path / "joints" / f"{i}.npy").astype(np.float64)) for i in labels}
     train = (tmp_path / "train.txt").read_text().split()
     held_out = (tmp_path / "val.txt").read_text().split() + (tmp_path / "test.txt").read_text().split()
     x = np.stack([features[i] for i in train])

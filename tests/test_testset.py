@@ -35,12 +35,18 @@ def one_verb(verb: str):
     return caption(f"a person {verb}s", f"a/DET person/NOUN {verb}/VERB", [verb], [f"a person {verb}s"])
 
 
-TWO = caption("a person walks and then turns", "a/DET person/NOUN walk/VERB and/CCONJ then/ADV turn/VERB",
-              ["walk", "turn"], ["a person walks", "a person turns"])
+TWO = caption(
+    "a person walks and then turns",
+    "a/DET person/NOUN walk/VERB and/CCONJ then/ADV turn/VERB",
+    ["walk", "turn"],
+    ["a person walks", "a person turns"],
+)
 SEGMENT = caption("a man waves", "a/DET man/NOUN wave/VERB", ["wave"], ["a person waves"], 0.5, 3.0)  # frames 10..60
 SHORT = caption("a man claps", "a/DET man/NOUN clap/VERB", ["clap"], ["a person claps"], 0.5, 1.5)  # 20 frames
 # Two VERB tags, one action verb in the decomposition: dropped as a disagreement.
-CATENATIVE = caption("a person starts to run", "a/DET person/NOUN start/VERB to/PART run/VERB", ["run"], ["a person runs"])
+CATENATIVE = caption(
+    "a person starts to run", "a/DET person/NOUN start/VERB to/PART run/VERB", ["run"], ["a person runs"]
+)
 
 VERBS = ["jump", "kick", "sit", "squat", "crawl", "bow", "spin", "hop", "dance", "skip"]
 USABLE = [0, 1, 2, 3, 4, 5, 6, 9]  # the test clips with at least one usable single-verb caption
@@ -69,11 +75,23 @@ def write_dataset(root: Path, shipped_mirrors: bool = False) -> Path:
         key, frames = f"{index:06d}", 60 + 7 * index
         for mirror in (False, True):
             name = f"M{key}" if mirror else key
-            meta = {"id": name, "source": name if shipped_mirrors or not mirror else key, "fps": FPS,
-                    "frames": frames, "mirrored": mirror and not shipped_mirrors, "captions": clip_captions(index)}
+            meta = {
+                "id": name,
+                "source": name if shipped_mirrors or not mirror else key,
+                "fps": FPS,
+                "frames": frames,
+                "mirrored": mirror and not shipped_mirrors,
+                "captions": clip_captions(index),
+            }
             samples["test"].append((name, encode_sample(features(name, frames), meta)))
-    meta = {"id": "000100", "source": "000100", "fps": FPS, "frames": 80, "mirrored": False,
-            "captions": [one_verb("train")]}
+    meta = {
+        "id": "000100",
+        "source": "000100",
+        "fps": FPS,
+        "frames": 80,
+        "mirrored": False,
+        "captions": [one_verb("train")],
+    }
     samples["train"].append(("000100", encode_sample(features("000100", 80), meta)))
     shards = {"val": []}
     for split, items in samples.items():
@@ -185,7 +203,7 @@ def test_gt_features_are_the_shard_features_of_the_span(data, tmp_path):
             for position, item in enumerate(instance.items):
                 gt = testset.features(instance.index, position)
                 assert gt.dtype == np.float32 and gt.shape == (item.length, DIM)
-                np.testing.assert_array_equal(gt, truth[item.key][item.first:item.end])
+                np.testing.assert_array_equal(gt, truth[item.key][item.first : item.end])
     segments = [item for instance in testset for item in instance.items if item.verb == "wave"]
     assert all((item.first, item.end) == (10, 60) for item in segments)
 
@@ -216,7 +234,9 @@ def test_check_finds_corruption(data, tmp_path):
         build_testset(data, n=2, seed=0, out=tmp_path)
 
     lines = (path / INSTANCES).read_text(encoding="utf-8").splitlines()
-    (path / INSTANCES).write_text("\n".join(lines[:-1] + [lines[0].replace('"index":0', f'"index":{len(lines) - 1}')]) + "\n")
+    (path / INSTANCES).write_text(
+        "\n".join(lines[:-1] + [lines[0].replace('"index":0', f'"index":{len(lines) - 1}')]) + "\n"
+    )
     problems = check_testset(path)
     assert any("instances.jsonl: sha256" in p for p in problems)
     assert any("more than once" in p for p in problems)

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from m2d2m.text import (CLIPTextEncoder, LearnedTextEncoder, TextEncoder, build_text_encoder, encode_actions)
+from m2d2m.text import CLIPTextEncoder, LearnedTextEncoder, TextEncoder, build_text_encoder, encode_actions
 
 CORPUS = ["A person walks forward.", "a person runs in a circle", "someone waves, then walks"]
 
@@ -34,8 +34,7 @@ def test_vocabulary_reserves_pad_and_unk_and_orders_by_count():
 def test_learned_encoder_shapes_masks_and_unknown_words():
     encoder = learned()
     features, mask = encoder.encode(["a person walks", "jumps", ""])
-    assert features.shape == (3, 3, 16) and mask.tolist() == [[True] * 3, [True, False, False],
-                                                               [True, False, False]]
+    assert features.shape == (3, 3, 16) and mask.tolist() == [[True] * 3, [True, False, False], [True, False, False]]
     tokens, _ = encoder.tokenize(["jumps walks"])
     assert tokens.tolist() == [[1, encoder.index["walks"]]]
     assert torch.isfinite(features).all()
@@ -109,9 +108,17 @@ def tiny_clip(tmp_path: Path, offline) -> Path:
     tokens = ["<|startoftext|>", "<|endoftext|>", *letters, *(c + "</w>" for c in letters), "th", "the</w>"]
     vocabulary = {token: i for i, token in enumerate(tokens)}
     tokenizer = transformers.CLIPTokenizer(vocab=vocabulary, merges=[("t", "h"), ("th", "e</w>")])
-    config = transformers.CLIPTextConfig(vocab_size=len(vocabulary), hidden_size=32, intermediate_size=64,
-                                         num_hidden_layers=2, num_attention_heads=2, max_position_embeddings=77,
-                                         bos_token_id=0, eos_token_id=1, pad_token_id=1)
+    config = transformers.CLIPTextConfig(
+        vocab_size=len(vocabulary),
+        hidden_size=32,
+        intermediate_size=64,
+        num_hidden_layers=2,
+        num_attention_heads=2,
+        max_position_embeddings=77,
+        bos_token_id=0,
+        eos_token_id=1,
+        pad_token_id=1,
+    )
     torch.manual_seed(0)
     directory = tmp_path / "tiny-clip"
     transformers.CLIPTextModel(config).save_pretrained(directory)
@@ -160,8 +167,13 @@ def test_clip_sentence_feature_is_the_end_of_text_token(tiny_clip: Path):
 
 
 def test_learned_sentence_feature_is_the_mean_of_its_real_tokens():
-    encoder = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(["a person walks", "a person jumps high"]),
-                                 dim=16, layers=1, heads=2, dropout=0.0).eval()
+    encoder = LearnedTextEncoder(
+        LearnedTextEncoder.build_vocabulary(["a person walks", "a person jumps high"]),
+        dim=16,
+        layers=1,
+        heads=2,
+        dropout=0.0,
+    ).eval()
     features, mask, pooled = encoder.encode_pooled(["a person walks", "a person jumps high"])
     assert mask.sum(1).tolist() == [3, 4]
     torch.testing.assert_close(pooled[0], features[0, :3].mean(0))  # the padded fourth slot is left out

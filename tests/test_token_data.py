@@ -37,9 +37,12 @@ def token_set(tmp_path_factory, ray_local):
     random_vq(root / "vq.pt", data, seed=0)
     manifest = tokenize_dataset(data, root / "vq.pt", root / "tokens", workers=2)
     clips = {
-        split: {s["__key__"]: (s["tokens.npy"], s["meta.json"])
-                for s in wds.WebDataset([str(root / "tokens" / s["name"]) for s in manifest["shards"][split]],
-                                        shardshuffle=False).decode()}
+        split: {
+            s["__key__"]: (s["tokens.npy"], s["meta.json"])
+            for s in wds.WebDataset(
+                [str(root / "tokens" / s["name"]) for s in manifest["shards"][split]], shardshuffle=False
+            ).decode()
+        }
         for split in ("train", "val", "test")
     }
     return root / "tokens", clips
@@ -64,8 +67,9 @@ def check_batch(batch: dict, clips: dict, first_caption: bool = False, max_token
     assert tokens.shape == mask.shape == (size, int(lengths.max())) and lengths.shape == (size,)
     assert len(batch["actions"]) == len(batch["text"]) == size
     seen = []
-    for row, valid, length, key, text, actions in zip(tokens.numpy(), mask.numpy(), lengths.tolist(), batch["keys"],
-                                                      batch["text"], batch["actions"]):
+    for row, valid, length, key, text, actions in zip(
+        tokens.numpy(), mask.numpy(), lengths.tolist(), batch["keys"], batch["text"], batch["actions"]
+    ):
         assert key in clips, f"{key} is not a clip of this split"
         codes, meta = clips[key]
         matching = [c for c in meta["captions"] if c["text"] == text]
@@ -79,7 +83,7 @@ def check_batch(batch: dict, clips: dict, first_caption: bool = False, max_token
             np.testing.assert_array_equal(row[:length], segment)
         else:
             assert length == min(max_tokens, len(segment))
-            assert any(np.array_equal(row[:length], segment[s:s + length]) for s in range(len(segment) - length + 1))
+            assert any(np.array_equal(row[:length], segment[s : s + length]) for s in range(len(segment) - length + 1))
         seen.append(caption)
     return seen
 
@@ -178,10 +182,18 @@ def test_caption_choices_depend_on_seed_rank_and_worker_only():
     assert chosen["actions"] == [chosen["text"]]  # a caption without action sentences conditions as a whole
 
 
-@pytest.mark.parametrize("start, end, span", [
-    (0.0, 0.0, (0, 20)), (0.5, 2.0, (2, 10)), (0.5, 0.55, (2, 3)), (1.0, 9.0, (5, 20)),
-    (4.0, 5.0, None), (2.0, 1.0, None), (0.0, 0.1, (0, 1)),
-])
+@pytest.mark.parametrize(
+    "start, end, span",
+    [
+        (0.0, 0.0, (0, 20)),
+        (0.5, 2.0, (2, 10)),
+        (0.5, 0.55, (2, 3)),
+        (1.0, 9.0, (5, 20)),
+        (4.0, 5.0, None),
+        (2.0, 1.0, None),
+        (0.0, 0.1, (0, 1)),
+    ],
+)
 def test_caption_span_follows_t2m_gpt(start, end, span):
     assert caption_span({"start": start, "end": end}, 20, 20.0, 4) == span
 

@@ -18,7 +18,6 @@ from pipelines.tokenize import check_tokens, tokenize_dataset
 from tests.helpers import random_vq, write_corpus
 
 
-
 def load_npy(data: bytes) -> np.ndarray:
     return np.load(io.BytesIO(data), allow_pickle=False)
 
@@ -119,8 +118,13 @@ def test_samples_per_shard_cuts_a_split_into_smaller_shards_in_motion_order(toke
     small = tokenize_dataset(data, root / "vq.pt", out, samples_per_shard=3)
     train = small["shards"]["train"]
     assert [(s["name"], s["samples"], s["source"]) for s in train] == [
-        ("train-000000.tar", 3, "train-000000.tar"), ("train-000001.tar", 1, "train-000000.tar"),
-        ("train-000002.tar", 3, "train-000001.tar"), ("train-000003.tar", 1, "train-000001.tar")]
+        ("train-000000.tar", 3, "train-000000.tar"),
+        ("train-000001.tar", 1, "train-000000.tar"),
+        ("train-000002.tar", 3, "train-000001.tar"),
+        ("train-000003.tar", 1, "train-000001.tar"),
+    ]
     samples = [sample for s in train for sample in iter_tar_samples(out / s["name"])]
-    assert samples == [sample for s in manifest["shards"]["train"] for sample in iter_tar_samples(root / "tokens" / s["name"])]
+    assert samples == [
+        sample for s in manifest["shards"]["train"] for sample in iter_tar_samples(root / "tokens" / s["name"])
+    ]
     assert small["splits"] == manifest["splits"] and check_tokens(out) == []

@@ -5,8 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.tps_boundaries import (NEAREST, Paired, changed_by_distance, distance_to_boundary, main, paired_difference,
-                                 another_seed, repeats_for, seed_spread)
+from bench.tps_boundaries import (
+    NEAREST,
+    Paired,
+    another_seed,
+    changed_by_distance,
+    distance_to_boundary,
+    main,
+    paired_difference,
+    repeats_for,
+    seed_spread,
+)
 
 
 def test_distance_to_the_nearest_boundary_counts_both_neighbours_as_zero():
@@ -32,8 +41,11 @@ def test_paired_difference_skips_undefined_pairs():
 def test_tps_at_t_equals_independent_and_every_ts_is_reported(trained_project, tiny_testset, capsys):
     out = trained_project / "boundaries"
     main(["--dataset", "tiny", "--testset", str(tiny_testset), "--ts", "0", "8", "--seeds", "2", "--out", str(out)])
-    rows = {line.split("|")[1].strip(): line.split("|")[2:-1] for line in
-            (out / "boundaries.md").read_text(encoding="utf-8").splitlines() if line.startswith("| ") and "T_s" not in line}
+    rows = {
+        line.split("|")[1].strip(): line.split("|")[2:-1]
+        for line in (out / "boundaries.md").read_text(encoding="utf-8").splitlines()
+        if line.startswith("| ") and "T_s" not in line
+    }
     # T_s = T (8 steps) is independent sampling draw for draw: no token changes, Jerk identical
     assert [float(cell) for cell in rows["8"][2:5]] == [0.0, 0.0, 0.0]
     assert rows["8"][5].strip() == "+0.000 ± 0.000"

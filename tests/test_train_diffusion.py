@@ -10,12 +10,11 @@ import torch
 import yaml
 
 from orchestration.errors import UserError
-from orchestration.runs import latest_run, read_run_info
 from orchestration.recipe import train_model
+from orchestration.runs import latest_run, read_run_info
 from orchestration.train import train_vq
 from tests.helpers import TINY_DIFFUSION
 from tests.test_train_vq import KillAt, RecordStart
-
 
 
 def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, tiny_data):
@@ -44,9 +43,11 @@ def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, ti
     model_files = {Path(a.path).name for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, "model")}
     assert {"model.pt", "best.ckpt", "last.ckpt", "config.yaml"} <= model_files
 
-    ablation = train_model("m2d2m", str(project / "diffusion.yaml"),
-                           overrides=["diffusion.kind=uniform", "denoiser.positions=action", "trainer.ema=0.5",
-                                      "trainer.snapshots=[1,3]"])
+    ablation = train_model(
+        "m2d2m",
+        str(project / "diffusion.yaml"),
+        overrides=["diffusion.kind=uniform", "denoiser.positions=action", "trainer.ema=0.5", "trainer.snapshots=[1,3]"],
+    )
     assert read_run_info(ablation)["config"]["diffusion"]["kind"] == "uniform"
     # snapshots: a model file per step, each loading as a generator, the weights differing between steps
     from m2d2m.generators.m2d2m import M2D2MGenerator
@@ -99,4 +100,6 @@ def test_a_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(project):
     assert read_run_info(run_dir)["status"] == "failed"
     last = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)
     assert last["global_step"] == 2
-    assert all(torch.isfinite(v).all() for v in last["state_dict"].values() if torch.is_tensor(v) and v.is_floating_point())
+    assert all(
+        torch.isfinite(v).all() for v in last["state_dict"].values() if torch.is_tensor(v) and v.is_floating_point()
+    )

@@ -13,10 +13,9 @@ import pytest
 import yaml
 
 from orchestration.cli import main
-from orchestration.runs import latest_run, read_run_info
 from orchestration.recipe import train_model
+from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_MMM
-
 
 
 @pytest.fixture(scope="module")
@@ -37,12 +36,49 @@ def test_mmm_trains_generates_and_is_evaluated_through_the_registry(trained_proj
     assert run.data.tags["stage"] == "mmm"
 
     out = trained_project / "mmm-clip"
-    assert main(["generate", "a person walks forward", "a person jumps", "--model", "mmm", "--dataset", "tiny",
-                 "--seconds", "1.2", "1.2", "--no-split", "--no-track", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "a person walks forward",
+                "a person jumps",
+                "--model",
+                "mmm",
+                "--dataset",
+                "tiny",
+                "--seconds",
+                "1.2",
+                "1.2",
+                "--no-split",
+                "--no-track",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert {p.suffix for p in out.iterdir()} >= {".gif", ".bvh", ".npy"}
 
-    assert main(["evaluate", "--model", "mmm", "--dataset", "tiny", "--testset", str(tiny_testset),
-                 "--method", "transition,independent", "--repeats", "1", "--batch-size", "4"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                "mmm",
+                "--dataset",
+                "tiny",
+                "--testset",
+                str(tiny_testset),
+                "--method",
+                "transition,independent",
+                "--repeats",
+                "1",
+                "--batch-size",
+                "4",
+            ]
+        )
+        == 0
+    )
     stage = trained_project / "runs" / "tiny" / "eval"
     table = json.loads((stage / (stage / "latest").read_text().strip() / "table.json").read_text())
     assert {"transition", "independent", "reconstruction"} <= set(table["multi"])
@@ -56,9 +92,35 @@ def _latest_eval(project: Path) -> Path:
 
 
 def test_mmm_and_m2d2m_are_judged_in_one_table_and_one_mlflow_run(trained_project, tiny_testset, mmm_run):
-    assert main(["evaluate", "--model", "m2d2m,mmm", "--dataset", "tiny", "--testset", str(tiny_testset),
-                 "--method", "tps,mmm:transition", "--method", "independent", "--ts", "4", "--option",
-                 "mmm.temperature=0.5", "--repeats", "1", "--single", "--edit", "inbetween", "--batch-size", "4"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                "m2d2m,mmm",
+                "--dataset",
+                "tiny",
+                "--testset",
+                str(tiny_testset),
+                "--method",
+                "tps,mmm:transition",
+                "--method",
+                "independent",
+                "--ts",
+                "4",
+                "--option",
+                "mmm.temperature=0.5",
+                "--repeats",
+                "1",
+                "--single",
+                "--edit",
+                "inbetween",
+                "--batch-size",
+                "4",
+            ]
+        )
+        == 0
+    )
     run_dir = _latest_eval(trained_project)
     table = json.loads((run_dir / "table.json").read_text())
     rows = ["m2d2m/tps", "m2d2m/independent", "mmm/transition", "mmm/independent"]
@@ -73,13 +135,26 @@ def test_mmm_and_m2d2m_are_judged_in_one_table_and_one_mlflow_run(trained_projec
     options = {c["model"]: c["options"] for c in table["settings"]["candidates"]}
     assert options == {"m2d2m": {"ts": 4}, "mmm": {"temperature": 0.5}}  # --ts: the knob only M2D2M has
     markdown = (run_dir / "table.md").read_text()
-    titles = [line.split(" | ")[0].strip("| ") for line in markdown.split("## Single")[0].splitlines()
-              if line.startswith("| ") and "±" in line]
-    assert titles == ["Ground truth (single)", "Ground truth (concat)", "VQ-VAE reconstruction (m2d2m, mmm)",
-                      "m2d2m tps", "m2d2m independent", "mmm transition", "mmm independent"]
+    titles = [
+        line.split(" | ")[0].strip("| ")
+        for line in markdown.split("## Single")[0].splitlines()
+        if line.startswith("| ") and "±" in line
+    ]
+    assert titles == [
+        "Ground truth (single)",
+        "Ground truth (concat)",
+        "VQ-VAE reconstruction (m2d2m, mmm)",
+        "m2d2m tps",
+        "m2d2m independent",
+        "mmm transition",
+        "mmm independent",
+    ]
     assert {p.name for p in (run_dir / "results").iterdir()} >= {
-        "multi-m2d2m-tps-r0.json", "multi-mmm-transition-r0.json", "single-mmm-r0.json",
-        "edit-mmm-inbetween-no_text-r0.json"}
+        "multi-m2d2m-tps-r0.json",
+        "multi-mmm-transition-r0.json",
+        "single-mmm-r0.json",
+        "edit-mmm-inbetween-no_text-r0.json",
+    }
     assert "| mmm In-betweening (w/o text) |" in markdown
 
     client = mlflow.MlflowClient(f"sqlite:///{trained_project / 'mlflow.db'}")
@@ -101,16 +176,34 @@ def test_mmm_and_m2d2m_are_judged_in_one_table_and_one_mlflow_run(trained_projec
     assert len(again) == 2
 
 
-@pytest.mark.parametrize("arguments, message", [
-    (["--checkpoint", "model.pt"], "with several models say whose, as MODEL=REF (models: m2d2m, mmm)"),
-    (["--method", "mmm:tps"], "unknown method 'tps' for mmm; choose from m2d2m: tps, independent, handshake, "
-                              "slerp; mmm: transition, independent"),
-    (["--option", "mmm.ts=3"], "mmm has no sampling option 'ts'"),
-    (["--option", "nothing=3"], "m2d2m or mmm has no sampling option 'nothing'"),
-])
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["--checkpoint", "model.pt"], "with several models say whose, as MODEL=REF (models: m2d2m, mmm)"),
+        (
+            ["--method", "mmm:tps"],
+            "unknown method 'tps' for mmm; choose from m2d2m: tps, independent, handshake, "
+            "slerp; mmm: transition, independent",
+        ),
+        (["--option", "mmm.ts=3"], "mmm has no sampling option 'ts'"),
+        (["--option", "nothing=3"], "m2d2m or mmm has no sampling option 'nothing'"),
+    ],
+)
 def test_bad_multi_model_input_is_one_line_and_exit_2(trained_project, tiny_testset, capsys, arguments, message):
-    code = main(["evaluate", "--model", "m2d2m", "--model", "mmm", "--dataset", "tiny", "--testset",
-                 str(tiny_testset), *arguments])
+    code = main(
+        [
+            "evaluate",
+            "--model",
+            "m2d2m",
+            "--model",
+            "mmm",
+            "--dataset",
+            "tiny",
+            "--testset",
+            str(tiny_testset),
+            *arguments,
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2 and message in err and len(err.splitlines()) == 1, err
 
@@ -123,7 +216,9 @@ def test_the_shipped_mmm_decoding_sweep_runs_through_ray_tune(trained_project, t
     from orchestration.sweep import SUMMARY_JSON, sweep
 
     config = yaml.safe_load((SWEEPS / "mmm-decoding.yaml").read_text())
-    config.update(dataset="tiny", testset=str(tiny_testset), space={"schedule": ["cosine", "linear"], "iterations": [4]})
+    config.update(
+        dataset="tiny", testset=str(tiny_testset), space={"schedule": ["cosine", "linear"], "iterations": [4]}
+    )
     (trained_project / "mmm-decoding.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
     summary = json.loads((sweep(str(trained_project / "mmm-decoding.yaml")) / SUMMARY_JSON).read_text())
     assert sorted((row["schedule"], row["iterations"]) for row in summary) == [("cosine", 4), ("linear", 4)]

@@ -70,9 +70,29 @@ def test_the_editor_trains_and_edits_through_the_command_line(body_project, tiny
     joints = pose_clip(T2M, 41, seed=3)  # joints: the command line makes the 40 frames of features
     np.save(body_project / "source.npy", joints)
     out = body_project / "edited"
-    assert main(["generate", "a man waves his right hand", "--model", "mmm-body", "--dataset", "tiny",
-                 "--edit", str(body_project / "source.npy"), "--keep-body", "lower", "--option", "lower_mask=0.5",
-                 "--no-split", "--no-track", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "a man waves his right hand",
+                "--model",
+                "mmm-body",
+                "--dataset",
+                "tiny",
+                "--edit",
+                str(body_project / "source.npy"),
+                "--keep-body",
+                "lower",
+                "--option",
+                "lower_mask=0.5",
+                "--no-split",
+                "--no-track",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert {p.name for p in out.iterdir()} >= {"motion.npy", "motion.features.npy", "motion.bvh", "motion.gif"}
     edited = np.load(out / "motion.features.npy")
     assert edited.shape == (40, 263)
@@ -85,25 +105,69 @@ def test_the_editor_trains_and_edits_through_the_command_line(body_project, tiny
         ([], "lower body to keep on every frame"),  # the editor cannot make a motion from text alone
     ):
         capsys.readouterr()
-        assert main(["generate", "a man claps", "--model", "mmm-body", "--dataset", "tiny", "--no-track",
-                     "--out", str(body_project / "refused"), *argv]) == 2
+        assert (
+            main(
+                [
+                    "generate",
+                    "a man claps",
+                    "--model",
+                    "mmm-body",
+                    "--dataset",
+                    "tiny",
+                    "--no-track",
+                    "--out",
+                    str(body_project / "refused"),
+                    *argv,
+                ]
+            )
+            == 2
+        )
         error = capsys.readouterr().err
         assert message in error and len(error.strip().splitlines()) == 1
     # the multi-motion table asks for motions from text alone, which an editor cannot make
-    assert main(["evaluate", "--model", "mmm-body", "--dataset", "tiny", "--testset", str(tiny_testset),
-                 "--repeats", "1"]) == 2
+    assert (
+        main(["evaluate", "--model", "mmm-body", "--dataset", "tiny", "--testset", str(tiny_testset), "--repeats", "1"])
+        == 2
+    )
     assert "cannot generate from text alone" in capsys.readouterr().err
 
 
 def test_the_editor_is_judged_in_the_editing_table_beside_a_text_to_motion_model(body_project, tiny_testset, capsys):
-    for argv, message in ((["--model", "mmm-body", "--edit", "upper", "--method", "mmm-body:independent"],
-                           "mmm-body edits motions and has no multi-action"),
-                          (["--model", "m2d2m", "--edit", "upper"], "no model given can do the editing task 'upper'; "
-                                                                    "mmm-body, motiondiffuse can")):
+    for argv, message in (
+        (
+            ["--model", "mmm-body", "--edit", "upper", "--method", "mmm-body:independent"],
+            "mmm-body edits motions and has no multi-action",
+        ),
+        (
+            ["--model", "m2d2m", "--edit", "upper"],
+            "no model given can do the editing task 'upper'; mmm-body, motiondiffuse can",
+        ),
+    ):
         assert main(["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), *argv]) == 2
         assert message in capsys.readouterr().err
-    assert main(["evaluate", "--model", "m2d2m,mmm-body", "--dataset", "tiny", "--testset", str(tiny_testset),
-                 "--method", "tps", "--edit", "inbetween,upper", "--single", "--repeats", "1", "--batch-size", "8"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                "m2d2m,mmm-body",
+                "--dataset",
+                "tiny",
+                "--testset",
+                str(tiny_testset),
+                "--method",
+                "tps",
+                "--edit",
+                "inbetween,upper",
+                "--single",
+                "--repeats",
+                "1",
+                "--batch-size",
+                "8",
+            ]
+        )
+        == 0
+    )
     stage = body_project / "runs" / "tiny" / "eval"
     table = json.loads((stage / (stage / "latest").read_text().strip() / "table.json").read_text())
     assert set(table["multi"]) >= {"m2d2m/tps"} and not any(row.startswith("mmm-body") for row in table["multi"])

@@ -14,8 +14,8 @@ import pytest
 import yaml
 
 from orchestration.cli import main
-from orchestration.runs import latest_run, read_run_info
 from orchestration.recipe import train_model
+from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE
 
 
@@ -26,8 +26,9 @@ def motiondiffuse_run(trained_project) -> Path:
     return train_model("motiondiffuse", str(trained_project / "motiondiffuse.yaml"))
 
 
-def test_motiondiffuse_trains_through_the_registry_and_tracks_the_loss_per_step_bucket(trained_project,
-                                                                                      motiondiffuse_run):
+def test_motiondiffuse_trains_through_the_registry_and_tracks_the_loss_per_step_bucket(
+    trained_project, motiondiffuse_run
+):
     info = read_run_info(motiondiffuse_run)
     assert info["status"] == "finished"
     assert latest_run("tiny", "motiondiffuse", "make train-motiondiffuse") == motiondiffuse_run
@@ -41,28 +42,73 @@ def test_motiondiffuse_trains_through_the_registry_and_tracks_the_loss_per_step_
 
 def test_generate_writes_a_multi_action_and_a_body_part_request(trained_project, motiondiffuse_run):
     out = trained_project / "md-multi"
-    assert main(["generate", "a person walks forward", "a person jumps", "--model", "motiondiffuse", "--dataset",
-                 "tiny", "--seconds", "1.5", "1.5", "--no-split", "--no-track", "--out", str(out),
-                 "--option", "steps=10"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "a person walks forward",
+                "a person jumps",
+                "--model",
+                "motiondiffuse",
+                "--dataset",
+                "tiny",
+                "--seconds",
+                "1.5",
+                "1.5",
+                "--no-split",
+                "--no-track",
+                "--out",
+                str(out),
+                "--option",
+                "steps=10",
+            ]
+        )
+        == 0
+    )
     assert {p.suffix for p in out.iterdir()} >= {".gif", ".bvh", ".npy"}
     parts = trained_project / "md-parts"
-    assert main(["generate", "a person walks forward", "--part", "upper=a person waves their right hand",
-                 "--model", "motiondiffuse", "--dataset", "tiny", "--seconds", "2", "--no-track", "--out", str(parts),
-                 "--option", "steps=10"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                "a person walks forward",
+                "--part",
+                "upper=a person waves their right hand",
+                "--model",
+                "motiondiffuse",
+                "--dataset",
+                "tiny",
+                "--seconds",
+                "2",
+                "--no-track",
+                "--out",
+                str(parts),
+                "--option",
+                "steps=10",
+            ]
+        )
+        == 0
+    )
     sidecar = json.loads((parts / "motion.json").read_text())
     assert [segment["text"] for segment in sidecar["segments"]] == [
-        "upper: a person waves their right hand | lower: a person walks forward"]
+        "upper: a person waves their right hand | lower: a person walks forward"
+    ]
     assert sidecar["num_frames"] == 40  # 2 s at 20 fps
     assert {p.suffix for p in parts.iterdir()} >= {".gif", ".bvh", ".npy"}
 
 
-@pytest.mark.parametrize("arguments, message", [
-    (["a person runs", "--part", "upper=a person waves"], "m2d2m has no body-part control; use --model motiondiffuse"),
-    (["--part", "upper=a person waves"], "give a prompt for the parts not named (lower)"),
-    (["a person runs", "--part", "arms=a person waves"], "unknown body part 'arms'"),
-])
-def test_bad_body_part_requests_are_one_line_and_exit_2(trained_project, motiondiffuse_run, capsys, arguments,
-                                                       message):
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (
+            ["a person runs", "--part", "upper=a person waves"],
+            "m2d2m has no body-part control; use --model motiondiffuse",
+        ),
+        (["--part", "upper=a person waves"], "give a prompt for the parts not named (lower)"),
+        (["a person runs", "--part", "arms=a person waves"], "unknown body part 'arms'"),
+    ],
+)
+def test_bad_body_part_requests_are_one_line_and_exit_2(trained_project, motiondiffuse_run, capsys, arguments, message):
     code = main(["generate", *arguments, "--dataset", "tiny", "--no-track", "--out", str(trained_project / "x")])
     err = capsys.readouterr().err.strip()
     assert code == 2 and message in err and len(err.splitlines()) == 1, err
@@ -71,9 +117,31 @@ def test_bad_body_part_requests_are_one_line_and_exit_2(trained_project, motiond
 def test_the_three_models_are_judged_in_one_evaluate_run(trained_project, tiny_testset, motiondiffuse_run):
     (trained_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
     train_model("mmm", str(trained_project / "mmm.yaml"))
-    assert main(["evaluate", "--model", "m2d2m,mmm,motiondiffuse", "--dataset", "tiny", "--testset",
-                 str(tiny_testset), "--method", "m2d2m:tps,m2d2m:independent,mmm:transition,motiondiffuse:time-varied",
-                 "--ts", "4", "--repeats", "1", "--single", "--edit", "upper", "--batch-size", "4"]) == 0
+    assert (
+        main(
+            [
+                "evaluate",
+                "--model",
+                "m2d2m,mmm,motiondiffuse",
+                "--dataset",
+                "tiny",
+                "--testset",
+                str(tiny_testset),
+                "--method",
+                "m2d2m:tps,m2d2m:independent,mmm:transition,motiondiffuse:time-varied",
+                "--ts",
+                "4",
+                "--repeats",
+                "1",
+                "--single",
+                "--edit",
+                "upper",
+                "--batch-size",
+                "4",
+            ]
+        )
+        == 0
+    )
     stage = trained_project / "runs" / "tiny" / "eval"
     run_dir = stage / (stage / "latest").read_text().strip()
     table = json.loads((run_dir / "table.json").read_text())

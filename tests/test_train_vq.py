@@ -13,6 +13,7 @@ from orchestration.errors import UserError
 from orchestration.runs import latest_run, read_run_info
 from orchestration.train import train_vq
 
+
 class KillAt(pl.Callback):
     """Stands in for a killed process: fails hard in the middle of training."""
 
@@ -43,7 +44,15 @@ def test_a_run_is_tracked_in_mlflow_and_exports_a_model_file(project):
     assert run.info.status == "FINISHED"
     assert run.data.params["model.codebook_size"] == "16" and run.data.params["optim.lr"] == "0.001"
     assert run.data.tags["dataset"] == "tiny" and run.data.tags["stage"] == "vq"
-    for metric in ("train/loss", "train/perplexity", "train/active_codes", "val/mpjpe_mm", "val/mpjpe_root_aligned_mm", "val/recon_loss", "val/active_codes"):
+    for metric in (
+        "train/loss",
+        "train/perplexity",
+        "train/active_codes",
+        "val/mpjpe_mm",
+        "val/mpjpe_root_aligned_mm",
+        "val/recon_loss",
+        "val/active_codes",
+    ):
         assert metric in run.data.metrics, metric
     client = mlflow.MlflowClient()
     model_files = {Path(a.path).name for a in client.list_artifacts(run.info.run_id, "model")}

@@ -22,11 +22,14 @@ def dataset(tmp_path_factory, ray_local):
     4 test clips; returns its path and the un-normalised clips of each split, read back."""
     root = tmp_path_factory.mktemp("training-data")
     write_corpus(root / "raw", {"train": 8, "val": 5, "test": 2}, T2M)
-    build_dataset(DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(root / "out"),
-                             samples_per_shard=4, workers=2))
+    build_dataset(
+        DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(root / "out"), samples_per_shard=4, workers=2)
+    )
     clips = {
-        split: {s["__key__"]: s["motion.npy"]
-                for s in wds.WebDataset(shard_urls(root / "out", split), shardshuffle=False).decode()}
+        split: {
+            s["__key__"]: s["motion.npy"]
+            for s in wds.WebDataset(shard_urls(root / "out", split), shardshuffle=False).decode()
+        }
         for split in ("train", "val", "test")
     }
     return root / "out", clips
@@ -56,7 +59,7 @@ def check_windows(module: MotionWindowDataModule, batches: list[dict], clips: di
             found = locate(module.normalizer.denormalize(window), clips["train"])
             assert found is not None, "a window that is no slice of a train clip"
             key, start = found
-            raw = clips["train"][key][start:start + module.window]
+            raw = clips["train"][key][start : start + module.window]
             np.testing.assert_allclose(window, module.normalizer.normalize(raw), rtol=1e-6, atol=1e-6)
             assert locate(module.normalizer.denormalize(window), clips["val"] | clips["test"]) is None
             sources.add(key)
@@ -109,7 +112,9 @@ def test_validation_reads_every_clip_once_in_a_fixed_order_padded_and_normalised
         mask = valid_frames(lengths)
         for row, length, key, valid in zip(motion.numpy(), lengths.tolist(), batch["keys"], mask):
             assert length == len(clips["val"][key]) and int(valid.sum()) == length
-            np.testing.assert_allclose(row[:length], module.normalizer.normalize(clips["val"][key]), rtol=1e-6, atol=1e-6)
+            np.testing.assert_allclose(
+                row[:length], module.normalizer.normalize(clips["val"][key]), rtol=1e-6, atol=1e-6
+            )
             assert not row[length:].any()
     test_keys = [key for batch in module.test_dataloader() for key in batch["keys"]]
     assert sorted(test_keys) == sorted(clips["test"])

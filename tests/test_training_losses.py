@@ -23,16 +23,23 @@ def test_a_gaussian_processes_quarters_from_zero():
     recorder = Recorder()
     t = torch.tensor([0, 249, 250, 999, 998])
     log_by_quarter(recorder, "val/loss", torch.tensor([1.0, 3.0, 5.0, 7.0, 9.0]), t, first=0, steps=1000)
-    assert recorder.logged == {"val/loss_t0-249": (2.0, 2), "val/loss_t250-499": (5.0, 1),
-                               "val/loss_t750-999": (8.0, 2)}  # no sample in the third quarter: nothing logged
+    assert recorder.logged == {
+        "val/loss_t0-249": (2.0, 2),
+        "val/loss_t250-499": (5.0, 1),
+        "val/loss_t750-999": (8.0, 2),
+    }  # no sample in the third quarter: nothing logged
 
 
 def test_a_discrete_processes_quarters_from_one_cover_every_step_once():
     recorder = Recorder()
     t = torch.arange(1, 11)
     log_by_quarter(recorder, "train/vlb", t.double(), t, first=1, steps=10)
-    assert recorder.logged == {"train/vlb_t1-3": (2.0, 3), "train/vlb_t4-5": (4.5, 2), "train/vlb_t6-8": (7.0, 3),
-                               "train/vlb_t9-10": (9.5, 2)}
+    assert recorder.logged == {
+        "train/vlb_t1-3": (2.0, 3),
+        "train/vlb_t4-5": (4.5, 2),
+        "train/vlb_t6-8": (7.0, 3),
+        "train/vlb_t9-10": (9.5, 2),
+    }
 
 
 @pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])

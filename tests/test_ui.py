@@ -42,9 +42,14 @@ def test_the_ui_serves_the_project_store_and_sigterm_stops_all_of_it(tmp_path, m
 
     port = free_port()
     log = (tmp_path / "ui.log").open("wb")
-    server = subprocess.Popen([sys.executable, "-m", "orchestration.cli", "ui", "--port", str(port)], cwd=tmp_path,
-                              stdout=log, stderr=subprocess.STDOUT, start_new_session=True,
-                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    server = subprocess.Popen(
+        [sys.executable, "-m", "orchestration.cli", "ui", "--port", str(port)],
+        cwd=tmp_path,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )
     try:
         base = f"http://127.0.0.1:{port}"
         deadline = time.monotonic() + 90
@@ -60,7 +65,11 @@ def test_the_ui_serves_the_project_store_and_sigterm_stops_all_of_it(tmp_path, m
         status, body = fetch(base + "/api/2.0/mlflow/runs/search", {"experiment_ids": [experiment]})
         runs = json.loads(body)["runs"]
         assert status == 200 and [r["info"]["run_name"] for r in runs] == ["a-run"]
-        assert runs[0]["data"]["metrics"][0] == {**runs[0]["data"]["metrics"][0], "key": "multi/tps/jerk", "value": 1.25}
+        assert runs[0]["data"]["metrics"][0] == {
+            **runs[0]["data"]["metrics"][0],
+            "key": "multi/tps/jerk",
+            "value": 1.25,
+        }
         started = psutil.Process(server.pid).children(recursive=True)
         assert started  # mlflow server and its uvicorn worker(s), in the session m2d2m ui started
         server.send_signal(signal.SIGTERM)  # to `m2d2m ui` alone, as a service manager or `kill` does
@@ -80,10 +89,16 @@ def test_the_ui_serves_the_project_store_and_sigterm_stops_all_of_it(tmp_path, m
 def test_a_stop_signal_ends_the_whole_process_tree_it_served(tmp_path, stop):
     """serve() in a child Python (signal handlers belong to a main thread) runs a shell that
     starts two sleepers, one in a session of its own; the signal to that Python ends them all."""
-    script = ("from orchestration.serving import serve; "
-              "print(serve(['sh', '-c', 'setsid sleep 300 & sleep 300 & wait']), flush=True)")
-    runner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    script = (
+        "from orchestration.serving import serve; "
+        "print(serve(['sh', '-c', 'setsid sleep 300 & sleep 300 & wait']), flush=True)"
+    )
+    runner = subprocess.Popen(
+        [sys.executable, "-c", script],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )
     deadline = time.monotonic() + 30
     while len(started := psutil.Process(runner.pid).children(recursive=True)) < 3:
         assert runner.poll() is None and time.monotonic() < deadline

@@ -81,12 +81,14 @@ def test_ema_update_matches_the_hand_computed_values():
     # Code 0: count 2 and two vectors of mean (0, 1): moves exactly (1 − μ) of the way there.
     # Code 1: sum 0.9·(20, 0) + 0.1·(9, 1), count 0.9·2 + 0.1·1.
     # Code 2: sum 0.9·(0, 20) + 0.1·(0, 11), count 1.9.  Code 3: unused but still live (1.8 ≥ 1).
-    expected = torch.tensor([
-        [0.0, mu * 0.0 + (1 - mu) * 1.0],
-        [(18.0 + 0.9) / 1.9, 0.1 / 1.9],
-        [0.0, (18.0 + 1.1) / 1.9],
-        [10.0, 10.0],
-    ])
+    expected = torch.tensor(
+        [
+            [0.0, mu * 0.0 + (1 - mu) * 1.0],
+            [(18.0 + 0.9) / 1.9, 0.1 / 1.9],
+            [0.0, (18.0 + 1.1) / 1.9],
+            [10.0, 10.0],
+        ]
+    )
     torch.testing.assert_close(quantizer.codebook, expected)
     torch.testing.assert_close(quantizer.code_count, torch.tensor([2.0, 1.9, 1.9, 1.8]))
     assert out.active_codes.item() == 3

@@ -37,9 +37,13 @@ class ReconstructionPreview(pl.Callback):
         if (self.validations - 1) % self.every:
             return
         truth, reconstruction = module.preview
-        path = render_comparison([truth, reconstruction], ["ground truth", "reconstruction"],
-                                 self.directory / f"step-{trainer.global_step:07d}.gif",
-                                 skeleton=module.skeleton, size=240)
+        path = render_comparison(
+            [truth, reconstruction],
+            ["ground truth", "reconstruction"],
+            self.directory / f"step-{trainer.global_step:07d}.gif",
+            skeleton=module.skeleton,
+            size=240,
+        )
         if isinstance(trainer.logger, MLFlowLogger):
             trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="previews")
 
@@ -49,8 +53,9 @@ class SamplePreview(pl.Callback):
     logged as MLflow artifacts: what a person looks at to judge whether samples follow their
     text. Subclasses say how a model's samples become features (:meth:`_sample`)."""
 
-    def __init__(self, directory: str | Path, prompts: list[str], seconds: list[float], every: int = 1,
-                 seed: int = 0) -> None:
+    def __init__(
+        self, directory: str | Path, prompts: list[str], seconds: list[float], every: int = 1, seed: int = 0
+    ) -> None:
         if len(prompts) != len(seconds):
             raise ValueError("give one duration in seconds per preview prompt")
         self.directory = Path(directory)
@@ -70,9 +75,13 @@ class SamplePreview(pl.Callback):
             return
         samples, skeleton = self._sample(module)
         for n, (prompt, features) in enumerate(zip(self.prompts, samples)):
-            path = render_motion(features_to_joints(features, skeleton),
-                                 self.directory / f"step-{trainer.global_step:07d}-{n}.gif",
-                                 skeleton=skeleton, title=prompt, size=240)
+            path = render_motion(
+                features_to_joints(features, skeleton),
+                self.directory / f"step-{trainer.global_step:07d}-{n}.gif",
+                skeleton=skeleton,
+                title=prompt,
+                size=240,
+            )
             if isinstance(trainer.logger, MLFlowLogger):
                 trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="samples")
 
@@ -81,8 +90,16 @@ class TokenSamplePreview(SamplePreview):
     """Previews of a model over VQ tokens (M2D2M, MMM): tokens from the module's
     ``preview_tokens(prompts, lengths, seed, **knobs)``, decoded by the VQ-VAE of ``vq_file``."""
 
-    def __init__(self, directory: str | Path, vq_file: str | Path, prompts: list[str], seconds: list[float],
-                 every: int = 1, seed: int = 0, **knobs: Any) -> None:
+    def __init__(
+        self,
+        directory: str | Path,
+        vq_file: str | Path,
+        prompts: list[str],
+        seconds: list[float],
+        every: int = 1,
+        seed: int = 0,
+        **knobs: Any,
+    ) -> None:
         super().__init__(directory, prompts, seconds, every, seed)
         self.vq_file, self.knobs = Path(vq_file), knobs
 
@@ -98,8 +115,15 @@ class FeatureSamplePreview(SamplePreview):
     """Previews of a model on features (MotionDiffuse): the module's ``preview(prompts, frames,
     seed)`` gives the features themselves."""
 
-    def __init__(self, directory: str | Path, skeleton: Skeleton, prompts: list[str], seconds: list[float],
-                 every: int = 1, seed: int = 0) -> None:
+    def __init__(
+        self,
+        directory: str | Path,
+        skeleton: Skeleton,
+        prompts: list[str],
+        seconds: list[float],
+        every: int = 1,
+        seed: int = 0,
+    ) -> None:
         super().__init__(directory, prompts, seconds, every, seed)
         self.skeleton = skeleton
 

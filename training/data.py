@@ -16,9 +16,10 @@ import json
 import math
 import tarfile
 from collections import defaultdict
+from collections.abc import Callable, Iterator
 from functools import cached_property, partial
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import lightning.pytorch as pl
 import numpy as np
@@ -26,8 +27,8 @@ import torch
 import webdataset as wds
 from lightning.pytorch.utilities import rank_zero_info
 
+from m2d2m.layout import MANIFEST, STATS, TOKENS_KIND, VQ_FILE, read_manifest, shard_urls, token_shard_urls
 from m2d2m.model_files import LengthPrior
-from m2d2m.layout import TOKENS_KIND, VQ_FILE, MANIFEST, STATS, read_manifest, shard_urls, token_shard_urls
 from m2d2m.motion.normalization import Normalizer
 
 Sample = dict[str, Any]
@@ -70,7 +71,7 @@ def random_window(motion: np.ndarray, window: int, rng: np.random.Generator) -> 
     if spare < 0:
         return None
     start = int(rng.integers(spare + 1))
-    return motion[start:start + window]
+    return motion[start : start + window]
 
 
 def pad_clips(clips: list[np.ndarray], dtype: torch.dtype = torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
@@ -80,7 +81,7 @@ def pad_clips(clips: list[np.ndarray], dtype: torch.dtype = torch.float32) -> tu
     lengths = torch.tensor([len(clip) for clip in clips], dtype=torch.long)
     batch = torch.zeros(len(clips), int(lengths.max()), *clips[0].shape[1:], dtype=dtype)
     for row, clip in zip(batch, clips):
-        row[:len(clip)] = torch.from_numpy(clip)
+        row[: len(clip)] = torch.from_numpy(clip)
     return batch, lengths
 
 
@@ -146,14 +147,29 @@ def rank_and_world_size(trainer: pl.Trainer | None) -> tuple[int, int]:
     return rank, world_size
 
 
-def resampled_batches(urls: list[str], prepare: Callable[[Sample], Sample | None], collate: Callable[[list[Sample]], Any],
-                      batch_size: int, steps: int, shuffle_buffer: int, num_workers: int, seed: int) -> wds.WebLoader:
+def resampled_batches(
+    urls: list[str],
+    prepare: Callable[[Sample], Sample | None],
+    collate: Callable[[list[Sample]], Any],
+    batch_size: int,
+    steps: int,
+    shuffle_buffer: int,
+    num_workers: int,
+    seed: int,
+) -> wds.WebLoader:
     """Endless resampled shards split by rank and worker, cut to ``steps`` full batches an epoch,
     so every DDP rank runs the same number of steps whatever its shards hold."""
     # seed= only spares WebDataset a draw from the global random module: resampled mode ignores it.
     dataset = (
-        wds.WebDataset(urls, resampled=True, shardshuffle=False, nodesplitter=wds.split_by_node,
-                       workersplitter=wds.split_by_worker, empty_check=False, seed=seed)
+        wds.WebDataset(
+            urls,
+            resampled=True,
+            shardshuffle=False,
+            nodesplitter=wds.split_by_node,
+            workersplitter=wds.split_by_worker,
+            empty_check=False,
+            seed=seed,
+        )
         .shuffle(shuffle_buffer)
         .decode()
         .map(prepare)
@@ -163,8 +179,15 @@ def resampled_batches(urls: list[str], prepare: Callable[[Sample], Sample | None
     return loader.with_epoch(steps).with_length(steps, silent=True)  # __len__ for progress bars and schedulers
 
 
-def split_pass(urls: list[str], sizes: list[int], trainer: pl.Trainer | None, prepare: Callable[[Sample], Sample],
-               collate: Callable[[list[Sample]], Any], batch_size: int, num_workers: int) -> wds.WebLoader:
+def split_pass(
+    urls: list[str],
+    sizes: list[int],
+    trainer: pl.Trainer | None,
+    prepare: Callable[[Sample], Sample],
+    collate: Callable[[list[Sample]], Any],
+    batch_size: int,
+    num_workers: int,
+) -> wds.WebLoader:
     """One deterministic pass over a split whose shards hold ``sizes`` clips. Ranks share it clip
     by clip, not shard by shard (``rank_share``); the workers of a rank share its shards."""
     offsets = dict(zip(urls, np.cumsum([0] + sizes[:-1]).tolist()))
@@ -189,11 +212,21 @@ class ShardDataModule(pl.LightningDataModule):
     manifest: dict[str, Any]
     _urls: dict[str, list[str]]
 
-    def __init__(self, batch_size: int, num_workers: int, steps_per_epoch: int | None, val_batch_size: int,
-                 shuffle_buffer: int, seed: int) -> None:
+    def __init__(
+        self,
+        batch_size: int,
+        num_workers: int,
+        steps_per_epoch: int | None,
+        val_batch_size: int,
+        shuffle_buffer: int,
+        seed: int,
+    ) -> None:
         super().__init__()
-        require_positive(batch_size=batch_size, val_batch_size=val_batch_size,
-                         steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch)
+        require_positive(
+            batch_size=batch_size,
+            val_batch_size=val_batch_size,
+            steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch,
+        )
         self.batch_size, self.num_workers, self.val_batch_size = batch_size, num_workers, val_batch_size
         self.shuffle_buffer, self.seed = shuffle_buffer, seed
         self._steps_per_epoch = steps_per_epoch
@@ -231,8 +264,16 @@ class ShardDataModule(pl.LightningDataModule):
 
     def train_dataloader(self) -> wds.WebLoader:
         prepare, collate = self._train_sample(rank_and_world_size(self.trainer)[0])
-        return resampled_batches(self.urls("train"), prepare, collate, self.batch_size, self.steps_per_epoch,
-                                 self.shuffle_buffer, self.num_workers, self.seed)
+        return resampled_batches(
+            self.urls("train"),
+            prepare,
+            collate,
+            self.batch_size,
+            self.steps_per_epoch,
+            self.shuffle_buffer,
+            self.num_workers,
+            self.seed,
+        )
 
     def val_dataloader(self) -> wds.WebLoader:
         return self._one_pass("val")
@@ -242,16 +283,25 @@ class ShardDataModule(pl.LightningDataModule):
 
     def _one_pass(self, split: str) -> wds.WebLoader:
         prepare, collate = self._eval_sample()
-        return split_pass(self.urls(split), self._sizes(split), self.trainer, prepare, collate,
-                          self.val_batch_size, self.num_workers)
+        return split_pass(
+            self.urls(split), self._sizes(split), self.trainer, prepare, collate, self.val_batch_size, self.num_workers
+        )
 
 
 class FeatureShardDataModule(ShardDataModule):
     """A processed dataset's feature shards (docs/data.md) with their manifest and normalisation,
     for the DataModules of motion windows and of caption/motion pairs."""
 
-    def __init__(self, data_dir: str | Path, batch_size: int, num_workers: int, steps_per_epoch: int | None,
-                 val_batch_size: int, shuffle_buffer: int, seed: int) -> None:
+    def __init__(
+        self,
+        data_dir: str | Path,
+        batch_size: int,
+        num_workers: int,
+        steps_per_epoch: int | None,
+        val_batch_size: int,
+        shuffle_buffer: int,
+        seed: int,
+    ) -> None:
         super().__init__(batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed)
         self.data_dir = Path(data_dir).resolve()
         self.manifest = read_manifest(self.data_dir)
@@ -301,10 +351,14 @@ class MotionWindowDataModule(FeatureShardDataModule):
         lengths = clip_lengths(self.urls("train"))
         too_short = sum(length < self.window for length in lengths)
         if too_short == len(lengths):
-            raise ValueError(f"{self.data_dir}: none of the {len(lengths)} train clips has {self.window} frames; "
-                             "use a shorter window")
-        rank_zero_info(f"{self.data_dir.name}: {too_short} of {len(lengths)} train clips are shorter than "
-                       f"the {self.window}-frame window and are skipped")
+            raise ValueError(
+                f"{self.data_dir}: none of the {len(lengths)} train clips has {self.window} frames; "
+                "use a shorter window"
+            )
+        rank_zero_info(
+            f"{self.data_dir.name}: {too_short} of {len(lengths)} train clips are shorter than "
+            f"the {self.window}-frame window and are skipped"
+        )
         return len(lengths) - too_short, too_short
 
     @property
@@ -354,17 +408,23 @@ def length_prior(urls: list[str], frames_per_token: int) -> LengthPrior:
     if not per_verb:
         raise ValueError("no single-action captions to estimate action lengths from")
     every = [n for lengths in per_verb.values() for n in lengths]
-    return LengthPrior({verb: int(np.median(lengths)) for verb, lengths in sorted(per_verb.items())},
-                       int(np.median(every)), longest)
+    return LengthPrior(
+        {verb: int(np.median(lengths)) for verb, lengths in sorted(per_verb.items())}, int(np.median(every)), longest
+    )
 
 
-def captioned_tokens(tokens: np.ndarray, meta: dict[str, Any], caption: dict[str, Any], frames_per_token: int) -> Sample:
+def captioned_tokens(
+    tokens: np.ndarray, meta: dict[str, Any], caption: dict[str, Any], frames_per_token: int
+) -> Sample:
     """{"tokens": the caption's segment (the whole clip when its segment is empty), "actions": its
     action sentences — the denoiser's condition concatenates their features — or, for a caption
     with none, the caption itself, "text"}."""
     span = caption_span(caption, len(tokens), meta["fps"], frames_per_token) or (0, len(tokens))
-    return {"tokens": tokens[span[0]:span[1]], "actions": list(caption["actions"]) or [caption["text"]],
-            "text": caption["text"]}
+    return {
+        "tokens": tokens[span[0] : span[1]],
+        "actions": list(caption["actions"]) or [caption["text"]],
+        "text": caption["text"],
+    }
 
 
 def first_caption_tokens(sample: Sample, frames_per_token: int) -> Sample:
@@ -397,9 +457,14 @@ def collate_captioned_tokens(samples: list[Sample]) -> dict[str, Any]:
     """{"tokens": (B, L_max) long padded with 0, "padding_mask": (B, L_max) bool, True on real
     tokens, "lengths": (B,) long, "actions": per sample its action sentences, "text", "keys"}."""
     tokens, lengths = pad_clips([sample["tokens"] for sample in samples], dtype=torch.long)
-    return {"tokens": tokens, "padding_mask": valid_frames(lengths), "lengths": lengths,
-            "actions": [sample["actions"] for sample in samples], "text": [sample["text"] for sample in samples],
-            "keys": [sample["__key__"] for sample in samples]}
+    return {
+        "tokens": tokens,
+        "padding_mask": valid_frames(lengths),
+        "lengths": lengths,
+        "actions": [sample["actions"] for sample in samples],
+        "text": [sample["text"] for sample in samples],
+        "keys": [sample["__key__"] for sample in samples],
+    }
 
 
 def read_token_manifest(tokens_dir: Path) -> dict[str, Any]:
@@ -410,8 +475,10 @@ def read_token_manifest(tokens_dir: Path) -> dict[str, Any]:
         raise FileNotFoundError(f"{path}: missing; no token set here (make one with `m2d2m tokenize` or `make tokens`)")
     manifest = read_manifest(tokens_dir)
     if manifest.get("kind") != TOKENS_KIND:
-        raise ValueError(f"{path}: kind {manifest.get('kind')!r}, not a token set ({TOKENS_KIND!r}); pass the "
-                         "directory `m2d2m tokenize` wrote (data/<name>/tokens/<vq-run>/)")
+        raise ValueError(
+            f"{path}: kind {manifest.get('kind')!r}, not a token set ({TOKENS_KIND!r}); pass the "
+            "directory `m2d2m tokenize` wrote (data/<name>/tokens/<vq-run>/)"
+        )
     return manifest
 
 
@@ -465,8 +532,9 @@ class TokenDataModule(ShardDataModule):
         for meta in metas:
             num_tokens = math.ceil(meta["frames"] / self.frames_per_token)
             captions += len(meta["captions"])
-            empty += sum(caption_span(c, num_tokens, meta["fps"], self.frames_per_token) is None
-                         for c in meta["captions"])
+            empty += sum(
+                caption_span(c, num_tokens, meta["fps"], self.frames_per_token) is None for c in meta["captions"]
+            )
         return float(metas[0]["fps"]), captions, empty
 
     @property
@@ -487,8 +555,10 @@ class TokenDataModule(ShardDataModule):
         """Also reports, each time a train loader is made, the captions whose segment is empty."""
         _, captions, empty = self._train_captions
         if empty:
-            rank_zero_info(f"{self.tokens_dir}: {empty} of {captions} train captions have a start/end segment "
-                           "with no tokens of their clip; they train on the whole clip")
+            rank_zero_info(
+                f"{self.tokens_dir}: {empty} of {captions} train captions have a start/end segment "
+                "with no tokens of their clip; they train on the whole clip"
+            )
         return CaptionSampler(self.frames_per_token, self.max_tokens, self.seed, rank), collate_captioned_tokens
 
     def _eval_sample(self):
@@ -520,19 +590,34 @@ class BodyTokenDataModule(TokenDataModule):
     crop. The upper set is streamed; the lower one (int16, a few MB even for HumanML3D) is read
     into memory at the start and joined by clip key."""
 
-    def __init__(self, tokens_dir: str | Path, lower_tokens_dir: str | Path, batch_size: int = 64,
-                 num_workers: int = 2, steps_per_epoch: int | None = None, val_batch_size: int = 64,
-                 shuffle_buffer: int = 1000, max_tokens: int | None = None, seed: int = 0) -> None:
-        super().__init__(tokens_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer,
-                         max_tokens, seed)
+    def __init__(
+        self,
+        tokens_dir: str | Path,
+        lower_tokens_dir: str | Path,
+        batch_size: int = 64,
+        num_workers: int = 2,
+        steps_per_epoch: int | None = None,
+        val_batch_size: int = 64,
+        shuffle_buffer: int = 1000,
+        max_tokens: int | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__(
+            tokens_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, max_tokens, seed
+        )
         self.lower_tokens_dir = Path(lower_tokens_dir).resolve()
         lower_manifest = read_token_manifest(self.lower_tokens_dir)
-        if lower_manifest.get("source_shards") != self.manifest.get("source_shards") \
-                or lower_manifest["frames_per_token"] != self.manifest["frames_per_token"]:
-            raise ValueError(f"{self.lower_tokens_dir} and {self.tokens_dir} are not token sets of the same dataset "
-                             "build at the same frame rate")
-        self.lower = token_arrays([url for split in lower_manifest["shards"]
-                                   for url in token_shard_urls(self.lower_tokens_dir, split)])
+        if (
+            lower_manifest.get("source_shards") != self.manifest.get("source_shards")
+            or lower_manifest["frames_per_token"] != self.manifest["frames_per_token"]
+        ):
+            raise ValueError(
+                f"{self.lower_tokens_dir} and {self.tokens_dir} are not token sets of the same dataset "
+                "build at the same frame rate"
+            )
+        self.lower = token_arrays(
+            [url for split in lower_manifest["shards"] for url in token_shard_urls(self.lower_tokens_dir, split)]
+        )
 
     def _train_sample(self, rank: int):
         sampler, collate = super()._train_sample(rank)

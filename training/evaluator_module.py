@@ -25,10 +25,17 @@ from lightning.pytorch.utilities import rank_zero_info
 
 from m2d2m.evaluation.evaluator import UNIT_LENGTH, EvaluatorConfig, TextMotionEvaluator, contrastive_loss
 from m2d2m.motion.normalization import Normalizer
-from training.data import (FeatureShardDataModule, Sample, caption_span, clip_metas, pad_clips, random_window,
-                           worker_generator)
-from training.optim import configure_adamw
+from training.data import (
+    FeatureShardDataModule,
+    Sample,
+    caption_span,
+    clip_metas,
+    pad_clips,
+    random_window,
+    worker_generator,
+)
 from training.losses import check_finite
+from training.optim import configure_adamw
 
 SHORTER_UNIT_CHANCE = 1 / 3  # Guo's "double" coin: one 4-frame unit less
 
@@ -86,8 +93,13 @@ def collate_pairs(samples: list[Sample]) -> dict[str, Any]:
     """{"motion": (B, T_max, D) un-normalised, zero-padded, "lengths": (B,) long, "tokens": per
     sample its ``word/POS`` tokens, "text", "keys"}."""
     motion, lengths = pad_clips([sample["motion"] for sample in samples])
-    return {"motion": motion, "lengths": lengths, "tokens": [sample["tokens"] for sample in samples],
-            "text": [sample["text"] for sample in samples], "keys": [sample["__key__"] for sample in samples]}
+    return {
+        "motion": motion,
+        "lengths": lengths,
+        "tokens": [sample["tokens"] for sample in samples],
+        "text": [sample["text"] for sample in samples],
+        "keys": [sample["__key__"] for sample in samples],
+    }
 
 
 class CaptionMotionDataModule(FeatureShardDataModule):
@@ -122,10 +134,14 @@ class CaptionMotionDataModule(FeatureShardDataModule):
             captions += [list(caption["tokens"]) for caption in meta["captions"]]
             usable += bool(usable_spans(meta, meta["frames"], self.min_frames))
         if not usable:
-            raise ValueError(f"{self.data_dir}: none of the {clips} train clips has a caption describing "
-                             f"{self.min_frames} frames; lower min_frames")
-        rank_zero_info(f"{self.data_dir.name}: {clips - usable} of {clips} train clips have no caption describing "
-                       f"{self.min_frames} frames and are skipped")
+            raise ValueError(
+                f"{self.data_dir}: none of the {clips} train clips has a caption describing "
+                f"{self.min_frames} frames; lower min_frames"
+            )
+        rank_zero_info(
+            f"{self.data_dir.name}: {clips - usable} of {clips} train clips have no caption describing "
+            f"{self.min_frames} frames and are skipped"
+        )
         return captions, usable
 
     def train_captions(self) -> list[list[str]]:
@@ -155,8 +171,15 @@ class EvaluatorModule(pl.LightningModule):
     ``model`` holds :class:`EvaluatorConfig` fields but ``feature_dim``; ``vocabulary`` and
     ``word_vectors`` are as :class:`TextMotionEvaluator` takes them."""
 
-    def __init__(self, model: dict[str, Any], optim: dict[str, Any], loss: dict[str, Any], feature_dim: int,
-                 vocabulary: list[str], word_vectors: torch.Tensor | None = None) -> None:
+    def __init__(
+        self,
+        model: dict[str, Any],
+        optim: dict[str, Any],
+        loss: dict[str, Any],
+        feature_dim: int,
+        vocabulary: list[str],
+        word_vectors: torch.Tensor | None = None,
+    ) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["word_vectors"])
         config = EvaluatorConfig.from_dict({**model, "feature_dim": feature_dim})

@@ -21,8 +21,15 @@ def check_finite(loss: torch.Tensor, step: int) -> None:
         raise NonFiniteLossError(f"the training loss is {loss.item()} at step {step}")
 
 
-def log_by_quarter(module: pl.LightningModule, name: str, losses: torch.Tensor, t: torch.Tensor, first: int,
-                   steps: int, **options: object) -> None:
+def log_by_quarter(
+    module: pl.LightningModule,
+    name: str,
+    losses: torch.Tensor,
+    t: torch.Tensor,
+    first: int,
+    steps: int,
+    **options: object,
+) -> None:
     """Log ``losses`` (one per sample) averaged over each quarter of the process's ``steps`` noise
     steps, numbered from ``first`` (0 for a Gaussian DDPM's t, 1 for a discrete diffusion's), as
     ``<name>_t<first>-<last>``: for T = 1000 from 0, ``train/loss_t0-249`` … ``train/loss_t750-999``."""
@@ -31,5 +38,9 @@ def log_by_quarter(module: pl.LightningModule, name: str, losses: torch.Tensor, 
         chosen = index == quarter
         if chosen.any():
             low, end = -(-quarter * steps // QUARTERS), -(-(quarter + 1) * steps // QUARTERS)
-            module.log(f"{name}_t{first + low}-{first + end - 1}", losses[chosen].mean(),
-                       batch_size=int(chosen.sum()), **options)
+            module.log(
+                f"{name}_t{first + low}-{first + end - 1}",
+                losses[chosen].mean(),
+                batch_size=int(chosen.sum()),
+                **options,
+            )

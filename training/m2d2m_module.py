@@ -16,9 +16,8 @@ from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
 from m2d2m.text import encode_actions, text_encoder_from_config
-from training.optim import configure_adamw
 from training.losses import check_finite, log_by_quarter
-
+from training.optim import configure_adamw
 
 
 class Denoised(NamedTuple):
@@ -40,9 +39,16 @@ class M2D2MModule(pl.LightningModule):
     object and follows the module's device lazily (see :meth:`schedule_on_device`).
     """
 
-    def __init__(self, denoiser: dict[str, Any], text: dict[str, Any], diffusion: dict[str, Any],
-                 optim: dict[str, Any], codebook: torch.Tensor | np.ndarray,
-                 vocabulary: list[str] | None = None, text_drop: float = 0.1) -> None:
+    def __init__(
+        self,
+        denoiser: dict[str, Any],
+        text: dict[str, Any],
+        diffusion: dict[str, Any],
+        optim: dict[str, Any],
+        codebook: torch.Tensor | np.ndarray,
+        vocabulary: list[str] | None = None,
+        text_drop: float = 0.1,
+    ) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["codebook"])
         if not 0.0 <= text_drop <= 1.0:
@@ -57,11 +63,18 @@ class M2D2MModule(pl.LightningModule):
 
         self.text_encoder = text_encoder_from_config(text, vocabulary)
 
-        config = {**denoiser, "codebook_size": num_codes, "code_dim": codebook.shape[1], "steps": steps,
-                  "text_dim": self.text_encoder.dim}
+        config = {
+            **denoiser,
+            "codebook_size": num_codes,
+            "code_dim": codebook.shape[1],
+            "steps": steps,
+            "text_dim": self.text_encoder.dim,
+        }
         if "text_dim" in denoiser and denoiser["text_dim"] != self.text_encoder.dim:
-            raise ValueError(f"denoiser text_dim ({denoiser['text_dim']}) differs from the text encoder's "
-                             f"dim ({self.text_encoder.dim})")
+            raise ValueError(
+                f"denoiser text_dim ({denoiser['text_dim']}) differs from the text encoder's "
+                f"dim ({self.text_encoder.dim})"
+            )
         if "steps" in denoiser and denoiser["steps"] != steps:
             raise ValueError(f"denoiser steps ({denoiser['steps']}) differ from diffusion steps ({steps})")
         self.denoiser = MotionDenoiser(DenoiserConfig.from_dict(config), codebook)
@@ -94,8 +107,14 @@ class M2D2MModule(pl.LightningModule):
         text, text_mask = encode_actions(self.text_encoder, actions)
         return text.to(self.codebook.device), text_mask.to(self.codebook.device)
 
-    def _denoise(self, batch: dict[str, Any], t: torch.Tensor, generator: torch.Generator | None = None,
-                 drop_condition: bool = False, pt: torch.Tensor | None = None) -> Denoised:
+    def _denoise(
+        self,
+        batch: dict[str, Any],
+        t: torch.Tensor,
+        generator: torch.Generator | None = None,
+        drop_condition: bool = False,
+        pt: torch.Tensor | None = None,
+    ) -> Denoised:
         """Corrupt the batch's tokens to z_t ~ q(z_t | z0) at ``t`` (padding becomes the mask), denoise
         them under the text condition — dropped at the rate ``text_drop`` when ``drop_condition``, for
         classifier-free guidance — and score the logits. Training and validation differ only in
@@ -108,8 +127,9 @@ class M2D2MModule(pl.LightningModule):
         if drop_condition:
             text, text_mask = self.denoiser.drop_condition(text, text_mask, self.hparams.text_drop)
         logits = self.denoiser(z_t, valid, t, text, text_mask)
-        loss = diffusion_loss(schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt,
-                              adaptive_aux=self.adaptive_aux)
+        loss = diffusion_loss(
+            schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt, adaptive_aux=self.adaptive_aux
+        )
         return Denoised(z0, valid, z_t, logits, loss)
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
@@ -144,12 +164,14 @@ class M2D2MModule(pl.LightningModule):
             self.log("val/token_accuracy", correct / total, batch_size=total, sync_dist=True, prog_bar=True)
 
     def configure_optimizers(self) -> dict[str, Any]:
-        return configure_adamw([*self.denoiser.parameters(), *self.text_encoder.parameters()], self.hparams.optim,
-                               decay_matrices_only=True)
+        return configure_adamw(
+            [*self.denoiser.parameters(), *self.text_encoder.parameters()], self.hparams.optim, decay_matrices_only=True
+        )
 
     # ----------------------------------------------------------------------------------- sampling
-    def preview_tokens(self, prompts: list[str], lengths: list[int], seed: int,
-                       guidance: float = 4.0) -> list[torch.Tensor]:
+    def preview_tokens(
+        self, prompts: list[str], lengths: list[int], seed: int, guidance: float = 4.0
+    ) -> list[torch.Tensor]:
         """Tokens for each prompt, sampled with no joint phase at guidance ``guidance`` (previews)."""
         requests = [TokenRequest([[prompt]], [n], seed=seed) for prompt, n in zip(prompts, lengths)]
         return [tokens for (tokens,) in self.sampler().sample(requests, M2D2MOptions(guidance=guidance, ts=0))]

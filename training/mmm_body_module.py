@@ -23,25 +23,40 @@ class BodyMMMModule(MMMModule):
     the text keeps its say and the editor learns to fill in for masked lower tokens — the
     user's ``lower_mask`` at generation."""
 
-    def __init__(self, transformer: dict[str, Any], text: dict[str, Any], masking: dict[str, Any],
-                 optim: dict[str, Any], codebook: Codebook, lower_codebook: Codebook,
-                 vocabulary: list[str] | None = None, text_drop: float = 0.0) -> None:
+    def __init__(
+        self,
+        transformer: dict[str, Any],
+        text: dict[str, Any],
+        masking: dict[str, Any],
+        optim: dict[str, Any],
+        codebook: Codebook,
+        lower_codebook: Codebook,
+        vocabulary: list[str] | None = None,
+        text_drop: float = 0.0,
+    ) -> None:
         super().__init__(transformer, text, masking, optim, (codebook, lower_codebook), vocabulary, text_drop)
         self.lower_most = float(masking.get("lower_most", 0.3))
         if not 0.0 <= self.lower_most <= 1.0:
             raise ConfigError(f"masking.lower_most must lie in [0, 1], got {self.lower_most}")
 
-    def build_transformer(self, settings: dict[str, Any], codebook: tuple[Codebook, Codebook]
-                          ) -> BodyMaskedTransformer:
+    def build_transformer(self, settings: dict[str, Any], codebook: tuple[Codebook, Codebook]) -> BodyMaskedTransformer:
         """The body transformer over the (upper, lower) part tokenizers' codebooks."""
         upper, lower = (as_codebook(c) for c in codebook)
-        config = BodyTransformerConfig.from_dict({
-            **settings, "codebook_size": upper.shape[0], "code_dim": upper.shape[1],
-            "lower_codebook_size": lower.shape[0], "lower_code_dim": lower.shape[1], "text_dim": self.text_encoder.dim})
+        config = BodyTransformerConfig.from_dict(
+            {
+                **settings,
+                "codebook_size": upper.shape[0],
+                "code_dim": upper.shape[1],
+                "lower_codebook_size": lower.shape[0],
+                "lower_code_dim": lower.shape[1],
+                "text_dim": self.text_encoder.dim,
+            }
+        )
         return BodyMaskedTransformer(config, upper, lower)
 
-    def _predict(self, batch: dict[str, Any], generator: torch.Generator | None = None
-                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _predict(
+        self, batch: dict[str, Any], generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Mask the upper tokens, corrupt the lower ones, predict: (upper codes, masked upper positions, logits)."""
         config = self.transformer.config
         pairs, valid = batch["tokens"].long(), batch["padding_mask"].bool()
@@ -49,7 +64,8 @@ class BodyMMMModule(MMMModule):
         lengths, width = valid.sum(dim=1), pairs.shape[1]
         masked = training_mask(lengths, width, self.alpha, generator)
         hidden = corruption_mask(lengths, width, self.lower_most, generator)
-        inputs = body_canvas(upper.masked_fill(masked, config.mask_id), lower.masked_fill(hidden, config.lower_mask_id),
-                             lengths, config)
+        inputs = body_canvas(
+            upper.masked_fill(masked, config.mask_id), lower.masked_fill(hidden, config.lower_mask_id), lengths, config
+        )
         logits = self.transformer(inputs, *self._condition(batch["text"], generator))[:, :-1]
         return upper, masked, logits

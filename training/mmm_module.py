@@ -17,8 +17,8 @@ from m2d2m.networks.config import ConfigError
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas
 from m2d2m.processes.masking import training_mask
 from m2d2m.text import text_encoder_from_config
-from training.optim import configure_adamw
 from training.losses import check_finite
+from training.optim import configure_adamw
 
 
 def as_codebook(codebook: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -37,9 +37,16 @@ class MMMModule(pl.LightningModule):
     Each training sample is one caption and its segment of the tokens; the condition is the
     caption's sentence feature (prepended) and word features (cross-attended)."""
 
-    def __init__(self, transformer: dict[str, Any], text: dict[str, Any], masking: dict[str, Any],
-                 optim: dict[str, Any], codebook: torch.Tensor | np.ndarray,
-                 vocabulary: list[str] | None = None, text_drop: float = 0.0) -> None:
+    def __init__(
+        self,
+        transformer: dict[str, Any],
+        text: dict[str, Any],
+        masking: dict[str, Any],
+        optim: dict[str, Any],
+        codebook: torch.Tensor | np.ndarray,
+        vocabulary: list[str] | None = None,
+        text_drop: float = 0.0,
+    ) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["codebook", "lower_codebook"])
         self.text_encoder = text_encoder_from_config(text, vocabulary)
@@ -50,27 +57,38 @@ class MMMModule(pl.LightningModule):
             if not 0.0 <= value <= 1.0:
                 raise ConfigError(f"{name} must lie in [0, 1], got {value}")
 
-    def build_transformer(self, settings: dict[str, Any], codebook: torch.Tensor | np.ndarray
-                          ) -> MaskedMotionTransformer:
+    def build_transformer(
+        self, settings: dict[str, Any], codebook: torch.Tensor | np.ndarray
+    ) -> MaskedMotionTransformer:
         """The network of the config section ``settings`` over the tokenizer's ``codebook``."""
         codebook = as_codebook(codebook)
-        config = MaskedTransformerConfig.from_dict({**settings, "codebook_size": codebook.shape[0],
-                                                    "code_dim": codebook.shape[1], "text_dim": self.text_encoder.dim})
+        config = MaskedTransformerConfig.from_dict(
+            {
+                **settings,
+                "codebook_size": codebook.shape[0],
+                "code_dim": codebook.shape[1],
+                "text_dim": self.text_encoder.dim,
+            }
+        )
         return MaskedMotionTransformer(config, codebook)
 
-    def _condition(self, captions: list[str], generator: torch.Generator | None = None
-                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _condition(
+        self, captions: list[str], generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The captions' sentence and word features, a fraction ``text_drop`` of them dropped to
         "": the null condition that editing without text asks for."""
-        dropped = torch.rand(len(captions), generator=generator,
-                             device=generator.device if generator is not None else "cpu") < self.text_drop
+        dropped = (
+            torch.rand(len(captions), generator=generator, device=generator.device if generator is not None else "cpu")
+            < self.text_drop
+        )
         captions = ["" if drop else caption for caption, drop in zip(captions, dropped.tolist())]
         words, word_mask, sentence = self.text_encoder.encode_pooled(captions)
         device = self.transformer.codebook.device
         return sentence.to(device), words.to(device), word_mask.to(device)
 
-    def _predict(self, batch: dict[str, Any], generator: torch.Generator | None = None
-                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _predict(
+        self, batch: dict[str, Any], generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Mask the batch's tokens and predict them: (codes, masked positions, logits)."""
         config = self.transformer.config
         codes, valid = batch["tokens"].long(), batch["padding_mask"].bool()
@@ -110,5 +128,8 @@ class MMMModule(pl.LightningModule):
             self.train(was_training)
 
     def configure_optimizers(self) -> dict[str, Any]:
-        return configure_adamw([*self.transformer.parameters(), *self.text_encoder.parameters()], self.hparams.optim,
-                               decay_matrices_only=True)
+        return configure_adamw(
+            [*self.transformer.parameters(), *self.text_encoder.parameters()],
+            self.hparams.optim,
+            decay_matrices_only=True,
+        )

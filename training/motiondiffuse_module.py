@@ -17,9 +17,8 @@ from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, Motion
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
 from m2d2m.text import text_encoder_from_config
 from training.data import valid_frames
-from training.optim import configure_adamw
 from training.losses import check_finite, log_by_quarter
-
+from training.optim import configure_adamw
 
 
 def masked_mse(predicted: torch.Tensor, target: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
@@ -37,16 +36,24 @@ class MotionDiffuseModule(pl.LightningModule):
     editing without text asks for (ours, as MMM's). The dataset's normalisation is a buffer, so the
     DataModule hands over raw features and the module normalises them."""
 
-    def __init__(self, network: dict[str, Any], text: dict[str, Any], diffusion: dict[str, Any],
-                 optim: dict[str, Any], feature_dim: int, text_drop: float = 0.1,
-                 vocabulary: list[str] | None = None) -> None:
+    def __init__(
+        self,
+        network: dict[str, Any],
+        text: dict[str, Any],
+        diffusion: dict[str, Any],
+        optim: dict[str, Any],
+        feature_dim: int,
+        text_drop: float = 0.1,
+        vocabulary: list[str] | None = None,
+    ) -> None:
         super().__init__()
         self.save_hyperparameters()
         if not 0.0 <= text_drop <= 1.0:
             raise ConfigError(f"text_drop must lie in [0, 1], got {text_drop}")
         self.text_encoder = text_encoder_from_config(text, vocabulary)
-        self.network = MotionDiffuseTransformer(MotionDiffuseConfig.from_dict(
-            {**network, "feature_dim": feature_dim, "text_dim": self.text_encoder.dim}))
+        self.network = MotionDiffuseTransformer(
+            MotionDiffuseConfig.from_dict({**network, "feature_dim": feature_dim, "text_dim": self.text_encoder.dim})
+        )
         try:
             self.process = GaussianDiffusion.from_config(diffusion)
         except ValueError as error:
@@ -65,8 +72,9 @@ class MotionDiffuseModule(pl.LightningModule):
         words, mask = self.text_encoder.encode(captions)
         return self.network.encode_text(words.to(self.device), mask.to(self.device))
 
-    def _losses(self, batch: dict[str, Any], generator: torch.Generator | None = None
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+    def _losses(
+        self, batch: dict[str, Any], generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Each motion's loss (B,) and its step t (B,); ``generator`` (on the CPU) fixes t, the
         noise and the dropped captions, for validation."""
         x0 = (batch["motion"] - self.feature_mean) / self.feature_scale
@@ -104,9 +112,15 @@ class MotionDiffuseModule(pl.LightningModule):
                 text = self.network.encode_text(words.to(self.device), mask.to(self.device))
             process = self.process.respaced(min(steps, self.process.num_steps))
             requests = [FeatureRequest(n, (Term(prompt, 0, n),), seed) for prompt, n in zip(prompts, frames)]
-            motions = sample(self.network, text, requests, process,
-                             lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0), 0.0,
-                             prediction=self.prediction)
+            motions = sample(
+                self.network,
+                text,
+                requests,
+                process,
+                lambda x, t, eps, noise: process.ddim_sample(x, t, eps, noise, 0.0),
+                0.0,
+                prediction=self.prediction,
+            )
             return [(x * self.feature_scale + self.feature_mean).cpu().numpy() for x in motions]
         finally:
             self.train(was_training)

@@ -4,7 +4,8 @@ optionally with a linear warm-up and step decay per step (T2M-GPT's schedule: Ma
 
 from __future__ import annotations
 
-from typing import Any, Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
 
 import torch
 
@@ -26,8 +27,13 @@ def warmup_step_decay(warmup_steps: int, milestones: list[int], gamma: float) ->
     return factor
 
 
-def configure_adamw(parameters: Iterable[torch.nn.Parameter], optim: Mapping[str, Any], *,
-                    decay_matrices_only: bool = False, scheduled: bool = True) -> dict[str, Any]:
+def configure_adamw(
+    parameters: Iterable[torch.nn.Parameter],
+    optim: Mapping[str, Any],
+    *,
+    decay_matrices_only: bool = False,
+    scheduled: bool = True,
+) -> dict[str, Any]:
     """Lightning's ``configure_optimizers`` answer for AdamW over the trainable ``parameters``.
 
     ``optim`` gives ``lr`` and, defaulting to the constants above, ``betas``, ``weight_decay``,
@@ -39,15 +45,21 @@ def configure_adamw(parameters: Iterable[torch.nn.Parameter], optim: Mapping[str
     params = [p for p in parameters if p.requires_grad]
     weight_decay = optim.get("weight_decay", DEFAULT_WEIGHT_DECAY)
     if decay_matrices_only:
-        groups = [{"params": [p for p in params if p.ndim >= 2], "weight_decay": weight_decay},
-                  {"params": [p for p in params if p.ndim < 2], "weight_decay": 0.0}]
+        groups = [
+            {"params": [p for p in params if p.ndim >= 2], "weight_decay": weight_decay},
+            {"params": [p for p in params if p.ndim < 2], "weight_decay": 0.0},
+        ]
     else:
         groups = [{"params": params, "weight_decay": weight_decay}]
-    optimizer = torch.optim.AdamW(groups, lr=optim["lr"], betas=tuple(optim.get("betas", DEFAULT_BETAS)),
-                                  weight_decay=weight_decay)
+    optimizer = torch.optim.AdamW(
+        groups, lr=optim["lr"], betas=tuple(optim.get("betas", DEFAULT_BETAS)), weight_decay=weight_decay
+    )
     if not scheduled:
         return {"optimizer": optimizer}
-    factor = warmup_step_decay(optim.get("warmup_steps", DEFAULT_WARMUP_STEPS), list(optim.get("milestones", [])),
-                               optim.get("gamma", DEFAULT_GAMMA))
+    factor = warmup_step_decay(
+        optim.get("warmup_steps", DEFAULT_WARMUP_STEPS),
+        list(optim.get("milestones", [])),
+        optim.get("gamma", DEFAULT_GAMMA),
+    )
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, factor)
     return {"optimizer": optimizer, "lr_scheduler": {"scheduler": schedule, "interval": "step"}}

@@ -27,7 +27,9 @@ class VQVAEModule(pl.LightningModule):
     the validation set uses. A body part's tokenizer (``model.part``) is scored on its part's
     dimensions, positions and joints; for its MPJPE the rest of the body is the ground truth's."""
 
-    def __init__(self, model: dict[str, Any], optim: dict[str, Any], loss: dict[str, Any], feature_dim: int, skeleton: str) -> None:
+    def __init__(
+        self, model: dict[str, Any], optim: dict[str, Any], loss: dict[str, Any], feature_dim: int, skeleton: str
+    ) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.model = MotionVQVAE(VQConfig.from_dict({**model, "feature_dim": feature_dim}))
@@ -35,10 +37,12 @@ class VQVAEModule(pl.LightningModule):
         j = self.skeleton.num_joints
         dims = self.model.config.dims
         # the root-relative positions among the dimensions the model reconstructs, and its joints
-        self.register_buffer("positions", torch.as_tensor(np.flatnonzero((dims >= 4) & (dims < 4 + 3 * (j - 1)))),
-                             persistent=False)
-        self.register_buffer("joints", torch.as_tensor(part_joints(self.skeleton, self.model.config.part)),
-                             persistent=False)
+        self.register_buffer(
+            "positions", torch.as_tensor(np.flatnonzero((dims >= 4) & (dims < 4 + 3 * (j - 1)))), persistent=False
+        )
+        self.register_buffer(
+            "joints", torch.as_tensor(part_joints(self.skeleton, self.model.config.part)), persistent=False
+        )
         # The normalisation travels inside the checkpoint, so a checkpoint alone can decode.
         self.register_buffer("feature_mean", torch.zeros(feature_dim))
         self.register_buffer("feature_scale", torch.ones(feature_dim))
@@ -58,11 +62,16 @@ class VQVAEModule(pl.LightningModule):
         total = weights["recon"] * recon + weights["joint"] * joint + weights["commit"] * out.commit_loss
         losses = {"recon": recon, "joint": joint, "commit": out.commit_loss}
         if weights.get("acceleration", 0.0):
-            losses["acceleration"] = F.smooth_l1_loss(_acceleration(out.reconstruction[..., self.positions]),
-                                                      _acceleration(x[..., self.positions]))
+            losses["acceleration"] = F.smooth_l1_loss(
+                _acceleration(out.reconstruction[..., self.positions]), _acceleration(x[..., self.positions])
+            )
             total = total + weights["acceleration"] * losses["acceleration"]
-        return {"loss": total, **losses,
-                "perplexity": out.perplexity, "active_codes": torch.as_tensor(float(out.active_codes))}
+        return {
+            "loss": total,
+            **losses,
+            "perplexity": out.perplexity,
+            "active_codes": torch.as_tensor(float(out.active_codes)),
+        }
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
         losses = self._losses(batch["motion"])
@@ -92,8 +101,9 @@ class VQVAEModule(pl.LightningModule):
             aligned = ((truth - truth[:, :1]) - (reconstruction - reconstruction[:, :1]))[:, self.joints]
             aligned = aligned.norm(dim=-1).mean() * to_mm
             self.log("val/recon_loss", error, batch_size=1, sync_dist=True)
-            self.log("val/feature_l1", (out.reconstruction - self.model.select(x)).abs().mean(), batch_size=1,
-                     sync_dist=True)
+            self.log(
+                "val/feature_l1", (out.reconstruction - self.model.select(x)).abs().mean(), batch_size=1, sync_dist=True
+            )
             self.log("val/mpjpe_mm", mpjpe, batch_size=1, sync_dist=True, prog_bar=True)
             self.log("val/mpjpe_root_aligned_mm", aligned, batch_size=1, sync_dist=True, prog_bar=True)
             self._val_codes.append(out.tokens.flatten())

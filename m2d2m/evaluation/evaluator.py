@@ -46,32 +46,113 @@ CONTACT_DIMS = 4  # the foot contacts, dropped from the motion input
 UNIT_LENGTH = 4  # frames per movement latent: two stride-2 convolutions
 
 # Guo's ``POS_enumerator`` order: one-hot positions are part of the published weights.
-POS_CATEGORIES = ("VERB", "NOUN", "DET", "ADP", "NUM", "AUX", "PRON", "ADJ", "ADV",
-                  "Loc_VIP", "Body_VIP", "Obj_VIP", "Act_VIP", "Desc_VIP", "OTHER")
+POS_CATEGORIES = (
+    "VERB",
+    "NOUN",
+    "DET",
+    "ADP",
+    "NUM",
+    "AUX",
+    "PRON",
+    "ADJ",
+    "ADV",
+    "Loc_VIP",
+    "Body_VIP",
+    "Obj_VIP",
+    "Act_VIP",
+    "Desc_VIP",
+    "OTHER",
+)
 POS_INDEX = {name: i for i, name in enumerate(POS_CATEGORIES)}
 OTHER = POS_INDEX["OTHER"]
 
 # Words whose category replaces their spaCy tag (Guo's ``utils/word_vectorizer.py`` lists).
 _VIP_WORDS: dict[str, frozenset[str]] = {
-    "Loc_VIP": frozenset({"left", "right", "clockwise", "counterclockwise", "anticlockwise", "forward", "back",
-                          "backward", "up", "down", "straight", "curve"}),
-    "Body_VIP": frozenset({"arm", "chin", "foot", "feet", "face", "hand", "mouth", "leg", "waist", "eye", "knee",
-                           "shoulder", "thigh"}),
-    "Obj_VIP": frozenset({"stair", "dumbbell", "chair", "window", "floor", "car", "ball", "handrail", "baseball",
-                          "basketball"}),
-    "Act_VIP": frozenset({"walk", "run", "swing", "pick", "bring", "kick", "put", "squat", "throw", "hop", "dance",
-                          "jump", "turn", "stumble", "stop", "sit", "lift", "lower", "raise", "wash", "stand",
-                          "kneel", "stroll", "rub", "bend", "balance", "flap", "jog", "shuffle", "lean", "rotate",
-                          "spin", "spread", "climb"}),
-    "Desc_VIP": frozenset({"slowly", "carefully", "fast", "careful", "slow", "quickly", "happy", "angry", "sad",
-                           "happily", "angrily", "sadly"}),
+    "Loc_VIP": frozenset(
+        {
+            "left",
+            "right",
+            "clockwise",
+            "counterclockwise",
+            "anticlockwise",
+            "forward",
+            "back",
+            "backward",
+            "up",
+            "down",
+            "straight",
+            "curve",
+        }
+    ),
+    "Body_VIP": frozenset(
+        {"arm", "chin", "foot", "feet", "face", "hand", "mouth", "leg", "waist", "eye", "knee", "shoulder", "thigh"}
+    ),
+    "Obj_VIP": frozenset(
+        {"stair", "dumbbell", "chair", "window", "floor", "car", "ball", "handrail", "baseball", "basketball"}
+    ),
+    "Act_VIP": frozenset(
+        {
+            "walk",
+            "run",
+            "swing",
+            "pick",
+            "bring",
+            "kick",
+            "put",
+            "squat",
+            "throw",
+            "hop",
+            "dance",
+            "jump",
+            "turn",
+            "stumble",
+            "stop",
+            "sit",
+            "lift",
+            "lower",
+            "raise",
+            "wash",
+            "stand",
+            "kneel",
+            "stroll",
+            "rub",
+            "bend",
+            "balance",
+            "flap",
+            "jog",
+            "shuffle",
+            "lean",
+            "rotate",
+            "spin",
+            "spread",
+            "climb",
+        }
+    ),
+    "Desc_VIP": frozenset(
+        {
+            "slowly",
+            "carefully",
+            "fast",
+            "careful",
+            "slow",
+            "quickly",
+            "happy",
+            "angry",
+            "sad",
+            "happily",
+            "angrily",
+            "sadly",
+        }
+    ),
 }
 VIP_CATEGORY = {word: POS_INDEX[category] for category, words in _VIP_WORDS.items() for word in words}
 
 # The unknown / start / end words of each kind of word table: Guo's GloVe subset has them as plain
 # words; a learned vocabulary uses bracketed ones that no corpus word can collide with.
-SPECIAL_WORDS = {"glove": {"unk": "unk", "sos": "sos", "eos": "eos"},
-                 "learned": {"unk": UNK, "sos": "<sos>", "eos": "<eos>"}}
+SPECIAL_WORDS = {
+    "glove": {"unk": "unk", "sos": "sos", "eos": "eos"},
+    "learned": {"unk": UNK, "sos": "<sos>", "eos": "<eos>"},
+}
 
 
 @dataclass(frozen=True)
@@ -92,11 +173,20 @@ class EvaluatorConfig(NetworkConfig):
     dropout: float = 0.2
 
     def __post_init__(self) -> None:
-        self.require_positive("movement_hidden", "movement_latent", "motion_hidden", "text_hidden", "embedding_dim",
-                              "word_dim", "max_text_len", "max_motion_length")
+        self.require_positive(
+            "movement_hidden",
+            "movement_latent",
+            "motion_hidden",
+            "text_hidden",
+            "embedding_dim",
+            "word_dim",
+            "max_text_len",
+            "max_motion_length",
+        )
         if not isinstance(self.feature_dim, int) or self.feature_dim <= CONTACT_DIMS:
-            raise ConfigError(f"EvaluatorConfig.feature_dim must be an integer above {CONTACT_DIMS}, "
-                             f"got {self.feature_dim!r}")
+            raise ConfigError(
+                f"EvaluatorConfig.feature_dim must be an integer above {CONTACT_DIMS}, got {self.feature_dim!r}"
+            )
         self.require_choice("word_features", sorted(SPECIAL_WORDS))
         self.require_fraction("dropout")
 
@@ -152,14 +242,18 @@ def load_glove(glove_dir: str | Path, prefix: str = "our_vab") -> tuple[list[str
     vectors_path, index_path = glove_dir / f"{prefix}_data.npy", glove_dir / f"{prefix}_idx.pkl"
     for path in (vectors_path, index_path):
         if not path.is_file():
-            raise FileNotFoundError(f"{path}: missing; GloVe files come from text-to-motion's glove/ directory "
-                                    "(glove.zip), and are never downloaded here")
+            raise FileNotFoundError(
+                f"{path}: missing; GloVe files come from text-to-motion's glove/ directory "
+                "(glove.zip), and are never downloaded here"
+            )
     vectors = np.load(vectors_path, allow_pickle=False)
     index = _read_word_index(index_path)
     rows = sorted(int(row) for row in index.values())
     if vectors.ndim != 2 or rows != list(range(len(vectors))):
-        raise ValueError(f"{index_path} and {vectors_path} disagree: {len(index)} words with rows "
-                         f"{rows[:1]}…{rows[-1:]} for vectors of shape {vectors.shape}")
+        raise ValueError(
+            f"{index_path} and {vectors_path} disagree: {len(index)} words with rows "
+            f"{rows[:1]}…{rows[-1:]} for vectors of shape {vectors.shape}"
+        )
     words = [""] * len(vectors)
     for word, row in index.items():
         words[int(row)] = str(word)
@@ -184,8 +278,12 @@ class MovementEncoder(nn.Module):
     def __init__(self, input_dim: int, hidden: int, latent: int, dropout: float) -> None:
         super().__init__()
         self.convs = nn.Sequential(
-            nn.Conv1d(input_dim, hidden, 4, 2, 1), nn.Dropout(dropout), nn.LeakyReLU(0.2),
-            nn.Conv1d(hidden, latent, 4, 2, 1), nn.Dropout(dropout), nn.LeakyReLU(0.2),
+            nn.Conv1d(input_dim, hidden, 4, 2, 1),
+            nn.Dropout(dropout),
+            nn.LeakyReLU(0.2),
+            nn.Conv1d(hidden, latent, 4, 2, 1),
+            nn.Dropout(dropout),
+            nn.LeakyReLU(0.2),
         )
         self.project = nn.Linear(latent, latent)
         self.apply(_xavier)
@@ -208,16 +306,16 @@ class BiGRUEncoder(nn.Module):
         super().__init__()
         self.input_projection = nn.Linear(input_dim, hidden)
         self.gru = nn.GRU(hidden, hidden, batch_first=True, bidirectional=True)
-        self.head = nn.Sequential(nn.Linear(2 * hidden, hidden), nn.LayerNorm(hidden), nn.LeakyReLU(0.2),
-                                  nn.Linear(hidden, output_dim))
+        self.head = nn.Sequential(
+            nn.Linear(2 * hidden, hidden), nn.LayerNorm(hidden), nn.LeakyReLU(0.2), nn.Linear(hidden, output_dim)
+        )
         self.initial_hidden = nn.Parameter(torch.randn(2, 1, hidden))
         self.input_projection.apply(_xavier)
         self.head.apply(_xavier)
 
     def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
         """(B, L, input_dim) and (B,) lengths ≥ 1 → (B, output_dim), in input order."""
-        packed = pack_padded_sequence(self.input_projection(x), lengths.cpu(), batch_first=True,
-                                      enforce_sorted=False)
+        packed = pack_padded_sequence(self.input_projection(x), lengths.cpu(), batch_first=True, enforce_sorted=False)
         initial = self.initial_hidden.expand(-1, x.shape[0], -1).contiguous()
         _, last = self.gru(packed, initial)
         return self.head(torch.cat([last[0], last[1]], dim=-1))
@@ -241,8 +339,9 @@ class TextMotionEvaluator(nn.Module):
     :func:`learned_vocabulary`, or :func:`load_glove` together with its ``word_vectors``, which
     stay frozen). The normalisation statistics are buffers: set them with :meth:`set_statistics`."""
 
-    def __init__(self, config: EvaluatorConfig, vocabulary: Sequence[str],
-                 word_vectors: torch.Tensor | None = None) -> None:
+    def __init__(
+        self, config: EvaluatorConfig, vocabulary: Sequence[str], word_vectors: torch.Tensor | None = None
+    ) -> None:
         super().__init__()
         self.config = config
         self.vocabulary = list(vocabulary)
@@ -252,14 +351,17 @@ class TextMotionEvaluator(nn.Module):
         if config.word_features == "glove":
             if word_vectors is None or tuple(word_vectors.shape) != (len(self.vocabulary), config.word_dim):
                 found = None if word_vectors is None else tuple(word_vectors.shape)
-                raise ValueError(f"GloVe word features need word_vectors of shape ({len(self.vocabulary)}, "
-                                 f"{config.word_dim}), got {found}")
+                raise ValueError(
+                    f"GloVe word features need word_vectors of shape ({len(self.vocabulary)}, "
+                    f"{config.word_dim}), got {found}"
+                )
             self.words.weight.data.copy_(word_vectors)
             self.words.weight.requires_grad_(False)
         elif word_vectors is not None:
             raise ValueError("learned word features are trained: pass no word_vectors")
-        self.movement = MovementEncoder(config.feature_dim - CONTACT_DIMS, config.movement_hidden,
-                                        config.movement_latent, config.dropout)
+        self.movement = MovementEncoder(
+            config.feature_dim - CONTACT_DIMS, config.movement_hidden, config.movement_latent, config.dropout
+        )
         self.motion = BiGRUEncoder(config.movement_latent, config.motion_hidden, config.embedding_dim)
         self.text = CaptionEncoder(config.word_dim, config.text_hidden, config.embedding_dim)
         self.register_buffer("feature_mean", torch.zeros(config.feature_dim))
@@ -267,8 +369,10 @@ class TextMotionEvaluator(nn.Module):
 
     def _row(self, word: str) -> int:
         if word not in self.word_index:
-            raise ValueError(f"the vocabulary lacks the word {word!r}, which {self.config.word_features} word "
-                             "features need (build it with learned_vocabulary or load_glove)")
+            raise ValueError(
+                f"the vocabulary lacks the word {word!r}, which {self.config.word_features} word "
+                "features need (build it with learned_vocabulary or load_glove)"
+            )
         return self.word_index[word]
 
     @property
@@ -326,10 +430,15 @@ class TextMotionEvaluator(nn.Module):
         if features.ndim != 3 or features.shape[-1] != self.config.feature_dim:
             raise ValueError(f"expected features (B, T, {self.config.feature_dim}), got {tuple(features.shape)}")
         lengths = torch.as_tensor(lengths, device=features.device)
-        if lengths.shape != features.shape[:1] or bool((lengths < UNIT_LENGTH).any()) \
-                or int(lengths.max()) > features.shape[1]:
-            raise ValueError(f"lengths must be one per clip, from {UNIT_LENGTH} to {features.shape[1]} frames, "
-                             f"got {lengths.tolist()}")
+        if (
+            lengths.shape != features.shape[:1]
+            or bool((lengths < UNIT_LENGTH).any())
+            or int(lengths.max()) > features.shape[1]
+        ):
+            raise ValueError(
+                f"lengths must be one per clip, from {UNIT_LENGTH} to {features.shape[1]} frames, "
+                f"got {lengths.tolist()}"
+            )
         frames = lengths.clamp(min=self.config.max_motion_length)
         x = (features - self.feature_mean) / self.feature_scale
         x = F.pad(x, (0, 0, 0, max(0, int(frames.max()) - x.shape[1])))
@@ -366,11 +475,14 @@ def contrastive_loss(text: torch.Tensor, motion: torch.Tensor, shift: int, margi
 def save_evaluator(path: str | Path, model: TextMotionEvaluator) -> Path:
     """One self-contained torch file (written atomically): sizes, vocabulary, and every weight,
     word vector and statistic — all that computing the metrics needs."""
-    return EVALUATOR_FILE.write(path, {
-        "config": model.config.to_dict(),
-        "vocabulary": list(model.vocabulary),
-        "state_dict": {key: value.detach().cpu() for key, value in model.state_dict().items()},
-    })
+    return EVALUATOR_FILE.write(
+        path,
+        {
+            "config": model.config.to_dict(),
+            "vocabulary": list(model.vocabulary),
+            "state_dict": {key: value.detach().cpu() for key, value in model.state_dict().items()},
+        },
+    )
 
 
 def load_evaluator(path: str | Path, map_location: str | torch.device = "cpu") -> TextMotionEvaluator:
@@ -386,8 +498,15 @@ def load_evaluator(path: str | Path, map_location: str | torch.device = "cpu") -
 
 # Guo's module and layer names (``finest.tar`` keys, ``networks/modules.py`` attributes) → ours.
 GUO_MODULES = {"movement_encoder": "movement", "text_encoder": "text", "motion_encoder": "motion"}
-GUO_LAYERS = {"main": "convs", "out_net": "project", "input_emb": "input_projection", "pos_emb": "pos_projection",
-              "gru": "gru", "output_net": "head", "hidden": "initial_hidden"}
+GUO_LAYERS = {
+    "main": "convs",
+    "out_net": "project",
+    "input_emb": "input_projection",
+    "pos_emb": "pos_projection",
+    "gru": "gru",
+    "output_net": "head",
+    "hidden": "initial_hidden",
+}
 
 
 def _guo_checkpoint_file(checkpoint_dir: Path) -> Path:
@@ -395,8 +514,10 @@ def _guo_checkpoint_file(checkpoint_dir: Path) -> Path:
     for candidate in (checkpoint_dir, checkpoint_dir / "finest.tar", checkpoint_dir / "model" / "finest.tar"):
         if candidate.is_file():
             return candidate
-    raise FileNotFoundError(f"{checkpoint_dir}: no finest.tar there, nor in its model/ (Guo's evaluator is "
-                            "checkpoints/t2m/text_mot_match/model/finest.tar of text-to-motion's download)")
+    raise FileNotFoundError(
+        f"{checkpoint_dir}: no finest.tar there, nor in its model/ (Guo's evaluator is "
+        "checkpoints/t2m/text_mot_match/model/finest.tar of text-to-motion's download)"
+    )
 
 
 _OUR_MODULES = {ours: guo for guo, ours in GUO_MODULES.items()}
@@ -414,8 +535,10 @@ def _guo_state(checkpoint: dict[str, Any], path: Path) -> dict[str, torch.Tensor
     """Guo's three module state dicts, renamed to this module's keys."""
     missing = [name for name in GUO_MODULES if name not in checkpoint]
     if missing:
-        raise ValueError(f"{path}: not Guo's text-motion evaluator, it lacks {', '.join(missing)} "
-                         f"(found keys: {', '.join(map(str, checkpoint))})")
+        raise ValueError(
+            f"{path}: not Guo's text-motion evaluator, it lacks {', '.join(missing)} "
+            f"(found keys: {', '.join(map(str, checkpoint))})"
+        )
     state = {}
     for module, ours in GUO_MODULES.items():
         for key, value in checkpoint[module].items():
@@ -428,19 +551,30 @@ def _guo_state(checkpoint: dict[str, Any], path: Path) -> dict[str, torch.Tensor
 
 def _require_shapes(model: TextMotionEvaluator, state: dict[str, torch.Tensor], path: Path) -> None:
     """Name every missing, unexpected or differently shaped weight, in Guo's terms, before loading any."""
-    expected = {key: tuple(value.shape) for key, value in model.state_dict().items()
-                if key.split(".")[0] in _OUR_MODULES}
+    expected = {
+        key: tuple(value.shape) for key, value in model.state_dict().items() if key.split(".")[0] in _OUR_MODULES
+    }
     problems = [f"{_guo_name(key)} missing" for key in expected if key not in state]
     problems += [f"{_guo_name(key)} unexpected" for key in state if key not in expected]
-    problems += [f"{_guo_name(key)} has shape {tuple(value.shape)}, expected {expected[key]}"
-                 for key, value in state.items() if key in expected and tuple(value.shape) != expected[key]]
+    problems += [
+        f"{_guo_name(key)} has shape {tuple(value.shape)}, expected {expected[key]}"
+        for key, value in state.items()
+        if key in expected and tuple(value.shape) != expected[key]
+    ]
     if problems:
-        raise ValueError(f"{path} does not fit Guo's evaluator for {model.config.feature_dim}-d features (from the "
-                         f"meta statistics) and {model.config.word_dim}-d word vectors: " + "; ".join(problems))
+        raise ValueError(
+            f"{path} does not fit Guo's evaluator for {model.config.feature_dim}-d features (from the "
+            f"meta statistics) and {model.config.word_dim}-d word vectors: " + "; ".join(problems)
+        )
 
 
-def load_guo_checkpoint(checkpoint_dir: str | Path, glove_dir: str | Path, meta_dir: str | Path,
-                        glove_prefix: str = "our_vab", map_location: str | torch.device = "cpu") -> TextMotionEvaluator:
+def load_guo_checkpoint(
+    checkpoint_dir: str | Path,
+    glove_dir: str | Path,
+    meta_dir: str | Path,
+    glove_prefix: str = "our_vab",
+    map_location: str | torch.device = "cpu",
+) -> TextMotionEvaluator:
     """Guo's published evaluator as a :class:`TextMotionEvaluator` (eval mode): the weights of
     ``finest.tar`` (its ``movement_encoder``, ``text_encoder`` and ``motion_encoder`` state dicts,
     whose layer names are assumed to be the attribute names of Guo's modules, ``GUO_LAYERS``),
@@ -452,8 +586,10 @@ def load_guo_checkpoint(checkpoint_dir: str | Path, glove_dir: str | Path, meta_
     stats = []
     for name in ("mean.npy", "std.npy"):
         if not (meta_dir / name).is_file():
-            raise FileNotFoundError(f"{meta_dir / name}: missing; the evaluator's statistics are the meta/mean.npy "
-                                    "and meta/std.npy of its run (MDM's dataset/t2m_mean.npy, t2m_std.npy)")
+            raise FileNotFoundError(
+                f"{meta_dir / name}: missing; the evaluator's statistics are the meta/mean.npy "
+                "and meta/std.npy of its run (MDM's dataset/t2m_mean.npy, t2m_std.npy)"
+            )
         stats.append(np.load(meta_dir / name, allow_pickle=False).astype(np.float32))
     mean, std = stats
     if mean.ndim != 1 or mean.shape != std.shape:

@@ -95,7 +95,7 @@ def embed_clips(evaluator: TextMotionEvaluator, clips: Sequence[np.ndarray]) -> 
     parts = []
     with torch.no_grad():
         for start in range(0, len(clips), EMBED_CHUNK):
-            chunk = [torch.as_tensor(np.asarray(c), dtype=torch.float32) for c in clips[start:start + EMBED_CHUNK]]
+            chunk = [torch.as_tensor(np.asarray(c), dtype=torch.float32) for c in clips[start : start + EMBED_CHUNK]]
             lengths = torch.tensor([len(c) for c in chunk])
             padded = pad_sequence(chunk, batch_first=True).to(evaluator.device)
             parts.append(evaluator.embed_motion(padded, lengths).cpu().numpy())
@@ -104,8 +104,12 @@ def embed_clips(evaluator: TextMotionEvaluator, clips: Sequence[np.ndarray]) -> 
 
 def embed_captions(evaluator: TextMotionEvaluator, captions: Sequence[Sequence[str]]) -> np.ndarray:
     with torch.no_grad():
-        return np.concatenate([evaluator.embed_text(captions[start:start + EMBED_CHUNK]).cpu().numpy()
-                               for start in range(0, len(captions), EMBED_CHUNK)])
+        return np.concatenate(
+            [
+                evaluator.embed_text(captions[start : start + EMBED_CHUNK]).cpu().numpy()
+                for start in range(0, len(captions), EMBED_CHUNK)
+            ]
+        )
 
 
 def full_windows(joints: np.ndarray, boundaries: Sequence[int]) -> list[np.ndarray]:
@@ -139,8 +143,11 @@ def transition_profiles(joints: np.ndarray, boundaries: Sequence[int]) -> list[t
 def mean_profile(profiles: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, Any]:
     if not profiles:
         return {"velocity": None, "jerk": None, "windows": 0}
-    return {"velocity": np.mean([p[0] for p in profiles], 0).tolist(),
-            "jerk": np.mean([p[1] for p in profiles], 0).tolist(), "windows": len(profiles)}
+    return {
+        "velocity": np.mean([p[0] for p in profiles], 0).tolist(),
+        "jerk": np.mean([p[1] for p in profiles], 0).tolist(),
+        "windows": len(profiles),
+    }
 
 
 @dataclass
@@ -158,8 +165,9 @@ class MultiMeasures:
 
     def add(self, motions: Sequence[Motion], evaluator: TextMotionEvaluator, skeleton: Any) -> None:
         self.segments.append(embed_clips(evaluator, [m.features[a:b] for m in motions for a, b in m.ranges]))
-        self.windows.append(embed_clips(evaluator, [
-            w for m in motions for w in transition_windows(m.features, m.boundaries, WINDOW)]))
+        self.windows.append(
+            embed_clips(evaluator, [w for m in motions for w in transition_windows(m.features, m.boundaries, WINDOW)])
+        )
         self.jerks += [jerk(m.joints, JERK_FPS, m.boundaries, WINDOW) for m in motions]
         self.curves += [frame_jerk(w) for m in motions for w in full_windows(m.joints, m.boundaries)]
         self.profiles += [p for m in motions for p in transition_profiles(m.joints, m.boundaries)]
@@ -167,25 +175,30 @@ class MultiMeasures:
         for name, values in measure_sequences([(m.joints, m.boundaries) for m in motions], skeleton).items():
             self.registered.setdefault(name, []).extend(values)
 
-    def metrics(self, reference: "Reference", repeat: int) -> dict[str, float]:
+    def metrics(self, reference: Reference, repeat: int) -> dict[str, float]:
         """The multi-motion table's row for repeat ``repeat`` (its shuffle and diversity draws)."""
         segment_emb, window_emb = np.concatenate(self.segments), np.concatenate(self.windows)
         order = _rng(repeat, "order").permutation(reference.items)
-        return {**_matching(reference.text, segment_emb, order, reference.rp_batch),
-                "fid": fid(segment_emb, reference.segments),
-                "diversity": diversity(segment_emb, _pairs(len(segment_emb)), seed=repeat),
-                "transition_fid": fid(window_emb, reference.windows),
-                "transition_diversity": diversity(window_emb, _pairs(len(window_emb)), seed=repeat),
-                "jerk": _nanmean(self.jerks), **flowmdm_jerk(self.curves, reference.frame_jerk_mean),
-                "bone_std": _nanmean(self.bones),
-                **{name: _nanmean(values) for name, values in self.registered.items()}}
+        return {
+            **_matching(reference.text, segment_emb, order, reference.rp_batch),
+            "fid": fid(segment_emb, reference.segments),
+            "diversity": diversity(segment_emb, _pairs(len(segment_emb)), seed=repeat),
+            "transition_fid": fid(window_emb, reference.windows),
+            "transition_diversity": diversity(window_emb, _pairs(len(window_emb)), seed=repeat),
+            "jerk": _nanmean(self.jerks),
+            **flowmdm_jerk(self.curves, reference.frame_jerk_mean),
+            "bone_std": _nanmean(self.bones),
+            **{name: _nanmean(values) for name, values in self.registered.items()},
+        }
 
 
-def _single_metrics(reference: "Reference", embedded: np.ndarray, order: np.ndarray, repeat: int) -> dict[str, float]:
+def _single_metrics(reference: Reference, embedded: np.ndarray, order: np.ndarray, repeat: int) -> dict[str, float]:
     """The single-motion table's columns but MModality, for items embedded in test-set order."""
-    return {**_matching(reference.text, embedded, order, reference.rp_batch),
-            "fid": fid(embedded, reference.segments),
-            "diversity": diversity(embedded, _pairs(len(embedded)), seed=repeat)}
+    return {
+        **_matching(reference.text, embedded, order, reference.rp_batch),
+        "fid": fid(embedded, reference.segments),
+        "diversity": diversity(embedded, _pairs(len(embedded)), seed=repeat),
+    }
 
 
 def _matching(text: np.ndarray, motion: np.ndarray, order: np.ndarray, batch: int) -> dict[str, float]:
@@ -193,8 +206,10 @@ def _matching(text: np.ndarray, motion: np.ndarray, order: np.ndarray, batch: in
     shuffles; the incomplete group is dropped), and MM-Dist over the same rows."""
     used = order[: len(order) // batch * batch]
     precision = r_precision(text[used], motion[used], top_k=3, batch=batch)
-    return {**{f"r_top{k + 1}": float(p) for k, p in enumerate(precision)},
-            "mm_dist": mm_dist(text[used], motion[used])}
+    return {
+        **{f"r_top{k + 1}": float(p) for k, p in enumerate(precision)},
+        "mm_dist": mm_dist(text[used], motion[used]),
+    }
 
 
 @dataclass
@@ -243,8 +258,15 @@ class Reference:
         return min(R_PRECISION_BATCH, self.items)
 
     @classmethod
-    def build(cls, actions: list[list[str]], segments: list[list[np.ndarray]], captions: list[list[str]],
-              evaluator: TextMotionEvaluator, skeleton: Any, frame_step: int = 1) -> "Reference":
+    def build(
+        cls,
+        actions: list[list[str]],
+        segments: list[list[np.ndarray]],
+        captions: list[list[str]],
+        evaluator: TextMotionEvaluator,
+        skeleton: Any,
+        frame_step: int = 1,
+    ) -> Reference:
         """From each instance's action sentences and ground-truth feature segments, and each
         item's caption as ``word/POS`` tokens (items in instance order). Every length is cut to
         a multiple of ``frame_step`` (whole tokens of a token model, as Guo's loader crops), the
@@ -256,21 +278,29 @@ class Reference:
         joints = [[features_to_joints(clip, skeleton) for clip in clips] for clips in features]
         single = [jerk(j, JERK_FPS, [len(j) // 2], WINDOW) for clips in joints for j in clips]
         # joined with no transition window: each clip turned and moved to where the previous ended
-        concat = [(joined, [first for first, _ in ranges[1:]])
-                  for joined, ranges in (slerp_join(clips, 0, skeleton) for clips in joints)]
+        concat = [
+            (joined, [first for first, _ in ranges[1:]])
+            for joined, ranges in (slerp_join(clips, 0, skeleton) for clips in joints)
+        ]
         constant = mean_frame_jerk([j for clips in joints for j in clips if len(j) >= 4])
         middle_curves = [frame_jerk(w) for clips in joints for j in clips for w in full_windows(j, [len(j) // 2])]
         concat_curves = [frame_jerk(w) for j, b in concat for w in full_windows(j, b)]
         reference = cls(
-            actions=actions, frames=frames, text=embed_captions(evaluator, captions),
-            segments=embed_clips(evaluator, flat), windows=embed_clips(evaluator, middles),
-            jerk_single=_nanmean(single), jerk_concat=_nanmean([jerk(j, JERK_FPS, b, WINDOW) for j, b in concat]),
-            frame_jerk_mean=constant, flowmdm_single=flowmdm_jerk(middle_curves, constant),
+            actions=actions,
+            frames=frames,
+            text=embed_captions(evaluator, captions),
+            segments=embed_clips(evaluator, flat),
+            windows=embed_clips(evaluator, middles),
+            jerk_single=_nanmean(single),
+            jerk_concat=_nanmean([jerk(j, JERK_FPS, b, WINDOW) for j, b in concat]),
+            frame_jerk_mean=constant,
+            flowmdm_single=flowmdm_jerk(middle_curves, constant),
             flowmdm_concat=flowmdm_jerk(concat_curves, constant),
             concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]),
             bone_std=_nanmean([bone_length_spread(j, skeleton)["mean"] for clips in joints for j in clips]),
             registered_concat={name: _nanmean(values) for name, values in measure_sequences(concat, skeleton).items()},
-            features=features)
+            features=features,
+        )
         return reference
 
     def add_reconstruction(self, label: str, generator: MotionGenerator, evaluator: TextMotionEvaluator) -> str | None:
@@ -282,30 +312,38 @@ class Reference:
             return None
         for known, earlier in self.reconstructions.items():
             if len(earlier.sequences) == len(reconstructed) and all(
-                    np.array_equal(a, m.features) for a, m in zip(earlier.sequences, reconstructed)):
+                np.array_equal(a, m.features) for a, m in zip(earlier.sequences, reconstructed)
+            ):
                 return known
         measures = MultiMeasures()
         measures.add(reconstructed, evaluator, generator.skeleton)
-        items = embed_clips(evaluator, [m.features for m in generator.reconstruct(
-            [[clip] for clip in self.item_features])])
+        items = embed_clips(
+            evaluator, [m.features for m in generator.reconstruct([[clip] for clip in self.item_features])]
+        )
         self.reconstructions[label] = Reconstruction(measures, items, [m.features for m in reconstructed])
         return label
 
     def measure(self, repeat: int) -> dict[str, float]:
         """The "ground truth (single)" row for one repeat (its shuffle and diversity draws)."""
         order = _rng(repeat, "order").permutation(self.items)
-        return {**_matching(self.text, self.segments, order, self.rp_batch),
-                "diversity": diversity(self.segments, _pairs(self.items), seed=repeat),
-                "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
-                "jerk": self.jerk_single, **self.flowmdm_single, "bone_std": self.bone_std}
+        return {
+            **_matching(self.text, self.segments, order, self.rp_batch),
+            "diversity": diversity(self.segments, _pairs(self.items), seed=repeat),
+            "transition_diversity": diversity(self.windows, _pairs(self.items), seed=repeat),
+            "jerk": self.jerk_single,
+            **self.flowmdm_single,
+            "bone_std": self.bone_std,
+        }
 
     def reconstruction_rows(self, label: str, repeat: int) -> tuple[dict[str, float], dict[str, float]]:
         """The "VQ-VAE reconstruction" rows of the multi- and single-motion tables for one
         repeat, of the codec measured under ``label``."""
         reconstruction = self.reconstructions[label]
         order = _rng(repeat, "order").permutation(self.items)
-        return (reconstruction.measures.metrics(self, repeat),
-                _single_metrics(self, reconstruction.items, order, repeat))
+        return (
+            reconstruction.measures.metrics(self, repeat),
+            _single_metrics(self, reconstruction.items, order, repeat),
+        )
 
     def concat_row(self) -> dict[str, float]:
         """The "ground truth (concat)" row: its transition jerks, the same in every repeat."""
@@ -318,8 +356,15 @@ class Evaluation:
     change every table, so ``steps=100`` makes MotionDiffuse's single-motion rows quick too), and
     a progress callback called after each generated batch."""
 
-    def __init__(self, generator: MotionGenerator, evaluator: TextMotionEvaluator, reference: Reference,
-                 knobs: dict[str, Any], batch_size: int, progress: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        generator: MotionGenerator,
+        evaluator: TextMotionEvaluator,
+        reference: Reference,
+        knobs: dict[str, Any],
+        batch_size: int,
+        progress: Callable[[str], None],
+    ) -> None:
         self.generator = generator
         self.evaluator = evaluator
         self.reference = reference
@@ -327,14 +372,22 @@ class Evaluation:
         self.batch_size = batch_size
         self.progress = progress
 
-    def _generate(self, actions: list[list[str]], frames: list[list[int]], options: Any,
-                  seeds: list[int], label: str, keep: list[Keep] | None = None) -> Iterator[list[Motion]]:
+    def _generate(
+        self,
+        actions: list[list[str]],
+        frames: list[list[int]],
+        options: Any,
+        seeds: list[int],
+        label: str,
+        keep: list[Keep] | None = None,
+    ) -> Iterator[list[Motion]]:
         """The motions of the requests, one batch at a time (a whole repeat would not fit in
         memory on a real test set)."""
         for start in range(0, len(actions), self.batch_size):
             window = slice(start, start + self.batch_size)
-            yield self.generator.generate(actions[window], frames[window], options, seeds[window],
-                                          None if keep is None else keep[window])
+            yield self.generator.generate(
+                actions[window], frames[window], options, seeds[window], None if keep is None else keep[window]
+            )
             self.progress(label)
 
     def multi(self, method: str, repeat: int) -> dict[str, Any]:
@@ -345,8 +398,12 @@ class Evaluation:
         measures = MultiMeasures()
         for motions in self._generate(reference.actions, reference.frames, options, seeds, f"{method} r{repeat}"):
             measures.add(motions, self.evaluator, self.generator.skeleton)
-        return {"method": method, "repeat": repeat, "metrics": measures.metrics(reference, repeat),
-                "profile": mean_profile(measures.profiles)}
+        return {
+            "method": method,
+            "repeat": repeat,
+            "metrics": measures.metrics(reference, repeat),
+            "profile": mean_profile(measures.profiles),
+        }
 
     def single(self, repeat: int) -> dict[str, Any]:
         """One repeat of the single-motion table: every test item generated alone with the
@@ -359,13 +416,21 @@ class Evaluation:
         order = _rng(repeat, "order").permutation(reference.items)
         label = f"single r{repeat}"
         embedded = self._embed_generated(actions, frames, options, _seeds(repeat, "single", len(actions)), label)
-        prompts = order[:min(MM_PROMPTS, reference.items)]
+        prompts = order[: min(MM_PROMPTS, reference.items)]
         repeated = [p for p in prompts for _ in range(MM_GENERATIONS)]
-        again = self._embed_generated([actions[p] for p in repeated], [frames[p] for p in repeated], options,
-                                      _seeds(repeat, "mmodality", len(repeated)), label)
-        metrics = {**_single_metrics(reference, embedded, order, repeat),
-                   "mmodality": multimodality(again.reshape(len(prompts), MM_GENERATIONS, -1),
-                                              pairs=MM_GENERATIONS, seed=repeat)}
+        again = self._embed_generated(
+            [actions[p] for p in repeated],
+            [frames[p] for p in repeated],
+            options,
+            _seeds(repeat, "mmodality", len(repeated)),
+            label,
+        )
+        metrics = {
+            **_single_metrics(reference, embedded, order, repeat),
+            "mmodality": multimodality(
+                again.reshape(len(prompts), MM_GENERATIONS, -1), pairs=MM_GENERATIONS, seed=repeat
+            ),
+        }
         return {"repeat": repeat, "metrics": metrics}
 
     def edit(self, task: str, text: bool, repeat: int) -> dict[str, Any]:
@@ -380,15 +445,36 @@ class Evaluation:
         keep = [EDITS[task](clip, self.generator.skeleton) for clip in flat]
         order = _rng(repeat, "order").permutation(reference.items)
         label = f"{task} {'with' if text else 'without'} text r{repeat}"
-        embedded = self._embed_generated(actions, frames, self.generator.options(SINGLE, **self.knobs),
-                                         _seeds(repeat, f"edit-{task}", len(actions)), label, keep)
-        return {"task": task, "text": text, "repeat": repeat,
-                "metrics": _single_metrics(reference, embedded, order, repeat)}
+        embedded = self._embed_generated(
+            actions,
+            frames,
+            self.generator.options(SINGLE, **self.knobs),
+            _seeds(repeat, f"edit-{task}", len(actions)),
+            label,
+            keep,
+        )
+        return {
+            "task": task,
+            "text": text,
+            "repeat": repeat,
+            "metrics": _single_metrics(reference, embedded, order, repeat),
+        }
 
-    def _embed_generated(self, actions: list[list[str]], frames: list[list[int]], options: Any,
-                         seeds: list[int], label: str, keep: list[Keep] | None = None) -> np.ndarray:
-        return np.concatenate([embed_clips(self.evaluator, [m.features for m in motions])
-                               for motions in self._generate(actions, frames, options, seeds, label, keep)])
+    def _embed_generated(
+        self,
+        actions: list[list[str]],
+        frames: list[list[int]],
+        options: Any,
+        seeds: list[int],
+        label: str,
+        keep: list[Keep] | None = None,
+    ) -> np.ndarray:
+        return np.concatenate(
+            [
+                embed_clips(self.evaluator, [m.features for m in motions])
+                for motions in self._generate(actions, frames, options, seeds, label, keep)
+            ]
+        )
 
 
 def inbetween_keep(features: np.ndarray, skeleton: Any) -> Keep:
@@ -397,7 +483,7 @@ def inbetween_keep(features: np.ndarray, skeleton: Any) -> Keep:
     frames = np.zeros(len(features), dtype=bool)
     quarter = len(features) // 4
     frames[:quarter] = True
-    frames[len(features) - quarter:] = True
+    frames[len(features) - quarter :] = True
     return Keep(features, frames)
 
 

@@ -39,8 +39,7 @@ def _paired(text_emb, motion_emb) -> tuple[np.ndarray, np.ndarray]:
     text = _as_array(text_emb, "text_emb", 2)
     motion = _as_array(motion_emb, "motion_emb", 2)
     if text.shape != motion.shape:
-        raise ValueError(f"text_emb {text.shape} and motion_emb {motion.shape} must pair row by row "
-                         "(same shape)")
+        raise ValueError(f"text_emb {text.shape} and motion_emb {motion.shape} must pair row by row (same shape)")
     if len(text) == 0:
         raise ValueError("text_emb and motion_emb are empty")
     return text, motion
@@ -64,8 +63,7 @@ def fid(feats_a, feats_b) -> float:
     a = _as_array(feats_a, "feats_a", 2)
     b = _as_array(feats_b, "feats_b", 2)
     if a.shape[1] != b.shape[1]:
-        raise ValueError(f"feats_a and feats_b must have the same feature size, got {a.shape[1]} "
-                         f"and {b.shape[1]}")
+        raise ValueError(f"feats_a and feats_b must have the same feature size, got {a.shape[1]} and {b.shape[1]}")
     for name, feats in (("feats_a", a), ("feats_b", b)):
         if len(feats) < 2:
             raise ValueError(f"fid needs at least 2 samples in {name} to fit a covariance, got {len(feats)}")
@@ -90,8 +88,10 @@ def diversity(feats, pairs: int = 300, seed: int = 0) -> float:
     if pairs < 1:
         raise ValueError(f"pairs must be at least 1, got {pairs}")
     if len(feats) < pairs:
-        raise ValueError(f"diversity with pairs={pairs} needs at least {pairs} samples, got "
-                         f"{len(feats)}; pass a smaller pairs for small sets")
+        raise ValueError(
+            f"diversity with pairs={pairs} needs at least {pairs} samples, got "
+            f"{len(feats)}; pass a smaller pairs for small sets"
+        )
     rng = np.random.default_rng(seed)
     first = rng.choice(len(feats), pairs, replace=False)
     second = rng.choice(len(feats), pairs, replace=False)
@@ -123,8 +123,9 @@ def r_precision(text_emb, motion_emb, top_k: int = 3, batch: int = 32) -> np.nda
         raise ValueError(f"top_k must lie in 1..batch ({batch}), got {top_k}")
     groups = len(text) // batch
     if groups == 0:
-        raise ValueError(f"r_precision needs at least batch={batch} samples, got {len(text)}; "
-                         "pass a smaller batch for small sets")
+        raise ValueError(
+            f"r_precision needs at least batch={batch} samples, got {len(text)}; pass a smaller batch for small sets"
+        )
     hits = np.zeros(top_k)
     for start in range(0, groups * batch, batch):
         rows = slice(start, start + batch)
@@ -151,8 +152,9 @@ def multimodality(feats_per_prompt, pairs: int = 10, seed: int = 0) -> float:
     if pairs < 1:
         raise ValueError(f"pairs must be at least 1, got {pairs}")
     if feats.shape[1] < pairs:
-        raise ValueError(f"multimodality with pairs={pairs} needs at least {pairs} generations per "
-                         f"prompt, got {feats.shape[1]}")
+        raise ValueError(
+            f"multimodality with pairs={pairs} needs at least {pairs} generations per prompt, got {feats.shape[1]}"
+        )
     rng = np.random.default_rng(seed)
     first = rng.choice(feats.shape[1], pairs, replace=False)
     second = rng.choice(feats.shape[1], pairs, replace=False)
@@ -183,10 +185,12 @@ def transition_windows(x, boundaries: Sequence[int], window: int = 40) -> list[n
         except TypeError:
             raise ValueError(f"boundaries must be integer frame indices, got {boundary!r}") from None
         if not 0 < boundary < len(frames):
-            raise ValueError(f"boundary {boundary} lies outside the sequence's interior "
-                             f"(1..{len(frames) - 1} for {len(frames)} frames)")
+            raise ValueError(
+                f"boundary {boundary} lies outside the sequence's interior "
+                f"(1..{len(frames) - 1} for {len(frames)} frames)"
+            )
         start = boundary - window // 2
-        windows.append(frames[max(start, 0):start + window])
+        windows.append(frames[max(start, 0) : start + window])
     return windows
 
 
@@ -219,8 +223,7 @@ def dimensionless_jerk(positions, fps: float, min_step: float = DEFAULT_MIN_STEP
     return np.where(moving, integral / np.where(moving, peak_speed, 1.0) ** 2, np.nan)
 
 
-def jerk(joints, fps: float, boundaries: Sequence[int], window: int = 40,
-         min_step: float = DEFAULT_MIN_STEP) -> float:
+def jerk(joints, fps: float, boundaries: Sequence[int], window: int = 40, min_step: float = DEFAULT_MIN_STEP) -> float:
     """The paper's transition Jerk (eq. 10) of one multi-action sequence of joint positions
     (F, J, 3) in metres, with ``boundaries`` the first frames of actions 2..N.
 
@@ -249,8 +252,10 @@ def jerk(joints, fps: float, boundaries: Sequence[int], window: int = 40,
     per_window = []
     for frames in transition_windows(joints, boundaries, window):
         if len(frames) < 4:
-            raise ValueError(f"the window around a boundary keeps only {len(frames)} frames after "
-                             "clipping; the jerk needs at least 4 (use a larger window)")
+            raise ValueError(
+                f"the window around a boundary keeps only {len(frames)} frames after "
+                "clipping; the jerk needs at least 4 (use a larger window)"
+            )
         ratios = dimensionless_jerk(frames, fps, min_step)
         if not np.isnan(ratios).all():
             with np.errstate(divide="ignore"):

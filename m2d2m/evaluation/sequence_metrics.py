@@ -51,5 +51,7 @@ def sequence_metrics() -> tuple[SequenceMetric, ...]:
 
 def measure_sequences(sequences: Sequence[tuple[np.ndarray, Sequence[int]]], skeleton: Any) -> dict[str, list[float]]:
     """Each registered metric's value of each ``(joints, boundaries)``."""
-    return {metric.name: [float(metric.measure(joints, boundaries, skeleton)) for joints, boundaries in sequences]
-            for metric in sequence_metrics()}
+    return {
+        metric.name: [float(metric.measure(joints, boundaries, skeleton)) for joints, boundaries in sequences]
+        for metric in sequence_metrics()
+    }

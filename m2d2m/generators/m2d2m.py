@@ -36,7 +36,7 @@ class M2D2MGenerator(TokenModelGenerator):
         self.sampler = TokenSampler(checkpoint.denoiser, checkpoint.text_encoder, checkpoint.schedule)
 
     @classmethod
-    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "M2D2MGenerator":
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> M2D2MGenerator:
         return cls(load_m2d2m(path, device), Path(path))
 
     @property
@@ -59,29 +59,52 @@ class M2D2MGenerator(TokenModelGenerator):
         return f"{phases}η = {eta:g}, s = {options.guidance:g}{truncation}{taken}"
 
     # ----------------------------------------------------------------------------- the call
-    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: M2D2MOptions,
-                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
-                 progress: Callable[[float], None] | None = None) -> list[Motion]:
+    def generate(
+        self,
+        actions: Sequence[Sequence[str]],
+        frames: Sequence[Sequence[int]],
+        options: M2D2MOptions,
+        seeds: Sequence[int],
+        keep: Sequence[Keep | None] | None = None,
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Motion]:
         """Sample every sequence in one batch of the sampler and decode each (see the protocol)."""
         keep = [None] * len(actions) if keep is None else keep
         lengths = self.tokens_of(frames)
-        requests = [TokenRequest([[a] for a in sequence], tokens, int(seed), self.given_tokens(kept, sum(tokens)))
-                    for sequence, tokens, seed, kept in zip(actions, lengths, seeds, keep)]
+        requests = [
+            TokenRequest([[a] for a in sequence], tokens, int(seed), self.given_tokens(kept, sum(tokens)))
+            for sequence, tokens, seed, kept in zip(actions, lengths, seeds, keep)
+        ]
         steps = self.checkpoint.schedule.steps
-        tokens = self.sampler.sample(requests, options,
-                                     None if progress is None else lambda s: progress((steps - s) / steps))
+        tokens = self.sampler.sample(
+            requests, options, None if progress is None else lambda s: progress((steps - s) / steps)
+        )
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
-        return [self.decode(pieces, list(sequence), options, {**settings, "seed": int(seed)})
-                for pieces, sequence, seed in zip(tokens, actions, seeds)]
+        return [
+            self.decode(pieces, list(sequence), options, {**settings, "seed": int(seed)})
+            for pieces, sequence, seed in zip(tokens, actions, seeds)
+        ]
 
-    def decode(self, pieces: list[torch.Tensor], actions: list[str], options: M2D2MOptions,
-               settings: dict[str, Any]) -> Motion:
+    def decode(
+        self, pieces: list[torch.Tensor], actions: list[str], options: M2D2MOptions, settings: dict[str, Any]
+    ) -> Motion:
         """Tokens per action → one Motion: decoded together, or (``slerp``) one by one and joined."""
         if options.method != "slerp":
             return self.codec.motion(pieces, actions, settings)
         skeleton = self.skeleton
-        joints, ranges = slerp_join([features_to_joints(self.codec.decode(p), skeleton) for p in pieces],
-                                    options.slerp * self.frame_step, skeleton)
+        joints, ranges = slerp_join(
+            [features_to_joints(self.codec.decode(p), skeleton) for p in pieces],
+            options.slerp * self.frame_step,
+            skeleton,
+        )
         features = joints_to_features(np.concatenate([joints, joints[-1:]]), skeleton)
-        return Motion(features, np.asarray(joints, dtype=np.float32), self.fps, skeleton.name, list(actions),
-                      ranges, settings, torch.cat(pieces).cpu().numpy())
+        return Motion(
+            features,
+            np.asarray(joints, dtype=np.float32),
+            self.fps,
+            skeleton.name,
+            list(actions),
+            ranges,
+            settings,
+            torch.cat(pieces).cpu().numpy(),
+        )

@@ -40,22 +40,34 @@ class M2D2MCheckpoint:
     sampling: dict[str, Any]  # M2D2MOptions fields of MODEL_DEFAULTS; empty in files older than them
 
 
-def save_m2d2m(path: str | Path, denoiser: MotionDenoiser, text_encoder: TextEncoder, text: dict[str, Any],
-               schedule: ScheduleConfig, codebook: torch.Tensor, vq_file: str | Path, lengths: LengthPrior,
-               extra: dict[str, Any] | None = None, sampling: dict[str, Any] | None = None) -> Path:
+def save_m2d2m(
+    path: str | Path,
+    denoiser: MotionDenoiser,
+    text_encoder: TextEncoder,
+    text: dict[str, Any],
+    schedule: ScheduleConfig,
+    codebook: torch.Tensor,
+    vq_file: str | Path,
+    lengths: LengthPrior,
+    extra: dict[str, Any] | None = None,
+    sampling: dict[str, Any] | None = None,
+) -> Path:
     """Write a model file; ``text`` is the run's config section, ``schedule`` the trained schedule's
     whole config (endpoints included, so a configured ᾱ_T or γ̄_T survives the round trip),
     ``sampling`` the run's sampling defaults (checked by :func:`sampling_defaults`)."""
-    return M2D2M_FILE.write(path, {
-        "denoiser": network_payload(denoiser),
-        "text": text_payload(text_encoder, text),
-        "schedule": schedule.to_dict(),
-        "codebook": codebook.detach().cpu().to(torch.float32),
-        "vq": VQ_FILE.read(vq_file),
-        "lengths": lengths.to_payload(),
-        "extra": {} if extra is None else extra,
-        "sampling": sampling_defaults(sampling or {}, schedule.steps),
-    })
+    return M2D2M_FILE.write(
+        path,
+        {
+            "denoiser": network_payload(denoiser),
+            "text": text_payload(text_encoder, text),
+            "schedule": schedule.to_dict(),
+            "codebook": codebook.detach().cpu().to(torch.float32),
+            "vq": VQ_FILE.read(vq_file),
+            "lengths": lengths.to_payload(),
+            "extra": {} if extra is None else extra,
+            "sampling": sampling_defaults(sampling or {}, schedule.steps),
+        },
+    )
 
 
 def load_m2d2m(path: str | Path, device: str | torch.device = "cpu") -> M2D2MCheckpoint:
@@ -65,9 +77,15 @@ def load_m2d2m(path: str | Path, device: str | torch.device = "cpu") -> M2D2MChe
     denoiser.load_state_dict(payload["denoiser"]["state_dict"])
     text_encoder = text_encoder_from_payload(payload["text"])
     schedule = TransitionSchedule.from_config(payload["codebook"].to(device), payload["schedule"])
-    return M2D2MCheckpoint(denoiser.to(device).eval(), text_encoder.to(device).eval(), schedule,
-                           TokenCodec.from_payload(payload["vq"], device), LengthPrior(**payload["lengths"]),
-                           payload["extra"], payload.get("sampling", {}))
+    return M2D2MCheckpoint(
+        denoiser.to(device).eval(),
+        text_encoder.to(device).eval(),
+        schedule,
+        TokenCodec.from_payload(payload["vq"], device),
+        LengthPrior(**payload["lengths"]),
+        payload["extra"],
+        payload.get("sampling", {}),
+    )
 
 
 def sampling_defaults(values: dict[str, Any], steps: int) -> dict[str, Any]:

@@ -15,17 +15,21 @@ class M2D2MOptions:
     """Knobs of the reverse process. The presets are the paper's settings (§5.1); the bare
     defaults sample with the η the model was trained with."""
 
-    method: str = knob("tps", "how the actions are joined: Two-Phase Sampling (tps), each alone (independent), "
-                              "shared tokens (handshake) or SLERP between them (slerp)", choices=METHODS)
-    ts: int | None = knob(None, "TPS switch step T_s: joint for t > T_s, independent below (default 90 % of T)",
-                          minimum=0)
+    method: str = knob(
+        "tps",
+        "how the actions are joined: Two-Phase Sampling (tps), each alone (independent), "
+        "shared tokens (handshake) or SLERP between them (slerp)",
+        choices=METHODS,
+    )
+    ts: int | None = knob(
+        None, "TPS switch step T_s: joint for t > T_s, independent below (default 90 % of T)", minimum=0
+    )
     eta: float | None = knob(None, "η of the dynamic transition at sampling (default: the trained η)", minimum=0)
-    guidance: float = knob(2.0, "classifier-free guidance scale s of the paper's eq. 9 (0: the conditional alone)",
-                           minimum=0)
-    truncation: float = knob(1.0, "keep the most probable codes holding this much x0 mass (1: off)",
-                             above=0, maximum=1)
-    steps: int | None = knob(None, "reverse steps taken, skipping with exact posteriors (default: all T)",
-                             minimum=1)
+    guidance: float = knob(
+        2.0, "classifier-free guidance scale s of the paper's eq. 9 (0: the conditional alone)", minimum=0
+    )
+    truncation: float = knob(1.0, "keep the most probable codes holding this much x0 mass (1: off)", above=0, maximum=1)
+    steps: int | None = knob(None, "reverse steps taken, skipping with exact posteriors (default: all T)", minimum=1)
     handshake: int = knob(5, "tokens shared between neighbours (handshake); 5 tokens = 20 frames", minimum=1)
     slerp: int = knob(2, "tokens left out before each later action (slerp); 2 tokens = 8 frames", minimum=0)
 

@@ -49,6 +49,7 @@ from m2d2m.networks.m2d2m_denoiser import Condition, MotionDenoiser, action_offs
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import TextEncoder, encode_actions
 
+
 @dataclass
 class TokenRequest:
     """One sequence to generate: its actions in order, each action's length in tokens, a seed.
@@ -170,8 +171,13 @@ class TokenSampler:
     builds the dynamic schedule's matrices for that η once (a few hundred milliseconds at K = 512, T = 100).
     """
 
-    def __init__(self, denoiser: MotionDenoiser, text_encoder: TextEncoder, schedule: TransitionSchedule,
-                 reuse_condition: bool = True) -> None:
+    def __init__(
+        self,
+        denoiser: MotionDenoiser,
+        text_encoder: TextEncoder,
+        schedule: TransitionSchedule,
+        reuse_condition: bool = True,
+    ) -> None:
         self.denoiser = denoiser
         self.text_encoder = text_encoder
         self.schedule = schedule
@@ -194,8 +200,12 @@ class TokenSampler:
 
     # ------------------------------------------------------------------------------------- public
     @torch.no_grad()
-    def sample(self, requests: list[TokenRequest], options: M2D2MOptions = M2D2MOptions(),
-               progress: Callable[[int], None] | None = None) -> list[list[Tensor]]:
+    def sample(
+        self,
+        requests: list[TokenRequest],
+        options: M2D2MOptions = M2D2MOptions(),
+        progress: Callable[[int], None] | None = None,
+    ) -> list[list[Tensor]]:
         """Tokens for each request, one (length,) long tensor per action (the *generated* tokens:
         under ``slerp`` later actions are ``slerp`` tokens shorter; under ``handshake`` the
         shared tokens belong to the earlier action). ``progress(s)`` is called after each jump
@@ -218,8 +228,13 @@ class TokenSampler:
             self.text_encoder.train(was_training)
 
     # ----------------------------------------------------------------------------------- internals
-    def _run(self, requests: list[TokenRequest], options: M2D2MOptions, schedule: TransitionSchedule,
-             progress: Callable[[int], None] | None) -> list[list[Tensor]]:
+    def _run(
+        self,
+        requests: list[TokenRequest],
+        options: M2D2MOptions,
+        schedule: TransitionSchedule,
+        progress: Callable[[int], None] | None,
+    ) -> list[list[Tensor]]:
         device = self.device
         generators = [torch.Generator(device=device).manual_seed(int(r.seed)) for r in requests]
         overlap = options.handshake if options.method == "handshake" else 0
@@ -238,9 +253,18 @@ class TokenSampler:
                 state = self._denoise(layout, state, given, generators, jumps, schedule, options, overlap, progress)
         return [_split_actions(z, r.lengths, overlap) for z, r in zip(state, requests)]
 
-    def _denoise(self, layout: _Layout, state: list[Tensor], given: list[Tensor], generators: list[torch.Generator],
-                 jumps: list[tuple[int, int]], schedule: TransitionSchedule, options: M2D2MOptions, overlap: int,
-                 progress: Callable[[int], None] | None) -> list[Tensor]:
+    def _denoise(
+        self,
+        layout: _Layout,
+        state: list[Tensor],
+        given: list[Tensor],
+        generators: list[torch.Generator],
+        jumps: list[tuple[int, int]],
+        schedule: TransitionSchedule,
+        options: M2D2MOptions,
+        overlap: int,
+        progress: Callable[[int], None] | None,
+    ) -> list[Tensor]:
         """Take the reverse ``jumps`` (t, s) on the rows of ``layout``; returns the requests' streams."""
         device, mask, codes = self.device, schedule.mask_index, schedule.num_codes
         rows, width = len(layout.rows), layout.length
@@ -260,17 +284,21 @@ class TokenSampler:
         for t, s in jumps:
             x0 = torch.zeros(rows, width, codes, dtype=torch.float64, device=device)
             for index, n in groups:
-                rows_condition = (self._condition(text[index], text_mask[index], options) if condition is None
-                                  else condition.rows(_guided_rows(index, rows, options)))
-                x0[index, :n] = self._x0(z[index, :n], valid[index, :n], offsets[index, :n], t, rows_condition,
-                                         options)
+                rows_condition = (
+                    self._condition(text[index], text_mask[index], options)
+                    if condition is None
+                    else condition.rows(_guided_rows(index, rows, options))
+                )
+                x0[index, :n] = self._x0(z[index, :n], valid[index, :n], offsets[index, :n], t, rows_condition, options)
             if overlap:
                 x0 = _blend_shared(x0, layout, overlap)
             probs = torch.zeros(rows, width, codes + 1, dtype=torch.float64, device=device)
             probs[valid] = schedule.posterior_probs(z[valid], x0[valid], t, s)
             uniforms = torch.zeros(rows, width, dtype=torch.float64, device=device)
-            draws = [torch.rand(streams, generator=g, dtype=torch.float64, device=device)
-                     for streams, g in zip((s.numel() for s in state), generators)]
+            draws = [
+                torch.rand(streams, generator=g, dtype=torch.float64, device=device)
+                for streams, g in zip((s.numel() for s in state), generators)
+            ]
             for i, row in enumerate(layout.rows):
                 uniforms[i, : row.stream.stop - row.stream.start] = draws[row.request][row.stream]
             z = categorical(probs, uniforms)
@@ -302,15 +330,17 @@ class TokenSampler:
         null_text, null_mask = self.denoiser.nullify(text, text_mask, torch.ones(text.shape[0], dtype=torch.bool))
         return self.denoiser.condition(torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
 
-    def _x0(self, z: Tensor, valid: Tensor, offsets: Tensor, t: int, condition: Condition,
-            options: M2D2MOptions) -> Tensor:
+    def _x0(
+        self, z: Tensor, valid: Tensor, offsets: Tensor, t: int, condition: Condition, options: M2D2MOptions
+    ) -> Tensor:
         """Guided, truncated p(z0 | z_t) (rows, width, K) in float64: one forward pass of the
         conditional and null rows together (``condition`` holds both when guided)."""
         rows = z.shape[0]
         repeat = 1 if options.guidance == 0.0 else 2
         steps = torch.full((1,), t, dtype=torch.long, device=z.device)  # one t for every row: embedded once
-        logits = self.denoiser.denoise(z.repeat(repeat, 1), valid.repeat(repeat, 1), steps, condition,
-                                       offsets.repeat(repeat, 1, 1))
+        logits = self.denoiser.denoise(
+            z.repeat(repeat, 1), valid.repeat(repeat, 1), steps, condition, offsets.repeat(repeat, 1, 1)
+        )
         if repeat == 1:
             logits = torch.log_softmax(logits.float(), dim=-1)
         else:
@@ -327,8 +357,12 @@ def _guided_rows(index: Tensor, rows: int, options: M2D2MOptions) -> Tensor:
 # --------------------------------------------------------------------------------------- layouts
 def _joint_layout(requests: list[TokenRequest]) -> _Layout:
     """One row per request: its whole stream, its actions' sentences concatenated in order."""
-    return _Layout([_Row(i, slice(0, sum(r.lengths)), [s for sentences in r.actions for s in sentences],
-                         list(r.lengths)) for i, r in enumerate(requests)])
+    return _Layout(
+        [
+            _Row(i, slice(0, sum(r.lengths)), [s for sentences in r.actions for s in sentences], list(r.lengths))
+            for i, r in enumerate(requests)
+        ]
+    )
 
 
 def _extended_lengths(lengths: list[int], overlap: int) -> list[int]:
@@ -355,8 +389,8 @@ def _given_stream(request: TokenRequest, overlap: int, device: torch.device) -> 
         pieces, start = [], 0
         for i, n in enumerate(request.lengths):
             if i:
-                pieces.append(given[start - overlap:start])
-            pieces.append(given[start:start + n])
+                pieces.append(given[start - overlap : start])
+            pieces.append(given[start : start + n])
             start += n
         given = torch.cat(pieces)
     return given.to(device)
@@ -369,15 +403,18 @@ def _copy_shared(stream: Tensor, lengths: list[int], overlap: int) -> Tensor:
     start = 0
     for i, n in enumerate(lengths):
         if i:
-            stream[start:start + overlap] = stream[start - overlap:start]
+            stream[start : start + overlap] = stream[start - overlap : start]
         start += n
     return stream
 
 
 def _row_pairs(layout: _Layout) -> list[tuple[int, int, int]]:
     """(earlier row, later row, earlier row's length) for neighbouring actions of one request."""
-    return [(i - 1, i, layout.rows[i - 1].stream.stop - layout.rows[i - 1].stream.start)
-            for i in range(1, len(layout.rows)) if layout.rows[i - 1].request == layout.rows[i].request]
+    return [
+        (i - 1, i, layout.rows[i - 1].stream.stop - layout.rows[i - 1].stream.start)
+        for i in range(1, len(layout.rows))
+        if layout.rows[i - 1].request == layout.rows[i].request
+    ]
 
 
 def _blend_shared(x0: Tensor, layout: _Layout, overlap: int) -> Tensor:
@@ -385,15 +422,15 @@ def _blend_shared(x0: Tensor, layout: _Layout, overlap: int) -> Tensor:
     x0 = x0.clone()
     ramp = (torch.arange(overlap, dtype=x0.dtype, device=x0.device) / overlap)[:, None]
     for earlier, later, end in _row_pairs(layout):
-        blended = (1 - ramp) * x0[earlier, end - overlap:end] + ramp * x0[later, :overlap]
-        x0[earlier, end - overlap:end] = blended
+        blended = (1 - ramp) * x0[earlier, end - overlap : end] + ramp * x0[later, :overlap]
+        x0[earlier, end - overlap : end] = blended
         x0[later, :overlap] = blended
     return x0
 
 
 def _copy_shared_rows(z: Tensor, layout: _Layout, overlap: int) -> Tensor:
     for earlier, later, end in _row_pairs(layout):
-        z[later, :overlap] = z[earlier, end - overlap:end]
+        z[later, :overlap] = z[earlier, end - overlap : end]
     return z
 
 
@@ -402,7 +439,7 @@ def _split_actions(stream: Tensor, lengths: list[int], overlap: int) -> list[Ten
     pieces, start = [], 0
     for i, n in enumerate(lengths):
         start += overlap if i else 0
-        pieces.append(stream[start:start + n].clone())
+        pieces.append(stream[start : start + n].clone())
         start += n
     return pieces
 

@@ -34,6 +34,7 @@ from m2d2m.motion.clip import Motion
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, canvas
 from m2d2m.text import TextEncoder
 
+
 @dataclass
 class Row:
     """One decoding row: its condition, its tokens (``given``: codes to keep, FREE to fill), a seed."""
@@ -60,7 +61,7 @@ class MMMGenerator(TokenModelGenerator):
         self.codec, self.lengths, self.extra = checkpoint.codec, checkpoint.lengths, checkpoint.extra
 
     @classmethod
-    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "MMMGenerator":
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> MMMGenerator:
         return cls(load_mmm(path, device), Path(path))
 
     @property
@@ -72,30 +73,46 @@ class MMMGenerator(TokenModelGenerator):
         return self.checkpoint.transformer.config.max_tokens
 
     def describe(self, options: MMMOptions) -> str:
-        sampling = ", ".join(f"{name} {value}" for name, value in
-                             (("top-k", options.top_k), ("top-p", options.top_p)) if value is not None)
+        sampling = ", ".join(
+            f"{name} {value}"
+            for name, value in (("top-k", options.top_k), ("top-p", options.top_p))
+            if value is not None
+        )
         joined = f", {options.transition} transition tokens" if options.method == "transition" else ""
-        return (f"{options.iterations} iterations ({options.schedule}), temperature {options.temperature:g}"
-                + (f", {sampling}" if sampling else "") + joined)
+        return (
+            f"{options.iterations} iterations ({options.schedule}), temperature {options.temperature:g}"
+            + (f", {sampling}" if sampling else "")
+            + joined
+        )
 
     # ----------------------------------------------------------------------------- the call
-    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: MMMOptions,
-                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
-                 progress: Callable[[float], None] | None = None) -> list[Motion]:
+    def generate(
+        self,
+        actions: Sequence[Sequence[str]],
+        frames: Sequence[Sequence[int]],
+        options: MMMOptions,
+        seeds: Sequence[int],
+        keep: Sequence[Keep | None] | None = None,
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Motion]:
         """Every action of every sequence decoded in one batch, then (``transition``) every
         transition in a second, one decoding step; each sequence decoded by the VQ-VAE."""
         keep = [None] * len(actions) if keep is None else keep
         joined = options.method == "transition"
-        lengths = [[n if j == 0 or not joined else max(1, n - options.transition) for j, n in enumerate(tokens)]
-                   for tokens in self.tokens_of(frames)]
+        lengths = [
+            [n if j == 0 or not joined else max(1, n - options.transition) for j, n in enumerate(tokens)]
+            for tokens in self.tokens_of(frames)
+        ]
         rows = []
         for sequence, tokens, seed, kept in zip(actions, lengths, seeds, keep):
             if kept is not None and joined and len(sequence) > 1:
                 raise ValueError("MMM keeps frames for one action at a time, or with --method independent")
             given = self.given_tokens(kept, sum(tokens))
             pieces = torch.full((sum(tokens),), FREE) if given is None else given
-            rows += [Row(sentence, piece, seed_of(seed, 0, j))
-                     for j, (sentence, piece) in enumerate(zip(sequence, pieces.split(tokens)))]
+            rows += [
+                Row(sentence, piece, seed_of(seed, 0, j))
+                for j, (sentence, piece) in enumerate(zip(sequence, pieces.split(tokens)))
+            ]
         decoded = iter(self._decode(rows, options))
         pieces = [[next(decoded) for _ in sequence] for sequence in actions]
         if progress is not None:
@@ -106,39 +123,60 @@ class MMMGenerator(TokenModelGenerator):
             if progress is not None:
                 progress(1.0)
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
-        return [self.codec.motion(p, list(sequence), {**settings, "seed": int(seed)}, g)
-                for p, g, sequence, seed in zip(pieces, gaps, actions, seeds)]
+        return [
+            self.codec.motion(p, list(sequence), {**settings, "seed": int(seed)}, g)
+            for p, g, sequence, seed in zip(pieces, gaps, actions, seeds)
+        ]
 
-    def _transitions(self, actions: Sequence[Sequence[str]], pieces: list[list[torch.Tensor]], seeds: Sequence[int],
-                     options: MMMOptions) -> list[list[torch.Tensor]]:
+    def _transitions(
+        self,
+        actions: Sequence[Sequence[str]],
+        pieces: list[list[torch.Tensor]],
+        seeds: Sequence[int],
+        options: MMMOptions,
+    ) -> list[list[torch.Tensor]]:
         """The transition tokens between each pair of neighbours, all in one decoding step."""
         side = (self.max_tokens - options.transition) // 2
         rows, shapes = [], []
         for sequence, tokens, seed in zip(actions, pieces, seeds):
             for j in range(len(sequence) - 1):
-                before = tokens[j][-min(side, max(1, len(tokens[j]) // 2)):]
-                after = tokens[j + 1][:min(side, max(1, len(tokens[j + 1]) // 2))]
+                before = tokens[j][-min(side, max(1, len(tokens[j]) // 2)) :]
+                after = tokens[j + 1][: min(side, max(1, len(tokens[j + 1]) // 2))]
                 given = torch.cat([before, torch.full((options.transition,), FREE), after])
                 rows.append(Row(sequence[j], given, seed_of(seed, 1, j)))
                 shapes.append(len(before))
         filled = iter(zip(self._decode(rows, replace(options, iterations=1)) if rows else [], shapes))
-        return [[tokens[start:start + options.transition] for tokens, start in
-                 (next(filled) for _ in range(len(sequence) - 1))] for sequence in actions]
+        return [
+            [
+                tokens[start : start + options.transition]
+                for tokens, start in (next(filled) for _ in range(len(sequence) - 1))
+            ]
+            for sequence in actions
+        ]
 
     def _decode(self, rows: list[Row], options: DecodingOptions, frame: Frame | None = None) -> list[torch.Tensor]:
         longest = max(len(row.given) for row in rows)
         if longest > self.max_tokens:
-            raise ValueError(f"MMM generates at most {self.max_tokens} tokens "
-                             f"({self.max_tokens * self.frame_step} frames) per action; {longest} were asked for")
-        return decode_sentences(self.checkpoint.transformer, self.checkpoint.text_encoder, rows, self.lengths.longest,
-                                options, frame)
+            raise ValueError(
+                f"MMM generates at most {self.max_tokens} tokens "
+                f"({self.max_tokens * self.frame_step} frames) per action; {longest} were asked for"
+            )
+        return decode_sentences(
+            self.checkpoint.transformer, self.checkpoint.text_encoder, rows, self.lengths.longest, options, frame
+        )
 
 
 Frame = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]  # (B, W) tokens, (B,) lengths → network input
 
 
-def decode_sentences(transformer: MaskedMotionTransformer, text_encoder: TextEncoder, rows: list[Row],
-                     longest: int, options: DecodingOptions, frame: Frame | None = None) -> list[torch.Tensor]:
+def decode_sentences(
+    transformer: MaskedMotionTransformer,
+    text_encoder: TextEncoder,
+    rows: list[Row],
+    longest: int,
+    options: DecodingOptions,
+    frame: Frame | None = None,
+) -> list[torch.Tensor]:
     """Each row's tokens, its FREE positions decoded under its sentence in one batch (``longest``
     is the M of T_dyn: the corpus's longest motion in tokens). ``frame`` makes the network's input
     from the tokens being decoded, padded to the longest row, and the rows' lengths; by default
@@ -148,7 +186,7 @@ def decode_sentences(transformer: MaskedMotionTransformer, text_encoder: TextEnc
     lengths = torch.tensor([len(row.given) for row in rows], device=device)
     given = torch.full((len(rows), width), FREE, dtype=torch.long, device=device)
     for index, row in enumerate(rows):
-        given[index, :len(row.given)] = row.given.to(device)
+        given[index, : len(row.given)] = row.given.to(device)
     valid = torch.arange(width, device=device)[None, :] < lengths[:, None]
     config = transformer.config
     with torch.no_grad():
@@ -160,4 +198,4 @@ def decode_sentences(transformer: MaskedMotionTransformer, text_encoder: TextEnc
             return transformer(inputs, sentence, words, word_mask)[:, :-1]
 
         tokens = decode(predict, given, valid, config.mask_id, longest, options, [row.seed for row in rows])
-    return [tokens[index, :len(row.given)].cpu() for index, row in enumerate(rows)]
+    return [tokens[index, : len(row.given)].cpu() for index, row in enumerate(rows)]

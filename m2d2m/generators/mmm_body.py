@@ -34,6 +34,7 @@ from m2d2m.motion.clip import Motion
 from m2d2m.networks.mmm_body_transformer import body_canvas
 from m2d2m.processes.masking import random_positions
 
+
 def masked_lower(lower: torch.Tensor, fraction: float, mask_id: int, seed: int) -> torch.Tensor:
     """``lower`` (L,) with round(``fraction``·L) positions, drawn with ``seed``, set to ``mask_id``."""
     generator = torch.Generator().manual_seed(int(seed))
@@ -49,32 +50,47 @@ class BodyMMMGenerator(MMMGenerator):
 
     model = "mmm-body"
     sampling = BODY_SAMPLING
-    needs_keep = ("give the motion whose lower body to keep on every frame "
-                  "(m2d2m generate --model mmm-body --edit SOURCE --keep-body lower)")
+    needs_keep = (
+        "give the motion whose lower body to keep on every frame "
+        "(m2d2m generate --model mmm-body --edit SOURCE --keep-body lower)"
+    )
     edits = ("upper",)
 
     @classmethod
-    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "BodyMMMGenerator":
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> BodyMMMGenerator:
         return cls(load_body_mmm(path, device), Path(path))
 
     def describe(self, options: BodyOptions) -> str:
-        return (f"upper body by {options.iterations} iterations ({options.schedule}), temperature "
-                f"{options.temperature:g}, {options.lower_mask:.0%} of the lower-body tokens masked")
+        return (
+            f"upper body by {options.iterations} iterations ({options.schedule}), temperature "
+            f"{options.temperature:g}, {options.lower_mask:.0%} of the lower-body tokens masked"
+        )
 
     def _kept_pairs(self, keep: Keep | None, tokens: int) -> torch.Tensor:
         """The kept motion's token pairs (L, 2), or ValueError when ``keep`` is not its whole lower body."""
-        if keep is None or keep.dims is None or not np.array_equal(keep.dims, part_mask(self.skeleton, LOWER)) \
-                or not keep.frames.all():
-            raise ValueError(f"mmm-body generates the upper body of a motion whose lower body it keeps: "
-                             f"{self.needs_keep}")
+        if (
+            keep is None
+            or keep.dims is None
+            or not np.array_equal(keep.dims, part_mask(self.skeleton, LOWER))
+            or not keep.frames.all()
+        ):
+            raise ValueError(
+                f"mmm-body generates the upper body of a motion whose lower body it keeps: {self.needs_keep}"
+            )
         encoded = self.codec.encode(keep.features)
         if len(encoded) != tokens:
             raise ValueError(f"the kept motion holds {len(encoded)} tokens but the request asks for {tokens}")
         return encoded
 
-    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: BodyOptions,
-                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
-                 progress: Callable[[float], None] | None = None) -> list[Motion]:
+    def generate(
+        self,
+        actions: Sequence[Sequence[str]],
+        frames: Sequence[Sequence[int]],
+        options: BodyOptions,
+        seeds: Sequence[int],
+        keep: Sequence[Keep | None] | None = None,
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Motion]:
         """Every action's upper body decoded in one batch, given its stretch of the kept lower body."""
         keep = [None] * len(actions) if keep is None else keep
         config = self.checkpoint.transformer.config
@@ -88,7 +104,7 @@ class BodyMMMGenerator(MMMGenerator):
         width = max(len(lower) for lower in lowers)
         condition = torch.full((len(lowers), width), config.lower_pad_id, dtype=torch.long, device=self.device)
         for index, lower in enumerate(lowers):
-            condition[index, :len(lower)] = lower.to(self.device)
+            condition[index, : len(lower)] = lower.to(self.device)
 
         def frame(upper: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
             return body_canvas(upper, condition, lengths, config)
@@ -97,6 +113,11 @@ class BodyMMMGenerator(MMMGenerator):
         if progress is not None:
             progress(1.0)
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
-        return [self.codec.motion([torch.stack([next(decoded), lower], dim=-1) for lower in lower_pieces],
-                                  list(sequence), {**settings, "seed": int(seed)})
-                for sequence, lower_pieces, seed in zip(actions, kept, seeds)]
+        return [
+            self.codec.motion(
+                [torch.stack([next(decoded), lower], dim=-1) for lower in lower_pieces],
+                list(sequence),
+                {**settings, "seed": int(seed)},
+            )
+            for sequence, lower_pieces, seed in zip(actions, kept, seeds)
+        ]

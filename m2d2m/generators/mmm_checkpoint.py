@@ -33,8 +33,14 @@ class MMMCheckpoint:
     extra: dict[str, Any]
 
 
-def _payload(transformer: MaskedMotionTransformer, text_encoder: TextEncoder, text: dict[str, Any],
-             vq_files: dict[str, str | Path], lengths: LengthPrior, extra: dict[str, Any] | None) -> dict[str, Any]:
+def _payload(
+    transformer: MaskedMotionTransformer,
+    text_encoder: TextEncoder,
+    text: dict[str, Any],
+    vq_files: dict[str, str | Path],
+    lengths: LengthPrior,
+    extra: dict[str, Any] | None,
+) -> dict[str, Any]:
     """A model file's contents; the transformer's codebook buffers travel with its weights, each
     VQ-VAE of ``vq_files`` (payload key → file) whole."""
     return {
@@ -46,17 +52,29 @@ def _payload(transformer: MaskedMotionTransformer, text_encoder: TextEncoder, te
     }
 
 
-def _checkpoint(payload: dict[str, Any], transformer: MaskedMotionTransformer, codec: TokenCodec,
-                device: str | torch.device) -> MMMCheckpoint:
+def _checkpoint(
+    payload: dict[str, Any], transformer: MaskedMotionTransformer, codec: TokenCodec, device: str | torch.device
+) -> MMMCheckpoint:
     transformer.load_state_dict(payload["transformer"]["state_dict"])
     text_encoder = text_encoder_from_payload(payload["text"])
-    return MMMCheckpoint(transformer.to(device).eval(), text_encoder.to(device).eval(), codec,
-                         LengthPrior(**payload["lengths"]), payload["extra"])
+    return MMMCheckpoint(
+        transformer.to(device).eval(),
+        text_encoder.to(device).eval(),
+        codec,
+        LengthPrior(**payload["lengths"]),
+        payload["extra"],
+    )
 
 
-def save_mmm(path: str | Path, transformer: MaskedMotionTransformer, text_encoder: TextEncoder,
-             text: dict[str, Any], vq_file: str | Path, lengths: LengthPrior,
-             extra: dict[str, Any] | None = None) -> Path:
+def save_mmm(
+    path: str | Path,
+    transformer: MaskedMotionTransformer,
+    text_encoder: TextEncoder,
+    text: dict[str, Any],
+    vq_file: str | Path,
+    lengths: LengthPrior,
+    extra: dict[str, Any] | None = None,
+) -> Path:
     """Write a model file; ``text`` is the run's config section."""
     return MMM_FILE.write(path, _payload(transformer, text_encoder, text, {"vq": vq_file}, lengths, extra))
 
@@ -65,14 +83,22 @@ def load_mmm(path: str | Path, device: str | torch.device = "cpu") -> MMMCheckpo
     """Read a file written by :func:`save_mmm`, models in eval mode on ``device``."""
     payload = MMM_FILE.read(path)
     state = payload["transformer"]["state_dict"]
-    transformer = MaskedMotionTransformer(MaskedTransformerConfig.from_dict(payload["transformer"]["config"]),
-                                          state["codebook"])
+    transformer = MaskedMotionTransformer(
+        MaskedTransformerConfig.from_dict(payload["transformer"]["config"]), state["codebook"]
+    )
     return _checkpoint(payload, transformer, TokenCodec.from_payload(payload["vq"], device), device)
 
 
-def save_body_mmm(path: str | Path, transformer: BodyMaskedTransformer, text_encoder: TextEncoder,
-                  text: dict[str, Any], upper_vq_file: str | Path, lower_vq_file: str | Path, lengths: LengthPrior,
-                  extra: dict[str, Any] | None = None) -> Path:
+def save_body_mmm(
+    path: str | Path,
+    transformer: BodyMaskedTransformer,
+    text_encoder: TextEncoder,
+    text: dict[str, Any],
+    upper_vq_file: str | Path,
+    lower_vq_file: str | Path,
+    lengths: LengthPrior,
+    extra: dict[str, Any] | None = None,
+) -> Path:
     """Write an upper-body editor's model file, with both part tokenizers."""
     vq_files = {"upper_vq": upper_vq_file, "lower_vq": lower_vq_file}
     return BODY_FILE.write(path, _payload(transformer, text_encoder, text, vq_files, lengths, extra))
@@ -82,8 +108,10 @@ def load_body_mmm(path: str | Path, device: str | torch.device = "cpu") -> MMMCh
     """Read a file written by :func:`save_body_mmm`; its codec is a :class:`BodyCodec`."""
     payload = BODY_FILE.read(path)
     state = payload["transformer"]["state_dict"]
-    transformer = BodyMaskedTransformer(BodyTransformerConfig.from_dict(payload["transformer"]["config"]),
-                                        state["codebook"], state["lower_codebook"])
-    codec = BodyCodec.pair(TokenCodec.from_payload(payload["upper_vq"], device),
-                           TokenCodec.from_payload(payload["lower_vq"], device))
+    transformer = BodyMaskedTransformer(
+        BodyTransformerConfig.from_dict(payload["transformer"]["config"]), state["codebook"], state["lower_codebook"]
+    )
+    codec = BodyCodec.pair(
+        TokenCodec.from_payload(payload["upper_vq"], device), TokenCodec.from_payload(payload["lower_vq"], device)
+    )
     return _checkpoint(payload, transformer, codec, device)

@@ -16,6 +16,7 @@ iteration, so a sequence's result does not depend on the rest of the batch.
 from __future__ import annotations
 
 from collections.abc import Callable
+
 import torch
 from torch import Tensor
 
@@ -46,14 +47,23 @@ def filtered_probabilities(logits: Tensor, options: DecodingOptions) -> Tensor:
 def schedule_table(free: list[int], longest: int, options: DecodingOptions) -> Tensor:
     """(B, I) long: how many of each sequence's free positions stay masked after iteration i,
     over its own T_dyn iterations (then 0); I is the longest T_dyn of the batch."""
-    counts = [masked_counts(n, dynamic_iterations(n, longest, options.iterations), options.schedule) if n else [0]
-              for n in free]
+    counts = [
+        masked_counts(n, dynamic_iterations(n, longest, options.iterations), options.schedule) if n else [0]
+        for n in free
+    ]
     width = max(len(c) for c in counts)
     return torch.tensor([c + [0] * (width - len(c)) for c in counts], dtype=torch.long)
 
 
-def decode(predict: Predictor, given: Tensor, valid: Tensor, mask_id: int, longest: int,
-           options: DecodingOptions, seeds: list[int]) -> Tensor:
+def decode(
+    predict: Predictor,
+    given: Tensor,
+    valid: Tensor,
+    mask_id: int,
+    longest: int,
+    options: DecodingOptions,
+    seeds: list[int],
+) -> Tensor:
     """Tokens (B, L) for a batch: ``given`` (B, L) holds kept codes and :data:`FREE` where to
     generate, ``valid`` (B, L) marks each sequence's positions (the rest is returned as given);
     ``longest`` is M of T_dyn, the token length given all ``options.iterations``."""
@@ -69,8 +79,9 @@ def decode(predict: Predictor, given: Tensor, valid: Tensor, mask_id: int, longe
             break
         logits = predict(tokens)
         probs = filtered_probabilities(logits, options)
-        uniforms = torch.stack([torch.rand(given.shape[1], generator=g, dtype=torch.float64, device=device)
-                                for g in generators])
+        uniforms = torch.stack(
+            [torch.rand(given.shape[1], generator=g, dtype=torch.float64, device=device) for g in generators]
+        )
         cdf = probs.cumsum(dim=-1)
         drawn = (cdf <= uniforms[..., None] * cdf[..., -1:]).sum(dim=-1).clamp_max(probs.shape[-1] - 1)
         confidence = torch.softmax(logits.double(), dim=-1).gather(-1, drawn[..., None])[..., 0]

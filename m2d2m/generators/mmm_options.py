@@ -25,8 +25,9 @@ class DecodingOptions:
     schedule: str = knob("cosine", "how many tokens stay masked after each iteration", choices=SCHEDULES)
     temperature: float = knob(1.0, "softmax temperature of each draw", above=0)
     top_k: int | None = knob(None, "draw among the k most probable codes (default: all)", minimum=1)
-    top_p: float | None = knob(None, "draw among the fewest codes holding this much mass (default: all)",
-                               above=0, maximum=1)
+    top_p: float | None = knob(
+        None, "draw among the fewest codes holding this much mass (default: all)", above=0, maximum=1
+    )
 
     def check(self) -> None:
         """Raise ValueError naming the first setting its knobs refuse."""
@@ -37,10 +38,13 @@ class DecodingOptions:
 class MMMOptions(DecodingOptions):
     """MMM's decoding knobs and how the actions of a sequence are joined."""
 
-    method: str = knob("transition", "how the actions are joined: transition tokens decoded between neighbours "
-                                     "(transition) or each alone (independent)", choices=METHODS)
-    transition: int = knob(2, "[MASK] tokens between neighbouring actions (transition); 2 tokens = 8 frames",
-                           minimum=1)
+    method: str = knob(
+        "transition",
+        "how the actions are joined: transition tokens decoded between neighbours "
+        "(transition) or each alone (independent)",
+        choices=METHODS,
+    )
+    transition: int = knob(2, "[MASK] tokens between neighbouring actions (transition); 2 tokens = 8 frames", minimum=1)
 
 
 @dataclass(frozen=True)
@@ -49,9 +53,12 @@ class BodyOptions(DecodingOptions):
     from the transformer (supplement §I.2)."""
 
     method: str = knob("independent", "each action's upper body decoded alone", choices=("independent",))
-    lower_mask: float = knob(DEFAULT_LOWER_MASK, "fraction of the kept lower-body tokens hidden from the "
-                                                 "transformer: 0 follows the kept motion, 1 ignores it",
-                             minimum=0, maximum=1)
+    lower_mask: float = knob(
+        DEFAULT_LOWER_MASK,
+        "fraction of the kept lower-body tokens hidden from the transformer: 0 follows the kept motion, 1 ignores it",
+        minimum=0,
+        maximum=1,
+    )
 
 
 SAMPLING = Sampling("mmm", MMMOptions, {MULTI: MMMOptions(), SINGLE: MMMOptions(method="independent")})

@@ -28,14 +28,15 @@ import numpy as np
 import torch
 
 from m2d2m.generators.motiondiffuse_checkpoint import MotionDiffuseCheckpoint, load_motiondiffuse
-from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Step, Term, sample
 from m2d2m.generators.motiondiffuse_options import SAMPLING, MotionDiffuseOptions
+from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Step, Term, sample
 from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.body_parts import PARTS, part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import Skeleton
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
+
 
 class MotionDiffuseGenerator(MotionGenerator):
     """A loaded MotionDiffuse model file behind the generator protocol."""
@@ -51,7 +52,7 @@ class MotionDiffuseGenerator(MotionGenerator):
         self.process = checkpoint.process
 
     @classmethod
-    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "MotionDiffuseGenerator":
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> MotionDiffuseGenerator:
         return cls(load_motiondiffuse(path, device), Path(path))
 
     # -------------------------------------------------------------------------- what it is
@@ -89,8 +90,11 @@ class MotionDiffuseGenerator(MotionGenerator):
             sampler = f"DDIM, η = {options.ddim_eta:g}"
         else:
             sampler = f"ancestral, Σ = {'β_t' if options.variance == 'beta' else 'β̃_t'}"
-        joined = (f", intervals overlapping by {options.overlap} frames, λ2 = {options.lambda_time:g}"
-                  if options.method == "time-varied" else "")
+        joined = (
+            f", intervals overlapping by {options.overlap} frames, λ2 = {options.lambda_time:g}"
+            if options.method == "time-varied"
+            else ""
+        )
         return f"{self._steps(options)} of T = {self.process.num_steps} steps ({sampler}){joined}"
 
     def _steps(self, options: MotionDiffuseOptions) -> int:
@@ -104,9 +108,15 @@ class MotionDiffuseGenerator(MotionGenerator):
         return process, lambda x, t, eps, noise: process.p_sample(x, t, eps, noise, options.variance)
 
     # ----------------------------------------------------------------------------- the calls
-    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]],
-                 options: MotionDiffuseOptions, seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
-                 progress: Callable[[float], None] | None = None) -> list[Motion]:
+    def generate(
+        self,
+        actions: Sequence[Sequence[str]],
+        frames: Sequence[Sequence[int]],
+        options: MotionDiffuseOptions,
+        seeds: Sequence[int],
+        keep: Sequence[Keep | None] | None = None,
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Motion]:
         """Every sequence's intervals denoised together, one noise estimate per interval and step."""
         keep = [None] * len(actions) if keep is None else keep
         overlap = options.overlap if options.method == "time-varied" else 0
@@ -115,17 +125,27 @@ class MotionDiffuseGenerator(MotionGenerator):
             bounds = np.cumsum([0, *(self.round_frames(n) for n in lengths)]).tolist()
             total = bounds[-1]
             spans = list(zip(bounds[:-1], bounds[1:]))
-            terms = tuple(Term(sentence, *self._interval(start, end, total, overlap))
-                          for sentence, (start, end) in zip(sequence, spans))
+            terms = tuple(
+                Term(sentence, *self._interval(start, end, total, overlap))
+                for sentence, (start, end) in zip(sequence, spans)
+            )
             requests.append(FeatureRequest(total, terms, int(seed), *self._kept(kept, total)))
             ranges.append(spans)
         normalized = self._sample(requests, options, options.lambda_time, progress)
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source)}
-        return [self._motion(x, list(sequence), spans, {**settings, "seed": int(seed)})
-                for x, sequence, spans, seed in zip(normalized, actions, ranges, seeds)]
+        return [
+            self._motion(x, list(sequence), spans, {**settings, "seed": int(seed)})
+            for x, sequence, spans, seed in zip(normalized, actions, ranges, seeds)
+        ]
 
-    def generate_parts(self, parts: Sequence[Mapping[str, str]], frames: Sequence[int], options: MotionDiffuseOptions,
-                       seeds: Sequence[int], progress: Callable[[float], None] | None = None) -> list[Motion]:
+    def generate_parts(
+        self,
+        parts: Sequence[Mapping[str, str]],
+        frames: Sequence[int],
+        options: MotionDiffuseOptions,
+        seeds: Sequence[int],
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Motion]:
         """Body-part control (eq. 10): each request names a sentence for every body part, all over
         its ``frames``; the parts' estimates are combined with their feature masks."""
         requests = []
@@ -133,16 +153,24 @@ class MotionDiffuseGenerator(MotionGenerator):
             missing = [part for part in PARTS if part not in texts]
             unknown = sorted(set(texts) - set(PARTS))
             if unknown or missing:
-                raise ValueError(f"give one sentence for each body part ({', '.join(PARTS)}): "
-                                 + (f"unknown {', '.join(unknown)}" if unknown else f"missing {', '.join(missing)}"))
+                raise ValueError(
+                    f"give one sentence for each body part ({', '.join(PARTS)}): "
+                    + (f"unknown {', '.join(unknown)}" if unknown else f"missing {', '.join(missing)}")
+                )
             total = self.round_frames(length)
             terms = tuple(Term(texts[part], 0, total, part_mask(self.skeleton, part)) for part in PARTS)
             requests.append(FeatureRequest(total, terms, int(seed)))
         normalized = self._sample(requests, options, options.lambda_part, progress)
         settings = {**asdict(options), "model": self.model, "checkpoint": str(self.source), "method": "body parts"}
-        return [self._motion(x, [" | ".join(f"{part}: {texts[part]}" for part in PARTS)], [(0, len(x))],
-                             {**settings, "parts": dict(texts), "seed": int(seed)})
-                for x, texts, seed in zip(normalized, parts, seeds)]
+        return [
+            self._motion(
+                x,
+                [" | ".join(f"{part}: {texts[part]}" for part in PARTS)],
+                [(0, len(x))],
+                {**settings, "parts": dict(texts), "seed": int(seed)},
+            )
+            for x, texts, seed in zip(normalized, parts, seeds)
+        ]
 
     def _interval(self, start: int, end: int, total: int, overlap: int) -> tuple[int, int]:
         """An action's frames [start, end) reaching ``overlap`` frames into each neighbour, as far
@@ -162,19 +190,33 @@ class MotionDiffuseGenerator(MotionGenerator):
         features = self.checkpoint.normalizer.normalize(np.asarray(keep.features, dtype=np.float32))
         return torch.as_tensor(features), torch.as_tensor(keep.frames[:, None] & dims[None, :])
 
-    def _sample(self, requests: list[FeatureRequest], options: MotionDiffuseOptions, correction: float,
-                progress: Callable[[float], None] | None) -> list[torch.Tensor]:
+    def _sample(
+        self,
+        requests: list[FeatureRequest],
+        options: MotionDiffuseOptions,
+        correction: float,
+        progress: Callable[[float], None] | None,
+    ) -> list[torch.Tensor]:
         network, text_encoder = self.checkpoint.network, self.checkpoint.text_encoder
         with torch.no_grad():
             words, mask = text_encoder.encode([term.sentence for request in requests for term in request.terms])
             text = network.encode_text(words.to(self.device), mask.to(self.device))
         process, step = self._sampling(options)
-        return sample(network, text, requests, process, step, correction, progress,
-                      prediction_of(self.checkpoint.diffusion))
+        return sample(
+            network, text, requests, process, step, correction, progress, prediction_of(self.checkpoint.diffusion)
+        )
 
-    def _motion(self, normalized: torch.Tensor, actions: list[str], ranges: list[tuple[int, int]],
-                settings: dict) -> Motion:
+    def _motion(
+        self, normalized: torch.Tensor, actions: list[str], ranges: list[tuple[int, int]], settings: dict
+    ) -> Motion:
         features = self.checkpoint.normalizer.denormalize(normalized.cpu().numpy())
         joints = features_to_joints(features, self.skeleton)
-        return Motion(features, np.asarray(joints, dtype=np.float32), self.fps, self.skeleton.name, actions,
-                      [(int(a), int(b)) for a, b in ranges], settings)
+        return Motion(
+            features,
+            np.asarray(joints, dtype=np.float32),
+            self.fps,
+            self.skeleton.name,
+            actions,
+            [(int(a), int(b)) for a, b in ranges],
+            settings,
+        )

@@ -39,22 +39,35 @@ class MotionDiffuseCheckpoint:
         return GaussianDiffusion.from_config(self.diffusion)
 
 
-def save_motiondiffuse(path: str | Path, network: MotionDiffuseTransformer, text_encoder: TextEncoder,
-                       text: dict[str, Any], diffusion: dict[str, Any], normalizer: Normalizer, skeleton: str,
-                       lengths: LengthPrior, extra: dict[str, Any] | None = None) -> Path:
+def save_motiondiffuse(
+    path: str | Path,
+    network: MotionDiffuseTransformer,
+    text_encoder: TextEncoder,
+    text: dict[str, Any],
+    diffusion: dict[str, Any],
+    normalizer: Normalizer,
+    skeleton: str,
+    lengths: LengthPrior,
+    extra: dict[str, Any] | None = None,
+) -> Path:
     """Write a model file; ``text`` and ``diffusion`` are the run's config sections."""
     GaussianDiffusion.from_config(diffusion)  # refuse a schedule the file could not be read back with
-    return MOTIONDIFFUSE_FILE.write(path, {
-        "network": network_payload(network),
-        "text": text_payload(text_encoder, text),
-        "diffusion": dict(diffusion),
-        "normalizer": {"mean": torch.as_tensor(np.asarray(normalizer.mean, dtype=np.float32)),
-                       "std": torch.as_tensor(np.asarray(normalizer.std, dtype=np.float32)),
-                       "feat_bias": float(normalizer.feat_bias)},
-        "skeleton": str(skeleton),
-        "lengths": lengths.to_payload(),
-        "extra": {} if extra is None else extra,
-    })
+    return MOTIONDIFFUSE_FILE.write(
+        path,
+        {
+            "network": network_payload(network),
+            "text": text_payload(text_encoder, text),
+            "diffusion": dict(diffusion),
+            "normalizer": {
+                "mean": torch.as_tensor(np.asarray(normalizer.mean, dtype=np.float32)),
+                "std": torch.as_tensor(np.asarray(normalizer.std, dtype=np.float32)),
+                "feat_bias": float(normalizer.feat_bias),
+            },
+            "skeleton": str(skeleton),
+            "lengths": lengths.to_payload(),
+            "extra": {} if extra is None else extra,
+        },
+    )
 
 
 def load_motiondiffuse(path: str | Path, device: str | torch.device = "cpu") -> MotionDiffuseCheckpoint:
@@ -65,6 +78,12 @@ def load_motiondiffuse(path: str | Path, device: str | torch.device = "cpu") -> 
     text_encoder = text_encoder_from_payload(payload["text"])
     stats = payload["normalizer"]
     normalizer = Normalizer(stats["mean"].numpy(), stats["std"].numpy(), stats["feat_bias"])
-    return MotionDiffuseCheckpoint(network.to(device).eval(), text_encoder.to(device).eval(), payload["diffusion"],
-                                   normalizer, SKELETONS[payload["skeleton"]], LengthPrior(**payload["lengths"]),
-                                   payload["extra"])
+    return MotionDiffuseCheckpoint(
+        network.to(device).eval(),
+        text_encoder.to(device).eval(),
+        payload["diffusion"],
+        normalizer,
+        SKELETONS[payload["skeleton"]],
+        LengthPrior(**payload["lengths"]),
+        payload["extra"],
+    )

@@ -19,17 +19,25 @@ class MotionDiffuseOptions:
     """Knobs of MotionDiffuse's sampling; the defaults are the paper's (all 1000 steps, ancestral,
     Σ = β_t; λ1 = λ2 = 0.01, §4.3). ``steps`` below the trained T respaces the process."""
 
-    method: str = knob("time-varied", "how the actions are joined: one interval each, overlapping and corrected "
-                                      "(time-varied, eq. 11), or each alone (independent)", choices=METHODS)
+    method: str = knob(
+        "time-varied",
+        "how the actions are joined: one interval each, overlapping and corrected "
+        "(time-varied, eq. 11), or each alone (independent)",
+        choices=METHODS,
+    )
     steps: int | None = knob(None, "reverse steps, respaced (default: every step of the trained T)", minimum=1)
     sampler: str = knob("ddpm", "ancestral steps (ddpm) or DDIM (ddim)", choices=SAMPLERS)
-    variance: str = knob("beta", "the ancestral steps' Σ: β_t (the paper) or the posterior's β̃_t (the public code)",
-                         choices=VARIANCES)
+    variance: str = knob(
+        "beta", "the ancestral steps' Σ: β_t (the paper) or the posterior's β̃_t (the public code)", choices=VARIANCES
+    )
     ddim_eta: float = knob(0.0, "DDIM's η: 0 deterministic, 1 as noisy as ancestral", minimum=0, maximum=1)
     overlap: int = knob(10, "frames each interval reaches into its neighbours (time-varied; ours)", minimum=0)
     lambda_time: float = knob(0.01, "λ2 of eq. 11, pulling overlapping intervals together", minimum=0)
     lambda_part: float = knob(0.01, "λ1 of eq. 10, pulling body parts together", minimum=0)
 
 
-SAMPLING = Sampling("motiondiffuse", MotionDiffuseOptions,
-                    {MULTI: MotionDiffuseOptions(), SINGLE: MotionDiffuseOptions(method="independent")})
+SAMPLING = Sampling(
+    "motiondiffuse",
+    MotionDiffuseOptions,
+    {MULTI: MotionDiffuseOptions(), SINGLE: MotionDiffuseOptions(method="independent")},
+)

@@ -69,7 +69,9 @@ class Layout:
     gather indices into the flattened frames, the term masks, the coverage counts, and the pairs
     of terms of one request that share frames and dimensions (the correction's)."""
 
-    def __init__(self, requests: Sequence[FeatureRequest], feature_dim: int, max_term: int, device: torch.device) -> None:
+    def __init__(
+        self, requests: Sequence[FeatureRequest], feature_dim: int, max_term: int, device: torch.device
+    ) -> None:
         self.frames = max(request.frames for request in requests)
         self.batch, self.feature_dim = len(requests), feature_dim
         terms = [(b, term) for b, request in enumerate(requests) for term in request.terms]
@@ -84,22 +86,28 @@ class Layout:
         dims = torch.zeros(len(terms), feature_dim)
         for k, (b, term) in enumerate(terms):
             if not 0 <= term.start < term.end <= requests[b].frames:
-                raise ValueError(f"a term's frames [{term.start}, {term.end}) lie outside the sequence's "
-                                 f"{requests[b].frames}")
-            gather[k, :lengths[k]] = b * self.frames + torch.arange(term.start, term.end)
+                raise ValueError(
+                    f"a term's frames [{term.start}, {term.end}) lie outside the sequence's {requests[b].frames}"
+                )
+            gather[k, : lengths[k]] = b * self.frames + torch.arange(term.start, term.end)
             dims[k] = 1.0 if term.dims is None else torch.as_tensor(term.dims, dtype=torch.float32)
         self.valid = (torch.arange(longest)[None, :] < torch.tensor(lengths)[:, None]).to(device)
         by_length = sorted(range(len(terms)), key=lambda k: -lengths[k])
-        self.groups = [(torch.tensor(rows, device=device), lengths[rows[0]])
-                       for rows in (by_length[i:i + GROUP] for i in range(0, len(terms), GROUP))]
+        self.groups = [
+            (torch.tensor(rows, device=device), lengths[rows[0]])
+            for rows in (by_length[i : i + GROUP] for i in range(0, len(terms), GROUP))
+        ]
         self.order = torch.argsort(torch.cat([rows for rows, _ in self.groups]))
         self.gather, self.dims = gather.to(device), dims.to(device)
         coverage = torch.zeros(self.batch * self.frames, feature_dim, device=device)
-        coverage.index_add_(0, self.gather.flatten(), self._spread(torch.ones(len(terms), longest, feature_dim,
-                                                                             device=device)).flatten(0, 1))
+        coverage.index_add_(
+            0,
+            self.gather.flatten(),
+            self._spread(torch.ones(len(terms), longest, feature_dim, device=device)).flatten(0, 1),
+        )
         coverage = coverage.view(self.batch, self.frames, feature_dim)
         for b, request in enumerate(requests):
-            if not bool((coverage[b, :request.frames] > 0).all()):
+            if not bool((coverage[b, : request.frames] > 0).all()):
                 raise ValueError("the terms leave some frames or body parts of a sequence without a sentence")
         self.coverage = coverage.clamp(min=1.0)
         self._pairs(requests, terms, device)
@@ -133,14 +141,16 @@ class Layout:
         """Each term's frames of the padded motions x (B, F, D): (K, W, D), zero past its length."""
         return x.reshape(-1, self.feature_dim)[self.gather] * self.valid[:, :, None]
 
-    def estimate(self, network: MotionDiffuseTransformer, x: torch.Tensor, t: torch.Tensor,
-                 text: EncodedText) -> torch.Tensor:
+    def estimate(
+        self, network: MotionDiffuseTransformer, x: torch.Tensor, t: torch.Tensor, text: EncodedText
+    ) -> torch.Tensor:
         """Every term's ε_θ (K, W, D) on its frames of x (B, F, D), zero past its length. Terms go
         through the network in groups of similar length, each padded to its own longest: padding
         never changes a valid frame's estimate (the network masks it), it only costs time."""
         terms = self.terms_of(x)
-        estimates = [network(terms[rows, :width], t[rows], self.lengths[rows], text.take(rows))
-                     for rows, width in self.groups]
+        estimates = [
+            network(terms[rows, :width], t[rows], self.lengths[rows], text.take(rows)) for rows, width in self.groups
+        ]
         padded = [torch.nn.functional.pad(eps, (0, 0, 0, self.width - eps.shape[1])) for eps in estimates]
         return torch.cat(padded)[self.order] * self.valid[:, :, None]
 
@@ -166,9 +176,16 @@ def _pad(rows: Sequence[torch.Tensor], frames: int) -> torch.Tensor:
     return torch.stack([torch.nn.functional.pad(row, (0, 0, 0, frames - len(row))) for row in rows])
 
 
-def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Sequence[FeatureRequest],
-           process: GaussianDiffusion, step: Step, correction: float,
-           progress: Callable[[float], None] | None = None, prediction: str = "epsilon") -> list[torch.Tensor]:
+def sample(
+    network: MotionDiffuseTransformer,
+    text: EncodedText,
+    requests: Sequence[FeatureRequest],
+    process: GaussianDiffusion,
+    step: Step,
+    correction: float,
+    progress: Callable[[float], None] | None = None,
+    prediction: str = "epsilon",
+) -> list[torch.Tensor]:
     """Each request's normalised motion (frames, D), denoised from N(0, I) through every step of
     ``process`` with ``step`` (ancestral or DDIM); ``text`` holds one encoded sentence per term, in
     the order of the requests and their terms; ``correction`` is λ. A network that predicts x_0
@@ -179,21 +196,36 @@ def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Seque
     layout = Layout(requests, feature_dim, network.config.max_frames, device)
     generators = [torch.Generator().manual_seed(int(request.seed)) for request in requests]
     # the kept motion's noise comes from a second stream, drawn only by requests that keep something
-    keep_generators = [None if r.keep is None else
-                       torch.Generator().manual_seed(int(np.random.SeedSequence([int(r.seed), 1]).generate_state(1)[0]))
-                       for r in requests]
+    keep_generators = [
+        None
+        if r.keep is None
+        else torch.Generator().manual_seed(int(np.random.SeedSequence([int(r.seed), 1]).generate_state(1)[0]))
+        for r in requests
+    ]
 
     def noise(streams: Sequence[torch.Generator | None]) -> torch.Tensor:
-        rows = [torch.zeros(r.frames, feature_dim) if g is None else torch.randn(r.frames, feature_dim, generator=g)
-                for r, g in zip(requests, streams)]
+        rows = [
+            torch.zeros(r.frames, feature_dim) if g is None else torch.randn(r.frames, feature_dim, generator=g)
+            for r, g in zip(requests, streams)
+        ]
         return _pad(rows, layout.frames).to(device)
 
     keep = keep_mask = None
     if any(r.keep is not None for r in requests):
-        keep = _pad([r.keep if r.keep is not None else torch.zeros(r.frames, feature_dim) for r in requests],
-                    layout.frames).to(device)
-        keep_mask = _pad([r.keep_mask if r.keep is not None else torch.zeros(r.frames, feature_dim, dtype=torch.bool)
-                          for r in requests], layout.frames).bool().to(device)
+        keep = _pad(
+            [r.keep if r.keep is not None else torch.zeros(r.frames, feature_dim) for r in requests], layout.frames
+        ).to(device)
+        keep_mask = (
+            _pad(
+                [
+                    r.keep_mask if r.keep is not None else torch.zeros(r.frames, feature_dim, dtype=torch.bool)
+                    for r in requests
+                ],
+                layout.frames,
+            )
+            .bool()
+            .to(device)
+        )
     guided = correction > 0 and layout.pair_count > 0
     x = noise(generators)
     total = process.num_steps
@@ -208,7 +240,7 @@ def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Seque
                 eps = process.predict_eps(layout.terms_of(x_in), term_t, eps) * layout.valid[:, :, None]
             combined = layout.combine(eps)
             if guided:
-                gradient, = torch.autograd.grad(layout.disagreement(eps), x_in)
+                (gradient,) = torch.autograd.grad(layout.disagreement(eps), x_in)
                 combined = combined + correction * gradient
         x = step(x, t, combined.detach(), noise(generators))
         if keep is not None:
@@ -216,4 +248,4 @@ def sample(network: MotionDiffuseTransformer, text: EncodedText, requests: Seque
             x = torch.where(keep_mask, known, x)
         if progress is not None and (index % max(1, total // 100) == 0):
             progress((total - index) / total)
-    return [x[b, :request.frames].detach() for b, request in enumerate(requests)]
+    return [x[b, : request.frames].detach() for b, request in enumerate(requests)]

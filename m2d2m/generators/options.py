@@ -17,14 +17,23 @@ from typing import Any
 SINGLE, MULTI = "single", "multi"  # the presets every generator has
 
 
-def knob(default: Any, help: str, *, minimum: float | None = None, above: float | None = None,
-         maximum: float | None = None, choices: tuple[str, ...] | None = None) -> Any:
+def knob(
+    default: Any,
+    help: str,
+    *,
+    minimum: float | None = None,
+    above: float | None = None,
+    maximum: float | None = None,
+    choices: tuple[str, ...] | None = None,
+) -> Any:
     """A field of an options dataclass with what a user is told about it: ``minimum`` and
     ``maximum`` are inclusive bounds, ``above`` an exclusive lower one, ``choices`` the values a
     text knob may take. Bounds that depend on the loaded model (steps ≤ the trained T) stay in the
     generator's ``check_options``."""
-    return field(default=default, metadata={"help": help, "minimum": minimum, "above": above,
-                                            "maximum": maximum, "choices": choices})
+    return field(
+        default=default,
+        metadata={"help": help, "minimum": minimum, "above": above, "maximum": maximum, "choices": choices},
+    )
 
 
 def _bounds(minimum: float | None, above: float | None, maximum: float | None) -> str:
@@ -50,12 +59,19 @@ class Knob:
     choices: tuple[str, ...] | None = None
 
     @classmethod
-    def of(cls, declared: Field) -> "Knob":
+    def of(cls, declared: Field) -> Knob:
         annotation = str(declared.type)
         meta = declared.metadata
-        return cls(declared.name, annotation.split("|")[0].strip(), "None" in annotation, meta.get("help", ""),
-                   meta.get("minimum"), meta.get("above"), meta.get("maximum"),
-                   tuple(meta["choices"]) if meta.get("choices") else None)
+        return cls(
+            declared.name,
+            annotation.split("|")[0].strip(),
+            "None" in annotation,
+            meta.get("help", ""),
+            meta.get("minimum"),
+            meta.get("above"),
+            meta.get("maximum"),
+            tuple(meta["choices"]) if meta.get("choices") else None,
+        )
 
     @property
     def bounds(self) -> str:
@@ -85,8 +101,11 @@ class Knob:
             value = int(value)
         else:
             value = float(value)
-        if ((self.minimum is not None and value < self.minimum) or (self.above is not None and value <= self.above)
-                or (self.maximum is not None and value > self.maximum)):
+        if (
+            (self.minimum is not None and value < self.minimum)
+            or (self.above is not None and value <= self.above)
+            or (self.maximum is not None and value > self.maximum)
+        ):
             raise ValueError(f"option {self.name} must be {self.bounds}, got {value:g}")
         return value
 
@@ -139,8 +158,11 @@ class Sampling:
         for an unknown knob or method, a value of the wrong kind or out of bounds."""
         for name in changes:
             if name not in self.names(with_method=True):
-                raise ValueError(f"{self.model} has no sampling option {name!r}; its options: {', '.join(self.names())}")
+                raise ValueError(
+                    f"{self.model} has no sampling option {name!r}; its options: {', '.join(self.names())}"
+                )
         if "method" in changes and changes["method"] not in self.methods:
-            raise ValueError(f"unknown method {changes['method']!r} for {self.model}: "
-                             f"choose one of {', '.join(self.methods)}")
+            raise ValueError(
+                f"unknown method {changes['method']!r} for {self.model}: choose one of {', '.join(self.methods)}"
+            )
         return replace(base, **{name: self.knob(name).check(value) for name, value in changes.items()})

@@ -26,6 +26,7 @@ from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.skeleton import Skeleton
 
+
 @dataclass(frozen=True)
 class Keep:
     """What to keep of a sequence while the rest is generated (editing): the frames of
@@ -40,11 +41,15 @@ class Keep:
 
     def __post_init__(self) -> None:
         if self.frames.shape != (len(self.features),) or self.frames.dtype != bool:
-            raise ValueError(f"keep: one boolean per frame of the features ({len(self.features)}), "
-                             f"got {self.frames.dtype} of shape {self.frames.shape}")
+            raise ValueError(
+                f"keep: one boolean per frame of the features ({len(self.features)}), "
+                f"got {self.frames.dtype} of shape {self.frames.shape}"
+            )
         if self.dims is not None and (self.dims.shape != self.features.shape[1:] or self.dims.dtype != bool):
-            raise ValueError(f"keep: one boolean per feature dimension ({self.features.shape[1]}), "
-                             f"got {self.dims.dtype} of shape {self.dims.shape}")
+            raise ValueError(
+                f"keep: one boolean per feature dimension ({self.features.shape[1]}), "
+                f"got {self.dims.dtype} of shape {self.dims.shape}"
+            )
 
     @property
     def whole_frames(self) -> bool:
@@ -62,7 +67,7 @@ def keep_spans(motion: Motion, spans: Sequence[tuple[float, float]]) -> Keep:
     """A :class:`Keep` of ``motion``'s frames inside the time spans ``spans`` (seconds)."""
     frames = np.zeros(len(motion.features), dtype=bool)
     for start, end in spans:
-        frames[max(0, int(np.floor(start * motion.fps))):int(np.ceil(end * motion.fps))] = True
+        frames[max(0, int(np.floor(start * motion.fps))) : int(np.ceil(end * motion.fps))] = True
     return Keep(motion.features, frames)
 
 
@@ -158,9 +163,15 @@ class MotionGenerator(ABC):
 
     # ----------------------------------------------------------------------------- the call
     @abstractmethod
-    def generate(self, actions: Sequence[Sequence[str]], frames: Sequence[Sequence[int]], options: Any,
-                 seeds: Sequence[int], keep: Sequence[Keep | None] | None = None,
-                 progress: Callable[[float], None] | None = None) -> list[Motion]:
+    def generate(
+        self,
+        actions: Sequence[Sequence[str]],
+        frames: Sequence[Sequence[int]],
+        options: Any,
+        seeds: Sequence[int],
+        keep: Sequence[Keep | None] | None = None,
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Motion]:
         """One motion per sequence: ``actions[i]`` in order, action j about ``frames[i][j]`` frames
         long (rounded by :meth:`round_frames`), drawn with ``seeds[i]``; ``keep[i]`` holds frames
         to keep. An empty sentence asks for the action without text: the model's null condition
@@ -168,8 +179,14 @@ class MotionGenerator(ABC):
         request it cannot serve. A model that works in steps may call ``progress`` with the
         fraction done, for a progress bar on long generations."""
 
-    def generate_parts(self, parts: Sequence[Mapping[str, str]], frames: Sequence[int], options: Any,
-                       seeds: Sequence[int], progress: Callable[[float], None] | None = None) -> list[Motion]:
+    def generate_parts(
+        self,
+        parts: Sequence[Mapping[str, str]],
+        frames: Sequence[int],
+        options: Any,
+        seeds: Sequence[int],
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Motion]:
         """One motion per request in which every body part (:data:`m2d2m.motion.body_parts.PARTS`)
         does its own sentence, ``parts[i]`` mapping part → sentence, ``frames[i]`` long, drawn with
         ``seeds[i]``. ValueError for a model without body-part control (:attr:`part_control`)."""

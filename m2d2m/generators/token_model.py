@@ -35,7 +35,7 @@ class TokenCodec:
     skeleton: Skeleton
 
     @classmethod
-    def from_payload(cls, payload: dict[str, Any], device: str | torch.device = "cpu") -> "TokenCodec":
+    def from_payload(cls, payload: dict[str, Any], device: str | torch.device = "cpu") -> TokenCodec:
         """From a VQ model file's payload embedded in a model's file, on ``device``, in eval mode."""
         vq, normalizer, meta = vq_from_payload(payload, device)
         return cls(vq, normalizer, SKELETONS[meta["skeleton"]])
@@ -69,8 +69,13 @@ class TokenCodec:
             decoded = self.vq.decode(tokens[None].to(self.device))[0].cpu().numpy()
         return self.normalizer.denormalize(decoded, None if self.part == FULL else self.dims)
 
-    def motion(self, pieces: list[torch.Tensor], actions: list[str], settings: dict[str, Any],
-               gaps: Sequence[torch.Tensor] = ()) -> Motion:
+    def motion(
+        self,
+        pieces: list[torch.Tensor],
+        actions: list[str],
+        settings: dict[str, Any],
+        gaps: Sequence[torch.Tensor] = (),
+    ) -> Motion:
         """One Motion from each action's tokens, decoded together in order, with ``gaps[j]`` (tokens
         that belong to no action: a transition) between actions j and j + 1."""
         if self.part != FULL:
@@ -88,8 +93,16 @@ class TokenCodec:
         features = self.decode(tokens)
         joints = features_to_joints(features, self.skeleton)
         skeleton = self.skeleton
-        return Motion(features, np.asarray(joints, dtype=np.float32), skeleton.fps, skeleton.name, list(actions),
-                      ranges, settings, tokens.cpu().numpy())
+        return Motion(
+            features,
+            np.asarray(joints, dtype=np.float32),
+            skeleton.fps,
+            skeleton.name,
+            list(actions),
+            ranges,
+            settings,
+            tokens.cpu().numpy(),
+        )
 
 
 @dataclass
@@ -101,15 +114,17 @@ class BodyCodec(TokenCodec):
     lower: TokenCodec
 
     @classmethod
-    def pair(cls, upper: TokenCodec, lower: TokenCodec) -> "BodyCodec":
+    def pair(cls, upper: TokenCodec, lower: TokenCodec) -> BodyCodec:
         """The codec of ``upper`` and ``lower`` tokenizers, or ValueError when they do not pair up."""
         if (upper.part, lower.part) != (UPPER, LOWER):
             raise ValueError(f"need an upper- and a lower-body tokenizer, got {upper.part} and {lower.part}")
         if upper.skeleton is not lower.skeleton or upper.frames_per_token != lower.frames_per_token:
             raise ValueError("the upper- and lower-body tokenizers differ in skeleton or frames per token")
-        if not (np.array_equal(upper.normalizer.mean, lower.normalizer.mean)
-                and np.array_equal(upper.normalizer.std, lower.normalizer.std)
-                and upper.normalizer.feat_bias == lower.normalizer.feat_bias):
+        if not (
+            np.array_equal(upper.normalizer.mean, lower.normalizer.mean)
+            and np.array_equal(upper.normalizer.std, lower.normalizer.std)
+            and upper.normalizer.feat_bias == lower.normalizer.feat_bias
+        ):
             raise ValueError("the upper- and lower-body tokenizers normalise differently (other datasets?)")
         return cls(upper.vq, upper.normalizer, upper.skeleton, lower)
 
@@ -131,8 +146,7 @@ class BodyCodec(TokenCodec):
 
     def decode(self, tokens: torch.Tensor) -> np.ndarray:
         """Whole-body features (F, D) of token pairs (L, 2)."""
-        return merge({UPPER: self.upper.decode(tokens[:, 0]), LOWER: self.lower.decode(tokens[:, 1])},
-                     self.skeleton)
+        return merge({UPPER: self.upper.decode(tokens[:, 0]), LOWER: self.lower.decode(tokens[:, 1])}, self.skeleton)
 
 
 class TokenModelGenerator(MotionGenerator):
@@ -178,8 +192,9 @@ class TokenModelGenerator(MotionGenerator):
         if keep is None:
             return None
         if not keep.whole_frames:
-            raise ValueError(f"{self.model} keeps whole frames, not a body part alone "
-                             "(upper-body editing is the model mmm-body)")
+            raise ValueError(
+                f"{self.model} keeps whole frames, not a body part alone (upper-body editing is the model mmm-body)"
+            )
         encoded = self.codec.encode(keep.features)
         if len(encoded) != tokens:
             raise ValueError(f"the kept motion holds {len(encoded)} tokens but the request asks for {tokens}")
@@ -192,6 +207,9 @@ class TokenModelGenerator(MotionGenerator):
         """Each sequence's segments encoded, their tokens concatenated and decoded together: the
         ceiling of any sampler over these tokens (the M2D2M paper's Table 3 "VQ-VAE" row)."""
         settings = {"model": self.model, "method": "vq reconstruction", "checkpoint": str(self.source)}
-        return [self.codec.motion([self.codec.encode(clip) for clip in clips],
-                                  [f"segment {i + 1}" for i in range(len(clips))], settings)
-                for clips in segments]
+        return [
+            self.codec.motion(
+                [self.codec.encode(clip) for clip in clips], [f"segment {i + 1}" for i in range(len(clips))], settings
+            )
+            for clips in segments
+        ]

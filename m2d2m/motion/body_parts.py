@@ -63,8 +63,9 @@ def part_dims(skeleton: Skeleton, part: str) -> np.ndarray:
     if part == FULL:
         return np.arange(skeleton.feature_dim)
     if skeleton.name not in PART_JOINTS or part not in PART_JOINTS[skeleton.name]:
-        raise ValueError(f"unknown body part {part!r} for skeleton {skeleton.name!r}: "
-                         f"choose one of {', '.join((FULL, *PARTS))}")
+        raise ValueError(
+            f"unknown body part {part!r} for skeleton {skeleton.name!r}: choose one of {', '.join((FULL, *PARTS))}"
+        )
     return np.asarray(_part_dims(skeleton.name, part), dtype=np.int64)
 
 
@@ -88,15 +89,18 @@ def skeleton_of_width(width: int) -> Skeleton:
     for skeleton in SKELETONS.values():
         if skeleton.feature_dim == width:
             return skeleton
-    raise ValueError(f"no skeleton has {width}-d features; body parts are defined for "
-                     + ", ".join(f"{s.name} ({s.feature_dim})" for s in SKELETONS.values()))
+    raise ValueError(
+        f"no skeleton has {width}-d features; body parts are defined for "
+        + ", ".join(f"{s.name} ({s.feature_dim})" for s in SKELETONS.values())
+    )
 
 
 def split(features: np.ndarray, skeleton: Skeleton) -> dict[str, np.ndarray]:
     """Each part's columns of ``features`` (..., D), by part name."""
     if features.shape[-1] != skeleton.feature_dim:
-        raise ValueError(f"expected {skeleton.feature_dim}-d features of skeleton {skeleton.name!r}, "
-                         f"got {features.shape[-1]}")
+        raise ValueError(
+            f"expected {skeleton.feature_dim}-d features of skeleton {skeleton.name!r}, got {features.shape[-1]}"
+        )
     return {part: features[..., part_dims(skeleton, part)] for part in PARTS}
 
 

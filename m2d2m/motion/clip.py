@@ -43,8 +43,9 @@ class Motion:
         previous_end = 0
         for first, end in self.ranges:
             if not previous_end <= first < end <= len(self.joints):
-                raise ValueError(f"action ranges must be ordered, non-empty and within {len(self.joints)} frames; "
-                                 f"got {self.ranges}")
+                raise ValueError(
+                    f"action ranges must be ordered, non-empty and within {len(self.joints)} frames; got {self.ranges}"
+                )
             previous_end = end
 
     @property
@@ -65,17 +66,30 @@ class Motion:
     def segments(self) -> list[tuple[int, int, str]]:
         return [(first, end, text) for (first, end), text in zip(self.ranges, self.actions)]
 
-    def on_rigid_skeleton(self) -> "Motion":
+    def on_rigid_skeleton(self) -> Motion:
         """This motion with its joints on one rigid skeleton (:mod:`m2d2m.motion.rigid`), so that a
         BVH of it reproduces the ``.npy`` and the animation; the spread of bone lengths it had is
         kept in ``quality``. The features stay the model's own."""
         spread = bone_length_spread(self.joints, self.skeleton)
         joints = on_rigid_skeleton(self.joints, self.skeleton).astype(np.float32)
-        return replace(self, joints=joints, quality={**self.quality, "bone_length_std_mm_mean": spread["mean"],
-                                                     "bone_length_std_mm_max": spread["max"]})
+        return replace(
+            self,
+            joints=joints,
+            quality={
+                **self.quality,
+                "bone_length_std_mm_mean": spread["mean"],
+                "bone_length_std_mm_max": spread["max"],
+            },
+        )
 
-    def save(self, directory: str | Path, name: str = "motion", formats: tuple[str, ...] = ("npy", "bvh", "gif"),
-             size: int = 480, progress: Callable[[int], None] | None = None) -> dict[str, Path]:
+    def save(
+        self,
+        directory: str | Path,
+        name: str = "motion",
+        formats: tuple[str, ...] = ("npy", "bvh", "gif"),
+        size: int = 480,
+        progress: Callable[[int], None] | None = None,
+    ) -> dict[str, Path]:
         """Write ``<name>.<format>`` for each format into ``directory``, each file whole or not at
         all; returns format → path. The GIF/MP4 shows each action's text over its frames;
         ``progress(t)`` is called after each frame of an animation is drawn."""
@@ -93,6 +107,7 @@ class Motion:
             elif kind == "bvh":
                 written[kind] = save_bvh(path, self.joints, self.skeleton, self.fps)
             else:
-                written[kind] = render_motion(self.joints, path, self.skeleton, self.fps, self.segments, size=size,
-                                              progress=progress)
+                written[kind] = render_motion(
+                    self.joints, path, self.skeleton, self.fps, self.segments, size=size, progress=progress
+                )
         return written

@@ -94,9 +94,7 @@ def save_motion_npy(
     segments = list(segments or [])
     for start, end, _ in segments:
         if not 0 <= start < end <= n_frames:
-            raise ValueError(
-                f"segment ({start}, {end}) must satisfy 0 <= start < end <= {n_frames}"
-            )
+            raise ValueError(f"segment ({start}, {end}) must satisfy 0 <= start < end <= {n_frames}")
     npy = Path(path).with_suffix(".npy")
     with atomic_path(npy) as partial:
         np.save(partial, joints)
@@ -112,10 +110,7 @@ def save_motion_npy(
         "fps": fps,
         "num_frames": n_frames,
         "duration_s": n_frames / fps,
-        "segments": [
-            {"start_frame": int(s), "end_frame": int(e), "text": str(text)}
-            for s, e, text in segments
-        ],
+        "segments": [{"start_frame": int(s), "end_frame": int(e), "text": str(text)} for s, e, text in segments],
         "segments_end": "exclusive",
         **({"quality": dict(quality)} if quality else {}),
     }
@@ -178,7 +173,11 @@ def _local_rotations(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray
 
 
 def _write_joint(
-    f: TextIO, skeleton: Skeleton, kids_of: list[list[int]], offsets: np.ndarray, joint: int,
+    f: TextIO,
+    skeleton: Skeleton,
+    kids_of: list[list[int]],
+    offsets: np.ndarray,
+    joint: int,
     depth: int,
 ) -> None:
     """Write one joint's HIERARCHY block and, recursively, its descendants'."""

@@ -43,7 +43,7 @@ class RunningMoments:
         self.total += values.sum(0)
         self.total_sq += (values * values).sum(0)
 
-    def merge(self, other: "RunningMoments") -> None:
+    def merge(self, other: RunningMoments) -> None:
         self.count += other.count
         self.total += other.total
         self.total_sq += other.total_sq
@@ -53,7 +53,7 @@ class RunningMoments:
         return [self.count, self.total.tolist(), self.total_sq.tolist()]
 
     @classmethod
-    def from_state(cls, state: list) -> "RunningMoments":
+    def from_state(cls, state: list) -> RunningMoments:
         moments = cls(len(state[1]))
         moments.count, moments.total, moments.total_sq = state[0], np.array(state[1]), np.array(state[2])
         return moments
@@ -107,14 +107,20 @@ class Normalizer:
             mean, scale = mean[..., dims], scale[..., dims]
         if isinstance(features, np.ndarray):
             return mean, scale
-        return (torch.as_tensor(mean, device=features.device, dtype=features.dtype),
-                torch.as_tensor(scale, device=features.device, dtype=features.dtype))
+        return (
+            torch.as_tensor(mean, device=features.device, dtype=features.dtype),
+            torch.as_tensor(scale, device=features.device, dtype=features.dtype),
+        )
 
     def save(self, path: str | Path) -> None:
-        np.savez(path, mean=np.asarray(self.mean, np.float32), std=np.asarray(self.std, np.float32),
-                 feat_bias=np.float32(self.feat_bias))
+        np.savez(
+            path,
+            mean=np.asarray(self.mean, np.float32),
+            std=np.asarray(self.std, np.float32),
+            feat_bias=np.float32(self.feat_bias),
+        )
 
     @classmethod
-    def load(cls, path: str | Path) -> "Normalizer":
+    def load(cls, path: str | Path) -> Normalizer:
         with np.load(path) as stats:
             return cls(stats["mean"], stats["std"], float(stats["feat_bias"]))

@@ -42,8 +42,16 @@ _FOLLOW_SIGMA_S = 0.5  # the camera follows the root smoothed over this many sec
 _PLAIN_COLOURS = np.array([[0.13, 0.40, 0.75], [0.82, 0.21, 0.17], [0.20, 0.20, 0.20]])
 # With segments each action gets a hue; left and right are its dark and light shades.
 _SEGMENT_HUES = np.array(
-    [[0.12, 0.47, 0.71], [1.00, 0.50, 0.05], [0.17, 0.63, 0.17], [0.58, 0.40, 0.74],
-     [0.55, 0.34, 0.29], [0.89, 0.47, 0.76], [0.09, 0.75, 0.81], [0.74, 0.74, 0.13]]
+    [
+        [0.12, 0.47, 0.71],
+        [1.00, 0.50, 0.05],
+        [0.17, 0.63, 0.17],
+        [0.58, 0.40, 0.74],
+        [0.55, 0.34, 0.29],
+        [0.89, 0.47, 0.76],
+        [0.09, 0.75, 0.81],
+        [0.74, 0.74, 0.13],
+    ]
 )
 _TRANSITION_HUE = np.array([0.42, 0.42, 0.42])
 
@@ -70,8 +78,9 @@ def render_motion(
     size = int(size) + int(size) % 2  # H.264 wants even sizes
     fig = Figure(figsize=(size / _DPI, size / _DPI), dpi=_DPI)
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
-    panel = _Panel(ax, _View(joints, skeleton, fps), _Timeline(segments, len(joints)), size,
-                   title=title, with_legend=True)
+    panel = _Panel(
+        ax, _View(joints, skeleton, fps), _Timeline(segments, len(joints)), size, title=title, with_legend=True
+    )
     return _animate(fig, [panel], len(joints), path, fps, progress)
 
 
@@ -102,8 +111,14 @@ def render_comparison(
     return _animate(fig, panels, n_frames, path, fps)
 
 
-def _animate(fig: Figure, panels: Sequence["_Panel"], n_frames: int, path: str | Path, fps: float,
-             progress: Callable[[int], None] | None = None) -> Path:
+def _animate(
+    fig: Figure,
+    panels: Sequence[_Panel],
+    n_frames: int,
+    path: str | Path,
+    fps: float,
+    progress: Callable[[int], None] | None = None,
+) -> Path:
     """Draw every frame of the panels and encode them as GIF or MP4 (by the path's suffix)."""
     path = Path(path)
     suffix = path.suffix.lower()
@@ -111,9 +126,7 @@ def _animate(fig: Figure, panels: Sequence["_Panel"], n_frames: int, path: str |
         raise ValueError(f"unknown animation format {path.suffix!r}: use .gif or .mp4")
     ffmpeg = _find_ffmpeg() if suffix == ".mp4" else None
     if suffix == ".mp4" and ffmpeg is None:
-        raise RuntimeError(
-            "cannot write .mp4: no ffmpeg found; pip install imageio-ffmpeg or use .gif"
-        )
+        raise RuntimeError("cannot write .mp4: no ffmpeg found; pip install imageio-ffmpeg or use .gif")
     canvas = FigureCanvasAgg(fig)
 
     def frames() -> Iterator[np.ndarray]:
@@ -169,8 +182,15 @@ def render_frames(
         ax = fig.add_axes((col / columns, bottom, 1.0 / columns, size / height))
         _Panel(ax, view, timeline, size, title=None, with_legend=n == 0).draw(t)
     if title:
-        fig.text(0.5, 1.0 - 0.5 * title_px / height, title, ha="center", va="center",
-                 fontsize=_points(size, 12, smallest=10), weight="bold")
+        fig.text(
+            0.5,
+            1.0 - 0.5 * title_px / height,
+            title,
+            ha="center",
+            va="center",
+            fontsize=_points(size, 12, smallest=10),
+            weight="bold",
+        )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     canvas.print_png(path)
@@ -193,8 +213,7 @@ class _View:
     """Camera and scene geometry of one clip: a perspective camera with fixed orientation that
     looks at the smoothed root, and axis limits that contain the figure in every frame."""
 
-    def __init__(self, joints: np.ndarray, skeleton: Skeleton, fps: float,
-                 follow: np.ndarray | None = None) -> None:
+    def __init__(self, joints: np.ndarray, skeleton: Skeleton, fps: float, follow: np.ndarray | None = None) -> None:
         """``follow`` (T, 3) overrides the point the camera tracks, so that several panels can
         share one camera and show where their motions part ways."""
         self.joints = joints
@@ -206,8 +225,9 @@ class _View:
         self.ground_half = _GROUND_HALF * self.height
         self.grid_step = _nice_step(self.height / 3.0)
 
-        back = np.array([np.sin(_AZIMUTH) * np.cos(_ELEVATION), np.sin(_ELEVATION),
-                         np.cos(_AZIMUTH) * np.cos(_ELEVATION)])
+        back = np.array(
+            [np.sin(_AZIMUTH) * np.cos(_ELEVATION), np.sin(_ELEVATION), np.cos(_AZIMUTH) * np.cos(_ELEVATION)]
+        )
         right = np.cross([0.0, 1.0, 0.0], back)
         right /= np.linalg.norm(right)
         self.basis = np.stack([right, np.cross(back, right), back])  # rows: screen x, y, depth
@@ -239,9 +259,7 @@ class _View:
         zs = np.arange(np.ceil(lo_z / step), np.floor(hi_z / step) + 1) * step
         along_z = [[(x, 0.0, lo_z), (x, 0.0, hi_z)] for x in xs]
         along_x = [[(lo_x, 0.0, z), (hi_x, 0.0, z)] for z in zs]
-        outline = np.array(
-            [(lo_x, 0.0, lo_z), (hi_x, 0.0, lo_z), (hi_x, 0.0, hi_z), (lo_x, 0.0, hi_z)]
-        )
+        outline = np.array([(lo_x, 0.0, lo_z), (hi_x, 0.0, lo_z), (hi_x, 0.0, hi_z), (lo_x, 0.0, hi_z)])
         return outline, np.array(along_z + along_x).reshape(-1, 2, 3)
 
 
@@ -284,7 +302,12 @@ class _Panel:
     """The artists of one picture (ground, trajectory, shadow, skeleton, texts) on one Axes."""
 
     def __init__(
-        self, ax: Axes, view: _View, timeline: _Timeline, size: int, title: str | None,
+        self,
+        ax: Axes,
+        view: _View,
+        timeline: _Timeline,
+        size: int,
+        title: str | None,
         with_legend: bool,
     ) -> None:
         self.view, self.timeline = view, timeline
@@ -308,13 +331,13 @@ class _Panel:
         ax.set_axis_off()
         top = 0.14 + 0.06 * title_lines if (title or timeline.segments) else 0.06
         pixels_per_unit = self._fit_limits(ax, top=top, bottom=0.08)
-        self.ground = Polygon(np.zeros((4, 2)), closed=True, facecolor="#eef0f2",
-                              edgecolor="#b8bec6", lw=lw / 3, zorder=0)
+        self.ground = Polygon(
+            np.zeros((4, 2)), closed=True, facecolor="#eef0f2", edgecolor="#b8bec6", lw=lw / 3, zorder=0
+        )
         ax.add_patch(self.ground)
         self.grid = LineCollection([], colors="#cfd4da", linewidths=lw / 4, zorder=1)
         self.path = LineCollection([], linewidths=lw * 0.6, capstyle="round", zorder=2)
-        self.shadow = LineCollection([], colors=[(0, 0, 0, 0.15)], linewidths=lw,
-                                     capstyle="round", zorder=3)
+        self.shadow = LineCollection([], colors=[(0, 0, 0, 0.15)], linewidths=lw, capstyle="round", zorder=3)
         self.body = LineCollection([], linewidths=lw, capstyle="round", zorder=4)
         for artist in (self.grid, self.path, self.shadow, self.body):
             ax.add_collection(artist)
@@ -323,19 +346,39 @@ class _Panel:
 
         small = _points(size, 8, smallest=6)
         self.clock = ax.text(0.03, 0.03, "", transform=ax.transAxes, fontsize=small, color="#555")
-        self.legend = [
-            ax.text(0.97, 0.03 + 0.045 * k, label, transform=ax.transAxes, ha="right",
-                    fontsize=small, weight="bold")
-            for k, label in enumerate(("left", "right"))
-        ] if with_legend else []
+        self.legend = (
+            [
+                ax.text(
+                    0.97, 0.03 + 0.045 * k, label, transform=ax.transAxes, ha="right", fontsize=small, weight="bold"
+                )
+                for k, label in enumerate(("left", "right"))
+            ]
+            if with_legend
+            else []
+        )
         y_caption = 0.97
         if title:
-            ax.text(0.5, 0.975, title, transform=ax.transAxes, ha="center", va="top",
-                    fontsize=title_points, weight="bold", linespacing=1.15)
+            ax.text(
+                0.5,
+                0.975,
+                title,
+                transform=ax.transAxes,
+                ha="center",
+                va="top",
+                fontsize=title_points,
+                weight="bold",
+                linespacing=1.15,
+            )
             y_caption = 0.975 - 0.07 * title_lines
         self.caption = ax.text(
-            0.5, y_caption, "", transform=ax.transAxes, ha="center", va="top",
-            fontsize=caption_points, linespacing=1.2,
+            0.5,
+            y_caption,
+            "",
+            transform=ax.transAxes,
+            ha="center",
+            va="top",
+            fontsize=caption_points,
+            linespacing=1.2,
             bbox={"boxstyle": "round,pad=0.35", "facecolor": "white", "edgecolor": "none"},
         )
 
@@ -447,9 +490,27 @@ def _write_mp4(frames: Iterator[np.ndarray], path: Path, fps: float, ffmpeg: str
     height, width = first.shape[:2]
     frames = itertools.chain([first], frames)
     command = [
-        ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24",
-        "-s", f"{width}x{height}", "-r", f"{fps:g}", "-i", "-",
-        "-c:v", "libx264", "-pix_fmt", "yuv420p", "-f", "mp4", str(path),
+        ffmpeg,
+        "-y",
+        "-loglevel",
+        "error",
+        "-f",
+        "rawvideo",
+        "-pix_fmt",
+        "rgb24",
+        "-s",
+        f"{width}x{height}",
+        "-r",
+        f"{fps:g}",
+        "-i",
+        "-",
+        "-c:v",
+        "libx264",
+        "-pix_fmt",
+        "yuv420p",
+        "-f",
+        "mp4",
+        str(path),
     ]
     process = subprocess.Popen(command, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
     try:

@@ -37,9 +37,7 @@ _FORWARD = np.array([0.0, 0.0, 1.0])
 def _heading_forward(joints: np.ndarray, hip_a: int, hip_b: int, skeleton: Skeleton) -> np.ndarray:
     """Unnormalised horizontal forward direction: up × (hip_a − hip_b + r_shoulder − l_shoulder)."""
     r_shoulder, l_shoulder = skeleton.face_joints[2], skeleton.face_joints[3]
-    across = (joints[..., hip_a, :] - joints[..., hip_b, :]) + (
-        joints[..., r_shoulder, :] - joints[..., l_shoulder, :]
-    )
+    across = (joints[..., hip_a, :] - joints[..., hip_b, :]) + (joints[..., r_shoulder, :] - joints[..., l_shoulder, :])
     return cross(_UP, normalize(across))
 
 
@@ -62,9 +60,7 @@ def retarget(joints: np.ndarray, skeleton: Skeleton, bone_lengths: np.ndarray) -
     return joints[:, :1] * scale + skeleton.ancestors @ bone_vectors
 
 
-def canonicalize(
-    joints: np.ndarray, skeleton: Skeleton = T2M, target_offsets: np.ndarray | None = None
-) -> np.ndarray:
+def canonicalize(joints: np.ndarray, skeleton: Skeleton = T2M, target_offsets: np.ndarray | None = None) -> np.ndarray:
     """HumanML3D's global positions: target skeleton, feet on the floor, frame-0 root above the
     origin, frame-0 body facing +Z. Returns float64 (T, J, 3)."""
     positions = np.asarray(joints, dtype=np.float64)
@@ -171,8 +167,7 @@ def features_to_joints(features: np.ndarray | torch.Tensor, skeleton: Skeleton =
     """
     if features.shape[-1] != skeleton.feature_dim:
         raise ValueError(
-            f"expected {skeleton.feature_dim}-d features for skeleton {skeleton.name!r}, "
-            f"got {features.shape[-1]}"
+            f"expected {skeleton.feature_dim}-d features for skeleton {skeleton.name!r}, got {features.shape[-1]}"
         )
     if isinstance(features, torch.Tensor):
         return _recover_from_ric(features, skeleton.num_joints)
@@ -202,9 +197,7 @@ _MIRROR_WORDS = {
     "anti-clockwise": "clockwise",
 }
 _MIRROR_PATTERN = re.compile(
-    r"(?<!\w)("
-    + "|".join(sorted(map(re.escape, _MIRROR_WORDS), key=len, reverse=True))
-    + r")(?!\w)",
+    r"(?<!\w)(" + "|".join(sorted(map(re.escape, _MIRROR_WORDS), key=len, reverse=True)) + r")(?!\w)",
     re.IGNORECASE,
 )
 
@@ -221,6 +214,4 @@ def mirror_caption(text: str) -> str:
     """The caption of the mirrored motion: left↔right, clockwise↔counterclockwise and their
     variants swapped as whole words, case and everything else kept (works on tagged tokens too:
     ``left/ADJ`` → ``right/ADJ``)."""
-    return _MIRROR_PATTERN.sub(
-        lambda m: _match_case(_MIRROR_WORDS[m.group(1).lower()], m.group(1)), text
-    )
+    return _MIRROR_PATTERN.sub(lambda m: _match_case(_MIRROR_WORDS[m.group(1).lower()], m.group(1)), text)

@@ -80,8 +80,9 @@ def on_rigid_skeleton(joints: np.ndarray, skeleton: Skeleton, bone_lengths: np.n
             continue
         delta = joints[:, kids] - joints[:, [joint]]
         norm = np.linalg.norm(delta, axis=-1, keepdims=True)
-        direction = np.where(norm > _SHORTEST_BONE, delta / np.maximum(norm, _SHORTEST_BONE),
-                             skeleton.raw_offsets[kids])
+        direction = np.where(
+            norm > _SHORTEST_BONE, delta / np.maximum(norm, _SHORTEST_BONE), skeleton.raw_offsets[kids]
+        )
         bones = direction * lengths[kids, None]
         if len(kids) > 1:
             shape = rigid_shape(bones, rest[kids])

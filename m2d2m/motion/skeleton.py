@@ -102,8 +102,7 @@ class Skeleton:
         joints = np.asarray(joints, dtype=np.float64)
         if joints.ndim != 3 or joints.shape[1:] != (self.num_joints, 3):
             raise ValueError(
-                f"expected joints of shape (T, {self.num_joints}, 3) for skeleton {self.name!r}, "
-                f"got {joints.shape}"
+                f"expected joints of shape (T, {self.num_joints}, 3) for skeleton {self.name!r}, got {joints.shape}"
             )
         if len(joints) < min_frames:
             raise ValueError(f"need at least {min_frames} frame(s), got {len(joints)}")
@@ -172,10 +171,28 @@ _NX, _NY = (-1.0, 0.0, 0.0), (0.0, -1.0, 0.0)
 T2M = Skeleton(
     name="t2m",
     joint_names=(
-        "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
-        "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck",
-        "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
-        "left_elbow", "right_elbow", "left_wrist", "right_wrist",
+        "pelvis",
+        "left_hip",
+        "right_hip",
+        "spine1",
+        "left_knee",
+        "right_knee",
+        "spine2",
+        "left_ankle",
+        "right_ankle",
+        "spine3",
+        "left_foot",
+        "right_foot",
+        "neck",
+        "left_collar",
+        "right_collar",
+        "head",
+        "left_shoulder",
+        "right_shoulder",
+        "left_elbow",
+        "right_elbow",
+        "left_wrist",
+        "right_wrist",
     ),
     chains=(
         (0, 2, 5, 8, 11),
@@ -185,15 +202,58 @@ T2M = Skeleton(
         (9, 13, 16, 18, 20),
     ),
     raw_offsets=np.array(
-        [(0.0, 0.0, 0.0), _X, _NX, _Y, _NY, _NY, _Y, _NY, _NY, _Y, _Z, _Z, _Y, _X, _NX, _Z,
-         _NY, _NY, _NY, _NY, _NY, _NY]
+        [
+            (0.0, 0.0, 0.0),
+            _X,
+            _NX,
+            _Y,
+            _NY,
+            _NY,
+            _Y,
+            _NY,
+            _NY,
+            _Y,
+            _Z,
+            _Z,
+            _Y,
+            _X,
+            _NX,
+            _Z,
+            _NY,
+            _NY,
+            _NY,
+            _NY,
+            _NY,
+            _NY,
+        ]
     ),
     # Bone lengths of HumanML3D's target skeleton (first frame of clip 000021), in metres, as
     # measured on the processed sample clip 012314 (identical in every frame to 2.5e-7).
     bone_lengths=np.array(
-        [0.0, 0.103074, 0.109883, 0.131568, 0.393623, 0.390188, 0.143190, 0.432433, 0.425643,
-         0.057365, 0.143382, 0.149419, 0.219360, 0.137487, 0.143383, 0.103039, 0.131614,
-         0.122984, 0.256840, 0.263092, 0.266012, 0.269876]
+        [
+            0.0,
+            0.103074,
+            0.109883,
+            0.131568,
+            0.393623,
+            0.390188,
+            0.143190,
+            0.432433,
+            0.425643,
+            0.057365,
+            0.143382,
+            0.149419,
+            0.219360,
+            0.137487,
+            0.143383,
+            0.103039,
+            0.131614,
+            0.122984,
+            0.256840,
+            0.263092,
+            0.266012,
+            0.269876,
+        ]
     ),
     fps=20.0,
     face_joints=(2, 1, 17, 16),
@@ -208,8 +268,27 @@ T2M = Skeleton(
 KIT = Skeleton(
     name="kit",
     joint_names=(
-        "root", "BP", "BT", "BLN", "BUN", "LS", "LE", "LW", "RS", "RE", "RW",
-        "LH", "LK", "LA", "LMrot", "LF", "RH", "RK", "RA", "RMrot", "RF",
+        "root",
+        "BP",
+        "BT",
+        "BLN",
+        "BUN",
+        "LS",
+        "LE",
+        "LW",
+        "RS",
+        "RE",
+        "RW",
+        "LH",
+        "LK",
+        "LA",
+        "LMrot",
+        "LF",
+        "RH",
+        "RK",
+        "RA",
+        "RMrot",
+        "RF",
     ),
     chains=(
         (0, 11, 12, 13, 14, 15),
@@ -219,15 +298,35 @@ KIT = Skeleton(
         (3, 8, 9, 10),
     ),
     raw_offsets=np.array(
-        [(0.0, 0.0, 0.0), _Y, _Y, _Y, _Y, _X, _NY, _NY, _NX, _NY, _NY, _X, _NY, _NY, _Z, _Z,
-         _NX, _NY, _NY, _Z, _Z]
+        [(0.0, 0.0, 0.0), _Y, _Y, _Y, _Y, _X, _NY, _NY, _NX, _NY, _NY, _X, _NY, _NY, _Z, _Z, _NX, _NY, _NY, _Z, _Z]
     ),
     # KIT's target skeleton (first frame of clip 03950) is not public. These defaults are
     # adult proportions close to the T2M target, in KIT's units (about 640 per metre, SINC's
     # 480/0.75): right for synthetic data and tests; for real KIT-ML pass the corpus's own target.
     bone_lengths=np.array(
-        [0.0, 0.13, 0.20, 0.22, 0.10, 0.18, 0.26, 0.27, 0.18, 0.26, 0.27,
-         0.10, 0.39, 0.43, 0.07, 0.07, 0.10, 0.39, 0.43, 0.07, 0.07]
+        [
+            0.0,
+            0.13,
+            0.20,
+            0.22,
+            0.10,
+            0.18,
+            0.26,
+            0.27,
+            0.18,
+            0.26,
+            0.27,
+            0.10,
+            0.39,
+            0.43,
+            0.07,
+            0.07,
+            0.10,
+            0.39,
+            0.43,
+            0.07,
+            0.07,
+        ]
     )
     * 640.0,
     fps=12.5,

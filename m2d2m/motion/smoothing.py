@@ -3,12 +3,12 @@ path, the synthetic corpus's programs and the VQ-VAE's optional output low-pass.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 
 
-@lru_cache(maxsize=None)
+@cache
 def gaussian_kernel(sigma: float, truncate: float = 4.0) -> np.ndarray:
     """Normalised weights of :func:`gaussian_smooth`'s filter, radius ``int(truncate·σ + 0.5)``
     (SciPy's); shared with the VQ-VAE's optional output low-pass."""

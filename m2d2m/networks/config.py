@@ -43,8 +43,9 @@ class NetworkConfig:
         for name in names:
             value = getattr(self, name)
             if not (0.0 < value < 1.0 if open_low else 0.0 <= value < 1.0):
-                raise ConfigError(f"{type(self).__name__}.{name} must lie in {'(' if open_low else '['}0, 1), "
-                                 f"got {value!r}")
+                raise ConfigError(
+                    f"{type(self).__name__}.{name} must lie in {'(' if open_low else '['}0, 1), got {value!r}"
+                )
 
     def require_choice(self, name: str, choices: Iterable[str]) -> None:
         """The field named must be one of ``choices``."""
@@ -56,5 +57,6 @@ class NetworkConfig:
     def require_divisible(self, name: str, by: str) -> None:
         """The field ``name`` must be a multiple of the field ``by`` (a width split into heads)."""
         if getattr(self, name) % getattr(self, by):
-            raise ConfigError(f"{type(self).__name__}.{name} ({getattr(self, name)}) must be divisible by "
-                              f"{by} ({getattr(self, by)})")
+            raise ConfigError(
+                f"{type(self).__name__}.{name} ({getattr(self, name)}) must be divisible by {by} ({getattr(self, by)})"
+            )

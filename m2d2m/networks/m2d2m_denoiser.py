@@ -76,8 +76,10 @@ class DenoiserConfig(NetworkConfig):
         if not isinstance(self.num_buckets, int) or self.num_buckets < 4 or self.num_buckets % 2:
             raise ConfigError(f"DenoiserConfig.num_buckets must be an even integer >= 4, got {self.num_buckets!r}")
         if self.max_distance <= self.num_buckets // 4:
-            raise ConfigError(f"DenoiserConfig.max_distance must exceed num_buckets // 4 "
-                             f"({self.num_buckets // 4}), got {self.max_distance}")
+            raise ConfigError(
+                f"DenoiserConfig.max_distance must exceed num_buckets // 4 "
+                f"({self.num_buckets // 4}), got {self.max_distance}"
+            )
         self.require_fraction("dropout")
         self.require_choice("positions", POSITIONS)
         self.require_choice("embedding", EMBEDDINGS)
@@ -131,8 +133,8 @@ def action_offsets(actions: Sequence[Sequence[int]], width: int, device: torch.d
         start = 0
         for length in lengths:
             inside = torch.arange(length)
-            offsets[row, start:start + length, 0] = inside
-            offsets[row, start:start + length, 1] = length - 1 - inside
+            offsets[row, start : start + length, 0] = inside
+            offsets[row, start : start + length, 1] = length - 1 - inside
             start += length
     return offsets.to(device)
 
@@ -205,8 +207,12 @@ class Attention(nn.Module):
     def forward(self, x: torch.Tensor, keys_values: KeysValues, mask: torch.Tensor) -> torch.Tensor:
         keys, values = keys_values
         attended = F.scaled_dot_product_attention(
-            self._split(self.query(x)), keys, values, attn_mask=mask.to(x.dtype),
-            dropout_p=self.dropout if self.training else 0.0)
+            self._split(self.query(x)),
+            keys,
+            values,
+            attn_mask=mask.to(x.dtype),
+            dropout_p=self.dropout if self.training else 0.0,
+        )
         batch, _, length, _ = attended.shape
         return self.out(attended.transpose(1, 2).reshape(batch, length, -1))
 
@@ -220,7 +226,7 @@ class Condition:
     keys_values: tuple[KeysValues, ...]
     mask: torch.Tensor
 
-    def rows(self, index: torch.Tensor) -> "Condition":
+    def rows(self, index: torch.Tensor) -> Condition:
         """The condition of the rows ``index`` (in that order)."""
         return Condition(tuple((keys[index], values[index]) for keys, values in self.keys_values), self.mask[index])
 
@@ -236,12 +242,14 @@ class DenoiserBlock(nn.Module):
         self.cross_norm = AdaLayerNorm(width)
         self.cross_attention = Attention(width, config.heads, config.text_dim, config.dropout)
         self.ffn_norm = nn.LayerNorm(width)
-        self.ffn = nn.Sequential(nn.Linear(width, config.ffn), nn.GELU(), nn.Linear(config.ffn, width),
-                                 nn.Dropout(config.dropout))
+        self.ffn = nn.Sequential(
+            nn.Linear(width, config.ffn), nn.GELU(), nn.Linear(config.ffn, width), nn.Dropout(config.dropout)
+        )
         self.residual_dropout = nn.Dropout(config.dropout)
 
-    def forward(self, x: torch.Tensor, time: torch.Tensor, self_mask: torch.Tensor,
-                text: KeysValues, cross_mask: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, time: torch.Tensor, self_mask: torch.Tensor, text: KeysValues, cross_mask: torch.Tensor
+    ) -> torch.Tensor:
         h = self.self_norm(x, time)
         x = x + self.residual_dropout(self.self_attention(h, self.self_attention.context(h), self_mask))
         x = x + self.residual_dropout(self.cross_attention(self.cross_norm(x, time), text, cross_mask))
@@ -261,7 +269,9 @@ class MotionDenoiser(nn.Module):
             shape = (config.codebook_size, config.code_dim)
             if codebook is not None and tuple(codebook.shape) != shape:
                 raise ConfigError(f"the codebook is {tuple(codebook.shape)}, the config asks for {shape}")
-            self.register_buffer("codebook", torch.zeros(shape) if codebook is None else codebook.detach().float().clone())
+            self.register_buffer(
+                "codebook", torch.zeros(shape) if codebook is None else codebook.detach().float().clone()
+            )
             self.code_projection = nn.Linear(config.code_dim, config.width)
             self.mask_vector = nn.Parameter(torch.zeros(config.width))
             self.token_embedding = None
@@ -296,8 +306,9 @@ class MotionDenoiser(nn.Module):
         text = self.null_text.expand(batch, -1, -1)
         return text, torch.ones(batch, 1, dtype=torch.bool, device=text.device)
 
-    def drop_condition(self, text: torch.Tensor, text_mask: torch.Tensor, p: float,
-                       generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def drop_condition(
+        self, text: torch.Tensor, text_mask: torch.Tensor, p: float, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Replace each sample's condition by the null condition with probability ``p`` (CFG training).
 
         The null token takes the first position and the rest of that sample's tokens become
@@ -312,8 +323,9 @@ class MotionDenoiser(nn.Module):
         dropped = (torch.rand(batch, generator=generator, device=draw_device) < p).to(text.device)
         return self.nullify(text, text_mask, dropped)
 
-    def nullify(self, text: torch.Tensor, text_mask: torch.Tensor,
-                rows: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def nullify(
+        self, text: torch.Tensor, text_mask: torch.Tensor, rows: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """The condition with the samples where ``rows`` (B,) is True replaced by the null condition,
         which takes the first position, the rest of that sample's tokens becoming padding."""
         batch, length, _ = text.shape
@@ -336,12 +348,14 @@ class MotionDenoiser(nn.Module):
         key = (length, str(device))
         if key not in self._buckets:
             positions = torch.arange(length, device=device)
-            self._buckets[key] = relative_position_bucket(positions[None, :] - positions[:, None],
-                                                          self.config.num_buckets, self.config.max_distance)
+            self._buckets[key] = relative_position_bucket(
+                positions[None, :] - positions[:, None], self.config.num_buckets, self.config.max_distance
+            )
         return self.relative_bias(self._buckets[key]).permute(2, 0, 1)
 
-    def condition(self, text: torch.Tensor | None, text_mask: torch.Tensor | None,
-                  batch: int | None = None) -> Condition:
+    def condition(
+        self, text: torch.Tensor | None, text_mask: torch.Tensor | None, batch: int | None = None
+    ) -> Condition:
         """The text condition (B, S, text_dim) with its mask (B, S), True = real (None: all real), as
         the blocks attend to it; ``text=None`` is the null condition of ``batch`` rows."""
         if text is None:
@@ -351,9 +365,15 @@ class MotionDenoiser(nn.Module):
         keys_values = tuple(block.cross_attention.context(text) for block in self.blocks)
         return Condition(keys_values, _key_mask(text_mask, torch.float32))
 
-    def forward(self, tokens: torch.Tensor, padding_mask: torch.Tensor | None, t: torch.Tensor,
-                text: torch.Tensor | None = None, text_mask: torch.Tensor | None = None,
-                offsets: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self,
+        tokens: torch.Tensor,
+        padding_mask: torch.Tensor | None,
+        t: torch.Tensor,
+        text: torch.Tensor | None = None,
+        text_mask: torch.Tensor | None = None,
+        offsets: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """Logits (B, L, K) for z0.
 
         ``tokens`` (B, L) long in [0, K]; ``padding_mask`` (B, L) bool, True = real (None: all real);
@@ -362,8 +382,14 @@ class MotionDenoiser(nn.Module):
         """
         return self.denoise(tokens, padding_mask, t, self.condition(text, text_mask, tokens.shape[0]), offsets)
 
-    def denoise(self, tokens: torch.Tensor, padding_mask: torch.Tensor | None, t: torch.Tensor,
-                condition: Condition, offsets: torch.Tensor | None = None) -> torch.Tensor:
+    def denoise(
+        self,
+        tokens: torch.Tensor,
+        padding_mask: torch.Tensor | None,
+        t: torch.Tensor,
+        condition: Condition,
+        offsets: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """:meth:`forward` under a prepared :meth:`condition`. ``offsets`` (B, L, 2) are each
         position's distances from its action's first and to its last token
         (:func:`action_offsets`); None reads every row as one action. Only ``positions: action``
@@ -378,8 +404,9 @@ class MotionDenoiser(nn.Module):
             if offsets is None:
                 offsets = row_offsets(padding_mask)
             half = self.config.width // 2
-            features = torch.cat([sinusoid(offsets[..., 0], half), sinusoid(offsets[..., 1], self.config.width - half)],
-                                 dim=-1)
+            features = torch.cat(
+                [sinusoid(offsets[..., 0], half), sinusoid(offsets[..., 1], self.config.width - half)], dim=-1
+            )
             x = x + self.offset_embedding(features.to(x.dtype))
         time = self.time_embedding(t)
         self_mask = self.relative_position_bias(length, tokens.device)[None] + _key_mask(padding_mask, torch.float32)

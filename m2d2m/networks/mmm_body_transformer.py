@@ -19,8 +19,13 @@ import torch
 from torch import nn
 
 from m2d2m.networks.config import ConfigError
-from m2d2m.networks.mmm_transformer import (SPECIAL_TOKENS, MaskedMotionTransformer, MaskedTransformerConfig,
-                                            code_vectors, framed)
+from m2d2m.networks.mmm_transformer import (
+    SPECIAL_TOKENS,
+    MaskedMotionTransformer,
+    MaskedTransformerConfig,
+    code_vectors,
+    framed,
+)
 
 
 @dataclass(frozen=True)
@@ -55,13 +60,19 @@ class BodyTransformerConfig(MaskedTransformerConfig):
         return self.code_dim + self.lower_code_dim
 
 
-def body_canvas(upper: torch.Tensor, lower: torch.Tensor, lengths: torch.Tensor,
-                config: BodyTransformerConfig) -> torch.Tensor:
+def body_canvas(
+    upper: torch.Tensor, lower: torch.Tensor, lengths: torch.Tensor, config: BodyTransformerConfig
+) -> torch.Tensor:
     """The network's input (B, W + 1, 2) for upper and lower tokens (B, W) each (codes or their
     [MASK]), of which the first ``lengths[b]`` are sequence b's: each column ends with its [END]
     and is padded with its [PAD]."""
-    return torch.stack([framed(upper, lengths, config.end_id, config.pad_id),
-                        framed(lower, lengths, config.lower_end_id, config.lower_pad_id)], dim=-1)
+    return torch.stack(
+        [
+            framed(upper, lengths, config.end_id, config.pad_id),
+            framed(lower, lengths, config.lower_end_id, config.lower_pad_id),
+        ],
+        dim=-1,
+    )
 
 
 class BodyMaskedTransformer(MaskedMotionTransformer):
@@ -72,8 +83,10 @@ class BodyMaskedTransformer(MaskedMotionTransformer):
     def __init__(self, config: BodyTransformerConfig, codebook: torch.Tensor, lower_codebook: torch.Tensor) -> None:
         super().__init__(config, codebook)
         if tuple(lower_codebook.shape) != (config.lower_codebook_size, config.lower_code_dim):
-            raise ConfigError(f"the lower-body codebook is {tuple(lower_codebook.shape)}, the config asks for "
-                              f"({config.lower_codebook_size}, {config.lower_code_dim})")
+            raise ConfigError(
+                f"the lower-body codebook is {tuple(lower_codebook.shape)}, the config asks for "
+                f"({config.lower_codebook_size}, {config.lower_code_dim})"
+            )
         self.register_buffer("lower_codebook", lower_codebook.detach().clone().float())
         self.lower_special = nn.Parameter(torch.randn(SPECIAL_TOKENS, config.lower_code_dim) * 0.02)
 

@@ -50,12 +50,12 @@ class MaskedTransformerConfig(NetworkConfig):
     max_tokens: int = 49
 
     def __post_init__(self) -> None:
-        self.require_positive("codebook_size", "code_dim", "width", "heads", "layers", "ffn", "text_dim",
-                              "max_tokens")
+        self.require_positive("codebook_size", "code_dim", "width", "heads", "layers", "ffn", "text_dim", "max_tokens")
         self.require_divisible("width", "heads")
         if not isinstance(self.cross_layers, int) or not 0 <= self.cross_layers <= self.layers:
-            raise ConfigError(f"MaskedTransformerConfig.cross_layers must lie in 0..layers ({self.layers}), "
-                              f"got {self.cross_layers!r}")
+            raise ConfigError(
+                f"MaskedTransformerConfig.cross_layers must lie in 0..layers ({self.layers}), got {self.cross_layers!r}"
+            )
         self.require_fraction("dropout")
 
     @property
@@ -111,12 +111,17 @@ class MaskedBlock(nn.Module):
         self.context_norm = nn.LayerNorm(config.width) if cross else None
         self.attention = nn.MultiheadAttention(config.width, config.heads, dropout=config.dropout, batch_first=True)
         self.ffn_norm = nn.LayerNorm(config.width)
-        self.ffn = nn.Sequential(nn.Linear(config.width, config.ffn), nn.GELU(), nn.Linear(config.ffn, config.width),
-                                 nn.Dropout(config.dropout))
+        self.ffn = nn.Sequential(
+            nn.Linear(config.width, config.ffn),
+            nn.GELU(),
+            nn.Linear(config.ffn, config.width),
+            nn.Dropout(config.dropout),
+        )
         self.dropout = nn.Dropout(config.dropout)
 
-    def forward(self, x: torch.Tensor, padding: torch.Tensor, words: torch.Tensor,
-                word_padding: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, padding: torch.Tensor, words: torch.Tensor, word_padding: torch.Tensor
+    ) -> torch.Tensor:
         h = self.norm(x)
         if self.cross:
             context = self.context_norm(words)
@@ -133,8 +138,10 @@ class MaskedMotionTransformer(nn.Module):
     def __init__(self, config: MaskedTransformerConfig, codebook: torch.Tensor) -> None:
         super().__init__()
         if tuple(codebook.shape) != (config.codebook_size, config.code_dim):
-            raise ConfigError(f"the codebook is {tuple(codebook.shape)}, the config asks for "
-                              f"({config.codebook_size}, {config.code_dim})")
+            raise ConfigError(
+                f"the codebook is {tuple(codebook.shape)}, the config asks for "
+                f"({config.codebook_size}, {config.code_dim})"
+            )
         self.config = config
         self.register_buffer("codebook", codebook.detach().clone().float())
         self.special = nn.Parameter(torch.randn(SPECIAL_TOKENS, config.code_dim) * 0.02)
@@ -154,8 +161,9 @@ class MaskedMotionTransformer(nn.Module):
         """(B, L) bool: the [PAD] positions, never attended to."""
         return tokens == self.config.pad_id
 
-    def forward(self, tokens: torch.Tensor, sentence: torch.Tensor, words: torch.Tensor,
-                word_mask: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, tokens: torch.Tensor, sentence: torch.Tensor, words: torch.Tensor, word_mask: torch.Tensor
+    ) -> torch.Tensor:
         """Logits (B, L, K) for the positions of ``tokens`` (B, L): codes, [MASK] where to predict,
         [END] after a sequence's last token and [PAD] after that (never attended to).
         ``sentence`` (B, text_dim); ``words`` (B, S, text_dim) with ``word_mask`` (B, S), True = real.
@@ -165,8 +173,9 @@ class MaskedMotionTransformer(nn.Module):
             raise ValueError(f"{length} tokens exceed the {self.config.max_tokens} + [END] this model was built for")
         sequence = torch.cat([self.sentence_projection(sentence)[:, None], self.embed_tokens(tokens)], dim=1)
         sequence = sequence + self.positions[: length + 1]
-        padding = torch.cat([torch.zeros(batch, 1, dtype=torch.bool, device=tokens.device),
-                             self.padding(tokens)], dim=1)
+        padding = torch.cat(
+            [torch.zeros(batch, 1, dtype=torch.bool, device=tokens.device), self.padding(tokens)], dim=1
+        )
         word_features = self.word_projection(words)
         for block in self.blocks:
             sequence = block(sequence, padding, word_features, ~word_mask)

@@ -54,8 +54,18 @@ class MotionDiffuseConfig(NetworkConfig):
     attention: str = "linear"
 
     def __post_init__(self) -> None:
-        self.require_positive("feature_dim", "width", "layers", "heads", "ffn", "text_dim", "text_width",
-                              "text_heads", "text_ffn", "max_frames")
+        self.require_positive(
+            "feature_dim",
+            "width",
+            "layers",
+            "heads",
+            "ffn",
+            "text_dim",
+            "text_width",
+            "text_heads",
+            "text_ffn",
+            "max_frames",
+        )
         if not isinstance(self.text_layers, int) or self.text_layers < 0:
             raise ConfigError(f"MotionDiffuseConfig.text_layers must be a whole number >= 0, got {self.text_layers!r}")
         self.require_divisible("width", "heads")
@@ -128,20 +138,34 @@ class Attention(nn.Module):
         self.value = nn.Linear(context_width or width, width)
         self.stylize = Stylization(width, config.condition_dim, config.dropout)
 
-    def forward(self, x: torch.Tensor, mask: torch.Tensor, condition: torch.Tensor,
-                context: torch.Tensor | None = None, context_mask: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self,
+        x: torch.Tensor,
+        mask: torch.Tensor,
+        condition: torch.Tensor,
+        context: torch.Tensor | None = None,
+        context_mask: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         normed = self.norm(x)
         source, source_mask = (normed, mask) if context is None else (self.context_norm(context), context_mask)
-        y = self.attend(_heads(self.query(normed), self.heads), _heads(self.key(source), self.heads),
-                        _heads(self.value(source), self.heads), source_mask)
+        y = self.attend(
+            _heads(self.query(normed), self.heads),
+            _heads(self.key(source), self.heads),
+            _heads(self.value(source), self.heads),
+            source_mask,
+        )
         return x + self.stylize(_merge_heads(y), condition)
 
 
 class FeedForward(nn.Module):
     def __init__(self, config: MotionDiffuseConfig) -> None:
         super().__init__()
-        self.net = nn.Sequential(nn.Linear(config.width, config.ffn), nn.GELU(), nn.Dropout(config.dropout),
-                                 nn.Linear(config.ffn, config.width))
+        self.net = nn.Sequential(
+            nn.Linear(config.width, config.ffn),
+            nn.GELU(),
+            nn.Dropout(config.dropout),
+            nn.Linear(config.ffn, config.width),
+        )
         nn.init.zeros_(self.net[-1].weight)
         nn.init.zeros_(self.net[-1].bias)
         self.stylize = Stylization(config.width, config.condition_dim, config.dropout)
@@ -157,8 +181,7 @@ class DecoderLayer(nn.Module):
         self.cross_attention = Attention(config, context_width=config.text_width)
         self.feed_forward = FeedForward(config)
 
-    def forward(self, x: torch.Tensor, mask: torch.Tensor, condition: torch.Tensor,
-                text: "EncodedText") -> torch.Tensor:
+    def forward(self, x: torch.Tensor, mask: torch.Tensor, condition: torch.Tensor, text: EncodedText) -> torch.Tensor:
         x = self.self_attention(x, mask, condition)
         x = self.cross_attention(x, mask, condition, text.tokens, text.mask)
         return self.feed_forward(x, condition)
@@ -183,7 +206,7 @@ class EncodedText:
     mask: torch.Tensor
     sentence: torch.Tensor
 
-    def take(self, rows: torch.Tensor) -> "EncodedText":
+    def take(self, rows: torch.Tensor) -> EncodedText:
         """The encodings of ``rows`` (indices), e.g. one per term of a controlled sampling run."""
         return EncodedText(self.tokens[rows], self.mask[rows], self.sentence[rows])
 
@@ -196,14 +219,19 @@ class MotionDiffuseTransformer(nn.Module):
         self.config = config
         width = config.width
         self.text_projection = nn.Linear(config.text_dim, config.text_width)
-        layer = nn.TransformerEncoderLayer(config.text_width, config.text_heads, config.text_ffn, config.dropout,
-                                           activation="gelu", batch_first=True)
-        self.text_transformer = (nn.TransformerEncoder(layer, config.text_layers, enable_nested_tensor=False)
-                                 if config.text_layers else nn.Identity())
+        layer = nn.TransformerEncoderLayer(
+            config.text_width, config.text_heads, config.text_ffn, config.dropout, activation="gelu", batch_first=True
+        )
+        self.text_transformer = (
+            nn.TransformerEncoder(layer, config.text_layers, enable_nested_tensor=False)
+            if config.text_layers
+            else nn.Identity()
+        )
         self.text_norm = nn.LayerNorm(config.text_width)
         self.sentence_projection = nn.Linear(config.text_width, config.condition_dim)
-        self.time_embedding = nn.Sequential(nn.Linear(width, config.condition_dim), nn.SiLU(),
-                                            nn.Linear(config.condition_dim, config.condition_dim))
+        self.time_embedding = nn.Sequential(
+            nn.Linear(width, config.condition_dim), nn.SiLU(), nn.Linear(config.condition_dim, config.condition_dim)
+        )
         self.motion_projection = nn.Linear(config.feature_dim, width)
         self.positions = nn.Parameter(torch.randn(config.max_frames, width) * 0.02)
         self.decoder = nn.ModuleList(DecoderLayer(config) for _ in range(config.layers))
@@ -226,8 +254,9 @@ class MotionDiffuseTransformer(nn.Module):
         sees), under ``text``."""
         frames = x.shape[1]
         if frames > self.config.max_frames:
-            raise ValueError(f"MotionDiffuse generates at most {self.config.max_frames} frames in one pass; "
-                             f"{frames} were asked for")
+            raise ValueError(
+                f"MotionDiffuse generates at most {self.config.max_frames} frames in one pass; {frames} were asked for"
+            )
         mask = torch.arange(frames, device=x.device)[None, :] < lengths[:, None]
         condition = self.time_embedding(timestep_embedding(t, self.config.width)) + text.sentence
         h = self.motion_projection(x) + self.positions[:frames]

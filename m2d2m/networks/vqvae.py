@@ -65,14 +65,16 @@ class VQConfig(NetworkConfig):
     part: str = FULL
 
     def __post_init__(self) -> None:
-        self.require_positive("feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size",
-                              "reset_every")
+        self.require_positive(
+            "feature_dim", "width", "depth", "dilation_growth", "code_dim", "codebook_size", "reset_every"
+        )
         if not isinstance(self.down_t, int) or self.down_t < 0:
             raise ConfigError(f"VQConfig.down_t must be a non-negative integer, got {self.down_t!r}")
         self.require_fraction("ema_decay", open_low=True)
         if not isinstance(self.output_smoothing, (int, float)) or not 0 <= self.output_smoothing <= 8:
-            raise ConfigError(f"VQConfig.output_smoothing must be a number of frames in [0, 8], "
-                              f"got {self.output_smoothing!r}")
+            raise ConfigError(
+                f"VQConfig.output_smoothing must be a number of frames in [0, 8], got {self.output_smoothing!r}"
+            )
         self.require_choice("activation", sorted(_ACTIVATIONS))
         self.require_choice("part", (FULL, *PARTS))
         if self.part != FULL:
@@ -256,8 +258,10 @@ def resnet1d(width: int, depth: int, growth: int, activation: str) -> nn.Sequent
 def _encoder(c: VQConfig) -> nn.Sequential:
     layers: list[nn.Module] = [nn.Conv1d(len(c.dims), c.width, 3, padding=1), _ACTIVATIONS[c.activation]()]
     for _ in range(c.down_t):
-        layers += [nn.Conv1d(c.width, c.width, 4, stride=2, padding=1),
-                   resnet1d(c.width, c.depth, c.dilation_growth, c.activation)]
+        layers += [
+            nn.Conv1d(c.width, c.width, 4, stride=2, padding=1),
+            resnet1d(c.width, c.depth, c.dilation_growth, c.activation),
+        ]
     layers.append(nn.Conv1d(c.width, c.code_dim, 3, padding=1))
     return nn.Sequential(*layers)
 
@@ -265,11 +269,17 @@ def _encoder(c: VQConfig) -> nn.Sequential:
 def _decoder(c: VQConfig) -> nn.Sequential:
     layers: list[nn.Module] = [nn.Conv1d(c.code_dim, c.width, 3, padding=1), _ACTIVATIONS[c.activation]()]
     for _ in range(c.down_t):
-        layers += [resnet1d(c.width, c.depth, c.dilation_growth, c.activation),
-                   nn.Upsample(scale_factor=2, mode="nearest"),
-                   nn.Conv1d(c.width, c.width, 3, padding=1)]
-    layers += [nn.Conv1d(c.width, c.width, 3, padding=1), _ACTIVATIONS[c.activation](),
-               nn.Conv1d(c.width, len(c.dims), 3, padding=1), TemporalLowPass(c.output_smoothing)]
+        layers += [
+            resnet1d(c.width, c.depth, c.dilation_growth, c.activation),
+            nn.Upsample(scale_factor=2, mode="nearest"),
+            nn.Conv1d(c.width, c.width, 3, padding=1),
+        ]
+    layers += [
+        nn.Conv1d(c.width, c.width, 3, padding=1),
+        _ACTIVATIONS[c.activation](),
+        nn.Conv1d(c.width, len(c.dims), 3, padding=1),
+        TemporalLowPass(c.output_smoothing),
+    ]
     return nn.Sequential(*layers)
 
 
@@ -325,8 +335,9 @@ class MotionVQVAE(nn.Module):
         self.config = config or VQConfig()
         self.register_buffer("dims", torch.as_tensor(self.config.dims), persistent=False)
         self.encoder = _encoder(self.config)
-        self.quantizer = EMACodebook(self.config.codebook_size, self.config.code_dim, self.config.ema_decay,
-                                     self.config.reset_every)
+        self.quantizer = EMACodebook(
+            self.config.codebook_size, self.config.code_dim, self.config.ema_decay, self.config.reset_every
+        )
         self.decoder = _decoder(self.config)
 
     @property
@@ -346,8 +357,7 @@ class MotionVQVAE(nn.Module):
         """Encoder outputs (B, L, code_dim); ``x`` is padded at the end to a whole number of
         tokens by repeating its last frame, which keeps the padding on the motion's manifold."""
         if x.ndim != 3 or x.shape[-1] != self.config.feature_dim or x.shape[1] < 1:
-            raise ValueError(f"expected features (B, T >= 1, {self.config.feature_dim}), "
-                             f"got {tuple(x.shape)}")
+            raise ValueError(f"expected features (B, T >= 1, {self.config.feature_dim}), got {tuple(x.shape)}")
         x = self.select(x)
         missing = -x.shape[1] % self.frames_per_token
         if missing:
@@ -385,8 +395,9 @@ class MotionVQVAE(nn.Module):
 # Model files
 
 
-def save_vq(path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skeleton: str,
-            extra: dict | None = None) -> None:
+def save_vq(
+    path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skeleton: str, extra: dict | None = None
+) -> None:
     """Write the model, its normalisation and its skeleton name as one self-contained torch file
     (written atomically), the hand-over from VQ training to tokenizing and the denoiser."""
     payload = {
@@ -401,8 +412,7 @@ def save_vq(path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skelet
     VQ_FILE.write(path, payload)
 
 
-def load_vq(path: str | Path,
-            map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
+def load_vq(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
     """Read a file written by :func:`save_vq`: the model (eval mode, on ``map_location``), its
     normaliser, and ``{"skeleton", "part", "extra"}`` (``part``: the body part it tokenizes);
     ValueError when the file is not one."""
@@ -424,6 +434,7 @@ def vq_from_payload(payload: dict, map_location: str | torch.device = "cpu") -> 
     except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as error:
         # a file with the format tag whose contents do not fit the model (missing keys, other
         # shapes): the caller gets a ValueError naming what is wrong, like any unreadable file
-        raise ValueError(f"not a usable VQ-VAE ({type(error).__name__}: {' '.join(str(error).split())[:200]})") \
-            from error
+        raise ValueError(
+            f"not a usable VQ-VAE ({type(error).__name__}: {' '.join(str(error).split())[:200]})"
+        ) from error
     return model.to(map_location).eval(), normalizer, meta

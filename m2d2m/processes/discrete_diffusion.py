@@ -76,10 +76,18 @@ def scalar_schedule(config: ScheduleConfig) -> dict[str, Tensor]:
     """
     steps = config.steps
     frac = torch.arange(steps, dtype=torch.float64) / max(steps - 1, 1)
-    alpha_bar = torch.cat([torch.ones(1, dtype=torch.float64),
-                           config.alpha_bar_start + frac * (config.alpha_bar_end - config.alpha_bar_start)])
-    gamma_bar = torch.cat([torch.zeros(1, dtype=torch.float64),
-                           config.gamma_bar_start + frac * (config.gamma_bar_end - config.gamma_bar_start)])
+    alpha_bar = torch.cat(
+        [
+            torch.ones(1, dtype=torch.float64),
+            config.alpha_bar_start + frac * (config.alpha_bar_end - config.alpha_bar_start),
+        ]
+    )
+    gamma_bar = torch.cat(
+        [
+            torch.zeros(1, dtype=torch.float64),
+            config.gamma_bar_start + frac * (config.gamma_bar_end - config.gamma_bar_start),
+        ]
+    )
     alpha = torch.ones_like(alpha_bar)
     gamma = torch.zeros_like(gamma_bar)
     alpha[1:] = alpha_bar[1:] / alpha_bar[:-1]
@@ -87,10 +95,17 @@ def scalar_schedule(config: ScheduleConfig) -> dict[str, Tensor]:
     replace_mass = 1.0 - alpha - gamma
     if (replace_mass < -1e-12).any():
         bad = int(torch.nonzero(replace_mass < -1e-12)[0])
-        raise ValueError(f"the schedule gives a negative replace mass {float(replace_mass[bad]):.3g} "
-                         f"at step {bad}; choose other endpoints")
-    return {"alpha_bar": alpha_bar, "gamma_bar": gamma_bar, "alpha": alpha, "gamma": gamma,
-            "replace": replace_mass.clamp_min(0.0)}
+        raise ValueError(
+            f"the schedule gives a negative replace mass {float(replace_mass[bad]):.3g} "
+            f"at step {bad}; choose other endpoints"
+        )
+    return {
+        "alpha_bar": alpha_bar,
+        "gamma_bar": gamma_bar,
+        "alpha": alpha,
+        "gamma": gamma,
+        "replace": replace_mass.clamp_min(0.0),
+    }
 
 
 def code_distances(codebook: Tensor, distance: str = "l2_rank") -> Tensor:
@@ -169,8 +184,15 @@ class TransitionSchedule:
     indexed ``Q[i, j] = q(z_t = i | z_{t−1} = j)``.
     """
 
-    def __init__(self, config: ScheduleConfig, num_codes: int, scalars: dict[str, Tensor],
-                 distances: Tensor | None, step: Tensor, cumulative: Tensor) -> None:
+    def __init__(
+        self,
+        config: ScheduleConfig,
+        num_codes: int,
+        scalars: dict[str, Tensor],
+        distances: Tensor | None,
+        step: Tensor,
+        cumulative: Tensor,
+    ) -> None:
         self.config = config
         self.num_codes = num_codes
         self.mask_index = num_codes
@@ -181,10 +203,19 @@ class TransitionSchedule:
         self._spans: dict[tuple[int, int], Tensor] = {}
 
     @classmethod
-    def build(cls, codebook: Tensor, steps: int = 100, kind: str = "dynamic", eta: float = 0.5,
-              distance: str = "l2_rank", schedule: str = "linear", alpha_bar_end: float | None = None,
-              gamma_bar_end: float | None = None, alpha_bar_start: float = 0.99999,
-              gamma_bar_start: float = 0.000009) -> "TransitionSchedule":
+    def build(
+        cls,
+        codebook: Tensor,
+        steps: int = 100,
+        kind: str = "dynamic",
+        eta: float = 0.5,
+        distance: str = "l2_rank",
+        schedule: str = "linear",
+        alpha_bar_end: float | None = None,
+        gamma_bar_end: float | None = None,
+        alpha_bar_start: float = 0.99999,
+        gamma_bar_start: float = 0.000009,
+    ) -> TransitionSchedule:
         """Build from the frozen VQ codebook (K, code_dim); unset endpoints take the schedule's defaults."""
         if schedule not in SCHEDULES:
             raise ValueError(f"schedule must be one of {tuple(SCHEDULES)}, got {schedule!r}")
@@ -192,18 +223,23 @@ class TransitionSchedule:
             raise ValueError(f"codebook must have shape (K, code_dim), got {tuple(codebook.shape)}")
         default_alpha_end, default_gamma_end = SCHEDULES[schedule]
         config = ScheduleConfig(
-            steps=steps, kind=kind, eta=float(eta), distance=distance, schedule=schedule,
+            steps=steps,
+            kind=kind,
+            eta=float(eta),
+            distance=distance,
+            schedule=schedule,
             alpha_bar_start=alpha_bar_start,
             alpha_bar_end=default_alpha_end if alpha_bar_end is None else alpha_bar_end,
             gamma_bar_start=gamma_bar_start,
-            gamma_bar_end=default_gamma_end if gamma_bar_end is None else gamma_bar_end)
+            gamma_bar_end=default_gamma_end if gamma_bar_end is None else gamma_bar_end,
+        )
         device = codebook.device
         scalars = {name: value.to(device) for name, value in scalar_schedule(config).items()}
         distances = code_distances(codebook, distance) if kind == "dynamic" else None
         return cls._assemble(config, codebook.shape[0], scalars, distances)
 
     @classmethod
-    def from_config(cls, codebook: Tensor, diffusion: dict[str, Any]) -> "TransitionSchedule":
+    def from_config(cls, codebook: Tensor, diffusion: dict[str, Any]) -> TransitionSchedule:
         """The schedule a run's ``diffusion`` section (or a saved :class:`ScheduleConfig`) builds
         from its codebook, in float64; the section's keys that are not the schedule's (loss
         weights, timestep sampling) are the training's, and ignored here."""
@@ -212,20 +248,20 @@ class TransitionSchedule:
         return cls.build(codebook.detach().double(), **options)
 
     @classmethod
-    def _assemble(cls, config: ScheduleConfig, num_codes: int, scalars: dict[str, Tensor],
-                  distances: Tensor | None) -> "TransitionSchedule":
+    def _assemble(
+        cls, config: ScheduleConfig, num_codes: int, scalars: dict[str, Tensor], distances: Tensor | None
+    ) -> TransitionSchedule:
         block = replace_block(scalars["replace"], num_codes, distances, config.eta)
         step, cumulative = transition_matrices(scalars, block)
         return cls(config, num_codes, scalars, distances, step, cumulative)
 
-    def with_eta(self, eta: float) -> "TransitionSchedule":
+    def with_eta(self, eta: float) -> TransitionSchedule:
         """The same schedule at another η (e.g. η = 0.25 for multi-action sampling), reusing the distances."""
         if self.config.kind != "dynamic":
             raise ValueError("with_eta needs a 'dynamic' schedule; a 'uniform' one has no η")
-        return self._assemble(replace(self.config, eta=float(eta)), self.num_codes, self._scalars,
-                              self._distances)
+        return self._assemble(replace(self.config, eta=float(eta)), self.num_codes, self._scalars, self._distances)
 
-    def to(self, device: torch.device | str) -> "TransitionSchedule":
+    def to(self, device: torch.device | str) -> TransitionSchedule:
         """Move the cached matrices (in place, like ``nn.Module.to``) and return self."""
         self._scalars = {name: value.to(device) for name, value in self._scalars.items()}
         if self._distances is not None:

@@ -38,9 +38,17 @@ def _per_sample(t: int | Tensor, like: Tensor) -> Tensor:
     return torch.broadcast_to(tt, like.shape)
 
 
-def diffusion_loss(schedule: TransitionSchedule, logits: Tensor, z0: Tensor, z_t: Tensor, t: int | Tensor,
-                   valid: Tensor | None = None, aux_weight: float = 5e-4, pt: Tensor | None = None,
-                   adaptive_aux: bool = False) -> DiffusionLoss:
+def diffusion_loss(
+    schedule: TransitionSchedule,
+    logits: Tensor,
+    z0: Tensor,
+    z_t: Tensor,
+    t: int | Tensor,
+    valid: Tensor | None = None,
+    aux_weight: float = 5e-4,
+    pt: Tensor | None = None,
+    adaptive_aux: bool = False,
+) -> DiffusionLoss:
     """L_vlb + λ·CE(x0) for logits (B, ..., K), codes z0 and z_t (B, ...), t (int, (B,) or per position).
 
     - L_vlb at a position is −log p(z0 | z_1) = −log softmax(logits)[z0] at t = 1 and
@@ -55,8 +63,10 @@ def diffusion_loss(schedule: TransitionSchedule, logits: Tensor, z0: Tensor, z_t
     """
     num_codes = schedule.num_codes
     if z0.dim() < 1 or logits.shape[-1] != num_codes or logits.shape[:-1] != z0.shape or z0.shape != z_t.shape:
-        raise ValueError(f"need logits (..., {num_codes}) and z0, z_t of shape logits.shape[:-1]; got "
-                         f"{tuple(logits.shape)}, {tuple(z0.shape)}, {tuple(z_t.shape)}")
+        raise ValueError(
+            f"need logits (..., {num_codes}) and z0, z_t of shape logits.shape[:-1]; got "
+            f"{tuple(logits.shape)}, {tuple(z0.shape)}, {tuple(z_t.shape)}"
+        )
     device = logits.device
     z0 = z0.to(device).long()
     z_t = z_t.to(device).long()
@@ -93,8 +103,9 @@ def diffusion_loss(schedule: TransitionSchedule, logits: Tensor, z0: Tensor, z_t
     importance = torch.ones_like(count) if pt is None else 1.0 / (schedule.steps * pt.to(device).double())
     per_sample = ((vlb_pos + aux_weight * aux_pos).reshape(batch, -1) * weight).sum(dim=1)
     loss = (importance * per_sample).sum() / count.sum().clamp_min(1.0)
-    return DiffusionLoss(loss=loss.to(logits.dtype), vlb=vlb.to(logits.dtype).detach(),
-                         aux=aux.to(logits.dtype).detach())
+    return DiffusionLoss(
+        loss=loss.to(logits.dtype), vlb=vlb.to(logits.dtype).detach(), aux=aux.to(logits.dtype).detach()
+    )
 
 
 class TimestepSampler(nn.Module):
@@ -144,6 +155,5 @@ class TimestepSampler(nn.Module):
         sums = torch.zeros_like(self.history).index_add_(0, index, squares)
         seen = torch.zeros_like(self.count).index_add_(0, index, torch.ones_like(index))
         mean = sums / seen.clamp_min(1)
-        self.history.copy_(torch.where(seen > 0, (1 - self.decay) * self.history + self.decay * mean,
-                                       self.history))
+        self.history.copy_(torch.where(seen > 0, (1 - self.decay) * self.history + self.decay * mean, self.history))
         self.count.add_(seen)

@@ -112,8 +112,10 @@ class GaussianDiffusion:
             raise ValueError(f"unknown diffusion keys: {', '.join(unknown)}")
         schedule = diffusion.get("schedule", "linear")
         if schedule not in SCHEDULES or prediction_of(diffusion) not in PREDICTIONS:
-            raise ValueError(f"diffusion.schedule must be one of {', '.join(SCHEDULES)} and diffusion.prediction "
-                             f"one of {', '.join(PREDICTIONS)}, got {schedule!r} and {prediction_of(diffusion)!r}")
+            raise ValueError(
+                f"diffusion.schedule must be one of {', '.join(SCHEDULES)} and diffusion.prediction "
+                f"one of {', '.join(PREDICTIONS)}, got {schedule!r} and {prediction_of(diffusion)!r}"
+            )
         steps = int(diffusion.get("steps", 1000))
         if schedule == "cosine":
             return cls(cosine_betas(steps))
@@ -134,8 +136,10 @@ class GaussianDiffusion:
     def _at(self, values: np.ndarray, t: Tensor, like: Tensor) -> Tensor:
         """values[t] in ``like``'s dtype and device, shaped (B, 1, ...) to broadcast over a batch like ``like``."""
         if t.dim() != 1 or t.shape[0] != like.shape[0]:
-            raise ValueError(f"t must have shape ({like.shape[0]},) to match a batch of shape {tuple(like.shape)}, "
-                             f"got {tuple(t.shape)}")
+            raise ValueError(
+                f"t must have shape ({like.shape[0]},) to match a batch of shape {tuple(like.shape)}, "
+                f"got {tuple(t.shape)}"
+            )
         table = torch.as_tensor(values, dtype=like.dtype, device=like.device)
         return table[t.to(like.device).long()].reshape(-1, *([1] * (like.dim() - 1)))
 
@@ -145,13 +149,14 @@ class GaussianDiffusion:
 
     def q_sample(self, x0: Tensor, t: Tensor, noise: Tensor) -> Tensor:
         """x_t ~ q(x_t | x_0) by reparameterisation (MotionDiffuse eq. 3, Ho et al. eq. 4)."""
-        return (self._at(np.sqrt(self.alphas_cumprod), t, x0) * x0
-                + self._at(np.sqrt(1.0 - self.alphas_cumprod), t, x0) * noise)
+        return (
+            self._at(np.sqrt(self.alphas_cumprod), t, x0) * x0
+            + self._at(np.sqrt(1.0 - self.alphas_cumprod), t, x0) * noise
+        )
 
     def q_mean_variance(self, x0: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         """Mean sqrt(ᾱ_t) x_0 and variance 1 - ᾱ_t (shaped to broadcast) of q(x_t | x_0)."""
-        return (self._at(np.sqrt(self.alphas_cumprod), t, x0) * x0,
-                self._at(1.0 - self.alphas_cumprod, t, x0))
+        return (self._at(np.sqrt(self.alphas_cumprod), t, x0) * x0, self._at(1.0 - self.alphas_cumprod, t, x0))
 
     def q_posterior(self, x0: Tensor, xt: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         """Mean and variance β̃_t of q(x_{t-1} | x_t, x_0) (Ho et al. eq. 6-7); at t = 0 it is x_0 exactly."""
@@ -160,13 +165,16 @@ class GaussianDiffusion:
 
     def predict_eps(self, xt: Tensor, t: Tensor, x0: Tensor) -> Tensor:
         """The ε for which x_t = q_sample(x_0, t, ε): eq. 3 solved for ε (a predicted x_0's noise)."""
-        return ((self._at(np.sqrt(1.0 / self.alphas_cumprod), t, xt) * xt - x0)
-                / self._at(np.sqrt(1.0 / self.alphas_cumprod - 1.0), t, xt))
+        return (self._at(np.sqrt(1.0 / self.alphas_cumprod), t, xt) * xt - x0) / self._at(
+            np.sqrt(1.0 / self.alphas_cumprod - 1.0), t, xt
+        )
 
     def predict_x0(self, xt: Tensor, t: Tensor, eps: Tensor) -> Tensor:
         """The x_0 for which x_t = q_sample(x_0, t, eps): eq. 3 solved for x_0."""
-        return (self._at(np.sqrt(1.0 / self.alphas_cumprod), t, xt) * xt
-                - self._at(np.sqrt(1.0 / self.alphas_cumprod - 1.0), t, xt) * eps)
+        return (
+            self._at(np.sqrt(1.0 / self.alphas_cumprod), t, xt) * xt
+            - self._at(np.sqrt(1.0 / self.alphas_cumprod - 1.0), t, xt) * eps
+        )
 
     def _variance(self, variance: str) -> np.ndarray:
         if variance == "beta":
@@ -198,9 +206,11 @@ class GaussianDiffusion:
         sigma = eta * np.sqrt((1.0 - prev) / (1.0 - self.alphas_cumprod) * (1.0 - self.alphas_cumprod / prev))
         direction = np.sqrt(np.clip(1.0 - prev - sigma**2, 0.0, None))
         keep = (t != 0).to(device=xt.device, dtype=xt.dtype).reshape(-1, *([1] * (xt.dim() - 1)))
-        return (self._at(np.sqrt(prev), t, xt) * self.predict_x0(xt, t, eps)
-                + self._at(direction, t, xt) * eps
-                + keep * self._at(sigma, t, xt) * noise)
+        return (
+            self._at(np.sqrt(prev), t, xt) * self.predict_x0(xt, t, eps)
+            + self._at(direction, t, xt) * eps
+            + keep * self._at(sigma, t, xt) * noise
+        )
 
     def respaced(self, steps: int) -> GaussianDiffusion:
         """A process of ``steps`` of these steps, evenly spaced from the first to the last index.

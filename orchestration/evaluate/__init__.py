@@ -17,5 +17,17 @@ from orchestration.evaluate.run import evaluate
 from orchestration.evaluate.settings import EVAL_STAGE, Candidate, EvalSettings, new_settings, reopen
 from orchestration.evaluate.testsets import DEFAULT_N, DEFAULT_SEED, TESTSET_STAGE, make_testset
 
-__all__ = ["DEFAULT_N", "DEFAULT_SEED", "EVAL_STAGE", "KNOBS", "TESTSET_STAGE", "Candidate", "EvalSettings",
-           "ParentRun", "evaluate", "make_testset", "new_settings", "reopen"]
+__all__ = [
+    "DEFAULT_N",
+    "DEFAULT_SEED",
+    "EVAL_STAGE",
+    "KNOBS",
+    "TESTSET_STAGE",
+    "Candidate",
+    "EvalSettings",
+    "ParentRun",
+    "evaluate",
+    "make_testset",
+    "new_settings",
+    "reopen",
+]

@@ -34,13 +34,25 @@ class Job:
 
 
 def jobs(settings: EvalSettings) -> list[Job]:
-    jobs = [Job(c, "multi", settings.row(c, m), r, method=m) for c, m in settings.rows() for r in range(settings.repeats)
-            if settings.multi]
+    jobs = [
+        Job(c, "multi", settings.row(c, m), r, method=m)
+        for c, m in settings.rows()
+        for r in range(settings.repeats)
+        if settings.multi
+    ]
     if settings.single:
-        jobs += [Job(c, "single", settings.single_row(c), r) for c in settings.candidates if c.methods
-                 for r in range(settings.repeats)]
-    return jobs + [Job(c, "editing", row, r, task=task, text=text) for c in settings.candidates
-                   for task, text, row in settings.edit_rows(c) for r in range(settings.repeats)]
+        jobs += [
+            Job(c, "single", settings.single_row(c), r)
+            for c in settings.candidates
+            if c.methods
+            for r in range(settings.repeats)
+        ]
+    return jobs + [
+        Job(c, "editing", row, r, task=task, text=text)
+        for c in settings.candidates
+        for task, text, row in settings.edit_rows(c)
+        for r in range(settings.repeats)
+    ]
 
 
 def result_file(run_dir: Path, job: Job) -> Path:

@@ -13,8 +13,19 @@ from orchestration.errors import UserError
 from orchestration.registry import model, models
 
 # the settings given as options of their own (the models and sampling options are given apart)
-KNOBS = ("checkpoint", "testset", "evaluator", "guo_evaluator", "glove", "meta", "methods", "repeats", "single",
-         "editing", "multi")
+KNOBS = (
+    "checkpoint",
+    "testset",
+    "evaluator",
+    "guo_evaluator",
+    "glove",
+    "meta",
+    "methods",
+    "repeats",
+    "single",
+    "editing",
+    "multi",
+)
 
 
 def _given(values: Sequence[str] | str | None) -> list[str]:
@@ -44,8 +55,9 @@ def parse_checkpoints(names: Sequence[str], values: Sequence[str] | str | None) 
         owner, reference = _qualified(value, names, "=")
         if owner is None:
             if len(names) > 1:
-                raise UserError(f"--checkpoint {value}: with several models say whose, as MODEL=REF "
-                                f"(models: {', '.join(names)})")
+                raise UserError(
+                    f"--checkpoint {value}: with several models say whose, as MODEL=REF (models: {', '.join(names)})"
+                )
             owner = names[0]
         if owner in given:
             raise UserError(f"--checkpoint: {owner} given twice")
@@ -64,8 +76,9 @@ def _choices(generators: dict[str, type[MotionGenerator]], of: str) -> str:
     return next(iter(listed.values())) if len(listed) == 1 else "; ".join(f"{n}: {c}" for n, c in listed.items())
 
 
-def _assign(entries: dict[str, Any], generators: dict[str, type[MotionGenerator]], of: str,
-            separators: str) -> dict[str, dict[str, Any]]:
+def _assign(
+    entries: dict[str, Any], generators: dict[str, type[MotionGenerator]], of: str, separators: str
+) -> dict[str, dict[str, Any]]:
     """Method or knob (``of``) entries to the models they belong to: an entry ``name`` to every
     model that has it, ``model<separator>name`` to that model alone."""
     chosen: dict[str, dict[str, Any]] = {model_name: {} for model_name in generators}
@@ -75,15 +88,19 @@ def _assign(entries: dict[str, Any], generators: dict[str, type[MotionGenerator]
         owners = [owner] if owner else [model_name for model_name, yes in has.items() if yes]
         if not owners or not has[owners[0]]:
             whose = owner or " or ".join(generators)
-            raise UserError(f"unknown method {name!r} for {whose}; choose from {_choices(generators, of)}"
-                            if of == "methods" else
-                            f"{whose} has no sampling option {name!r}; its options: {_choices(generators, of)}")
+            raise UserError(
+                f"unknown method {name!r} for {whose}; choose from {_choices(generators, of)}"
+                if of == "methods"
+                else f"{whose} has no sampling option {name!r}; its options: {_choices(generators, of)}"
+            )
         for model_name in owners:
             chosen[model_name][name] = value
     return chosen
 
 
-def assign_methods(values: Sequence[str] | None, generators: dict[str, type[MotionGenerator]]) -> dict[str, tuple[str, ...]]:
+def assign_methods(
+    values: Sequence[str] | None, generators: dict[str, type[MotionGenerator]]
+) -> dict[str, tuple[str, ...]]:
     """Each model's methods from ``method`` entries (every model that has it) and ``model:method``
     or ``model/method`` ones (that model); a model named by no entry gets its default method, an
     editor none (it cannot generate from text alone)."""
@@ -94,8 +111,10 @@ def assign_methods(values: Sequence[str] | None, generators: dict[str, type[Moti
         if owner is not None and owner not in makers:
             raise UserError(f"{owner} edits motions and has no multi-action method; {generators[owner].needs_keep}")
     chosen = _assign(dict.fromkeys(entries), makers, "methods", ":/") if makers else {}
-    return {name: tuple(chosen[name] or generators[name].sampling.methods[:1]) if name in makers else ()
-            for name in generators}
+    return {
+        name: tuple(chosen[name] or generators[name].sampling.methods[:1]) if name in makers else ()
+        for name in generators
+    }
 
 
 def assign_edits(tasks: tuple[str, ...], generators: dict[str, type[MotionGenerator]]) -> dict[str, tuple[str, ...]]:
@@ -107,12 +126,16 @@ def assign_edits(tasks: tuple[str, ...], generators: dict[str, type[MotionGenera
     for task in tasks:
         if not any(task in edits for edits in chosen.values()):
             able = [name for name in models() if task in model(name).load("generator").edits]
-            raise UserError(f"no model given can do the editing task {task!r}; "
-                            + (f"{', '.join(able)} can" if able else "no registered model can"))
+            raise UserError(
+                f"no model given can do the editing task {task!r}; "
+                + (f"{', '.join(able)} can" if able else "no registered model can")
+            )
     for name, g in generators.items():
         if g.needs_keep is not None and not chosen[name]:
-            raise UserError(f"{name} edits motions and cannot generate from text alone, which the multi-motion "
-                            f"table asks for; judge it in the editing table: --edit {', '.join(g.edits)}")
+            raise UserError(
+                f"{name} edits motions and cannot generate from text alone, which the multi-motion "
+                f"table asks for; judge it in the editing table: --edit {', '.join(g.edits)}"
+            )
     return chosen
 
 

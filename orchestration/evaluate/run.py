@@ -29,6 +29,7 @@ from orchestration.tracking import finishing, log_batch
 from pipelines.shards import write_json_atomically
 from pipelines.testset import TestSet
 
+
 def _load_evaluator(settings: EvalSettings, device: torch.device) -> TextMotionEvaluator:
     try:
         if settings.glove is not None:
@@ -38,21 +39,31 @@ def _load_evaluator(settings: EvalSettings, device: torch.device) -> TextMotionE
         raise UserError(str(error)) from error
 
 
-def _check(settings: EvalSettings, generators: dict[str, MotionGenerator], testset: TestSet,
-           evaluator: TextMotionEvaluator) -> None:
+def _check(
+    settings: EvalSettings, generators: dict[str, MotionGenerator], testset: TestSet, evaluator: TextMotionEvaluator
+) -> None:
     """Refuse, before anything runs, what cannot give a table."""
-    dims = {f"the model {name}" if len(generators) > 1 else "the model": g.feature_dim for name, g in generators.items()}
+    dims = {
+        f"the model {name}" if len(generators) > 1 else "the model": g.feature_dim for name, g in generators.items()
+    }
     for owner, dim in {**dims, "the evaluator": evaluator.config.feature_dim}.items():
         if testset.manifest.get("feature_dim") != dim:
-            raise UserError(f"{testset.path} holds {testset.manifest.get('feature_dim')}-d features but {owner} "
-                            f"works on {dim}-d ones: use a test set of the same dataset")
+            raise UserError(
+                f"{testset.path} holds {testset.manifest.get('feature_dim')}-d features but {owner} "
+                f"works on {dim}-d ones: use a test set of the same dataset"
+            )
     skeletons = {name: g.skeleton.name for name, g in generators.items()}
     if len(set(skeletons.values())) > 1:
-        raise UserError("the models are on different skeletons (" + ", ".join(f"{n}: {s}" for n, s in skeletons.items())
-                        + "); judge models of one dataset together")
+        raise UserError(
+            "the models are on different skeletons ("
+            + ", ".join(f"{n}: {s}" for n, s in skeletons.items())
+            + "); judge models of one dataset together"
+        )
     if testset.n < 2 or len(testset) < 2:
-        raise UserError(f"{testset.path}: multi-motion evaluation needs N >= 2 actions and at least 2 instances "
-                        f"(it has N = {testset.n}, {len(testset)} instances)")
+        raise UserError(
+            f"{testset.path}: multi-motion evaluation needs N >= 2 actions and at least 2 instances "
+            f"(it has N = {testset.n}, {len(testset)} instances)"
+        )
     try:
         for candidate, method in settings.rows():
             generators[candidate.model].options(MULTI, method=method, **candidate.options)
@@ -60,9 +71,14 @@ def _check(settings: EvalSettings, generators: dict[str, MotionGenerator], tests
         raise UserError(str(error)) from error
 
 
-def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path | None = None,
-             batch_size: int = 64, parent: ParentRun | None = None,
-             progress: bool = True) -> tuple[Path, dict[str, Any]]:
+def evaluate(
+    settings: EvalSettings,
+    dataset: str = "synthetic",
+    run_dir: Path | None = None,
+    batch_size: int = 64,
+    parent: ParentRun | None = None,
+    progress: bool = True,
+) -> tuple[Path, dict[str, Any]]:
     """Run (or, given ``run_dir``, finish) an evaluation; returns the run directory and the table.
     ``parent`` nests its MLflow run under a sweep's.
 
@@ -85,24 +101,33 @@ def evaluate(settings: EvalSettings, dataset: str = "synthetic", run_dir: Path |
     (run_dir / RESULTS).mkdir(exist_ok=True)
     pending = [job for job in jobs(settings) if not result_file(run_dir, job).exists()]
     run_id = read_run_info(run_dir)["mlflow_run_id"]
-    batches = {"multi": -(-len(reference.actions) // batch_size), "items": -(-reference.items // batch_size),
-               "single": -(-reference.items // batch_size)
-               + -(-min(MM_PROMPTS, reference.items) * MM_GENERATIONS // batch_size)}
+    batches = {
+        "multi": -(-len(reference.actions) // batch_size),
+        "items": -(-reference.items // batch_size),
+        "single": -(-reference.items // batch_size)
+        + -(-min(MM_PROMPTS, reference.items) * MM_GENERATIONS // batch_size),
+    }
     try:
         with finishing(run_id) as client:
-            with tqdm(total=sum(batches[job.batches] for job in pending), unit="batch",
-                      disable=not progress) as bar:
+            with tqdm(total=sum(batches[job.batches] for job in pending), unit="batch", disable=not progress) as bar:
+
                 def advance(label: str) -> None:
                     bar.set_description(label)
                     bar.update()
 
-                evaluations = {c.model: Evaluation(generators[c.model], evaluator, reference, c.options, batch_size,
-                                                   advance) for c in settings.candidates}
+                evaluations = {
+                    c.model: Evaluation(generators[c.model], evaluator, reference, c.options, batch_size, advance)
+                    for c in settings.candidates
+                }
                 for job in pending:
                     evaluation = evaluations[job.candidate.model]
-                    result = (evaluation.multi(job.method, job.repeat) if job.table == "multi" else
-                              evaluation.single(job.repeat) if job.table == "single" else
-                              evaluation.edit(job.task, job.text, job.repeat))
+                    result = (
+                        evaluation.multi(job.method, job.repeat)
+                        if job.table == "multi"
+                        else evaluation.single(job.repeat)
+                        if job.table == "single"
+                        else evaluation.edit(job.task, job.text, job.repeat)
+                    )
                     write_json_atomically(result_file(run_dir, job), result)
             table = build_table(run_dir, settings, testset, reference, codec_of, samplings)
             log_batch(client, run_id, metrics=table_metrics(table))

@@ -10,8 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from orchestration.errors import UserError
-from orchestration.evaluate.options import (assign_edits, assign_methods, assign_options, parse_checkpoints,
-                                            split_list)
+from orchestration.evaluate.options import assign_edits, assign_methods, assign_options, parse_checkpoints, split_list
 from orchestration.generate import resolve_model_file
 from orchestration.registry import DEFAULT_MODEL, model
 from orchestration.reports import GENERATED
@@ -50,7 +49,7 @@ class EvalSettings:
     multi: bool = True  # the multi-motion table's generated rows (False: single-motion or editing only)
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "EvalSettings":
+    def from_dict(cls, values: dict[str, Any]) -> EvalSettings:
         """Settings as run.json holds them. Runs recorded with one model at the top level (and,
         before the model registry, the default model's knobs there too) read as one candidate."""
         values = dict(values)
@@ -60,8 +59,10 @@ class EvalSettings:
                 knobs = model(DEFAULT_MODEL).load("sampling").names()
                 values["options"] = {key: values.pop(key) for key in knobs if values.get(key) is not None}
             values["candidates"] = [{key: values.pop(key) for key in ("model", "checkpoint", "methods", "options")}]
-        candidates = tuple(Candidate(**{**c, "methods": tuple(c["methods"]), "edits": tuple(c.get("edits", ()))})
-                           for c in values.pop("candidates"))
+        candidates = tuple(
+            Candidate(**{**c, "methods": tuple(c["methods"]), "edits": tuple(c.get("edits", ()))})
+            for c in values.pop("candidates")
+        )
         return cls(candidates=candidates, **{**values, "editing": tuple(values.get("editing", ()))})
 
     @property
@@ -84,16 +85,29 @@ class EvalSettings:
     def edit_rows(self, candidate: Candidate) -> list[tuple[str, bool, str]]:
         """The editing table's rows of a candidate: (task, with text, row)."""
         owner = "" if len(self.candidates) == 1 else f"{candidate.model}/"
-        return [(task, text, f"{owner}{task}/{'text' if text else 'no_text'}")
-                for task in candidate.edits for text in (True, False)]
+        return [
+            (task, text, f"{owner}{task}/{'text' if text else 'no_text'}")
+            for task in candidate.edits
+            for text in (True, False)
+        ]
 
 
-def new_settings(dataset: str, model_name: str | Sequence[str] = DEFAULT_MODEL,
-                 checkpoint: str | Sequence[str] | None = None, testset: str | None = None,
-                 evaluator: str | None = None, guo_evaluator: str | None = None, glove: str | None = None,
-                 meta: str | None = None, methods: Sequence[str] | None = None, options: dict[str, Any] | None = None,
-                 repeats: int = 10, single: bool = False, editing: Sequence[str] | None = None,
-                 multi: bool = True) -> EvalSettings:
+def new_settings(
+    dataset: str,
+    model_name: str | Sequence[str] = DEFAULT_MODEL,
+    checkpoint: str | Sequence[str] | None = None,
+    testset: str | None = None,
+    evaluator: str | None = None,
+    guo_evaluator: str | None = None,
+    glove: str | None = None,
+    meta: str | None = None,
+    methods: Sequence[str] | None = None,
+    options: dict[str, Any] | None = None,
+    repeats: int = 10,
+    single: bool = False,
+    editing: Sequence[str] | None = None,
+    multi: bool = True,
+) -> EvalSettings:
     """The settings of a new evaluation of one model or several (``model_name``: a name, a
     comma list or a list; ``checkpoint``: ``REF`` or ``MODEL=REF`` entries, ``latest`` for a
     model not named), with references resolved to files (so that a later ``latest``
@@ -110,7 +124,10 @@ def new_settings(dataset: str, model_name: str | Sequence[str] = DEFAULT_MODEL,
         raise UserError("--no-multi leaves nothing to evaluate: add --single or --edit TASK")
     chosen_edits = assign_edits(tasks, generators)
     checkpoints = parse_checkpoints(names, checkpoint)
-    chosen_methods, chosen_options = assign_methods(methods, generators), assign_options(dict(options or {}), generators)
+    chosen_methods, chosen_options = (
+        assign_methods(methods, generators),
+        assign_options(dict(options or {}), generators),
+    )
     if guo_evaluator is not None:
         if evaluator is not None:
             raise UserError("give --evaluator or --guo-evaluator, not both")
@@ -122,13 +139,30 @@ def new_settings(dataset: str, model_name: str | Sequence[str] = DEFAULT_MODEL,
     else:
         if glove is not None or meta is not None:
             raise UserError("--glove and --meta go with --guo-evaluator")
-        evaluator_path = run_file(evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE,
-                                  "make train-evaluator").resolve()
-    candidates = tuple(Candidate(name, str(resolve_model_file(name, checkpoints[name], dataset).resolve()),
-                                 chosen_methods[name], chosen_options[name], chosen_edits[name]) for name in names)
-    return EvalSettings(candidates=candidates, testset=None if testset is None else str(Path(testset).resolve()),
-                        evaluator=str(evaluator_path), glove=glove, meta=meta, repeats=int(repeats),
-                        single=bool(single), editing=tasks, multi=bool(multi))
+        evaluator_path = run_file(
+            evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE, "make train-evaluator"
+        ).resolve()
+    candidates = tuple(
+        Candidate(
+            name,
+            str(resolve_model_file(name, checkpoints[name], dataset).resolve()),
+            chosen_methods[name],
+            chosen_options[name],
+            chosen_edits[name],
+        )
+        for name in names
+    )
+    return EvalSettings(
+        candidates=candidates,
+        testset=None if testset is None else str(Path(testset).resolve()),
+        evaluator=str(evaluator_path),
+        glove=glove,
+        meta=meta,
+        repeats=int(repeats),
+        single=bool(single),
+        editing=tasks,
+        multi=bool(multi),
+    )
 
 
 def reopen(reference: str, dataset: str) -> tuple[Path, EvalSettings]:

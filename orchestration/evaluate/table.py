@@ -12,35 +12,62 @@ from m2d2m.evaluation.measurements import JERK_FPS, WINDOW, Reference, mean_prof
 from orchestration.evaluate.jobs import jobs, read_result, result_file
 from orchestration.evaluate.records import Sampling
 from orchestration.evaluate.settings import EvalSettings
-from orchestration.reports import (EDIT_TITLES, FIGURE, GT_CONCAT, GT_SINGLE, RECONSTRUCTION, ROW_TITLES, SINGLE_COLUMNS,
-                                   TABLE_JSON, TABLE_MD, notes, plot_fig5, render_table, summarize_rows)
+from orchestration.reports import (
+    EDIT_TITLES,
+    FIGURE,
+    GT_CONCAT,
+    GT_SINGLE,
+    RECONSTRUCTION,
+    ROW_TITLES,
+    SINGLE_COLUMNS,
+    TABLE_JSON,
+    TABLE_MD,
+    notes,
+    plot_fig5,
+    render_table,
+    summarize_rows,
+)
 from pipelines.shards import write_json_atomically
 from pipelines.testset import TestSet
+
 
 def _titles(settings: EvalSettings, codec_rows: dict[str, str]) -> dict[str, str]:
     """Row titles beyond :data:`ROW_TITLES`: editing rows, and with several models each row's model."""
     several = len(settings.candidates) > 1
     owner = {c.model: f"{c.model} " if several else "" for c in settings.candidates}
-    titles = {row: f"{owner[c.model]}{EDIT_TITLES[task]} ({'w/' if text else 'w/o'} text)"
-              for c in settings.candidates for task, text, row in settings.edit_rows(c)}
+    titles = {
+        row: f"{owner[c.model]}{EDIT_TITLES[task]} ({'w/' if text else 'w/o'} text)"
+        for c in settings.candidates
+        for task, text, row in settings.edit_rows(c)
+    }
     if several:
         titles |= {settings.row(c, m): f"{c.model} {m}" for c, m in settings.rows()}
         titles |= {settings.single_row(c): f"{c.model} (single action)" for c in settings.candidates}
-        titles |= {row: f"{ROW_TITLES[RECONSTRUCTION]} ({', '.join(m for m, r in codec_rows.items() if r == row)})"
-                   for row in set(codec_rows.values())}
+        titles |= {
+            row: f"{ROW_TITLES[RECONSTRUCTION]} ({', '.join(m for m, r in codec_rows.items() if r == row)})"
+            for row in set(codec_rows.values())
+        }
     return titles
 
 
-def build_table(run_dir: Path, settings: EvalSettings, testset: TestSet, reference: Reference, codec_of: dict[str, str],
-            samplings: dict[str, Sampling]) -> dict[str, Any]:
+def build_table(
+    run_dir: Path,
+    settings: EvalSettings,
+    testset: TestSet,
+    reference: Reference,
+    codec_of: dict[str, str],
+    samplings: dict[str, Sampling],
+) -> dict[str, Any]:
     """table.json, table.md and fig5.png from the run's result files."""
     several = len(settings.candidates) > 1
     results: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for job in jobs(settings):
         results.setdefault((job.table, job.row), []).append(read_result(result_file(run_dir, job)))
     metrics = {key: [result["metrics"] for result in found] for key, found in results.items()}
-    codecs = {label: [reference.reconstruction_rows(label, r) for r in range(settings.repeats)]
-              for label in reference.reconstructions}
+    codecs = {
+        label: [reference.reconstruction_rows(label, r) for r in range(settings.repeats)]
+        for label in reference.reconstructions
+    }
     codec_row = {label: f"{RECONSTRUCTION}/{label}" if len(codecs) > 1 else RECONSTRUCTION for label in codecs}
     owners = {name: codec_row[label] for name, label in codec_of.items()}
     titles = _titles(settings, owners)
@@ -53,22 +80,41 @@ def build_table(run_dir: Path, settings: EvalSettings, testset: TestSet, referen
     table: dict[str, Any] = {
         "settings": asdict(settings),
         "testset": {"path": str(testset.path), "n": testset.n, "instances": len(testset), "items": reference.items},
-        "r_precision_batch": reference.rp_batch, "window": WINDOW, "jerk_fps": JERK_FPS,
+        "r_precision_batch": reference.rp_batch,
+        "window": WINDOW,
+        "jerk_fps": JERK_FPS,
         "notes": notes(sampling_note, single_note if settings.single else None, reference),
-        "titles": titles, "codecs": owners,
-        "multi": summarize_rows({GT_SINGLE: gt_single, GT_CONCAT: [reference.concat_row()] * settings.repeats,
-                                 **{codec_row[label]: [rows[0] for rows in repeats] for label, repeats in codecs.items()},
-                                 **{row: found for (kind, row), found in metrics.items() if kind == "multi"}})}
+        "titles": titles,
+        "codecs": owners,
+        "multi": summarize_rows(
+            {
+                GT_SINGLE: gt_single,
+                GT_CONCAT: [reference.concat_row()] * settings.repeats,
+                **{codec_row[label]: [rows[0] for rows in repeats] for label, repeats in codecs.items()},
+                **{row: found for (kind, row), found in metrics.items() if kind == "multi"},
+            }
+        ),
+    }
     for kind in ("single", "editing"):
         rows = {row: found for (owner, row), found in metrics.items() if owner == kind}
         if rows:
             table[kind] = summarize_rows({GT_SINGLE: gt_items, **items_through_codecs, **rows})
     write_json_atomically(run_dir / TABLE_JSON, table)
     (run_dir / TABLE_MD).write_text(render_table(table), encoding="utf-8")
-    curves = {titles.get(row, row): mean_profile([(np.asarray(r["profile"]["velocity"]), np.asarray(r["profile"]["jerk"]))
-                                                  for r in found if r["profile"]["windows"]])
-              for (kind, row), found in results.items() if kind == "multi"}
-    reconstructed = {titles.get(codec_row[label], ROW_TITLES[RECONSTRUCTION]): mean_profile(codec.measures.profiles)
-                     for label, codec in reference.reconstructions.items()}
+    curves = {
+        titles.get(row, row): mean_profile(
+            [
+                (np.asarray(r["profile"]["velocity"]), np.asarray(r["profile"]["jerk"]))
+                for r in found
+                if r["profile"]["windows"]
+            ]
+        )
+        for (kind, row), found in results.items()
+        if kind == "multi"
+    }
+    reconstructed = {
+        titles.get(codec_row[label], ROW_TITLES[RECONSTRUCTION]): mean_profile(codec.measures.profiles)
+        for label, codec in reference.reconstructions.items()
+    }
     plot_fig5(run_dir / FIGURE, {ROW_TITLES[GT_CONCAT]: reference.concat_profile, **reconstructed, **curves})
     return table

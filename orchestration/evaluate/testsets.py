@@ -14,16 +14,32 @@ from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.layout import MANIFEST
 from orchestration.errors import UserError
 from orchestration.tracking import experiment_name, log_batch, tracked_run
-from pipelines.testset import (INSTANCES, MOTIONS, TestSet, build_testset, check_testset, describe, load_testset,
-                               split_metas, testset_dir)
+from pipelines.testset import (
+    INSTANCES,
+    MOTIONS,
+    TestSet,
+    build_testset,
+    check_testset,
+    describe,
+    load_testset,
+    split_metas,
+    testset_dir,
+)
 
 TESTSET_STAGE = "testset"
 DEFAULT_N, DEFAULT_SEED = 4, 0  # the paper's N = 4; the test set `evaluate` builds when none is given
 
 
-def make_testset(data_dir: str | Path, dataset: str, n: int = DEFAULT_N, seed: int = DEFAULT_SEED,
-                 mirrors: str = "same", force: bool = False, limit: int | None = None,
-                 split: str = "test") -> dict[str, Any]:
+def make_testset(
+    data_dir: str | Path,
+    dataset: str,
+    n: int = DEFAULT_N,
+    seed: int = DEFAULT_SEED,
+    mirrors: str = "same",
+    force: bool = False,
+    limit: int | None = None,
+    split: str = "test",
+) -> dict[str, Any]:
     """Build (or reuse) the N-action test set of a processed dataset and record it in MLflow
     (experiment ``<dataset>/testset``: its parameters, pool and instance counts, and its files,
     so an evaluation can name exactly what it ran on). Returns the summary with ``mlflow_run_id``."""
@@ -32,12 +48,27 @@ def make_testset(data_dir: str | Path, dataset: str, n: int = DEFAULT_N, seed: i
     except (FileNotFoundError, FileExistsError, ValueError) as error:
         raise UserError(str(error)) from error
     path, pool = Path(summary["path"]), summary["pool"]
-    params = {"n": n, "seed": seed, "mirrors": mirrors, "limit": limit, "split": summary["split"],
-              "min_frames": summary["min_frames"], "data": summary["source"]["dir"], "path": path}
+    params = {
+        "n": n,
+        "seed": seed,
+        "mirrors": mirrors,
+        "limit": limit,
+        "split": summary["split"],
+        "min_frames": summary["min_frames"],
+        "data": summary["source"]["dir"],
+        "path": path,
+    }
     tags = {"dataset": dataset, "stage": TESTSET_STAGE, "reused": str(summary["reused"])}
     with tracked_run(experiment_name(dataset, TESTSET_STAGE), path.name, tags, params) as (client, run_id):
-        log_batch(client, run_id, metrics={"pool_captions": pool["entries"], "pool_motions": pool["motions"],
-                                           "instances": summary["instances"]})
+        log_batch(
+            client,
+            run_id,
+            metrics={
+                "pool_captions": pool["entries"],
+                "pool_motions": pool["motions"],
+                "instances": summary["instances"],
+            },
+        )
         for name in (MANIFEST, INSTANCES, MOTIONS):
             client.log_artifact(run_id, str(path / name), artifact_path="testset")
     return {**summary, "mlflow_run_id": run_id}
@@ -63,21 +94,34 @@ def _caption_tokens(testset: TestSet) -> list[list[str]]:
     except (FileNotFoundError, ValueError) as error:  # a missing dataset, or shards that changed
         raise UserError(f"{error}; the captions' word/POS tokens come from the test set's source dataset") from error
     wanted = {(item.key, item.caption_index) for instance in testset for item in instance.items}
-    tokens = {(meta["id"], index): caption["tokens"] for meta in metas
-              for index, caption in enumerate(meta["captions"]) if (meta["id"], index) in wanted}
+    tokens = {
+        (meta["id"], index): caption["tokens"]
+        for meta in metas
+        for index, caption in enumerate(meta["captions"])
+        if (meta["id"], index) in wanted
+    }
     return [tokens[item.key, item.caption_index] for instance in testset for item in instance.items]
 
 
-def measure_reference(testset: TestSet, evaluator: TextMotionEvaluator,
-               generators: dict[str, MotionGenerator]) -> tuple[Reference, dict[str, str]]:
+def measure_reference(
+    testset: TestSet, evaluator: TextMotionEvaluator, generators: dict[str, MotionGenerator]
+) -> tuple[Reference, dict[str, str]]:
     """The test set's measurements, its lengths in whole steps of every generator, and each
     generator's codec, if it has one, measured once per distinct codec; with the label each
     model's codec is measured under (models without a codec have none)."""
     segments = [[testset.features(instance.index, p) for p in range(len(instance.items))] for instance in testset]
     first = next(iter(generators.values()))
-    reference = Reference.build([instance.actions for instance in testset], segments, _caption_tokens(testset),
-                                evaluator, first.skeleton, math.lcm(*(g.frame_step for g in generators.values())))
-    codec_of = {name: reference.add_reconstruction(name, generator, evaluator) for name, generator in generators.items()}
+    reference = Reference.build(
+        [instance.actions for instance in testset],
+        segments,
+        _caption_tokens(testset),
+        evaluator,
+        first.skeleton,
+        math.lcm(*(g.frame_step for g in generators.values())),
+    )
+    codec_of = {
+        name: reference.add_reconstruction(name, generator, evaluator) for name, generator in generators.items()
+    }
     return reference, {name: label for name, label in codec_of.items() if label is not None}
 
 

@@ -29,22 +29,48 @@ class M2D2MRecipe(TokenRecipe):
     def module(self, config: dict[str, Any], data: TokenTraining) -> Any:
         from training.m2d2m_module import M2D2MModule
 
-        return M2D2MModule(config["denoiser"], config["text"], config["diffusion"], config["optim"],
-                           codebook=data.codebook, vocabulary=data.vocabulary, text_drop=config["text_drop"])
+        return M2D2MModule(
+            config["denoiser"],
+            config["text"],
+            config["diffusion"],
+            config["optim"],
+            codebook=data.codebook,
+            vocabulary=data.vocabulary,
+            text_drop=config["text_drop"],
+        )
 
     def callbacks(self, run: OpenedRun, data: TokenTraining) -> list:
         from training.callbacks import TokenSamplePreview
 
         preview = run.config["preview"]
-        return [TokenSamplePreview(run.run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
-                                   every=run.config["trainer"]["gif_every"], guidance=preview["guidance"])]
+        return [
+            TokenSamplePreview(
+                run.run_dir / "previews",
+                data.vq_path,
+                preview["prompts"],
+                preview["seconds"],
+                every=run.config["trainer"]["gif_every"],
+                guidance=preview["guidance"],
+            )
+        ]
 
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any,
-             extra: dict[str, Any]) -> Path:
+    def save(
+        self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any, extra: dict[str, Any]
+    ) -> Path:
         from m2d2m.generators.m2d2m_checkpoint import save_m2d2m
 
-        return save_m2d2m(path, module.denoiser, module.text_encoder, config["text"], module.schedule.config,
-                          module.codebook, data.vq_path, lengths, extra, _sampling(config))
+        return save_m2d2m(
+            path,
+            module.denoiser,
+            module.text_encoder,
+            config["text"],
+            module.schedule.config,
+            module.codebook,
+            data.vq_path,
+            lengths,
+            extra,
+            _sampling(config),
+        )
 
 
 RECIPE = M2D2MRecipe()

@@ -20,18 +20,33 @@ class MMMRecipe(TokenRecipe):
     def module(self, config: dict[str, Any], data: TokenTraining) -> Any:
         from training.mmm_module import MMMModule
 
-        return MMMModule(config["transformer"], config["text"], config["masking"], config["optim"],
-                         codebook=data.codebook, vocabulary=data.vocabulary, text_drop=config["text_drop"])
+        return MMMModule(
+            config["transformer"],
+            config["text"],
+            config["masking"],
+            config["optim"],
+            codebook=data.codebook,
+            vocabulary=data.vocabulary,
+            text_drop=config["text_drop"],
+        )
 
     def callbacks(self, run: OpenedRun, data: TokenTraining) -> list:
         from training.callbacks import TokenSamplePreview
 
         preview = run.config["preview"]
-        return [TokenSamplePreview(run.run_dir / "previews", data.vq_path, preview["prompts"], preview["seconds"],
-                                   every=run.config["trainer"]["gif_every"])]
+        return [
+            TokenSamplePreview(
+                run.run_dir / "previews",
+                data.vq_path,
+                preview["prompts"],
+                preview["seconds"],
+                every=run.config["trainer"]["gif_every"],
+            )
+        ]
 
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any,
-             extra: dict[str, Any]) -> Path:
+    def save(
+        self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any, extra: dict[str, Any]
+    ) -> Path:
         from m2d2m.generators.mmm_checkpoint import save_mmm
 
         return save_mmm(path, module.transformer, module.text_encoder, config["text"], data.vq_path, lengths, extra)

@@ -15,22 +15,45 @@ class BodyMMMRecipe(BodyTokenRecipe):
     renamed: ClassVar[dict[str, str]] = {"masking.text_drop": "text_drop"}
 
     def data(self, config: dict[str, Any]) -> BodyTokenTraining:
-        return body_token_training(config, lambda caption: [caption["text"]],
-                                   max_tokens=config["transformer"]["max_tokens"])
+        return body_token_training(
+            config, lambda caption: [caption["text"]], max_tokens=config["transformer"]["max_tokens"]
+        )
 
     def module(self, config: dict[str, Any], data: BodyTokenTraining) -> Any:
         from training.mmm_body_module import BodyMMMModule
 
-        return BodyMMMModule(config["transformer"], config["text"], config["masking"], config["optim"],
-                             codebook=data.codebook, lower_codebook=data.lower_codebook, vocabulary=data.vocabulary,
-                             text_drop=config["text_drop"])
+        return BodyMMMModule(
+            config["transformer"],
+            config["text"],
+            config["masking"],
+            config["optim"],
+            codebook=data.codebook,
+            lower_codebook=data.lower_codebook,
+            vocabulary=data.vocabulary,
+            text_drop=config["text_drop"],
+        )
 
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: BodyTokenTraining, lengths: Any,
-             extra: dict[str, Any]) -> Path:
+    def save(
+        self,
+        path: Path,
+        module: Any,
+        config: dict[str, Any],
+        data: BodyTokenTraining,
+        lengths: Any,
+        extra: dict[str, Any],
+    ) -> Path:
         from m2d2m.generators.mmm_checkpoint import save_body_mmm
 
-        return save_body_mmm(path, module.transformer, module.text_encoder, config["text"], data.vq_path,
-                             data.lower_vq_path, lengths, extra)
+        return save_body_mmm(
+            path,
+            module.transformer,
+            module.text_encoder,
+            config["text"],
+            data.vq_path,
+            data.lower_vq_path,
+            lengths,
+            extra,
+        )
 
 
 RECIPE = BodyMMMRecipe()

@@ -20,17 +20,30 @@ class MotionDiffuseRecipe(Recipe):
 
         data = config["data"]
         datamodule = CaptionMotionDataModule(
-            data["dir"], batch_size=data["batch_size"], num_workers=data["num_workers"],
-            steps_per_epoch=validation_interval(config["trainer"]), min_frames=data["min_frames"],
-            max_frames=data["max_frames"], seed=config["seed"])
-        return TrainingData(datamodule, Path(data["dir"]),
-                            caption_vocabulary(config, datamodule, lambda caption: [caption["text"]]))
+            data["dir"],
+            batch_size=data["batch_size"],
+            num_workers=data["num_workers"],
+            steps_per_epoch=validation_interval(config["trainer"]),
+            min_frames=data["min_frames"],
+            max_frames=data["max_frames"],
+            seed=config["seed"],
+        )
+        return TrainingData(
+            datamodule, Path(data["dir"]), caption_vocabulary(config, datamodule, lambda caption: [caption["text"]])
+        )
 
     def module(self, config: dict[str, Any], data: TrainingData) -> Any:
         from training.motiondiffuse_module import MotionDiffuseModule
 
-        module = MotionDiffuseModule(config["network"], config["text"], config["diffusion"], config["optim"],
-                                     data.datamodule.feature_dim, config["text_drop"], data.vocabulary)
+        module = MotionDiffuseModule(
+            config["network"],
+            config["text"],
+            config["diffusion"],
+            config["optim"],
+            data.datamodule.feature_dim,
+            config["text_drop"],
+            data.vocabulary,
+        )
         module.set_normalizer(data.datamodule.normalizer)
         return module
 
@@ -39,15 +52,32 @@ class MotionDiffuseRecipe(Recipe):
         from training.callbacks import FeatureSamplePreview
 
         preview = run.config["preview"]
-        return [FeatureSamplePreview(run.run_dir / "previews", SKELETONS[data.datamodule.skeleton], preview["prompts"],
-                                     preview["seconds"], every=run.config["trainer"]["gif_every"])]
+        return [
+            FeatureSamplePreview(
+                run.run_dir / "previews",
+                SKELETONS[data.datamodule.skeleton],
+                preview["prompts"],
+                preview["seconds"],
+                every=run.config["trainer"]["gif_every"],
+            )
+        ]
 
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, lengths: Any,
-             extra: dict[str, Any]) -> Path:
+    def save(
+        self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, lengths: Any, extra: dict[str, Any]
+    ) -> Path:
         from m2d2m.generators.motiondiffuse_checkpoint import save_motiondiffuse
 
-        return save_motiondiffuse(path, module.network, module.text_encoder, config["text"], config["diffusion"],
-                                  data.datamodule.normalizer, data.datamodule.skeleton, lengths, extra=extra)
+        return save_motiondiffuse(
+            path,
+            module.network,
+            module.text_encoder,
+            config["text"],
+            config["diffusion"],
+            data.datamodule.normalizer,
+            data.datamodule.skeleton,
+            lengths,
+            extra=extra,
+        )
 
 
 RECIPE = MotionDiffuseRecipe()

@@ -59,8 +59,11 @@ class BodyTokenTraining(TokenTraining):
     lower_tokens_dir: Path
 
     def records(self) -> dict[str, str]:
-        return {**super().records(), "lower_vq": str(self.lower_vq_path.resolve()),
-                "lower_tokens": str(self.lower_tokens_dir.resolve())}
+        return {
+            **super().records(),
+            "lower_vq": str(self.lower_vq_path.resolve()),
+            "lower_tokens": str(self.lower_tokens_dir.resolve()),
+        }
 
 
 def _tokenizer(reference: str, dataset: str, part: str) -> tuple[Path, Any, Path, Path]:
@@ -70,20 +73,27 @@ def _tokenizer(reference: str, dataset: str, part: str) -> tuple[Path, Any, Path
     path = vq_file(reference, dataset, part)
     vq, _, meta = load_vq(path)
     if meta["part"] != part:
-        raise ValueError(f"{path} tokenizes the {meta['part']} body, not the {part} body"
-                         + ("; whole-body models need a whole-body VQ-VAE (make train-vq)" if part == FULL else ""))
+        raise ValueError(
+            f"{path} tokenizes the {meta['part']} body, not the {part} body"
+            + ("; whole-body models need a whole-body VQ-VAE (make train-vq)" if part == FULL else "")
+        )
     return (path, vq, *ensure_tokens(path))
 
 
 def _loader_settings(config: dict[str, Any], max_tokens: int | None) -> dict[str, Any]:
     data = config["data"]
-    return {"batch_size": data["batch_size"], "num_workers": data["num_workers"],
-            "steps_per_epoch": validation_interval(config["trainer"]),
-            "max_tokens": data["max_tokens"] or max_tokens, "seed": config["seed"]}
+    return {
+        "batch_size": data["batch_size"],
+        "num_workers": data["num_workers"],
+        "steps_per_epoch": validation_interval(config["trainer"]),
+        "max_tokens": data["max_tokens"] or max_tokens,
+        "seed": config["seed"],
+    }
 
 
-def token_training(config: dict[str, Any], sentences: Callable[[dict[str, Any]], Iterable[str]],
-                   max_tokens: int | None = None) -> TokenTraining:
+def token_training(
+    config: dict[str, Any], sentences: Callable[[dict[str, Any]], Iterable[str]], max_tokens: int | None = None
+) -> TokenTraining:
     """The data side of a token model's run; ``sentences(caption)`` are the texts a caption
     conditions on (its action sentences for M2D2M, its text for MMM), whose words make the
     vocabulary of a learned text encoder; ``max_tokens`` crops longer token sequences when the
@@ -92,12 +102,14 @@ def token_training(config: dict[str, Any], sentences: Callable[[dict[str, Any]],
 
     vq_path, vq, data_dir, tokens_dir = _tokenizer(config["vq"], config["dataset"], FULL)
     datamodule = TokenDataModule(tokens_dir, **_loader_settings(config, max_tokens))
-    return TokenTraining(datamodule, data_dir, caption_vocabulary(config, datamodule, sentences), vq_path,
-                         vq.codebook, tokens_dir)
+    return TokenTraining(
+        datamodule, data_dir, caption_vocabulary(config, datamodule, sentences), vq_path, vq.codebook, tokens_dir
+    )
 
 
-def body_token_training(config: dict[str, Any], sentences: Callable[[dict[str, Any]], Iterable[str]],
-                        max_tokens: int | None = None) -> BodyTokenTraining:
+def body_token_training(
+    config: dict[str, Any], sentences: Callable[[dict[str, Any]], Iterable[str]], max_tokens: int | None = None
+) -> BodyTokenTraining:
     """:func:`token_training` for the upper-body editor: ``config["vq"]`` names an ``upper`` and a
     ``lower`` part tokenizer of one dataset, whose token sets are read as pairs."""
     from training.data import BodyTokenDataModule
@@ -110,5 +122,14 @@ def body_token_training(config: dict[str, Any], sentences: Callable[[dict[str, A
     if data_dir.resolve() != lower_data.resolve():
         raise ValueError(f"the part tokenizers were trained on different datasets ({data_dir}, {lower_data})")
     datamodule = BodyTokenDataModule(upper_tokens, lower_tokens, **_loader_settings(config, max_tokens))
-    return BodyTokenTraining(datamodule, data_dir, caption_vocabulary(config, datamodule, sentences), upper_path,
-                             upper.codebook, upper_tokens, lower_path, lower.codebook, lower_tokens)
+    return BodyTokenTraining(
+        datamodule,
+        data_dir,
+        caption_vocabulary(config, datamodule, sentences),
+        upper_path,
+        upper.codebook,
+        upper_tokens,
+        lower_path,
+        lower.codebook,
+        lower_tokens,
+    )

@@ -50,5 +50,20 @@ from pipelines.synthetic.families import ACTIONS, FAMILIES
 from pipelines.synthetic.program import Texture, band_noise
 from pipelines.synthetic.words import UPOS, caption_line
 
-__all__ = ["ACTIONS", "FAMILIES", "FPS", "MAX_FRAMES", "MIN_FRAMES", "TEXTURE", "UPOS", "Texture", "assign_splits",
-           "band_noise", "caption_line", "existing_corpus", "generate_corpus", "make_captions", "make_clip"]
+__all__ = [
+    "ACTIONS",
+    "FAMILIES",
+    "FPS",
+    "MAX_FRAMES",
+    "MIN_FRAMES",
+    "TEXTURE",
+    "UPOS",
+    "Texture",
+    "assign_splits",
+    "band_noise",
+    "caption_line",
+    "existing_corpus",
+    "generate_corpus",
+    "make_captions",
+    "make_clip",
+]

@@ -27,8 +27,6 @@ LEFT, RIGHT = 0, 1
 SIGN = np.array([1.0, -1.0])  # body-frame x of the left and the right side: +x is the left
 
 
-
-
 HIP, KNEE, ANKLE, TOE = (1, 2), (4, 5), (7, 8), (10, 11)
 
 
@@ -181,18 +179,17 @@ def _feet_at(body: Body, centre: np.ndarray, yaw: float, seated: bool = False) -
 
 
 def arm_pose(
-    body: Body, side: int, flex: np.ndarray | float, abduct: np.ndarray | float,
+    body: Body,
+    side: int,
+    flex: np.ndarray | float,
+    abduct: np.ndarray | float,
     elbow: np.ndarray | float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Wrist target and elbow pole (chest frame) of an arm swung forward by ``flex``, out by
     ``abduct`` and bent forward at the elbow by ``elbow`` (radians, any broadcastable shapes)."""
-    flex, abduct, elbow = np.broadcast_arrays(
-        *(np.asarray(a, dtype=np.float64) for a in (flex, abduct, elbow))
-    )
+    flex, abduct, elbow = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (flex, abduct, elbow)))
     s = SIGN[side]
-    upper = np.stack(
-        [s * np.sin(abduct), -np.cos(abduct) * np.cos(flex), np.cos(abduct) * np.sin(flex)], axis=-1
-    )
+    upper = np.stack([s * np.sin(abduct), -np.cos(abduct) * np.cos(flex), np.cos(abduct) * np.sin(flex)], axis=-1)
     ahead = np.stack([np.zeros_like(flex), np.sin(flex), np.cos(flex)], axis=-1)
     ahead = normalize(ahead - dot(ahead, upper)[..., None] * upper)
     lower = np.cos(elbow)[..., None] * upper + np.sin(elbow)[..., None] * ahead

@@ -25,15 +25,23 @@ CAPTIONS_PER_CLIP = 3
 # with its verbs in the "s" (walks) or "ing" (walking) form, anything else tagged words.
 _PATTERNS: dict[int, tuple[str, ...]] = {
     1: ("{S} <0:s>", "{S} <0:s>", "{S} is/AUX <0:ing>", "{S} <0:ing>"),
-    2: ("{S} <0:s> and/CCONJ then/ADV <1:s>", "{S} <0:s> , then/ADV <1:s>",
-        "{S} <0:s> and/CCONJ <1:s>", "{S} first/ADV <0:s> and/CCONJ then/ADV <1:s>",
-        "after/ADP <0:ing> , {S} <1:s>", "{S} <0:s> before/ADP <1:ing>",
-        "{S} is/AUX <0:ing> and/CCONJ then/ADV <1:ing>", "{S} <0:ing> and/CCONJ then/ADV <1:ing>"),
-    3: ("{S} <0:s> , <1:s> , and/CCONJ then/ADV <2:s>",
+    2: (
+        "{S} <0:s> and/CCONJ then/ADV <1:s>",
+        "{S} <0:s> , then/ADV <1:s>",
+        "{S} <0:s> and/CCONJ <1:s>",
+        "{S} first/ADV <0:s> and/CCONJ then/ADV <1:s>",
+        "after/ADP <0:ing> , {S} <1:s>",
+        "{S} <0:s> before/ADP <1:ing>",
+        "{S} is/AUX <0:ing> and/CCONJ then/ADV <1:ing>",
+        "{S} <0:ing> and/CCONJ then/ADV <1:ing>",
+    ),
+    3: (
+        "{S} <0:s> , <1:s> , and/CCONJ then/ADV <2:s>",
         "{S} <0:s> , then/ADV <1:s> , and/CCONJ finally/ADV <2:s>",
         "{S} first/ADV <0:s> , then/ADV <1:s> and/CCONJ <2:s>",
         "after/ADP <0:ing> , {S} <1:s> and/CCONJ then/ADV <2:s>",
-        "{S} is/AUX <0:ing> , <1:ing> , and/CCONJ then/ADV <2:ing>"),
+        "{S} is/AUX <0:ing> , <1:ing> , and/CCONJ then/ADV <2:ing>",
+    ),
 }
 
 
@@ -54,8 +62,9 @@ def _sentence(pattern: str, phrases: Sequence[str], subject: Subject) -> list[To
     return tokens
 
 
-def make_captions(plan: Sequence[tuple[str, dict]], rng: np.random.Generator,
-                  count: int = CAPTIONS_PER_CLIP) -> list[list[Token]]:
+def make_captions(
+    plan: Sequence[tuple[str, dict]], rng: np.random.Generator, count: int = CAPTIONS_PER_CLIP
+) -> list[list[Token]]:
     """``count`` different captions of a plan, each with its own subject, sentence pattern and
     phrasings; inside multi-action sentences, phrases that are themselves two clauses are rarer."""
     captions: list[list[Token]] = []

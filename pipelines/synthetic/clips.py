@@ -35,14 +35,15 @@ def check_families(families: Iterable[str] | None) -> tuple[str, ...]:
     families = (families,) if isinstance(families, str) else tuple(families)
     unknown = sorted(set(families) - set(FAMILIES))
     if unknown or not families:
-        raise ValueError(
-            f"unknown action families {unknown or '(none given)'}; valid: {', '.join(FAMILIES)}"
-        )
+        raise ValueError(f"unknown action families {unknown or '(none given)'}; valid: {', '.join(FAMILIES)}")
     return tuple(f for f in FAMILIES if f in families)
 
 
-def sample_plan(rng: np.random.Generator, families: Sequence[str], max_actions: int = 3,
-                ) -> list[tuple[str, dict]]:
+def sample_plan(
+    rng: np.random.Generator,
+    families: Sequence[str],
+    max_actions: int = 3,
+) -> list[tuple[str, dict]]:
     """1–``max_actions`` actions that can follow each other: nothing but "stand up" after
     "sit down", "stand up" only from a seat, and no family twice in a row."""
     count = int(rng.choice(3, p=(0.4, 0.35, 0.25))) + 1
@@ -78,16 +79,16 @@ class Clip:
             "frames": len(self.joints),
             "body_scale": round(self.body_scale, 4),
             "actions": [
-                {"family": name, "params": params, "start": start, "end": end,
-                 "text": action_text(name, params)}
+                {"family": name, "params": params, "start": start, "end": end, "text": action_text(name, params)}
                 for (name, params), (start, end) in zip(self.plan, self.segments)
             ],
             "captions": [caption_text(c) for c in self.captions],
         }
 
 
-def make_clip(index: int, seed: int = 0, families: Sequence[str] = FAMILIES,
-              max_actions: int = 3, texture: Texture = TEXTURE) -> Clip:
+def make_clip(
+    index: int, seed: int = 0, families: Sequence[str] = FAMILIES, max_actions: int = 3, texture: Texture = TEXTURE
+) -> Clip:
     """Clip number ``index`` of the corpus with ``seed``: a function of (seed, index) only.
     A plan whose motion would exceed 199 frames loses its last action (a lone action that is
     too long is drawn again), so long families keep their share of first actions. The texture
@@ -103,8 +104,7 @@ def make_clip(index: int, seed: int = 0, families: Sequence[str] = FAMILIES,
         raise RuntimeError(f"clip {index}: no plan of {families} fits in {MAX_FRAMES} frames")
     program = texture.apply(composition.program, np.random.default_rng([seed, index, 2]))
     joints = program_joints(program, composition.body).astype(np.float32)
-    return Clip(f"{index:06d}", joints, plan, composition.segments, make_captions(plan, rng),
-                composition.body.scale)
+    return Clip(f"{index:06d}", joints, plan, composition.segments, make_captions(plan, rng), composition.body.scale)
 
 
 @dataclass(frozen=True)
@@ -117,8 +117,7 @@ class Composition:
     segments: tuple[tuple[int, int], ...]
 
 
-def compose(actions: Sequence[tuple[str, dict]], rng: np.random.Generator,
-            min_frames: int = 40) -> Composition:
+def compose(actions: Sequence[tuple[str, dict]], rng: np.random.Generator, min_frames: int = 40) -> Composition:
     """Chain actions on a random body, with short idles around and sometimes between them, and
     cross-fade the posture at every boundary; each action starts where the previous one ended
     (same feet, heading and posture). Cheap: nothing is rendered yet."""

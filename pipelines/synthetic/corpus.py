@@ -37,14 +37,13 @@ def assign_splits(ids: Sequence[str], seed: int) -> dict[str, list[str]]:
     n_test = int(round(SPLITS["test"] * len(ids)))
     shuffled = [ids[i] for i in order]
     return {
-        "train": sorted(shuffled[n_val + n_test:]),
+        "train": sorted(shuffled[n_val + n_test :]),
         "val": sorted(shuffled[:n_val]),
-        "test": sorted(shuffled[n_val:n_val + n_test]),
+        "test": sorted(shuffled[n_val : n_val + n_test]),
     }
 
 
-def _write_clip(out: Path, seed: int, families: tuple[str, ...], max_actions: int,
-                index: int) -> tuple[dict, int]:
+def _write_clip(out: Path, seed: int, families: tuple[str, ...], max_actions: int, index: int) -> tuple[dict, int]:
     """Generate and write one clip; returns its annotation and how many captions are multi-verb."""
     clip = make_clip(index, seed, families, max_actions)
     np.save(out / "joints" / f"{clip.id}.npy", clip.joints)
@@ -68,13 +67,13 @@ def existing_corpus(out_dir: str | Path, clips: int, seed: int, families: Sequen
     if not marker.exists():
         return False
     existing = json.loads(marker.read_text(encoding="utf-8"))
-    wanted = {"clips": clips, "seed": seed, "families": list(families or FAMILIES),
-              "version": GENERATOR_VERSION}
+    wanted = {"clips": clips, "seed": seed, "families": list(families or FAMILIES), "version": GENERATOR_VERSION}
     different = [key for key, value in wanted.items() if existing.get(key) != value]
     if not different:
         return True
-    raise ValueError(f"{out_dir} holds a different corpus ({marker}: other {', '.join(different)}); "
-                     "use another --out or --force")
+    raise ValueError(
+        f"{out_dir} holds a different corpus ({marker}: other {', '.join(different)}); use another --out or --force"
+    )
 
 
 def generate_corpus(
@@ -131,9 +130,17 @@ def generate_corpus(
         "hours": round(frames / FPS / 3600.0, 4),
         "families": {f: per_family.get(f, 0) for f in families},
     }
-    corpus = {"generator": "pipelines.synthetic", "version": GENERATOR_VERSION, "seed": seed,
-              "clips": clips, "fps": FPS, "families": list(families), "max_actions": max_actions,
-              "texture": asdict(TEXTURE), "summary": summary}
+    corpus = {
+        "generator": "pipelines.synthetic",
+        "version": GENERATOR_VERSION,
+        "seed": seed,
+        "clips": clips,
+        "fps": FPS,
+        "families": list(families),
+        "max_actions": max_actions,
+        "texture": asdict(TEXTURE),
+        "summary": summary,
+    }
     (out / "corpus.json").write_text(json.dumps(corpus, indent=2) + "\n", encoding="utf-8")
     return summary
 

@@ -40,22 +40,44 @@ class _Leap:
     speed_up: float
 
     @staticmethod
-    def plan(start: float, before: float, low: float, lift_height: float, apex: float,
-             bottom: float, after: float, crouch_time: float, recover_time: float) -> _Leap:
+    def plan(
+        start: float,
+        before: float,
+        low: float,
+        lift_height: float,
+        apex: float,
+        bottom: float,
+        after: float,
+        crouch_time: float,
+        recover_time: float,
+    ) -> _Leap:
         speed_up = float(np.sqrt(2.0 * GRAVITY * apex))
         crouch_end = start + crouch_time * FPS
         takeoff = crouch_end + 2.0 * (lift_height - low) / speed_up * FPS
         touchdown = takeoff + 2.0 * speed_up / GRAVITY * FPS
         absorbed = touchdown + 2.0 * (lift_height - bottom) / speed_up * FPS
-        return _Leap(start, crouch_end, takeoff, touchdown, absorbed,
-                     absorbed + recover_time * FPS, before, low, lift_height, bottom, after, speed_up)
+        return _Leap(
+            start,
+            crouch_end,
+            takeoff,
+            touchdown,
+            absorbed,
+            absorbed + recover_time * FPS,
+            before,
+            low,
+            lift_height,
+            bottom,
+            after,
+            speed_up,
+        )
 
     def height(self, t: np.ndarray) -> np.ndarray:
         """Pelvis height at frames ``t`` (held outside the leap)."""
         y = np.where(t < self.start, self.before, self.after).astype(np.float64)
         phase = (t >= self.start) & (t < self.crouch_end)
         y[phase] = self.before + (self.low - self.before) * ease(
-            (t[phase] - self.start) / (self.crouch_end - self.start))
+            (t[phase] - self.start) / (self.crouch_end - self.start)
+        )
         phase = (t >= self.crouch_end) & (t < self.takeoff)
         tau = (t[phase] - self.crouch_end) / FPS
         push = (self.takeoff - self.crouch_end) / FPS
@@ -69,12 +91,22 @@ class _Leap:
         y[phase] = self.lift_height - self.speed_up * tau + 0.5 * self.speed_up / brake * tau**2
         phase = (t >= self.absorbed) & (t < self.end)
         y[phase] = self.bottom + (self.after - self.bottom) * ease(
-            (t[phase] - self.absorbed) / max(self.end - self.absorbed, 1e-9))
+            (t[phase] - self.absorbed) / max(self.end - self.absorbed, 1e-9)
+        )
         return y
 
 
-def leap_chain(body: Body, count: int, start: float, stand: float, crouch: float, apex: float,
-                absorb: float, crouch_time: float, rng: np.random.Generator) -> list[_Leap]:
+def leap_chain(
+    body: Body,
+    count: int,
+    start: float,
+    stand: float,
+    crouch: float,
+    apex: float,
+    absorb: float,
+    crouch_time: float,
+    rng: np.random.Generator,
+) -> list[_Leap]:
     """``count`` leaps back to back: the landing crouch of one is the take-off crouch of the
     next, and only the last one recovers to standing."""
     toes_up = TOE_HEIGHT + body.foot * np.sin(FOOT_PITCH + LIFT_PITCH)
@@ -83,9 +115,17 @@ def leap_chain(body: Body, count: int, start: float, stand: float, crouch: float
     for k in range(count):
         last = k == count - 1
         height = apex * rng.uniform(0.85, 1.15)
-        leap = _Leap.plan(start, before, stand - crouch, lift_height, height, stand - absorb,
-                          stand if last else stand - absorb, crouch_time if k == 0 else 0.1,
-                          0.45 if last else 0.0)
+        leap = _Leap.plan(
+            start,
+            before,
+            stand - crouch,
+            lift_height,
+            height,
+            stand - absorb,
+            stand if last else stand - absorb,
+            crouch_time if k == 0 else 0.1,
+            0.45 if last else 0.0,
+        )
         leaps.append(leap)
         start, before = leap.end, leap.after
     return leaps
@@ -114,9 +154,16 @@ def leap_travel(leaps: Sequence[_Leap], distances: Sequence[float], t: np.ndarra
     return gaussian_smooth(np.interp(t, times, values), 1.5, truncate=3.0)
 
 
-def leap_foot(body: Body, leaps: Sequence[_Leap], t: np.ndarray, start: np.ndarray,
-               heading: np.ndarray, distances: Sequence[float], yaw: float, tuck: float,
-               ) -> tuple[np.ndarray, np.ndarray]:
+def leap_foot(
+    body: Body,
+    leaps: Sequence[_Leap],
+    t: np.ndarray,
+    start: np.ndarray,
+    heading: np.ndarray,
+    distances: Sequence[float],
+    yaw: float,
+    tuck: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """Ankle targets and pitch of a foot that leaps: it rises on its toes in each push, flies
     with the pelvis (tucked up by ``tuck``), lands on its toes and rolls down flat, its toe fixed
     on the floor whenever it touches it."""
@@ -144,8 +191,7 @@ def leap_foot(body: Body, leaps: Sequence[_Leap], t: np.ndarray, start: np.ndarr
 
         flat_again = leap.touchdown + 0.5 * (leap.absorbed - leap.touchdown)
         phase = (t >= leap.touchdown) & (t < flat_again)
-        p = FOOT_PITCH + LIFT_PITCH * (1.0 - ease((t[phase] - leap.touchdown)
-                                                     / (flat_again - leap.touchdown)))
+        p = FOOT_PITCH + LIFT_PITCH * (1.0 - ease((t[phase] - leap.touchdown) / (flat_again - leap.touchdown)))
         ankles[phase] = toe_to - body.foot * foot_direction(yaw_t[phase], p)
         pitch[phase] = p
         ankles[t >= flat_again] = landing

@@ -58,9 +58,7 @@ def leftward(yaw: np.ndarray | float) -> np.ndarray:
 def to_world(yaw: np.ndarray | float, local: np.ndarray) -> np.ndarray:
     """Body-frame vectors (x left, y up, z forward) to world vectors for heading ``yaw``."""
     local = np.asarray(local, dtype=np.float64)
-    return (
-        local[..., 0:1] * leftward(yaw) + local[..., 1:2] * UP + local[..., 2:3] * forward_direction(yaw)
-    )
+    return local[..., 0:1] * leftward(yaw) + local[..., 1:2] * UP + local[..., 2:3] * forward_direction(yaw)
 
 
 def foot_direction(yaw: np.ndarray, pitch: np.ndarray) -> np.ndarray:

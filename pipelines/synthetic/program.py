@@ -65,9 +65,7 @@ class Program:
 
     @staticmethod
     def concat(programs: Sequence[Program]) -> Program:
-        return Program(
-            **{f.name: np.concatenate([getattr(p, f.name) for p in programs]) for f in fields(Program)}
-        )
+        return Program(**{f.name: np.concatenate([getattr(p, f.name) for p in programs]) for f in fields(Program)})
 
 
 # Channels that are cross-faded between actions; the rest are continuous by construction.
@@ -159,14 +157,18 @@ class Texture:
             "neck": (program.neck, self.angles),
             "wrists": (program.wrists, self.wrists),
         }
-        return replace(program, **{
-            name: curve + level * band_noise(frames, curve.shape[1:], rng, self.low_hz)
-            for name, (curve, level) in changes.items()
-        })
+        return replace(
+            program,
+            **{
+                name: curve + level * band_noise(frames, curve.shape[1:], rng, self.low_hz)
+                for name, (curve, level) in changes.items()
+            },
+        )
 
 
-def band_noise(frames: int, shape: tuple[int, ...], rng: np.random.Generator,
-               low_hz: float, fps: float = FPS) -> np.ndarray:
+def band_noise(
+    frames: int, shape: tuple[int, ...], rng: np.random.Generator, low_hz: float, fps: float = FPS
+) -> np.ndarray:
     """Gaussian noise (frames, *shape) whose second difference has a flat spectrum above
     ``low_hz`` (a raised-cosine edge from half of it), nothing below, and unit RMS: positions
     from white acceleration in one band, made in the frequency domain over twice the length so
@@ -216,8 +218,7 @@ def program_joints(program: Program, body: Body) -> np.ndarray:
         child = {3: 6, 6: 9, 9: 12}[joint]
         joints[:, child] = joints[:, joint] + rot @ offsets[child]
     chest = rot
-    neck = chest @ rotation(np.stack([program.neck[:, 1], NECK_REST + program.neck[:, 0],
-                                  np.zeros(frames)], axis=-1))
+    neck = chest @ rotation(np.stack([program.neck[:, 1], NECK_REST + program.neck[:, 0], np.zeros(frames)], axis=-1))
     joints[:, 15] = joints[:, 12] + neck @ offsets[15]
 
     for side in (LEFT, RIGHT):
@@ -227,9 +228,7 @@ def program_joints(program: Program, body: Body) -> np.ndarray:
         joints[:, shoulder] = joints[:, collar] + collar_rot @ offsets[shoulder]
         target = joints[:, shoulder] + np.einsum("tij,tj->ti", chest, program.wrists[:, side])
         pole = np.einsum("tij,tj->ti", chest, program.elbows[:, side])
-        joints[:, elbow], joints[:, wrist] = two_bone(
-            joints[:, shoulder], target, pole, body.upper_arm, body.forearm
-        )
+        joints[:, elbow], joints[:, wrist] = two_bone(joints[:, shoulder], target, pole, body.upper_arm, body.forearm)
 
         hip, knee, ankle, toe = HIP[side], KNEE[side], ANKLE[side], TOE[side]
         knee_pole = forward_direction(0.5 * (program.foot_yaw[:, side] + program.yaw)) + 0.6 * UP

@@ -60,20 +60,54 @@ class Gait:
     twist: float = 0.0  # pelvis rotation about the vertical with the legs
 
 
-WALK = Gait(roll=0.2, toe_off=0.8, land_pitch=-0.3, settle=0.12, clearance=0.07, crouch=0.02,
-            lean=0.04, arm_swing=0.32, elbow=0.35, sway=0.025, twist=0.09)
+WALK = Gait(
+    roll=0.2,
+    toe_off=0.8,
+    land_pitch=-0.3,
+    settle=0.12,
+    clearance=0.07,
+    crouch=0.02,
+    lean=0.04,
+    arm_swing=0.32,
+    elbow=0.35,
+    sway=0.025,
+    twist=0.09,
+)
 
 
-JOG = Gait(roll=0.1, toe_off=0.7, land_pitch=-0.1, settle=0.06, clearance=0.13, crouch=0.05,
-           bounce=0.035, lean=0.12, arm_swing=0.55, elbow=1.35, sway=0.012, twist=0.1)
+JOG = Gait(
+    roll=0.1,
+    toe_off=0.7,
+    land_pitch=-0.1,
+    settle=0.06,
+    clearance=0.13,
+    crouch=0.05,
+    bounce=0.035,
+    lean=0.12,
+    arm_swing=0.55,
+    elbow=1.35,
+    sway=0.012,
+    twist=0.1,
+)
 
 
-RUN = Gait(roll=0.08, toe_off=0.75, land_pitch=0.0, settle=0.05, clearance=0.2, crouch=0.06,
-           bounce=0.05, lean=0.2, arm_swing=0.75, elbow=1.5, sway=0.01, twist=0.12)
+RUN = Gait(
+    roll=0.08,
+    toe_off=0.75,
+    land_pitch=0.0,
+    settle=0.05,
+    clearance=0.2,
+    crouch=0.06,
+    bounce=0.05,
+    lean=0.2,
+    arm_swing=0.75,
+    elbow=1.5,
+    sway=0.01,
+    twist=0.12,
+)
 
 
-BACKWARD = Gait(clearance=0.06, crouch=0.02, lean=0.0, arm_swing=0.15, elbow=0.35, sway=0.02,
-                twist=0.04)
+BACKWARD = Gait(clearance=0.06, crouch=0.02, lean=0.0, arm_swing=0.15, elbow=0.35, sway=0.02, twist=0.04)
 
 
 SHUFFLE = Gait(clearance=0.05, crouch=0.03, lean=0.03, elbow=0.35, settle=0.05)
@@ -118,16 +152,20 @@ def _foot_tracks(
         landed = t >= step.land
         ankles[landed, side] = step.ankle
         yaw[landed, side] = step.yaw
-        pitch[landed, side] = FOOT_PITCH + gait.land_pitch * (
-            1.0 - ease((t[landed] - step.land) / settle)
-        )
+        pitch[landed, side] = FOOT_PITCH + gait.land_pitch * (1.0 - ease((t[landed] - step.land) / settle))
         current[side] = (step.ankle, step.yaw)
     return ankles, yaw, pitch, down
 
 
 def stepping(
-    body: Body, state: State, steps: Sequence[Step], gait: Gait, period: float, *,
-    end_yaw: float | None = None, seconds_after: float = 0.45,
+    body: Body,
+    state: State,
+    steps: Sequence[Step],
+    gait: Gait,
+    period: float,
+    *,
+    end_yaw: float | None = None,
+    seconds_after: float = 0.45,
 ) -> tuple[Program, State]:
     """Program of a footstep sequence: feet from :func:`_foot_tracks`, the pelvis at the smoothed
     middle of the feet (so stride × cadence is its speed) with sway over the supporting foot,
@@ -210,8 +248,14 @@ def circle(state: State, radius: float, turn: float) -> Route:
 
 
 def path_steps(
-    body: Body, path: Route, advances: Sequence[float], period: float, swing: float,
-    gait: Gait, first_side: int, facing: float = 0.0,
+    body: Body,
+    path: Route,
+    advances: Sequence[float],
+    period: float,
+    swing: float,
+    gait: Gait,
+    first_side: int,
+    facing: float = 0.0,
 ) -> list[Step]:
     """Footsteps along ``path``: step i lands ``sum(advances[:i])`` along it (the last step closes
     beside the previous one), alternating feet every ``period`` seconds, each airborne for

@@ -8,40 +8,73 @@ from dataclasses import dataclass
 
 import numpy as np
 
-UPOS = frozenset(
-    "ADJ ADP ADV AUX CCONJ DET INTJ NOUN NUM PART PRON PROPN PUNCT SCONJ SYM VERB X".split()
-)
+UPOS = frozenset("ADJ ADP ADV AUX CCONJ DET INTJ NOUN NUM PART PRON PROPN PUNCT SCONJ SYM VERB X".split())
 
 
 # Verb forms the templates use: lemma → (third person singular, -ing form).
 _VERBS = {
-    "back": ("backs", "backing"), "bend": ("bends", "bending"), "bow": ("bows", "bowing"),
-    "bring": ("brings", "bringing"), "clap": ("claps", "clapping"), "crouch": ("crouches", "crouching"),
-    "do": ("does", "doing"), "get": ("gets", "getting"), "give": ("gives", "giving"),
-    "hold": ("holds", "holding"), "hop": ("hops", "hopping"), "hurry": ("hurries", "hurrying"),
-    "jog": ("jogs", "jogging"), "jump": ("jumps", "jumping"), "kick": ("kicks", "kicking"),
-    "leap": ("leaps", "leaping"), "lift": ("lifts", "lifting"), "lower": ("lowers", "lowering"),
-    "make": ("makes", "making"), "move": ("moves", "moving"), "punch": ("punches", "punching"),
-    "put": ("puts", "putting"), "raise": ("raises", "raising"), "rise": ("rises", "rising"),
-    "run": ("runs", "running"), "shuffle": ("shuffles", "shuffling"),
-    "sidestep": ("sidesteps", "sidestepping"), "sit": ("sits", "sitting"),
-    "sprint": ("sprints", "sprinting"), "squat": ("squats", "squatting"),
-    "stand": ("stands", "standing"), "step": ("steps", "stepping"), "stop": ("stops", "stopping"),
-    "stretch": ("stretches", "stretching"), "stroll": ("strolls", "strolling"),
-    "take": ("takes", "taking"), "throw": ("throws", "throwing"), "turn": ("turns", "turning"),
-    "walk": ("walks", "walking"), "wave": ("waves", "waving"),
+    "back": ("backs", "backing"),
+    "bend": ("bends", "bending"),
+    "bow": ("bows", "bowing"),
+    "bring": ("brings", "bringing"),
+    "clap": ("claps", "clapping"),
+    "crouch": ("crouches", "crouching"),
+    "do": ("does", "doing"),
+    "get": ("gets", "getting"),
+    "give": ("gives", "giving"),
+    "hold": ("holds", "holding"),
+    "hop": ("hops", "hopping"),
+    "hurry": ("hurries", "hurrying"),
+    "jog": ("jogs", "jogging"),
+    "jump": ("jumps", "jumping"),
+    "kick": ("kicks", "kicking"),
+    "leap": ("leaps", "leaping"),
+    "lift": ("lifts", "lifting"),
+    "lower": ("lowers", "lowering"),
+    "make": ("makes", "making"),
+    "move": ("moves", "moving"),
+    "punch": ("punches", "punching"),
+    "put": ("puts", "putting"),
+    "raise": ("raises", "raising"),
+    "rise": ("rises", "rising"),
+    "run": ("runs", "running"),
+    "shuffle": ("shuffles", "shuffling"),
+    "sidestep": ("sidesteps", "sidestepping"),
+    "sit": ("sits", "sitting"),
+    "sprint": ("sprints", "sprinting"),
+    "squat": ("squats", "squatting"),
+    "stand": ("stands", "standing"),
+    "step": ("steps", "stepping"),
+    "stop": ("stops", "stopping"),
+    "stretch": ("stretches", "stretching"),
+    "stroll": ("strolls", "strolling"),
+    "take": ("takes", "taking"),
+    "throw": ("throws", "throwing"),
+    "turn": ("turns", "turning"),
+    "walk": ("walks", "walking"),
+    "wave": ("waves", "waving"),
 }
 
 
 _PLURALS = {
-    "arms": "arm", "degrees": "degree", "feet": "foot", "fists": "fist", "hands": "hand",
-    "hops": "hop", "jumps": "jump", "kicks": "kick", "knees": "knee", "punches": "punch",
-    "sides": "side", "squats": "squat", "steps": "step", "times": "time",
+    "arms": "arm",
+    "degrees": "degree",
+    "feet": "foot",
+    "fists": "fist",
+    "hands": "hand",
+    "hops": "hop",
+    "jumps": "jump",
+    "kicks": "kick",
+    "knees": "knee",
+    "punches": "punch",
+    "sides": "side",
+    "squats": "squat",
+    "steps": "step",
+    "times": "time",
 }
 
 
-_NUMBERS = ("zero one two three four five six seven eight nine ten eleven twelve thirteen "
-            "fourteen fifteen").split()
+_NUMBERS = ("zero one two three four five six seven eight nine ten eleven twelve thirteen fourteen fifteen").split()
 
 
 @dataclass(frozen=True)
@@ -78,8 +111,9 @@ class Token:
 def tagged_tokens(template: str, form: str, subject: Subject) -> list[Token]:
     """Parse a tagged template: ``word/TAG`` items, ``@verb`` (a VERB inflected to ``form``:
     "s" or "ing"), ``,`` and the pronoun slots ``{their}``, ``{them}``, ``{themselves}``."""
-    template = template.format(their=f"{subject.their}/PRON", them=f"{subject.them}/PRON",
-                               themselves=f"{subject.themselves}/PRON")
+    template = template.format(
+        their=f"{subject.their}/PRON", them=f"{subject.them}/PRON", themselves=f"{subject.themselves}/PRON"
+    )
     tokens = []
     for item in template.split():
         if item == ",":

@@ -42,21 +42,27 @@ def _stride(body: Body, table: dict, speed: str, rng: np.random.Generator) -> tu
 def walk(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
     """``steps`` footsteps forward at a ``speed`` (slow / normal / fast)."""
     length, period = _stride(body, _WALK_SPEEDS, p["speed"], rng)
-    steps = path_steps(body, straight(state, 0.0), [length] * (p["steps"] - 1), period, 0.8,
-                        WALK, int(rng.integers(2)))
+    steps = path_steps(body, straight(state, 0.0), [length] * (p["steps"] - 1), period, 0.8, WALK, int(rng.integers(2)))
     return stepping(body, state, steps, WALK, period)
 
 
 def walk_phrases(p: dict, rng: np.random.Generator) -> list[str]:
-    speed = choose(rng, {
-        "slow": ("slowly/ADV", "at/ADP a/DET slow/ADJ pace/NOUN"),
-        "normal": ("", "", "at/ADP a/DET normal/ADJ pace/NOUN", "at/ADP a/DET steady/ADJ pace/NOUN"),
-        "fast": ("quickly/ADV", "briskly/ADV", "fast/ADV", "at/ADP a/DET fast/ADJ pace/NOUN"),
-    }[p["speed"]])
+    speed = choose(
+        rng,
+        {
+            "slow": ("slowly/ADV", "at/ADP a/DET slow/ADJ pace/NOUN"),
+            "normal": ("", "", "at/ADP a/DET normal/ADJ pace/NOUN", "at/ADP a/DET steady/ADJ pace/NOUN"),
+            "fast": ("quickly/ADV", "briskly/ADV", "fast/ADV", "at/ADP a/DET fast/ADJ pace/NOUN"),
+        }[p["speed"]],
+    )
     n = number_word(p["steps"])
-    phrases = [f"@walk forward/ADV {speed}", f"@take {n} steps/NOUN forward/ADV {speed}",
-               f"@walk {n} steps/NOUN forward/ADV {speed}", f"@walk straight/ADV ahead/ADV {speed}",
-               f"@walk forward/ADV {speed} and/CCONJ @stop"]
+    phrases = [
+        f"@walk forward/ADV {speed}",
+        f"@take {n} steps/NOUN forward/ADV {speed}",
+        f"@walk {n} steps/NOUN forward/ADV {speed}",
+        f"@walk straight/ADV ahead/ADV {speed}",
+        f"@walk forward/ADV {speed} and/CCONJ @stop",
+    ]
     if p["speed"] == "slow":
         phrases.append("@stroll slowly/ADV forward/ADV")
     if p["speed"] == "fast":
@@ -65,15 +71,26 @@ def walk_phrases(p: dict, rng: np.random.Generator) -> list[str]:
 
 
 WALK_FAMILY = ActionFamily(
-    "walk", motion=walk, phrases=walk_phrases,
-    draw=lambda r: {"steps": draw_count(r, 3, 10), "speed": draw_choice(r, ("slow", "normal", "fast"))})
+    "walk",
+    motion=walk,
+    phrases=walk_phrases,
+    draw=lambda r: {"steps": draw_count(r, 3, 10), "speed": draw_choice(r, ("slow", "normal", "fast"))},
+)
 
 
 def walk_backwards(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
     """``steps`` flat-footed steps backwards, still facing forward."""
     length, period = _stride(body, {"slow": (0.28, 1.4), "normal": (0.36, 1.65)}, p["speed"], rng)
-    steps = path_steps(body, straight(state, np.pi), [length] * (p["steps"] - 1), period, 0.7,
-                        BACKWARD, int(rng.integers(2)), facing=-np.pi)
+    steps = path_steps(
+        body,
+        straight(state, np.pi),
+        [length] * (p["steps"] - 1),
+        period,
+        0.7,
+        BACKWARD,
+        int(rng.integers(2)),
+        facing=-np.pi,
+    )
     return stepping(body, state, steps, BACKWARD, period)
 
 
@@ -81,13 +98,21 @@ def walk_backwards_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     speed = "slowly/ADV" if p["speed"] == "slow" else ""
     back = choose(rng, ("backwards/ADV", "backward/ADV"))
     n = number_word(p["steps"])
-    return [f"@walk {back} {speed}", f"@take {n} steps/NOUN {back} {speed}",
-            f"@walk {back} {n} steps/NOUN {speed}", f"@back up/ADP {speed}", f"@move {back} {speed}"]
+    return [
+        f"@walk {back} {speed}",
+        f"@take {n} steps/NOUN {back} {speed}",
+        f"@walk {back} {n} steps/NOUN {speed}",
+        f"@back up/ADP {speed}",
+        f"@move {back} {speed}",
+    ]
 
 
 WALK_BACKWARDS_FAMILY = ActionFamily(
-    "walk_backwards", motion=walk_backwards, phrases=walk_backwards_phrases,
-    draw=lambda r: {"steps": draw_count(r, 3, 7), "speed": draw_choice(r, ("slow", "normal"))})
+    "walk_backwards",
+    motion=walk_backwards,
+    phrases=walk_backwards_phrases,
+    draw=lambda r: {"steps": draw_count(r, 3, 7), "speed": draw_choice(r, ("slow", "normal"))},
+)
 
 
 def walk_circle(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -96,8 +121,7 @@ def walk_circle(body: Body, state: State, p: dict, rng: np.random.Generator) -> 
     length, period = _stride(body, {"normal": (0.46, 1.8)}, "normal", rng)
     count = max(int(round(2 * np.pi * p["radius"] / length)), 6)
     length = 2 * np.pi * p["radius"] / count
-    steps = path_steps(body, circle(state, p["radius"], turn), [length] * count, period, 0.8,
-                        WALK, int(turn < 0))
+    steps = path_steps(body, circle(state, p["radius"], turn), [length] * count, period, 0.8, WALK, int(turn < 0))
     return stepping(body, state, steps, WALK, period)
 
 
@@ -105,16 +129,25 @@ def walk_circle_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     clockwise = p["direction"] == "clockwise"
     way = "clockwise" if clockwise else choose(rng, ("counterclockwise", "anticlockwise"))
     side = "right" if clockwise else "left"
-    return [f"@walk in/ADP a/DET circle/NOUN {way}/ADV", f"@walk {way}/ADV in/ADP a/DET circle/NOUN",
-            f"@walk in/ADP {'an' if way[0] == 'a' else 'a'}/DET {way}/ADJ circle/NOUN",
-            f"@walk around/ADV in/ADP a/DET circle/NOUN to/ADP the/DET {side}/NOUN",
-            f"@walk in/ADP a/DET full/ADJ circle/NOUN {way}/ADV",
-            f"@walk around/ADV in/ADP a/DET circle/NOUN {way}/ADV"]
+    return [
+        f"@walk in/ADP a/DET circle/NOUN {way}/ADV",
+        f"@walk {way}/ADV in/ADP a/DET circle/NOUN",
+        f"@walk in/ADP {'an' if way[0] == 'a' else 'a'}/DET {way}/ADJ circle/NOUN",
+        f"@walk around/ADV in/ADP a/DET circle/NOUN to/ADP the/DET {side}/NOUN",
+        f"@walk in/ADP a/DET full/ADJ circle/NOUN {way}/ADV",
+        f"@walk around/ADV in/ADP a/DET circle/NOUN {way}/ADV",
+    ]
 
 
 WALK_CIRCLE_FAMILY = ActionFamily(
-    "walk_circle", motion=walk_circle, phrases=walk_circle_phrases,
-    draw=lambda r: {"direction": draw_choice(r, ("clockwise", "counterclockwise")), "radius": round(float(r.uniform(0.6, 0.95)), 2)})
+    "walk_circle",
+    motion=walk_circle,
+    phrases=walk_circle_phrases,
+    draw=lambda r: {
+        "direction": draw_choice(r, ("clockwise", "counterclockwise")),
+        "radius": round(float(r.uniform(0.6, 0.95)), 2),
+    },
+)
 
 
 def jog(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -126,16 +159,23 @@ def jog(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Pr
 
 
 def jog_phrases(p: dict, rng: np.random.Generator) -> list[str]:
-    speed = choose(rng, ("slowly/ADV", "lightly/ADV", "at/ADP an/DET easy/ADJ pace/NOUN")) \
-        if p["speed"] == "slow" else ""
-    return [f"@jog forward/ADV {speed}", f"@jog straight/ADV ahead/ADV {speed}",
-            f"@jog forward/ADV {speed} and/CCONJ @stop",
-            f"@jog a/DET short/ADJ distance/NOUN forward/ADV {speed}"]
+    speed = (
+        choose(rng, ("slowly/ADV", "lightly/ADV", "at/ADP an/DET easy/ADJ pace/NOUN")) if p["speed"] == "slow" else ""
+    )
+    return [
+        f"@jog forward/ADV {speed}",
+        f"@jog straight/ADV ahead/ADV {speed}",
+        f"@jog forward/ADV {speed} and/CCONJ @stop",
+        f"@jog a/DET short/ADJ distance/NOUN forward/ADV {speed}",
+    ]
 
 
 JOG_FAMILY = ActionFamily(
-    "jog", motion=jog, phrases=jog_phrases,
-    draw=lambda r: {"steps": draw_count(r, 6, 13), "speed": draw_choice(r, ("slow", "normal"))})
+    "jog",
+    motion=jog,
+    phrases=jog_phrases,
+    draw=lambda r: {"steps": draw_count(r, 6, 13), "speed": draw_choice(r, ("slow", "normal"))},
+)
 
 
 def run(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -147,19 +187,24 @@ def run(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Pr
 
 
 def run_phrases(p: dict, rng: np.random.Generator) -> list[str]:
-    speed = choose(rng, ("quickly/ADV", "fast/ADV", "at/ADP full/ADJ speed/NOUN")) \
-        if p["speed"] == "fast" else ""
-    phrases = [f"@run forward/ADV {speed}", f"@run straight/ADV ahead/ADV {speed}",
-               f"@run forward/ADV {speed} and/CCONJ @stop",
-               f"@run a/DET short/ADJ distance/NOUN forward/ADV {speed}"]
+    speed = choose(rng, ("quickly/ADV", "fast/ADV", "at/ADP full/ADJ speed/NOUN")) if p["speed"] == "fast" else ""
+    phrases = [
+        f"@run forward/ADV {speed}",
+        f"@run straight/ADV ahead/ADV {speed}",
+        f"@run forward/ADV {speed} and/CCONJ @stop",
+        f"@run a/DET short/ADJ distance/NOUN forward/ADV {speed}",
+    ]
     if p["speed"] == "fast":
         phrases.append("@sprint forward/ADV")
     return phrases
 
 
 RUN_FAMILY = ActionFamily(
-    "run", motion=run, phrases=run_phrases,
-    draw=lambda r: {"steps": draw_count(r, 6, 15), "speed": draw_choice(r, ("normal", "fast"))})
+    "run",
+    motion=run,
+    phrases=run_phrases,
+    draw=lambda r: {"steps": draw_count(r, 6, 15), "speed": draw_choice(r, ("normal", "fast"))},
+)
 
 
 def sidestep(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -179,16 +224,21 @@ def sidestep(body: Body, state: State, p: dict, rng: np.random.Generator) -> tup
 
 def sidestep_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     side, n = p["side"], p["count"]
-    return [f"@sidestep to/ADP the/DET {side}/NOUN {times_phrase(n, rng)}",
-            f"@take {number_word(n)} side/NOUN steps/NOUN to/ADP the/DET {side}/NOUN",
-            f"@take {number_word(n)} steps/NOUN sideways/ADV to/ADP the/DET {side}/NOUN",
-            f"@step sideways/ADV to/ADP {{their}} {side}/NOUN {times_phrase(n, rng)}",
-            f"@shuffle {number_word(n)} steps/NOUN to/ADP the/DET {side}/NOUN"]
+    return [
+        f"@sidestep to/ADP the/DET {side}/NOUN {times_phrase(n, rng)}",
+        f"@take {number_word(n)} side/NOUN steps/NOUN to/ADP the/DET {side}/NOUN",
+        f"@take {number_word(n)} steps/NOUN sideways/ADV to/ADP the/DET {side}/NOUN",
+        f"@step sideways/ADV to/ADP {{their}} {side}/NOUN {times_phrase(n, rng)}",
+        f"@shuffle {number_word(n)} steps/NOUN to/ADP the/DET {side}/NOUN",
+    ]
 
 
 SIDESTEP_FAMILY = ActionFamily(
-    "sidestep", motion=sidestep, phrases=sidestep_phrases,
-    draw=lambda r: {"side": draw_choice(r, SIDES), "count": draw_count(r, 2, 4)})
+    "sidestep",
+    motion=sidestep,
+    phrases=sidestep_phrases,
+    draw=lambda r: {"side": draw_choice(r, SIDES), "count": draw_count(r, 2, 4)},
+)
 
 
 def turn(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -217,24 +267,43 @@ def turn(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[P
 def turn_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     side = p["side"]
     if p["angle"] == 45:
-        return [f"@turn slightly/ADV to/ADP the/DET {side}/NOUN", f"@turn slightly/ADV {side}/ADV",
-                f"@turn forty/NUM five/NUM degrees/NOUN to/ADP the/DET {side}/NOUN"]
+        return [
+            f"@turn slightly/ADV to/ADP the/DET {side}/NOUN",
+            f"@turn slightly/ADV {side}/ADV",
+            f"@turn forty/NUM five/NUM degrees/NOUN to/ADP the/DET {side}/NOUN",
+        ]
     if p["angle"] == 90:
-        return [f"@turn {side}/ADV", f"@turn to/ADP the/DET {side}/NOUN",
-                f"@turn ninety/NUM degrees/NOUN to/ADP the/DET {side}/NOUN",
-                f"@turn to/ADP {{their}} {side}/NOUN",
-                f"@make a/DET quarter/NOUN turn/NOUN to/ADP the/DET {side}/NOUN"]
+        return [
+            f"@turn {side}/ADV",
+            f"@turn to/ADP the/DET {side}/NOUN",
+            f"@turn ninety/NUM degrees/NOUN to/ADP the/DET {side}/NOUN",
+            f"@turn to/ADP {{their}} {side}/NOUN",
+            f"@make a/DET quarter/NOUN turn/NOUN to/ADP the/DET {side}/NOUN",
+        ]
     way = "counterclockwise" if side == "left" else "clockwise"
-    return [f"@turn around/ADV to/ADP the/DET {side}/NOUN",
-            f"@turn around/ADV over/ADP {{their}} {side}/ADJ shoulder/NOUN",
-            f"@turn one/NUM hundred/NUM and/CCONJ eighty/NUM degrees/NOUN to/ADP the/DET {side}/NOUN",
-            f"@make a/DET half/ADJ turn/NOUN to/ADP the/DET {side}/NOUN",
-            f"@turn around/ADV {way}/ADV"]
+    return [
+        f"@turn around/ADV to/ADP the/DET {side}/NOUN",
+        f"@turn around/ADV over/ADP {{their}} {side}/ADJ shoulder/NOUN",
+        f"@turn one/NUM hundred/NUM and/CCONJ eighty/NUM degrees/NOUN to/ADP the/DET {side}/NOUN",
+        f"@make a/DET half/ADJ turn/NOUN to/ADP the/DET {side}/NOUN",
+        f"@turn around/ADV {way}/ADV",
+    ]
 
 
 TURN_FAMILY = ActionFamily(
-    "turn", motion=turn, phrases=turn_phrases,
-    draw=lambda r: {"side": draw_choice(r, SIDES), "angle": draw_choice(r, (45, 90, 180), (1, 3, 2))})
+    "turn",
+    motion=turn,
+    phrases=turn_phrases,
+    draw=lambda r: {"side": draw_choice(r, SIDES), "angle": draw_choice(r, (45, 90, 180), (1, 3, 2))},
+)
 
 
-ACTION_FAMILIES = (WALK_FAMILY, WALK_BACKWARDS_FAMILY, WALK_CIRCLE_FAMILY, JOG_FAMILY, RUN_FAMILY, SIDESTEP_FAMILY, TURN_FAMILY)
+ACTION_FAMILIES = (
+    WALK_FAMILY,
+    WALK_BACKWARDS_FAMILY,
+    WALK_CIRCLE_FAMILY,
+    JOG_FAMILY,
+    RUN_FAMILY,
+    SIDESTEP_FAMILY,
+    TURN_FAMILY,
+)

@@ -74,16 +74,16 @@ def kick(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[P
     for _ in range(p["count"]):
         keys_ankle += [(now + chamber, knee_up), (now + chamber + snap, out), (now + each, knee_up)]
         keys_pitch += [(now + chamber, 0.9), (now + chamber + snap, -0.3 if high else 0.3), (now + each, 0.9)]
-        keys_lean += [(now + chamber, -0.05), (now + chamber + snap, -0.25 if high else -0.1),
-                      (now + each, -0.05)]
+        keys_lean += [(now + chamber, -0.05), (now + chamber + snap, -0.25 if high else -0.1), (now + each, -0.05)]
         now += each
     keys_ankle.append((now + down_time, home))
     keys_pitch.append((now + down_time, FOOT_PITCH))
     keys_lean.append((now + down_time, 0.0))
     program.ankles[:, kicker] = keyframes(frames, keys_ankle)
     program.foot_pitch[:, kicker] = keyframes(frames, keys_pitch)
-    weight = keyframes(frames, [(0, 0.0), (shift_time, 1.0), (now + down_time, 1.0),
-                            (now + down_time + shift_time, 0.0)])
+    weight = keyframes(
+        frames, [(0, 0.0), (shift_time, 1.0), (now + down_time, 1.0), (now + down_time + shift_time, 0.0)]
+    )
     toward = -SIGN[kicker] * (0.5 * body.step_width + 0.01) * leftward(state.yaw)
     program.pelvis += weight[:, None] * toward
     program.pelvis[:, 1] -= 0.03 * body.scale * weight
@@ -104,16 +104,25 @@ def kick_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     side, n, height = p["side"], p["count"], p["height"]
     times = times_phrase(n, rng, optional_once=True)
     kicks = f"a/DET {height}/ADJ kick/NOUN" if n == 1 else f"two/NUM {height}/ADJ kicks/NOUN"
-    return [f"@kick {height}/ADV with/ADP {{their}} {side}/ADJ leg/NOUN {times}",
-            f"@kick {{their}} {side}/ADJ leg/NOUN {height}/ADV {times}",
-            f"@kick forward/ADV {height}/ADV with/ADP the/DET {side}/ADJ foot/NOUN {times}",
-            f"@do {kicks} with/ADP {{their}} {side}/ADJ leg/NOUN",
-            f"@lift {{their}} {side}/ADJ knee/NOUN and/CCONJ @kick forward/ADV {height}/ADV {times}"]
+    return [
+        f"@kick {height}/ADV with/ADP {{their}} {side}/ADJ leg/NOUN {times}",
+        f"@kick {{their}} {side}/ADJ leg/NOUN {height}/ADV {times}",
+        f"@kick forward/ADV {height}/ADV with/ADP the/DET {side}/ADJ foot/NOUN {times}",
+        f"@do {kicks} with/ADP {{their}} {side}/ADJ leg/NOUN",
+        f"@lift {{their}} {side}/ADJ knee/NOUN and/CCONJ @kick forward/ADV {height}/ADV {times}",
+    ]
 
 
 KICK_FAMILY = ActionFamily(
-    "kick", motion=kick, phrases=kick_phrases,
-    draw=lambda r: {"side": draw_choice(r, SIDES), "height": draw_choice(r, ("low", "high")), "count": draw_count(r, 1, 2)})
+    "kick",
+    motion=kick,
+    phrases=kick_phrases,
+    draw=lambda r: {
+        "side": draw_choice(r, SIDES),
+        "height": draw_choice(r, ("low", "high")),
+        "count": draw_count(r, 1, 2),
+    },
+)
 
 
 def squat(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -146,14 +155,21 @@ def squat_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     times = times_phrase(n, rng, optional_once=True)
     adjective = "deep/ADJ" if deep else "shallow/ADJ"
     squats = f"a/DET {adjective} squat/NOUN" if n == 1 else f"{number_word(n)} {adjective} squats/NOUN"
-    return [f"@squat down/ADP {how} {times}", f"@squat {how} {times}", f"@do {squats}",
-            f"@squat down/ADP {how} and/CCONJ @stand back/ADV up/ADP {times}",
-            f"@bend {{their}} knees/NOUN and/CCONJ @squat {how} {times}"]
+    return [
+        f"@squat down/ADP {how} {times}",
+        f"@squat {how} {times}",
+        f"@do {squats}",
+        f"@squat down/ADP {how} and/CCONJ @stand back/ADV up/ADP {times}",
+        f"@bend {{their}} knees/NOUN and/CCONJ @squat {how} {times}",
+    ]
 
 
 SQUAT_FAMILY = ActionFamily(
-    "squat", motion=squat, phrases=squat_phrases,
-    draw=lambda r: {"count": draw_count(r, 1, 3), "depth": draw_choice(r, ("shallow", "deep"))})
+    "squat",
+    motion=squat,
+    phrases=squat_phrases,
+    draw=lambda r: {"count": draw_count(r, 1, 3), "depth": draw_choice(r, ("shallow", "deep"))},
+)
 
 
 def bow(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -179,14 +195,19 @@ def bow_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     deep = p["depth"] == "deep"
     how = choose(rng, ("deeply/ADV", "low/ADV")) if deep else "slightly/ADV"
     adjective = "deep/ADJ" if deep else choose(rng, ("small/ADJ", "slight/ADJ"))
-    return [f"@bow {how}", f"@take a/DET {adjective} bow/NOUN", f"@bow forward/ADV {how}",
-            f"@bend forward/ADV {how} at/ADP the/DET waist/NOUN",
-            f"@bow {how} and/CCONJ @stand back/ADV up/ADP", f"@give a/DET {adjective} bow/NOUN"]
+    return [
+        f"@bow {how}",
+        f"@take a/DET {adjective} bow/NOUN",
+        f"@bow forward/ADV {how}",
+        f"@bend forward/ADV {how} at/ADP the/DET waist/NOUN",
+        f"@bow {how} and/CCONJ @stand back/ADV up/ADP",
+        f"@give a/DET {adjective} bow/NOUN",
+    ]
 
 
 BOW_FAMILY = ActionFamily(
-    "bow", motion=bow, phrases=bow_phrases,
-    draw=lambda r: {"depth": draw_choice(r, ("slight", "deep"))})
+    "bow", motion=bow, phrases=bow_phrases, draw=lambda r: {"depth": draw_choice(r, ("slight", "deep"))}
+)
 
 
 def sit_down(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -197,14 +218,22 @@ def sit_down(body: Body, state: State, p: dict, rng: np.random.Generator) -> tup
 
 def sit_down_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     slowly = "slowly/ADV" if p["speed"] == "slow" else ""
-    return [f"@sit down/ADP {slowly}", f"@sit down/ADP on/ADP a/DET chair/NOUN {slowly}",
-            f"@sit {slowly} down/ADP on/ADP a/DET seat/NOUN", f"@take a/DET seat/NOUN {slowly}",
-            f"@lower {{themselves}} {slowly} onto/ADP a/DET chair/NOUN"]
+    return [
+        f"@sit down/ADP {slowly}",
+        f"@sit down/ADP on/ADP a/DET chair/NOUN {slowly}",
+        f"@sit {slowly} down/ADP on/ADP a/DET seat/NOUN",
+        f"@take a/DET seat/NOUN {slowly}",
+        f"@lower {{themselves}} {slowly} onto/ADP a/DET chair/NOUN",
+    ]
 
 
 SIT_DOWN_FAMILY = ActionFamily(
-    "sit_down", motion=sit_down, phrases=sit_down_phrases, seated_after=True,
-    draw=lambda r: {"speed": draw_choice(r, ("slow", "normal"))})
+    "sit_down",
+    motion=sit_down,
+    phrases=sit_down_phrases,
+    seated_after=True,
+    draw=lambda r: {"speed": draw_choice(r, ("slow", "normal"))},
+)
 
 
 def stand_up(body: Body, state: State, p: dict, rng: np.random.Generator) -> tuple[Program, State]:
@@ -215,15 +244,23 @@ def stand_up(body: Body, state: State, p: dict, rng: np.random.Generator) -> tup
 
 def stand_up_phrases(p: dict, rng: np.random.Generator) -> list[str]:
     slowly = "slowly/ADV" if p["speed"] == "slow" else ""
-    return [f"@stand up/ADP {slowly}", f"@get up/ADP {slowly}",
-            f"@stand up/ADP from/ADP the/DET chair/NOUN {slowly}",
-            f"@get up/ADP from/ADP {{their}} seat/NOUN {slowly}",
-            f"@rise {slowly} from/ADP the/DET chair/NOUN", f"@rise to/ADP {{their}} feet/NOUN {slowly}"]
+    return [
+        f"@stand up/ADP {slowly}",
+        f"@get up/ADP {slowly}",
+        f"@stand up/ADP from/ADP the/DET chair/NOUN {slowly}",
+        f"@get up/ADP from/ADP {{their}} seat/NOUN {slowly}",
+        f"@rise {slowly} from/ADP the/DET chair/NOUN",
+        f"@rise to/ADP {{their}} feet/NOUN {slowly}",
+    ]
 
 
 STAND_UP_FAMILY = ActionFamily(
-    "stand_up", motion=stand_up, phrases=stand_up_phrases, seated_before=True,
-    draw=lambda r: {"speed": draw_choice(r, ("slow", "normal"))})
+    "stand_up",
+    motion=stand_up,
+    phrases=stand_up_phrases,
+    seated_before=True,
+    draw=lambda r: {"speed": draw_choice(r, ("slow", "normal"))},
+)
 
 
 ACTION_FAMILIES = (KICK_FAMILY, SQUAT_FAMILY, BOW_FAMILY, SIT_DOWN_FAMILY, STAND_UP_FAMILY)
