@@ -119,20 +119,25 @@ def _report_problems(directory: Path, problems: list[str], what: str) -> None:
 
 
 def _data(args: argparse.Namespace) -> None:
-    from pipelines.corpora import CORPUS_SKELETONS
+    from m2d2m.plugins import plugins_for_workers
+    from orchestration.registry import load_plugins
+    from pipelines.corpora import corpus
     from pipelines.dataset import check_dataset
     from pipelines.features import DataConfig, build_dataset, print_summary, require_replaceable, reusable_dataset
 
     if args.check:
         _report_problems(Path(args.check), check_dataset(Path(args.check)), "counts, checksums and schema")
         return
-    if args.dataset not in CORPUS_SKELETONS:
-        raise UserError(f"unknown dataset {args.dataset!r}; choose one of {', '.join(CORPUS_SKELETONS)}")
+    load_plugins()  # a plugin may register the corpus
+    try:
+        layout = corpus(args.dataset).layout.name
+    except ValueError as error:
+        raise UserError(str(error)) from error
     raw = Path(args.raw or f"data/raw/{args.dataset}")
     out = Path(args.out or f"data/{args.dataset}")
     if not raw.exists():
         if args.dataset != "synthetic":
-            raise UserError(f"{raw}: no such corpus; pass --raw /path/to/{args.dataset} (HumanML3D layout)")
+            raise UserError(f"{raw}: no such corpus; pass --raw /path/to/{args.dataset} ({layout} layout)")
         _synthesize(
             argparse.Namespace(out=str(raw), clips=2000, seed=0, families=None, workers=args.workers, force=False)
         )
@@ -145,6 +150,7 @@ def _data(args: argparse.Namespace) -> None:
         max_frames=args.max_frames,
         workers=args.workers,
         ray_address=args.ray_address,
+        plugins=plugins_for_workers(),
     )
     existing = None if args.force else reusable_dataset(config)
     if existing is not None:
@@ -429,7 +435,9 @@ def _add_ray_address(parser: argparse.ArgumentParser) -> None:
 
 def _add_data(verbs) -> None:
     data = verbs.add_parser("data", help="preprocess a corpus into WebDataset shards with Ray Data")
-    data.add_argument("--dataset", default="synthetic", help="synthetic, humanml3d or kit")
+    data.add_argument(
+        "--dataset", default="synthetic", help="synthetic, humanml3d, kit, or a corpus a plugin registers"
+    )
     data.add_argument("--raw", help="raw corpus directory (default data/raw/<dataset>)")
     data.add_argument("--out", help="output directory (default data/<dataset>)")
     data.add_argument("--workers", type=_positive_int, default=2, help="Ray tasks in parallel")

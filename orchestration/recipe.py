@@ -11,8 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+from m2d2m.plugins import plugins_for_workers
 from orchestration.errors import UserError
-from orchestration.registry import ModelEntry, load_plugins, model, plugins_for_workers
+from orchestration.registry import ModelEntry, load_plugins, model
 from orchestration.runs import enter_project, read_run_info
 from orchestration.tracking import tracking_uri
 from orchestration.train import OpenedRun, export_snapshots, finish, fit, open_run, records_failure

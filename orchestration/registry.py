@@ -6,26 +6,20 @@ the command line reach a model only through its entry here and its generator's p
 
 Entries name code as ``"module:attribute"`` and load it on first use: listing the models (the
 command line does) imports neither torch nor Lightning. Models outside this repository register
-themselves from a plugin module named in ``M2D2M_PLUGINS`` (comma-separated; ``M2D2M_MODELS``,
-its older name, is read too), imported on first use; the same modules may register metrics
-(:mod:`m2d2m.evaluation.sequence_metrics`). Ray trials and workers import the same plugins as
-their driver (:func:`plugins_for_workers`).
+themselves from a plugin module (:mod:`m2d2m.plugins`: named in ``M2D2M_PLUGINS``), imported
+on first use; the same modules may register metrics and corpora. Ray trials and workers import
+the same plugins as their driver (:func:`m2d2m.plugins.plugins_for_workers`).
 """
 
 from __future__ import annotations
 
 import importlib
-import os
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
+from m2d2m.plugins import import_plugins
 from orchestration.errors import UserError
-
-PLUGINS_VARIABLE = "M2D2M_PLUGINS"
-OLD_PLUGINS_VARIABLE = "M2D2M_MODELS"  # its name when plugins could only add models, still read
 
 
 @dataclass(frozen=True)
@@ -55,7 +49,6 @@ class ModelEntry:
 
 
 _MODELS: dict[str, ModelEntry] = {}
-_loaded_plugins: list[str] = []
 DEFAULT_MODEL = "m2d2m"  # what --model means when not given: the project's own
 
 
@@ -128,33 +121,11 @@ register(
 
 
 def load_plugins(modules: list[str] | None = None, paths: Sequence[str] = ()) -> list[str]:
-    """Import the plugin modules (default: those named in ``M2D2M_PLUGINS`` and ``M2D2M_MODELS``)
-    once each, looking in ``paths`` too; returns every plugin imported so far."""
-    if modules is None:
-        named = ",".join(os.environ.get(variable, "") for variable in (PLUGINS_VARIABLE, OLD_PLUGINS_VARIABLE))
-        modules = list(dict.fromkeys(m.strip() for m in named.split(",") if m.strip()))
-    sys.path.extend(path for path in paths if path not in sys.path)
-    for name in modules:
-        if name in _loaded_plugins:
-            continue
-        try:
-            importlib.import_module(name)
-        except ImportError as error:
-            raise UserError(f"{PLUGINS_VARIABLE}: cannot import the plugin {name!r} ({error})") from error
-        _loaded_plugins.append(name)
-    return list(_loaded_plugins)
-
-
-def plugins_for_workers() -> dict[str, list[str]]:
-    """What another process (a Ray trial or worker) needs to import this process's plugins:
-    ``load_plugins(**plugins_for_workers())`` there registers the same models."""
-    modules = load_plugins()
-    paths = []
-    for name in modules:
-        origin = Path(sys.modules[name].__file__).resolve()
-        root = origin.parents[name.count(".") + (origin.name == "__init__.py")]
-        paths.append(str(root))
-    return {"modules": modules, "paths": list(dict.fromkeys(paths))}
+    """:func:`m2d2m.plugins.import_plugins`, a plugin that cannot be imported a one-line error."""
+    try:
+        return import_plugins(modules, paths)
+    except ImportError as error:
+        raise UserError(str(error)) from error
 
 
 def models() -> dict[str, ModelEntry]:

@@ -25,9 +25,10 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from m2d2m.plugins import plugins_for_workers
 from orchestration.config import apply_overrides, flatten, load_config
 from orchestration.errors import UserError
-from orchestration.registry import DEFAULT_MODEL, load_plugins, model, plugins_for_workers
+from orchestration.registry import DEFAULT_MODEL, load_plugins, model
 from orchestration.runs import enter_project, stage_dir
 from orchestration.tracking import client as tracking_client
 from orchestration.tracking import experiment_name, finishing, start_run, tracking_uri

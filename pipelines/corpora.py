@@ -1,16 +1,20 @@
-"""Readers for the corpora in HumanML3D's layout (HumanML3D, KIT-ML, the synthetic corpus) and
-the validation every input passes before it becomes a sample.
+"""The corpora ``m2d2m data`` reads, by name (:class:`Corpus`: a skeleton, frame bounds and a
+:class:`CorpusLayout`), the readers of HumanML3D's layout (HumanML3D, KIT-ML, the synthetic
+corpus), and the validation every input passes before it becomes a sample.
 
-A corpus directory holds ``joints/<id>.npy`` (T, J, 3) or ``new_joint_vecs/<id>.npy`` (T, D),
-``texts/<id>.txt`` and the split files ``train.txt``, ``val.txt``, ``test.txt``. Every problem
-with an input is raised as :class:`Rejected` with the stage and a reason a person can act on;
-the pipeline turns it into a line of ``quarantine.jsonl``, so nothing is dropped silently.
+A corpus in HumanML3D's layout holds ``joints/<id>.npy`` (T, J, 3) or ``new_joint_vecs/<id>.npy``
+(T, D), ``texts/<id>.txt`` and the split files ``train.txt``, ``val.txt``, ``test.txt``. Another
+layout is a plugin's :class:`CorpusLayout` registered with :func:`register_corpus`
+(docs/architecture.md, "How to add a corpus"). Every problem with an input is raised as
+:class:`Rejected` with the stage and a reason a person can act on; the pipeline turns it into a
+line of ``quarantine.jsonl``, so nothing is dropped silently.
 """
 
 from __future__ import annotations
 
 import math
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,9 +24,6 @@ import numpy as np
 from m2d2m.motion.skeleton import KIT, T2M, Skeleton
 
 SPLITS = ("train", "val", "test")
-CORPUS_SKELETONS: dict[str, Skeleton] = {"synthetic": T2M, "humanml3d": T2M, "kit": KIT}
-# HumanML3D's loaders keep 40 ≤ T < 200 feature frames; KIT-ML's keep 24 ≤ T < 200.
-DEFAULT_FRAME_BOUNDS: dict[str, tuple[int, int]] = {"synthetic": (40, 200), "humanml3d": (40, 200), "kit": (24, 200)}
 
 
 class Rejected(Exception):
@@ -147,3 +148,66 @@ def load_captions(row: dict[str, Any]) -> list[dict[str, Any]]:
         except ValueError as error:
             raise Rejected("validate", f"caption line {number}: {error}") from error
     return captions
+
+
+def never_mirrored(rows: list[dict[str, Any]]) -> bool:
+    """A layout whose corpora never ship mirrors: the pipeline makes them."""
+    return False
+
+
+@dataclass(frozen=True)
+class CorpusLayout:
+    """How a corpus on disk becomes inputs. ``list_rows(raw)`` gives one JSON-able row per input,
+    in split then file order, each with ``id``, ``split`` (one of :data:`SPLITS`) and ``kind``
+    (``joints``: (T, J, 3) positions in metres, or ``features``: (T, D)), and whatever the readers
+    need; rows travel to the Ray tasks as JSON. ``read_motion(row, skeleton)`` and
+    ``read_captions(row)`` (dicts of text, tokens as ``word/POS``, start and end seconds) raise
+    :class:`Rejected` for an input that cannot become a sample. ``ships_mirrors(rows)``: whether
+    the corpus lists its own mirrors, so the pipeline makes none."""
+
+    name: str
+    list_rows: Callable[[str | Path], list[dict[str, Any]]]
+    read_motion: Callable[[dict[str, Any], Skeleton], np.ndarray]
+    read_captions: Callable[[dict[str, Any]], list[dict[str, Any]]]
+    ships_mirrors: Callable[[list[dict[str, Any]]], bool] = never_mirrored
+
+
+HUMANML3D_LAYOUT = CorpusLayout("humanml3d", list_corpus, load_motion, load_captions, corpus_ships_mirrors)
+
+
+@dataclass(frozen=True)
+class Corpus:
+    """A dataset ``m2d2m data --dataset NAME`` builds: its skeleton, the feature frames a sample
+    may have (``minimum ≤ T < maximum``, overridable by ``--min-frames``/``--max-frames``) and its layout."""
+
+    name: str
+    skeleton: Skeleton
+    frame_bounds: tuple[int, int]
+    layout: CorpusLayout = HUMANML3D_LAYOUT
+
+
+_CORPORA: dict[str, Corpus] = {}
+
+
+def register_corpus(corpus: Corpus) -> Corpus:
+    """Add (or replace) a corpus; a plugin module calls this when it is imported."""
+    _CORPORA[corpus.name] = corpus
+    return corpus
+
+
+def corpora() -> dict[str, Corpus]:
+    """Every registered corpus, by name."""
+    return dict(_CORPORA)
+
+
+def corpus(name: str) -> Corpus:
+    """The corpus ``name``, or ValueError listing those there are."""
+    if name not in _CORPORA:
+        raise ValueError(f"unknown dataset {name!r}; choose one of {', '.join(_CORPORA)}")
+    return _CORPORA[name]
+
+
+# HumanML3D's loaders keep 40 ≤ T < 200 feature frames; KIT-ML's keep 24 ≤ T < 200.
+register_corpus(Corpus("synthetic", T2M, (40, 200)))
+register_corpus(Corpus("humanml3d", T2M, (40, 200)))
+register_corpus(Corpus("kit", KIT, (24, 200)))

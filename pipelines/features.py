@@ -21,7 +21,7 @@ import subprocess
 from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,17 +33,8 @@ from m2d2m.layout import MANIFEST, NLP, QUARANTINE, SHARDS, STATS
 from m2d2m.motion.normalization import Normalizer, RunningMoments, group_averaged_std
 from m2d2m.motion.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
 from m2d2m.motion.skeleton import Skeleton
-from pipelines.corpora import (
-    CORPUS_SKELETONS,
-    DEFAULT_FRAME_BOUNDS,
-    SPLITS,
-    FrameBounds,
-    Rejected,
-    corpus_ships_mirrors,
-    list_corpus,
-    load_captions,
-    load_motion,
-)
+from m2d2m.plugins import import_plugins
+from pipelines.corpora import SPLITS, Corpus, CorpusLayout, FrameBounds, Rejected, corpus
 from pipelines.dataset import encode_sample, reason_kind, stage_counts, summary_table
 from pipelines.language import SMALL_MODEL, decompose, parse_tagged_tokens, train_tagger
 from pipelines.shards import SCHEMA_VERSION, ShardWriter, shard_records, write_json_atomically
@@ -64,20 +55,26 @@ class DataConfig:
     tagger_captions: int = 6000  # a tagger trains in ~30 s on 6,000 captions (2 cores)
     seed: int = 0
     ray_address: str | None = None
+    # the plugins the Ray tasks import (m2d2m.plugins.plugins_for_workers), for a plugin's corpus
+    plugins: dict[str, list[str]] = field(default_factory=dict)
+
+    @property
+    def corpus(self) -> Corpus:
+        return corpus(self.dataset)
 
     @property
     def skeleton(self) -> Skeleton:
-        return CORPUS_SKELETONS[self.dataset]
+        return self.corpus.skeleton
 
     @property
     def bounds(self) -> FrameBounds:
-        low, high = DEFAULT_FRAME_BOUNDS[self.dataset]
+        low, high = self.corpus.frame_bounds
         return FrameBounds(self.min_frames or low, self.max_frames or high)
 
     def recorded(self) -> dict[str, Any]:
         """The config as the manifest stores it: what determines the output, not where it ran."""
         record = asdict(self)
-        for key in ("out", "workers", "ray_address"):
+        for key in ("out", "workers", "ray_address", "plugins"):
             record.pop(key)
         record["raw"] = str(Path(self.raw).resolve())
         record["min_frames"], record["max_frames"] = self.bounds.minimum, self.bounds.maximum
@@ -135,13 +132,13 @@ def _to_features(motion: np.ndarray, kind: str, skeleton: Skeleton, bounds: Fram
 
 
 def process_motion(
-    row: dict[str, Any], skeleton: Skeleton, bounds: FrameBounds, make_mirror: bool
+    row: dict[str, Any], layout: CorpusLayout, skeleton: Skeleton, bounds: FrameBounds, make_mirror: bool
 ) -> list[dict[str, Any]]:
     """One corpus row → its sample (and mirror), or one quarantine record saying why not."""
     try:
-        motion = load_motion(row, skeleton)
+        motion = layout.read_motion(row, skeleton)
         features = _to_features(motion, row["kind"], skeleton, bounds)
-        captions = load_captions(row)
+        captions = layout.read_captions(row)
         samples = [_sample(row["id"], row["id"], features, captions, skeleton.fps, False)]
         if make_mirror:
             joints = motion if row["kind"] == "joints" else features_to_joints(motion, skeleton)
@@ -211,7 +208,8 @@ def plan_shards(rows: list[dict[str, Any]], samples_per_shard: int, make_mirror:
 def write_shard(task: dict[str, Any], config: DataConfig, make_mirror: bool) -> dict[str, Any]:
     """Process one shard's inputs and write the shard (a Ray task): returns only what the driver
     needs — the shard's record, counts, partial train statistics, quarantine and tagged captions."""
-    skeleton, bounds = config.skeleton, config.bounds
+    import_plugins(**config.plugins)  # a plugin's corpus is registered in this process too
+    layout, skeleton, bounds = config.corpus.layout, config.skeleton, config.bounds
     split = task["split"]
     counts = SplitCounts()
     moments = RunningMoments(skeleton.feature_dim)
@@ -222,7 +220,7 @@ def write_shard(task: dict[str, Any], config: DataConfig, make_mirror: bool) -> 
     with writer:
         for row in task["rows"]:
             counts.inputs_seen += 1
-            for record in process_motion(row, skeleton, bounds, make_mirror):
+            for record in process_motion(row, layout, skeleton, bounds, make_mirror):
                 if record["status"] == "quarantined":
                     counts.quarantined += 1
                     quarantine.append(
@@ -439,8 +437,9 @@ def build_dataset(config: DataConfig, replace_other: bool = False) -> dict[str, 
 def _build(config: DataConfig) -> dict[str, Any]:
     """Every stage, writing ``config.out`` (a fresh directory); the manifest last."""
     skeleton, raw, out = config.skeleton, Path(config.raw).resolve(), Path(config.out).resolve()
-    rows = list_corpus(raw)
-    make_mirror = not corpus_ships_mirrors(rows)
+    layout = config.corpus.layout
+    rows = layout.list_rows(raw)
+    make_mirror = not layout.ships_mirrors(rows)
 
     counts = {split: SplitCounts() for split in SPLITS}
     shards: dict[str, list[dict[str, Any]]] = {split: [] for split in SPLITS}

@@ -214,3 +214,52 @@ def test_kit_layout_gives_251_dimensional_samples_at_12_5_fps(tmp_path, ray_loca
     sample = read_split(tmp_path / "out", "train")[0]
     assert sample["motion.npy"].shape[1] == 251 and sample["meta.json"]["fps"] == 12.5
     assert check_dataset(tmp_path / "out") == []
+
+
+def test_a_corpus_layout_registered_from_outside_goes_through_data_into_shards(built, tmp_path, monkeypatch):
+    """tests/fake_corpus.py reads the same clips from one .npz each: `m2d2m data --dataset npz-clips`
+    (Ray tasks importing the plugin) writes the same samples as the HumanML3D-layout build."""
+    from m2d2m.plugins import import_plugins
+
+    root, raw, ids, bad, config, manifest = built
+    monkeypatch.setenv("M2D2M_PLUGINS", "tests.fake_corpus")
+    monkeypatch.setattr("m2d2m.plugins._imported", [])
+    import_plugins()
+    npz = tmp_path / "npz"
+    for split in ("train", "val", "test"):
+        (npz / split).mkdir(parents=True)
+        for clip_id in ids[split]:
+            captions = (raw / "texts" / f"{clip_id}.txt").read_text(encoding="utf-8").splitlines()
+            np.savez(
+                npz / split / f"{clip_id}.npz",
+                joints=np.load(raw / "joints" / f"{clip_id}.npy"),
+                captions=np.array(captions),
+            )
+    out = tmp_path / "out"
+    assert (
+        main(
+            [
+                "data",
+                "--dataset",
+                "npz-clips",
+                "--raw",
+                str(npz),
+                "--out",
+                str(out),
+                "--samples-per-shard",
+                "5",
+                "--workers",
+                "2",
+            ]
+        )
+        == 0
+    )
+    assert check_dataset(out) == []
+    for split in ("train", "val", "test"):
+        built_here = {sample["__key__"]: sample for sample in read_split(out, split)}
+        from_humanml3d_layout = {sample["__key__"]: sample for sample in read_split(root / "out", split)}
+        assert sorted(built_here) == sorted(from_humanml3d_layout)
+        for key, sample in built_here.items():
+            np.testing.assert_array_equal(sample["motion.npy"], from_humanml3d_layout[key]["motion.npy"])
+            assert sample["meta.json"]["captions"] == from_humanml3d_layout[key]["meta.json"]["captions"]
+    assert main(["data", "--dataset", "nope", "--raw", str(npz)]) == 2

@@ -240,7 +240,7 @@ def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow
     # the plugin is imported afresh by the registry, and its metric leaves with this test
     monkeypatch.setattr(sequence_metrics, "_REGISTERED", {})
     monkeypatch.delitem(sys.modules, "tests.fake_metric", raising=False)
-    monkeypatch.setattr("orchestration.registry._loaded_plugins", [])
+    monkeypatch.setattr("m2d2m.plugins._imported", [])
     monkeypatch.chdir(trained_project)
     monkeypatch.setenv("M2D2M_PLUGINS", "tests.fake_model,tests.fake_metric")
     load_plugins()
