@@ -39,6 +39,19 @@ def save_playback(path: Path, clips: dict[str, np.ndarray]) -> Path:
     return path
 
 
+def playback_of(testset_path: Path, path: Path) -> tuple[Path, dict[str, np.ndarray]]:
+    """A model file that plays back every item of a test set by its sentence, and its clips."""
+    from pipelines.testset import load_testset
+
+    testset = load_testset(testset_path)
+    clips = {
+        item.action: testset.features(instance.index, p)
+        for instance in testset
+        for p, item in enumerate(instance.items)
+    }
+    return save_playback(path, clips), clips
+
+
 class PlaybackGenerator(MotionGenerator):
     model = NAME
     sampling = SAMPLING

@@ -246,15 +246,10 @@ def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow
     load_plugins()
     assert [metric.name for metric in sequence_metrics.sequence_metrics()] == ["root_travel"]
     from tests.fake_metric import root_travel
-    from tests.fake_model import save_playback
+    from tests.fake_model import playback_of
 
+    model_file, clips = playback_of(tiny_testset, trained_project / "playback-metric.npz")
     testset = load_testset(tiny_testset)
-    clips = {
-        item.action: testset.features(instance.index, p)
-        for instance in testset
-        for p, item in enumerate(instance.items)
-    }
-    model_file = save_playback(trained_project / "playback-metric.npz", clips)
     expected = []  # what playback lays end to end for each instance, measured by hand
     for instance in testset:
         pieces = []

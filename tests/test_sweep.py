@@ -163,20 +163,13 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     """The registry and the generator protocol are all that evaluation and sweeps know of a model:
     a plugin's playback model (tests/fake_model.py) runs through both unchanged."""
     from orchestration.registry import load_plugins, models
-    from pipelines.testset import load_testset
-    from tests.fake_model import save_playback
+    from tests.fake_model import playback_of
 
     monkeypatch.chdir(trained_project)
     monkeypatch.setenv("M2D2M_MODELS", "tests.fake_model")
     load_plugins()
     assert "playback" in models()
-    testset = load_testset(tiny_testset)
-    clips = {
-        item.action: testset.features(instance.index, p)
-        for instance in testset
-        for p, item in enumerate(instance.items)
-    }
-    model_file = save_playback(trained_project / "playback.npz", clips)
+    model_file, _ = playback_of(tiny_testset, trained_project / "playback.npz")
 
     assert (
         main(

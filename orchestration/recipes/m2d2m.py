@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
-from orchestration.train import OpenedRun
 
 
 def _sampling(config: dict[str, Any]) -> dict[str, Any]:
@@ -38,21 +37,6 @@ class M2D2MRecipe(TokenRecipe):
             vocabulary=data.vocabulary,
             text_drop=config["text_drop"],
         )
-
-    def callbacks(self, run: OpenedRun, data: TokenTraining) -> list:
-        from training.callbacks import TokenSamplePreview
-
-        preview = run.config["preview"]
-        return [
-            TokenSamplePreview(
-                run.run_dir / "previews",
-                data.vq_path,
-                preview["prompts"],
-                preview["seconds"],
-                every=run.config["trainer"]["gif_every"],
-                guidance=preview["guidance"],
-            )
-        ]
 
     def save(
         self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any, extra: dict[str, Any]

@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
-from orchestration.train import OpenedRun
 
 
 class MMMRecipe(TokenRecipe):
@@ -29,20 +28,6 @@ class MMMRecipe(TokenRecipe):
             vocabulary=data.vocabulary,
             text_drop=config["text_drop"],
         )
-
-    def callbacks(self, run: OpenedRun, data: TokenTraining) -> list:
-        from training.callbacks import TokenSamplePreview
-
-        preview = run.config["preview"]
-        return [
-            TokenSamplePreview(
-                run.run_dir / "previews",
-                data.vq_path,
-                preview["prompts"],
-                preview["seconds"],
-                every=run.config["trainer"]["gif_every"],
-            )
-        ]
 
     def save(
         self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any, extra: dict[str, Any]

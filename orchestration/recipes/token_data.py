@@ -13,7 +13,7 @@ import torch
 
 from m2d2m.motion.body_parts import FULL, LOWER, UPPER
 from orchestration.recipe import Recipe, TrainingData, caption_vocabulary
-from orchestration.train import ensure_tokens, validation_interval, vq_file
+from orchestration.train import OpenedRun, ensure_tokens, validation_interval, vq_file
 
 
 class TokenRecipe(Recipe):
@@ -22,6 +22,16 @@ class TokenRecipe(Recipe):
     def prepare(self, config: dict[str, Any]) -> None:
         """The tokens every trial of a training sweep reads, made once by the sweep's driver."""
         ensure_tokens(vq_file(config["vq"], config["dataset"]))
+
+    def callbacks(self, run: OpenedRun, data: TrainingData) -> list:
+        """Preview GIFs of ``preview.prompts``, sampled with the section's other keys as knobs
+        (M2D2M's ``guidance``) and decoded by the run's VQ-VAE."""
+        from training.callbacks import TokenSamplePreview
+
+        preview = dict(run.config["preview"])
+        prompts, seconds = preview.pop("prompts"), preview.pop("seconds")
+        every = run.config["trainer"]["gif_every"]
+        return [TokenSamplePreview(run.run_dir / "previews", data.vq_path, prompts, seconds, every=every, **preview)]
 
 
 class BodyTokenRecipe(Recipe):
