@@ -52,6 +52,23 @@ def playback_of(testset_path: Path, path: Path) -> tuple[Path, dict[str, np.ndar
     return save_playback(path, clips), clips
 
 
+def evaluate_playback(model_file: Path, testset: Path) -> list[str]:
+    """`m2d2m evaluate`'s arguments for a playback model file on a test set of the tiny dataset, once."""
+    return [
+        "evaluate",
+        "--model",
+        NAME,
+        "--checkpoint",
+        str(model_file),
+        "--dataset",
+        "tiny",
+        "--testset",
+        str(testset),
+        "--repeats",
+        "1",
+    ]
+
+
 class PlaybackGenerator(MotionGenerator):
     model = NAME
     sampling = SAMPLING

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import socket
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -228,3 +229,9 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return probe.getsockname()[1]
+
+
+def latest_evaluation(project: Path) -> Path:
+    """The run directory of the newest finished `m2d2m evaluate` on the tiny dataset of ``project``."""
+    stage = project / "runs" / "tiny" / "eval"
+    return stage / (stage / "latest").read_text(encoding="utf-8").strip()

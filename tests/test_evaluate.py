@@ -16,6 +16,7 @@ from m2d2m.generators.m2d2m import M2D2MGenerator
 from orchestration.cli import main
 from orchestration.reports import MULTI_COLUMNS, SINGLE_COLUMNS
 from pipelines.testset import build_testset
+from tests.helpers import latest_evaluation
 
 METHODS = ("tps", "slerp")
 
@@ -42,8 +43,7 @@ def evaluated(trained_project, tiny_testset) -> Path:
         "4",
     ]
     assert main(arguments) == 0
-    stage = trained_project / "runs" / "tiny" / "eval"
-    return stage / (stage / "latest").read_text(encoding="utf-8").strip()
+    return latest_evaluation(trained_project)
 
 
 def mlflow_client(trained_project: Path) -> mlflow.MlflowClient:
@@ -175,8 +175,7 @@ def test_single_motion_alone_with_fewer_steps_and_the_no_multi_switch(trained_pr
         "8",
     ]
     assert main(arguments) == 0
-    stage = trained_project / "runs" / "tiny" / "eval"
-    run_dir = stage / (stage / "latest").read_text(encoding="utf-8").strip()
+    run_dir = latest_evaluation(trained_project)
     table = json.loads((run_dir / "table.json").read_text(encoding="utf-8"))
     assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction"}
     assert np.isfinite(table["single"]["generated"]["fid"]["mean"]) and table["settings"]["multi"] is False
@@ -246,7 +245,7 @@ def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow
     load_plugins()
     assert [metric.name for metric in sequence_metrics.sequence_metrics()] == ["root_travel"]
     from tests.fake_metric import root_travel
-    from tests.fake_model import playback_of
+    from tests.fake_model import evaluate_playback, playback_of
 
     model_file, clips = playback_of(tiny_testset, trained_project / "playback-metric.npz")
     testset = load_testset(tiny_testset)
@@ -258,26 +257,8 @@ def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow
             pieces.append(stored[np.minimum(np.arange(frames), len(stored) - 1)])
         expected.append(root_travel(features_to_joints(np.concatenate(pieces), SKELETONS["t2m"]), [], None))
 
-    assert (
-        main(
-            [
-                "evaluate",
-                "--model",
-                "playback",
-                "--checkpoint",
-                str(model_file),
-                "--dataset",
-                "tiny",
-                "--testset",
-                str(tiny_testset),
-                "--repeats",
-                "1",
-            ]
-        )
-        == 0
-    )
-    stage = trained_project / "runs" / "tiny" / "eval"
-    run_dir = stage / (stage / "latest").read_text(encoding="utf-8").strip()
+    assert main(evaluate_playback(model_file, tiny_testset)) == 0
+    run_dir = latest_evaluation(trained_project)
     table = json.loads((run_dir / "table.json").read_text(encoding="utf-8"))
     assert table["multi"]["concat"]["root_travel"]["mean"] == pytest.approx(np.mean(expected), rel=1e-5)
     assert table["multi"]["gt_concat"]["root_travel"]["mean"] > 0  # the ground truth joined, measured alike

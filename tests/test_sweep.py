@@ -16,6 +16,7 @@ import yaml
 from orchestration.cli import main
 from orchestration.errors import UserError
 from orchestration.sweep import SUMMARY_JSON, SUMMARY_MD, summary_plot, sweep, trial_name
+from tests.helpers import latest_evaluation
 
 SUMMARY_PNG = summary_plot("ts")
 M2D2M_DEMO = Path(__file__).resolve().parents[1] / "configs" / "m2d2m" / "demo.yaml"
@@ -163,7 +164,7 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     """The registry and the generator protocol are all that evaluation and sweeps know of a model:
     a plugin's playback model (tests/fake_model.py) runs through both unchanged."""
     from orchestration.registry import load_plugins, models
-    from tests.fake_model import playback_of
+    from tests.fake_model import evaluate_playback, playback_of
 
     monkeypatch.chdir(trained_project)
     monkeypatch.setenv("M2D2M_MODELS", "tests.fake_model")
@@ -171,27 +172,9 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     assert "playback" in models()
     model_file, _ = playback_of(tiny_testset, trained_project / "playback.npz")
 
-    assert (
-        main(
-            [
-                "evaluate",
-                "--model",
-                "playback",
-                "--checkpoint",
-                str(model_file),
-                "--dataset",
-                "tiny",
-                "--testset",
-                str(tiny_testset),
-                "--repeats",
-                "1",
-            ]
-        )
-        == 0
-    )
+    assert main(evaluate_playback(model_file, tiny_testset)) == 0
     assert "ground truth played back from frame 0" in capsys.readouterr().out
-    stage = trained_project / "runs" / "tiny" / "eval"
-    table = yaml.safe_load((stage / (stage / "latest").read_text().strip() / "table.json").read_text())
+    table = yaml.safe_load((latest_evaluation(trained_project) / "table.json").read_text())
     (judged,) = table["settings"]["candidates"]
     assert judged["model"] == "playback" and judged["methods"] == ["concat"]
     assert all(np.isfinite(summary["mean"]) for summary in table["multi"]["concat"].values())

@@ -15,7 +15,7 @@ import yaml
 from orchestration.cli import main
 from orchestration.recipe import train_model
 from orchestration.runs import latest_run, read_run_info
-from tests.helpers import TINY_MMM
+from tests.helpers import TINY_MMM, latest_evaluation
 
 
 @pytest.fixture(scope="module")
@@ -79,16 +79,10 @@ def test_mmm_trains_generates_and_is_evaluated_through_the_registry(trained_proj
         )
         == 0
     )
-    stage = trained_project / "runs" / "tiny" / "eval"
-    table = json.loads((stage / (stage / "latest").read_text().strip() / "table.json").read_text())
+    table = json.loads((latest_evaluation(trained_project) / "table.json").read_text())
     assert {"transition", "independent", "reconstruction"} <= set(table["multi"])
     assert table["multi"]["transition"]["jerk"]["mean"] is not None
     assert Path(table["settings"]["candidates"][0]["checkpoint"]) == (run_dir / "model.pt").resolve()
-
-
-def _latest_eval(project: Path) -> Path:
-    stage = project / "runs" / "tiny" / "eval"
-    return stage / (stage / "latest").read_text(encoding="utf-8").strip()
 
 
 def test_mmm_and_m2d2m_are_judged_in_one_table_and_one_mlflow_run(trained_project, tiny_testset, mmm_run):
@@ -121,7 +115,7 @@ def test_mmm_and_m2d2m_are_judged_in_one_table_and_one_mlflow_run(trained_projec
         )
         == 0
     )
-    run_dir = _latest_eval(trained_project)
+    run_dir = latest_evaluation(trained_project)
     table = json.loads((run_dir / "table.json").read_text())
     rows = ["m2d2m/tps", "m2d2m/independent", "mmm/transition", "mmm/independent"]
     assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction", *rows}

@@ -15,7 +15,7 @@ from m2d2m.motion.skeleton import T2M
 from m2d2m.networks.vqvae import load_vq
 from orchestration.cli import main
 from orchestration.runs import latest_run, read_run_info
-from tests.helpers import TINY_MMM, pose_clip
+from tests.helpers import TINY_MMM, latest_evaluation, pose_clip
 from training.data import BodyTokenDataModule, TokenDataModule
 
 TINY_BODY = {**TINY_MMM, "vq": {UPPER: "latest", LOWER: "latest"}, "masking": {"alpha": 0.5, "lower_most": 0.3}}
@@ -168,8 +168,7 @@ def test_the_editor_is_judged_in_the_editing_table_beside_a_text_to_motion_model
         )
         == 0
     )
-    stage = body_project / "runs" / "tiny" / "eval"
-    table = json.loads((stage / (stage / "latest").read_text().strip() / "table.json").read_text())
+    table = json.loads((latest_evaluation(body_project) / "table.json").read_text())
     assert set(table["multi"]) >= {"m2d2m/tps"} and not any(row.startswith("mmm-body") for row in table["multi"])
     assert "generated/mmm-body" not in table["single"]  # an editor has no single-motion row
     edits = {"m2d2m/inbetween/text", "m2d2m/inbetween/no_text", "mmm-body/upper/text", "mmm-body/upper/no_text"}

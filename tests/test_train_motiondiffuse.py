@@ -16,7 +16,7 @@ import yaml
 from orchestration.cli import main
 from orchestration.recipe import train_model
 from orchestration.runs import latest_run, read_run_info
-from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE
+from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE, latest_evaluation
 
 
 @pytest.fixture(scope="module")
@@ -142,8 +142,7 @@ def test_the_three_models_are_judged_in_one_evaluate_run(trained_project, tiny_t
         )
         == 0
     )
-    stage = trained_project / "runs" / "tiny" / "eval"
-    run_dir = stage / (stage / "latest").read_text().strip()
+    run_dir = latest_evaluation(trained_project)
     table = json.loads((run_dir / "table.json").read_text())
     rows = ["m2d2m/tps", "m2d2m/independent", "mmm/transition", "motiondiffuse/time-varied"]
     assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction", *rows}
