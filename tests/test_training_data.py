@@ -92,6 +92,24 @@ def test_clips_shorter_than_the_window_are_skipped_and_counted_once(dataset, cap
     assert sum("10 of 16 train clips are shorter" in record.message for record in caplog.records) == 1
 
 
+@pytest.mark.parametrize("workers", [0, 2])
+def test_the_training_stream_is_a_function_of_the_seed(dataset, workers):
+    """Two loaders of one config give the same batches, epoch after epoch (so training a config twice
+    trains the same model); another seed gives others. WebDataset's resampled mode and an unseeded
+    shuffle would seed from the clock."""
+
+    def batches(seed: int) -> list[np.ndarray]:
+        module = MotionWindowDataModule(dataset[0], window=64, batch_size=4, num_workers=workers, seed=seed)
+        loader = module.train_dataloader()
+        return [batch["motion"].numpy() for _ in range(2) for batch in loader]
+
+    first, again, other = batches(7), batches(7), batches(8)
+    assert len(first) == len(again) > 2
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    assert not all(np.array_equal(a, b) for a, b in zip(first, other))
+
+
 def test_a_window_no_clip_fills_is_refused(dataset):
     module = MotionWindowDataModule(dataset[0], window=500)
     with pytest.raises(ValueError, match="shorter window"):

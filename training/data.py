@@ -158,22 +158,19 @@ def resampled_batches(
     seed: int,
 ) -> wds.WebLoader:
     """Endless resampled shards split by rank and worker, cut to ``steps`` full batches an epoch,
-    so every DDP rank runs the same number of steps whatever its shards hold."""
-    # seed= only spares WebDataset a draw from the global random module: resampled mode ignores it.
-    dataset = (
-        wds.WebDataset(
-            urls,
-            resampled=True,
-            shardshuffle=False,
-            nodesplitter=wds.split_by_node,
-            workersplitter=wds.split_by_worker,
-            empty_check=False,
-            seed=seed,
-        )
-        .shuffle(shuffle_buffer)
-        .decode()
-        .map(prepare)
-        .batched(batch_size, collation_fn=collate, partial=False)
+    so every DDP rank runs the same number of steps whatever its shards hold. Every draw is a
+    function of ``seed`` (the shards' of it, the epoch, the rank and the worker), so training the
+    same config twice sees the same batches: ``wds.WebDataset(resampled=True)`` and an unseeded
+    ``.shuffle`` would seed from the clock and the process id."""
+    dataset = wds.DataPipeline(
+        wds.ResampledShards(urls, seed=seed, deterministic=True),
+        wds.split_by_node,
+        wds.split_by_worker,
+        wds.tarfile_to_samples(),
+        wds.shuffle(shuffle_buffer, seed=seed),
+        wds.decode(),
+        wds.map(prepare),
+        wds.batched(batch_size, collation_fn=collate, partial=False),
     )
     loader = wds.WebLoader(dataset, batch_size=None, num_workers=num_workers, persistent_workers=num_workers > 0)
     return loader.with_epoch(steps).with_length(steps, silent=True)  # __len__ for progress bars and schedulers
