@@ -165,8 +165,7 @@ def open_run(
     that ``join`` it (or find it in :data:`JOIN_RUN`) train the same thing."""
     join = join or (Path(os.environ[JOIN_RUN]) if os.environ.get(JOIN_RUN) else None)
     if join is not None:
-        info = read_run_info(join)
-        return OpenedRun(stage, join, info["config"], info.get("mlflow_run_id"), resume)
+        return _recorded(stage, join, read_run_info(join), resume, renamed)
     config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS, renamed)
     _check_settings(config)
     if not resume:
@@ -187,6 +186,14 @@ def open_run(
         raise UserError(f"{run_dir} already finished; start a new run instead of --resume")
     write_run_info(run_dir, status="running")
     _opened.append(run_dir)
+    return _recorded(stage, run_dir, info, resume, renamed)
+
+
+def _recorded(
+    stage: str, run_dir: Path, info: dict[str, Any], resume: bool | str, renamed: dict[str, str] | None
+) -> OpenedRun:
+    """A run that exists, with the config its run.json (``info``) records, keys of older names
+    ``renamed`` read under their new ones (for the process that resumes it and every rank that joins it)."""
     config = rename_keys(info["config"], renamed or {}, str(run_dir / "run.json"))
     return OpenedRun(stage, run_dir, config, info.get("mlflow_run_id"), resume)
 

@@ -72,6 +72,15 @@ def test_configs_written_before_a_key_was_renamed_read_under_the_new_name(tmp_pa
     assert load_config("m2d2m", str(path), ["text_drop=0.05"], renamed=renamed)["text_drop"] == 0.05
 
 
+def test_a_run_recorded_before_a_key_was_renamed_is_joined_under_the_new_name(tmp_path):
+    """Every DDP rank that joins a resumed run reads its record's older keys as the resuming one does."""
+    from orchestration.train import open_run
+
+    write_run_info(tmp_path, stage="m2d2m", config={"seed": 1, "denoiser": {"layers": 2, "condition_drop": 0.2}})
+    run = open_run("m2d2m", "m2d2m", "demo", [], True, join=tmp_path, renamed={"denoiser.condition_drop": "text_drop"})
+    assert run.config == {"seed": 1, "denoiser": {"layers": 2}, "text_drop": 0.2}
+
+
 @pytest.mark.parametrize("name", ["m2d2m", "mmm", "mmm-body", "motiondiffuse"])
 def test_every_renamed_key_is_renamed_to_a_key_of_the_models_configs(name):
     """A recipe's ``renamed`` maps old names onto the shipped configs' names, never to a key they lack."""

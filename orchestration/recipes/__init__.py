@@ -1,2 +1,2 @@
 """Training recipes, one per registered model: how its config becomes a DataModule, a
-LightningModule and a model file (orchestration/train.py says what a recipe provides)."""
+LightningModule and a model file (orchestration/recipe.py says what a recipe provides)."""
