@@ -417,6 +417,33 @@ def _ui(args: argparse.Namespace) -> None:
     print("stopped the MLflow UI and everything it started")
 
 
+def _serve(args: argparse.Namespace) -> None:
+    from orchestration.generate import DEFAULT_MAX_SECONDS
+    from orchestration.serving import check_port_free
+    from orchestration.web.app import ServeSettings
+    from orchestration.web.server import serve, server_token
+
+    token = server_token(args.host, args.token)
+    check_port_free(args.host, args.port)
+    settings = ServeSettings(
+        dataset=args.dataset,
+        token=token,
+        max_seconds=DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None,
+        queue=args.queue,
+        max_batch=args.max_batch,
+        device=args.device,
+        track=not args.no_track,
+        mlflow_ui=args.mlflow_ui,
+    )
+    host = f"[{args.host}]" if ":" in args.host else args.host
+    print(
+        f"m2d2m on http://{host}:{args.port}/ (the API's documentation: /docs); Ctrl-C or SIGTERM stops it",
+        flush=True,
+    )
+    serve(settings, args.host, args.port)
+    print("stopped: the requests in flight were answered")
+
+
 # ------------------------------------------------------------------------------------- parsers
 def _add_synthesize(verbs) -> None:
     synth = verbs.add_parser("synthesize", help="generate the embedded synthetic motion-language corpus")
@@ -778,6 +805,31 @@ def _add_ui(verbs) -> None:
     ui.set_defaults(run=_ui)
 
 
+def _add_serve(verbs) -> None:
+    from orchestration.web.server import TOKEN_VARIABLE
+
+    serve = verbs.add_parser("serve", help="a web page and an HTTP API for generating and comparing motions")
+    serve.add_argument("--port", type=_port, default=8000)
+    serve.add_argument(
+        "--host", default="127.0.0.1", help="127.0.0.1 (default) keeps it on this machine; another needs a token"
+    )
+    serve.add_argument("--token", help=f"what every API call must carry (default: ${TOKEN_VARIABLE})")
+    serve.add_argument("--dataset", default="synthetic", help="whose runs to serve (default synthetic)")
+    serve.add_argument(
+        "--max-seconds",
+        type=float,
+        help="refuse requests longer than this many seconds of motion (default 60; 0: no cap)",
+    )
+    serve.add_argument("--queue", type=_positive_int, default=64, help="requests that may wait (default 64)")
+    serve.add_argument(
+        "--max-batch", type=_positive_int, default=16, help="sequences sampled in one call at most (default 16)"
+    )
+    serve.add_argument("--device", default="cpu", help="cpu (default) or cuda")
+    serve.add_argument("--mlflow-ui", help="the MLflow UI's address for links to runs (default: make ui's)")
+    serve.add_argument("--no-track", action="store_true", help="do not log the generations to MLflow")
+    serve.set_defaults(run=_serve)
+
+
 def _add_viewers(verbs) -> None:
     for name, description, run in (
         ("render", "draw a motion as a stick-figure GIF or MP4", _render),
@@ -805,6 +857,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_evaluate,
         _add_sweep,
         _add_ui,
+        _add_serve,
         _add_viewers,
     ):
         add(verbs)

@@ -1,0 +1,277 @@
+"""The HTTP application: the page at ``/``, the API under ``/api`` (OpenAPI at ``/docs``).
+
+Every answer to a bad request is a 4xx JSON ``{"error": "one sentence"}``; an API call needs the
+server's token when it has one (``Authorization: Bearer <token>``, or ``?token=`` on a download
+link). ``POST /api/generate`` answers with the generation, or, asked for
+``application/x-ndjson``, streams ``{"queued": n}`` and ``{"progress": f}`` lines before it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import secrets
+import threading
+from collections.abc import AsyncIterator
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import asynccontextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from fastapi import APIRouter, Depends, FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
+from fastapi.staticfiles import StaticFiles
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from orchestration.errors import UserError
+from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
+from orchestration.web.catalog import Catalog, NotFound
+from orchestration.web.generations import FILES, Generations
+from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
+from orchestration.web.schema import GenerateRequest, plan_request
+
+STATIC = Path(__file__).parent / "static"
+NDJSON = "application/x-ndjson"
+MAX_BODY_BYTES = 1 << 20  # far above any request a person or a tool sends
+log = logging.getLogger("m2d2m.serve")
+
+
+@dataclass(frozen=True)
+class ServeSettings:
+    """How a server runs (`m2d2m serve`'s options)."""
+
+    dataset: str = "synthetic"
+    token: str | None = None
+    max_seconds: float | None = DEFAULT_MAX_SECONDS
+    queue: int = 64
+    max_batch: int = 16
+    gather_s: float = 0.02
+    device: str = "cpu"
+    track: bool = True
+    mlflow_ui: str | None = None
+
+
+class ApiError(Exception):
+    """An answer other than 200, with its one sentence."""
+
+    def __init__(self, status: int, message: str) -> None:
+        super().__init__(message)
+        self.status = status
+
+
+def _sentence(error: RequestValidationError) -> str:
+    """The first thing wrong with a request body, in one sentence: where, and what."""
+    first = error.errors()[0]
+    place = [str(part) for part in first.get("loc", ()) if part != "body"]
+    if first.get("type") == "json_invalid":
+        return "the body is not JSON: " + first.get("ctx", {}).get("error", "it does not parse")
+    if place[:1] == ["options"] and len(place) > 2:  # which of the union's members failed says nothing
+        return f"options.{place[1]}: a knob's value is a number, a text or null, got {first.get('input')!r}"
+    message = first.get("msg", "invalid").removeprefix("Value error, ")
+    return f"{'.'.join(place)}: {message}" if place else message
+
+
+class Service:
+    """The state one application holds: the models, the sampling thread, the generations."""
+
+    def __init__(self, settings: ServeSettings) -> None:
+        self.settings = settings
+        self.catalog = Catalog(settings.dataset, settings.device)
+        self.sampler = Sampler(settings.queue, settings.max_batch, settings.gather_s)
+        self.generations = Generations(settings.dataset, settings.track, mlflow_ui=settings.mlflow_ui)
+        # one writer to the run folders and MLflow's store, one painter of GIFs and MP4s
+        self.recorder = ThreadPoolExecutor(1, thread_name_prefix="m2d2m-recorder")
+        self.painter = ThreadPoolExecutor(1, thread_name_prefix="m2d2m-painter")
+        self._planners: dict[int, PromptPlanner] = {}
+        self._planning = threading.Lock()
+
+    def prepare(self, request: GenerateRequest) -> tuple[Job, list[str], str]:
+        """Load the model (once), plan the request, and make its job (a blocking call)."""
+        run, generator = self.catalog.generator(request.model, request.run)
+        with self._planning:  # spaCy's tagger and the planners' caches are not shared across threads
+            planner = self._planners.setdefault(id(generator), PromptPlanner(generator))
+            plan = plan_request(request, planner, self.settings.max_seconds)
+        job = Job(generator, (request.model, run, plan.options), plan.options, plan.actions, plan.frames, request.seed)
+        return job, plan.prompts, run
+
+    async def finish(self, job: Job, request: GenerateRequest, prompts: list[str], run: str) -> dict[str, Any]:
+        """The sampled motion on its rigid skeleton, recorded; the API's answer."""
+        try:
+            motion = (await asyncio.wrap_future(job.done)).on_rigid_skeleton()
+        except ValueError as error:  # the protocol's answer to a request a model cannot serve
+            raise UserError(str(error)) from error
+        describe = job.generator.describe(job.options)
+        generation = await asyncio.wrap_future(
+            self.recorder.submit(self.generations.record, motion, prompts, request.model, run, request.seed, describe)
+        )
+        return self.generations.describe(generation)
+
+    def close(self) -> None:
+        self.sampler.stop()
+        self.recorder.shutdown(wait=True)
+        self.painter.shutdown(wait=True)
+
+
+def create_app(settings: ServeSettings) -> FastAPI:
+    service = Service(settings)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        service.sampler.start()
+        try:
+            yield
+        finally:
+            service.close()
+
+    app = FastAPI(
+        title="m2d2m",
+        summary="Multi-action text to motion: M2D2M, MMM and MotionDiffuse behind one interface",
+        lifespan=lifespan,
+    )
+    app.state.service = service
+
+    def authorised(request: Request) -> None:
+        if settings.token is None:
+            return
+        given = request.headers.get("authorization", "").removeprefix("Bearer ").strip()
+        given = given or request.query_params.get("token", "")
+        if not secrets.compare_digest(given.encode(), settings.token.encode()):
+            raise ApiError(401, "this server needs its token: send Authorization: Bearer <token>")
+
+    api = APIRouter(prefix="/api", dependencies=[Depends(authorised)])
+
+    @api.get("/health", summary="Whether the server is up, and what it is doing")
+    def health() -> dict[str, Any]:
+        return {"status": "ok", "dataset": settings.dataset, **asdict(service.sampler.stats())}
+
+    @api.get("/models", summary="The models with a finished run: their runs, methods and knobs")
+    def list_models() -> dict[str, Any]:
+        return {"dataset": settings.dataset, "max_seconds": settings.max_seconds, "models": service.catalog.describe()}
+
+    @api.get("/models/{model}/runs/{run}", summary="A run's own sampling defaults and action lengths (loads it)")
+    async def run_details(model: str, run: str) -> dict[str, Any]:
+        return await run_in_threadpool(service.catalog.run_details, model, run)
+
+    @api.post(
+        "/generate",
+        summary="Several actions in a row with one model, method and seed",
+        responses={200: {"content": {NDJSON: {}}, "description": "the generation, or its progress and then it"}},
+    )
+    async def generate(body: GenerateRequest, request: Request) -> Any:
+        job, prompts, run = await run_in_threadpool(service.prepare, body)
+        events: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
+        loop = asyncio.get_running_loop()
+        job.listener = lambda event: loop.call_soon_threadsafe(events.put_nowait, event)
+        try:
+            service.sampler.submit(job)
+        except QueueFull as error:
+            raise ApiError(429, str(error)) from error
+        if NDJSON in request.headers.get("accept", ""):
+            return StreamingResponse(_stream(job, events, service.finish(job, body, prompts, run)), media_type=NDJSON)
+        return await _unless_disconnected(request, job, service.finish(job, body, prompts, run))
+
+    @api.get("/generations/{generation_id}", summary="A generation made by this server")
+    def generation(generation_id: str) -> dict[str, Any]:
+        return service.generations.describe(service.generations.get(generation_id))
+
+    @api.get(
+        "/generations/{generation_id}/{name}",
+        summary=f"A generation's file: {', '.join(FILES)} (an animation is drawn on first request)",
+        response_class=FileResponse,
+    )
+    async def generation_file(generation_id: str, name: str) -> FileResponse:
+        loop = asyncio.get_running_loop()
+        path = await loop.run_in_executor(service.painter, service.generations.file, generation_id, name)
+        return FileResponse(path, filename=f"{generation_id}-{name}")
+
+    app.include_router(api)
+    app.mount("/static", StaticFiles(directory=STATIC), name="static")
+
+    @app.get("/", include_in_schema=False)
+    def page() -> FileResponse:
+        return FileResponse(STATIC / "index.html")
+
+    _answer_errors_in_one_sentence(app)
+    return app
+
+
+async def _stream(job: Job, events: asyncio.Queue, finishing: Any) -> AsyncIterator[bytes]:
+    """NDJSON lines: the job's events, then ``{"result": ...}`` or ``{"error": ...}``. A client
+    that goes away cancels this generator (Starlette does), which cancels the job."""
+    try:
+        while (event := await events.get()) is not None:
+            yield _line(event)
+        try:
+            yield _line({"result": await finishing})
+        except (UserError, ValueError, Cancelled) as error:
+            yield _line({"error": str(error)})
+        except Exception as error:
+            log.exception("generation failed")
+            yield _line({"error": f"the generation failed on the server ({type(error).__name__}); see its log"})
+    finally:
+        job.cancel()
+        finishing.close()
+
+
+def _line(payload: dict[str, Any]) -> bytes:
+    return (json.dumps(payload, separators=(",", ":")) + "\n").encode()
+
+
+async def _unless_disconnected(request: Request, job: Job, finishing: Any) -> Any:
+    """``finishing``'s answer; a client that disconnects before it cancels the job."""
+    task = asyncio.ensure_future(finishing)
+    try:
+        while not task.done():
+            await asyncio.wait({task}, timeout=0.25)
+            if not task.done() and await request.is_disconnected():
+                job.cancel()
+        return task.result()
+    finally:
+        job.cancel()
+
+
+def _answer_errors_in_one_sentence(app: FastAPI) -> None:
+    """Every error a client can cause as ``{"error": "one sentence"}`` with its 4xx status."""
+
+    def answer(status: int, message: str) -> JSONResponse:
+        return JSONResponse({"error": message}, status_code=status)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(request: Request, error: RequestValidationError) -> JSONResponse:
+        return answer(422, _sentence(error))
+
+    @app.exception_handler(ApiError)
+    async def refused(request: Request, error: ApiError) -> JSONResponse:
+        return answer(error.status, str(error))
+
+    @app.exception_handler(NotFound)
+    async def not_found(request: Request, error: NotFound) -> JSONResponse:
+        return answer(404, str(error))
+
+    @app.exception_handler(UserError)
+    async def bad_request(request: Request, error: UserError) -> JSONResponse:
+        return answer(400, str(error))
+
+    @app.exception_handler(Cancelled)
+    async def cancelled(request: Request, error: Cancelled) -> JSONResponse:
+        return answer(499, str(error))
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request: Request, error: StarletteHTTPException) -> JSONResponse:
+        return answer(error.status_code, str(error.detail))
+
+    @app.exception_handler(Exception)
+    async def unexpected(request: Request, error: Exception) -> JSONResponse:
+        log.exception("unexpected error on %s", request.url.path)
+        return answer(500, f"the server failed ({type(error).__name__}); its log says more")
+
+    @app.middleware("http")
+    async def bounded_body(request: Request, call_next: Any) -> Any:
+        length = request.headers.get("content-length")
+        if length is not None and (not length.isdigit() or int(length) > MAX_BODY_BYTES):
+            return answer(413, f"a request body may hold at most {MAX_BODY_BYTES} bytes")
+        return await call_next(request)

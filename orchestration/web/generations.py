@@ -1,0 +1,167 @@
+"""The server's generations by id: each one a generate run folder (``runs/<dataset>/generate/<id>/``,
+as `m2d2m generate` writes) and an MLflow run, its files downloaded by id and name.
+
+The joints ``.npy`` with its JSON sidecar, the features and the BVH are written with the motion;
+the GIF and MP4 take seconds to draw, so each is drawn when it is first asked for and then added
+to the run's artifacts. Only names from :data:`FILES` are served, looked up among the files of a
+generation this server made: no request value becomes a path.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from m2d2m.motion.clip import Motion
+from orchestration.generate import GENERATE_STAGE, Output, save_generation
+from orchestration.runs import write_run_info
+from orchestration.tracking import client, ensure_experiment, experiment_name, tracking_uri
+from orchestration.web.catalog import NotFound
+
+STEM = "motion"
+WRITTEN = ("npy", "bvh")  # with the motion; the animations on demand
+DRAWN = ("gif", "mp4")
+# the name a client asks for → the format that makes it (the sidecar and features come with npy)
+FILES = {
+    f"{STEM}.bvh": "bvh",
+    f"{STEM}.npy": "npy",
+    f"{STEM}.json": "npy",
+    f"{STEM}.features.npy": "npy",
+    f"{STEM}.gif": "gif",
+    f"{STEM}.mp4": "mp4",
+}
+FILE_KEYS = {"bvh": "bvh", "npy": "npy", "json": "json", "features": "features.npy", "gif": "gif", "mp4": "mp4"}
+
+
+@dataclass
+class Generation:
+    """One served generation: the motion, where its files are, how it was made."""
+
+    id: str
+    directory: Path
+    motion: Motion
+    model: str
+    run: str
+    seed: int
+    describe: str
+    mlflow_run_id: str | None
+    experiment_id: str | None
+    drawing: threading.Lock = field(default_factory=threading.Lock)
+
+
+def mlflow_ui_base(given: str | None) -> str | None:
+    """Where a person opens an MLflow run: ``given``, else the tracking server when there is one,
+    else `make ui`'s address."""
+    if given is not None:
+        return given.rstrip("/") or None
+    uri = tracking_uri()
+    return uri.rstrip("/") if uri.startswith("http") else "http://127.0.0.1:5000"
+
+
+class Generations:
+    """The generations this server made, the newest ``capacity`` kept for download (older ones stay
+    in their run folders and in MLflow)."""
+
+    def __init__(self, dataset: str, track: bool = True, capacity: int = 1000, mlflow_ui: str | None = None) -> None:
+        self.dataset = dataset
+        self.track = track
+        self.capacity = capacity
+        self.mlflow_ui = mlflow_ui_base(mlflow_ui) if track else None
+        self._kept: OrderedDict[str, Generation] = OrderedDict()
+        self._lock = threading.Lock()
+        self._experiment_id: str | None = None
+
+    def record(
+        self, motion: Motion, prompts: Sequence[str], model: str, run: str, seed: int, describe: str
+    ) -> Generation:
+        """Write the motion's files into a new generate run and log it to MLflow (a blocking call)."""
+        files, mlflow_run_id = save_generation(motion, Output(None, STEM, WRITTEN), prompts, self.dataset, self.track)
+        directory = files["npy"].parent
+        if mlflow_run_id is not None and self._experiment_id is None:
+            self._experiment_id = ensure_experiment(experiment_name(self.dataset, GENERATE_STAGE))
+        generation = Generation(
+            directory.name, directory, motion, model, run, seed, describe, mlflow_run_id, self._experiment_id
+        )
+        with self._lock:
+            self._kept[generation.id] = generation
+            while len(self._kept) > self.capacity:
+                self._kept.popitem(last=False)
+        return generation
+
+    def get(self, generation_id: str) -> Generation:
+        with self._lock:
+            if generation_id not in self._kept:
+                raise NotFound(f"no generation {generation_id!r} on this server")
+            return self._kept[generation_id]
+
+    def file(self, generation_id: str, name: str) -> Path:
+        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation is drawn
+        on first request (a blocking call) and logged to the generation's MLflow run."""
+        generation = self.get(generation_id)
+        if name not in FILES:
+            raise NotFound(f"no file {name!r}; a generation has {', '.join(FILES)}")
+        path = generation.directory / name
+        if FILES[name] in DRAWN:
+            with generation.drawing:
+                if not path.exists():
+                    self._draw(generation, FILES[name])
+        if not path.is_file():
+            raise NotFound(f"generation {generation_id} has no {name} any more (its run folder was changed)")
+        return path
+
+    def _draw(self, generation: Generation, kind: str) -> None:
+        from orchestration.generate import plan_output
+
+        plan_output(None, STEM, [kind])  # an MP4 needs an encoder: a one-line error when there is none
+        (path,) = generation.motion.save(generation.directory, STEM, (kind,)).values()
+        write_run_info(generation.directory, **{f"file_{kind}": str(path)})
+        if generation.mlflow_run_id is not None:
+            client().log_artifact(generation.mlflow_run_id, str(path), artifact_path="motion")
+
+    def describe(self, generation: Generation) -> dict[str, Any]:
+        """The API's answer for a generation: the joints, the actions, the files' URLs, the run."""
+        motion = generation.motion
+        url = f"/api/generations/{generation.id}"
+        return {
+            "id": generation.id,
+            "model": generation.model,
+            "run": generation.run,
+            "method": motion.settings.get("method"),
+            "seed": generation.seed,
+            "describe": generation.describe,
+            "settings": {key: _plain(value) for key, value in motion.settings.items()},
+            "fps": motion.fps,
+            "skeleton": motion.skeleton_name,
+            "parents": [int(parent) for parent in motion.skeleton.parents],
+            # 10 µm steps: far below what a body shows, a third of the bytes; the .npy is exact
+            "joints": motion.joints.astype(np.float64).round(5).tolist(),
+            "actions": [{"text": text, "first": first, "end": end} for first, end, text in motion.segments],
+            "boundaries": motion.boundaries,
+            "seconds": motion.seconds,
+            "quality": motion.quality,
+            "files": {key: f"{url}/{STEM}.{suffix}" for key, suffix in FILE_KEYS.items()},
+            "mlflow": {
+                "run_id": generation.mlflow_run_id,
+                "experiment": experiment_name(self.dataset, GENERATE_STAGE),
+                "url": (
+                    f"{self.mlflow_ui}/#/experiments/{generation.experiment_id}/runs/{generation.mlflow_run_id}"
+                    if self.mlflow_ui and generation.mlflow_run_id
+                    else None
+                ),
+            },
+        }
+
+
+def _plain(value: Any) -> Any:
+    """A settings value as JSON has it (a NumPy number or a tuple as Python's own)."""
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
+    return value.item() if hasattr(value, "item") else str(value)

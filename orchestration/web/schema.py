@@ -1,0 +1,96 @@
+"""What a client may send to ``POST /api/generate``, and how it becomes one sequence to sample.
+
+The bounds here are the ones no model changes (lengths of texts and lists, the seed's range);
+everything that depends on the model — its methods and knobs, the seconds an action may last, the
+length cap — is checked by the same code as `m2d2m generate` (:class:`~orchestration.generate.PromptPlanner`,
+:func:`~orchestration.generate.check_length`, the model's declared knobs), so the page, the API
+and the command line accept and refuse the same requests.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StrictStr, model_validator
+
+from orchestration.errors import UserError
+from orchestration.generate import PromptPlanner, check_length
+from orchestration.registry import DEFAULT_MODEL
+from orchestration.web.catalog import LATEST_RUN
+
+MAX_TEXT = 500  # characters of one action's sentence
+MAX_PROMPT = 2000  # characters of a free prompt, split into actions by its verbs
+MAX_ACTIONS = 32
+MAX_SEED = 2**31 - 1
+
+
+class Action(BaseModel):
+    """One action: its sentence and, optionally, its length (none: the corpus's typical length)."""
+
+    model_config = ConfigDict(extra="forbid")
+    text: str = Field(min_length=1, max_length=MAX_TEXT, description="the action in one sentence")
+    seconds: float | None = Field(None, allow_inf_nan=False, description="its length; none: the typical length")
+
+
+class GenerateRequest(BaseModel):
+    """Several actions in a row (``actions``), or one free sentence split by its verbs as `m2d2m
+    generate` splits a prompt (``prompt``, with ``seconds`` for the whole)."""
+
+    model_config = ConfigDict(extra="forbid", protected_namespaces=())
+    model: str = Field(DEFAULT_MODEL, max_length=64, description="a model of GET /api/models")
+    run: str = Field(LATEST_RUN, max_length=64, description="one of the model's runs, or latest")
+    actions: list[Action] | None = Field(None, min_length=1, max_length=MAX_ACTIONS)
+    prompt: str | None = Field(None, min_length=1, max_length=MAX_PROMPT)
+    seconds: float | None = Field(None, allow_inf_nan=False, description="the prompt's length")
+    method: str | None = Field(None, max_length=64, description="the multi-action method; none: the model's default")
+    options: dict[str, StrictInt | StrictFloat | StrictStr | None] = Field(
+        default_factory=dict, max_length=32, description="sampling knobs by name (GET /api/models lists them)"
+    )
+    seed: int = Field(0, ge=0, le=MAX_SEED)
+
+    @model_validator(mode="after")
+    def _one_way_of_asking(self) -> GenerateRequest:
+        if (self.actions is None) == (self.prompt is None):
+            raise ValueError("give either actions (a list of sentences with seconds) or one prompt")
+        if self.seconds is not None and self.prompt is None:
+            raise ValueError("seconds goes with prompt; give each action its own seconds")
+        return self
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A request made concrete for one generator: the action sentences, their frames, the options."""
+
+    actions: list[str]
+    frames: list[int]
+    options: Any
+    prompts: list[str]  # what the user typed, for the run's record
+
+
+def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: float | None) -> Plan:
+    """The request as `m2d2m generate` would sample it: a list of actions as prompts given with
+    ``--no-split`` (each its own seconds or the typical length), a prompt split by its verbs; a
+    UserError in one sentence for anything this model cannot do."""
+    generator = planner.generator
+    if request.prompt is not None:
+        prompts = [request.prompt]
+        actions, frames = planner.plan(prompts, None if request.seconds is None else [request.seconds], split=True)
+    else:
+        prompts, actions, frames = [], [], []
+        for action in request.actions or ():
+            if not action.text.strip():
+                raise UserError("an action's text is empty")
+            texts, lengths = planner.plan([action.text], None if action.seconds is None else [action.seconds], False)
+            prompts.append(action.text)
+            actions += texts
+            frames += lengths
+    check_length(frames, generator.fps, max_seconds)
+    changes = dict(request.options)
+    if request.method is not None:
+        changes["method"] = request.method
+    try:
+        options = generator.options(**changes)
+    except ValueError as error:
+        raise UserError(str(error)) from error
+    return Plan(actions, frames, options, prompts)

@@ -1,0 +1,308 @@
+"""`m2d2m serve`'s HTTP API on the tiny trained project: every endpoint, a 4xx sentence for every
+kind of bad input, the token rule, the same motion as `m2d2m generate`, concurrent requests
+sampled in one batch, a client that leaves cancelling its work, SIGTERM finishing what is in flight."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import httpx
+import numpy as np
+import psutil
+import pytest
+from fastapi.testclient import TestClient
+
+from m2d2m.generators.m2d2m_options import SAMPLING
+from m2d2m.motion.skeleton import T2M
+from orchestration.cli import main
+from orchestration.errors import UserError
+from orchestration.web.app import STATIC, ServeSettings, create_app
+from orchestration.web.server import server_token
+from tests.helpers import free_port
+from tests.live_server import live_server
+from tests.test_export import bvh_forward_kinematics, in_skeleton_order, parse_bvh
+
+ACTIONS = [{"text": "a person walks forward", "seconds": 1.6}, {"text": "a person jumps", "seconds": 1.2}]
+NDJSON = {"Accept": "application/x-ndjson"}
+
+
+@pytest.fixture(scope="module")
+def client(trained_project):
+    with TestClient(create_app(ServeSettings(dataset="tiny"))) as client:
+        yield client
+
+
+def generate(client, **body) -> dict:
+    answer = client.post("/api/generate", json={"actions": ACTIONS, "options": {"ts": 4}, **body})
+    assert answer.status_code == 200, answer.text
+    return answer.json()
+
+
+def ndjson(text: str) -> list[dict]:
+    return [json.loads(line) for line in text.splitlines()]
+
+
+def test_models_lists_the_finished_runs_and_the_declared_knobs(client, trained_project):
+    listed = client.get("/api/models").json()
+    assert listed["dataset"] == "tiny" and listed["max_seconds"] == 60.0
+    (m2d2m,) = listed["models"]  # the only model the tiny project trained
+    latest = (trained_project / "runs/tiny/m2d2m/latest").read_text().strip()
+    assert m2d2m["name"] == "m2d2m" and m2d2m["runs"] == [{"id": latest, "label": f"{latest} (latest)", "latest": True}]
+    assert m2d2m["methods"] == list(SAMPLING.methods) and m2d2m["default_method"] == "tps"
+    declared = {knob.name: {**asdict(knob), "choices": knob.choices and list(knob.choices)} for knob in SAMPLING.knobs()}
+    assert {knob.pop("name"): knob for knob in m2d2m["knobs"]} == {
+        name: {**{k: v for k, v in knob.items() if k != "name"}, "default": getattr(SAMPLING.presets["multi"], name)}
+        for name, knob in declared.items()
+    }
+    details = client.get(f"/api/models/m2d2m/runs/{latest}").json()
+    assert details["id"] == latest and details["fps"] == 20.0 and details["seconds"] == [0.2, 4.8]
+    assert {knob["name"] for knob in details["knobs"]} == set(declared)
+
+
+def test_a_generation_is_the_motion_m2d2m_generate_makes(client, trained_project, capsys):
+    result = generate(client, seed=3, method="independent")
+    out = trained_project / "cli-equal"
+    code = main(
+        ["generate", *(a["text"] for a in ACTIONS), "--seconds", "1.6", "1.2", "--no-split", "--method", "independent"]
+        + ["--ts", "4", "--seed", "3", "--dataset", "tiny", "--out", str(out), "--formats", "npy", "bvh", "--no-track"]
+    )
+    assert code == 0, capsys.readouterr().err
+    assert result["actions"] == [
+        {"text": "a person walks forward", "first": 0, "end": 32},
+        {"text": "a person jumps", "first": 32, "end": 56},
+    ]
+    assert result["boundaries"] == [32] and result["fps"] == 20.0 and result["parents"] == T2M.parents.tolist()
+    served = {}
+    for name in ("motion.npy", "motion.features.npy", "motion.bvh", "motion.json"):
+        answer = client.get(result["files"][name.removeprefix("motion.").removesuffix(".npy") or "npy"])
+        assert answer.status_code == 200, name
+        served[name] = answer.content
+    for name, mine in (("motion.npy", "motion.npy"), ("motion.features.npy", "motion.features.npy")):
+        (trained_project / "served.npy").write_bytes(served[name])
+        assert np.array_equal(np.load(trained_project / "served.npy"), np.load(out / mine))
+    assert served["motion.bvh"] == (out / "motion.bvh").read_bytes()
+    joints = np.load(out / "motion.npy")
+    assert np.abs(np.array(result["joints"]) - joints).max() <= 5e-6  # the JSON's 10-µm steps
+    assert json.loads(served["motion.json"]) == json.loads((out / "motion.json").read_text())
+
+
+def test_a_prompt_is_split_by_its_verbs_as_the_command_line_splits_it(client, trained_project, capsys):
+    prompt = "a person walks forward and then jumps"
+    result = generate(client, actions=None, prompt=prompt, seconds=3.0)
+    assert main(["generate", prompt, "--seconds", "3", "--ts", "4", "--dataset", "tiny", "--out", str(trained_project / "p"), "--formats", "npy", "--no-track"]) == 0
+    printed = capsys.readouterr().out
+    assert [a["text"] for a in result["actions"]] == ["a person walks forward", "a person jumps"]
+    assert all(a["text"] in printed for a in result["actions"])
+    assert np.abs(np.array(result["joints"]) - np.load(trained_project / "p/motion.npy")).max() <= 5e-6
+
+
+def test_streaming_sends_the_queue_and_progress_then_the_result(client):
+    answer = client.post("/api/generate", json={"actions": ACTIONS, "options": {"ts": 4}}, headers=NDJSON)
+    assert answer.status_code == 200 and answer.headers["content-type"].startswith("application/x-ndjson")
+    lines = ndjson(answer.text)
+    assert lines[0] == {"queued": 1}
+    progress = [line["progress"] for line in lines if "progress" in line]
+    assert progress == sorted(progress) and 0 < progress[0] and progress[-1] == 1.0
+    assert set(lines[-1]) == {"result"} and len(lines[-1]["result"]["joints"]) == 56
+
+
+def test_downloads_are_by_id_and_name_the_bvh_parses_and_the_gif_is_drawn_on_demand(client, trained_project):
+    result = generate(client, seed=5)
+    directory = trained_project / "runs/tiny/generate" / result["id"]
+    assert json.loads((directory / "run.json").read_text())["status"] == "finished"
+    assert not (directory / "motion.gif").exists()
+    gif = client.get(result["files"]["gif"])
+    assert gif.status_code == 200 and gif.content[:6] == b"GIF89a" and (directory / "motion.gif").exists()
+    bvh_answer = client.get(result["files"]["bvh"])
+    (trained_project / "served.bvh").write_bytes(bvh_answer.content)
+    bvh = parse_bvh(trained_project / "served.bvh")
+    positions, _ = bvh_forward_kinematics(bvh)
+    joints = np.array(result["joints"])
+    assert np.abs(positions[:, in_skeleton_order(bvh, T2M)] - joints).max() < 1e-3  # millimetres
+    import mlflow
+
+    mlflow.set_tracking_uri(f"sqlite:///{trained_project / 'mlflow.db'}")
+    names = {Path(a.path).name for a in mlflow.MlflowClient().list_artifacts(result["mlflow"]["run_id"], "motion")}
+    assert {"motion.npy", "motion.bvh", "motion.json", "motion.gif"} <= names
+    assert result["mlflow"]["url"].endswith(f"/runs/{result['mlflow']['run_id']}")
+    for path in (
+        f"/api/generations/{result['id']}/run.json",
+        f"/api/generations/{result['id']}/..%2F..%2Fm2d2m%2Flatest",
+        "/api/generations/..%2F..%2F..%2Fmlflow.db/motion.npy",
+        "/api/generations/20990101-000000-abcd/motion.npy",
+    ):
+        answer = client.get(path)
+        assert answer.status_code == 404 and set(answer.json()) == {"error"}, path
+
+
+LONG = "a person " + "walks " * 1700
+
+
+@pytest.mark.parametrize(
+    "body, status, message",
+    [
+        ({"model": "nope"}, 404, "unknown model 'nope'; this server has m2d2m"),
+        ({"run": "../../mlflow.db"}, 404, "m2d2m has no finished run '../../mlflow.db'"),
+        ({"options": {"temperature": 1}}, 400, "m2d2m has no sampling option 'temperature'"),
+        ({"options": {"eta": "high"}}, 400, "option eta must be a finite number, got 'high'"),
+        ({"options": {"eta": [1]}}, 422, "options.eta: a knob's value is a number, a text or null, got [1]"),
+        ({"options": {"eta": True}}, 422, "options.eta: a knob's value is a number, a text or null"),
+        ({"options": {"eta": -1}}, 400, "option eta must be >= 0, got -1"),
+        ({"options": {"ts": 9}}, 400, "T_s must lie in 0..T = 8"),
+        ({"method": "blend"}, 400, "unknown method 'blend' for m2d2m"),
+        ({"actions": None}, 422, "give either actions"),
+        ({"actions": []}, 422, "actions: List should have at least 1 item"),
+        ({"actions": [{"text": "a person jumps", "seconds": 0}]}, 400, "0 s for 'a person jumps' is outside"),
+        ({"actions": [{"text": "a person jumps", "seconds": 600}]}, 400, "600 s for 'a person jumps' is outside"),
+        ({"actions": [{"text": LONG}]}, 422, "actions.0.text: String should have at most 500 characters"),
+        ({"actions": [{"text": "   "}]}, 400, "an action's text is empty"),
+        ({"actions": [{"text": "a person jumps", "seconds": 4}] * 16}, 400, "over the 60-s cap"),
+        ({"prompt": "a person jumps"}, 422, "give either actions"),
+        ({"seconds": 3}, 422, "seconds goes with prompt"),
+        ({"seed": -1}, 422, "seed: Input should be greater than or equal to 0"),
+        ({"speed": 2}, 422, "speed: Extra inputs are not permitted"),
+    ],
+)
+def test_bad_input_is_a_4xx_with_one_sentence(client, body, status, message):
+    answer = client.post("/api/generate", json={"actions": ACTIONS, **body})
+    assert answer.status_code == status, answer.text
+    assert set(answer.json()) == {"error"} and message in answer.json()["error"]
+    assert "\n" not in answer.json()["error"] and "Traceback" not in answer.text
+
+
+def test_a_body_that_is_not_json_or_too_large_is_a_4xx(client):
+    answer = client.post("/api/generate", content=b"{not json", headers={"content-type": "application/json"})
+    assert answer.status_code == 422 and answer.json()["error"].startswith("the body is not JSON")
+    answer = client.post("/api/generate", content=b" " * (2 << 20), headers={"content-type": "application/json"})
+    assert answer.status_code == 413 and "at most" in answer.json()["error"]
+    assert client.get("/api/nothing-here").status_code == 404
+
+
+def test_health_and_the_page_and_the_documentation(client):
+    health = client.get("/api/health").json()
+    assert health["status"] == "ok" and {"queued", "running", "served", "batches", "cancelled"} <= set(health)
+    page = client.get("/")
+    assert page.status_code == 200 and '<script src="/static/player.js"' in page.text
+    for name in ("index.html", "app.js", "player.js", "style.css"):  # nothing from another origin
+        text = (STATIC / name).read_text(encoding="utf-8")
+        assert not re.search(r"(src|href)\s*=\s*[\"']?(https?:)?//|@import|url\(\s*['\"]?https?:", text), name
+    assert client.get("/openapi.json").json()["paths"].keys() >= {"/api/generate", "/api/models", "/api/health"}
+    assert client.get("/docs").status_code == 200
+
+
+def test_a_token_guards_every_api_call_and_only_loopback_goes_without(trained_project, monkeypatch):
+    with TestClient(create_app(ServeSettings(dataset="tiny", token="s3cret-token"))) as client:
+        assert client.get("/api/health").status_code == 401
+        assert client.get("/api/models", headers={"Authorization": "Bearer wrong-token"}).status_code == 401
+        answer = client.post("/api/generate", json={"actions": ACTIONS})
+        assert answer.status_code == 401 and "token" in answer.json()["error"]
+        good = {"Authorization": "Bearer s3cret-token"}
+        assert client.get("/api/health", headers=good).status_code == 200
+        result = client.post("/api/generate", json={"actions": ACTIONS, "options": {"ts": 4}}, headers=good).json()
+        assert client.get(result["files"]["bvh"]).status_code == 401
+        assert client.get(result["files"]["bvh"] + "?token=s3cret-token").status_code == 200
+        assert client.get("/").status_code == 200  # the page itself holds nothing; it asks for the token
+    monkeypatch.delenv("M2D2M_SERVE_TOKEN", raising=False)
+    assert server_token("127.0.0.1", None) is None
+    with pytest.raises(UserError, match="--host 0.0.0.0 opens the API beyond this machine"):
+        server_token("0.0.0.0", None)
+    monkeypatch.setenv("M2D2M_SERVE_TOKEN", "from-the-environment")
+    assert server_token("0.0.0.0", None) == "from-the-environment"
+    assert server_token("0.0.0.0", "given-on-the-line") == "given-on-the-line"
+
+
+def test_serving_beyond_loopback_without_a_token_is_one_line_and_exit_2(trained_project, capsys, monkeypatch):
+    monkeypatch.delenv("M2D2M_SERVE_TOKEN", raising=False)
+    assert main(["serve", "--host", "0.0.0.0", "--port", str(free_port()), "--dataset", "tiny"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "give --token or set M2D2M_SERVE_TOKEN" in err
+
+
+def test_concurrent_requests_are_sampled_in_one_batch_each_as_it_would_be_alone(trained_project):
+    seeds = [11, 12, 13, 14]
+    alone = {}
+    with live_server(ServeSettings(dataset="tiny", gather_s=0.0, track=False)) as (base, app):
+        for seed in seeds:
+            alone[seed] = httpx.post(f"{base}/api/generate", json={"actions": ACTIONS, "options": {"ts": 4}, "seed": seed}, timeout=60).json()
+        assert app.state.service.sampler.stats().largest_batch == 1
+    with live_server(ServeSettings(dataset="tiny", gather_s=1.0, track=False)) as (base, app):
+        answers: dict[int, dict] = {}
+
+        def ask(seed: int) -> None:
+            body = {"actions": ACTIONS, "options": {"ts": 4}, "seed": seed}
+            answers[seed] = httpx.post(f"{base}/api/generate", json=body, timeout=60).json()
+
+        threads = [threading.Thread(target=ask, args=(seed,)) for seed in seeds]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        stats = app.state.service.sampler.stats()
+    assert stats.batches == 1 and stats.largest_batch == 4 and stats.served == 4
+    for seed in seeds:
+        assert np.allclose(answers[seed]["joints"], alone[seed]["joints"], atol=1e-4), seed
+    assert not np.allclose(answers[11]["joints"], answers[12]["joints"], atol=1e-3)
+
+
+def test_a_full_queue_answers_429_and_a_client_that_leaves_cancels_its_work(trained_project):
+    settings = ServeSettings(dataset="tiny", queue=1, gather_s=2.0, track=False)
+    with live_server(settings) as (base, app):
+        body = {"actions": ACTIONS, "options": {"ts": 4}}
+        with httpx.stream("POST", f"{base}/api/generate", json=body, headers=NDJSON, timeout=60) as waiting:
+            assert json.loads(next(waiting.iter_lines())) == {"queued": 1}
+            refused = httpx.post(f"{base}/api/generate", json=body, timeout=60)
+            assert refused.status_code == 429 and "waiting already" in refused.json()["error"]
+        # the first client left while its request waited: it is dropped, never sampled
+        deadline = time.monotonic() + 30
+        while app.state.service.sampler.stats().cancelled < 1:
+            assert time.monotonic() < deadline, app.state.service.sampler.stats()
+            time.sleep(0.1)
+        stats = app.state.service.sampler.stats()
+        assert stats.served == 0 and stats.queued == 0
+
+
+def test_sigterm_answers_the_request_in_flight_then_exits_leaving_nothing(trained_project):
+    port = free_port()
+    server = subprocess.Popen(
+        [sys.executable, "-m", "orchestration.cli", "serve", "--dataset", "tiny", "--port", str(port)],
+        cwd=trained_project,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            try:
+                if httpx.get(f"{base}/api/health", timeout=5).status_code == 200:
+                    break
+            except httpx.TransportError:
+                assert server.poll() is None and time.monotonic() < deadline, server.stdout.read().decode()
+                time.sleep(0.2)
+        body = {"actions": ACTIONS, "options": {"ts": 8, "steps": 8}}
+        with httpx.stream("POST", f"{base}/api/generate", json=body, headers=NDJSON, timeout=120) as answer:
+            lines = answer.iter_lines()
+            assert "queued" in json.loads(next(lines))
+            server.send_signal(signal.SIGTERM)
+            rest = [json.loads(line) for line in lines]
+        assert "result" in rest[-1], rest[-1]
+        assert server.wait(timeout=60) == 0
+        printed = server.stdout.read().decode()
+        assert "stopped: the requests in flight were answered" in printed and "Traceback" not in printed
+        with pytest.raises(OSError):
+            socket.create_connection(("127.0.0.1", port), timeout=2).close()
+        assert not [p for p in psutil.process_iter(["cmdline"]) if f"--port {port}" in " ".join(p.info["cmdline"] or [])]
+    finally:
+        if server.poll() is None:
+            server.kill()
