@@ -17,7 +17,7 @@ DEMO    ?= runs/demo
 .DEFAULT_GOAL := help
 .PHONY: help setup demo test test-all lint bench corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
         train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
-        reproduce learning-curves ui clean
+        reproduce learning-curves ui serve clean
 
 help:  ## list the verbs
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -124,6 +124,10 @@ train-evaluator: $(STAMP)  ## train the text-motion evaluator for the metrics (E
 	$(M2D2M) train-evaluator --config $(EVALUATOR_CONFIG) $(foreach s,$(SET),--set $(s))
 
 UI_PORT ?= 5000
+SERVE_ARGS ?=
+serve: $(STAMP)  ## the page and HTTP API at http://127.0.0.1:8000 (after make demo; SERVE_ARGS="--port 8080 --host 0.0.0.0 --token ...")
+	$(M2D2M) serve --dataset $(DATASET) $(SERVE_ARGS)
+
 ui: $(STAMP)  ## the MLflow UI on the project's tracking store (UI_PORT=5000)
 	$(M2D2M) ui --port $(UI_PORT)
 

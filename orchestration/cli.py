@@ -264,7 +264,7 @@ def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import DEFAULT_MAX_SECONDS, edit_part, generate, load_generator, plan_output
+    from orchestration.generate import edit_part, generate, load_generator, plan_output
     from orchestration.viewing import load_features
 
     if args.part:
@@ -283,7 +283,6 @@ def _generate(args: argparse.Namespace) -> None:
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    max_seconds = DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
     if args.edit is not None:
         motion = edit_part(
             generator,
@@ -292,7 +291,7 @@ def _generate(args: argparse.Namespace) -> None:
             args.keep_body,
             seed=args.seed,
             split=not args.no_split,
-            max_seconds=max_seconds,
+            max_seconds=_max_seconds(args),
             **options,
         )
     else:
@@ -302,7 +301,7 @@ def _generate(args: argparse.Namespace) -> None:
             seconds=args.seconds,
             seed=args.seed,
             split=not args.no_split,
-            max_seconds=max_seconds,
+            max_seconds=_max_seconds(args),
             **options,
         )
     _report(motion, output, args.prompts, args)
@@ -312,7 +311,7 @@ def _generate_parts(args: argparse.Namespace) -> None:
     """``generate --part PART=TEXT``: one sentence per body part; a prompt, if given, drives the parts
     not named."""
     from m2d2m.motion.body_parts import PARTS
-    from orchestration.generate import DEFAULT_MAX_SECONDS, generate_parts, load_generator, plan_output
+    from orchestration.generate import generate_parts, load_generator, plan_output
 
     if args.edit is not None:
         raise UserError("--part does not go with --edit: body-part control generates the whole motion")
@@ -331,16 +330,28 @@ def _generate_parts(args: argparse.Namespace) -> None:
     output = plan_output(args.out, args.name, args.formats)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
-    max_seconds = DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
     motion = generate_parts(
         generator,
         parts,
         seconds=args.seconds[0] if args.seconds else None,
         seed=args.seed,
-        max_seconds=max_seconds,
+        max_seconds=_max_seconds(args),
         **options,
     )
     _report(motion, output, [f"{part}: {text}" for part, text in parts.items()], args)
+
+
+def _max_seconds(args: argparse.Namespace) -> float | None:
+    """``--max-seconds``: the default cap when not given, none for 0."""
+    from orchestration.generate import DEFAULT_MAX_SECONDS
+
+    if args.max_seconds is not None and not 0 <= args.max_seconds < float("inf"):
+        raise UserError(f"--max-seconds must be a positive number (0 for no cap), got {args.max_seconds:g}")
+    return DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
+
+
+def _add_max_seconds(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument("--max-seconds", type=float, help=f"refuse, before sampling, {what} (default 60; 0 = no cap)")
 
 
 def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespace) -> None:
@@ -418,7 +429,6 @@ def _ui(args: argparse.Namespace) -> None:
 
 
 def _serve(args: argparse.Namespace) -> None:
-    from orchestration.generate import DEFAULT_MAX_SECONDS
     from orchestration.serving import check_port_free
     from orchestration.web.app import ServeSettings
     from orchestration.web.server import serve, server_token
@@ -428,7 +438,7 @@ def _serve(args: argparse.Namespace) -> None:
     settings = ServeSettings(
         dataset=args.dataset,
         token=token,
-        max_seconds=DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None,
+        max_seconds=_max_seconds(args),
         queue=args.queue,
         max_batch=args.max_batch,
         device=args.device,
@@ -642,9 +652,7 @@ def _add_generate(verbs) -> None:
     )
     generate.add_argument("--name", default="motion", help="file name stem in the --out folder (default motion)")
     generate.add_argument("--formats", nargs="+", help="any of npy bvh gif mp4 (default npy bvh gif)")
-    generate.add_argument(
-        "--max-seconds", type=float, help="refuse, before sampling, a motion longer than this (default 60; 0 = no cap)"
-    )
+    _add_max_seconds(generate, "a motion longer than this")
     generate.add_argument("--no-split", action="store_true", help="keep each prompt one action even with several verbs")
     generate.add_argument(
         "--edit",
@@ -815,11 +823,7 @@ def _add_serve(verbs) -> None:
     )
     serve.add_argument("--token", help=f"what every API call must carry (default: ${TOKEN_VARIABLE})")
     serve.add_argument("--dataset", default="synthetic", help="whose runs to serve (default synthetic)")
-    serve.add_argument(
-        "--max-seconds",
-        type=float,
-        help="refuse requests longer than this many seconds of motion (default 60; 0: no cap)",
-    )
+    _add_max_seconds(serve, "a request for more seconds of motion than this")
     serve.add_argument("--queue", type=_positive_int, default=64, help="requests that may wait (default 64)")
     serve.add_argument(
         "--max-batch", type=_positive_int, default=16, help="sequences sampled in one call at most (default 16)"

@@ -59,7 +59,9 @@ def test_models_lists_the_finished_runs_and_the_declared_knobs(client, trained_p
     latest = (trained_project / "runs/tiny/m2d2m/latest").read_text().strip()
     assert m2d2m["name"] == "m2d2m" and m2d2m["runs"] == [{"id": latest, "label": f"{latest} (latest)", "latest": True}]
     assert m2d2m["methods"] == list(SAMPLING.methods) and m2d2m["default_method"] == "tps"
-    declared = {knob.name: {**asdict(knob), "choices": knob.choices and list(knob.choices)} for knob in SAMPLING.knobs()}
+    declared = {
+        knob.name: {**asdict(knob), "choices": knob.choices and list(knob.choices)} for knob in SAMPLING.knobs()
+    }
     assert {knob.pop("name"): knob for knob in m2d2m["knobs"]} == {
         name: {**{k: v for k, v in knob.items() if k != "name"}, "default": getattr(SAMPLING.presets["multi"], name)}
         for name, knob in declared.items()
@@ -99,7 +101,26 @@ def test_a_generation_is_the_motion_m2d2m_generate_makes(client, trained_project
 def test_a_prompt_is_split_by_its_verbs_as_the_command_line_splits_it(client, trained_project, capsys):
     prompt = "a person walks forward and then jumps"
     result = generate(client, actions=None, prompt=prompt, seconds=3.0)
-    assert main(["generate", prompt, "--seconds", "3", "--ts", "4", "--dataset", "tiny", "--out", str(trained_project / "p"), "--formats", "npy", "--no-track"]) == 0
+    assert (
+        main(
+            [
+                "generate",
+                prompt,
+                "--seconds",
+                "3",
+                "--ts",
+                "4",
+                "--dataset",
+                "tiny",
+                "--out",
+                str(trained_project / "p"),
+                "--formats",
+                "npy",
+                "--no-track",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert [a["text"] for a in result["actions"]] == ["a person walks forward", "a person jumps"]
     assert all(a["text"] in printed for a in result["actions"])
@@ -233,7 +254,9 @@ def test_concurrent_requests_are_sampled_in_one_batch_each_as_it_would_be_alone(
     alone = {}
     with live_server(ServeSettings(dataset="tiny", gather_s=0.0, track=False)) as (base, app):
         for seed in seeds:
-            alone[seed] = httpx.post(f"{base}/api/generate", json={"actions": ACTIONS, "options": {"ts": 4}, "seed": seed}, timeout=60).json()
+            alone[seed] = httpx.post(
+                f"{base}/api/generate", json={"actions": ACTIONS, "options": {"ts": 4}, "seed": seed}, timeout=60
+            ).json()
         assert app.state.service.sampler.stats().largest_batch == 1
     with live_server(ServeSettings(dataset="tiny", gather_s=1.0, track=False)) as (base, app):
         answers: dict[int, dict] = {}
@@ -269,6 +292,19 @@ def test_a_full_queue_answers_429_and_a_client_that_leaves_cancels_its_work(trai
             time.sleep(0.1)
         stats = app.state.service.sampler.stats()
         assert stats.served == 0 and stats.queued == 0
+        # the same for a plain (not streamed) request whose client hangs up
+        payload = json.dumps(body).encode()
+        with socket.create_connection(("127.0.0.1", int(base.rsplit(":", 1)[1]))) as raw:
+            raw.sendall(
+                b"POST /api/generate HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                + f"Content-Length: {len(payload)}\r\n\r\n".encode()
+                + payload
+            )
+            time.sleep(0.5)
+        while app.state.service.sampler.stats().cancelled < 2:
+            assert time.monotonic() < deadline + 30, app.state.service.sampler.stats()
+            time.sleep(0.1)
+        assert app.state.service.sampler.stats().served == 0
 
 
 def test_sigterm_answers_the_request_in_flight_then_exits_leaving_nothing(trained_project):
@@ -302,7 +338,9 @@ def test_sigterm_answers_the_request_in_flight_then_exits_leaving_nothing(traine
         assert "stopped: the requests in flight were answered" in printed and "Traceback" not in printed
         with pytest.raises(OSError):
             socket.create_connection(("127.0.0.1", port), timeout=2).close()
-        assert not [p for p in psutil.process_iter(["cmdline"]) if f"--port {port}" in " ".join(p.info["cmdline"] or [])]
+        assert not [
+            p for p in psutil.process_iter(["cmdline"]) if f"--port {port}" in " ".join(p.info["cmdline"] or [])
+        ]
     finally:
         if server.poll() is None:
             server.kill()

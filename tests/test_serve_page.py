@@ -3,7 +3,9 @@ Selenium): three actions generated with the tiny model, a figure drawn, the time
 labels, scrubbing moving the figure, two methods compared in sync, and the BVH downloaded and parsed.
 
 `.ci/run` installs Chromium when it runs as root with apt, so CI always runs this test; elsewhere
-it is skipped with a one-line reason. ``M2D2M_SCREENSHOT=<file.png>`` keeps a picture of the page.
+it is skipped with a one-line reason. ``M2D2M_SCREENSHOT=<file.png>`` keeps a picture of the page;
+``M2D2M_SERVE_PROJECT=<dir>`` serves that project's synthetic models instead (the README's picture
+is of the demo's: ``M2D2M_SERVE_PROJECT=. M2D2M_SCREENSHOT=docs/serve-page.png``).
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ DRIVER = shutil.which("chromedriver")
 pytestmark = pytest.mark.skipif(
     not (CHROMIUM and DRIVER), reason="no chromium and chromedriver here (apt-get install chromium chromium-driver)"
 )
+# read at import, while the working directory is still the one the command was started in
+SERVE_PROJECT = Path(os.environ["M2D2M_SERVE_PROJECT"]).resolve() if os.environ.get("M2D2M_SERVE_PROJECT") else None
 ACTIONS = [("a person walks forward", "1.6"), ("a person jumps", "1.2"), ("a person waves their right hand", "2")]
 
 # Pixels of the player's canvas that differ from its corner's colour (the background), and a
@@ -64,6 +68,15 @@ def browser(tmp_path) -> Iterator:
         driver.quit()
 
 
+@pytest.fixture
+def dataset(trained_project, monkeypatch) -> str:
+    """The dataset whose models the page serves: the tiny project's, or another project's demo models."""
+    if SERVE_PROJECT is not None:
+        monkeypatch.chdir(SERVE_PROJECT)
+        return "synthetic"
+    return "tiny"
+
+
 def wait_for(condition: Callable[[], object], seconds: float = 120, what: str = "") -> object:
     deadline = time.monotonic() + seconds
     while not (value := condition()):
@@ -72,12 +85,12 @@ def wait_for(condition: Callable[[], object], seconds: float = 120, what: str = 
     return value
 
 
-def test_a_newcomer_generates_three_actions_scrubs_compares_and_downloads_the_bvh(trained_project, browser):
+def test_a_newcomer_generates_three_actions_scrubs_compares_and_downloads_the_bvh(dataset, browser):
     from selenium.webdriver.common.by import By
 
     find = browser.find_element
     find_all = browser.find_elements
-    with live_server(ServeSettings(dataset="tiny")) as (base, _):
+    with live_server(ServeSettings(dataset=dataset)) as (base, _):
         browser.get(base + "/")
         wait_for(lambda: find_all(By.CSS_SELECTOR, "#lanes .lane [data-knob]"), 60, "the model's knobs")
         find(By.ID, "add-action").click()

@@ -196,6 +196,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
         return FileResponse(STATIC / "index.html")
 
     _answer_errors_in_one_sentence(app)
+    app.add_middleware(BoundedBody)
     return app
 
 
@@ -269,9 +270,19 @@ def _answer_errors_in_one_sentence(app: FastAPI) -> None:
         log.exception("unexpected error on %s", request.url.path)
         return answer(500, f"the server failed ({type(error).__name__}); its log says more")
 
-    @app.middleware("http")
-    async def bounded_body(request: Request, call_next: Any) -> Any:
-        length = request.headers.get("content-length")
+
+class BoundedBody:
+    """A 413 for a body over :data:`MAX_BODY_BYTES` by its Content-Length. Plain ASGI rather than
+    ``@app.middleware``: Starlette's BaseHTTPMiddleware wraps ``receive`` so that a handler no
+    longer hears its client disconnect."""
+
+    def __init__(self, app: Any) -> None:
+        self.app = app
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        length = dict(scope.get("headers", ())).get(b"content-length") if scope["type"] == "http" else None
         if length is not None and (not length.isdigit() or int(length) > MAX_BODY_BYTES):
-            return answer(413, f"a request body may hold at most {MAX_BODY_BYTES} bytes")
-        return await call_next(request)
+            answer = JSONResponse({"error": f"a request body may hold at most {MAX_BODY_BYTES} bytes"}, 413)
+            await answer(scope, receive, send)
+            return
+        await self.app(scope, receive, send)

@@ -87,7 +87,11 @@ class Catalog:
                     "name": name,
                     "summary": entry.summary,
                     "runs": [
-                        {"id": run.name, "label": f"{run.name} (latest)" if run.latest else run.name, "latest": run.latest}
+                        {
+                            "id": run.name,
+                            "label": f"{run.name} (latest)" if run.latest else run.name,
+                            "latest": run.latest,
+                        }
                         for run in runs
                     ],
                     "methods": list(sampling.methods),

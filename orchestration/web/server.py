@@ -22,7 +22,9 @@ def server_token(host: str, given: str | None) -> str | None:
     ``host`` is not loopback, since anyone who can reach the port could then use the machine."""
     token = given if given is not None else os.environ.get(TOKEN_VARIABLE) or None
     if token is not None and len(token) < 8:
-        raise UserError("a token of at least 8 characters, please (e.g. python -c 'import secrets; print(secrets.token_urlsafe())')")
+        raise UserError(
+            "a token of at least 8 characters, please (e.g. python -c 'import secrets; print(secrets.token_urlsafe())')"
+        )
     if token is None and host not in LOOPBACK:
         raise UserError(
             f"--host {host} opens the API beyond this machine: give --token or set {TOKEN_VARIABLE}, "
