@@ -52,6 +52,7 @@ demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus: data, models
 	@echo "Look at $(DEMO)/000000.gif (a corpus clip) and $(DEMO)/four-actions.gif (four actions by TPS);"
 	@echo "import the .bvh files into Blender (scale 1 = metres). The evaluation's table and Fig. 5 are in"
 	@echo "runs/synthetic/eval/<run>/, the sweep's summary in runs/synthetic/sweep/demo/."
+	@echo "Type your own actions and compare methods side by side on a page: make serve (http://127.0.0.1:8000)"
 	@echo "Compare every run (the sweep's trials are child runs of one parent) in the MLflow UI: make ui"
 	@echo "For TPS against independent sampling with Jerk half-widths of 0.03 (about 20 minutes): make eval-power"
 
@@ -73,6 +74,7 @@ bench: $(STAMP)  ## measure speed; results go to BENCHMARKS.md by hand
 	$(BIN)/python bench/sampling.py
 	$(BIN)/python bench/aits.py --dataset $(DATASET)
 	$(BIN)/python bench/attention.py
+	$(BIN)/python bench/serve.py --dataset $(DATASET)
 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic
 	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)

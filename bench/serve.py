@@ -31,8 +31,9 @@ ACTIONS = [
 ]
 
 
-def start_server(dataset: str, port: int, track: bool) -> subprocess.Popen:
+def start_server(dataset: str, port: int, track: bool, max_batch: int) -> subprocess.Popen:
     command = [sys.executable, "-m", "orchestration.cli", "serve", "--dataset", dataset, "--port", str(port)]
+    command += ["--max-batch", str(max_batch)]
     server = subprocess.Popen(command + ([] if track else ["--no-track"]), cwd=ROOT, env={**os.environ})
     deadline = time.monotonic() + 120
     while True:
@@ -86,9 +87,10 @@ def main() -> None:
     parser.add_argument("--budget-s", type=float, default=300.0, help="seconds after which a level stops")
     parser.add_argument("--port", type=int, default=8765)
     parser.add_argument("--no-track", action="store_true", help="serve without logging to MLflow")
+    parser.add_argument("--max-batch", type=int, default=16, help="the server's --max-batch (1: no batching)")
     args = parser.parse_args()
 
-    server = start_server(args.dataset, args.port, not args.no_track)
+    server = start_server(args.dataset, args.port, not args.no_track, args.max_batch)
     base = f"http://127.0.0.1:{args.port}"
     try:
         asyncio.run(level(base, args.model, 1, 1, args.budget_s))  # loads the model

@@ -144,7 +144,8 @@ def test_a_newcomer_generates_three_actions_scrubs_compares_and_downloads_the_bv
         time.sleep(0.3)
         assert players[0].get_attribute("data-frame") == players[1].get_attribute("data-frame")
 
-        if os.environ.get("M2D2M_SCREENSHOT"):
+        if os.environ.get("M2D2M_SCREENSHOT"):  # with the actions in view
+            browser.execute_script("for (const e of document.querySelectorAll('*')) e.scrollTop = 0;")
             browser.save_screenshot(os.environ["M2D2M_SCREENSHOT"])
         players[0].find_element(By.CSS_SELECTOR, ".downloads a[data-format='bvh']").click()
         bvh: Path = wait_for(lambda: next(iter(browser.downloads.glob("*.bvh")), None), 30, "the BVH download")

@@ -172,11 +172,12 @@ def create_app(settings: ServeSettings) -> FastAPI:
             raise ApiError(429, str(error)) from error
         if NDJSON in request.headers.get("accept", ""):
             return StreamingResponse(_stream(job, events, service.finish(job, body, prompts, run)), media_type=NDJSON)
-        return await _unless_disconnected(request, job, service.finish(job, body, prompts, run))
+        # a JSONResponse as it is: FastAPI's encoder would walk every joint coordinate in Python first
+        return JSONResponse(await _unless_disconnected(request, job, service.finish(job, body, prompts, run)))
 
     @api.get("/generations/{generation_id}", summary="A generation made by this server")
-    def generation(generation_id: str) -> dict[str, Any]:
-        return service.generations.describe(service.generations.get(generation_id))
+    def generation(generation_id: str) -> JSONResponse:
+        return JSONResponse(service.generations.describe(service.generations.get(generation_id)))
 
     @api.get(
         "/generations/{generation_id}/{name}",
