@@ -39,7 +39,7 @@ FREQS = np.fft.rfftfreq(SEGMENT, 1.0 / FPS)
 LOW_BAND = (FREQS >= 1.2) & (FREQS <= 2.6)
 HIGH_BAND = FREQS >= 5.0
 FLOWMDM_HUMANML3D_MEAN_FRAME_JERK = 0.033031363  # BarqueroGerman/FlowMDM, the HumanML3D constant
-REAL = Path(__file__).resolve().parents[1] / ".." / "shared/data/humanml3d-sample/new_joints/012314.npy"
+REAL = Path(__file__).resolve().parents[1] / "tests/fixtures/humanml3d-sample/new_joints/012314.npy"
 
 
 def group_spectra(clips: list[np.ndarray]) -> dict[str, np.ndarray]:

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import os
 import signal
+from typing import TYPE_CHECKING
 
 from orchestration.errors import UserError
-from orchestration.web.app import ServeSettings, create_app
+
+if TYPE_CHECKING:  # the application loads torch; the command line reads this module without it
+    from orchestration.web.app import ServeSettings
 
 TOKEN_VARIABLE = "M2D2M_SERVE_TOKEN"
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
@@ -36,6 +39,8 @@ def server_token(host: str, given: str | None) -> str | None:
 def serve(settings: ServeSettings, host: str, port: int) -> None:
     """Serve until SIGTERM or Ctrl-C; the requests in flight finish first."""
     import uvicorn
+
+    from orchestration.web.app import create_app
 
     config = uvicorn.Config(create_app(settings), host=host, port=port, log_level="warning", lifespan="on")
     # uvicorn raises the stopping signal again once it has shut down, for the handler it found:
