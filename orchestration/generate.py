@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 import signal
-import sys
 import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -25,12 +24,12 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
 from m2d2m.layout import NLP
 from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
 from m2d2m.motion.render import can_write_mp4
+from m2d2m.progress import progress
 from orchestration.errors import UserError
 from orchestration.registry import DEFAULT_MODEL, model, models
 from orchestration.runs import new_run_dir, run_file, write_run_info
@@ -201,9 +200,9 @@ def check_length(frames: Sequence[int], fps: float, max_seconds: float | None) -
 
 @contextmanager
 def _progress(description: str) -> Iterator[Callable[[float], None]]:
-    """A percentage bar on stderr for a generator's ``progress`` callback (the fraction done); on a
-    terminal only, so errors stay one line."""
-    with tqdm(total=100, unit="%", desc=description, leave=False, file=sys.stderr, disable=None) as bar:
+    """A percentage bar on stderr for a generator's ``progress`` callback (the fraction done), plain
+    lines when stderr is not a terminal (none for a generation of a few seconds)."""
+    with progress(total=100, unit="%", desc=description, leave=False) as bar:
         yield lambda done: bar.update(round(100 * done) - bar.n)
 
 
@@ -362,8 +361,8 @@ def save_generation(
     try:
         with (
             _sigterm_as_interrupt(),
-            tqdm(total=frames, unit="frame", desc="rendering", leave=False, disable=None if frames else True) as bar,
-        ):  # None: on a terminal only
+            progress(total=frames, unit="frame", desc="rendering", leave=False, disable=not frames) as bar,
+        ):
             files = motion.save(directory, output.name, output.formats, progress=lambda _: bar.update())
             run_id = log_generation(motion, prompts, files, dataset) if track else None
     except BaseException as error:

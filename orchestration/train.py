@@ -263,7 +263,8 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
     import lightning.pytorch as pl
     from lightning.pytorch.callbacks import EMAWeightAveraging, LearningRateMonitor, ModelCheckpoint
 
-    from training.callbacks import StepProgressBar, StepSnapshots
+    from m2d2m.progress import on_terminal
+    from training.callbacks import PlainProgress, StepProgressBar, StepSnapshots
     from training.losses import NonFiniteLossError
 
     config, run_dir = run.config, run.run_dir
@@ -282,7 +283,10 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
         max_steps=trainer_cfg["max_steps"],
         precision=_precision(trainer_cfg["precision"]),
         logger=logger,
-        callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"), StepProgressBar(), *callbacks],
+        # a bar on a terminal; plain lines in a log, where a bar's redraws show nothing or garbage
+        callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"), *callbacks]
+        + [StepProgressBar() if on_terminal() else PlainProgress()],
+        enable_progress_bar=on_terminal(),
         gradient_clip_val=config["optim"]["grad_clip"],
         limit_val_batches=trainer_cfg["val_batches"],
         log_every_n_steps=min(50, validation_interval(trainer_cfg)),

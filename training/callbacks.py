@@ -19,6 +19,7 @@ from m2d2m.motion.render import render_comparison, render_motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.vqvae import load_vq
+from m2d2m.progress import ProgressLines
 
 
 class ReconstructionPreview(pl.Callback):
@@ -147,6 +148,34 @@ class StepProgressBar(RichProgressBar):
         last = int(min(trainer.global_step + self.total_train_batches, trainer.max_steps))
         description = f"{f'Step {last}' if first == last else f'Steps {first}–{last}'} of {trainer.max_steps}"
         return f"{description:{len(self.validation_description)}}"  # as Lightning pads it, against flicker
+
+
+class PlainProgress(pl.Callback):
+    """Training progress as plain lines where there is no terminal for a bar (a log file, CI, a
+    cluster job): step of max_steps, loss, steps per second and time left, at each tenth of the
+    run and at least every 30 s (:class:`m2d2m.progress.ProgressLines`); rank 0 only."""
+
+    def __init__(self, file: Any = None) -> None:
+        self.file = file
+        self.lines: ProgressLines | None = None
+
+    def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        if trainer.is_global_zero:
+            total = trainer.max_steps if trainer.max_steps > 0 else None
+            self.lines = ProgressLines(
+                total=total, desc="training", unit="step", file=self.file, initial=trainer.global_step
+            )
+
+    def on_train_batch_end(self, trainer: pl.Trainer, module: pl.LightningModule, *args: Any) -> None:
+        if self.lines is None:
+            return
+        loss = trainer.callback_metrics.get("train/loss")
+        self.lines.set_postfix_str(f"loss {float(loss):.4g}" if loss is not None else "")
+        self.lines.update(trainer.global_step - self.lines.n)
+
+    def on_train_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        if self.lines is not None:
+            self.lines.close()
 
 
 class StepSnapshots(pl.Callback):

@@ -10,12 +10,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from tqdm import tqdm
 
 from m2d2m.evaluation.evaluator import TextMotionEvaluator, load_evaluator, load_guo_checkpoint
 from m2d2m.evaluation.measurements import MM_GENERATIONS, MM_PROMPTS, Evaluation
 from m2d2m.generators.options import MULTI
 from m2d2m.generators.protocol import MotionGenerator
+from m2d2m.progress import progress as progress_bar
 from orchestration.errors import UserError
 from orchestration.evaluate.jobs import RESULTS, jobs, result_file
 from orchestration.evaluate.records import ParentRun, describe_sampling, log_children, start
@@ -109,7 +109,9 @@ def evaluate(
     }
     try:
         with finishing(run_id) as client:
-            with tqdm(total=sum(batches[job.batches] for job in pending), unit="batch", disable=not progress) as bar:
+            with progress_bar(
+                total=sum(batches[job.batches] for job in pending), unit="batch", disable=not progress
+            ) as bar:
 
                 def advance(label: str) -> None:
                     bar.set_description(label)

@@ -148,6 +148,6 @@ def generate_corpus(
 def _progress(results: Iterable, total: int, enabled: bool) -> Iterable:
     if not enabled:
         return results
-    from tqdm import tqdm
+    from m2d2m.progress import progress
 
-    return tqdm(results, total=total, desc="synthetic corpus", unit="clip")
+    return progress(results, total=total, desc="synthetic corpus", unit="clip")
