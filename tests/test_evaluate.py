@@ -156,6 +156,32 @@ def test_resume_recomputes_only_missing_results(trained_project, evaluated, monk
     assert again["metrics"] == pytest.approx(kept["metrics"], rel=1e-4)  # same seeds, same tokens (float32 batches)
 
 
+def test_a_job_stopped_midway_resumes_from_its_last_finished_batch(trained_project, evaluated, monkeypatch):
+    calls = []
+    original = M2D2MGenerator.generate
+
+    def stopped_at_the_third_batch(self, actions, *args, **kwargs):
+        calls.append(len(actions))
+        if len(calls) == 3:
+            raise KeyboardInterrupt("killed")
+        return original(self, actions, *args, **kwargs)
+
+    missing = evaluated / "results" / "multi-slerp-r1.json"
+    kept = json.loads(missing.read_text(encoding="utf-8"))
+    missing.unlink()
+    monkeypatch.setattr(M2D2MGenerator, "generate", stopped_at_the_third_batch)
+    resume = ["evaluate", "--dataset", "tiny", "--resume", evaluated.name, "--batch-size", "3"]
+    assert main(resume) == 130 and calls == [3, 3, 2]
+    folder = evaluated / "batches" / "multi-slerp-r1"
+    assert sorted(path.name for path in folder.iterdir()) == ["multi-0-3.npz", "multi-3-3.npz"]
+    calls.clear()
+    assert main(resume) == 0
+    assert calls == [2]  # the two finished batches were read back, only the third generated
+    again = json.loads(missing.read_text(encoding="utf-8"))
+    assert again["metrics"] == pytest.approx(kept["metrics"], rel=1e-4)
+    assert not folder.exists()
+
+
 def test_single_motion_alone_with_fewer_steps_and_the_no_multi_switch(trained_project, tiny_testset):
     """--no-multi --single: the single-motion table alone (a learning curve's points), sampled with
     the steps option; the multi table keeps only its reference rows."""

@@ -32,7 +32,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -350,11 +350,22 @@ class Reference:
         return {"jerk": self.jerk_concat, **self.flowmdm_concat, **self.registered_concat}
 
 
+class FinishedBatches(Protocol):
+    """Where the generated batches of the job in progress are kept, so that a job stopped midway
+    continues from its last finished batch (orchestration/evaluate/run.py keeps them on disk).
+    ``part`` names the set of requests, ``start`` and ``size`` the batch within it."""
+
+    def load(self, part: str, start: int, size: int) -> list[Motion] | None: ...
+
+    def save(self, part: str, start: int, size: int, motions: list[Motion]) -> None: ...
+
+
 class Evaluation:
     """The measurements of one run: a loaded generator and evaluator, the test set's
     :class:`Reference`, the knobs that differ from the generator's presets (the user's: they
     change every table, so ``steps=100`` makes MotionDiffuse's single-motion rows quick too), and
-    a progress callback called after each generated batch."""
+    a progress callback called after each generated batch, and where finished batches are kept
+    (``finished``; none: every batch is generated)."""
 
     def __init__(
         self,
@@ -371,6 +382,7 @@ class Evaluation:
         self.knobs = knobs
         self.batch_size = batch_size
         self.progress = progress
+        self.finished: FinishedBatches | None = None
 
     def _generate(
         self,
@@ -379,15 +391,22 @@ class Evaluation:
         options: Any,
         seeds: list[int],
         label: str,
+        part: str,
         keep: list[Keep] | None = None,
     ) -> Iterator[list[Motion]]:
         """The motions of the requests, one batch at a time (a whole repeat would not fit in
-        memory on a real test set)."""
+        memory on a real test set); a batch kept from an interrupted attempt is read, not
+        generated again (every sequence is drawn from its own seed, so it is the same)."""
         for start in range(0, len(actions), self.batch_size):
             window = slice(start, start + self.batch_size)
-            yield self.generator.generate(
-                actions[window], frames[window], options, seeds[window], None if keep is None else keep[window]
-            )
+            kept = self.finished.load(part, start, self.batch_size) if self.finished else None
+            if kept is None:
+                kept = self.generator.generate(
+                    actions[window], frames[window], options, seeds[window], None if keep is None else keep[window]
+                )
+                if self.finished:
+                    self.finished.save(part, start, self.batch_size, kept)
+            yield kept
             self.progress(label)
 
     def multi(self, method: str, repeat: int) -> dict[str, Any]:
@@ -396,7 +415,8 @@ class Evaluation:
         options = self.generator.options(MULTI, method=method, **self.knobs)
         seeds = _seeds(repeat, "multi", len(reference.actions))
         measures = MultiMeasures()
-        for motions in self._generate(reference.actions, reference.frames, options, seeds, f"{method} r{repeat}"):
+        label = f"{method} r{repeat}"
+        for motions in self._generate(reference.actions, reference.frames, options, seeds, label, "multi"):
             measures.add(motions, self.evaluator, self.generator.skeleton)
         return {
             "method": method,
@@ -415,7 +435,9 @@ class Evaluation:
         frames = [[n] for instance in reference.frames for n in instance]
         order = _rng(repeat, "order").permutation(reference.items)
         label = f"single r{repeat}"
-        embedded = self._embed_generated(actions, frames, options, _seeds(repeat, "single", len(actions)), label)
+        embedded = self._embed_generated(
+            actions, frames, options, _seeds(repeat, "single", len(actions)), label, "single"
+        )
         prompts = order[: min(MM_PROMPTS, reference.items)]
         repeated = [p for p in prompts for _ in range(MM_GENERATIONS)]
         again = self._embed_generated(
@@ -424,6 +446,7 @@ class Evaluation:
             options,
             _seeds(repeat, "mmodality", len(repeated)),
             label,
+            "mmodality",
         )
         metrics = {
             **_single_metrics(reference, embedded, order, repeat),
@@ -451,6 +474,7 @@ class Evaluation:
             self.generator.options(SINGLE, **self.knobs),
             _seeds(repeat, f"edit-{task}", len(actions)),
             label,
+            "edit",
             keep,
         )
         return {
@@ -467,12 +491,13 @@ class Evaluation:
         options: Any,
         seeds: list[int],
         label: str,
+        part: str,
         keep: list[Keep] | None = None,
     ) -> np.ndarray:
         return np.concatenate(
             [
                 embed_clips(self.evaluator, [m.features for m in motions])
-                for motions in self._generate(actions, frames, options, seeds, label, keep)
+                for motions in self._generate(actions, frames, options, seeds, label, part, keep)
             ]
         )
 

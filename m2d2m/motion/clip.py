@@ -3,7 +3,8 @@ files an animator wants from it (joints ``.npy`` with a JSON sidecar, BVH, GIF o
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import json
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -111,3 +112,48 @@ class Motion:
                     self.joints, path, self.skeleton, self.fps, self.segments, size=size, progress=progress
                 )
         return written
+
+
+def save_motions(path: str | Path, motions: Sequence[Motion]) -> Path:
+    """Several motions in one ``.npz`` (arrays, and their texts and settings as JSON), written
+    whole or not at all and read back by :func:`load_motions` without unpickling anything."""
+    arrays: dict[str, np.ndarray] = {}
+    described = []
+    for index, motion in enumerate(motions):
+        arrays[f"features{index}"] = motion.features
+        arrays[f"joints{index}"] = motion.joints
+        if motion.tokens is not None:
+            arrays[f"tokens{index}"] = np.asarray(motion.tokens)
+        described.append(
+            {
+                "fps": motion.fps,
+                "skeleton": motion.skeleton_name,
+                "actions": motion.actions,
+                "ranges": [list(r) for r in motion.ranges],
+                "settings": motion.settings,
+                "quality": motion.quality,
+            }
+        )
+    arrays["described"] = np.array(json.dumps(described, default=str))
+    with atomic_path(Path(path)) as partial, partial.open("wb") as file:
+        np.savez(file, **arrays)
+    return Path(path)
+
+
+def load_motions(path: str | Path) -> list[Motion]:
+    """The motions :func:`save_motions` wrote."""
+    with np.load(path, allow_pickle=False) as stored:
+        return [
+            Motion(
+                stored[f"features{index}"],
+                stored[f"joints{index}"],
+                info["fps"],
+                info["skeleton"],
+                info["actions"],
+                [tuple(r) for r in info["ranges"]],
+                info["settings"],
+                stored[f"tokens{index}"] if f"tokens{index}" in stored else None,
+                info["quality"],
+            )
+            for index, info in enumerate(json.loads(str(stored["described"])))
+        ]

@@ -1,18 +1,21 @@
 """What an evaluation computes, cut into jobs (a candidate's row of one table in one repeat),
 and the result file each finished job leaves under the run's ``results/``: the jobs without one
-are what a resumed run still has to do."""
+are what a resumed run still has to do; within a job, the batches it finished (:class:`KeptBatches`)."""
 
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from m2d2m.motion.clip import Motion, load_motions, save_motions
 from orchestration.evaluate.settings import Candidate, EvalSettings
 from orchestration.reports import GENERATED
 
 RESULTS = "results"
+BATCHES = "batches"  # the generated batches of jobs in progress, kept until each job's result is written
 
 
 @dataclass(frozen=True)
@@ -66,3 +69,26 @@ def result_file(run_dir: Path, job: Job) -> Path:
 
 def read_result(path: Path) -> dict[str, Any]:
     return json.loads(path.read_text(encoding="utf-8"))
+
+
+class KeptBatches:
+    """A job's finished batches on disk (``<run>/batches/<result file's stem>/<part>-<start>-<size>.npz``),
+    each written whole as it is generated, so that an evaluation stopped midway costs at most the
+    batch in progress when it is resumed; removed once the job's result is written."""
+
+    def __init__(self, run_dir: Path, job: Job) -> None:
+        self.folder = run_dir / BATCHES / result_file(run_dir, job).stem
+
+    def _path(self, part: str, start: int, size: int) -> Path:
+        return self.folder / f"{part}-{start}-{size}.npz"
+
+    def load(self, part: str, start: int, size: int) -> list[Motion] | None:
+        path = self._path(part, start, size)
+        return load_motions(path) if path.exists() else None
+
+    def save(self, part: str, start: int, size: int, motions: list[Motion]) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        save_motions(self._path(part, start, size), motions)
+
+    def discard(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)

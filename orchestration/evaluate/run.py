@@ -17,7 +17,7 @@ from m2d2m.generators.options import MULTI
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.progress import progress as progress_bar
 from orchestration.errors import UserError
-from orchestration.evaluate.jobs import RESULTS, jobs, result_file
+from orchestration.evaluate.jobs import RESULTS, KeptBatches, jobs, result_file
 from orchestration.evaluate.records import ParentRun, describe_sampling, log_children, start
 from orchestration.evaluate.settings import EvalSettings
 from orchestration.evaluate.table import build_table
@@ -123,6 +123,7 @@ def evaluate(
                 }
                 for job in pending:
                     evaluation = evaluations[job.candidate.model]
+                    evaluation.finished = kept = KeptBatches(run_dir, job)
                     result = (
                         evaluation.multi(job.method, job.repeat)
                         if job.table == "multi"
@@ -131,6 +132,7 @@ def evaluate(
                         else evaluation.edit(job.task, job.text, job.repeat)
                     )
                     write_json_atomically(result_file(run_dir, job), result)
+                    kept.discard()
             table = build_table(run_dir, settings, testset, reference, codec_of, samplings)
             log_batch(client, run_id, metrics=table_metrics(table))
             for name in (TABLE_MD, TABLE_JSON, FIGURE):
