@@ -14,6 +14,7 @@ generation is recorded in MLflow.
 from __future__ import annotations
 
 import math
+import re
 import signal
 import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -155,6 +156,9 @@ class PromptPlanner:
         prompts = list(prompts)
         if not prompts or any(not p.strip() for p in prompts):
             raise UserError("give at least one non-empty prompt")
+        wordless = next((p for p in prompts if not re.search(r"[^\W_]", p)), None)
+        if wordless is not None:  # punctuation or emoji alone: the model would sample from no words
+            raise UserError(f"the prompt {wordless!r} has no words; describe an action, e.g. 'a person walks forward'")
         if seconds is not None and len(seconds) not in (1, len(prompts)):
             raise UserError(f"give one duration per prompt ({len(prompts)}) or one for all, not {len(seconds)}")
         lo, hi = self.seconds_range()

@@ -249,6 +249,61 @@ BAD_ARGUMENTS: list[list[str]] = [
         )
     ],
     ["generate", "a person walks", "--dataset", "tiny", "--out", "{tmp}/joints.npy", "--formats", "gif"],
+    # the newer surfaces as a new user meets them (issue 29): other models, prompts, --part, --edit
+    *[
+        ["generate", "--dataset", "tiny", "--out", "{tmp}/generated", *more]
+        for more in (
+            ["a person walks", "--model", "mmm"],
+            ["a person walks", "--model", "motiondiffuse"],
+            ["a person walks", "--model", "mmm-body"],
+            ["a person walks", "--model", "mmm", "--checkpoint", "{model}"],
+            ["a person walks", "--model", "motiondiffuse", "--checkpoint", "{model}"],
+            ["a person walks", "--model", "mmm-body", "--checkpoint", "{model}"],
+            ["!!! ..."],
+            ["\U0001f642"],
+            ["a person walks " * 700],
+            ["a person walks"] * 50,
+            ["a person walks", "--seconds", "0.1"],
+            ["a person walks", "--seconds", "600"],
+            ["a person walks", "--part", "upper"],
+            ["a person walks", "--part", "head=waves"],
+            ["a person walks", "--part", "upper=waves"],
+            ["a person walks", "--part", "upper=waves", "--part", "upper=claps", "--model", "motiondiffuse"],
+            ["a person walks", "--part", "upper=waves", "--edit", "{tmp}/joints.npy", "--keep-body", "lower"],
+            ["a person claps", "--edit", "{tmp}/joints.npy"],
+            ["a person claps", "--keep-body", "lower"],
+            ["a person claps", "--edit", "{tmp}/joints.npy", "--keep-body", "torso"],
+            ["a person claps", "--edit", "{tmp}/joints.npy", "--keep-body", "lower"],
+            ["a person claps", "--edit", "{tmp}/joints.npy", "--keep-body", "lower", "--seconds", "3"],
+            ["a person claps", "--edit", "{tmp}/wrong-shape.npy", "--keep-body", "lower"],
+            ["a person claps", "--edit", "{tmp}/nowhere.npy", "--keep-body", "lower"],
+        )
+    ],
+    ["generate", "a person walks", "--dataset", "no-such-dataset", "--out", "{tmp}/generated"],
+    *[
+        ["evaluate", "--dataset", "tiny", *more]
+        for more in (
+            ["--model", "m2d2m,mmm"],
+            ["--model", "m2d2m,no-such-model"],
+            ["--model", "mmm-body"],
+            ["--model", ","],
+        )
+    ],
+    *[
+        ["serve", "--dataset", "tiny", *more]
+        for more in (
+            ["--port", "99999"],
+            ["--port", "{busy_port}"],
+            ["--host", "0.0.0.0"],
+            ["--host", "0.0.0.0", "--token", "short"],
+            ["--max-seconds", "-1"],
+            ["--queue", "0"],
+            ["--max-batch", "0"],
+        )
+    ],
+    ["train-motiondiffuse", "--config", "no-such-config"],
+    ["train-mmm-body", "--config", "no-such-config"],
+    ["train-mmm", "--config", "{root}/mmm.yaml", "--set", "vq={tmp}/joints.npy"],
     ["sweep", "--config", "no-such-sweep"],
     *_bad_files("sweep", ["--config"], BAD_CONFIGS),
     *[
@@ -506,3 +561,20 @@ def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
     if (killed / "motion.gif").exists():  # only ever a whole animation under the final name
         with Image.open(killed / "motion.gif") as image:
             assert image.n_frames == frames
+
+
+@pytest.mark.parametrize("in_the_way", ["runs/elsewhere", "runs/elsewhere/generate"])
+def test_a_file_where_a_run_folder_should_be_is_one_line(matrix_project, tmp_path, monkeypatch, capfd, in_the_way):
+    from orchestration.errors import UserError
+    from orchestration.runs import new_run_dir
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / in_the_way).parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / in_the_way).write_text("not a folder\n", encoding="utf-8")
+    with pytest.raises(UserError, match="cannot make the run folder runs/elsewhere/generate/.*must be folders"):
+        new_run_dir("elsewhere", "generate")
+    capfd.readouterr()
+    argv = ["generate", "a person walks", "--dataset", "elsewhere", "--checkpoint", matrix_project["model"]]
+    assert main(argv + ["--seconds", "1", "--no-track"]) == 2
+    err = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and err[0].startswith("m2d2m generate: error: cannot make the run folder"), err

@@ -53,6 +53,15 @@ def test_segments_and_title(tmp_path: Path, clip: np.ndarray) -> None:
     assert red_minus_blue(frames[5]) < -50 and red_minus_blue(frames[20]) > 50
 
 
+def test_a_caption_in_a_script_the_font_lacks_draws_without_a_warning_per_frame(tmp_path, clip) -> None:
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        render_motion(clip[:4], tmp_path / "cjk.gif", segments=[(0, 4, "一个人在走路 🙂")], size=120, fps=10)
+    assert not [w for w in caught if "Glyph" in str(w.message)]
+
+
 def test_kit_units_are_fitted_to_the_view(tmp_path: Path) -> None:
     # KIT bodies are ~640 units per metre: the view must scale to the data, not to metres.
     rest = np.zeros((KIT.num_joints, 3))

@@ -187,6 +187,7 @@ LONG = "a person " + "walks " * 1700
         ({"actions": [{"text": "a person jumps", "seconds": 600}]}, 400, "600 s for 'a person jumps' is outside"),
         ({"actions": [{"text": LONG}]}, 422, "actions.0.text: String should have at most 500 characters"),
         ({"actions": [{"text": "   "}]}, 400, "an action's text is empty"),
+        ({"actions": [{"text": "!!! ..."}]}, 400, "the prompt '!!! ...' has no words"),
         ({"actions": [{"text": "a person jumps", "seconds": 4}] * 16}, 400, "over the 60-s cap"),
         ({"prompt": "a person jumps"}, 422, "give either actions"),
         ({"seconds": 3}, 422, "seconds goes with prompt"),

@@ -14,6 +14,7 @@ import itertools
 import shutil
 import subprocess
 import textwrap
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
@@ -133,7 +134,11 @@ def _animate(
         for t in range(n_frames):
             for panel in panels:
                 panel.draw(t)
-            canvas.draw()
+            with warnings.catch_warnings():
+                # a caption in a script the font lacks (CJK, emoji) draws as boxes: once per glyph and
+                # frame Matplotlib would say so on stderr, burying the command's one-line summary
+                warnings.filterwarnings("ignore", message="Glyph .* missing from font", category=UserWarning)
+                canvas.draw()
             yield np.asarray(canvas.buffer_rgba())[..., :3]
             if progress is not None:
                 progress(t)
