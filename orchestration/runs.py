@@ -4,15 +4,19 @@ the next stage finds its input without arguments."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
 import secrets
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from m2d2m.atomic import atomic_path
+from m2d2m.locks import Busy, holding
 from orchestration.errors import UserError
 from orchestration.tracking import download_model_file
 
@@ -31,6 +35,21 @@ def enter_project(project: str, tracking_uri: str, cpus: float) -> None:
     os.chdir(project)
     os.environ["MLFLOW_TRACKING_URI"] = tracking_uri
     torch.set_num_threads(max(1, int(cpus)))
+
+
+@contextmanager
+def exclusive(lock_file: Path, busy: str) -> Iterator[None]:
+    """:func:`m2d2m.locks.holding` for a command: another command holding it is a one-line error."""
+    try:
+        with holding(lock_file, busy):
+            yield
+    except Busy as error:
+        raise UserError(str(error)) from None
+
+
+def run_in_use(run_dir: Path, verb: str) -> contextlib.AbstractContextManager[None]:
+    """Hold ``run_dir`` for the command ``m2d2m <verb>`` that writes it (a second one refuses)."""
+    return exclusive(run_dir / ".lock", f"{run_dir} is in use by another `m2d2m {verb}`; let it finish first")
 
 
 def stage_dir(dataset: str, stage: str) -> Path:

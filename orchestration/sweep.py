@@ -29,7 +29,7 @@ from m2d2m.plugins import plugins_for_workers
 from orchestration.config import apply_overrides, flatten, load_config
 from orchestration.errors import UserError
 from orchestration.registry import DEFAULT_MODEL, load_plugins, model
-from orchestration.runs import enter_project, stage_dir
+from orchestration.runs import enter_project, exclusive, stage_dir
 from orchestration.tracking import client as tracking_client
 from orchestration.tracking import experiment_name, finishing, start_run, tracking_uri
 
@@ -298,52 +298,56 @@ def sweep(
     if not name or Path(name).name != name or name in (".", ".."):
         raise UserError(f"--name {name!r}: give a plain folder name, e.g. demo-wide")
     sweep_dir = (stage_dir(config["dataset"], SWEEP_STAGE) / name).resolve()
-    if restart:
-        _discard(sweep_dir)
-    else:
-        _check_resumable(sweep_dir, config)
-    init_ray(ray_address, os.cpu_count() or 1)  # first: tokenizing for a training sweep joins the same Ray
-    parent = _parent_run(sweep_dir, name, config)
-    with finishing(parent[1]):
-        context = _context(config, parent, sweep_dir)
-        trainable = tune.with_resources(_tune_trainable, _trial_resources(config["resources"]))
-        storage = sweep_dir / "tune"
-        if tune.Tuner.can_restore(str(storage / name)):
-            print(f"resuming the sweep in {storage / name}")
-            tuner = tune.Tuner.restore(str(storage / name), trainable, resume_errored=True)
+    # a second `m2d2m sweep` of this name would restore and write the same Tune experiment
+    with exclusive(
+        sweep_dir.parent / f".{name}.lock", f"the sweep {name!r} is running in another command; let it finish first"
+    ):
+        if restart:
+            _discard(sweep_dir)
         else:
-            space = {
-                key: (tune.grid_search(values) if config["search"] == "grid" else tune.choice(values))
-                for key, values in config["space"].items()
-            }
-            tuner = tune.Tuner(
-                trainable,
-                param_space={**space, "context": context},
-                tune_config=tune.TuneConfig(
-                    num_samples=1 if config["search"] == "grid" else config["samples"],
-                    max_concurrent_trials=config["max_concurrent"],
-                ),
-                run_config=tune.RunConfig(
-                    name=name,
-                    storage_path=str(storage),
-                    verbose=1,
-                    failure_config=tune.FailureConfig(max_failures=config["max_failures"]),
-                ),
-            )
-        results = tuner.fit()
-        failed = [result for result in results if result.error is not None]
-        rows = [
-            {**{k: result.config[k] for k in context["knobs"]}, **result.metrics}
-            for result in results
-            if result.error is None and result.metrics
-        ]
-        summarize(sweep_dir, rows, config, parent[1])
-        if failed:
-            raise UserError(
-                f"{len(failed)} of {len(results)} trials failed after {config['max_failures']} retries; "
-                f"see {storage / name}"
-            )
-    return sweep_dir
+            _check_resumable(sweep_dir, config)
+        init_ray(ray_address, os.cpu_count() or 1)  # first: tokenizing for a training sweep joins the same Ray
+        parent = _parent_run(sweep_dir, name, config)
+        with finishing(parent[1]):
+            context = _context(config, parent, sweep_dir)
+            trainable = tune.with_resources(_tune_trainable, _trial_resources(config["resources"]))
+            storage = sweep_dir / "tune"
+            if tune.Tuner.can_restore(str(storage / name)):
+                print(f"resuming the sweep in {storage / name}")
+                tuner = tune.Tuner.restore(str(storage / name), trainable, resume_errored=True)
+            else:
+                space = {
+                    key: (tune.grid_search(values) if config["search"] == "grid" else tune.choice(values))
+                    for key, values in config["space"].items()
+                }
+                tuner = tune.Tuner(
+                    trainable,
+                    param_space={**space, "context": context},
+                    tune_config=tune.TuneConfig(
+                        num_samples=1 if config["search"] == "grid" else config["samples"],
+                        max_concurrent_trials=config["max_concurrent"],
+                    ),
+                    run_config=tune.RunConfig(
+                        name=name,
+                        storage_path=str(storage),
+                        verbose=1,
+                        failure_config=tune.FailureConfig(max_failures=config["max_failures"]),
+                    ),
+                )
+            results = tuner.fit()
+            failed = [result for result in results if result.error is not None]
+            rows = [
+                {**{k: result.config[k] for k in context["knobs"]}, **result.metrics}
+                for result in results
+                if result.error is None and result.metrics
+            ]
+            summarize(sweep_dir, rows, config, parent[1])
+            if failed:
+                raise UserError(
+                    f"{len(failed)} of {len(results)} trials failed after {config['max_failures']} retries; "
+                    f"see {storage / name}"
+                )
+        return sweep_dir
 
 
 def summarize(sweep_dir: Path, rows: list[dict[str, Any]], config: dict[str, Any], parent_run_id: str) -> None:

@@ -459,12 +459,16 @@ def ensure_tokens(vq_path: Path) -> tuple[Path, Path]:
     """The VQ-VAE's dataset and its token set under this VQ-VAE (:func:`token_set`), the tokens
     made first when they are missing or stale (so a sweep's driver can make them once, before
     parallel trials would race to)."""
+    from m2d2m.locks import Busy
     from pipelines.tokenize import current_tokens, tokenize_dataset
 
     data_dir, tokens_dir = token_set(vq_path)
     if current_tokens(data_dir, vq_path, tokens_dir) is None:
         print(f"tokenizing {data_dir} with {vq_path} first")
-        tokenize_dataset(data_dir, vq_path, tokens_dir)
+        try:
+            tokenize_dataset(data_dir, vq_path, tokens_dir)
+        except Busy as error:  # another command is making them: one line, not a traceback
+            raise UserError(str(error)) from None
     return data_dir, tokens_dir
 
 

@@ -11,7 +11,6 @@ leaves the previous dataset as it was (docs/data.md, "Rebuilding").
 
 from __future__ import annotations
 
-import fcntl
 import io
 import json
 import os
@@ -30,6 +29,7 @@ import numpy as np
 import m2d2m
 from m2d2m.atomic import atomic_path
 from m2d2m.layout import MANIFEST, NLP, QUARANTINE, SHARDS, STATS
+from m2d2m.locks import holding
 from m2d2m.motion.normalization import Normalizer, RunningMoments, group_averaged_std
 from m2d2m.motion.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
 from m2d2m.motion.skeleton import Skeleton
@@ -363,14 +363,10 @@ def _recover(out: Path) -> None:
 
 @contextmanager
 def _exclusive(out: Path) -> Iterator[None]:
-    """Hold ``data/.<name>.lock`` while building and swapping (the kernel releases it when the
-    process ends, even by SIGKILL), having first recovered from a build that was killed."""
+    """Hold ``data/.<name>.lock`` while building and swapping (:mod:`m2d2m.locks`), having first
+    recovered from a build that was killed."""
     out.parent.mkdir(parents=True, exist_ok=True)
-    with _sibling(out, "lock").open("a") as lock:
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ValueError(f"{out}: another `m2d2m data` is writing it; let it finish first") from None
+    with holding(_sibling(out, "lock"), f"{out}: another `m2d2m data` is writing it; let it finish first"):
         _recover(out)
         yield
 

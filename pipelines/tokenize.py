@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from m2d2m.layout import MANIFEST, STATS, TOKENS_KIND, VQ_FILE, read_manifest, shard_urls, token_shard_urls
+from m2d2m.locks import holding
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.vqvae import MotionVQVAE, load_vq
 from pipelines.corpora import SPLITS
@@ -171,63 +172,69 @@ def tokenize_dataset(
     if existing is not None:
         return existing
 
-    model, _, _ = load_vq(vq_path)
-    config = model.config
-    if config.feature_dim != dataset_manifest["feature_dim"]:
-        raise ValueError(
-            f"{vq_path}: the VQ-VAE encodes {config.feature_dim}-d features but {data_dir} holds "
-            f"{dataset_manifest['feature_dim']}-d ones; train one on this dataset with `m2d2m train-vq`"
+    # one writer of a token set at a time: a second tokenize (or a training tokenizing first)
+    # refuses in one line instead of clearing the shards the first one is writing
+    busy = f"{out_dir}: another command is writing these tokens; let it finish, then run this again"
+    with holding(out_dir.parent / f".{out_dir.name}.lock", busy):
+        if (finished := current_tokens(data_dir, vq_path, out_dir, samples_per_shard)) is not None:
+            return finished  # written by a command that finished since the check above
+        model, _, _ = load_vq(vq_path)
+        config = model.config
+        if config.feature_dim != dataset_manifest["feature_dim"]:
+            raise ValueError(
+                f"{vq_path}: the VQ-VAE encodes {config.feature_dim}-d features but {data_dir} holds "
+                f"{dataset_manifest['feature_dim']}-d ones; train one on this dataset with `m2d2m train-vq`"
+            )
+        if config.codebook_size > MAX_CODEBOOK_SIZE:
+            raise ValueError(
+                f"{vq_path}: {config.codebook_size} codes do not fit int16 tokens (at most {MAX_CODEBOOK_SIZE})"
+            )
+
+        tasks = plan_token_shards(data_dir, dataset_manifest, samples_per_shard)  # before anything is removed
+        out_dir.mkdir(parents=True, exist_ok=True)
+        _clear(out_dir)
+        # Plain copies: nothing in out_dir is trusted before the manifest lands.
+        shutil.copyfile(vq_path, out_dir / VQ_FILE)
+        shutil.copyfile(data_dir / STATS, out_dir / STATS)
+        np.save(out_dir / CODEBOOK, model.codebook.detach().cpu().numpy().astype(np.float32))
+        vq_sha256 = sha256_of(out_dir / VQ_FILE)
+
+        results = run_json_tasks(
+            encode_shard,
+            tasks,
+            workers,
+            ray_address,
+            out_dir=str(out_dir),
+            vq_path=str(out_dir / VQ_FILE),
+            vq_sha256=vq_sha256,
         )
-    if config.codebook_size > MAX_CODEBOOK_SIZE:
-        raise ValueError(
-            f"{vq_path}: {config.codebook_size} codes do not fit int16 tokens (at most {MAX_CODEBOOK_SIZE})"
-        )
+        splits = {split: {"samples": 0, "tokens": 0} for split in SPLITS}
+        shards: dict[str, list[dict[str, Any]]] = {split: [] for split in SPLITS}
+        for result in results:
+            splits[result["split"]]["samples"] += result["samples"]
+            splits[result["split"]]["tokens"] += result["tokens"]
+            shards[result["split"]] += result["shards"]
 
-    tasks = plan_token_shards(data_dir, dataset_manifest, samples_per_shard)  # before anything is removed
-    out_dir.mkdir(parents=True, exist_ok=True)
-    _clear(out_dir)
-    # Plain copies: nothing in out_dir is trusted before the manifest lands.
-    shutil.copyfile(vq_path, out_dir / VQ_FILE)
-    shutil.copyfile(data_dir / STATS, out_dir / STATS)
-    np.save(out_dir / CODEBOOK, model.codebook.detach().cpu().numpy().astype(np.float32))
-    vq_sha256 = sha256_of(out_dir / VQ_FILE)
-
-    results = run_json_tasks(
-        encode_shard,
-        tasks,
-        workers,
-        ray_address,
-        out_dir=str(out_dir),
-        vq_path=str(out_dir / VQ_FILE),
-        vq_sha256=vq_sha256,
-    )
-    splits = {split: {"samples": 0, "tokens": 0} for split in SPLITS}
-    shards: dict[str, list[dict[str, Any]]] = {split: [] for split in SPLITS}
-    for result in results:
-        splits[result["split"]]["samples"] += result["samples"]
-        splits[result["split"]]["tokens"] += result["tokens"]
-        shards[result["split"]] += result["shards"]
-
-    manifest = {
-        "schema_version": SCHEMA_VERSION,
-        "kind": TOKENS_KIND,
-        "dataset": dataset_manifest["dataset"],
-        "source_dir": str(data_dir),
-        "source_shards": _source_shards(dataset_manifest),
-        "vq_file": VQ_FILE,
-        "vq_source": str(vq_path),
-        "vq_sha256": vq_sha256,
-        "feature_dim": config.feature_dim,
-        "codebook_size": config.codebook_size,
-        "code_dim": config.code_dim,
-        "frames_per_token": model.frames_per_token,
-        "samples_per_shard": samples_per_shard,
-        "splits": splits,
-        "shards": shards,
-        "code_version": code_version(),
-    }
-    write_json_atomically(out_dir / MANIFEST, manifest)
-    return manifest
+        manifest = {
+            "schema_version": SCHEMA_VERSION,
+            "kind": TOKENS_KIND,
+            "dataset": dataset_manifest["dataset"],
+            "source_dir": str(data_dir),
+            "source_shards": _source_shards(dataset_manifest),
+            "vq_file": VQ_FILE,
+            "vq_source": str(vq_path),
+            "vq_sha256": vq_sha256,
+            "feature_dim": config.feature_dim,
+            "codebook_size": config.codebook_size,
+            "code_dim": config.code_dim,
+            "frames_per_token": model.frames_per_token,
+            "samples_per_shard": samples_per_shard,
+            "splits": splits,
+            "shards": shards,
+            "code_version": code_version(),
+        }
+        write_json_atomically(out_dir / MANIFEST, manifest)
+        return manifest
 
 
 def token_sample_problems(key: str, members: dict[str, bytes], codebook_size: int, frames_per_token: int) -> list[str]:

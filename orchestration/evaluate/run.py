@@ -24,7 +24,7 @@ from orchestration.evaluate.table import build_table
 from orchestration.evaluate.testsets import default_testset, measure_reference, open_testset
 from orchestration.generate import load_generator
 from orchestration.reports import FIGURE, TABLE_JSON, TABLE_MD, table_metrics
-from orchestration.runs import mark_latest, read_run_info, write_run_info
+from orchestration.runs import mark_latest, read_run_info, run_in_use, write_run_info
 from orchestration.tracking import finishing, log_batch
 from pipelines.shards import write_json_atomically
 from pipelines.testset import TestSet
@@ -98,51 +98,52 @@ def evaluate(
     samplings = describe_sampling(settings, generators)
     if run_dir is None:
         run_dir = start(settings, dataset, samplings, testset, reference.rp_batch, parent)
-    (run_dir / RESULTS).mkdir(exist_ok=True)
-    pending = [job for job in jobs(settings) if not result_file(run_dir, job).exists()]
-    run_id = read_run_info(run_dir)["mlflow_run_id"]
-    batches = {
-        "multi": -(-len(reference.actions) // batch_size),
-        "items": -(-reference.items // batch_size),
-        "single": -(-reference.items // batch_size)
-        + -(-min(MM_PROMPTS, reference.items) * MM_GENERATIONS // batch_size),
-    }
-    try:
-        with finishing(run_id) as client:
-            with progress_bar(
-                total=sum(batches[job.batches] for job in pending), unit="batch", disable=not progress
-            ) as bar:
+    with run_in_use(run_dir, "evaluate"):  # a second --resume of this run refuses in one line
+        (run_dir / RESULTS).mkdir(exist_ok=True)
+        pending = [job for job in jobs(settings) if not result_file(run_dir, job).exists()]
+        run_id = read_run_info(run_dir)["mlflow_run_id"]
+        batches = {
+            "multi": -(-len(reference.actions) // batch_size),
+            "items": -(-reference.items // batch_size),
+            "single": -(-reference.items // batch_size)
+            + -(-min(MM_PROMPTS, reference.items) * MM_GENERATIONS // batch_size),
+        }
+        try:
+            with finishing(run_id) as client:
+                with progress_bar(
+                    total=sum(batches[job.batches] for job in pending), unit="batch", disable=not progress
+                ) as bar:
 
-                def advance(label: str) -> None:
-                    bar.set_description(label)
-                    bar.update()
+                    def advance(label: str) -> None:
+                        bar.set_description(label)
+                        bar.update()
 
-                evaluations = {
-                    c.model: Evaluation(generators[c.model], evaluator, reference, c.options, batch_size, advance)
-                    for c in settings.candidates
-                }
-                for job in pending:
-                    evaluation = evaluations[job.candidate.model]
-                    evaluation.finished = kept = KeptBatches(run_dir, job)
-                    result = (
-                        evaluation.multi(job.method, job.repeat)
-                        if job.table == "multi"
-                        else evaluation.single(job.repeat)
-                        if job.table == "single"
-                        else evaluation.edit(job.task, job.text, job.repeat)
-                    )
-                    write_json_atomically(result_file(run_dir, job), result)
-                    kept.discard()
-            table = build_table(run_dir, settings, testset, reference, codec_of, samplings)
-            log_batch(client, run_id, metrics=table_metrics(table))
-            for name in (TABLE_MD, TABLE_JSON, FIGURE):
-                client.log_artifact(run_id, str(run_dir / name))
-            client.log_artifacts(run_id, str(run_dir / RESULTS), artifact_path=RESULTS)
-            if len(settings.candidates) > 1:
-                log_children(run_dir, settings, samplings, table, dataset)
-    except BaseException:
-        write_run_info(run_dir, status="failed")
-        raise
-    write_run_info(run_dir, status="finished")
-    mark_latest(run_dir)
-    return run_dir, table
+                    evaluations = {
+                        c.model: Evaluation(generators[c.model], evaluator, reference, c.options, batch_size, advance)
+                        for c in settings.candidates
+                    }
+                    for job in pending:
+                        evaluation = evaluations[job.candidate.model]
+                        evaluation.finished = kept = KeptBatches(run_dir, job)
+                        result = (
+                            evaluation.multi(job.method, job.repeat)
+                            if job.table == "multi"
+                            else evaluation.single(job.repeat)
+                            if job.table == "single"
+                            else evaluation.edit(job.task, job.text, job.repeat)
+                        )
+                        write_json_atomically(result_file(run_dir, job), result)
+                        kept.discard()
+                table = build_table(run_dir, settings, testset, reference, codec_of, samplings)
+                log_batch(client, run_id, metrics=table_metrics(table))
+                for name in (TABLE_MD, TABLE_JSON, FIGURE):
+                    client.log_artifact(run_id, str(run_dir / name))
+                client.log_artifacts(run_id, str(run_dir / RESULTS), artifact_path=RESULTS)
+                if len(settings.candidates) > 1:
+                    log_children(run_dir, settings, samplings, table, dataset)
+        except BaseException:
+            write_run_info(run_dir, status="failed")
+            raise
+        write_run_info(run_dir, status="finished")
+        mark_latest(run_dir)
+        return run_dir, table
