@@ -68,9 +68,13 @@ def load_features(source: str | Path, skeleton: Skeleton) -> np.ndarray:
 
 def _load_npy(path: Path) -> np.ndarray:
     try:
-        return np.load(path, allow_pickle=False)
+        loaded = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as error:  # EOFError: an empty file
         raise UserError(f"{path}: not a readable .npy file ({error or type(error).__name__})") from error
+    if not isinstance(loaded, np.ndarray):  # a zip archive: an .npz, or a torch model file
+        loaded.close()
+        raise UserError(f"{path}: an archive (.npz, or a model file), not one .npy array of a motion")
+    return loaded
 
 
 def _first_caption(text_file: Path) -> str | None:

@@ -32,6 +32,16 @@ from tests.helpers import TINY_MMM
 # ------------------------------------------------------------------------------ the bad inputs
 
 
+class RunsCode:
+    """Unpickled, this creates a file: what a model file that runs code could do instead."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (open, (str(self.marker), "w"))
+
+
 def write_bad_files(folder: Path, trained: Path) -> None:
     """Input files of every wrong kind the matrix feeds the verbs, beside the real ones."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -57,6 +67,7 @@ def write_bad_files(folder: Path, trained: Path) -> None:
     (folder / "random.pt").write_bytes(np.random.default_rng(0).bytes(4096))
     for name, source in (("vq", vq), ("model", model), ("evaluator", evaluator)):
         (folder / f"truncated-{name}.pt").write_bytes(source.read_bytes()[: source.stat().st_size // 2])
+    torch.save(RunsCode(folder / "code-ran"), folder / "code.pt")  # would create code-ran when unpickled
     torch.save({"weights": torch.zeros(3)}, folder / "a-dict.pt")
     torch.save(torch.zeros(3), folder / "a-tensor.pt")
 
@@ -578,3 +589,45 @@ def test_a_file_where_a_run_folder_should_be_is_one_line(matrix_project, tmp_pat
     assert main(argv + ["--seconds", "1", "--no-track"]) == 2
     err = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and err[0].startswith("m2d2m generate: error: cannot make the run folder"), err
+
+
+def test_a_killed_evaluation_resumes_from_its_finished_batches_to_the_clean_result(matrix_project, tiny_testset):
+    root = Path(matrix_project["root"])
+    runs = root / "runs" / "tiny" / "eval"
+    argv = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--method", "tps", "--repeats", "1"]
+    argv += ["--ts", "4", "--batch-size", "3"]
+    before = set(runs.iterdir()) if runs.exists() else set()
+    kill_when(argv, root, lambda: any(runs.glob("*/batches/*/multi-3-3.npz")))  # the second batch is kept
+    (killed,) = {run for run in set(runs.iterdir()) - before if run.is_dir()}
+    assert json.loads((killed / "run.json").read_text())["status"] == "running"
+    assert main(["evaluate", "--dataset", "tiny", "--resume", killed.name, "--batch-size", "3"]) == 0
+    run_to_the_end(argv, root)  # a clean run of the same settings
+    (clean,) = {run for run in set(runs.iterdir()) - before - {killed} if run.is_dir()}
+    for result in sorted((clean / "results").glob("*.json")):
+        resumed = json.loads((killed / "results" / result.name).read_text())["metrics"]
+        assert resumed == pytest.approx(json.loads(result.read_text())["metrics"], rel=1e-4), result.name
+    assert not (killed / "batches").exists() or not any((killed / "batches").iterdir())
+
+
+CODE_FILE_OPTIONS = [
+    ["generate", "a person walks", "--dataset", "tiny", "--checkpoint", "{tmp}/code.pt"],
+    ["generate", "a person walks", "--dataset", "tiny", "--model", "mmm", "--checkpoint", "{tmp}/code.pt"],
+    ["generate", "a person walks", "--dataset", "tiny", "--model", "motiondiffuse", "--checkpoint", "{tmp}/code.pt"],
+    ["generate", "a person walks", "--dataset", "tiny", "--model", "mmm-body", "--checkpoint", "{tmp}/code.pt"],
+    ["evaluate", "--dataset", "tiny", "--checkpoint", "{tmp}/code.pt"],
+    ["evaluate", "--dataset", "tiny", "--evaluator", "{tmp}/code.pt"],
+    ["tokenize", "--dataset", "tiny", "--vq", "{tmp}/code.pt"],
+    ["train-diffusion", "--config", "{root}/diffusion.yaml", "--set", "vq={tmp}/code.pt"],
+    ["train-mmm", "--config", "{root}/mmm.yaml", "--set", "vq={tmp}/code.pt"],
+    ["render", "{tmp}/code.pt", "--out", "{tmp}/out.gif"],
+]
+
+
+@pytest.mark.parametrize("argv", CODE_FILE_OPTIONS, ids=[_case_id(a) for a in CODE_FILE_OPTIONS])
+def test_a_model_file_that_would_run_code_runs_nothing(argv, matrix_project, capfd):
+    marker = Path(matrix_project["tmp"]) / "code-ran"
+    capfd.readouterr()
+    assert main([a.format(**matrix_project) for a in argv]) == 2
+    err = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and "error:" in err[0], err
+    assert not marker.exists(), "unpickling the model file ran its code"
