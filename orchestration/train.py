@@ -32,7 +32,16 @@ from m2d2m.layout import VQ_FILE
 from m2d2m.motion.body_parts import FULL
 from orchestration.config import flatten, is_number, load_config, rename_keys
 from orchestration.errors import UserError
-from orchestration.runs import find_run, mark_latest, new_run_dir, newest_run, read_run_info, run_file, write_run_info
+from orchestration.runs import (
+    exclusive,
+    find_run,
+    mark_latest,
+    new_run_dir,
+    newest_run,
+    read_run_info,
+    run_file,
+    write_run_info,
+)
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
 VQ_STAGE = "vq"
@@ -106,7 +115,9 @@ def _is_finite_number(value: Any) -> bool:
     return is_number(value) and math.isfinite(value)
 
 
-_opened: list[Path] = []  # the runs opened by the stage calls in progress, innermost last
+# the runs opened by the stage calls in progress, innermost last, each with the lock this process
+# holds on it while it trains (a second command resuming it refuses; docs/reliability.md)
+_opened: list[tuple[Path, contextlib.ExitStack]] = []
 
 
 def records_failure(stage: Callable[..., Path]) -> Callable[..., Path]:
@@ -122,7 +133,7 @@ def records_failure(stage: Callable[..., Path]) -> Callable[..., Path]:
         try:
             return stage(*args, **kwargs)
         except BaseException as error:
-            for run_dir in _opened[depth:]:
+            for run_dir, _ in _opened[depth:]:
                 if read_run_info(run_dir).get("status") == "running":
                     write_run_info(
                         run_dir,
@@ -133,6 +144,8 @@ def records_failure(stage: Callable[..., Path]) -> Callable[..., Path]:
                 raise UserError(str(error)) from error
             raise
         finally:
+            for _, lock in _opened[depth:]:
+                lock.close()
             del _opened[depth:]
 
     return recorded
@@ -170,9 +183,10 @@ def open_run(
     _check_settings(config)
     if not resume:
         run_dir = new_run_dir(config["dataset"], stage)
+        lock = _hold(run_dir, stage)
         (run_dir / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
         write_run_info(run_dir, stage=stage, dataset=config["dataset"], status="running", config=config)
-        _opened.append(run_dir)
+        _opened.append((run_dir, lock))
         return OpenedRun(stage, run_dir, config, None, resume)
     if overrides:
         raise UserError("--set cannot change a run being resumed; resume as it was, or start a new run")
@@ -184,9 +198,19 @@ def open_run(
         raise UserError(f"{run_dir} is a {info['stage']} run, not a {stage} run")
     if info.get("status") == "finished":
         raise UserError(f"{run_dir} already finished; start a new run instead of --resume")
+    lock = _hold(run_dir, stage)  # before anything is written: a run another command trains refuses here
     write_run_info(run_dir, status="running")
-    _opened.append(run_dir)
+    _opened.append((run_dir, lock))
     return _recorded(stage, run_dir, info, resume, renamed)
+
+
+def _hold(run_dir: Path, stage: str) -> contextlib.ExitStack:
+    """This process's hold on a run it trains, released when its stage call ends (or the process does)."""
+    lock = contextlib.ExitStack()
+    lock.enter_context(
+        exclusive(run_dir / ".lock", f"{run_dir} is being trained by another command; let it finish first")
+    )
+    return lock
 
 
 def _recorded(

@@ -165,3 +165,22 @@ def test_two_evaluations_finish_and_a_second_resume_of_one_run_refuses(trained_p
         )
     finish(resuming)
     assert json.loads((run_dir / "run.json").read_text())["status"] == "finished"
+
+
+def test_resuming_a_run_another_command_trains_refuses_in_one_line(trained_project, two_vq_runs, capfd):
+    before = {p.name for p in (trained_project / "runs" / "tiny" / "vq").iterdir()}
+    training = start(["train-vq", "--config", str(trained_project / "vq.yaml")], trained_project)
+
+    def its_run_is_held() -> bool:
+        new = [p for p in (trained_project / "runs" / "tiny" / "vq").iterdir() if p.name not in before and p.is_dir()]
+        return bool(new) and held(new[0] / ".lock")
+
+    assert wait_until(its_run_is_held, training, "the training's run")
+    one_line_refusal(
+        capfd,
+        "train-vq",
+        ["train-vq", "--config", str(trained_project / "vq.yaml"), "--resume"],
+        "is being trained by another command; let it finish first",
+    )
+    finish(training)
+    assert latest(trained_project, "vq") in finished_runs(trained_project, "vq")
