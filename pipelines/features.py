@@ -34,6 +34,7 @@ from m2d2m.motion.normalization import Normalizer, RunningMoments, group_average
 from m2d2m.motion.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
 from m2d2m.motion.skeleton import Skeleton
 from m2d2m.plugins import import_plugins
+from m2d2m.progress import ProgressLines, on_terminal
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, FrameBounds, Rejected, corpus
 from pipelines.dataset import encode_sample, reason_kind, stage_counts, summary_table
 from pipelines.language import SMALL_MODEL, decompose, parse_tagged_tokens, train_tagger
@@ -281,7 +282,12 @@ def run_json_tasks(
         compute=ray.data.TaskPoolStrategy(size=workers),
         num_cpus=1,
     )
-    finished = sorted(results.iter_rows(), key=lambda row: row["position"])
+    rows = results.iter_rows()
+    if not on_terminal():  # Ray Data draws its own bars on a terminal; a log gets plain lines
+        rows = ProgressLines(
+            rows, total=len(items), desc=getattr(fn, "__name__", "tasks").strip("_").replace("_", " "), unit="task"
+        )
+    finished = sorted(rows, key=lambda row: row["position"])
     return [json.loads(row["result"]) for row in finished]
 
 

@@ -91,3 +91,19 @@ def test_a_generation_reports_its_sampling_in_percent_lines(monkeypatch, capsys)
             advance(done)
     err = capsys.readouterr().err.splitlines()
     assert err[0].startswith("sampling 2 action(s): 25 %, ") and err[-1].startswith("sampling 2 action(s): 100 %")
+
+
+def _slow_square(task: dict) -> dict:
+    return {"square": task["n"] ** 2}
+
+
+def test_ray_data_jobs_in_a_log_print_plain_lines(ray_local, capfd, monkeypatch):
+    from pipelines.features import run_json_tasks
+
+    monkeypatch.setattr(progress_module, "MIN_SECONDS", 0.0)
+    capfd.readouterr()
+    assert run_json_tasks(_slow_square, [{"n": n} for n in range(4)], workers=2) == [
+        {"square": n * n} for n in range(4)
+    ]
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("slow square: ")]
+    assert lines and lines[-1].startswith("slow square: 4/4 task (100 %)"), lines
