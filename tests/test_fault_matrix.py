@@ -505,36 +505,28 @@ def test_a_killed_rebuild_leaves_the_dataset_whole_and_a_rerun_equals_a_clean_bu
     assert main(["data", "--check", str(tmp_path / "data")]) == 0
 
 
-def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_project):
+@pytest.mark.parametrize(
+    "verb, config, stage, model_file",
+    [("train-vq", "vq.yaml", "vq", "vq.pt"), ("train-mmm", "mmm.yaml", "mmm", "model.pt")],
+)
+def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_project, verb, config, stage, model_file):
     root = Path(matrix_project["root"])
-    marker = root / "runs" / "tiny" / "vq" / "latest"
-    finished = marker.read_text()
-    before = set((root / "runs" / "tiny" / "vq").iterdir())
+    folder = root / "runs" / "tiny" / stage
+    marker = folder / "latest"
+    finished = marker.read_text() if marker.exists() else None
+    before = set(folder.iterdir()) if folder.exists() else set()
 
     def a_new_checkpoint() -> bool:
-        return any(list(run.glob("checkpoints/*.ckpt")) for run in set(marker.parent.iterdir()) - before)
+        return folder.exists() and any(list(run.glob("checkpoints/*.ckpt")) for run in set(folder.iterdir()) - before)
 
-    kill_when(
-        [
-            "train-vq",
-            "--config",
-            "vq.yaml",
-            "--set",
-            "trainer.max_steps=30",
-            "--set",
-            "trainer.val_every_steps=2",
-            "--set",
-            "trainer.gif_every=100",
-        ],
-        root,
-        a_new_checkpoint,
-    )
-    (killed,) = set(marker.parent.iterdir()) - before
+    settings = ["trainer.max_steps=30", "trainer.val_every_steps=2", "trainer.gif_every=100"]
+    kill_when([verb, "--config", config, *(arg for s in settings for arg in ("--set", s))], root, a_new_checkpoint)
+    (killed,) = {run for run in set(folder.iterdir()) - before if run.is_dir()}
     assert json.loads((killed / "run.json").read_text())["status"] == "running"
-    assert marker.read_text() == finished and not (killed / "vq.pt").exists()
-    run_to_the_end(["train-vq", "--config", "vq.yaml", "--resume"], root)
+    assert (marker.read_text() if marker.exists() else None) == finished and not (killed / model_file).exists()
+    run_to_the_end([verb, "--config", config, "--resume"], root)
     assert json.loads((killed / "run.json").read_text())["status"] == "finished"
-    assert marker.read_text().strip() == killed.name and (killed / "vq.pt").is_file()
+    assert marker.read_text().strip() == killed.name and (killed / model_file).is_file()
 
 
 def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
