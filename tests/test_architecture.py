@@ -4,6 +4,7 @@ higher one, nor across between pipelines/ and training/ (function-level imports 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -39,3 +40,15 @@ def test_the_checker_sees_function_level_imports(tmp_path):
     source = tmp_path / "module.py"
     source.write_text("def f():\n    from orchestration.registry import model\n    import ray.data\n")
     assert imported_packages(source) == {"orchestration", "ray"}
+
+
+def test_nothing_reads_outside_the_repository():
+    """A clone has nothing beside it: no code, test or bench may reach for the shared folder
+    beside the repository; the HumanML3D sample the tests use is in tests/fixtures."""
+    above = re.compile(r"""\.\.(/|["']\s*/\s*["'])shared""")
+    offending = []
+    for package in ("m2d2m", "pipelines", "training", "orchestration", "bench", "tests"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            if above.search(path.read_text(encoding="utf-8")):
+                offending.append(str(path.relative_to(ROOT)))
+    assert offending == []

@@ -107,3 +107,16 @@ def test_ray_data_jobs_in_a_log_print_plain_lines(ray_local, capfd, monkeypatch)
     ]
     lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("slow square: ")]
     assert lines and lines[-1].startswith("slow square: 4/4 task (100 %)"), lines
+
+
+def test_an_evaluation_in_a_log_prints_its_batches_in_plain_lines(trained_project, tiny_testset, capfd, monkeypatch):
+    from orchestration.cli import main
+
+    monkeypatch.setattr(progress_module, "MIN_SECONDS", 0.0)
+    capfd.readouterr()
+    argv = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--repeats", "1", "--ts", "4"]
+    assert main(argv + ["--batch-size", "3"]) == 0
+    err = capfd.readouterr().err
+    lines = [line for line in err.splitlines() if " batch (" in line]
+    assert lines and lines[-1].startswith("tps r0: 3/3 batch (100 %)"), err[-2000:]
+    assert "\r" not in err and "\x1b[" not in err
