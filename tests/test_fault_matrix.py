@@ -529,6 +529,28 @@ def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_pr
     assert marker.read_text().strip() == killed.name and (killed / model_file).is_file()
 
 
+def test_a_killed_tokenize_leaves_no_token_set_and_a_rerun_equals_a_clean_one(matrix_project, tmp_path):
+    from pipelines.tokenize import check_tokens, tokenize_dataset
+
+    root = Path(matrix_project["root"])
+    data = Path(yaml.safe_load((root / "vq.yaml").read_text())["data"]["dir"])
+    copies = {}
+    for name in ("killed", "clean"):  # the dataset without its token sets: tokenize writes a new one
+        copies[name] = tmp_path / name
+        shutil.copytree(data, copies[name], ignore=shutil.ignore_patterns("tokens"))
+    argv = ["tokenize", "--dataset", "tiny", "--vq", matrix_project["vq"], "--workers", "1"]
+    tokens = copies["killed"] / "tokens"
+    kill_when([*argv, "--data", str(copies["killed"])], root, lambda: any(tokens.glob("*/*.tar")))
+    (written,) = (p for p in tokens.iterdir() if p.is_dir())  # beside it, the writer's lock file
+    assert not (written / "manifest.json").exists()  # nothing that looks complete
+    run_to_the_end([*argv, "--data", str(copies["killed"])], root)
+    clean = copies["clean"] / "tokens" / written.name
+    tokenize_dataset(copies["clean"], matrix_project["vq"], clean, workers=1)  # in this process's Ray
+    assert check_tokens(written) == []
+    shards = lambda folder: {p.name: p.read_bytes() for p in folder.glob("*.tar")}  # noqa: E731
+    assert shards(written) == shards(clean) and shards(clean)
+
+
 def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
     from PIL import Image
 
