@@ -200,6 +200,37 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
     }
 
 
+def _trial_lines(name: str, config: dict[str, Any]) -> list[Any]:
+    """Where stderr is not a terminal, one plain line per finished trial (``sweep demo: 3/6 trial
+    (50 %), ..., eta=0.25 ts=90 done``) beside Ray Tune's status table (m2d2m/progress.py)."""
+    from ray import tune
+
+    from m2d2m.progress import ProgressLines, on_terminal
+
+    if on_terminal():
+        return []
+    total = 1 if config["search"] == "grid" else config["samples"]
+    for values in config["space"].values():
+        total *= len(values) if config["search"] == "grid" else 1
+
+    class TrialLines(tune.Callback):
+        def __init__(self) -> None:
+            self.lines = ProgressLines(total=total, desc=f"sweep {name}", unit="trial")
+
+        def _finished(self, trial: Any, outcome: str) -> None:
+            knobs = " ".join(f"{k}={trial.config[k]}" for k in config["space"] if k in trial.config)
+            self.lines.set_postfix_str(f"{knobs} {outcome}")
+            self.lines.update()
+
+        def on_trial_complete(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
+            self._finished(trial, "done")
+
+        def on_trial_error(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
+            self._finished(trial, "failed")
+
+    return [TrialLines()]
+
+
 def _trial_resources(resources: dict[str, Any]) -> dict[str, float]:
     """What a trial reserves: its CPUs and GPUs, or, when Ray Train workers train for it, one
     CPU for the trial itself (it waits for the workers, then evaluates on what they trained)."""
@@ -332,6 +363,7 @@ def sweep(
                         storage_path=str(storage),
                         verbose=1,
                         failure_config=tune.FailureConfig(max_failures=config["max_failures"]),
+                        callbacks=_trial_lines(name, config),
                     ),
                 )
             results = tuner.fit()

@@ -50,10 +50,17 @@ def child_runs(trained_project: Path, parent_run_id: str) -> list:
     return sorted(runs, key=lambda run: run.info.run_name)
 
 
-def test_a_two_trial_sweep_nests_its_trials_under_one_parent_and_resumes(trained_project, tiny_testset, monkeypatch):
+def test_a_two_trial_sweep_nests_its_trials_under_one_parent_and_resumes(
+    trained_project, tiny_testset, monkeypatch, capfd
+):
+    import m2d2m.progress
+
     monkeypatch.chdir(trained_project)
+    monkeypatch.setattr(m2d2m.progress, "MIN_SECONDS", 0.0)
     (trained_project / "two.yaml").write_text(yaml.safe_dump(sweep_config(tiny_testset)), encoding="utf-8")
     sweep_dir = sweep(str(trained_project / "two.yaml"))
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("sweep two: ")]
+    assert lines[-1].startswith("sweep two: 2/2 trial (100 %)") and lines[-1].endswith(" done"), lines
 
     summary = yaml.safe_load((sweep_dir / SUMMARY_JSON).read_text(encoding="utf-8"))
     assert [(row["eta"], row["ts"]) for row in summary] == [(0.25, 2), (0.25, 4)]
