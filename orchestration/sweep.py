@@ -20,6 +20,7 @@ Tables 5 and 7 as pictures). A parent run whose sweep fails ends FAILED.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 from pathlib import Path
@@ -209,9 +210,8 @@ def _trial_lines(name: str, config: dict[str, Any]) -> list[Any]:
 
     if on_terminal():
         return []
-    total = 1 if config["search"] == "grid" else config["samples"]
-    for values in config["space"].values():
-        total *= len(values) if config["search"] == "grid" else 1
+    grid = config["search"] == "grid"
+    total = math.prod(len(values) for values in config["space"].values()) if grid else config["samples"]
 
     class TrialLines(tune.Callback):
         def __init__(self) -> None:

@@ -27,6 +27,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from m2d2m.motion.clip import Motion
 from orchestration.errors import UserError
 from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
 from orchestration.web.catalog import Catalog, NotFound
@@ -99,14 +100,21 @@ class Service:
         return job, plan.prompts, run
 
     async def finish(self, job: Job, request: GenerateRequest, prompts: list[str], run: str) -> dict[str, Any]:
-        """The sampled motion on its rigid skeleton, recorded; the API's answer."""
+        """The sampled motion, recorded; the API's answer."""
         try:
-            motion = (await asyncio.wrap_future(job.done)).on_rigid_skeleton()
+            motion = await asyncio.wrap_future(job.done)
         except ValueError as error:  # the protocol's answer to a request a model cannot serve
             raise UserError(str(error)) from error
+        return await asyncio.wrap_future(self.recorder.submit(self._record, job, motion, request, prompts, run))
+
+    def _record(
+        self, job: Job, motion: Motion, request: GenerateRequest, prompts: list[str], run: str
+    ) -> dict[str, Any]:
+        """On the recorder's thread, not the event loop: the rigid skeleton, the files and MLflow
+        run, and the answer with every joint coordinate (milliseconds each, for a batch of 16)."""
         describe = job.generator.describe(job.options)
-        generation = await asyncio.wrap_future(
-            self.recorder.submit(self.generations.record, motion, prompts, request.model, run, request.seed, describe)
+        generation = self.generations.record(
+            motion.on_rigid_skeleton(), prompts, request.model, run, request.seed, describe
         )
         return self.generations.describe(generation)
 

@@ -131,8 +131,7 @@ class Catalog:
         """A run's own sampling defaults (a model file may carry its own) and the action lengths it
         supports: ``GET /api/models/{model}/runs/{run}``."""
         name, generator = self.generator(model, run)
-        preset = generator.preset(MULTI)
-        defaults = {knob: getattr(preset, knob) for knob in generator.sampling.names(with_method=True)}
+        defaults = asdict(generator.preset(MULTI))  # the options dataclass: every knob and the method
         return {
             "model": model,
             "id": name,

@@ -18,25 +18,25 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.motion.clip import Motion
+from m2d2m.motion.clip import ANIMATIONS, Motion
 from orchestration.generate import GENERATE_STAGE, Output, save_generation
 from orchestration.runs import write_run_info
 from orchestration.tracking import client, ensure_experiment, experiment_name, tracking_uri
 from orchestration.web.catalog import NotFound
 
 STEM = "motion"
-WRITTEN = ("npy", "bvh")  # with the motion; the animations on demand
-DRAWN = ("gif", "mp4")
-# the name a client asks for → the format that makes it (the sidecar and features come with npy)
-FILES = {
-    f"{STEM}.bvh": "bvh",
-    f"{STEM}.npy": "npy",
-    f"{STEM}.json": "npy",
-    f"{STEM}.features.npy": "npy",
-    f"{STEM}.gif": "gif",
-    f"{STEM}.mp4": "mp4",
+WRITTEN = ("npy", "bvh")  # with the motion; the animations (ANIMATIONS) when first asked for
+# a generation's files: the key of each in the API's answer → its suffix and the format that makes
+# it (the sidecar and the features come with npy)
+FILE_KINDS = {
+    "bvh": ("bvh", "bvh"),
+    "npy": ("npy", "npy"),
+    "json": ("json", "npy"),
+    "features": ("features.npy", "npy"),
+    "gif": ("gif", "gif"),
+    "mp4": ("mp4", "mp4"),
 }
-FILE_KEYS = {"bvh": "bvh", "npy": "npy", "json": "json", "features": "features.npy", "gif": "gif", "mp4": "mp4"}
+FILES = {f"{STEM}.{suffix}": made_by for suffix, made_by in FILE_KINDS.values()}  # the names served
 
 
 @dataclass
@@ -107,7 +107,7 @@ class Generations:
         if name not in FILES:
             raise NotFound(f"no file {name!r}; a generation has {', '.join(FILES)}")
         path = generation.directory / name
-        if FILES[name] in DRAWN:
+        if FILES[name] in ANIMATIONS:
             with generation.drawing:
                 if not path.exists():
                     self._draw(generation, FILES[name])
@@ -145,7 +145,7 @@ class Generations:
             "boundaries": motion.boundaries,
             "seconds": motion.seconds,
             "quality": motion.quality,
-            "files": {key: f"{url}/{STEM}.{suffix}" for key, suffix in FILE_KEYS.items()},
+            "files": {key: f"{url}/{STEM}.{suffix}" for key, (suffix, _) in FILE_KINDS.items()},
             "mlflow": {
                 "run_id": generation.mlflow_run_id,
                 "experiment": experiment_name(self.dataset, GENERATE_STAGE),
