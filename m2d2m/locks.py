@@ -17,14 +17,15 @@ class Busy(ValueError):
 
 
 @contextmanager
-def holding(lock_file: Path, busy: str, shared: bool = False) -> Iterator[None]:
+def holding(lock_file: Path, busy: str = "", shared: bool = False, wait: bool = False) -> Iterator[None]:
     """Hold ``lock_file`` (made if missing) exclusively, or ``shared`` with other readers, while
     the block runs; :class:`Busy` with the sentence ``busy`` when another command holds it in a
-    way that excludes this one."""
+    way that excludes this one, or with ``wait``, once it lets go (for writes of seconds whose
+    result the waiting command then reuses)."""
     lock_file.parent.mkdir(parents=True, exist_ok=True)
     with lock_file.open("a") as handle:
         try:
-            fcntl.flock(handle, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
+            fcntl.flock(handle, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | (0 if wait else fcntl.LOCK_NB))
         except BlockingIOError:
             raise Busy(busy) from None
         yield

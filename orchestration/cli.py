@@ -10,6 +10,7 @@ from the model registry, so a new model brings its own verb.
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import sys
 import time
@@ -868,6 +869,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# a folder or disk the user must fix, not a bug: read-only, another user's, full
+UNWRITABLE = (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT)
+
+
+def _unwritable(error: OSError) -> str:
+    where = Path(error.filename or ".")
+    if ".partial" in where.name:  # an atomic write's temporary file (m2d2m/atomic.py): its folder is the matter
+        where = where.parent
+    advice = "free some space" if error.errno in (errno.ENOSPC, errno.EDQUOT) else "check its permissions"
+    return f"{where}: {error.strerror.lower()}; {advice}, or choose another place"
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         parser = build_parser()  # imports the model plugins, which may fail
@@ -879,6 +892,11 @@ def main(argv: list[str] | None = None) -> int:
         args.run(args)
     except UserError as error:
         print(f"m2d2m {args.verb}: error: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        if error.errno not in UNWRITABLE:
+            raise
+        print(f"m2d2m {args.verb}: error: {_unwritable(error)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"m2d2m {args.verb}: interrupted", file=sys.stderr)

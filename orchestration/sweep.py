@@ -9,7 +9,8 @@ starts (parallel trials would otherwise race on SQLite's schema migration); tria
 function trainables that chdir to the project, so relative defaults (``runs/``, ``data/``) mean
 what they mean for the driver. The Tune experiment lives in ``runs/<dataset>/sweep/<name>/tune``:
 re-running a sweep whose driver died restores it there (finished trials are kept, unfinished and
-errored ones run again) instead of starting over. A restored Tune experiment keeps the parameters it
+errored ones run again, and one whose evaluation finished before Tune heard of it gives that
+evaluation's metrics instead of running again) instead of starting over. A restored Tune experiment keeps the parameters it
 was started with, so a re-run whose config differs from the one recorded in ``sweep.json`` is refused
 (``--name`` for a new sweep, ``--restart`` to replace it). A training sweep's keys are checked
 against the model's training config before Ray starts. The parent run gets a summary table and, for
@@ -116,6 +117,10 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     resources = context["resources"]
     enter_project(context["project"], context["tracking_uri"], resources["cpu"])
     load_plugins(**context["plugins"])
+    parent = ParentRun(context["experiment_id"], context["parent_run_id"], trial_name(params))
+    finished = _earlier_child(parent)
+    if finished is not None:
+        return finished
     evaluation = dict(context["evaluation"])
     name = context["model"]
     if context["kind"] == "training":
@@ -136,23 +141,27 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     else:
         evaluation["options"] = params
     settings = new_settings(context["dataset"], name, **evaluation)
-    parent = ParentRun(context["experiment_id"], context["parent_run_id"], trial_name(params))
-    _mark_interrupted(parent)
     _, table = evaluate(settings, context["dataset"], parent=parent, progress=False)
     return table_metrics(table)
 
 
-def _mark_interrupted(parent: Any) -> None:
-    """A trial run again after its driver died: its earlier child run never finished; say so
-    (KILLED) rather than leave it looking alive beside the new one."""
+def _earlier_child(parent: Any) -> dict[str, float] | None:
+    """A trial run again after its driver died. Its child run that finished before the kill
+    (its evaluation whole, its metrics logged, Tune not yet told) gives its metrics instead of
+    a second evaluation; one that never finished is marked KILLED rather than left looking alive
+    beside the new one."""
     mlflow_client = tracking_client()
     earlier = mlflow_client.search_runs(
         [parent.experiment_id],
-        f"tags.mlflow.parentRunId = '{parent.run_id}' and attributes.status = 'RUNNING' "
-        f"and attributes.run_name = '{parent.child_name}'",
+        f"tags.mlflow.parentRunId = '{parent.run_id}' and attributes.run_name = '{parent.child_name}'",
     )
     for run in earlier:
-        mlflow_client.set_terminated(run.info.run_id, "KILLED")
+        if run.info.status == "FINISHED":
+            return dict(run.data.metrics)
+    for run in earlier:
+        if run.info.status == "RUNNING":
+            mlflow_client.set_terminated(run.info.run_id, "KILLED")
+    return None
 
 
 def _tune_trainable(config: dict[str, Any]) -> None:
@@ -202,33 +211,12 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
 
 
 def _trial_lines(name: str, config: dict[str, Any]) -> list[Any]:
-    """Where stderr is not a terminal, one plain line per finished trial (``sweep demo: 3/6 trial
-    (50 %), ..., eta=0.25 ts=90 done``) beside Ray Tune's status table (m2d2m/progress.py)."""
-    from ray import tune
+    """The callback that prints a line per finished trial in a log (orchestration/sweep_lines.py)."""
+    from orchestration.sweep_lines import TrialLines
 
-    from m2d2m.progress import ProgressLines, on_terminal
-
-    if on_terminal():
-        return []
     grid = config["search"] == "grid"
     total = math.prod(len(values) for values in config["space"].values()) if grid else config["samples"]
-
-    class TrialLines(tune.Callback):
-        def __init__(self) -> None:
-            self.lines = ProgressLines(total=total, desc=f"sweep {name}", unit="trial")
-
-        def _finished(self, trial: Any, outcome: str) -> None:
-            knobs = " ".join(f"{k}={trial.config[k]}" for k in config["space"] if k in trial.config)
-            self.lines.set_postfix_str(f"{knobs} {outcome}")
-            self.lines.update()
-
-        def on_trial_complete(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
-            self._finished(trial, "done")
-
-        def on_trial_error(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
-            self._finished(trial, "failed")
-
-    return [TrialLines()]
+    return [TrialLines(name, list(config["space"]), total)]
 
 
 def _trial_resources(resources: dict[str, Any]) -> dict[str, float]:

@@ -70,6 +70,7 @@ import numpy as np
 
 import m2d2m
 from m2d2m.layout import MANIFEST, read_manifest, shard_urls
+from m2d2m.locks import holding
 from pipelines.shards import json_bytes, npy_bytes, sha256_of, write_json_atomically
 
 TESTSETS = "testsets"
@@ -335,6 +336,18 @@ def build_testset(
         raise ValueError(f"{data_dir}: no {split!r} split; the dataset has {', '.join(splits)}")
     target = testset_dir(data_dir, n, seed, out, limit, mirrors, split).resolve()
     parameters = _parameters(data_dir, n, seed, split, min_frames, mirrors, limit)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    # two commands building one test set (two evaluations of a new dataset): the later waits
+    # seconds, then reuses what the first wrote
+    with holding(target.parent / f".{target.name}.lock", wait=True):
+        _remove_leftovers(target)
+        return _reuse_or_build(data_dir, target, parameters, force)
+
+
+def _reuse_or_build(data_dir: Path, target: Path, parameters: dict[str, Any], force: bool) -> dict[str, Any]:
+    """:func:`build_testset`'s work, with ``target`` held."""
+    n, seed, split, limit = parameters["n"], parameters["seed"], parameters["split"], parameters["limit"]
+    min_frames, mirrors = parameters["min_frames"], parameters["mirrors"]
     if (target / MANIFEST).exists() and not force:
         existing = json.loads((target / MANIFEST).read_text(encoding="utf-8"))
         if not _same_parameters(existing, parameters):
@@ -364,7 +377,6 @@ def build_testset(
             if key in wanted:
                 features[key] = np.load(io.BytesIO(raw), allow_pickle=False)
 
-    target.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
     try:
         lines = [
@@ -409,6 +421,18 @@ def build_testset(
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return {**manifest, "path": str(target), "reused": False}
+
+
+def _remove_leftovers(target: Path) -> None:
+    """What a killed build of ``target`` left beside it (its lock held, so no build is under
+    way): a half-written ``.partial`` folder, or the old test set a ``--force`` had moved
+    aside, put back when the kill came before the new one was in place."""
+    for leftover in sorted(target.parent.glob(f".{target.name}.*.old")):
+        if not target.exists() and (leftover / target.name).is_dir():
+            os.replace(leftover / target.name, target)
+        shutil.rmtree(leftover, ignore_errors=True)
+    for leftover in target.parent.glob(f".{target.name}.*.partial"):
+        shutil.rmtree(leftover, ignore_errors=True)
 
 
 def _replace_dir(staging: Path, target: Path) -> None:

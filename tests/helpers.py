@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
 
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.rotations import qnormalize, quat_from_axis_angle
@@ -183,6 +184,26 @@ TINY_MMM = {
     "masking": {"alpha": 0.5},
     "preview": {"prompts": ["a person walks forward"], "seconds": [1.0]},
 }
+
+# MMM's upper-body editor at test size, over both part tokenizers' latest runs
+# (:func:`write_part_tokenizer_configs`).
+TINY_BODY = {
+    **{key: value for key, value in TINY_MMM.items() if key != "preview"},
+    "vq": {"upper": "latest", "lower": "latest"},
+    "masking": {"alpha": 0.5, "lower_most": 0.3},
+}
+
+
+def write_part_tokenizer_configs(project: Path) -> list[Path]:
+    """``vq-upper.yaml`` and ``vq-lower.yaml`` beside the project's ``vq.yaml``: its tokenizer
+    for one body part each, what ``m2d2m train-vq`` trains before the upper-body editor."""
+    vq = yaml.safe_load((project / "vq.yaml").read_text(encoding="utf-8"))
+    paths = []
+    for part in ("upper", "lower"):
+        paths.append(project / f"vq-{part}.yaml")
+        paths[-1].write_text(yaml.safe_dump({**vq, "model": {**vq["model"], "part": part}}), encoding="utf-8")
+    return paths
+
 
 # A MotionDiffuse training config small enough for tests (data.dir is filled in per test): 50 diffusion
 # steps, so that sampling with every step stays quick.

@@ -7,6 +7,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -111,6 +112,34 @@ def test_generate_while_a_training_moves_latest_finishes_every_time(trained_proj
     assert latest(trained_project, "m2d2m") != before and latest(trained_project, "m2d2m") in finished_runs(
         trained_project, "m2d2m"
     )
+
+
+def test_evaluate_while_a_training_moves_latest_judges_a_finished_model_every_time(trained_project, tiny_testset):
+    training = start(["train-diffusion", "--config", str(trained_project / "diffusion.yaml")], trained_project)
+    judged = []
+    while training.poll() is None or not judged:
+        argv = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--repeats", "1", "--ts", "4"]
+        assert main(argv) == 0
+        record = json.loads(
+            (trained_project / "runs" / "tiny" / "eval" / latest(trained_project, "eval") / "run.json").read_text()
+        )
+        (candidate,) = record["settings"]["candidates"]
+        judged.append(Path(candidate["checkpoint"]).parent.name)
+    finish(training)
+    assert set(judged) <= finished_runs(trained_project, "m2d2m")  # read once, and only ever a finished one
+
+
+def test_two_testsets_of_one_name_at_once_both_finish_with_one_whole_set(trained_project, tmp_path):
+    from pipelines.testset import check_testset
+
+    data = tmp_path / "data"  # the dataset without its test sets
+    shutil.copytree(trained_project / "data", data, ignore=shutil.ignore_patterns("testsets", "tokens"))
+    argv = ["testset", "--dataset", "tiny", "--data", str(data), "--n", "2", "--seed", "5", "--mirrors", "distinct"]
+    first, second = (start(argv, trained_project) for _ in "ab")
+    finish(first)
+    finish(second)
+    (built,) = (data / "testsets").glob("n2-*")
+    assert check_testset(built) == [] and not list((data / "testsets").glob(".*.partial"))
 
 
 def test_tokenize_while_a_training_tokenizes_first(trained_project, two_vq_runs, capfd):

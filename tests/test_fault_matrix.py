@@ -17,6 +17,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -26,8 +27,9 @@ import pytest
 import torch
 import yaml
 
+from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
-from tests.helpers import TINY_MMM
+from tests.helpers import TINY_BODY, TINY_MMM, TINY_MOTIONDIFFUSE, pose_clip, write_part_tokenizer_configs
 
 # ------------------------------------------------------------------------------ the bad inputs
 
@@ -107,6 +109,8 @@ TRAINING = {
     "train-diffusion": "{root}/diffusion.yaml",
     "train-evaluator": "{root}/evaluator.yaml",
     "train-mmm": "{root}/mmm.yaml",
+    "train-mmm-body": "{root}/body.yaml",
+    "train-motiondiffuse": "{root}/motiondiffuse.yaml",
 }
 
 
@@ -144,12 +148,22 @@ def _training_cases() -> list[list[str]]:
         ("train-mmm", "transformer.heads=3"),
         ("train-mmm", "transformer.cross_layers=9"),
         ("train-mmm", "masking.alpha=2"),
+        ("train-mmm-body", "masking.lower_most=2"),
+        ("train-mmm-body", "transformer.heads=3"),
+        ("train-mmm-body", "vq=latest"),
+        ("train-mmm-body", "vq.upper=no-such-run"),
+        ("train-mmm-body", "vq.lower={vq}"),
+        ("train-motiondiffuse", "network.heads=3"),
+        ("train-motiondiffuse", "network.attention=quadratic"),
+        ("train-motiondiffuse", "diffusion.steps=0"),
+        ("train-motiondiffuse", "diffusion.beta_end=2"),
+        ("train-motiondiffuse", "data.min_frames=500"),
     ):
         cases.append([verb, "--config", TRAINING[verb], "--set", override])
-    for verb in ("train-diffusion", "train-mmm"):
+    for verb, key in (("train-diffusion", "vq"), ("train-mmm", "vq"), ("train-mmm-body", "vq.upper")):
         for name in (*BAD_MODEL_FILES, "truncated-vq.pt", "model.pt"):
             path = "{model}" if name == "model.pt" else "{tmp}/" + name
-            cases.append([verb, "--config", TRAINING[verb], "--set", f"vq={path}"])
+            cases.append([verb, "--config", TRAINING[verb], "--set", f"{key}={path}"])
     return cases
 
 
@@ -312,8 +326,6 @@ BAD_ARGUMENTS: list[list[str]] = [
             ["--max-batch", "0"],
         )
     ],
-    ["train-motiondiffuse", "--config", "no-such-config"],
-    ["train-mmm-body", "--config", "no-such-config"],
     ["train-mmm", "--config", "{root}/mmm.yaml", "--set", "vq={tmp}/joints.npy"],
     ["sweep", "--config", "no-such-sweep"],
     *_bad_files("sweep", ["--config"], BAD_CONFIGS),
@@ -395,6 +407,13 @@ def matrix_project(trained_project: Path, tmp_path_factory) -> Iterator[dict[str
     tmp = tmp_path_factory.mktemp("bad-inputs")
     write_bad_files(tmp, trained_project)
     (trained_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
+    (trained_project / "body.yaml").write_text(yaml.safe_dump(TINY_BODY), encoding="utf-8")
+    features = {**TINY_MOTIONDIFFUSE["data"], "dir": str(trained_project / "data")}
+    (trained_project / "motiondiffuse.yaml").write_text(
+        yaml.safe_dump({**TINY_MOTIONDIFFUSE, "data": features}), encoding="utf-8"
+    )
+    for config in write_part_tokenizer_configs(trained_project):  # what the upper-body editor reads
+        assert main(["train-vq", "--config", str(config)]) == 0
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
@@ -431,11 +450,28 @@ def test_a_user_error_is_one_line_with_exit_2_and_leaves_nothing_that_looks_done
 # ------------------------------------------------------------------------------------ the kills
 
 
-def cli_process(argv: list[str], cwd: Path) -> subprocess.Popen:
-    """``m2d2m`` in its own session, so that a kill reaches what it started (Ray, workers)."""
+# ``python -c PAUSED module function argv...``: m2d2m, stopping for good once ``module.function``
+# returns, so that a kill lands at that point of a write that is otherwise over in milliseconds
+PAUSED = """
+import importlib, sys, time
+module, name = importlib.import_module(sys.argv[1]), sys.argv[2]
+function = getattr(module, name)
+def then_pause(*args, **kwargs):
+    function(*args, **kwargs)
+    time.sleep(600)
+setattr(module, name, then_pause)
+from orchestration.cli import main
+sys.exit(main(sys.argv[3:]))
+"""
+
+
+def cli_process(argv: list[str], cwd: Path, pause_after: str | None = None) -> subprocess.Popen:
+    """``m2d2m`` in its own session, so that a kill reaches what it started (Ray, workers);
+    with ``pause_after`` (``module.function``) stopped once that function has returned."""
     env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "RAY_ADDRESS")}
+    start = ["-c", PAUSED, *pause_after.rsplit(".", 1)] if pause_after else ["-m", "orchestration.cli"]
     return subprocess.Popen(
-        [sys.executable, "-m", "orchestration.cli", *argv],
+        [sys.executable, *start, *argv],
         cwd=cwd,
         env=env,
         stdout=subprocess.DEVNULL,
@@ -445,9 +481,11 @@ def cli_process(argv: list[str], cwd: Path) -> subprocess.Popen:
     )
 
 
-def kill_when(argv: list[str], cwd: Path, reached: Callable[[], bool], timeout: float = 300.0) -> None:
+def kill_when(
+    argv: list[str], cwd: Path, reached: Callable[[], bool], timeout: float = 300.0, pause_after: str | None = None
+) -> None:
     """Run ``m2d2m argv`` and SIGKILL its whole session as soon as ``reached()`` holds."""
-    process = cli_process(argv, cwd)
+    process = cli_process(argv, cwd, pause_after)
     deadline = time.monotonic() + timeout
     while process.poll() is None and not reached() and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -458,10 +496,12 @@ def kill_when(argv: list[str], cwd: Path, reached: Callable[[], bool], timeout: 
     assert running and reached(), f"the kill point was never reached; stderr:\n{stderr[-2000:]}"
 
 
-def run_to_the_end(argv: list[str], cwd: Path) -> None:
+def run_to_the_end(argv: list[str], cwd: Path) -> str:
+    """Run ``m2d2m argv`` to its end (exit 0); its stderr, a log rather than a terminal."""
     process = cli_process(argv, cwd)
     stderr = process.communicate(timeout=600)[1]
     assert process.returncode == 0, stderr[-3000:]
+    return stderr
 
 
 def tree_digest(folder: Path) -> dict[str, str]:
@@ -507,7 +547,14 @@ def test_a_killed_rebuild_leaves_the_dataset_whole_and_a_rerun_equals_a_clean_bu
 
 @pytest.mark.parametrize(
     "verb, config, stage, model_file",
-    [("train-vq", "vq.yaml", "vq", "vq.pt"), ("train-mmm", "mmm.yaml", "mmm", "model.pt")],
+    [
+        ("train-vq", "vq.yaml", "vq", "vq.pt"),
+        ("train-diffusion", "diffusion.yaml", "m2d2m", "model.pt"),
+        ("train-evaluator", "evaluator.yaml", "evaluator", "evaluator.pt"),
+        ("train-mmm", "mmm.yaml", "mmm", "model.pt"),
+        ("train-mmm-body", "body.yaml", "mmm-body", "model.pt"),
+        ("train-motiondiffuse", "motiondiffuse.yaml", "motiondiffuse", "model.pt"),
+    ],
 )
 def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_project, verb, config, stage, model_file):
     root = Path(matrix_project["root"])
@@ -519,12 +566,13 @@ def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_pr
     def a_new_checkpoint() -> bool:
         return folder.exists() and any(list(run.glob("checkpoints/*.ckpt")) for run in set(folder.iterdir()) - before)
 
-    settings = ["trainer.max_steps=30", "trainer.val_every_steps=2", "trainer.gif_every=100"]
+    settings = ["trainer.max_steps=12", "trainer.val_every_steps=2"]
+    settings += ["trainer.gif_every=100"] if verb != "train-evaluator" else []  # it draws no previews
     kill_when([verb, "--config", config, *(arg for s in settings for arg in ("--set", s))], root, a_new_checkpoint)
     (killed,) = {run for run in set(folder.iterdir()) - before if run.is_dir()}
     assert json.loads((killed / "run.json").read_text())["status"] == "running"
     assert (marker.read_text() if marker.exists() else None) == finished and not (killed / model_file).exists()
-    run_to_the_end([verb, "--config", config, "--resume"], root)
+    assert main([verb, "--config", config, "--resume"]) == 0  # here: a second process would import for seconds
     assert json.loads((killed / "run.json").read_text())["status"] == "finished"
     assert marker.read_text().strip() == killed.name and (killed / model_file).is_file()
 
@@ -549,6 +597,68 @@ def test_a_killed_tokenize_leaves_no_token_set_and_a_rerun_equals_a_clean_one(ma
     assert check_tokens(written) == []
     shards = lambda folder: {p.name: p.read_bytes() for p in folder.glob("*.tar")}  # noqa: E731
     assert shards(written) == shards(clean) and shards(clean)
+
+
+@pytest.mark.parametrize("force", [False, True], ids=["new", "force over the old"])
+def test_a_killed_testset_leaves_no_half_set_and_a_rerun_equals_a_clean_one(matrix_project, tmp_path, force):
+    from pipelines.testset import build_testset, check_testset
+
+    root = Path(matrix_project["root"])
+    copies = {}
+    for name in ("killed", "clean"):  # the dataset without its test sets
+        copies[name] = tmp_path / name
+        shutil.copytree(root / "data", copies[name], ignore=shutil.ignore_patterns("testsets", "tokens"))
+    parameters = {"n": 2, "seed": 11, "mirrors": "distinct"}
+    clean = Path(build_testset(copies["clean"], **parameters)["path"])
+    sets = copies["killed"] / "testsets"
+    target = sets / clean.name
+    old = tree_digest(Path(build_testset(copies["killed"], **parameters)["path"])) if force else None
+    argv = ["testset", "--dataset", "tiny", "--data", str(copies["killed"]), "--n", "2", "--seed", "11"]
+    argv += ["--mirrors", "distinct", *(["--force"] if force else [])]
+    # killed once its motions are written into the new set's folder, before its manifest
+    written = lambda: any(sets.glob(f".{target.name}.*.partial/motions.npz"))  # noqa: E731
+    kill_when(argv, root, written, pause_after="pipelines.testset._write_npz")
+    assert tree_digest(target) == old if force else not target.exists()  # nothing half-written looks done
+    if force:  # and had the kill come between --force's two renames: the old set is aside, whole
+        aside = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=sets))
+        target.rename(aside / target.name)
+    run_to_the_end(argv, root)
+    assert check_testset(target) == []
+    assert sorted(p.name for p in sets.iterdir()) == [f".{target.name}.lock", target.name]
+    no_manifest = lambda folder: {k: v for k, v in tree_digest(folder).items() if k != "manifest.json"}  # noqa: E731
+    assert no_manifest(target) == no_manifest(clean)  # the manifest names the dataset's folder
+
+
+def test_a_killed_sweep_resumes_without_evaluating_a_finished_trial_again(matrix_project, tiny_testset):
+    import mlflow
+
+    from tests.test_sweep import sweep_config
+
+    root = Path(matrix_project["root"])
+    config = root / "killed-sweep.yaml"
+    config.write_text(yaml.safe_dump(sweep_config(tiny_testset, max_concurrent=1)), encoding="utf-8")
+    evaluations = root / "runs" / "tiny" / "eval"
+    before = set(evaluations.iterdir()) if evaluations.exists() else set()
+
+    def finished_evaluations() -> list[Path]:
+        new = set(evaluations.glob("*/run.json")) - {run / "run.json" for run in before}
+        return [info.parent for info in new if json.loads(info.read_text()).get("status") == "finished"]
+
+    kill_when(["sweep", "--config", str(config)], root, lambda: len(finished_evaluations()) == 1)
+    log = run_to_the_end(["sweep", "--config", str(config)], root)
+    assert len(finished_evaluations()) == 2  # the trial that finished before the kill is not evaluated again
+    lines = [line for line in log.splitlines() if line.startswith("sweep killed-sweep: ")]
+    assert lines and lines[-1].startswith("sweep killed-sweep: 2/2 trial (100 %)"), log[-3000:]
+
+    sweep_dir = root / "runs" / "tiny" / "sweep" / "killed-sweep"
+    summary = json.loads((sweep_dir / "summary.json").read_text(encoding="utf-8"))
+    assert [row["ts"] for row in summary] == [2, 4] and all(row["multi/tps/jerk"] is not None for row in summary)
+    client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{root / 'mlflow.db'}")
+    parent = client.get_run(json.loads((sweep_dir / "sweep.json").read_text(encoding="utf-8"))["parent_run_id"])
+    children = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent.info.run_id}'")
+    assert parent.info.status == "FINISHED"
+    assert sorted(run.info.status for run in children) == ["FINISHED", "FINISHED"]
+    assert len({run.info.run_name for run in children}) == 2
 
 
 def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
@@ -586,6 +696,90 @@ def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
     if (killed / "motion.gif").exists():  # only ever a whole animation under the final name
         with Image.open(killed / "motion.gif") as image:
             assert image.n_frames == frames
+
+
+@pytest.mark.parametrize(
+    "out, pause_after",
+    [("clip.gif", None), ("clip.bvh", "numpy.savetxt")],  # a GIF takes seconds to draw, a BVH is written at once
+    ids=["render", "export"],
+)
+def test_a_killed_render_or_export_leaves_no_file_and_a_rerun_leaves_no_trace(tmp_path, out, pause_after):
+    from PIL import Image
+
+    frames = 80
+    np.save(tmp_path / "clip.npy", pose_clip(T2M, frames, seed=5))
+    argv = ["render" if out.endswith(".gif") else "export", "clip.npy", "--out", out]
+    kill_when(argv, tmp_path, lambda: any(tmp_path.glob(".clip.*.partial.*")), pause_after=pause_after)
+    assert not (tmp_path / out).exists()
+    run_to_the_end(argv, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["clip.npy", out])  # the killed write's file went
+    if out.endswith(".gif"):
+        with Image.open(tmp_path / out) as image:
+            assert image.n_frames == frames
+    else:
+        header, rows = (tmp_path / out).read_text(encoding="utf-8").split("Frame Time:")
+        assert f"Frames: {frames}\n" in header and len(rows.strip().splitlines()) == 1 + frames  # its time, its rows
+
+
+def without_write_permission(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
+    """``m2d2m argv`` as a user that folder permissions bind: root gives up the capabilities that
+    let it write anywhere (util-linux's setpriv), so a read-only folder is read-only to it too."""
+    privileges = ["dac_override", "dac_read_search", "fowner"]
+    dropped = ",".join(f"-{name}" for name in privileges)
+    prefix = ["setpriv", f"--inh-caps={dropped}", f"--bounding-set={dropped}"] if os.geteuid() == 0 else []
+    env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "RAY_ADDRESS")}
+    command = [*prefix, sys.executable, "-m", "orchestration.cli", *argv]
+    return subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def read_only_project(matrix_project, tmp_path_factory) -> Iterator[Path]:
+    """A copy of the trained project whose ``runs/`` and ``data/`` (without token sets or test
+    sets, so that tokenize and testset would write) and ``ro/`` may be read but not written."""
+    if os.geteuid() == 0 and shutil.which("setpriv") is None:
+        pytest.skip("running as root without util-linux's setpriv, nothing is read-only")
+    root = tmp_path_factory.mktemp("read-only")
+    source = Path(matrix_project["root"])
+    shutil.copytree(source / "runs", root / "runs")
+    shutil.copytree(source / "data", root / "data", ignore=shutil.ignore_patterns("tokens", "testsets"))
+    shutil.copytree(source / "raw", root / "raw")
+    shutil.copy(source / "vq.yaml", root / "vq.yaml")
+    shutil.copy(source / "mlflow.db", root / "mlflow.db")  # a project in use: MLflow says nothing making it
+    (root / "ro").mkdir()
+    np.save(root / "clip.npy", pose_clip(T2M, 40, seed=5))
+    folders = [
+        root / "ro",
+        *(d for top in ("runs", "data") for d in [root / top, *(root / top).rglob("*")] if d.is_dir()),
+    ]
+    for folder in folders:
+        folder.chmod(0o555)
+    yield root
+    for folder in folders:
+        folder.chmod(0o755)
+
+
+READ_ONLY_CASES = [
+    ["synthesize", "--out", "ro/raw", "--clips", "3"],
+    ["data", "--raw", "raw", "--out", "ro/data"],
+    ["tokenize", "--dataset", "tiny", "--data", "data", "--vq", "latest"],
+    ["testset", "--dataset", "tiny", "--data", "data", "--n", "2"],
+    ["train-vq", "--config", "vq.yaml"],
+    ["generate", "a person walks", "--dataset", "tiny", "--seconds", "1", "--no-track"],
+    ["evaluate", "--dataset", "tiny", "--repeats", "1"],
+    ["export", "clip.npy", "--out", "ro/clip.bvh"],
+]
+
+
+@pytest.mark.parametrize("argv", READ_ONLY_CASES, ids=[_case_id(a) for a in READ_ONLY_CASES])
+def test_a_folder_it_may_not_write_is_one_line(argv, read_only_project):
+    kept = ("runs", "data", "ro")
+    before = [tree_digest(read_only_project / folder) for folder in kept]
+    done = without_write_permission(argv, read_only_project)
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr[-3000:]
+    assert len(lines) == 1 and lines[0].startswith(f"m2d2m {argv[0]}: error: ")
+    assert "permission denied" in lines[0].lower()
+    assert [tree_digest(read_only_project / folder) for folder in kept] == before
 
 
 @pytest.mark.parametrize("in_the_way", ["runs/elsewhere", "runs/elsewhere/generate"])

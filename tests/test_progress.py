@@ -120,3 +120,28 @@ def test_an_evaluation_in_a_log_prints_its_batches_in_plain_lines(trained_projec
     lines = [line for line in err.splitlines() if " batch (" in line]
     assert lines and lines[-1].startswith("tps r0: 3/3 batch (100 %)"), err[-2000:]
     assert "\r" not in err and "\x1b[" not in err
+
+
+def test_a_restored_sweep_counts_the_trials_it_had_finished(capsys, monkeypatch):
+    """Tune pickles the sweep's callback with the experiment and hands it back on restore: the
+    driver that restores it counts the trials finished before it, and prints in its own log."""
+    import pickle
+    from types import SimpleNamespace
+
+    from ray.tune.experiment import Trial
+
+    from orchestration.sweep_lines import TrialLines
+
+    monkeypatch.setattr(progress_module, "MIN_SECONDS", 0.0)
+    trials = [
+        SimpleNamespace(status=status, TERMINATED=Trial.TERMINATED, config={"eta": 0.25, "ts": ts})
+        for status, ts in ((Trial.TERMINATED, 2), (Trial.PENDING, 4), (Trial.PENDING, 8))
+    ]
+    restored = pickle.loads(pickle.dumps(TrialLines("demo", ["eta", "ts"], total=3)))
+    restored.setup()
+    restored.on_step_begin(0, trials)
+    restored.on_trial_complete(1, trials, trials[1])
+    restored.on_trial_error(2, trials, trials[2])
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith("sweep demo: 2/3 trial (67 %)") and lines[0].endswith("eta=0.25 ts=4 done")
+    assert lines[1].startswith("sweep demo: 3/3 trial (100 %)") and lines[1].endswith("eta=0.25 ts=8 failed")

@@ -220,7 +220,7 @@ def test_reuse_without_force_and_rebuild_with_it(data, tmp_path):
         build_testset(data, n=2, seed=0, out=tmp_path, min_frames=20)
     forced = build_testset(data, n=2, seed=0, out=tmp_path, min_frames=20, force=True)
     assert forced["reused"] is False and forced["min_frames"] == 20 and check_testset(path) == []
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["n2-seed0"]  # no partial or old directories left
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".n2-seed0.lock", "n2-seed0"]  # no partial or old ones
 
 
 def test_check_finds_corruption(data, tmp_path):
@@ -247,7 +247,7 @@ def test_check_finds_corruption(data, tmp_path):
 def test_too_few_motions_is_an_error(data, tmp_path):
     with pytest.raises(ValueError, match="fewer than n = 9"):
         build_testset(data, n=9, out=tmp_path)
-    assert not list(tmp_path.iterdir())
+    assert [p.name for p in tmp_path.iterdir()] == [".n9-seed0.lock"]  # no test set, whole or half
 
 
 def test_on_the_pipelines_own_output(tiny_data, tmp_path):

@@ -15,21 +15,15 @@ from m2d2m.motion.skeleton import T2M
 from m2d2m.networks.vqvae import load_vq
 from orchestration.cli import main
 from orchestration.runs import latest_run, read_run_info
-from tests.helpers import TINY_MMM, latest_evaluation, pose_clip
+from tests.helpers import TINY_BODY, TINY_MMM, latest_evaluation, pose_clip, write_part_tokenizer_configs
 from training.data import BodyTokenDataModule, TokenDataModule
-
-TINY_BODY = {**TINY_MMM, "vq": {UPPER: "latest", LOWER: "latest"}, "masking": {"alpha": 0.5, "lower_most": 0.3}}
-del TINY_BODY["preview"]
 
 
 @pytest.fixture(scope="module")
 def body_project(trained_project):
     """The trained project with both part tokenizers and an editor trained on its corpus."""
-    vq = yaml.safe_load((trained_project / "vq.yaml").read_text(encoding="utf-8"))
-    for part in (UPPER, LOWER):
-        config = {**vq, "model": {**vq["model"], "part": part}}
-        (trained_project / f"vq-{part}.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
-        assert main(["train-vq", "--config", str(trained_project / f"vq-{part}.yaml")]) == 0
+    for config in write_part_tokenizer_configs(trained_project):
+        assert main(["train-vq", "--config", str(config)]) == 0
     (trained_project / "body.yaml").write_text(yaml.safe_dump(TINY_BODY), encoding="utf-8")
     assert main(["train-mmm-body", "--config", str(trained_project / "body.yaml")]) == 0
     return trained_project
