@@ -45,3 +45,7 @@ class TrialLines(tune.Callback):
 
     def on_trial_error(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
         self._finished(trial, "failed")
+
+    def on_experiment_end(self, trials: list, **info: Any) -> None:
+        if self.lines is not None:  # the last count, when the sweep took long enough to print any
+            self.lines.close()

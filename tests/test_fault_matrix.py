@@ -496,14 +496,6 @@ def kill_when(
     assert running and reached(), f"the kill point was never reached; stderr:\n{stderr[-2000:]}"
 
 
-def run_to_the_end(argv: list[str], cwd: Path) -> str:
-    """Run ``m2d2m argv`` to its end (exit 0); its stderr, a log rather than a terminal."""
-    process = cli_process(argv, cwd)
-    stderr = process.communicate(timeout=600)[1]
-    assert process.returncode == 0, stderr[-3000:]
-    return stderr
-
-
 def tree_digest(folder: Path) -> dict[str, str]:
     return {
         str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
@@ -522,7 +514,7 @@ def test_a_killed_synthesize_leaves_a_corpus_a_rerun_completes_to_the_clean_one(
     assert tree_digest(tmp_path / "killed") == tree_digest(tmp_path / "clean")
 
 
-def test_a_killed_rebuild_leaves_the_dataset_whole_and_a_rerun_equals_a_clean_build(tmp_path, ray_local):
+def test_a_killed_rebuild_leaves_the_dataset_whole_and_a_rerun_equals_a_clean_build(tmp_path, ray_local, monkeypatch):
     from pipelines.features import DataConfig, build_dataset
     from pipelines.synthetic import generate_corpus
 
@@ -536,7 +528,8 @@ def test_a_killed_rebuild_leaves_the_dataset_whole_and_a_rerun_equals_a_clean_bu
     argv = ["data", "--raw", "raw", "--out", "data", "--samples-per-shard", "8", "--workers", "1", "--force"]
     kill_when(argv, tmp_path, lambda: any(tmp_path.glob(".data.building-*/shards/*.tar")))
     assert tree_digest(tmp_path / "data") == clean  # the old dataset, untouched
-    run_to_the_end(argv, tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 0  # the re-run here, on this session's Ray
     rebuilt = tree_digest(tmp_path / "data")
     assert {k: v for k, v in rebuilt.items() if k.startswith("shards/") or k == "stats.npz"} == {
         k: v for k, v in clean.items() if k.startswith("shards/") or k == "stats.npz"
@@ -591,7 +584,7 @@ def test_a_killed_tokenize_leaves_no_token_set_and_a_rerun_equals_a_clean_one(ma
     kill_when([*argv, "--data", str(copies["killed"])], root, lambda: any(tokens.glob("*/*.tar")))
     (written,) = (p for p in tokens.iterdir() if p.is_dir())  # beside it, the writer's lock file
     assert not (written / "manifest.json").exists()  # nothing that looks complete
-    run_to_the_end([*argv, "--data", str(copies["killed"])], root)
+    assert main([*argv, "--data", str(copies["killed"])]) == 0  # the re-run here, on this session's Ray
     clean = copies["clean"] / "tokens" / written.name
     tokenize_dataset(copies["clean"], matrix_project["vq"], clean, workers=1)  # in this process's Ray
     assert check_tokens(written) == []
@@ -622,16 +615,19 @@ def test_a_killed_testset_leaves_no_half_set_and_a_rerun_equals_a_clean_one(matr
     if force:  # and had the kill come between --force's two renames: the old set is aside, whole
         aside = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=sets))
         target.rename(aside / target.name)
-    run_to_the_end(argv, root)
+    assert main(argv) == 0  # the re-run here: a second process would import for seconds
     assert check_testset(target) == []
     assert sorted(p.name for p in sets.iterdir()) == [f".{target.name}.lock", target.name]
     no_manifest = lambda folder: {k: v for k, v in tree_digest(folder).items() if k != "manifest.json"}  # noqa: E731
     assert no_manifest(target) == no_manifest(clean)  # the manifest names the dataset's folder
 
 
-def test_a_killed_sweep_resumes_without_evaluating_a_finished_trial_again(matrix_project, tiny_testset):
+def test_a_killed_sweep_resumes_without_evaluating_a_finished_trial_again(
+    matrix_project, tiny_testset, capfd, monkeypatch
+):
     import mlflow
 
+    import m2d2m.progress
     from tests.test_sweep import sweep_config
 
     root = Path(matrix_project["root"])
@@ -645,7 +641,10 @@ def test_a_killed_sweep_resumes_without_evaluating_a_finished_trial_again(matrix
         return [info.parent for info in new if json.loads(info.read_text()).get("status") == "finished"]
 
     kill_when(["sweep", "--config", str(config)], root, lambda: len(finished_evaluations()) == 1)
-    log = run_to_the_end(["sweep", "--config", str(config)], root)
+    monkeypatch.setattr(m2d2m.progress, "MIN_SECONDS", 0.0)  # a line for each trial, however quick
+    capfd.readouterr()
+    assert main(["sweep", "--config", str(config)]) == 0  # the re-run here, its stderr a log
+    log = capfd.readouterr().err
     assert len(finished_evaluations()) == 2  # the trial that finished before the kill is not evaluated again
     lines = [line for line in log.splitlines() if line.startswith("sweep killed-sweep: ")]
     assert lines and lines[-1].startswith("sweep killed-sweep: 2/2 trial (100 %)"), log[-3000:]
@@ -687,7 +686,7 @@ def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
     kill_when(argv, root, writing_the_gif)
     (killed,) = set(runs.iterdir()) - before
     assert json.loads((killed / "run.json").read_text())["status"] != "finished"
-    run_to_the_end(argv, root)
+    assert main(argv) == 0
     (done,) = set(runs.iterdir()) - before - {killed}
     assert json.loads((done / "run.json").read_text())["status"] == "finished"
     frames = len(np.load(done / "motion.npy"))
@@ -703,7 +702,7 @@ def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
     [("clip.gif", None), ("clip.bvh", "numpy.savetxt")],  # a GIF takes seconds to draw, a BVH is written at once
     ids=["render", "export"],
 )
-def test_a_killed_render_or_export_leaves_no_file_and_a_rerun_leaves_no_trace(tmp_path, out, pause_after):
+def test_a_killed_render_or_export_leaves_no_file_and_a_rerun_leaves_no_trace(tmp_path, monkeypatch, out, pause_after):
     from PIL import Image
 
     frames = 80
@@ -711,7 +710,8 @@ def test_a_killed_render_or_export_leaves_no_file_and_a_rerun_leaves_no_trace(tm
     argv = ["render" if out.endswith(".gif") else "export", "clip.npy", "--out", out]
     kill_when(argv, tmp_path, lambda: any(tmp_path.glob(".clip.*.partial.*")), pause_after=pause_after)
     assert not (tmp_path / out).exists()
-    run_to_the_end(argv, tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["clip.npy", out])  # the killed write's file went
     if out.endswith(".gif"):
         with Image.open(tmp_path / out) as image:
@@ -809,7 +809,7 @@ def test_a_killed_evaluation_resumes_from_its_finished_batches_to_the_clean_resu
     (killed,) = {run for run in set(runs.iterdir()) - before if run.is_dir()}
     assert json.loads((killed / "run.json").read_text())["status"] == "running"
     assert main(["evaluate", "--dataset", "tiny", "--resume", killed.name, "--batch-size", "3"]) == 0
-    run_to_the_end(argv, root)  # a clean run of the same settings
+    assert main(argv) == 0  # a clean run of the same settings
     (clean,) = {run for run in set(runs.iterdir()) - before - {killed} if run.is_dir()}
     for result in sorted((clean / "results").glob("*.json")):
         resumed = json.loads((killed / "results" / result.name).read_text())["metrics"]
