@@ -334,6 +334,7 @@ def build_testset(
     splits = read_manifest(data_dir)["shards"]
     if split not in splits:
         raise ValueError(f"{data_dir}: no {split!r} split; the dataset has {', '.join(splits)}")
+    shard_urls(data_dir, split)  # a damaged dataset is refused before anything is written
     target = testset_dir(data_dir, n, seed, out, limit, mirrors, split).resolve()
     parameters = _parameters(data_dir, n, seed, split, min_frames, mirrors, limit)
     target.parent.mkdir(parents=True, exist_ok=True)
