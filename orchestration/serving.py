@@ -4,17 +4,22 @@
 and its huey workers. Stopping only the process we started leaves the rest serving, so the
 command runs in its own session (one process group, ``start_new_session``) and, whatever ends
 it — SIGTERM, SIGINT, SIGHUP, its own exit, an error — the whole group and every descendant
-found by psutil gets SIGTERM, then SIGKILL after a grace period. See the Python docs of
+found by psutil gets SIGTERM, then SIGKILL after a grace period. A SIGKILL of this process
+runs none of that, so on Linux a small watcher process of ours (``python -m
+orchestration.serving PARENT ROOT``, in a session of its own) does it instead: the kernel sends it
+SIGTERM when its parent dies (``PR_SET_PDEATHSIG``, prctl(2)). See the Python docs of
 ``subprocess.Popen(start_new_session=...)``, ``os.killpg`` and ``signal.signal``, and
 ``psutil.wait_procs``.
 """
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import socket
 import subprocess
+import sys
 
 import psutil
 
@@ -22,6 +27,7 @@ from orchestration.errors import UserError
 
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
 GRACE_S = 5.0
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
 def check_port_free(host: str, port: int) -> None:
@@ -50,17 +56,17 @@ def _raise_stopped(signum: int, _frame: object) -> None:
     raise _Stopped(signum)
 
 
-def _stop_tree(process: subprocess.Popen, grace_s: float = GRACE_S) -> None:
-    """SIGTERM to the process's group and to each of its descendants (one may have left the
-    group), SIGKILL to whatever is left after ``grace_s`` seconds; then reap the process."""
+def _stop_tree(root: int, grace_s: float = GRACE_S) -> None:
+    """SIGTERM to the group of ``root`` (a session leader) and to each of its descendants (one
+    may have left the group), SIGKILL to whatever is left after ``grace_s`` seconds."""
     try:
-        members = [psutil.Process(process.pid)]
+        members = [psutil.Process(root)]
         members += members[0].children(recursive=True)
     except psutil.NoSuchProcess:
         members = []
     for send in (signal.SIGTERM, signal.SIGKILL):
         try:
-            os.killpg(process.pid, send)
+            os.killpg(root, send)
         except (ProcessLookupError, PermissionError):  # the group is gone already
             pass
         for member in members:
@@ -71,16 +77,16 @@ def _stop_tree(process: subprocess.Popen, grace_s: float = GRACE_S) -> None:
         _, members = psutil.wait_procs(members, timeout=grace_s)
         if not members:
             break
-    process.wait()
 
 
 def serve(command: list[str]) -> int | None:
     """Run ``command`` in its own session until it exits (its status) or a stop signal arrives
     (None); either way nothing it started is left running. Call from the main thread."""
     previous = {sig: signal.signal(sig, _raise_stopped) for sig in STOP_SIGNALS}
-    process = None
+    process = watcher = None
     try:
         process = subprocess.Popen(command, start_new_session=True)
+        watcher = _start_watcher(process.pid)
         return process.wait()
     except _Stopped:
         return None
@@ -88,6 +94,34 @@ def serve(command: list[str]) -> int | None:
         for sig in STOP_SIGNALS:  # a second Ctrl-C must not cut the clean-up short
             signal.signal(sig, signal.SIG_IGN)
         if process is not None:
-            _stop_tree(process)
+            _stop_tree(process.pid)
+            process.wait()
+        if watcher is not None:  # nothing left to watch over
+            watcher.kill()
+            watcher.wait()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def _start_watcher(root: int) -> subprocess.Popen | None:
+    """The process that stops the tree of ``root`` should this one be killed (Linux; None elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    command = [sys.executable, "-m", "orchestration.serving", str(os.getpid()), str(root)]
+    return subprocess.Popen(command, start_new_session=True, stdin=subprocess.DEVNULL)
+
+
+def _watch_over(parent: int, root: int) -> None:
+    """Wait for SIGTERM, which the kernel sends when ``parent`` dies, then stop the tree of ``root``."""
+    signal.signal(signal.SIGTERM, _raise_stopped)
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    try:
+        while os.getppid() == parent:  # a parent that died before prctl: stop at once
+            signal.pause()
+    except _Stopped:
+        pass
+    _stop_tree(root)
+
+
+if __name__ == "__main__":
+    _watch_over(*(int(argument) for argument in sys.argv[1:3]))

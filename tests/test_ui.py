@@ -33,6 +33,27 @@ def alive(processes: list[psutil.Process]) -> list[psutil.Process]:
     return [p for p in processes if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
 
 
+SLEEPERS = "from orchestration.serving import serve; print(serve(['sh', '-c', 'setsid sleep 300 & sleep 300 & wait']))"
+
+
+def serving_sleepers() -> tuple[subprocess.Popen, list[psutil.Process]]:
+    """serve() in a child Python (signal handlers belong to a main thread) running a shell that
+    starts two sleepers, one in a session of its own; the child, and everything it started."""
+    runner = subprocess.Popen(
+        [sys.executable, "-c", SLEEPERS],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+    )
+    deadline = time.monotonic() + 30
+    while True:
+        started = psutil.Process(runner.pid).children(recursive=True)
+        if sum(p.name() in ("sh", "sleep") for p in started) == 3:  # beside them, serve()'s watcher
+            return runner, started
+        assert runner.poll() is None and time.monotonic() < deadline
+        time.sleep(0.1)
+
+
 def test_the_ui_serves_the_project_store_and_sigterm_stops_all_of_it(tmp_path, monkeypatch):
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
@@ -86,26 +107,23 @@ def test_the_ui_serves_the_project_store_and_sigterm_stops_all_of_it(tmp_path, m
 
 
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGHUP])
-def test_a_stop_signal_ends_the_whole_process_tree_it_served(tmp_path, stop):
-    """serve() in a child Python (signal handlers belong to a main thread) runs a shell that
-    starts two sleepers, one in a session of its own; the signal to that Python ends them all."""
-    script = (
-        "from orchestration.serving import serve; "
-        "print(serve(['sh', '-c', 'setsid sleep 300 & sleep 300 & wait']), flush=True)"
-    )
-    runner = subprocess.Popen(
-        [sys.executable, "-c", script],
-        stdout=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
-    )
-    deadline = time.monotonic() + 30
-    while len(started := psutil.Process(runner.pid).children(recursive=True)) < 3:
-        assert runner.poll() is None and time.monotonic() < deadline
-        time.sleep(0.1)
+def test_a_stop_signal_ends_the_whole_process_tree_it_served(stop):
+    runner, started = serving_sleepers()
     runner.send_signal(stop)
     assert runner.communicate(timeout=30)[0].strip() == "None" and runner.returncode == 0
     assert alive(started) == []
+
+
+def test_a_sigkill_of_the_serving_process_still_ends_the_whole_tree():
+    """A SIGKILL runs nothing in the process that served (`kill -9` of `m2d2m ui`): its watcher,
+    told by the kernel, stops the tree, so the port is free for the re-run."""
+    runner, started = serving_sleepers()
+    runner.kill()
+    runner.wait(timeout=30)
+    deadline = time.monotonic() + 30
+    while alive(started):
+        assert time.monotonic() < deadline, alive(started)
+        time.sleep(0.1)
 
 
 def test_serve_returns_the_status_of_a_command_that_ends_by_itself():
