@@ -17,7 +17,7 @@ class Busy(ValueError):
 
 
 @contextmanager
-def holding(lock_file: Path, busy: str = "", shared: bool = False, wait: bool = False) -> Iterator[None]:
+def holding(lock_file: Path, busy: str, shared: bool = False, wait: bool = False) -> Iterator[None]:
     """Hold ``lock_file`` (made if missing) exclusively, or ``shared`` with other readers, while
     the block runs; :class:`Busy` with the sentence ``busy`` when another command holds it in a
     way that excludes this one, or with ``wait``, once it lets go (for writes of seconds whose

@@ -340,7 +340,7 @@ def build_testset(
     target.parent.mkdir(parents=True, exist_ok=True)
     # two commands building one test set (two evaluations of a new dataset): the later waits
     # seconds, then reuses what the first wrote
-    with holding(target.parent / f".{target.name}.lock", wait=True):
+    with holding(target.parent / f".{target.name}.lock", f"{target}: another command is writing it", wait=True):
         _remove_leftovers(target)
         return _reuse_or_build(data_dir, target, parameters, force)
 

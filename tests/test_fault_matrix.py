@@ -465,15 +465,20 @@ sys.exit(main(sys.argv[3:]))
 """
 
 
+def cli_env() -> dict[str, str]:
+    """This environment without a tracking server or a cluster: a command the matrix starts uses
+    its project's own store and a Ray of its own."""
+    return {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "RAY_ADDRESS")}
+
+
 def cli_process(argv: list[str], cwd: Path, pause_after: str | None = None) -> subprocess.Popen:
     """``m2d2m`` in its own session, so that a kill reaches what it started (Ray, workers);
     with ``pause_after`` (``module.function``) stopped once that function has returned."""
-    env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "RAY_ADDRESS")}
     start = ["-c", PAUSED, *pause_after.rsplit(".", 1)] if pause_after else ["-m", "orchestration.cli"]
     return subprocess.Popen(
         [sys.executable, *start, *argv],
         cwd=cwd,
-        env=env,
+        env=cli_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
@@ -494,6 +499,15 @@ def kill_when(
         os.killpg(process.pid, signal.SIGKILL)
     stderr = process.communicate()[1]
     assert running and reached(), f"the kill point was never reached; stderr:\n{stderr[-2000:]}"
+
+
+def killed_and_clean(data: Path, tmp_path: Path, *derived: str) -> dict[str, Path]:
+    """Two copies of the dataset ``data`` without its ``derived`` sets, which the verb under test
+    writes anew: one for the killed run, one for a clean run to compare with."""
+    copies = {name: tmp_path / name for name in ("killed", "clean")}
+    for copy in copies.values():
+        shutil.copytree(data, copy, ignore=shutil.ignore_patterns(*derived))
+    return copies
 
 
 def tree_digest(folder: Path) -> dict[str, str]:
@@ -575,10 +589,7 @@ def test_a_killed_tokenize_leaves_no_token_set_and_a_rerun_equals_a_clean_one(ma
 
     root = Path(matrix_project["root"])
     data = Path(yaml.safe_load((root / "vq.yaml").read_text())["data"]["dir"])
-    copies = {}
-    for name in ("killed", "clean"):  # the dataset without its token sets: tokenize writes a new one
-        copies[name] = tmp_path / name
-        shutil.copytree(data, copies[name], ignore=shutil.ignore_patterns("tokens"))
+    copies = killed_and_clean(data, tmp_path, "tokens")
     argv = ["tokenize", "--dataset", "tiny", "--vq", matrix_project["vq"], "--workers", "1"]
     tokens = copies["killed"] / "tokens"
     kill_when([*argv, "--data", str(copies["killed"])], root, lambda: any(tokens.glob("*/*.tar")))
@@ -597,10 +608,7 @@ def test_a_killed_testset_leaves_no_half_set_and_a_rerun_equals_a_clean_one(matr
     from pipelines.testset import build_testset, check_testset
 
     root = Path(matrix_project["root"])
-    copies = {}
-    for name in ("killed", "clean"):  # the dataset without its test sets
-        copies[name] = tmp_path / name
-        shutil.copytree(root / "data", copies[name], ignore=shutil.ignore_patterns("testsets", "tokens"))
+    copies = killed_and_clean(root / "data", tmp_path, "testsets", "tokens")
     parameters = {"n": 2, "seed": 11, "mirrors": "distinct"}
     clean = Path(build_testset(copies["clean"], **parameters)["path"])
     sets = copies["killed"] / "testsets"
@@ -727,9 +735,8 @@ def without_write_permission(argv: list[str], cwd: Path) -> subprocess.Completed
     privileges = ["dac_override", "dac_read_search", "fowner"]
     dropped = ",".join(f"-{name}" for name in privileges)
     prefix = ["setpriv", f"--inh-caps={dropped}", f"--bounding-set={dropped}"] if os.geteuid() == 0 else []
-    env = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "RAY_ADDRESS")}
     command = [*prefix, sys.executable, "-m", "orchestration.cli", *argv]
-    return subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+    return subprocess.run(command, cwd=cwd, env=cli_env(), capture_output=True, text=True, timeout=300)
 
 
 @pytest.fixture(scope="module")
