@@ -1,9 +1,11 @@
 """The on-disk layout of a processed dataset (docs/data.md), shared by the pipelines
-that write it and the training that reads it, which must not import each other."""
+that write it and the training that reads it, which must not import each other; and how a file
+records where another one is, so that a project can move (docs/reliability.md, "A project can move")."""
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +20,42 @@ TOKENS = "tokens"
 TOKENS_KIND = "tokens"  # the manifest "kind" of a token set
 VQ_FILE = "vq.pt"  # the plain VQ-VAE model file, in a run directory and beside its tokens
 MODEL_FILE = "model.pt"  # a denoiser run's self-contained checkpoint (m2d2m.generators.m2d2m_checkpoint)
+PROJECT_FOLDERS = ("data", "runs")  # a project's folders that records point into
+
+
+def relative_to_project(path: str | Path) -> str:
+    """``path`` as a file records it: relative to the project, the folder every verb runs in, when
+    it lies inside, so that a copy of the project at another path finds its own files rather than
+    the original's; absolute when it lies elsewhere (a corpus on shared storage)."""
+    project, absolute = Path.cwd(), Path(os.path.abspath(path))
+    for inside, root in ((absolute, project), (absolute.resolve(), project.resolve())):  # as given, then real
+        if inside.is_relative_to(root):
+            return inside.relative_to(root).as_posix()
+    return str(absolute.resolve())
+
+
+def project_of(path: str | Path) -> Path | None:
+    """The project a file lies in: the folder holding the ``runs/`` or ``data/`` above it (None
+    for a file in neither, a model file copied out of its project)."""
+    return next((folder.parent for folder in Path(path).absolute().parents if folder.name in PROJECT_FOLDERS), None)
+
+
+def recorded_path(recorded: str | Path, by: str | Path) -> Path:
+    """A path the file ``by`` recorded, to open: a relative one from the project ``by`` lies in (the
+    working directory when it lies in none), so a model file given from another folder still finds
+    its dataset; an absolute one as it stands, unless it is gone: files of older versions recorded
+    every path absolute, and in a project moved since, one is found again by its part from
+    ``data/`` or ``runs/`` on."""
+    path, project = Path(recorded), project_of(by)
+    base = Path() if project is None or project.resolve() == Path.cwd().resolve() else project
+    if not path.is_absolute():
+        return base / path
+    if path.exists():
+        return path
+    for index, part in enumerate(path.parts):
+        if part in PROJECT_FOLDERS and (here := base / Path(*path.parts[index:])).exists():
+            return here
+    return path
 
 
 def read_manifest(directory: str | Path) -> dict[str, Any]:

@@ -17,7 +17,8 @@ import time
 from pathlib import Path
 from typing import Any, NoReturn
 
-from orchestration.errors import UserError
+from orchestration.errors import NotInProject, UserError
+from orchestration.project import is_project, outside_project, require_project
 from orchestration.registry import DEFAULT_MODEL, models
 
 
@@ -129,6 +130,8 @@ def _data(args: argparse.Namespace) -> None:
     if args.check:
         _report_problems(Path(args.check), check_dataset(Path(args.check)), "counts, checksums and schema")
         return
+    if args.out is None:
+        require_project()  # data/<dataset> is the project's
     load_plugins()  # a plugin may register the corpus
     try:
         layout = corpus(args.dataset).layout.name
@@ -375,6 +378,8 @@ def _testset(args: argparse.Namespace) -> None:
     from orchestration.evaluate import TESTSET_STAGE, make_testset
     from pipelines.testset import describe
 
+    if args.data is None:
+        require_project()
     data = args.data or f"data/{args.dataset}"
     summary = make_testset(data, args.dataset, args.n, args.seed, args.mirrors, args.force, args.first, args.split)
     print(describe(summary))
@@ -421,6 +426,7 @@ def _ui(args: argparse.Namespace) -> None:
     if os.environ.get("MLFLOW_TRACKING_URI", "").startswith("http"):
         print(f"the runs are on the tracking server {os.environ['MLFLOW_TRACKING_URI']}: open it in a browser")
         return
+    require_project()  # elsewhere it would open, and so create, an empty store
     check_port_free(args.host, args.port)
     print(f"MLflow UI on {tracking_uri()}: http://{args.host}:{args.port}  (Ctrl-C stops it)", flush=True)
     status = serve(ui_command(args.host, args.port))
@@ -434,6 +440,7 @@ def _serve(args: argparse.Namespace) -> None:
     from orchestration.web.app import ServeSettings
     from orchestration.web.server import serve, server_token
 
+    require_project()  # elsewhere it would serve no model
     token = server_token(args.host, args.token)
     check_port_free(args.host, args.port)
     settings = ServeSettings(
@@ -891,6 +898,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args.run(args)
     except UserError as error:
+        if isinstance(error, NotInProject) and not is_project(Path.cwd()):
+            error = outside_project()  # the cause, rather than what a project would lack
         print(f"m2d2m {args.verb}: error: {error}", file=sys.stderr)
         return 2
     except OSError as error:

@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from orchestration.errors import UserError
+from orchestration.errors import NotInProject, UserError
 
 CONFIG_ROOT = Path("configs")
 
@@ -26,7 +26,7 @@ def resolve_config_path(stage: str, name_or_path: str) -> Path:
     if candidate.exists():
         return candidate
     available = sorted(p.stem for p in (CONFIG_ROOT / stage).glob("*.yaml"))
-    raise UserError(f"no config {name_or_path!r} for {stage}; available: {', '.join(available) or 'none'}")
+    raise NotInProject(f"no config {name_or_path!r} for {stage}; available: {', '.join(available) or 'none'}")
 
 
 def yaml_problem(error: yaml.YAMLError) -> str:

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
-from m2d2m.layout import NLP
+from m2d2m.layout import NLP, recorded_path
 from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
 from m2d2m.motion.render import can_write_mp4
 from m2d2m.progress import progress
@@ -135,7 +135,7 @@ class PromptPlanner:
         if self._tagger is None:
             data_dir = self.generator.data_dir
             try:
-                self._tagger = load_tagger(data_dir / NLP if data_dir else None)
+                self._tagger = load_tagger(recorded_path(data_dir, self.generator.source) / NLP if data_dir else None)
             except FileNotFoundError as error:
                 raise UserError(f"{error} (or pass --no-split)") from error
         parts = decompose(prompt, tagger=self._tagger)

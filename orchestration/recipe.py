@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+from m2d2m.layout import relative_to_project
 from m2d2m.plugins import plugins_for_workers
 from orchestration.errors import UserError
 from orchestration.registry import ModelEntry, load_plugins, model
@@ -36,7 +37,7 @@ class TrainingData:
 
     def records(self) -> dict[str, str]:
         """Where the run's inputs are, for its ``run.json`` and its model file's ``extra``."""
-        return {"data": str(self.data_dir.resolve())}
+        return {"data": relative_to_project(self.data_dir)}
 
 
 class Recipe:
@@ -132,7 +133,7 @@ def run_recipe(
         "run": run.run_dir.name,
         "mlflow_run_id": fitted.logger.run_id,
         "dataset": config["dataset"],
-        "data_dir": str(data.data_dir.resolve()),
+        "data_dir": relative_to_project(data.data_dir),
         **data.records(),
         "best_val_loss": float(fitted.checkpoints.best_model_score),
     }
@@ -143,7 +144,7 @@ def run_recipe(
         run.run_dir,
         fitted,
         [model_file, Path(fitted.checkpoints.best_model_path), fitted.last, run.run_dir / "config.yaml"],
-        model=str(model_file.resolve()),
+        model=relative_to_project(model_file),
         **data.records(),
     )
     return run.run_dir

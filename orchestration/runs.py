@@ -17,7 +17,7 @@ from typing import Any
 
 from m2d2m.atomic import atomic_path
 from m2d2m.locks import Busy, holding
-from orchestration.errors import UserError
+from orchestration.errors import NotInProject, UserError
 from orchestration.tracking import download_model_file
 
 RUNS_ROOT = Path("runs")
@@ -108,7 +108,7 @@ def latest_run(dataset: str, stage: str, made_by: str, legacy: tuple[str, ...] =
         marker = stage_dir(dataset, name) / LATEST
         if marker.exists():
             return marker.parent / marker.read_text(encoding="utf-8").strip()
-    raise UserError(f"no finished {stage} run for dataset {dataset!r} yet; run `{made_by}` first")
+    raise NotInProject(f"no finished {stage} run for dataset {dataset!r} yet; run `{made_by}` first")
 
 
 def newest_run(dataset: str, stage: str) -> Path:
@@ -119,7 +119,9 @@ def newest_run(dataset: str, stage: str) -> Path:
         else []
     )
     if not runs:
-        raise UserError(f"nothing to resume: no {stage} run for dataset {dataset!r} under {stage_dir(dataset, stage)}")
+        raise NotInProject(
+            f"nothing to resume: no {stage} run for dataset {dataset!r} under {stage_dir(dataset, stage)}"
+        )
     return max(runs, key=lambda p: read_run_info(p).get("started", 0.0))
 
 
@@ -136,7 +138,7 @@ def find_run(reference: str, dataset: str, stage: str, legacy: tuple[str, ...] =
         for run_file in stage_dir(dataset, name).glob(f"*/{RUN_FILE}"):
             if json.loads(run_file.read_text(encoding="utf-8")).get("mlflow_run_id") == reference:
                 return run_file.parent
-    raise UserError(
+    raise NotInProject(
         f"no {stage} run {reference!r} for dataset {dataset!r} (a run directory, its name, or its MLflow run id)"
     )
 

@@ -4,10 +4,10 @@ training config, each trial trained then evaluated), every trial an MLflow child
 parent run per sweep.
 
 ``m2d2m sweep --config configs/sweep/<name>.yaml [--ray-address ADDR]``. The driver resolves every
-path to an absolute one and creates the MLflow store, experiment and parent run before any trial
-starts (parallel trials would otherwise race on SQLite's schema migration); trials are Tune
-function trainables that chdir to the project, so relative defaults (``runs/``, ``data/``) mean
-what they mean for the driver. The Tune experiment lives in ``runs/<dataset>/sweep/<name>/tune``:
+file the trials read (relative to the project, as every record names them) and creates the MLflow
+store, experiment and parent run before any trial starts (parallel trials would otherwise race on
+SQLite's schema migration); trials are Tune function trainables that chdir to the project, so
+relative paths (``runs/``, ``data/``) mean what they mean for the driver. The Tune experiment lives in ``runs/<dataset>/sweep/<name>/tune``:
 re-running a sweep whose driver died restores it there (finished trials are kept, unfinished and
 errored ones run again, and one whose evaluation finished before Tune heard of it gives that
 evaluation's metrics instead of running again) instead of starting over. A restored Tune experiment keeps the parameters it
@@ -175,7 +175,8 @@ def _tune_trainable(config: dict[str, Any]) -> None:
 
 # ------------------------------------------------------------------------------------- driver
 def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -> dict[str, Any]:
-    """What every trial needs, with absolute paths only."""
+    """What every trial needs: the project's absolute path, which a trial enters first, so that the
+    files the settings name relative to it are found."""
     from orchestration.evaluate import new_settings
 
     dataset, entry = config["dataset"], model(config["model"])

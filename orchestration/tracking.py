@@ -3,31 +3,93 @@
 Default store: ``sqlite:///<project>/mlflow.db`` with artifacts in ``<project>/mlruns``, where the
 project is the working directory the command runs in (the Makefile runs from the repository
 root). ``MLFLOW_TRACKING_URI`` points everything at a server instead. Paths are absolute because
-Ray workers and Tune trials run in other directories.
+Ray workers and Tune trials run in other directories, and MLflow keeps them so in the store; a
+copied or moved project's store is pointed at its own ``mlruns`` by :func:`follow_project`.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
+import sqlite3
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote, urlparse
 
 from orchestration.errors import UserError
 
+STORE = "mlflow.db"
+ARTIFACTS = "mlruns"
+
+
+def _project_store() -> Path:
+    return (Path.cwd() / STORE).resolve()
+
+
+def _on_project_store() -> bool:
+    """Whether the runs go to the project's own SQLite store: no ``MLFLOW_TRACKING_URI``, or the one
+    MLflow itself exports once a client named the store (``mlflow.set_tracking_uri``)."""
+    uri = os.environ.get("MLFLOW_TRACKING_URI")
+    return not uri or uri == f"sqlite:///{_project_store()}"
+
 
 def tracking_uri() -> str:
-    uri = os.environ.get("MLFLOW_TRACKING_URI")
-    return uri if uri else f"sqlite:///{(Path.cwd() / 'mlflow.db').resolve()}"
+    """The store every run goes to: ``MLFLOW_TRACKING_URI``, else the project's own, made to follow
+    the project first."""
+    if not _on_project_store():
+        return os.environ["MLFLOW_TRACKING_URI"]
+    follow_project(_project_store())
+    return f"sqlite:///{_project_store()}"
 
 
 def artifact_location(experiment: str) -> str | None:
     """Where a new experiment keeps its artifacts: beside the SQLite store by default; a tracking
     server decides for itself."""
-    if os.environ.get("MLFLOW_TRACKING_URI"):
+    if not _on_project_store():
         return None
-    return (Path.cwd() / "mlruns" / experiment.replace("/", "-")).resolve().as_uri()
+    return (Path.cwd() / ARTIFACTS / experiment.replace("/", "-")).resolve().as_uri()
+
+
+def _artifact_root(location: str) -> tuple[str, Path] | None:
+    """The ``.../mlruns`` an artifact location lies under, as the store spells it (a path or a
+    ``file:`` URI) and as a path; None for one elsewhere (an object store, a server's)."""
+    end = location.rfind(f"/{ARTIFACTS}/")
+    if end < 0:
+        return None
+    spelled = location[: end + len(ARTIFACTS) + 1]
+    if spelled.startswith("file:"):
+        return spelled, Path(unquote(urlparse(spelled).path))
+    return (spelled, Path(spelled)) if spelled.startswith("/") else None
+
+
+@functools.cache
+def follow_project(store: Path) -> None:
+    """Point the artifact locations of a store that was copied with its project, or moved, from the
+    old ``mlruns`` to the one beside ``store``: MLflow records them absolute, so new runs of a copy
+    would write their artifacts into the original project, and old ones be read from there. Once per
+    process and store; nothing is written when nothing moved."""
+    if not store.is_file():
+        return
+    here = store.parent / ARTIFACTS
+    with contextlib.closing(sqlite3.connect(store, timeout=60)) as connection:
+        try:
+            locations = [row[0] for row in connection.execute("SELECT artifact_location FROM experiments")]
+        except sqlite3.OperationalError:  # no MLflow tables (yet): nothing recorded
+            return
+        moved = {}
+        for location in locations:
+            root = _artifact_root(location or "")
+            if root is not None and root[1] != here:
+                moved[root[0]] = here.as_uri() if root[0].startswith("file:") else str(here)
+        with connection:  # one transaction
+            for old, new in moved.items():
+                for table, column in (("experiments", "artifact_location"), ("runs", "artifact_uri")):
+                    connection.execute(
+                        f"UPDATE {table} SET {column} = ? || substr({column}, ?) WHERE substr({column}, 1, ?) = ?",
+                        (new, len(old) + 1, len(old) + 1, old + "/"),
+                    )
 
 
 def experiment_name(dataset: str, stage: str) -> str:

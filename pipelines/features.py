@@ -28,7 +28,7 @@ import numpy as np
 
 import m2d2m
 from m2d2m.atomic import atomic_path
-from m2d2m.layout import MANIFEST, NLP, QUARANTINE, SHARDS, STATS
+from m2d2m.layout import MANIFEST, NLP, QUARANTINE, SHARDS, STATS, recorded_path, relative_to_project
 from m2d2m.locks import holding
 from m2d2m.motion.normalization import Normalizer, RunningMoments, group_averaged_std
 from m2d2m.motion.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
@@ -77,7 +77,7 @@ class DataConfig:
         record = asdict(self)
         for key in ("out", "workers", "ray_address", "plugins"):
             record.pop(key)
-        record["raw"] = str(Path(self.raw).resolve())
+        record["raw"] = relative_to_project(self.raw)
         record["min_frames"], record["max_frames"] = self.bounds.minimum, self.bounds.maximum
         return record
 
@@ -331,7 +331,15 @@ def reusable_dataset(config: DataConfig) -> dict[str, Any] | None:
     if not manifest_path.exists():
         return None
     existing = json.loads(manifest_path.read_text(encoding="utf-8"))
-    return existing if existing.get("config") == config.recorded() else None
+    recorded = {**existing.get("config", {}), "raw": built_from(config.out, existing)}
+    return existing if recorded == config.recorded() else None
+
+
+def built_from(out: str | Path, manifest: dict[str, Any]) -> str | None:
+    """The raw corpus the dataset at ``out`` was built from, named as :meth:`DataConfig.recorded`
+    names it now (older manifests name it absolute, a corpus in the project too)."""
+    raw = manifest.get("config", {}).get("raw")
+    return relative_to_project(recorded_path(raw, Path(out) / MANIFEST)) if raw else None
 
 
 # What a build writes; anything else in a dataset directory (tokens/, testsets/) is kept across a rebuild.
@@ -403,11 +411,9 @@ def require_replaceable(config: DataConfig, replace_other: bool = False) -> None
             f"{out}: not a dataset (no {MANIFEST}); pass --replace to replace it with one built "
             f"from {raw}, or choose another --out"
         )
-    built_from = json.loads((out / MANIFEST).read_text(encoding="utf-8")).get("config", {}).get("raw")
-    if built_from != raw:
-        raise ValueError(
-            f"{out}: built from {built_from}, not {raw}; pass --replace to replace it, or choose another --out"
-        )
+    other = built_from(out, json.loads((out / MANIFEST).read_text(encoding="utf-8")))
+    if other != raw:
+        raise ValueError(f"{out}: built from {other}, not {raw}; pass --replace to replace it, or choose another --out")
 
 
 def _no_statistics(raw: Path, quarantine: list[dict[str, Any]]) -> ValueError:

@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 
 import m2d2m
-from m2d2m.layout import MANIFEST, read_manifest, shard_urls
+from m2d2m.layout import MANIFEST, read_manifest, recorded_path, relative_to_project, shard_urls
 from m2d2m.locks import holding
 from pipelines.shards import json_bytes, npy_bytes, sha256_of, write_json_atomically
 
@@ -277,12 +277,23 @@ def _parameters(
         "min_frames": min_frames,
         "mirrors": mirrors,
         "limit": limit,
-        "source": {"dir": str(data_dir), "manifest_sha256": sha256_of(source)},
+        "source": {"dir": relative_to_project(data_dir), "manifest_sha256": sha256_of(source)},
     }
 
 
 def _same_parameters(manifest: dict[str, Any], parameters: dict[str, Any]) -> bool:
-    return all(manifest.get(name) == value for name, value in parameters.items())
+    """Drawn alike from the same dataset build: the source is known by its manifest's checksum,
+    wherever the project, and so the dataset, is now."""
+    checksum = parameters["source"]["manifest_sha256"]
+    return manifest.get("source", {}).get("manifest_sha256") == checksum and all(
+        manifest.get(name) == value for name, value in parameters.items() if name != "source"
+    )
+
+
+def source_dir(path: str | Path, manifest: dict[str, Any]) -> Path | None:
+    """Where the source dataset of the test set at ``path`` is, as its manifest names it (None when it does not)."""
+    recorded = manifest.get("source", {}).get("dir")
+    return recorded_path(recorded, path) if recorded else None
 
 
 def testset_dir(
@@ -611,10 +622,10 @@ def check_testset(path: str | Path) -> list[str]:
                         )
         except (OSError, ValueError, zipfile.BadZipFile) as error:
             problems.append(f"{MOTIONS}: unreadable ({error})")
-    source = Path(manifest.get("source", {}).get("dir", "")) / MANIFEST
-    if manifest.get("source", {}).get("dir") and source.exists():
-        if sha256_of(source) != manifest["source"]["manifest_sha256"]:
-            problems.append(f"source dataset {source.parent} changed since the test set was built (rebuild it)")
+    source = source_dir(path, manifest)
+    if source is not None and (source / MANIFEST).exists():
+        if sha256_of(source / MANIFEST) != manifest["source"]["manifest_sha256"]:
+            problems.append(f"source dataset {source} changed since the test set was built (rebuild it)")
     return problems
 
 

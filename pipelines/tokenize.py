@@ -24,7 +24,17 @@ from typing import Any
 import numpy as np
 import torch
 
-from m2d2m.layout import MANIFEST, STATS, TOKENS_KIND, VQ_FILE, read_manifest, shard_urls, token_shard_urls
+from m2d2m.layout import (
+    MANIFEST,
+    STATS,
+    TOKENS_KIND,
+    VQ_FILE,
+    read_manifest,
+    recorded_path,
+    relative_to_project,
+    shard_urls,
+    token_shard_urls,
+)
 from m2d2m.locks import holding
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.vqvae import MotionVQVAE, load_vq
@@ -219,10 +229,10 @@ def tokenize_dataset(
             "schema_version": SCHEMA_VERSION,
             "kind": TOKENS_KIND,
             "dataset": dataset_manifest["dataset"],
-            "source_dir": str(data_dir),
+            "source_dir": relative_to_project(data_dir),
             "source_shards": _source_shards(dataset_manifest),
             "vq_file": VQ_FILE,
-            "vq_source": str(vq_path),
+            "vq_source": relative_to_project(vq_path),
             "vq_sha256": vq_sha256,
             "feature_dim": config.feature_dim,
             "codebook_size": config.codebook_size,
@@ -305,7 +315,7 @@ def check_tokens(out_dir: str | Path) -> list[str]:
     codebook = out_dir / CODEBOOK
     if not codebook.exists() or np.load(codebook).shape != (codebook_size, manifest["code_dim"]):
         problems.append(f"{CODEBOOK}: missing or not ({codebook_size}, {manifest['code_dim']})")
-    source = Path(manifest["source_dir"])
+    source = recorded_path(manifest["source_dir"], out_dir)
     if (source / MANIFEST).exists() and _source_shards(read_manifest(source)) != manifest["source_shards"]:
         problems.append(f"{source} was rebuilt after these tokens were made; run `m2d2m tokenize` again")
     return problems

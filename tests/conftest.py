@@ -104,7 +104,6 @@ def trained_store(tmp_path_factory, ray_local) -> Path:
     root = tmp_path_factory.mktemp("trained")
     write_corpus(root / "raw", {"train": 6, "val": 2, "test": 8}, T2M)
     data = root / "data"
-    build_dataset(DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(data), samples_per_shard=4))
     configs = {
         "vq": {**TINY_VQ_RUN, "data": {**TINY_VQ_RUN["data"], "dir": str(data)}},
         "diffusion": TINY_DIFFUSION,
@@ -115,6 +114,7 @@ def trained_store(tmp_path_factory, ray_local) -> Path:
     with pytest.MonkeyPatch.context() as patch:
         patch.chdir(root)
         patch.delenv("MLFLOW_TRACKING_URI", raising=False)
+        build_dataset(DataConfig(dataset="synthetic", raw=str(root / "raw"), out=str(data), samples_per_shard=4))
         for name, config in configs.items():
             (root / f"{name}.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
         train_vq(str(root / "vq.yaml"))
@@ -127,9 +127,9 @@ def trained_store(tmp_path_factory, ray_local) -> Path:
 @pytest.fixture(scope="module")
 def trained_project(trained_store, tmp_path_factory) -> Iterator[Path]:
     """A module's own copy of :func:`trained_store`, its working directory while it runs: the runs,
-    test sets and MLflow runs one module adds, no other module sees. Paths the copy's files
-    recorded while training (the dataset its model files name, the MLflow artifact folders)
-    still lead into the store, which the tests only read or add new files to."""
+    test sets and MLflow runs one module adds, no other module sees. The store's files name its
+    dataset relative to it and its MLflow store follows the copy (docs/reliability.md, "A project
+    can move"), so the copy reads and writes its own files; only the configs name the store's dataset."""
     root = tmp_path_factory.mktemp("project")
     shutil.copytree(trained_store, root, dirs_exist_ok=True)
     threads = torch.get_num_threads()

@@ -245,7 +245,8 @@ def test_bad_input_is_one_line_and_exit_2(trained_project, tiny_testset, other_d
 
 
 def test_a_missing_evaluator_says_what_to_run(trained_project, tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)  # a trained_project with no runs
+    (tmp_path / "runs").mkdir()  # a project with no runs yet (outside a project, a verb says that instead)
+    monkeypatch.chdir(tmp_path)
     model = next((trained_project / "runs" / "tiny" / "m2d2m").glob("*/model.pt"))
     assert main(["evaluate", "--dataset", "tiny", "--checkpoint", str(model)]) == 2
     assert "run `make train-evaluator` first" in capsys.readouterr().err

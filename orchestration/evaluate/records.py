@@ -11,6 +11,7 @@ from typing import Any
 from m2d2m.evaluation.measurements import JERK_FPS, WINDOW
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.generators.protocol import MotionGenerator
+from m2d2m.layout import relative_to_project
 from orchestration.evaluate.settings import EVAL_STAGE, Candidate, EvalSettings
 from orchestration.reports import GENERATED, GT_CONCAT, GT_SINGLE, RECONSTRUCTION, table_metrics
 from orchestration.runs import new_run_dir, read_run_info, write_run_info
@@ -91,7 +92,7 @@ def start(
         "stage": EVAL_STAGE,
         "model": ",".join(settings.models),
         "methods": methods,
-        "run_dir": str(run_dir.resolve()),
+        "run_dir": relative_to_project(run_dir),
     }
     params = {
         **mlflow_params(settings, samplings),

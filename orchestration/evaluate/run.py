@@ -15,6 +15,7 @@ from m2d2m.evaluation.evaluator import TextMotionEvaluator, load_evaluator, load
 from m2d2m.evaluation.measurements import MM_GENERATIONS, MM_PROMPTS, Evaluation
 from m2d2m.generators.options import MULTI
 from m2d2m.generators.protocol import MotionGenerator
+from m2d2m.layout import relative_to_project
 from m2d2m.progress import progress as progress_bar
 from orchestration.errors import UserError
 from orchestration.evaluate.jobs import RESULTS, KeptBatches, jobs, result_file
@@ -90,7 +91,7 @@ def evaluate(
     generators = {c.model: load_generator(c.model, c.checkpoint, dataset) for c in settings.candidates}
     if settings.testset is None:
         first = generators[settings.candidates[0].model]
-        settings = replace(settings, testset=str(default_testset(first, dataset).resolve()))
+        settings = replace(settings, testset=relative_to_project(default_testset(first, dataset)))
     testset = open_testset(settings.testset)
     evaluator = _load_evaluator(settings, next(iter(generators.values())).device)
     _check(settings, generators, testset, evaluator)

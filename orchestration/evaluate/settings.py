@@ -5,10 +5,11 @@ run records of older versions."""
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from m2d2m.layout import recorded_path, relative_to_project
 from orchestration.errors import UserError
 from orchestration.evaluate.options import assign_edits, assign_methods, assign_options, parse_checkpoints, split_list
 from orchestration.generate import resolve_model_file
@@ -133,19 +134,19 @@ def new_settings(
             raise UserError("give --evaluator or --guo-evaluator, not both")
         if glove is None:
             raise UserError("--guo-evaluator needs --glove DIR (text-to-motion's glove/ directory)")
-        evaluator_path = Path(guo_evaluator).resolve()
-        meta = str(Path(meta or evaluator_path / "meta").resolve())
-        glove = str(Path(glove).resolve())
+        evaluator_path = Path(guo_evaluator)
+        meta = relative_to_project(meta or evaluator_path / "meta")
+        glove = relative_to_project(glove)
     else:
         if glove is not None or meta is not None:
             raise UserError("--glove and --meta go with --guo-evaluator")
         evaluator_path = run_file(
             evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE, "make train-evaluator"
-        ).resolve()
+        )
     candidates = tuple(
         Candidate(
             name,
-            str(resolve_model_file(name, checkpoints[name], dataset).resolve()),
+            relative_to_project(resolve_model_file(name, checkpoints[name], dataset)),
             chosen_methods[name],
             chosen_options[name],
             chosen_edits[name],
@@ -154,8 +155,8 @@ def new_settings(
     )
     return EvalSettings(
         candidates=candidates,
-        testset=None if testset is None else str(Path(testset).resolve()),
-        evaluator=str(evaluator_path),
+        testset=None if testset is None else relative_to_project(testset),
+        evaluator=relative_to_project(evaluator_path),
         glove=glove,
         meta=meta,
         repeats=int(repeats),
@@ -168,4 +169,22 @@ def new_settings(
 def reopen(reference: str, dataset: str) -> tuple[Path, EvalSettings]:
     """An earlier evaluation run (directory, name or MLflow id) and its settings, to resume."""
     run_dir = find_run(reference, dataset, EVAL_STAGE)
-    return run_dir, EvalSettings.from_dict(read_run_info(run_dir)["settings"])
+    settings = EvalSettings.from_dict(read_run_info(run_dir)["settings"])
+    return run_dir, _located(settings, run_dir)
+
+
+def _located(settings: EvalSettings, run_dir: Path) -> EvalSettings:
+    """The files an evaluation run's settings name, found from its project, as
+    :func:`m2d2m.layout.recorded_path` finds them (runs of older versions named them absolute)."""
+
+    def here(recorded: str | None) -> str | None:
+        return None if recorded is None else str(recorded_path(recorded, run_dir))
+
+    return replace(
+        settings,
+        candidates=tuple(replace(c, checkpoint=here(c.checkpoint)) for c in settings.candidates),
+        testset=here(settings.testset),
+        evaluator=here(settings.evaluator),
+        glove=here(settings.glove),
+        meta=here(settings.meta),
+    )

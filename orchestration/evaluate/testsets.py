@@ -11,7 +11,7 @@ from typing import Any
 from m2d2m.evaluation.evaluator import TextMotionEvaluator
 from m2d2m.evaluation.measurements import Reference
 from m2d2m.generators.protocol import MotionGenerator
-from m2d2m.layout import MANIFEST
+from m2d2m.layout import MANIFEST, recorded_path
 from orchestration.errors import UserError
 from orchestration.tracking import experiment_name, log_batch, tracked_run
 from pipelines.testset import (
@@ -22,6 +22,7 @@ from pipelines.testset import (
     check_testset,
     describe,
     load_testset,
+    source_dir,
     split_metas,
     testset_dir,
 )
@@ -90,7 +91,7 @@ def _caption_tokens(testset: TestSet) -> list[list[str]]:
     dataset: the corpus's own tags are what the evaluator was trained on. (The test set's own
     shard reader is reused: importing training's would load Lightning, seconds for nothing.)"""
     try:
-        metas = split_metas(Path(testset.manifest["source"]["dir"]), testset.manifest["split"])
+        metas = split_metas(source_dir(testset.path, testset.manifest), testset.manifest["split"])
     except (FileNotFoundError, ValueError) as error:  # a missing dataset, or shards that changed
         raise UserError(f"{error}; the captions' word/POS tokens come from the test set's source dataset") from error
     wanted = {(item.key, item.caption_index) for instance in testset for item in instance.items}
@@ -128,7 +129,7 @@ def measure_reference(
 def default_testset(generator: MotionGenerator, dataset: str) -> Path:
     """n4-seed0 of the dataset the model was trained on (data/<dataset> when it does not say),
     built and logged when missing."""
-    data_dir = generator.data_dir or Path("data") / dataset
+    data_dir = recorded_path(generator.data_dir, generator.source) if generator.data_dir else Path("data") / dataset
     path = testset_dir(data_dir, DEFAULT_N, DEFAULT_SEED)
     if not (path / MANIFEST).exists():
         print(describe(make_testset(data_dir, dataset)))
