@@ -20,7 +20,6 @@ from typing import Any
 
 import torch
 from torch import nn
-from torch.nn.utils.rnn import pad_sequence
 
 CLIP_DEFAULT = "openai/clip-vit-base-patch32"
 PAD, UNK = "<pad>", "<unk>"
@@ -35,6 +34,16 @@ class TextEncoder(nn.Module):
 
     def encode(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
+
+    def encode_counted(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, list[int]]:
+        """:meth:`encode`'s features and mask with each row's real tokens first, and each sentence's
+        number of real tokens as host integers: what :func:`encode_actions` lays the tokens out
+        with, so that it never reads the mask back from the device. The encoders here count as they
+        tokenize, on the host; this fallback for others reads the mask (a device sync)."""
+        features, mask = self.encode(sentences)
+        order = torch.argsort((~mask).to(torch.uint8), dim=1, stable=True)
+        features = features.gather(1, order[..., None].expand_as(features))
+        return features, mask.gather(1, order), mask.sum(dim=1).tolist()
 
     def encode_pooled(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """:meth:`encode`'s features and mask, and one (N, dim) vector per sentence, for models that
@@ -79,15 +88,26 @@ class CLIPTextEncoder(TextEncoder):
         features, mask, _ = self.encode_pooled(sentences)
         return features, mask
 
-    @torch.no_grad()
+    def encode_counted(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, list[int]]:
+        features, mask, _, counts = self._encode(sentences)
+        return features, mask, counts
+
     def encode_pooled(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Token features, mask and CLIP's pooled sentence feature (the end-of-text token's, after
         the final layer norm), all from one pass of the tower."""
-        batch = self.tokenizer(
-            list(sentences), padding=True, truncation=True, max_length=self.max_length, return_tensors="pt"
-        ).to(self.device)
-        output = self.model(input_ids=batch["input_ids"], attention_mask=batch["attention_mask"])
-        return output.last_hidden_state, batch["attention_mask"].bool(), output.pooler_output
+        features, mask, pooled, _ = self._encode(sentences)
+        return features, mask, pooled
+
+    @torch.no_grad()
+    def _encode(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[int]]:
+        """One pass of the tower, and each sentence's token count read from the tokenizer's lists
+        (CLIP pads on the right); the ids go to the device without making it wait."""
+        encoded = self.tokenizer(list(sentences), padding=True, truncation=True, max_length=self.max_length)
+        ids = torch.tensor(encoded["input_ids"]).to(self.device, non_blocking=True)
+        attention = torch.tensor(encoded["attention_mask"]).to(self.device, non_blocking=True)
+        output = self.model(input_ids=ids, attention_mask=attention)
+        counts = [sum(row) for row in encoded["attention_mask"]]
+        return output.last_hidden_state, attention.bool(), output.pooler_output, counts
 
 
 def _words(sentence: str) -> list[str]:
@@ -146,19 +166,31 @@ class LearnedTextEncoder(TextEncoder):
         )
         return [PAD, UNK, *kept]
 
+    def _word_ids(self, sentences: list[str]) -> list[list[int]]:
+        """Each sentence's word ids; an empty sentence becomes one <unk> so no row is all padding."""
+        return [[self.index.get(word, 1) for word in _words(s)][: self.max_length] or [1] for s in sentences]
+
     def tokenize(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        """Word ids (N, S) and mask; an empty sentence becomes one <unk> so no row is all padding."""
-        ids = [[self.index.get(word, 1) for word in _words(s)][: self.max_length] or [1] for s in sentences]
+        """Word ids (N, S) and mask, built on the host and sent to the device in one copy that does
+        not make it wait."""
+        return self._tokens(self._word_ids(sentences))
+
+    def _tokens(self, ids: list[list[int]]) -> tuple[torch.Tensor, torch.Tensor]:
+        """The sentences' word ids padded on the right with <pad>, on the device, and their mask."""
         length = max(len(row) for row in ids)
-        tokens = torch.zeros(len(ids), length, dtype=torch.long)
-        for row, values in enumerate(ids):
-            tokens[row, : len(values)] = torch.tensor(values)
-        return tokens.to(self.device), tokens.to(self.device) != 0
+        tokens = torch.tensor([row + [0] * (length - len(row)) for row in ids])
+        tokens = tokens.to(self.device, non_blocking=True)
+        return tokens, tokens != 0
 
     def encode(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
-        tokens, mask = self.tokenize(sentences)
+        features, mask, _ = self.encode_counted(sentences)
+        return features, mask
+
+    def encode_counted(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, list[int]]:
+        ids = self._word_ids(sentences)
+        tokens, mask = self._tokens(ids)
         x = self.embedding(tokens) * math.sqrt(self.dim) + _sinusoid(tokens.shape[1], self.dim, tokens.device)
-        return self.encoder(x, src_key_padding_mask=~mask), mask
+        return self.encoder(x, src_key_padding_mask=~mask), mask, [len(row) for row in ids]
 
     def get_extra_state(self) -> dict[str, Any]:
         return {"vocabulary": self.vocabulary, "options": self.options}
@@ -183,19 +215,27 @@ class LearnedTextEncoder(TextEncoder):
 def encode_actions(encoder: TextEncoder, actions_per_caption: list[list[str]]) -> tuple[torch.Tensor, torch.Tensor]:
     """Each caption's condition: its action sentences encoded separately, real tokens concatenated in order.
 
-    Returns (B, S_max, dim) features and (B, S_max) mask, S_max the longest concatenation.
+    Returns (B, S_max, dim) features and (B, S_max) mask, S_max the longest concatenation, zeros
+    past each caption's tokens. The layout is planned on the host from the sentences' token counts
+    (:meth:`TextEncoder.encode_counted`) and applied as one gather on the device, so a training
+    step that encodes its captions never makes the host wait for the device.
     """
     if any(len(actions) == 0 for actions in actions_per_caption):
         raise ValueError("every caption needs at least one action sentence")
     flat = [sentence for actions in actions_per_caption for sentence in actions]
-    features, mask = encoder.encode(flat)
-    pieces, start = [], 0
+    features, _, counts = encoder.encode_counted(flat)
+    width = features.shape[1]
+    sources, row = [], 0  # per caption, the flat positions (sentence row × width + token) of its tokens
     for actions in actions_per_caption:
-        pieces.append(torch.cat([features[row][mask[row]] for row in range(start, start + len(actions))]))
-        start += len(actions)
-    lengths = torch.tensor([piece.shape[0] for piece in pieces], device=features.device)
-    joined_mask = torch.arange(int(lengths.max()), device=features.device)[None, :] < lengths[:, None]
-    return pad_sequence(pieces, batch_first=True), joined_mask
+        sources.append([(row + i) * width + p for i in range(len(actions)) for p in range(counts[row + i])])
+        row += len(actions)
+    longest = max(len(positions) for positions in sources)
+    # -1 marks padding: one host-built tensor, sent without making the device wait
+    plan = torch.tensor([positions + [-1] * (longest - len(positions)) for positions in sources])
+    plan = plan.to(features.device, non_blocking=True)
+    joined_mask = plan >= 0
+    joined = features.reshape(-1, features.shape[-1])[plan.clamp_min(0)]
+    return torch.where(joined_mask[..., None], joined, 0.0), joined_mask
 
 
 _KINDS = {"clip": CLIPTextEncoder, "learned": LearnedTextEncoder}

@@ -28,7 +28,7 @@ from typing import Any
 import torch
 import yaml
 
-from m2d2m.layout import VQ_FILE
+from m2d2m.layout import VQ_FILE, recorded_path, relative_to_project
 from m2d2m.motion.body_parts import FULL
 from orchestration.config import flatten, is_number, load_config, rename_keys
 from orchestration.errors import UserError
@@ -232,7 +232,7 @@ def _mlflow_logger(dataset: str, stage: str, run_dir: Path, run_id: str | None):
         tracking_uri=tracking_uri(),
         run_name=run_dir.name,
         run_id=run_id,
-        tags={"dataset": dataset, "stage": stage, "run_dir": str(run_dir.resolve())},
+        tags={"dataset": dataset, "stage": stage, "run_dir": relative_to_project(run_dir)},
         artifact_location=artifact_location(experiment),
     )
 
@@ -422,7 +422,7 @@ def train_vq(
             "run": run_dir.name,
             "mlflow_run_id": fitted.logger.run_id,
             "dataset": config["dataset"],
-            "data_dir": str(Path(data["dir"]).resolve()),
+            "data_dir": relative_to_project(data["dir"]),
             "best_val_recon_loss": float(fitted.checkpoints.best_model_score),
         },
     )
@@ -436,7 +436,7 @@ def train_vq(
             run_dir / "config.yaml",
             Path(data["dir"]) / "stats.npz",
         ],
-        vq=str((run_dir / VQ_FILE).resolve()),
+        vq=relative_to_project(run_dir / VQ_FILE),
     )
     return run_dir
 
@@ -473,10 +473,10 @@ def token_set(vq_path: Path, data_dir: str | Path | None = None) -> tuple[Path, 
         extra = load_vq(vq_path)[2]["extra"]
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
-    data = data_dir or extra.get("data_dir")
-    if not data:
+    if not (data_dir or extra.get("data_dir")):
         raise UserError(f"{vq_path} does not say which dataset it was trained on: pass the dataset directory")
-    return Path(data), Path(data) / TOKENS / extra.get("run", vq_path.parent.name)
+    data = Path(data_dir) if data_dir else recorded_path(extra["data_dir"], vq_path)
+    return data, data / TOKENS / extra.get("run", vq_path.parent.name)
 
 
 def ensure_tokens(vq_path: Path) -> tuple[Path, Path]:
@@ -522,6 +522,7 @@ def train_evaluator(
             min_frames=data["min_frames"],
             max_frames=data["max_frames"],
             seed=config["seed"],
+            bucket=data.get("bucket", False),  # off: the evaluator pads to 196 frames itself (docs/training.md)
         )
         if network["word_features"] == "glove":
             if not config.get("glove_dir"):
@@ -542,6 +543,6 @@ def train_evaluator(
         run_dir,
         fitted,
         [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
-        evaluator=str((run_dir / EVALUATOR_FILE).resolve()),
+        evaluator=relative_to_project(run_dir / EVALUATOR_FILE),
     )
     return run_dir

@@ -185,6 +185,45 @@ def test_bf16_autocast_gives_finite_logits_with_padding():
     torch.testing.assert_close(logits.float(), model(tokens, mask, t, text, text_mask), atol=0.1, rtol=0.1)
 
 
+def test_under_autocast_the_attention_masks_come_in_its_dtype(monkeypatch):
+    """The (B, heads, L, L) self-attention mask is built once in the dtype the attention computes in,
+    so no block converts it (on CUDA autocast casts a float32 mask inside every attention call)."""
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    seen = []
+    attention = torch.nn.functional.scaled_dot_product_attention
+
+    def recording(query, key, value, attn_mask=None, **options):
+        seen.append((query.dtype, attn_mask.dtype))
+        return attention(query, key, value, attn_mask=attn_mask, **options)
+
+    monkeypatch.setattr(torch.nn.functional, "scaled_dot_product_attention", recording)
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        model(tokens, mask, t, text, text_mask)
+    assert seen and set(seen) == {(torch.bfloat16, torch.bfloat16)}
+
+
+def test_every_attention_call_has_the_layout_a_gpu_s_fused_kernels_take(monkeypatch):
+    """A GPU's fused attention kernels (cuDNN's, the memory-efficient one) need the last dimension
+    of the queries, keys, values and mask at stride 1, or SDPA falls back to its math path: on an
+    H200 the self-attention over 3,283 tokens took 8.1 ms a call there against 0.76 ms fused, and
+    its mask — a permuted (L, L, heads) bias lookup — had stride 16 (BENCHMARKS.md, "On a GPU").
+    A CPU takes any stride, so only this check sees it."""
+    model = small_model()
+    tokens, mask, t, text, text_mask = inputs()
+    strides = []
+    attention = torch.nn.functional.scaled_dot_product_attention
+
+    def recording(query, key, value, attn_mask=None, **options):
+        strides.append(tuple(x.stride(-1) for x in (query, key, value, attn_mask)))
+        return attention(query, key, value, attn_mask=attn_mask, **options)
+
+    monkeypatch.setattr(torch.nn.functional, "scaled_dot_product_attention", recording)
+    with torch.no_grad():
+        model(tokens, mask, t, text, text_mask)
+    assert len(strides) == 2 * len(model.blocks) and set(strides) == {(1, 1, 1, 1)}
+
+
 def test_paper_size_parameter_count_and_forward(capsys):
     torch.set_num_threads(4)
     torch.manual_seed(0)

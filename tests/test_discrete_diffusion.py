@@ -260,6 +260,38 @@ def test_posterior_probs_mixture_batched_over_positions_and_t(codebook, dynamic,
     )
 
 
+def test_true_posterior_is_the_mixture_at_a_one_hot_x0(dynamic):
+    """The loss's target by gathers alone equals the mixture's batched product at a one-hot x0 bit
+    for bit (one nonzero term), for t per sample, per position and one int."""
+    gen = torch.Generator().manual_seed(11)
+    z0 = torch.randint(0, K, (3, 4), generator=gen)
+    onehot = torch.nn.functional.one_hot(z0, K).double()
+    for t in (torch.tensor([[1], [3], [5]]), torch.randint(1, T + 1, (3, 4), generator=gen), 4):
+        z_t = dynamic.q_sample(z0, t, generator=gen)
+        assert torch.equal(dynamic.true_posterior(z_t, z0, t), dynamic.posterior_probs(z_t, onehot, t))
+
+
+def test_unchecked_routes_equal_the_checked_ones_which_refuse_bad_inputs(dynamic):
+    """``validate=False`` (the training step's and the sampler's route) only skips the range
+    checks, which read the tensors on the host."""
+    gen = torch.Generator().manual_seed(12)
+    z_t = torch.randint(0, K + 1, (3, 4), generator=gen)
+    x0 = torch.softmax(torch.randn(3, 4, K, generator=gen, dtype=torch.float64), dim=-1)
+    t = torch.tensor([[2], [5], [1]])
+    assert torch.equal(dynamic.posterior_probs(z_t, x0, t, validate=False), dynamic.posterior_probs(z_t, x0, t))
+    z0 = z_t.clamp_max(K - 1)
+    first, again = (dynamic.q_sample(z0, t, torch.Generator().manual_seed(1), validate=v) for v in (True, False))
+    assert torch.equal(first, again)
+    with pytest.raises(ValueError, match="t must lie in 1..5"):
+        dynamic.posterior_probs(z_t, x0, torch.tensor([[0], [5], [1]]))
+    with pytest.raises(ValueError, match="t must lie in 1..5"):
+        dynamic.posterior_probs(z_t, x0, 6)
+    with pytest.raises(ValueError, match="z_t values must lie in 0..6"):
+        dynamic.posterior_probs(z_t + 1, x0, t)
+    with pytest.raises(ValueError, match="z0 values must lie in 0..5"):
+        dynamic.q_sample(z_t, 2)
+
+
 def span_by_paths(steps: list[list[list[float]]], t: int, s: int) -> list[list[float]]:
     """q(z_t = i | z_s = j) by summing every path j → z_{s+1} → … → z_t = i of one-step moves."""
     span = [[0.0] * (K + 1) for _ in range(K + 1)]
@@ -366,6 +398,22 @@ def test_loss_matches_brute_force(codebook, dynamic, marginals):
     assert abs(float(out.loss.detach()) - total) < 1e-6
     out.loss.backward()
     assert torch.isfinite(logits.grad).all() and logits.grad[2, 3].abs().max() == 0
+
+
+def test_loss_takes_t_per_sample_or_per_position_alike(dynamic):
+    """A (B,) t goes through one batched product over the samples' matrices, a t per position
+    through one product per position: the same loss and gradient."""
+    gen = torch.Generator().manual_seed(13)
+    z0 = torch.randint(0, K, (3, 4), generator=gen)
+    t = torch.tensor([1, 3, 5])
+    z_t = dynamic.q_sample(z0, t[:, None], generator=gen)
+    losses = []
+    for form in (t, t[:, None].expand(3, 4)):
+        logits = torch.randn(3, 4, K, generator=torch.Generator().manual_seed(0), requires_grad=True)
+        out = diffusion_loss(dynamic, logits, z0, z_t, form, validate=False)
+        out.loss.backward()
+        losses.append((out.loss.detach(), out.vlb, logits.grad))
+    assert all(torch.allclose(a, b, rtol=1e-12, atol=0) for a, b in zip(*losses))
 
 
 def test_loss_importance_weight_and_perfect_prediction(dynamic):

@@ -180,13 +180,19 @@ def test_other_schedules_and_importance_sampling(monkeypatch, options):
     assert len(tokens[0][0]) == 5
 
 
-def test_non_finite_loss_raises(monkeypatch):
-    module = make_module()
+@pytest.mark.parametrize("timestep_sampling", ["uniform", "importance"])
+def test_non_finite_loss_is_noted_and_raised_at_the_next_read(monkeypatch, timestep_sampling):
+    """The step notes a NaN loss on the device and goes on (no host read); the guard's read raises
+    it with its step, and the steps in between draw t as before (a NaN never reaches p(t))."""
+    module = make_module(timestep_sampling=timestep_sampling)
     monkeypatch.setattr(module, "log", lambda *a, **k: None)
     with torch.no_grad():
         module.denoiser.head.bias.fill_(float("nan"))
-    with pytest.raises(NonFiniteLossError):
+    for _ in range(2):
         module.training_step(make_batch(), 0)
+    assert module.timesteps.count.sum() == 0 and torch.isfinite(module.timesteps.history).all()
+    with pytest.raises(NonFiniteLossError, match="the training loss is nan at step 0"):
+        module.raise_if_not_finite()
 
 
 def test_codebook_in_state_dict_and_schedule_rebuilt_on_load():

@@ -75,7 +75,7 @@ def test_bad_settings_and_inputs_are_refused():
     with pytest.raises(ConfigError, match="codebook"):
         MaskedMotionTransformer(CONFIG, torch.randn(8, 4))
     model = MaskedMotionTransformer(CONFIG, torch.randn(16, 4))
-    with pytest.raises(ValueError, match="tokens must lie"):
+    with pytest.raises(RuntimeError, match="tokens must lie"):  # asserted on the device: no host read
         model(torch.tensor([[CONFIG.mask_id + 1]]), *text(1))
     with pytest.raises(ValueError, match="exceed"):
         model(torch.zeros(1, 12, dtype=torch.long), *text(1))  # 10 tokens + [END] fit, 12 positions do not

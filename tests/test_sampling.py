@@ -3,9 +3,12 @@ batch independence, editing, and the baselines' token layouts."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 import torch
 
+from m2d2m.generators.m2d2m_compiled import CompiledDenoise, bucket, compiles
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.m2d2m_sampling import FREE, TokenRequest, TokenSampler, categorical, length_groups, truncate
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
@@ -284,3 +287,92 @@ def test_fewer_steps_sample_every_position_reproducibly(sampler):
     assert seen == sorted(seen, reverse=True) and seen[-1] == 0 and 6 in seen
     with pytest.raises(ValueError, match="steps must lie in 1..T"):
         sampler.sample(requests, M2D2MOptions(steps=STEPS + 1))
+
+
+# ---------------------------------------------------------------------------------- compiled sampling
+def test_buckets_pad_by_under_a_half_to_few_sizes():
+    assert [bucket(n) for n in range(1, 14)] == [1, 2, 3, 4, 6, 6, 8, 8, 12, 12, 12, 12, 16]
+    assert bucket(49) == 64 and bucket(3283) == 4096 and bucket(3, smallest=8) == 8
+    assert all(n <= bucket(n) < 1.5 * n or bucket(n) <= 2 for n in range(1, 5000))
+    assert len({bucket(n) for n in range(1, 5000)}) == 25  # 1, 2, 3, 4, 6, 8, …, 4096, 6144
+
+
+def bucketed(sampler: TokenSampler, monkeypatch, compiled) -> TokenSampler:
+    """A sampler of the same model whose ``torch.compile`` is ``compiled`` (a stand-in)."""
+    monkeypatch.setattr(torch, "compile", lambda function, **options: compiled(function))
+    return TokenSampler(sampler.denoiser, sampler.text_encoder, sampler.schedule)
+
+
+REQUESTS = [
+    TokenRequest([WALK, JUMP, SIT], [6, 5, 7], seed=3),
+    TokenRequest([SIT, [""]], [9, 13], seed=4),
+    TokenRequest([JUMP], [2], seed=5),
+]
+
+
+@pytest.mark.parametrize("method", ["tps", "handshake", "slerp"])
+def test_passes_padded_to_buckets_change_no_token(sampler, monkeypatch, method):
+    """What compiling adds to the sampler — rows, tokens and text padded to buckets — leaves every
+    real position's logits equal to float32 rounding (here with eager kernels): the same draws."""
+    padded_passes = []
+
+    def recording(function):
+        def run(tokens, valid, t, condition, offsets):
+            padded_passes.append(tuple(tokens.shape))
+            return function(tokens, valid, t, condition, offsets)
+
+        return run
+
+    options = M2D2MOptions(method=method, ts=6, handshake=2, compile="on")
+    eager = sampler.sample(REQUESTS, replace(options, compile="off"))
+    padded = bucketed(sampler, monkeypatch, recording).sample(REQUESTS, options)
+    assert all(torch.equal(a, b) for x, y in zip(eager, padded) for a, b in zip(x, y))
+    assert padded_passes and all(rows == 2 * bucket(rows // 2) and width >= 8 for rows, width in padded_passes)
+    assert len(set(padded_passes)) < len(padded_passes)  # steps reuse their shapes
+
+
+def test_a_compiler_that_fails_leaves_eager_sampling_and_one_logged_line(sampler, monkeypatch, caplog):
+    def failing(function):
+        def run(*args):
+            raise RuntimeError("no C++ compiler found")
+
+        return run
+
+    options = M2D2MOptions(ts=6, compile="on")
+    fallback = bucketed(sampler, monkeypatch, failing)
+    with caplog.at_level("WARNING", logger="m2d2m.generators.m2d2m_compiled"):
+        first, again = fallback.sample(REQUESTS, options), fallback.sample(REQUESTS, options)
+    eager = sampler.sample(REQUESTS, replace(options, compile="off"))
+    assert all(torch.equal(a, b) for x, y in zip(eager, first) for a, b in zip(x, y))
+    assert all(torch.equal(a, b) for x, y in zip(first, again) for a, b in zip(x, y))
+    assert [record.getMessage() for record in caplog.records] == [
+        "torch.compile failed (RuntimeError: no C++ compiler found); the denoiser runs eagerly"
+    ]
+
+
+def test_auto_compiles_on_cuda_only():
+    assert compiles("auto", torch.device("cuda")) and not compiles("auto", torch.device("cpu"))
+    assert compiles("on", torch.device("cpu")) and not compiles("off", torch.device("cuda"))
+
+
+@pytest.mark.slow
+def test_compiled_sampling_matches_eager(sampler):
+    """torch.compile's inductor on the CPU (a C++ compiler builds the kernels: about a minute for
+    each of the two shapes here): the denoiser's logits equal eager ones within 1e-5 at the padded
+    shapes, and the draws are the same. Slow: compiling takes a minute or more on two cores."""
+    request = [TokenRequest([WALK, JUMP], [6, 5], seed=3)]
+    options = M2D2MOptions(method="tps", ts=6, compile="on")
+    compiled = TokenSampler(sampler.denoiser, sampler.text_encoder, sampler.schedule)
+    tokens = compiled.sample(request, options)
+    assert isinstance(compiled._compiled, CompiledDenoise) and compiled._compiled.compiled
+    eager = sampler.sample(request, replace(options, compile="off"))
+    assert all(torch.equal(a, b) for a, b in zip(tokens[0], eager[0]))
+
+    denoiser = sampler.denoiser
+    z = torch.randint(0, CODES + 1, (4, 8), generator=torch.Generator().manual_seed(0))
+    valid = torch.arange(8)[None, :] < torch.tensor([8, 6, 8, 3])[:, None]
+    text = torch.randn(4, 8, 16, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        condition = denoiser.condition(text, torch.ones(4, 8, dtype=torch.bool))
+        args = (z, valid, torch.tensor([4]), condition, None)
+        torch.testing.assert_close(compiled._compiled(*args), denoiser.denoise(*args), atol=1e-5, rtol=0)

@@ -78,6 +78,27 @@ def test_encode_actions_passes_gradients_to_a_trainable_encoder():
     assert encoder.embedding.weight.grad is not None and encoder.embedding.weight.grad.abs().sum() > 0
 
 
+class LeftPadded(TextEncoder):
+    """An encoder of another kind: one feature per word, its padding on the left, no host counts."""
+
+    dim = 1
+    trainable = False
+
+    def encode(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        words = [[float(len(w)) for w in s.split()] for s in sentences]
+        width = max(len(row) for row in words)
+        features = torch.tensor([[0.0] * (width - len(row)) + row for row in words])[..., None]
+        return features, torch.tensor([[False] * (width - len(row)) + [True] * len(row) for row in words])
+
+
+def test_encode_actions_lays_out_any_encoders_tokens_through_the_counted_fallback():
+    """An encoder that does not count its tokens on the host still gets its real tokens
+    concatenated in order (the fallback reads its mask: one host read per call)."""
+    features, mask = encode_actions(LeftPadded(), [["a person walks", "up"], ["someone jumps"]])
+    assert mask.tolist() == [[True] * 4, [True, True, False, False]]
+    assert features[..., 0].tolist() == [[1.0, 6.0, 5.0, 2.0], [7.0, 5.0, 0.0, 0.0]]
+
+
 def test_factory_builds_and_rejects_unknown_kinds():
     encoder = build_text_encoder("learned", vocabulary=LearnedTextEncoder.build_vocabulary(CORPUS), dim=8, heads=2)
     assert isinstance(encoder, TextEncoder) and encoder.dim == 8

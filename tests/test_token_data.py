@@ -2,6 +2,7 @@
 
 import logging
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from m2d2m.motion.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
 from pipelines.tokenize import tokenize_dataset
 from tests.helpers import random_vq, write_corpus
-from training.data import CaptionSampler, TokenDataModule, caption_span
+from training.data import CaptionSampler, LoaderFeed, TokenDataModule, caption_span
 
 KICK_SHORT = "a person kicks#a/DET person/NOUN kick/VERB#0.5#0.55"  # shorter than a token: widened to one
 KICK_LATE = "a person kicks#a/DET person/NOUN kick/VERB#20.0#30.0"  # past every clip's end: whole clip
@@ -164,6 +165,50 @@ def test_ranks_run_equal_epochs_and_share_validation(token_set, monkeypatch):
             check_batch(batch, clips["train"])
         shares.append([key for batch in module.val_dataloader() for key in batch["keys"]])
     assert len(shares[0]) == len(shares[1]) == 3 and sorted(shares[0] + shares[1]) == sorted(clips["val"])
+
+
+def test_training_batches_are_bucketed_by_length(token_set):
+    """Over the same 40 batches, bucketing pads less; every batch is still full and holds its
+    captions' segments (``check_batch``)."""
+    tokens, clips = token_set
+
+    def padding(bucket: bool) -> float:
+        module = TokenDataModule(tokens, batch_size=3, num_workers=0, steps_per_epoch=40, bucket=bucket)
+        batches = list(module.train_dataloader())
+        assert len(batches) == 40 and all(len(batch["keys"]) == 3 for batch in batches)
+        for batch in batches:
+            check_batch(batch, clips["train"])
+        return 1 - sum(int(b["lengths"].sum()) for b in batches) / sum(b["tokens"].numel() for b in batches)
+
+    plain = padding(bucket=False)
+    assert plain > 0.1 and padding(bucket=True) < plain / 2
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_the_bucketed_stream_is_a_function_of_the_seed(token_set, workers):
+    """Two loaders of one config give the same batches, epoch after epoch; another seed others."""
+
+    def batches(seed: int) -> list[list[str]]:
+        module = TokenDataModule(token_set[0], batch_size=3, num_workers=workers, steps_per_epoch=8, seed=seed)
+        loader = module.train_dataloader()
+        return [batch["keys"] + batch["text"] for _ in range(2) for batch in loader]
+
+    first = batches(7)
+    assert batches(7) == first and batches(8) != first
+
+
+def test_the_loaders_pin_and_start_workers_when_the_trainer_trains_on_a_gpu(token_set, monkeypatch):
+    """The feed a DataModule takes from the trainer Lightning attaches (a stand-in naming a GPU: the
+    decision needs none); ``auto`` means no workers on a CPU, as the demo configs' 0 did."""
+    monkeypatch.setattr("training.data.usable_cpus", lambda: 16)
+    module = TokenDataModule(token_set[0], num_workers="auto")
+    assert module.feed() == LoaderFeed(0, pin_memory=False)
+    module.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device("cuda", 0)), num_devices=2)
+    assert module.feed() == LoaderFeed(7, pin_memory=True)  # 14 cores left for 2 ranks
+    module.trainer.strategy.root_device = torch.device("cpu")
+    assert module.feed() == LoaderFeed(0, pin_memory=False)
+    with pytest.raises(ValueError, match="num_workers must be"):
+        TokenDataModule(token_set[0], num_workers="many")
 
 
 def test_caption_choices_depend_on_seed_rank_and_worker_only():

@@ -1,4 +1,5 @@
-"""The VQ-VAE's DataModule on a tiny dataset built by the real pipeline (Ray, local, 2 CPUs)."""
+"""The VQ-VAE's DataModule, and the bucketing of MotionDiffuse's caption/motion pairs, on a tiny
+dataset built by the real pipeline (Ray, local, 2 CPUs)."""
 
 import logging
 import shutil
@@ -14,6 +15,7 @@ from m2d2m.motion.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
 from tests.helpers import write_corpus
 from training.data import MotionWindowDataModule, WindowCropper, valid_frames
+from training.evaluator_module import CaptionMotionDataModule
 
 
 @pytest.fixture(scope="module")
@@ -108,6 +110,25 @@ def test_the_training_stream_is_a_function_of_the_seed(dataset, workers):
     for a, b in zip(first, again):
         np.testing.assert_array_equal(a, b)
     assert not all(np.array_equal(a, b) for a, b in zip(first, other))
+
+
+def test_caption_motion_pairs_are_bucketed_by_length_when_asked(dataset):
+    """MotionDiffuse asks for bucketing and pads less over the same 40 batches of full size; the
+    evaluator's default keeps random batches (its negatives of any length)."""
+    out, clips = dataset
+
+    def batches(**bucket: bool) -> list[dict]:
+        module = CaptionMotionDataModule(out, batch_size=3, num_workers=0, steps_per_epoch=40, **bucket)
+        loaded = list(module.train_dataloader())
+        assert len(loaded) == 40 and all(len(batch["keys"]) == 3 for batch in loaded)
+        assert {key for batch in loaded for key in batch["keys"]} <= clips["train"].keys()
+        return loaded
+
+    def padding(loaded: list[dict]) -> float:
+        return 1 - sum(int(b["lengths"].sum()) for b in loaded) / sum(b["motion"].shape[:2].numel() for b in loaded)
+
+    plain, default = padding(batches(bucket=False)), padding(batches())
+    assert default == plain > 0.1 and padding(batches(bucket=True)) < plain / 2
 
 
 def test_a_window_no_clip_fills_is_refused(dataset):

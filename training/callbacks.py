@@ -20,6 +20,7 @@ from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.vqvae import load_vq
 from m2d2m.progress import ProgressLines
+from training.losses import is_logging_step
 
 
 class ReconstructionPreview(pl.Callback):
@@ -133,12 +134,41 @@ class FeatureSamplePreview(SamplePreview):
         return module.preview(self.prompts, frames, self.seed), self.skeleton
 
 
+class LoggedLoss:
+    """The training loss as of the last step Lightning logged, for a progress display. Read only at
+    those steps (:func:`training.losses.is_logging_step`, every ``log_every_n_steps``), where
+    Lightning reads its metrics to the host anyway: on a GPU, reading it every step would make the
+    host wait for each step to finish before queuing the next."""
+
+    def __init__(self) -> None:
+        self.value: float | None = None
+
+    def update(self, trainer: pl.Trainer) -> None:
+        loss = trainer.callback_metrics.get("train/loss") if is_logging_step(trainer) else None
+        if loss is not None:
+            self.value = float(loss)
+
+
 class StepProgressBar(RichProgressBar):
     """Lightning's rich progress bar labelled with the steps each stretch covers ("Steps 1–500 of
-    2000"). Training here is bounded by ``max_steps`` with ``max_epochs=-1``, which Lightning's own
-    label prints as "Epoch 0/-2" (``RichProgressBar._get_train_description``: ``max_epochs - 1``),
-    and an epoch is only the stretch between validations (orchestration/train.py,
-    ``validation_interval``)."""
+    2000"), showing the training loss as last logged (:class:`LoggedLoss`). Training here is
+    bounded by ``max_steps`` with ``max_epochs=-1``, which Lightning's own label prints as "Epoch
+    0/-2" (``RichProgressBar._get_train_description``: ``max_epochs - 1``), and an epoch is only
+    the stretch between validations (orchestration/train.py, ``validation_interval``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.loss = LoggedLoss()
+
+    def on_train_batch_end(
+        self, trainer: pl.Trainer, module: pl.LightningModule, outputs: Any, batch: Any, batch_idx: int
+    ) -> None:
+        self.loss.update(trainer)
+        super().on_train_batch_end(trainer, module, outputs, batch, batch_idx)
+
+    def get_metrics(self, trainer: pl.Trainer, module: pl.LightningModule) -> dict[str, Any]:
+        metrics = super().get_metrics(trainer, module)
+        return metrics if self.loss.value is None else {**metrics, "train/loss": self.loss.value}
 
     def _get_train_description(self, current_epoch: int) -> str:
         trainer = self.trainer
@@ -152,12 +182,14 @@ class StepProgressBar(RichProgressBar):
 
 class PlainProgress(pl.Callback):
     """Training progress as plain lines where there is no terminal for a bar (a log file, CI, a
-    cluster job): step of max_steps, loss, steps per second and time left, at each tenth of the
-    run and at least every 30 s (:class:`m2d2m.progress.ProgressLines`); rank 0 only."""
+    cluster job): step of max_steps, the loss as last logged (:class:`LoggedLoss`), steps per
+    second and time left, at each tenth of the run and at least every 30 s
+    (:class:`m2d2m.progress.ProgressLines`); rank 0 only."""
 
     def __init__(self, file: Any = None) -> None:
         self.file = file
         self.lines: ProgressLines | None = None
+        self.loss = LoggedLoss()
 
     def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
         if trainer.is_global_zero:
@@ -169,8 +201,8 @@ class PlainProgress(pl.Callback):
     def on_train_batch_end(self, trainer: pl.Trainer, module: pl.LightningModule, *args: Any) -> None:
         if self.lines is None:
             return
-        loss = trainer.callback_metrics.get("train/loss")
-        self.lines.set_postfix_str(f"loss {float(loss):.4g}" if loss is not None else "")
+        self.loss.update(trainer)
+        self.lines.set_postfix_str(f"loss {self.loss.value:.4g}" if self.loss.value is not None else "")
         self.lines.update(trainer.global_step - self.lines.n)
 
     def on_train_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:

@@ -6,7 +6,9 @@ webdataset.github.io/webdataset/multinode/); validation and test read each clip 
 order, the ranks sharing them clip by clip. The shards, ``stats.npz``
 and the manifest are all this shares with the pipelines that wrote them (through ``m2d2m.layout``).
 Two feeds: motion windows for the VQ-VAE, and captioned token sequences for the token models
-(upper/lower-body token pairs for MMM's upper-body editor).
+(upper/lower-body token pairs for MMM's upper-body editor). Training batches of sequences that vary
+in length are bucketed by length (:class:`LengthBuckets`); on a GPU the loaders run in worker
+processes and pin their batches (:func:`loader_feed`). docs/training.md, "Data loading".
 """
 
 from __future__ import annotations
@@ -14,9 +16,11 @@ from __future__ import annotations
 import io
 import json
 import math
+import os
 import tarfile
 from collections import defaultdict
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from functools import cached_property, partial
 from pathlib import Path
 from typing import Any
@@ -32,7 +36,11 @@ from m2d2m.model_files import LengthPrior
 from m2d2m.motion.normalization import Normalizer
 
 Sample = dict[str, Any]
-# A token set's manifest kind and model file, as ``pipelines/tokenize.py`` writes them (no import across).
+Batching = Callable[[Iterable[Sample]], Iterator[Any]]  # a pipeline stage: samples in, collated batches out
+AUTO_WORKERS = "auto"
+MOST_AUTO_WORKERS = 8
+BUCKET_POOL_BATCHES = 8
+BUCKET_STREAM = 1  # ``worker_generator`` stream of the bucketed batch order (stream 0: the samples' own draws)
 
 
 def clip_metas(urls: list[str]) -> Iterator[dict[str, Any]]:
@@ -57,11 +65,12 @@ def require_positive(**values: int) -> None:
             raise ValueError(f"{name} must be a positive integer, got {value}")
 
 
-def worker_generator(seed: int, rank: int) -> np.random.Generator:
+def worker_generator(seed: int, rank: int, *stream: int) -> np.random.Generator:
     """A Generator seeded from (seed, rank, DataLoader worker id): draws differ between workers and
-    ranks, and never depend on global random state. Call it inside the worker, on first use."""
+    ranks, and never depend on global random state. Call it inside the worker, on first use.
+    ``stream`` numbers a second, independent Generator of the same worker (one per purpose)."""
     worker = torch.utils.data.get_worker_info()
-    return np.random.default_rng([seed, rank, 0 if worker is None else worker.id])
+    return np.random.default_rng([seed, rank, 0 if worker is None else worker.id, *stream])
 
 
 def random_window(motion: np.ndarray, window: int, rng: np.random.Generator) -> np.ndarray | None:
@@ -147,21 +156,109 @@ def rank_and_world_size(trainer: pl.Trainer | None) -> tuple[int, int]:
     return rank, world_size
 
 
+def require_workers(num_workers: int | str) -> None:
+    """Refuse a worker count that is neither a count of processes (0: none) nor ``auto``."""
+    if num_workers != AUTO_WORKERS and not (
+        isinstance(num_workers, int) and not isinstance(num_workers, bool) and num_workers >= 0
+    ):
+        raise ValueError(f"num_workers must be 0 or more worker processes, or {AUTO_WORKERS!r}; got {num_workers!r}")
+
+
+def usable_cpus() -> int:
+    """Cores this process may run on (its affinity, which a cluster's scheduler narrows)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+@dataclass(frozen=True)
+class LoaderFeed:
+    """How a DataLoader hands its batches over: made by ``num_workers`` worker processes (0: by the
+    training process between steps), in pinned (page-locked) memory when ``pin_memory``, from which
+    Lightning's ``non_blocking`` copy to the GPU runs asynchronously."""
+
+    num_workers: int
+    pin_memory: bool
+
+
+def loader_feed(num_workers: int | str, device: torch.device, cpus: int, processes: int) -> LoaderFeed:
+    """The feed of a loader whose batches train on ``device``, one of ``processes`` training
+    processes (DDP ranks) sharing ``cpus`` cores. ``auto`` on a GPU: the cores left after the
+    training processes, shared among them, at least one and at most ``MOST_AUTO_WORKERS`` a
+    process (the paper configs' count before ``auto``; one process alone already makes token
+    batches faster than a paper-size step takes them, ``bench/loader.py``, docs/training.md); on a
+    CPU: none, since the step's own threads keep every core busy and loading in the training
+    process measured fastest on 2 cores (``bench/train_vq.py``). A count is taken as it is. Memory
+    is pinned for a CUDA device only."""
+    on_gpu = device.type == "cuda"
+    if num_workers != AUTO_WORKERS:
+        workers = int(num_workers)
+    elif on_gpu:
+        workers = max(1, min(MOST_AUTO_WORKERS, (cpus - processes) // processes))
+    else:
+        workers = 0
+    return LoaderFeed(workers, pin_memory=on_gpu)
+
+
+class LengthBuckets:
+    """A pipeline stage that makes batches of ``batch_size`` samples of similar length, so a batch
+    is padded to the longest of its neighbours in length rather than of a random draw. It keeps a
+    pool of ``pool_batches`` batches' worth of arriving (already shuffled) samples, sorts it by
+    ``len(sample[field])`` (stable, so ties keep their arrival order), cuts it into batches and lets
+    them out in random order: torchtext's ``BucketIterator`` pool (pytorch/text,
+    ``torchtext/data/iterator.py``, ``pool``), whose pool is 100 batches; a few batches already
+    remove most of the padding (docs/training.md, "Data loading") and keep the first batch near.
+
+    Every sample that enters leaves exactly once, in a batch of exactly ``batch_size``; a finite
+    stream's samples after its last full batch are dropped, the ones ``wds.batched(partial=False)``
+    drops. The batch order comes from ``worker_generator(seed, rank, BUCKET_STREAM)``, made on
+    first use inside each DataLoader worker and kept across epochs."""
+
+    def __init__(
+        self,
+        batch_size: int,
+        collate: Callable[[list[Sample]], Any],
+        field: str,
+        seed: int,
+        rank: int,
+        pool_batches: int = BUCKET_POOL_BATCHES,
+    ) -> None:
+        require_positive(batch_size=batch_size, pool_batches=pool_batches)
+        self.batch_size, self.collate, self.field, self.pool_batches = batch_size, collate, field, pool_batches
+        self.seed, self.rank = seed, rank
+        self.rng: np.random.Generator | None = None
+
+    def __call__(self, samples: Iterable[Sample]) -> Iterator[Any]:
+        if self.rng is None:
+            self.rng = worker_generator(self.seed, self.rank, BUCKET_STREAM)
+        pool: list[Sample] = []
+        for sample in samples:
+            pool.append(sample)
+            if len(pool) == self.batch_size * self.pool_batches:
+                yield from self._batches(pool, self.rng)
+                pool = []
+        yield from self._batches(pool[: len(pool) - len(pool) % self.batch_size], self.rng)
+
+    def _batches(self, pool: list[Sample], rng: np.random.Generator) -> Iterator[Any]:
+        by_length = np.argsort([len(sample[self.field]) for sample in pool], kind="stable")
+        batches = by_length.reshape(-1, self.batch_size)
+        for row in rng.permutation(len(batches)):
+            yield self.collate([pool[index] for index in batches[row]])
+
+
 def resampled_batches(
     urls: list[str],
     prepare: Callable[[Sample], Sample | None],
-    collate: Callable[[list[Sample]], Any],
-    batch_size: int,
+    batching: Batching,
     steps: int,
     shuffle_buffer: int,
-    num_workers: int,
+    feed: LoaderFeed,
     seed: int,
 ) -> wds.WebLoader:
-    """Endless resampled shards split by rank and worker, cut to ``steps`` full batches an epoch,
-    so every DDP rank runs the same number of steps whatever its shards hold. Every draw is a
-    function of ``seed`` (the shards' of it, the epoch, the rank and the worker), so training the
-    same config twice sees the same batches: ``wds.WebDataset(resampled=True)`` and an unseeded
-    ``.shuffle`` would seed from the clock and the process id."""
+    """Endless resampled shards split by rank and worker, made into batches by ``batching`` (full
+    ones only) and cut to ``steps`` batches an epoch, so every DDP rank runs the same number of
+    steps whatever its shards hold. Every draw is a function of ``seed`` (the shards' of it, the
+    epoch, the rank and the worker), so training the same config twice with as many workers sees
+    the same batches: ``wds.WebDataset(resampled=True)`` and an unseeded ``.shuffle`` would seed
+    from the clock and the process id."""
     dataset = wds.DataPipeline(
         wds.ResampledShards(urls, seed=seed, deterministic=True),
         wds.split_by_node,
@@ -170,9 +267,15 @@ def resampled_batches(
         wds.shuffle(shuffle_buffer, seed=seed),
         wds.decode(),
         wds.map(prepare),
-        wds.batched(batch_size, collation_fn=collate, partial=False),
+        batching,
     )
-    loader = wds.WebLoader(dataset, batch_size=None, num_workers=num_workers, persistent_workers=num_workers > 0)
+    loader = wds.WebLoader(
+        dataset,
+        batch_size=None,
+        num_workers=feed.num_workers,
+        pin_memory=feed.pin_memory,
+        persistent_workers=feed.num_workers > 0,
+    )
     return loader.with_epoch(steps).with_length(steps, silent=True)  # __len__ for progress bars and schedulers
 
 
@@ -183,7 +286,7 @@ def split_pass(
     prepare: Callable[[Sample], Sample],
     collate: Callable[[list[Sample]], Any],
     batch_size: int,
-    num_workers: int,
+    feed: LoaderFeed,
 ) -> wds.WebLoader:
     """One deterministic pass over a split whose shards hold ``sizes`` clips. Ranks share it clip
     by clip, not shard by shard (``rank_share``); the workers of a rank share its shards."""
@@ -196,27 +299,32 @@ def split_pass(
         .map(prepare)
         .batched(batch_size, collation_fn=collate, partial=True)
     )
-    return wds.WebLoader(dataset, batch_size=None, num_workers=num_workers)
+    return wds.WebLoader(dataset, batch_size=None, num_workers=feed.num_workers, pin_memory=feed.pin_memory)
 
 
 class ShardDataModule(pl.LightningDataModule):
     """What the DataModules over a directory of manifest-listed shards share: a resampled training
-    stream cut to ``steps_per_epoch`` batches on every rank, and one pass over each clip for
-    validation and test, shared among the ranks. Subclasses read the manifest (``self.manifest``),
-    find each split's shards, checked against it (``self._urls``), and say how a clip becomes a
-    training sample (:meth:`_train_sample`) and an evaluation sample (:meth:`_eval_sample`)."""
+    stream cut to ``steps_per_epoch`` batches on every rank, bucketed by length when ``bucket`` and
+    the samples vary in length (``length_field``), and one pass over each clip for validation and
+    test, shared among the ranks, in shard order. ``num_workers`` (a count, or ``auto``) and pinned
+    memory follow the device the attached trainer trains on (:func:`loader_feed`). Subclasses read
+    the manifest (``self.manifest``), find each split's shards, checked against it (``self._urls``),
+    and say how a clip becomes a training sample (:meth:`_train_sample`) and an evaluation sample
+    (:meth:`_eval_sample`)."""
 
     manifest: dict[str, Any]
     _urls: dict[str, list[str]]
+    length_field: str | None = None  # the training sample's sequence that pads a batch; None: fixed length
 
     def __init__(
         self,
         batch_size: int,
-        num_workers: int,
+        num_workers: int | str,
         steps_per_epoch: int | None,
         val_batch_size: int,
         shuffle_buffer: int,
         seed: int,
+        bucket: bool,
     ) -> None:
         super().__init__()
         require_positive(
@@ -224,8 +332,9 @@ class ShardDataModule(pl.LightningDataModule):
             val_batch_size=val_batch_size,
             steps_per_epoch=1 if steps_per_epoch is None else steps_per_epoch,
         )
+        require_workers(num_workers)
         self.batch_size, self.num_workers, self.val_batch_size = batch_size, num_workers, val_batch_size
-        self.shuffle_buffer, self.seed = shuffle_buffer, seed
+        self.shuffle_buffer, self.seed, self.bucket = shuffle_buffer, seed, bucket
         self._steps_per_epoch = steps_per_epoch
 
     def urls(self, split: str) -> list[str]:
@@ -259,17 +368,29 @@ class ShardDataModule(pl.LightningDataModule):
             return self._steps_per_epoch
         return max(1, usable // (self.batch_size * rank_and_world_size(self.trainer)[1]))
 
+    def feed(self) -> LoaderFeed:
+        """Workers and pinned memory for the device the attached trainer trains on (a CPU without
+        one), its processes on this machine sharing the cores."""
+        if self.trainer is None:
+            return loader_feed(self.num_workers, torch.device("cpu"), usable_cpus(), 1)
+        return loader_feed(self.num_workers, self.trainer.strategy.root_device, usable_cpus(), self.trainer.num_devices)
+
     def train_dataloader(self) -> wds.WebLoader:
-        prepare, collate = self._train_sample(rank_and_world_size(self.trainer)[0])
+        rank = rank_and_world_size(self.trainer)[0]
+        prepare, collate = self._train_sample(rank)
+        feed, bucketed = self.feed(), self.bucket and self.length_field is not None
+        rank_zero_info(
+            f"training batches: {feed.num_workers} loader workers"
+            + (", pinned memory" if feed.pin_memory else "")
+            + (", bucketed by length" if bucketed else "")
+        )
+        batching = (
+            LengthBuckets(self.batch_size, collate, self.length_field, self.seed, rank)
+            if bucketed
+            else wds.batched(self.batch_size, collation_fn=collate, partial=False)
+        )
         return resampled_batches(
-            self.urls("train"),
-            prepare,
-            collate,
-            self.batch_size,
-            self.steps_per_epoch,
-            self.shuffle_buffer,
-            self.num_workers,
-            self.seed,
+            self.urls("train"), prepare, batching, self.steps_per_epoch, self.shuffle_buffer, feed, self.seed
         )
 
     def val_dataloader(self) -> wds.WebLoader:
@@ -281,7 +402,7 @@ class ShardDataModule(pl.LightningDataModule):
     def _one_pass(self, split: str) -> wds.WebLoader:
         prepare, collate = self._eval_sample()
         return split_pass(
-            self.urls(split), self._sizes(split), self.trainer, prepare, collate, self.val_batch_size, self.num_workers
+            self.urls(split), self._sizes(split), self.trainer, prepare, collate, self.val_batch_size, self.feed()
         )
 
 
@@ -293,13 +414,14 @@ class FeatureShardDataModule(ShardDataModule):
         self,
         data_dir: str | Path,
         batch_size: int,
-        num_workers: int,
+        num_workers: int | str,
         steps_per_epoch: int | None,
         val_batch_size: int,
         shuffle_buffer: int,
         seed: int,
+        bucket: bool,
     ) -> None:
-        super().__init__(batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed)
+        super().__init__(batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed, bucket)
         self.data_dir = Path(data_dir).resolve()
         self.manifest = read_manifest(self.data_dir)
         stats = self.data_dir / STATS
@@ -324,21 +446,24 @@ class FeatureShardDataModule(ShardDataModule):
 
 class MotionWindowDataModule(FeatureShardDataModule):
     """Random fixed-length windows of the train clips for the motion VQ-VAE; whole clips for
-    validation and test. Every motion is normalised once, here, with the dataset's ``stats.npz``."""
+    validation and test. Every motion is normalised once, here, with the dataset's ``stats.npz``.
+    Windows are all ``window`` frames long: nothing to bucket."""
 
     def __init__(
         self,
         data_dir: str | Path,
         window: int = 64,
         batch_size: int = 256,
-        num_workers: int = 2,
+        num_workers: int | str = 2,
         steps_per_epoch: int | None = None,
         val_batch_size: int = 32,
         shuffle_buffer: int = 1000,
         seed: int = 0,
     ) -> None:
         require_positive(window=window)
-        super().__init__(data_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed)
+        super().__init__(
+            data_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed, bucket=False
+        )
         self.window = window
 
     @cached_property
@@ -481,21 +606,25 @@ def read_token_manifest(tokens_dir: Path) -> dict[str, Any]:
 
 class TokenDataModule(ShardDataModule):
     """Captioned VQ token sequences (``data/<name>/tokens/<vq-run>/``) for the discrete-diffusion
-    denoiser: in training, one random caption per clip and epoch with its segment of the tokens;
-    in validation and test, every clip once with its first caption."""
+    denoiser: in training, one random caption per clip and epoch with its segment of the tokens,
+    bucketed by the segment's length; in validation and test, every clip once with its first
+    caption."""
+
+    length_field = "tokens"
 
     def __init__(
         self,
         tokens_dir: str | Path,
         batch_size: int = 64,
-        num_workers: int = 2,
+        num_workers: int | str = 2,
         steps_per_epoch: int | None = None,
         val_batch_size: int = 64,
         shuffle_buffer: int = 1000,
         max_tokens: int | None = None,
         seed: int = 0,
+        bucket: bool = True,
     ) -> None:
-        super().__init__(batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed)
+        super().__init__(batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed, bucket)
         require_positive(max_tokens=1 if max_tokens is None else max_tokens)
         self.tokens_dir = Path(tokens_dir).resolve()
         self.manifest = read_token_manifest(self.tokens_dir)
@@ -592,15 +721,24 @@ class BodyTokenDataModule(TokenDataModule):
         tokens_dir: str | Path,
         lower_tokens_dir: str | Path,
         batch_size: int = 64,
-        num_workers: int = 2,
+        num_workers: int | str = 2,
         steps_per_epoch: int | None = None,
         val_batch_size: int = 64,
         shuffle_buffer: int = 1000,
         max_tokens: int | None = None,
         seed: int = 0,
+        bucket: bool = True,
     ) -> None:
         super().__init__(
-            tokens_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, max_tokens, seed
+            tokens_dir,
+            batch_size,
+            num_workers,
+            steps_per_epoch,
+            val_batch_size,
+            shuffle_buffer,
+            max_tokens,
+            seed,
+            bucket,
         )
         self.lower_tokens_dir = Path(lower_tokens_dir).resolve()
         lower_manifest = read_token_manifest(self.lower_tokens_dir)

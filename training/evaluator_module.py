@@ -18,7 +18,6 @@ from functools import cached_property, partial
 from pathlib import Path
 from typing import Any
 
-import lightning.pytorch as pl
 import numpy as np
 import torch
 from lightning.pytorch.utilities import rank_zero_info
@@ -34,7 +33,7 @@ from training.data import (
     random_window,
     worker_generator,
 )
-from training.losses import check_finite
+from training.losses import FiniteLossGuard
 from training.optim import configure_adamw
 
 SHORTER_UNIT_CHANCE = 1 / 3  # Guo's "double" coin: one 4-frame unit less
@@ -103,24 +102,33 @@ def collate_pairs(samples: list[Sample]) -> dict[str, Any]:
 
 
 class CaptionMotionDataModule(FeatureShardDataModule):
-    """Caption/motion pairs of a processed dataset for the evaluator: a random pair per clip and
-    epoch in training, each clip's first pair once in validation and test."""
+    """Caption/motion pairs of a processed dataset for the evaluator and MotionDiffuse: a random
+    pair per clip and epoch in training (bucketed by the motion's length when ``bucket``), each
+    clip's first pair once in validation and test. ``bucket`` is off unless asked for, as the
+    evaluator needs it: it pads every motion to its ``max_motion_length`` itself, so bucketing
+    saves it nothing, while it would make every contrastive negative as long as its positive.
+    MotionDiffuse, which computes on every padded frame, asks for it."""
+
+    length_field = "motion"
 
     def __init__(
         self,
         data_dir: str | Path,
         batch_size: int = 32,
-        num_workers: int = 2,
+        num_workers: int | str = 2,
         steps_per_epoch: int | None = None,
         val_batch_size: int = 32,
         shuffle_buffer: int = 1000,
         min_frames: int = 40,
         max_frames: int = 196,
         seed: int = 0,
+        bucket: bool = False,
     ) -> None:
         if not UNIT_LENGTH <= min_frames <= max_frames:
             raise ValueError(f"need {UNIT_LENGTH} <= min_frames <= max_frames, got {min_frames} and {max_frames}")
-        super().__init__(data_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed)
+        super().__init__(
+            data_dir, batch_size, num_workers, steps_per_epoch, val_batch_size, shuffle_buffer, seed, bucket
+        )
         self.min_frames, self.max_frames = min_frames, max_frames
 
     @cached_property
@@ -161,7 +169,7 @@ class CaptionMotionDataModule(FeatureShardDataModule):
         return partial(first_pair, min_frames=self.min_frames, max_frames=self.max_frames), collate_pairs
 
 
-class EvaluatorModule(pl.LightningModule):
+class EvaluatorModule(FiniteLossGuard):
     """Guo's text–motion matching: contrastive loss (margin ``loss["margin"]``, Guo 10) between
     each caption and its motion and, as negatives, the motions of a random shift of the batch;
     Adam(W) over the trainable weights (Guo: Adam 1e-4, gradient norm clipped to 0.5, which the
@@ -189,15 +197,26 @@ class EvaluatorModule(pl.LightningModule):
         """The dataset's normalisation becomes the evaluator's own, carried in its weights."""
         self.model.set_statistics(normalizer.mean, normalizer.scale)
 
+    def transfer_batch_to_device(self, batch: dict[str, Any], device: torch.device, dataloader_idx: int) -> dict:
+        """The batch on ``device`` but for the motions' lengths, which stay on the host: the
+        evaluator checks them and packs its GRUs' sequences by them there
+        (TextMotionEvaluator.embed_motion), and reading them back from the device would make the
+        host wait."""
+        rest = {key: value for key, value in batch.items() if key != "lengths"}
+        return {**super().transfer_batch_to_device(rest, device, dataloader_idx), "lengths": batch["lengths"]}
+
     def _embed(self, batch: dict[str, Any]) -> tuple[torch.Tensor, torch.Tensor]:
         return self.model.embed_text(batch["tokens"]), self.model.embed_motion(batch["motion"], batch["lengths"])
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
+        """The negatives are the motions a random shift of the batch away, the shift drawn on the
+        device and never read on the host."""
         text, motion = self._embed(batch)
         batch_size = len(text)
-        terms = contrastive_loss(text, motion, int(torch.randint(1, batch_size, ())), self.hparams.loss["margin"])
-        check_finite(terms.total, self.global_step)
-        self.log("train/loss", terms.total, batch_size=batch_size, prog_bar=True)
+        shift = torch.randint(1, batch_size, (), device=motion.device)
+        terms = contrastive_loss(text, motion, shift, self.hparams.loss["margin"])
+        self.guard_finite(terms.total)
+        self.log("train/loss", terms.total, batch_size=batch_size)
         self.log("train/positive", terms.positive, batch_size=batch_size)
         self.log("train/negative", terms.negative, batch_size=batch_size)
         return terms.total

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-import lightning.pytorch as pl
 import numpy as np
 import torch
 
@@ -16,7 +15,7 @@ from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
 from m2d2m.text import encode_actions, text_encoder_from_config
-from training.losses import check_finite, log_by_quarter
+from training.losses import FiniteLossGuard, log_by_quarter
 from training.optim import configure_adamw
 
 
@@ -31,8 +30,10 @@ class Denoised(NamedTuple):
     loss: DiffusionLoss
 
 
-class M2D2MModule(pl.LightningModule):
-    """L_vlb + λ·aux on tokens of the frozen VQ codebook, AdamW with warm-up and step decay.
+class M2D2MModule(FiniteLossGuard):
+    """L_vlb + λ·aux on tokens of the frozen VQ codebook, AdamW with warm-up and step decay. A
+    non-finite loss stops training at the next step Lightning logs at (:class:`FiniteLossGuard`):
+    its steps never read a tensor on the host.
 
     The codebook is a buffer (not a hyper-parameter), so a checkpoint carries it and the transition
     schedule is rebuilt from it whenever a state dict is loaded. The schedule itself is a plain
@@ -104,8 +105,8 @@ class M2D2MModule(pl.LightningModule):
 
     # ----------------------------------------------------------------------------------- training
     def _condition(self, actions: list[list[str]]) -> tuple[torch.Tensor, torch.Tensor]:
-        text, text_mask = encode_actions(self.text_encoder, actions)
-        return text.to(self.codebook.device), text_mask.to(self.codebook.device)
+        """The captions' text features and mask, on the text encoder's device (the module's)."""
+        return encode_actions(self.text_encoder, actions)
 
     def _denoise(
         self,
@@ -118,28 +119,40 @@ class M2D2MModule(pl.LightningModule):
         """Corrupt the batch's tokens to z_t ~ q(z_t | z0) at ``t`` (padding becomes the mask), denoise
         them under the text condition — dropped at the rate ``text_drop`` when ``drop_condition``, for
         classifier-free guidance — and score the logits. Training and validation differ only in
-        where t and the noise come from, so both go through here."""
+        where t and the noise come from, so both go through here.
+
+        Nothing here reads a tensor back on the host, which on a GPU would stall the queue of
+        kernels every step (``tests/test_host_syncs.py`` holds it so): the schedule's range checks
+        are skipped, since the tokens are the VQ-VAE's codes and t comes from
+        :class:`TimestepSampler` or ``randint`` over 1..T."""
         schedule = self.schedule_on_device()
         z0, valid = batch["tokens"].long(), batch["padding_mask"].bool()
-        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None], generator=generator)
+        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None], generator=generator, validate=False)
         z_t = z_t.masked_fill(~valid, schedule.mask_index)
         text, text_mask = self._condition(batch["actions"])
         if drop_condition:
             text, text_mask = self.denoiser.drop_condition(text, text_mask, self.hparams.text_drop)
         logits = self.denoiser(z_t, valid, t, text, text_mask)
         loss = diffusion_loss(
-            schedule, logits, z0, z_t, t, valid=valid, aux_weight=self.aux_weight, pt=pt, adaptive_aux=self.adaptive_aux
+            schedule,
+            logits,
+            z0,
+            z_t,
+            t,
+            valid=valid,
+            aux_weight=self.aux_weight,
+            pt=pt,
+            adaptive_aux=self.adaptive_aux,
+            validate=False,
         )
         return Denoised(z0, valid, z_t, logits, loss)
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
-        tokens = batch["tokens"]
-        batch_size = tokens.shape[0]
-        t, pt = self.timesteps.sample(batch_size)
-        t, pt = t.to(tokens.device), pt.to(tokens.device)
+        batch_size = batch["tokens"].shape[0]
+        t, pt = self.timesteps.sample(batch_size)  # drawn where the sampler's buffers are: the module's device
         out = self._denoise(batch, t, drop_condition=True, pt=pt).loss
-        check_finite(out.loss, self.global_step)
-        self.log("train/loss", out.loss, batch_size=batch_size, prog_bar=True)
+        self.guard_finite(out.loss)
+        self.log("train/loss", out.loss, batch_size=batch_size)
         self.log("train/vlb", out.vlb.mean(), batch_size=batch_size)
         self.log("train/aux", out.aux.mean(), batch_size=batch_size)
         log_by_quarter(self, "train/vlb", out.vlb, t, first=1, steps=self.steps)
@@ -156,12 +169,13 @@ class M2D2MModule(pl.LightningModule):
         z0, valid, z_t, logits, out = self._denoise(batch, t, generator=generator)
         self.log("val/loss", out.loss, batch_size=batch_size, sync_dist=True, prog_bar=True)
         self.log("val/vlb", out.vlb.mean(), batch_size=batch_size, sync_dist=True)
-        # accuracy on the positions the model has to restore: masked or replaced ones
+        # accuracy on the positions the model has to restore: masked or replaced ones; weighted by
+        # their count as a tensor, so the host never waits for it (a batch with none weighs nothing)
         corrupted = valid & ((z_t == self.schedule.mask_index) | (z_t != z0))
-        total = int(corrupted.sum())
-        if total:
-            correct = ((logits.argmax(dim=-1) == z0) & corrupted).sum().float()
-            self.log("val/token_accuracy", correct / total, batch_size=total, sync_dist=True, prog_bar=True)
+        total = corrupted.sum()
+        correct = ((logits.argmax(dim=-1) == z0) & corrupted).sum().float()
+        accuracy = correct / total.clamp_min(1)
+        self.log("val/token_accuracy", accuracy, batch_size=total, sync_dist=True, prog_bar=True)
 
     def configure_optimizers(self) -> dict[str, Any]:
         return configure_adamw(

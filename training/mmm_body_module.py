@@ -55,9 +55,10 @@ class BodyMMMModule(MMMModule):
         return BodyMaskedTransformer(config, upper, lower)
 
     def _predict(
-        self, batch: dict[str, Any], generator: torch.Generator | None = None
+        self, batch: dict[str, Any], generator: torch.Generator | None = None, rng: np.random.Generator | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Mask the upper tokens, corrupt the lower ones, predict: (upper codes, masked upper positions, logits)."""
+        """Mask the upper tokens, corrupt the lower ones (drawn with ``generator``), predict under the
+        captions (dropped with ``rng``): (upper codes, masked upper positions, logits)."""
         config = self.transformer.config
         pairs, valid = batch["tokens"].long(), batch["padding_mask"].bool()
         upper, lower = pairs[..., 0], pairs[..., 1]
@@ -67,5 +68,5 @@ class BodyMMMModule(MMMModule):
         inputs = body_canvas(
             upper.masked_fill(masked, config.mask_id), lower.masked_fill(hidden, config.lower_mask_id), lengths, config
         )
-        logits = self.transformer(inputs, *self._condition(batch["text"], generator))[:, :-1]
+        logits = self.transformer(inputs, *self._condition(batch["text"], rng))[:, :-1]
         return upper, masked, logits

@@ -1,11 +1,11 @@
 """MMM's masked transformer as a LightningModule: masked-token prediction on VQ tokens with a text
-condition (Pinyoanuntapong et al., CVPR 2024, §3.2, eq. 2) and deterministic validation."""
+condition (Pinyoanuntapong et al., CVPR 2024, §3.2, eq. 2) and deterministic validation, neither
+reading a tensor back on the host (tests/test_host_syncs_models.py)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-import lightning.pytorch as pl
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -17,8 +17,11 @@ from m2d2m.networks.config import ConfigError
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas
 from m2d2m.processes.masking import training_mask
 from m2d2m.text import text_encoder_from_config
-from training.losses import check_finite
+from training.conditioning import drop_captions
+from training.losses import FiniteLossGuard
 from training.optim import configure_adamw
+
+IGNORED = -100  # F.cross_entropy's ignore_index: the target of every position that is not masked
 
 
 def as_codebook(codebook: torch.Tensor | np.ndarray) -> torch.Tensor:
@@ -29,7 +32,14 @@ def as_codebook(codebook: torch.Tensor | np.ndarray) -> torch.Tensor:
     return codebook
 
 
-class MMMModule(pl.LightningModule):
+def masked_cross_entropy(logits: torch.Tensor, codes: torch.Tensor, masked: torch.Tensor) -> torch.Tensor:
+    """The mean cross-entropy of the ``masked`` positions' codes (eq. 2), over a fixed shape:
+    the other positions are ignored rather than indexed away, since a boolean index's size depends
+    on the data and makes the host wait for it."""
+    return F.cross_entropy(logits.flatten(0, 1), codes.masked_fill(~masked, IGNORED).flatten(), ignore_index=IGNORED)
+
+
+class MMMModule(FiniteLossGuard):
     """Cross-entropy of the masked tokens, r ~ U(α, 1) of each caption's tokens masked; AdamW
     with warm-up and step decay. A fraction ``text_drop`` (the config's top-level key) of the captions is replaced by the
     empty sentence, the null condition (ours: the paper's Table 3 edits "w/o text" but does not
@@ -73,47 +83,45 @@ class MMMModule(pl.LightningModule):
         return MaskedMotionTransformer(config, codebook)
 
     def _condition(
-        self, captions: list[str], generator: torch.Generator | None = None
+        self, captions: list[str], rng: np.random.Generator | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The captions' sentence and word features, a fraction ``text_drop`` of them dropped to
-        "": the null condition that editing without text asks for."""
-        dropped = (
-            torch.rand(len(captions), generator=generator, device=generator.device if generator is not None else "cpu")
-            < self.text_drop
-        )
-        captions = ["" if drop else caption for caption, drop in zip(captions, dropped.tolist())]
-        words, word_mask, sentence = self.text_encoder.encode_pooled(captions)
+        "" (with ``rng``: :func:`~training.conditioning.drop_captions`): the null condition that
+        editing without text asks for."""
+        words, word_mask, sentence = self.text_encoder.encode_pooled(drop_captions(captions, self.text_drop, rng))
         device = self.transformer.codebook.device
         return sentence.to(device), words.to(device), word_mask.to(device)
 
     def _predict(
-        self, batch: dict[str, Any], generator: torch.Generator | None = None
+        self, batch: dict[str, Any], generator: torch.Generator | None = None, rng: np.random.Generator | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Mask the batch's tokens and predict them: (codes, masked positions, logits)."""
+        """Mask the batch's tokens (drawn with ``generator``) and predict them under the captions
+        (dropped with ``rng``): (codes, masked positions, logits)."""
         config = self.transformer.config
         codes, valid = batch["tokens"].long(), batch["padding_mask"].bool()
         lengths = valid.sum(dim=1)
         masked = training_mask(lengths, codes.shape[1], self.alpha, generator)
         inputs = canvas(codes.masked_fill(masked, config.mask_id), lengths, config)
-        logits = self.transformer(inputs, *self._condition(batch["text"], generator))[:, :-1]
+        logits = self.transformer(inputs, *self._condition(batch["text"], rng))[:, :-1]
         return codes, masked, logits
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
         codes, masked, logits = self._predict(batch)
-        loss = F.cross_entropy(logits[masked], codes[masked])
-        check_finite(loss, self.global_step)
-        self.log("train/loss", loss, batch_size=codes.shape[0], prog_bar=True)
+        loss = masked_cross_entropy(logits, codes, masked)
+        self.guard_finite(loss)
+        self.log("train/loss", loss, batch_size=codes.shape[0])
         return loss
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
-        """The same masks in every validation pass (a generator seeded with ``batch_idx``), so the
-        numbers are comparable across steps."""
+        """The same masks and dropped captions in every validation pass (generators seeded with
+        ``batch_idx``), so the numbers are comparable across steps. Weighted by the number of
+        masked tokens, a tensor the host never reads."""
         codes = batch["tokens"]
         generator = torch.Generator(device=codes.device).manual_seed(int(batch_idx))
-        codes, masked, logits = self._predict(batch, generator)
-        total = int(masked.sum())
-        loss = F.cross_entropy(logits[masked], codes[masked])
-        accuracy = (logits[masked].argmax(dim=-1) == codes[masked]).float().mean()
+        codes, masked, logits = self._predict(batch, generator, np.random.default_rng(int(batch_idx)))
+        total = masked.sum()
+        loss = masked_cross_entropy(logits, codes, masked)
+        accuracy = ((logits.argmax(dim=-1) == codes) & masked).sum() / total
         self.log("val/loss", loss, batch_size=total, sync_dist=True, prog_bar=True)
         self.log("val/masked_accuracy", accuracy, batch_size=total, sync_dist=True, prog_bar=True)
 

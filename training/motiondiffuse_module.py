@@ -1,12 +1,12 @@
 """MotionDiffuse as a LightningModule: ε-prediction on normalised motion features (Zhang et al.
 2022, §3.3, eq. 4) with the loss masked by each motion's length, logged per quarter of the
-diffusion steps, and deterministic validation."""
+diffusion steps, and deterministic validation; t and the noise are drawn on the module's device,
+and nothing is read back on the host (tests/test_host_syncs_models.py)."""
 
 from __future__ import annotations
 
 from typing import Any
 
-import lightning.pytorch as pl
 import numpy as np
 import torch
 
@@ -16,8 +16,9 @@ from m2d2m.networks.config import ConfigError
 from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, MotionDiffuseTransformer
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
 from m2d2m.text import text_encoder_from_config
+from training.conditioning import drop_captions
 from training.data import valid_frames
-from training.losses import check_finite, log_by_quarter
+from training.losses import FiniteLossGuard, log_by_quarter
 from training.optim import configure_adamw
 
 
@@ -29,7 +30,7 @@ def masked_mse(predicted: torch.Tensor, target: torch.Tensor, lengths: torch.Ten
     return squared.sum(dim=1) / valid.sum(dim=1)
 
 
-class MotionDiffuseModule(pl.LightningModule):
+class MotionDiffuseModule(FiniteLossGuard):
     """Uniform t, x_t from q(x_t | x_0) (eq. 3), MSE between ε and ε_θ(x_t, t, text) over the
     valid frames (eq. 4; or between x_0 and the network's x_0 with ``diffusion.prediction: x0``); AdamW with the config's schedule (the paper: Adam, 2e-4). A fraction
     ``text_drop`` of the captions is replaced by the empty sentence, the null condition that
@@ -66,39 +67,40 @@ class MotionDiffuseModule(pl.LightningModule):
         self.feature_mean.copy_(torch.as_tensor(np.asarray(normalizer.mean), dtype=torch.float32))
         self.feature_scale.copy_(torch.as_tensor(normalizer.scale, dtype=torch.float32))
 
-    def _text(self, captions: list[str], generator: torch.Generator | None):
-        dropped = torch.rand(len(captions), generator=generator) < self.hparams.text_drop
-        captions = ["" if drop else caption for caption, drop in zip(captions, dropped.tolist())]
-        words, mask = self.text_encoder.encode(captions)
+    def _text(self, captions: list[str], rng: np.random.Generator | None):
+        words, mask = self.text_encoder.encode(drop_captions(captions, self.hparams.text_drop, rng))
         return self.network.encode_text(words.to(self.device), mask.to(self.device))
 
     def _losses(
-        self, batch: dict[str, Any], generator: torch.Generator | None = None
+        self, batch: dict[str, Any], generator: torch.Generator | None = None, rng: np.random.Generator | None = None
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Each motion's loss (B,) and its step t (B,); ``generator`` (on the CPU) fixes t, the
-        noise and the dropped captions, for validation."""
+        """Each motion's loss (B,) and its step t (B,); ``generator`` (on the module's device)
+        fixes t and the noise, and ``rng`` the dropped captions, for validation."""
         x0 = (batch["motion"] - self.feature_mean) / self.feature_scale
         lengths = batch["lengths"].to(x0.device)
-        t = torch.randint(0, self.process.num_steps, (len(x0),), generator=generator).to(x0.device)
-        noise = torch.randn(x0.shape, generator=generator).to(x0.device)
-        predicted = self.network(self.process.q_sample(x0, t, noise), t, lengths, self._text(batch["text"], generator))
+        t = torch.randint(0, self.process.num_steps, (len(x0),), generator=generator, device=x0.device)
+        noise = torch.randn(x0.shape, generator=generator, device=x0.device)
+        predicted = self.network(self.process.q_sample(x0, t, noise), t, lengths, self._text(batch["text"], rng))
         return masked_mse(predicted.float(), noise if self.prediction == "epsilon" else x0, lengths), t
 
     def _log_losses(self, split: str, losses: torch.Tensor, t: torch.Tensor, **options: Any) -> torch.Tensor:
         loss = losses.mean()
-        self.log(f"{split}/loss", loss, batch_size=len(losses), prog_bar=True, **options)
+        # on the progress bar at validation only: a training step's would be read every step
+        self.log(f"{split}/loss", loss, batch_size=len(losses), prog_bar=split == "val", **options)
         log_by_quarter(self, f"{split}/loss", losses, t, first=0, steps=self.process.num_steps, **options)
         return loss
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
         losses, t = self._losses(batch)
         loss = self._log_losses("train", losses, t)
-        check_finite(loss, self.global_step)
+        self.guard_finite(loss)
         return loss
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
-        """The same steps and noise in every validation pass, so the numbers compare across steps."""
-        losses, t = self._losses(batch, torch.Generator().manual_seed(int(batch_idx)))
+        """The same steps, noise and dropped captions in every validation pass (generators seeded
+        with ``batch_idx``), so the numbers compare across steps."""
+        generator = torch.Generator(device=self.device).manual_seed(int(batch_idx))
+        losses, t = self._losses(batch, generator, np.random.default_rng(int(batch_idx)))
         self._log_losses("val", losses, t, sync_dist=True)
 
     def preview(self, prompts: list[str], frames: list[int], seed: int, steps: int = 50) -> list[np.ndarray]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import lightning.pytorch as pl
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -15,11 +14,11 @@ from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS
 from m2d2m.networks.vqvae import MotionVQVAE, VQConfig
-from training.losses import check_finite
+from training.losses import FiniteLossGuard
 from training.optim import configure_adamw
 
 
-class VQVAEModule(pl.LightningModule):
+class VQVAEModule(FiniteLossGuard):
     """Smooth-L1 reconstruction + ``joint`` × smooth-L1 on the root-relative joint positions
     (T2M-GPT's "velocity" term, which is really positions) + ``commit`` × commitment, AdamW with
     linear warm-up and step decay. Validation reconstructs whole clips and reports the feature
@@ -70,15 +69,17 @@ class VQVAEModule(pl.LightningModule):
             "loss": total,
             **losses,
             "perplexity": out.perplexity,
-            "active_codes": torch.as_tensor(float(out.active_codes)),
+            "active_codes": out.active_codes.float(),
         }
 
     def training_step(self, batch: dict[str, torch.Tensor], batch_idx: int) -> torch.Tensor:
+        """The losses and codebook statistics, logged without being read on the host (the
+        progress bar shows the loss as Lightning last logged it: training/callbacks.py)."""
         losses = self._losses(batch["motion"])
-        check_finite(losses["loss"], self.global_step)
+        self.guard_finite(losses["loss"])
         batch_size = len(batch["motion"])
         for name, value in losses.items():
-            self.log(f"train/{name}", value, batch_size=batch_size, prog_bar=name == "loss")
+            self.log(f"train/{name}", value, batch_size=batch_size)
         return losses["loss"]
 
     def _joints(self, normalized: torch.Tensor) -> torch.Tensor:
@@ -91,9 +92,11 @@ class VQVAEModule(pl.LightningModule):
         for n, length in enumerate(batch["lengths"].tolist()):
             x = batch["motion"][n : n + 1, :length]
             out = self.model(x)
-            error = F.smooth_l1_loss(out.reconstruction, self.model.select(x))
+            # under mixed precision the decoder answers in bf16: every metric is taken in float32
+            decoded = out.reconstruction.float()
+            error = F.smooth_l1_loss(decoded, self.model.select(x))
             whole = x.clone()  # the reconstructed part within the ground truth's other parts
-            whole[..., self.model.dims] = out.reconstruction
+            whole[..., self.model.dims] = decoded
             truth, reconstruction = self._joints(x)[0], self._joints(whole)[0]
             to_mm = self.skeleton.metres_per_unit * 1000.0
             mpjpe = (truth - reconstruction)[:, self.joints].norm(dim=-1).mean() * to_mm
@@ -101,9 +104,7 @@ class VQVAEModule(pl.LightningModule):
             aligned = ((truth - truth[:, :1]) - (reconstruction - reconstruction[:, :1]))[:, self.joints]
             aligned = aligned.norm(dim=-1).mean() * to_mm
             self.log("val/recon_loss", error, batch_size=1, sync_dist=True)
-            self.log(
-                "val/feature_l1", (out.reconstruction - self.model.select(x)).abs().mean(), batch_size=1, sync_dist=True
-            )
+            self.log("val/feature_l1", (decoded - self.model.select(x)).abs().mean(), batch_size=1, sync_dist=True)
             self.log("val/mpjpe_mm", mpjpe, batch_size=1, sync_dist=True, prog_bar=True)
             self.log("val/mpjpe_root_aligned_mm", aligned, batch_size=1, sync_dist=True, prog_bar=True)
             self._val_codes.append(out.tokens.flatten())

@@ -16,8 +16,9 @@ training captions. Either way the table, the vocabulary, the sizes and the stati
 file (:func:`save_evaluator`), so the metrics of a run can be reproduced from that file alone.
 :func:`load_guo_checkpoint` turns Guo's published ``finest.tar`` into the same module.
 
-Differences from the reference code, on purpose: batches need no sorting (packed sequences keep
-the input order), and a clip's embedding does not depend on how (or how far) its batch is padded.
+Differences from the reference code, on purpose: batches need no sorting (each GRU packs its batch
+in an order found on the host and puts its outputs back in the input order), and a clip's
+embedding does not depend on how (or how far) its batch is padded.
 Guo's convolutions see past a clip's end, so his embeddings do depend on the padding; every clip
 here is computed as his loaders present it — normalised, zero-padded to 196 frames — which gives
 his numbers exactly, whatever the caller's padding.
@@ -314,10 +315,19 @@ class BiGRUEncoder(nn.Module):
         self.head.apply(_xavier)
 
     def forward(self, x: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
-        """(B, L, input_dim) and (B,) lengths ≥ 1 → (B, output_dim), in input order."""
-        packed = pack_padded_sequence(self.input_projection(x), lengths.cpu(), batch_first=True, enforce_sorted=False)
-        initial = self.initial_hidden.expand(-1, x.shape[0], -1).contiguous()
-        _, last = self.gru(packed, initial)
+        """(B, L, input_dim) and (B,) lengths ≥ 1 → (B, output_dim), in input order.
+
+        ``lengths`` are best on the host, where packing reads them (``PackedSequence`` keeps its
+        batch sizes there): from a GPU they would be copied back first, which waits for it. The
+        packing order is found on the host too, and its indices reach the device without waiting
+        (``pack_padded_sequence`` would copy its own order there with a blocking copy)."""
+        h = self.input_projection(x)
+        lengths = lengths.cpu()
+        order = torch.argsort(lengths, descending=True, stable=True)
+        ordered = h.index_select(0, order.to(h.device, non_blocking=True))
+        initial = self.initial_hidden.expand(-1, x.shape[0], -1).contiguous()  # one state for every row
+        _, last = self.gru(pack_padded_sequence(ordered, lengths[order], batch_first=True), initial)
+        last = last.index_select(1, torch.argsort(order).to(h.device, non_blocking=True))
         return self.head(torch.cat([last[0], last[1]], dim=-1))
 
 
@@ -390,7 +400,8 @@ class TextMotionEvaluator(nn.Module):
 
     def tokenize(self, captions: Sequence[Sequence[str]]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Captions as lists of ``word/POS`` tokens → word rows (B, L) and POS categories (B, L) on
-        the evaluator's device, and lengths (B,) on the CPU, where packing wants them. Each caption is cropped to ``max_text_len`` words
+        the evaluator's device, laid out on the host and copied without waiting for the device, and
+        lengths (B,) on the CPU. Each caption is cropped to ``max_text_len`` words
         and wrapped in sos/eos (tagged OTHER); an unknown word becomes unk, tagged OTHER; a known
         word of Guo's VIP lists takes its VIP category instead of its tag."""
         rows: list[list[int]] = []
@@ -406,46 +417,44 @@ class TextMotionEvaluator(nn.Module):
                     category.append(OTHER)
             rows.append(row + [self.special["eos"]])
             categories.append(category + [OTHER])
+        longest = max(len(row) for row in rows)
+        words = torch.tensor([row + [self.special["unk"]] * (longest - len(row)) for row in rows])
+        pos = torch.tensor([category + [OTHER] * (longest - len(category)) for category in categories])
         lengths = torch.tensor([len(row) for row in rows])
-        words = torch.full((len(rows), int(lengths.max())), self.special["unk"], dtype=torch.long)
-        pos = torch.full_like(words, OTHER)
-        for n, (row, category) in enumerate(zip(rows, categories)):
-            words[n, : len(row)] = torch.tensor(row)
-            pos[n, : len(category)] = torch.tensor(category)
-        return words.to(self.device), pos.to(self.device), lengths
+        return words.to(self.device, non_blocking=True), pos.to(self.device, non_blocking=True), lengths
 
     def embed_text(self, captions: Sequence[Sequence[str]]) -> torch.Tensor:
         """Captions (lists of ``word/POS`` tokens) → (B, embedding_dim)."""
         if not captions:
             raise ValueError("embed_text needs at least one caption")
         words, pos, lengths = self.tokenize(captions)
-        one_hot = F.one_hot(pos, len(POS_CATEGORIES)).to(self.words.weight.dtype)
+        # a comparison, not F.one_hot, which checks its input's range on the host
+        one_hot = (pos[..., None] == torch.arange(len(POS_CATEGORIES), device=pos.device)).to(self.words.weight.dtype)
         return self.text(self.words(words), one_hot, lengths)
 
-    def embed_motion(self, features: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
+    def embed_motion(self, features: torch.Tensor, lengths: torch.Tensor | Sequence[int]) -> torch.Tensor:
         """Un-normalised features (B, T, feature_dim), padded with anything or not at all, and
         lengths (B,) in frames → (B, embedding_dim). Each clip is encoded as Guo's loaders present
         it: normalised, zero-padded to ``max_motion_length`` frames (a longer clip: not padded).
-        The GRU reads ``length // 4`` latents, so lengths are best multiples of 4, as Guo crops them."""
+        The GRU reads ``length // 4`` latents, so lengths are best multiples of 4, as Guo crops them.
+        The lengths are best given on the host, where they are checked and packed by
+        (:class:`BiGRUEncoder`), and copied to the device without waiting for it."""
         if features.ndim != 3 or features.shape[-1] != self.config.feature_dim:
             raise ValueError(f"expected features (B, T, {self.config.feature_dim}), got {tuple(features.shape)}")
-        lengths = torch.as_tensor(lengths, device=features.device)
-        if (
-            lengths.shape != features.shape[:1]
-            or bool((lengths < UNIT_LENGTH).any())
-            or int(lengths.max()) > features.shape[1]
-        ):
+        host = torch.as_tensor(lengths).cpu()
+        if host.shape != features.shape[:1] or not bool(((host >= UNIT_LENGTH) & (host <= features.shape[1])).all()):
             raise ValueError(
-                f"lengths must be one per clip, from {UNIT_LENGTH} to {features.shape[1]} frames, "
-                f"got {lengths.tolist()}"
+                f"lengths must be one per clip, from {UNIT_LENGTH} to {features.shape[1]} frames, got {host.tolist()}"
             )
+        lengths = host.to(features.device, non_blocking=True)
         frames = lengths.clamp(min=self.config.max_motion_length)
         x = (features - self.feature_mean) / self.feature_scale
-        x = F.pad(x, (0, 0, 0, max(0, int(frames.max()) - x.shape[1])))
+        # as far as the longest of `frames`: max_motion_length, since no length exceeds the clips'
+        x = F.pad(x, (0, 0, 0, max(0, self.config.max_motion_length - x.shape[1])))
         valid = torch.arange(x.shape[1], device=x.device) < lengths[:, None]
         x = torch.where(valid[..., None], x, torch.zeros((), dtype=x.dtype, device=x.device))
         latents = self.movement(x[..., :-CONTACT_DIMS], frames)
-        return self.motion(latents, lengths // UNIT_LENGTH)
+        return self.motion(latents, host // UNIT_LENGTH)
 
 
 class ContrastiveTerms(NamedTuple):
@@ -456,15 +465,20 @@ class ContrastiveTerms(NamedTuple):
     negative: torch.Tensor
 
 
-def contrastive_loss(text: torch.Tensor, motion: torch.Tensor, shift: int, margin: float = 10.0) -> ContrastiveTerms:
+def contrastive_loss(
+    text: torch.Tensor, motion: torch.Tensor, shift: int | torch.Tensor, margin: float = 10.0
+) -> ContrastiveTerms:
     """Guo's (Hadsell's) contrastive loss: matched pairs pull together (d²), and each caption is
     pushed at least ``margin`` away from the motion ``shift`` rows further on in the batch
     (max(0, margin − d)²); each part is a batch mean. ``shift`` lies in [1, B − 1], so every
-    negative is another clip (Guo's draw could also pick shift 0, a positive scored as a negative)."""
-    if not 1 <= shift < len(text):
+    negative is another clip (Guo's draw could also pick shift 0, a positive scored as a negative);
+    a number is checked, a tensor (drawn on the device by a training step) is trusted, as reading it
+    would make the host wait."""
+    if not isinstance(shift, torch.Tensor) and not 1 <= shift < len(text):
         raise ValueError(f"shift must lie in [1, {len(text) - 1}] for a batch of {len(text)}, got {shift}")
+    rows = torch.arange(len(motion), device=motion.device)
     positive = F.pairwise_distance(text, motion).pow(2).mean()
-    negative = (margin - F.pairwise_distance(text, motion.roll(-shift, 0))).clamp(min=0).pow(2).mean()
+    negative = (margin - F.pairwise_distance(text, motion[(rows + shift) % len(motion)])).clamp(min=0).pow(2).mean()
     return ContrastiveTerms(positive + negative, positive, negative)
 
 

@@ -8,6 +8,9 @@ from dataclasses import dataclass
 from m2d2m.generators.options import MULTI, SINGLE, Sampling, check_knobs, knob
 
 METHODS = ("tps", "independent", "handshake", "slerp")
+# how the denoiser runs: eagerly, or through torch.compile at bucketed shapes (CUDA graphs on a GPU;
+# :mod:`m2d2m.generators.m2d2m_compiled`); "auto" compiles on CUDA only
+COMPILE = ("off", "auto", "on")
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,12 @@ class M2D2MOptions:
     steps: int | None = knob(None, "reverse steps taken, skipping with exact posteriors (default: all T)", minimum=1)
     handshake: int = knob(5, "tokens shared between neighbours (handshake); 5 tokens = 20 frames", minimum=1)
     slerp: int = knob(2, "tokens left out before each later action (slerp); 2 tokens = 8 frames", minimum=0)
+    compile: str = knob(
+        "off",
+        "run the denoiser through torch.compile at a few padded shapes (CUDA graphs on a GPU): on, off, "
+        "or auto (on CUDA only); each shape compiles once per process, so it pays off over many steps",
+        choices=COMPILE,
+    )
 
     def check(self, steps: int) -> None:
         """Raise ValueError naming the first setting a schedule of ``steps`` steps cannot run

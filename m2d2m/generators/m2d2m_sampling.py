@@ -27,7 +27,10 @@ rows of similar length (:func:`length_groups`), which on test sets of 10- to 50-
 the work of a step. Padded positions never reach the posterior. What does not change from step to
 step is computed once per phase: the text's features and every block's cross-attention keys and
 values (:class:`m2d2m.networks.m2d2m_denoiser.Condition`), for the conditional and the null rows
-of classifier-free guidance together.
+of classifier-free guidance together, and where the real positions are, as index tensors built
+from the lengths the host knows. A step only gathers and scatters through them, so on a GPU it
+never waits for the device (``tests/test_host_syncs.py``). With the ``compile`` option the
+denoiser's passes run compiled at bucketed shapes (:mod:`m2d2m.generators.m2d2m_compiled`).
 
 Fewer steps than the schedule's T (``steps``) jump from t to s < t with the exact posterior
 q(z_s | z_t, z0) (:meth:`TransitionSchedule.posterior_probs`; VQ-Diffusion's fast sampling
@@ -39,10 +42,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from itertools import accumulate
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
+from m2d2m.generators.m2d2m_compiled import CompiledDenoise, bucket, compiles
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.token_model import FREE
 from m2d2m.networks.m2d2m_denoiser import Condition, MotionDenoiser, action_offsets, guided_logits
@@ -89,6 +95,7 @@ class _Row:
 @dataclass
 class _Layout:
     rows: list[_Row]
+    overlap: int = 0  # tokens each later action's row shares with the row before (handshake)
     length: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -169,6 +176,8 @@ class TokenSampler:
 
     Works on the device the denoiser is on; the schedule is moved there. An η in the options
     builds the dynamic schedule's matrices for that η once (a few hundred milliseconds at K = 512, T = 100).
+    With the ``compile`` option the denoiser runs through ``torch.compile`` at bucketed shapes
+    (:mod:`m2d2m.generators.m2d2m_compiled`), compiled once per shape for the sampler's life.
     """
 
     def __init__(
@@ -183,6 +192,7 @@ class TokenSampler:
         self.schedule = schedule
         self.reuse_condition = reuse_condition  # False recomputes the text's keys and values every step
         self._at_eta: dict[float, TransitionSchedule] = {}
+        self._compiled: CompiledDenoise | None = None
 
     @property
     def device(self) -> torch.device:
@@ -197,6 +207,15 @@ class TokenSampler:
                 self._at_eta[float(eta)] = schedule.with_eta(eta)
             schedule = self._at_eta[float(eta)]
         return schedule.to(self.device) if schedule.device != self.device else schedule
+
+    def _forward(self, options: M2D2MOptions) -> tuple[Callable[..., Tensor], bool]:
+        """The denoiser's forward pass the options ask for, and whether it is compiled (then the
+        passes are padded to buckets)."""
+        if not compiles(options.compile, self.device):
+            return self.denoiser.denoise, False
+        if self._compiled is None or self._compiled.denoiser is not self.denoiser:
+            self._compiled = CompiledDenoise(self.denoiser)
+        return self._compiled, self._compiled.compiled
 
     # ------------------------------------------------------------------------------------- public
     @torch.no_grad()
@@ -238,120 +257,245 @@ class TokenSampler:
         device = self.device
         generators = [torch.Generator(device=device).manual_seed(int(r.seed)) for r in requests]
         overlap = options.handshake if options.method == "handshake" else 0
-        streams = [sum(r.lengths) + overlap * (len(r.lengths) - 1) for r in requests]
+        sizes = [sum(r.lengths) + overlap * (len(r.lengths) - 1) for r in requests]
         # z_T, laid out as each request's stream (for handshake, the shared tokens appear twice)
-        state = [schedule.sample_prior((n,), generator=g) for n, g in zip(streams, generators)]
+        prior = [schedule.sample_prior((n,), generator=g) for n, g in zip(sizes, generators)]
         given = [_given_stream(r, overlap, device) for r in requests]
-        state = [torch.where(g >= 0, g, z) for g, z in zip(given, state)]
+        state = [torch.where(g >= 0, g, z) for g, z in zip(given, prior)]
         if overlap:
             state = [_copy_shared(z, _extended_lengths(r.lengths, overlap), overlap) for z, r in zip(state, requests)]
+        stream, kept = torch.cat(state), torch.cat(given)  # every request's stream, one after another
 
         joint_until = switch_step(options.ts, schedule.steps) if options.method == "tps" else schedule.steps
         joint, independent = timesteps(schedule.steps, options.steps, joint_until)
         for jumps, layout in ((joint, _joint_layout(requests)), (independent, _action_layout(requests, overlap))):
             if jumps:
-                state = self._denoise(layout, state, given, generators, jumps, schedule, options, overlap, progress)
-        return [_split_actions(z, r.lengths, overlap) for z, r in zip(state, requests)]
+                stream = self._denoise(layout, stream, kept, generators, sizes, jumps, schedule, options, progress)
+        return [_split_actions(z, r.lengths, overlap) for z, r in zip(stream.split(sizes), requests)]
 
     def _denoise(
         self,
         layout: _Layout,
-        state: list[Tensor],
-        given: list[Tensor],
+        stream: Tensor,
+        given: Tensor,
         generators: list[torch.Generator],
+        sizes: list[int],
         jumps: list[tuple[int, int]],
         schedule: TransitionSchedule,
         options: M2D2MOptions,
-        overlap: int,
         progress: Callable[[int], None] | None,
-    ) -> list[Tensor]:
-        """Take the reverse ``jumps`` (t, s) on the rows of ``layout``; returns the requests' streams."""
+    ) -> Tensor:
+        """Take the reverse ``jumps`` (t, s) on the rows of ``layout``. ``stream`` and ``given`` hold
+        every request's stream, one after another (``sizes`` long each); returns the stream after
+        the last jump.
+
+        Where the rows' real positions are, which rows share a forward pass and which tokens
+        neighbours share is laid out once, as index tensors; a step gathers and scatters through
+        them, so nothing in the loop makes the host wait for the device."""
         device, mask, codes = self.device, schedule.mask_index, schedule.num_codes
+        denoise, compiled = self._forward(options)
         rows, width = len(layout.rows), layout.length
-        row_lengths = [row.stream.stop - row.stream.start for row in layout.rows]
-        lengths = torch.tensor(row_lengths, device=device)
-        valid = torch.arange(width, device=device)[None, :] < lengths[:, None]
-        offsets = action_offsets([row.actions for row in layout.rows], width, device)
-        groups = [(torch.tensor(g, device=device), row_lengths[g[0]]) for g in length_groups(row_lengths)]
-        text, text_mask = self._text(layout)
-        condition = self._condition(text, text_mask, options) if self.reuse_condition else None
-        z = torch.full((rows, width), mask, dtype=torch.long, device=device)
-        fixed = torch.full_like(z, FREE)
-        for i, row in enumerate(layout.rows):
-            n = row.stream.stop - row.stream.start
-            z[i, :n] = state[row.request][row.stream]
-            fixed[i, :n] = given[row.request][row.stream]
+        positions = _Positions.of(layout, sizes, device)
+        shared = _Shared.of(layout, device)
+        text, text_mask = self._text(layout, compiled)
+        groups = self._groups(layout, text, text_mask, options, compiled)
+        fixed = given[positions.streams]
+        z = positions.scatter(stream[positions.streams], rows, width, mask)
         for t, s in jumps:
             x0 = torch.zeros(rows, width, codes, dtype=torch.float64, device=device)
-            for index, n in groups:
-                rows_condition = (
-                    self._condition(text[index], text_mask[index], options)
-                    if condition is None
-                    else condition.rows(_guided_rows(index, rows, options))
-                )
-                x0[index, :n] = self._x0(z[index, :n], valid[index, :n], offsets[index, :n], t, rows_condition, options)
-            if overlap:
-                x0 = _blend_shared(x0, layout, overlap)
-            probs = torch.zeros(rows, width, codes + 1, dtype=torch.float64, device=device)
-            probs[valid] = schedule.posterior_probs(z[valid], x0[valid], t, s)
-            uniforms = torch.zeros(rows, width, dtype=torch.float64, device=device)
-            draws = [
-                torch.rand(streams, generator=g, dtype=torch.float64, device=device)
-                for streams, g in zip((s.numel() for s in state), generators)
-            ]
-            for i, row in enumerate(layout.rows):
-                uniforms[i, : row.stream.stop - row.stream.start] = draws[row.request][row.stream]
-            z = categorical(probs, uniforms)
-            if s == 0:  # no mask may survive the last step: a dead row takes the most likely code
-                z = torch.where(z == mask, x0.argmax(dim=-1), z)
-            z = torch.where(fixed >= 0, fixed, z).masked_fill(~valid, mask)
-            if overlap:
-                z = _copy_shared_rows(z, layout, overlap)
+            for group in groups:
+                x0[group.real, : group.width] = self._x0(z, group, t, text, text_mask, options, denoise)
+            if shared is not None:
+                shared.blend(x0)
+            x0 = x0.view(-1, codes)[positions.cells]
+            probs = schedule.posterior_probs(z.view(-1)[positions.cells], x0, t, s, validate=False)
+            uniforms = torch.cat(
+                [torch.rand(n, generator=g, dtype=torch.float64, device=device) for n, g in zip(sizes, generators)]
+            )
+            drawn = categorical(probs, uniforms[positions.streams])
+            if s == 0:  # no mask may survive the last step: a dead position takes the most likely code
+                drawn = torch.where(drawn == mask, x0.argmax(dim=-1), drawn)
+            z = positions.scatter(torch.where(fixed >= 0, fixed, drawn), rows, width, mask)
+            if shared is not None:
+                shared.copy(z)
             if progress is not None:
                 progress(s)
-        out = [stream.clone() for stream in state]
-        for i, row in enumerate(layout.rows):
-            out[row.request][row.stream] = z[i, : row.stream.stop - row.stream.start]
-        return out
+        return stream.index_put((positions.streams,), z.view(-1)[positions.cells])
 
-    def _text(self, layout: _Layout) -> tuple[Tensor, Tensor]:
+    def _text(self, layout: _Layout, compiled: bool) -> tuple[Tensor, Tensor]:
         """The rows' text features and mask; a row whose sentences are all empty asks for no text
-        and gets the null condition of classifier-free guidance."""
+        and gets the null condition of classifier-free guidance. Compiled, the text is padded to a
+        bucket of tokens (masked keys: nothing changes at the real ones)."""
         text, text_mask = encode_actions(self.text_encoder, [row.condition for row in layout.rows])
-        unconditional = torch.tensor([not any(s.strip() for s in row.condition) for row in layout.rows])
-        if unconditional.any():
-            text, text_mask = self.denoiser.nullify(text, text_mask, unconditional)
+        unconditional = [not any(s.strip() for s in row.condition) for row in layout.rows]
+        if any(unconditional):
+            rows = torch.tensor(unconditional).to(text.device, non_blocking=True)
+            text, text_mask = self.denoiser.nullify(text, text_mask, rows)
+        if compiled:
+            extra = bucket(text.shape[1], smallest=8) - text.shape[1]
+            text, text_mask = F.pad(text, (0, 0, 0, extra)), F.pad(text_mask, (0, extra))
         return text, text_mask
 
     def _condition(self, text: Tensor, text_mask: Tensor, options: M2D2MOptions) -> Condition:
         """The denoiser's condition of the rows, followed, when guided, by as many null rows."""
         if options.guidance == 0.0:
             return self.denoiser.condition(text, text_mask)
-        null_text, null_mask = self.denoiser.nullify(text, text_mask, torch.ones(text.shape[0], dtype=torch.bool))
+        every = torch.ones(text.shape[0], dtype=torch.bool, device=text.device)
+        null_text, null_mask = self.denoiser.nullify(text, text_mask, every)
         return self.denoiser.condition(torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
 
+    def _groups(
+        self, layout: _Layout, text: Tensor, text_mask: Tensor, options: M2D2MOptions, compiled: bool
+    ) -> list[_Group]:
+        """The forward passes of a step (:func:`length_groups`) with what they keep over the phase;
+        compiled, each is padded to a bucket of rows and of tokens."""
+        device = self.device
+        lengths = [row.stream.stop - row.stream.start for row in layout.rows]
+        valid = (torch.arange(layout.length)[None, :] < torch.tensor(lengths)[:, None]).to(device, non_blocking=True)
+        offsets = action_offsets([row.actions for row in layout.rows], layout.length, device)
+        condition = self._condition(text, text_mask, options) if self.reuse_condition else None
+        passes = _passes(options)
+        groups = []
+        for members in length_groups(lengths):
+            width = lengths[members[0]]
+            size, padded = (bucket(len(members)), bucket(width, smallest=8)) if compiled else (len(members), width)
+            index = torch.tensor(members + members[:1] * (size - len(members))).to(device, non_blocking=True)
+            groups.append(
+                _Group(
+                    index,
+                    len(members),
+                    width,
+                    padded,
+                    F.pad(valid[index, :width], (0, padded - width)).repeat(passes, 1),
+                    F.pad(offsets[index, :width], (0, 0, 0, padded - width)).repeat(passes, 1, 1),
+                    None if condition is None else condition.rows(_guided_rows(index, len(layout.rows), options)),
+                )
+            )
+        return groups
+
     def _x0(
-        self, z: Tensor, valid: Tensor, offsets: Tensor, t: int, condition: Condition, options: M2D2MOptions
+        self,
+        z: Tensor,
+        group: _Group,
+        t: int,
+        text: Tensor,
+        text_mask: Tensor,
+        options: M2D2MOptions,
+        denoise: Callable[..., Tensor],
     ) -> Tensor:
-        """Guided, truncated p(z0 | z_t) (rows, width, K) in float64: one forward pass of the
-        conditional and null rows together (``condition`` holds both when guided)."""
-        rows = z.shape[0]
-        repeat = 1 if options.guidance == 0.0 else 2
+        """Guided, truncated p(z0 | z_t) (rows, width, K) in float64 of a group's real rows: one
+        forward pass of the conditional and null rows together (``group.condition`` holds both
+        when guided)."""
+        tokens = z[group.index, : group.width]
+        if group.padded > group.width:
+            tokens = F.pad(tokens, (0, group.padded - group.width), value=self.denoiser.mask_id)
+        condition = group.condition
+        if condition is None:
+            condition = self._condition(text[group.index], text_mask[group.index], options)
         steps = torch.full((1,), t, dtype=torch.long, device=z.device)  # one t for every row: embedded once
-        logits = self.denoiser.denoise(
-            z.repeat(repeat, 1), valid.repeat(repeat, 1), steps, condition, offsets.repeat(repeat, 1, 1)
-        )
-        if repeat == 1:
-            logits = torch.log_softmax(logits.float(), dim=-1)
+        logits = denoise(tokens.repeat(_passes(options), 1), group.valid, steps, condition, group.offsets)
+        cond = logits[: group.rows, : group.width]
+        if _passes(options) == 2:  # the null rows follow the group's (padded) rows
+            start = group.index.shape[0]
+            logits = guided_logits(cond, logits[start : start + group.rows, : group.width], options.guidance)
         else:
-            logits = guided_logits(logits[:rows], logits[rows:], options.guidance)
+            logits = torch.log_softmax(cond.float(), dim=-1)
         return truncate(logits.double().exp(), options.truncation)
+
+
+def _passes(options: M2D2MOptions) -> int:
+    """Rows per row in a forward pass: the conditional one, and its null one when guided."""
+    return 1 if options.guidance == 0.0 else 2
 
 
 def _guided_rows(index: Tensor, rows: int, options: M2D2MOptions) -> Tensor:
     """The rows of a group in a condition built by :meth:`TokenSampler._condition`: the group's
     conditional rows, then (when guided) their null rows ``rows`` further on."""
     return index if options.guidance == 0.0 else torch.cat([index, index + rows])
+
+
+@dataclass(frozen=True)
+class _Group:
+    """Rows of a layout that one forward pass denoises, and what stays the same over a phase's
+    steps: their validity mask, action offsets and text condition (None: recomputed every step),
+    already repeated for the null rows when guided and padded to the pass's shape."""
+
+    index: Tensor  # (size,) the rows, then (compiled) repeats of the first up to the bucket
+    rows: int  # how many of them are real
+    width: int  # the longest real row's length
+    padded: int  # the pass's width: ``width``, or its bucket when compiled
+    valid: Tensor  # (passes·size, padded)
+    offsets: Tensor  # (passes·size, padded, 2)
+    condition: Condition | None
+
+    @property
+    def real(self) -> Tensor:
+        return self.index[: self.rows]
+
+
+@dataclass(frozen=True)
+class _Positions:
+    """A layout's real positions as index tensors on the device, built once per phase from the
+    rows' lengths (host integers): a step gathers and scatters through them, where a boolean mask
+    would make the host read the data (a device sync) at every step."""
+
+    cells: Tensor  # (N,) flat positions in the (rows, width) batch, row by row
+    streams: Tensor  # (N,) the same positions in the requests' streams, one after another
+
+    @classmethod
+    def of(cls, layout: _Layout, sizes: list[int], device: torch.device) -> _Positions:
+        starts = [0, *accumulate(sizes)]
+        cells: list[int] = []
+        streams: list[int] = []
+        for i, row in enumerate(layout.rows):
+            n = row.stream.stop - row.stream.start
+            cells.extend(range(i * layout.length, i * layout.length + n))
+            begin = starts[row.request] + row.stream.start
+            streams.extend(range(begin, begin + n))
+        return cls(
+            torch.tensor(cells).to(device, non_blocking=True), torch.tensor(streams).to(device, non_blocking=True)
+        )
+
+    def scatter(self, values: Tensor, rows: int, width: int, fill: int) -> Tensor:
+        """(rows, width) holding ``values`` (N,) at the real positions and ``fill`` elsewhere."""
+        batch = torch.full((rows * width,), fill, dtype=values.dtype, device=values.device)
+        return batch.index_put_((self.cells,), values).view(rows, width)
+
+
+@dataclass(frozen=True)
+class _Shared:
+    """The tokens neighbouring actions share under handshake: the last H positions of each earlier
+    row and the first H of the next, as (pairs, H) row and column indices, and the blend's ramp
+    a = 0, 1/H, …, (H−1)/H. Pairs never overlap (every action is at least H tokens long), so all
+    are blended and copied at once."""
+
+    earlier: tuple[Tensor, Tensor]
+    later: tuple[Tensor, Tensor]
+    ramp: Tensor  # (H, 1)
+
+    @classmethod
+    def of(cls, layout: _Layout, device: torch.device) -> _Shared | None:
+        pairs = _row_pairs(layout)
+        overlap = layout.overlap
+        if not overlap or not pairs:
+            return None
+        columns = torch.arange(overlap)
+        earlier_rows = torch.tensor([[earlier] for earlier, _, _ in pairs])
+        earlier_columns = torch.tensor([[end - overlap] for _, _, end in pairs]) + columns
+        later_rows = torch.tensor([[later] for _, later, _ in pairs])
+        index = [x.to(device, non_blocking=True) for x in (earlier_rows, earlier_columns, later_rows, columns[None])]
+        ramp = (torch.arange(overlap, dtype=torch.float64, device=device) / overlap)[:, None]
+        return cls((index[0], index[1]), (index[2], index[3]), ramp)
+
+    def blend(self, x0: Tensor) -> None:
+        """Both neighbours get (1 − a)·earlier + a·later on the shared tokens (in place)."""
+        blended = (1 - self.ramp) * x0[self.earlier] + self.ramp * x0[self.later]
+        x0[self.earlier] = blended
+        x0[self.later] = blended
+
+    def copy(self, z: Tensor) -> None:
+        """The later row's shared tokens become the earlier row's draws (in place)."""
+        z[self.later] = z[self.earlier]
 
 
 # --------------------------------------------------------------------------------------- layouts
@@ -378,7 +522,7 @@ def _action_layout(requests: list[TokenRequest], overlap: int) -> _Layout:
         for sentences, n in zip(r.actions, _extended_lengths(r.lengths, overlap)):
             rows.append(_Row(i, slice(start, start + n), sentences, [n]))
             start += n
-    return _Layout(rows)
+    return _Layout(rows, overlap)
 
 
 def _given_stream(request: TokenRequest, overlap: int, device: torch.device) -> Tensor:
@@ -393,7 +537,7 @@ def _given_stream(request: TokenRequest, overlap: int, device: torch.device) -> 
             pieces.append(given[start : start + n])
             start += n
         given = torch.cat(pieces)
-    return given.to(device)
+    return given.to(device, non_blocking=True)
 
 
 def _copy_shared(stream: Tensor, lengths: list[int], overlap: int) -> Tensor:
@@ -415,23 +559,6 @@ def _row_pairs(layout: _Layout) -> list[tuple[int, int, int]]:
         for i in range(1, len(layout.rows))
         if layout.rows[i - 1].request == layout.rows[i].request
     ]
-
-
-def _blend_shared(x0: Tensor, layout: _Layout, overlap: int) -> Tensor:
-    """Both neighbours get (1 − a)·earlier + a·later on the shared tokens, a = 0, 1/H, …, (H−1)/H."""
-    x0 = x0.clone()
-    ramp = (torch.arange(overlap, dtype=x0.dtype, device=x0.device) / overlap)[:, None]
-    for earlier, later, end in _row_pairs(layout):
-        blended = (1 - ramp) * x0[earlier, end - overlap : end] + ramp * x0[later, :overlap]
-        x0[earlier, end - overlap : end] = blended
-        x0[later, :overlap] = blended
-    return x0
-
-
-def _copy_shared_rows(z: Tensor, layout: _Layout, overlap: int) -> Tensor:
-    for earlier, later, end in _row_pairs(layout):
-        z[later, :overlap] = z[earlier, end - overlap : end]
-    return z
 
 
 def _split_actions(stream: Tensor, lengths: list[int], overlap: int) -> list[Tensor]:

@@ -183,10 +183,12 @@ def decode_sentences(
     :func:`~m2d2m.networks.mmm_transformer.canvas` (upper-body editing adds the fixed lower body)."""
     device = transformer.codebook.device
     width = max(len(row.given) for row in rows)
-    lengths = torch.tensor([len(row.given) for row in rows], device=device)
-    given = torch.full((len(rows), width), FREE, dtype=torch.long, device=device)
+    given = torch.full((len(rows), width), FREE, dtype=torch.long)
     for index, row in enumerate(rows):
-        given[index, : len(row.given)] = row.given.to(device)
+        given[index, : len(row.given)] = row.given
+    # laid out on the host and copied once, without waiting for the device
+    given = given.to(device, non_blocking=True)
+    lengths = torch.tensor([len(row.given) for row in rows]).to(device, non_blocking=True)
     valid = torch.arange(width, device=device)[None, :] < lengths[:, None]
     config = transformer.config
     with torch.no_grad():
@@ -197,5 +199,5 @@ def decode_sentences(
             inputs = canvas(tokens, lengths, config) if frame is None else frame(tokens, lengths)
             return transformer(inputs, sentence, words, word_mask)[:, :-1]
 
-        tokens = decode(predict, given, valid, config.mask_id, longest, options, [row.seed for row in rows])
-    return [tokens[index, : len(row.given)].cpu() for index, row in enumerate(rows)]
+        tokens = decode(predict, given, valid, config.mask_id, longest, options, [row.seed for row in rows]).cpu()
+    return [tokens[index, : len(row.given)] for index, row in enumerate(rows)]

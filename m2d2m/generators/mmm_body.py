@@ -102,9 +102,10 @@ class BodyMMMGenerator(MMMGenerator):
                 rows.append(Row(sentence, torch.full((len(lower),), FREE), seed_of(seed, 0, j)))
                 lowers.append(masked_lower(lower, options.lower_mask, config.lower_mask_id, seed_of(seed, 2, j)))
         width = max(len(lower) for lower in lowers)
-        condition = torch.full((len(lowers), width), config.lower_pad_id, dtype=torch.long, device=self.device)
+        condition = torch.full((len(lowers), width), config.lower_pad_id, dtype=torch.long)
         for index, lower in enumerate(lowers):
-            condition[index, : len(lower)] = lower.to(self.device)
+            condition[index, : len(lower)] = lower
+        condition = condition.to(self.device, non_blocking=True)  # laid out on the host, copied once
 
         def frame(upper: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
             return body_canvas(upper, condition, lengths, config)

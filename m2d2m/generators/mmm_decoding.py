@@ -11,6 +11,9 @@ iterations and its free positions. Tokens once decided stay decided, as in MaskG
 
 Randomness is per sequence: each has its own generator and draws one uniform per position per
 iteration, so a sequence's result does not depend on the rest of the batch.
+
+An iteration reads nothing back on the host (tests/test_host_syncs_models.py): the schedule is
+made on the host once per call, and every iteration of it is queued without looking at the tokens.
 """
 
 from __future__ import annotations
@@ -45,12 +48,14 @@ def filtered_probabilities(logits: Tensor, options: DecodingOptions) -> Tensor:
 
 
 def schedule_table(free: list[int], longest: int, options: DecodingOptions) -> Tensor:
-    """(B, I) long: how many of each sequence's free positions stay masked after iteration i,
-    over its own T_dyn iterations (then 0); I is the longest T_dyn of the batch."""
+    """(B, I) long: how many of each sequence's free positions stay masked after iteration i, over
+    its own T_dyn iterations until none is (then 0); I is the most iterations a row of the batch
+    needs, so that no iteration is queued with nothing left to decide."""
     counts = [
         masked_counts(n, dynamic_iterations(n, longest, options.iterations), options.schedule) if n else [0]
         for n in free
     ]
+    counts = [c[: c.index(0) + 1] for c in counts]  # each ends at its first 0: all decided
     width = max(len(c) for c in counts)
     return torch.tensor([c + [0] * (width - len(c)) for c in counts], dtype=torch.long)
 
@@ -71,12 +76,15 @@ def decode(
     device = given.device
     free = (given == FREE) & valid
     tokens = torch.where(free, torch.full_like(given, mask_id), given)
-    counts = schedule_table(free.sum(dim=1).tolist(), longest, options).to(device)
+    # The call's one host read, before any iteration is queued: how many iterations to queue
+    # depends on each row's number of free positions (its T_dyn, supplement §F).
+    free_counts = free.sum(dim=1).tolist()
+    if not any(free_counts):
+        return tokens
+    counts = schedule_table(free_counts, longest, options).to(device, non_blocking=True)
     generators = [torch.Generator(device=device).manual_seed(int(seed)) for seed in seeds]
     for iteration in range(counts.shape[1]):
         masked = tokens == mask_id
-        if not masked.any():
-            break
         logits = predict(tokens)
         probs = filtered_probabilities(logits, options)
         uniforms = torch.stack(
@@ -85,6 +93,6 @@ def decode(
         cdf = probs.cumsum(dim=-1)
         drawn = (cdf <= uniforms[..., None] * cdf[..., -1:]).sum(dim=-1).clamp_max(probs.shape[-1] - 1)
         confidence = torch.softmax(logits.double(), dim=-1).gather(-1, drawn[..., None])[..., 0]
-        again = least_confident(confidence, masked, counts[:, iteration].clamp(max=masked.sum(dim=1)))
+        again = least_confident(confidence, masked, counts[:, iteration])
         tokens = torch.where(masked & ~again, drawn, tokens)
     return tokens

@@ -19,7 +19,10 @@ sequence, whose noise estimates are combined at every denoising step.
   motion at every step, and by the kept motion itself at the end (replacement inpainting).
 
 Each request draws its noise from its own generator seeded with its seed, on the CPU, so its result
-does not depend on the other requests in the batch nor on the device.
+does not depend on the other requests in the batch nor on the device. A step reads nothing back on
+the host (tests/test_host_syncs_models.py): the layout is checked on the host before the first
+step, and each step's noise reaches a GPU through pinned memory, so the host draws the next step's
+noise while the device still computes.
 """
 
 from __future__ import annotations
@@ -67,7 +70,8 @@ GROUP = 32  # terms per network call: terms sorted by length, so each call pads 
 class Layout:
     """Where every term of a batch of requests reads and writes in the padded motions (B, F, D):
     gather indices into the flattened frames, the term masks, the coverage counts, and the pairs
-    of terms of one request that share frames and dimensions (the correction's)."""
+    of terms of one request that share frames and dimensions (the correction's). Laid out and
+    checked on the host, from the requests alone, and copied to the device once."""
 
     def __init__(
         self, requests: Sequence[FeatureRequest], feature_dim: int, max_term: int, device: torch.device
@@ -81,61 +85,55 @@ class Layout:
         if longest > max_term:
             raise ValueError(f"MotionDiffuse generates at most {max_term} frames per action; {longest} were asked for")
         self.width = longest
-        self.lengths = torch.tensor(lengths, device=device)
+        dims = np.stack([_dims_of(term, feature_dim) for _, term in terms])  # (K, D) bool
         gather = torch.zeros(len(terms), longest, dtype=torch.long)
-        dims = torch.zeros(len(terms), feature_dim)
+        coverage = np.zeros((self.batch, self.frames, feature_dim), dtype=np.float32)
         for k, (b, term) in enumerate(terms):
             if not 0 <= term.start < term.end <= requests[b].frames:
                 raise ValueError(
                     f"a term's frames [{term.start}, {term.end}) lie outside the sequence's {requests[b].frames}"
                 )
             gather[k, : lengths[k]] = b * self.frames + torch.arange(term.start, term.end)
-            dims[k] = 1.0 if term.dims is None else torch.as_tensor(term.dims, dtype=torch.float32)
-        self.valid = (torch.arange(longest)[None, :] < torch.tensor(lengths)[:, None]).to(device)
+            coverage[b, term.start : term.end] += dims[k]
+        if any(not (coverage[b, : request.frames] > 0).all() for b, request in enumerate(requests)):
+            raise ValueError("the terms leave some frames or body parts of a sequence without a sentence")
         by_length = sorted(range(len(terms)), key=lambda k: -lengths[k])
-        self.groups = [
-            (torch.tensor(rows, device=device), lengths[rows[0]])
-            for rows in (by_length[i : i + GROUP] for i in range(0, len(terms), GROUP))
-        ]
-        self.order = torch.argsort(torch.cat([rows for rows, _ in self.groups]))
-        self.gather, self.dims = gather.to(device), dims.to(device)
-        coverage = torch.zeros(self.batch * self.frames, feature_dim, device=device)
-        coverage.index_add_(
-            0,
-            self.gather.flatten(),
-            self._spread(torch.ones(len(terms), longest, feature_dim, device=device)).flatten(0, 1),
-        )
-        coverage = coverage.view(self.batch, self.frames, feature_dim)
-        for b, request in enumerate(requests):
-            if not bool((coverage[b, : request.frames] > 0).all()):
-                raise ValueError("the terms leave some frames or body parts of a sequence without a sentence")
-        self.coverage = coverage.clamp(min=1.0)
-        self._pairs(requests, terms, device)
+        groups = [by_length[i : i + GROUP] for i in range(0, len(terms), GROUP)]
+        self.groups = [(torch.tensor(rows).to(device, non_blocking=True), lengths[rows[0]]) for rows in groups]
+        self.order = torch.argsort(torch.tensor([k for rows in groups for k in rows])).to(device, non_blocking=True)
+        self.lengths = torch.tensor(lengths).to(device, non_blocking=True)
+        self.valid = (torch.arange(longest)[None, :] < torch.tensor(lengths)[:, None]).to(device, non_blocking=True)
+        self.gather = gather.to(device, non_blocking=True)
+        self.dims = torch.from_numpy(dims.astype(np.float32)).to(device, non_blocking=True)
+        self.coverage = torch.from_numpy(coverage).clamp(min=1.0).to(device, non_blocking=True)
+        self._pairs(terms, dims, device)
 
     def _spread(self, values: torch.Tensor) -> torch.Tensor:
         """Per-term values (K, W, D) zeroed off each term's frames and dimensions."""
         return values * self.valid[:, :, None] * self.dims[:, None, :]
 
-    def _pairs(self, requests: Sequence[FeatureRequest], terms: list[tuple[int, Term]], device: torch.device) -> None:
-        """For each pair of terms of one request sharing frames and dimensions: the flat indices
-        of the shared frames in each term's estimate and the shared dimensions."""
-        first, second, dims = [], [], []
+    def _pairs(self, terms: list[tuple[int, Term]], dims: np.ndarray, device: torch.device) -> None:
+        """For each pair of terms of one request sharing frames and dimensions (``dims``: (K, D)
+        bool): the flat indices of the shared frames in each term's estimate and the shared
+        dimensions."""
+        first, second, shared_dims = [], [], []
         for i, (b, a) in enumerate(terms):
             for j in range(i + 1, len(terms)):
                 other_b, other = terms[j]
                 start, end = max(a.start, other.start), min(a.end, other.end)
-                shared = self.dims[i] * self.dims[j]
-                if other_b != b or start >= end or not bool(shared.any()):
+                shared = dims[i] & dims[j]
+                if other_b != b or start >= end or not shared.any():
                     continue
                 frames = torch.arange(start, end)
                 first.append(i * self.width + frames - a.start)
                 second.append(j * self.width + frames - other.start)
-                dims.append(shared)
+                shared_dims.append(shared)
         self.pair_count = len(first)
         if first:
-            self.pair_first = torch.nn.utils.rnn.pad_sequence(first, batch_first=True, padding_value=-1).to(device)
-            self.pair_second = torch.nn.utils.rnn.pad_sequence(second, batch_first=True, padding_value=-1).to(device)
-            self.pair_dims = torch.stack(dims)
+            pad = torch.nn.utils.rnn.pad_sequence
+            self.pair_first = pad(first, batch_first=True, padding_value=-1).to(device, non_blocking=True)
+            self.pair_second = pad(second, batch_first=True, padding_value=-1).to(device, non_blocking=True)
+            self.pair_dims = torch.from_numpy(np.stack(shared_dims).astype(np.float32)).to(device, non_blocking=True)
 
     def terms_of(self, x: torch.Tensor) -> torch.Tensor:
         """Each term's frames of the padded motions x (B, F, D): (K, W, D), zero past its length."""
@@ -146,10 +144,13 @@ class Layout:
     ) -> torch.Tensor:
         """Every term's ε_θ (K, W, D) on its frames of x (B, F, D), zero past its length. Terms go
         through the network in groups of similar length, each padded to its own longest: padding
-        never changes a valid frame's estimate (the network masks it), it only costs time."""
+        never changes a valid frame's estimate (the network masks it), it only costs time. The
+        estimates are float32 whatever the network ran in (bf16 under a GPU's autocast): the
+        diffusion's arithmetic on x_t keeps full precision."""
         terms = self.terms_of(x)
         estimates = [
-            network(terms[rows, :width], t[rows], self.lengths[rows], text.take(rows)) for rows, width in self.groups
+            network(terms[rows, :width], t[rows], self.lengths[rows], text.take(rows)).float()
+            for rows, width in self.groups
         ]
         padded = [torch.nn.functional.pad(eps, (0, 0, 0, self.width - eps.shape[1])) for eps in estimates]
         return torch.cat(padded)[self.order] * self.valid[:, :, None]
@@ -172,8 +173,24 @@ class Layout:
         return 2.0 * torch.linalg.vector_norm(difference.flatten(1), dim=1).sum()
 
 
+def _dims_of(term: Term, feature_dim: int) -> np.ndarray:
+    """(D,) bool: the feature dimensions a term speaks for."""
+    return np.ones(feature_dim, dtype=bool) if term.dims is None else np.asarray(term.dims, dtype=bool)
+
+
 def _pad(rows: Sequence[torch.Tensor], frames: int) -> torch.Tensor:
     return torch.stack([torch.nn.functional.pad(row, (0, 0, 0, frames - len(row))) for row in rows])
+
+
+def _to_device(host: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """A tensor made on the host, on ``device``. To a GPU through pinned memory: a copy from
+    pageable memory waits for the device's queue (CUDA runtime API, "API synchronization
+    behavior"), one from pinned memory with ``non_blocking`` does not, and PyTorch's caching host
+    allocator keeps the pinned block until the copy is done (PyTorch tutorial, "A guide on good
+    usage of non_blocking and pin_memory()")."""
+    if device.type != "cuda":
+        return host.to(device)
+    return host.pin_memory().to(device, non_blocking=True)
 
 
 def sample(
@@ -208,24 +225,16 @@ def sample(
             torch.zeros(r.frames, feature_dim) if g is None else torch.randn(r.frames, feature_dim, generator=g)
             for r, g in zip(requests, streams)
         ]
-        return _pad(rows, layout.frames).to(device)
+        return _to_device(_pad(rows, layout.frames), device)
 
     keep = keep_mask = None
     if any(r.keep is not None for r in requests):
-        keep = _pad(
-            [r.keep if r.keep is not None else torch.zeros(r.frames, feature_dim) for r in requests], layout.frames
-        ).to(device)
-        keep_mask = (
-            _pad(
-                [
-                    r.keep_mask if r.keep is not None else torch.zeros(r.frames, feature_dim, dtype=torch.bool)
-                    for r in requests
-                ],
-                layout.frames,
-            )
-            .bool()
-            .to(device)
-        )
+        kept = [torch.zeros(r.frames, feature_dim) if r.keep is None else r.keep for r in requests]
+        masks = [
+            torch.zeros(r.frames, feature_dim, dtype=torch.bool) if r.keep is None else r.keep_mask for r in requests
+        ]
+        keep = _to_device(_pad(kept, layout.frames), device)
+        keep_mask = _to_device(_pad(masks, layout.frames).bool(), device)
     guided = correction > 0 and layout.pair_count > 0
     x = noise(generators)
     total = process.num_steps

@@ -12,6 +12,7 @@ in the model's :class:`~m2d2m.generators.options.Sampling` (its ``sampling``).
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -25,6 +26,7 @@ from m2d2m.generators.options import MULTI, Sampling
 from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.skeleton import Skeleton
+from m2d2m.precision import autocast, resolve
 
 
 @dataclass(frozen=True)
@@ -89,6 +91,29 @@ class MotionGenerator(ABC):
     part_control: ClassVar[bool] = False
 
     source: Path  # the model file it was loaded from
+    _precision: str | None = None  # what use_precision chose; None until first asked
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Every model's sampling runs in its generator's :attr:`precision`: the calls that sample
+        (``generate``, ``generate_parts``, ``reconstruct``) a subclass defines are wrapped in
+        its autocast, so no model can forget it and none repeats it."""
+        super().__init_subclass__(**kwargs)
+        for name in _SAMPLING_CALLS:
+            if name in cls.__dict__:
+                setattr(cls, name, _in_precision(cls.__dict__[name]))
+
+    @property
+    def precision(self) -> str:
+        """``bf16`` or ``fp32``: what its networks sample in (:mod:`m2d2m.precision`): bf16 on a
+        GPU that has it, unless ``M2D2M_PRECISION`` or :meth:`use_precision` says otherwise."""
+        if self._precision is None:
+            self._precision = resolve(None, self.device)
+        return self._precision
+
+    def use_precision(self, precision: str | None) -> MotionGenerator:
+        """Sample in ``precision`` (auto, bf16 or fp32; None: ``M2D2M_PRECISION``, else auto) from now on."""
+        self._precision = resolve(precision, self.device)
+        return self
 
     # -------------------------------------------------------------------------- what it is
     @property
@@ -191,3 +216,17 @@ class MotionGenerator(ABC):
         does its own sentence, ``parts[i]`` mapping part → sentence, ``frames[i]`` long, drawn with
         ``seeds[i]``. ValueError for a model without body-part control (:attr:`part_control`)."""
         raise ValueError(f"{self.model} has no body-part control")
+
+
+_SAMPLING_CALLS = ("generate", "generate_parts", "reconstruct")
+
+
+def _in_precision(call: Callable[..., Any]) -> Callable[..., Any]:
+    """``call`` (a generator's method) run inside its generator's autocast."""
+
+    @functools.wraps(call)
+    def in_precision(self: MotionGenerator, *args: Any, **kwargs: Any) -> Any:
+        with autocast(self.precision, self.device):
+            return call(self, *args, **kwargs)
+
+    return in_precision

@@ -20,6 +20,7 @@ from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.vqvae import MotionVQVAE, vq_from_payload
+from m2d2m.precision import full_precision
 
 FREE = -1  # a token position a generator fills (the samplers' and decoders' convention)
 
@@ -59,13 +60,15 @@ class TokenCodec:
 
     def encode(self, features: np.ndarray) -> torch.Tensor:
         """Tokens (on the CPU) of un-normalised features (F, D): one per ``frames_per_token`` frames."""
-        with torch.no_grad():
+        with torch.no_grad(), full_precision(self.device):
             normalized = torch.as_tensor(self.normalizer.normalize(features), dtype=torch.float32, device=self.device)
             return self.vq.encode(normalized[None])[0].cpu()
 
     def decode(self, tokens: torch.Tensor) -> np.ndarray:
-        """Un-normalised features (F, D) of one token sequence; a part's (F, D_part)."""
-        with torch.no_grad():
+        """Un-normalised features (F, D) of one token sequence; a part's (F, D_part). In float32
+        even inside a bf16 sampler: the decoder runs once, and its root velocities are integrated
+        over the whole clip, where bf16's three digits would drift."""
+        with torch.no_grad(), full_precision(self.device):
             decoded = self.vq.decode(tokens[None].to(self.device))[0].cpu().numpy()
         return self.normalizer.denormalize(decoded, None if self.part == FULL else self.dims)
 

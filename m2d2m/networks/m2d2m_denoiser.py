@@ -127,7 +127,8 @@ def sinusoid(values: torch.Tensor, width: int) -> torch.Tensor:
 def action_offsets(actions: Sequence[Sequence[int]], width: int, device: torch.device | str = "cpu") -> torch.Tensor:
     """(rows, width, 2) long: each position's distance from the first and to the last token of its
     action, for rows laid out as consecutive actions of the given lengths (``actions[row]``);
-    positions past a row's actions (padding) get 0."""
+    positions past a row's actions (padding) get 0. Built on the host from the lengths and sent in
+    one copy that does not make the device wait."""
     offsets = torch.zeros(len(actions), width, 2, dtype=torch.long)
     for row, lengths in enumerate(actions):
         start = 0
@@ -136,7 +137,7 @@ def action_offsets(actions: Sequence[Sequence[int]], width: int, device: torch.d
             offsets[row, start : start + length, 0] = inside
             offsets[row, start : start + length, 1] = length - 1 - inside
             start += length
-    return offsets.to(device)
+    return offsets.to(device, non_blocking=True)
 
 
 def row_offsets(padding_mask: torch.Tensor) -> torch.Tensor:
@@ -152,6 +153,12 @@ def _key_mask(valid: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
     blocked = torch.zeros(valid.shape, dtype=dtype, device=valid.device)
     blocked = blocked.masked_fill(~valid, torch.finfo(dtype).min)
     return blocked[:, None, None, :]
+
+
+def _attention_dtype(device: torch.device, weights: torch.dtype) -> torch.dtype:
+    """The dtype ``scaled_dot_product_attention`` computes in: autocast's where it is on (its
+    casts would otherwise convert a float32 mask in every block), else the weights'."""
+    return torch.get_autocast_dtype(device.type) if torch.is_autocast_enabled(device.type) else weights
 
 
 class TimestepEmbedding(nn.Module):
@@ -206,11 +213,12 @@ class Attention(nn.Module):
 
     def forward(self, x: torch.Tensor, keys_values: KeysValues, mask: torch.Tensor) -> torch.Tensor:
         keys, values = keys_values
+        queries = self._split(self.query(x))  # in the dtype the attention computes in (bf16 under autocast)
         attended = F.scaled_dot_product_attention(
-            self._split(self.query(x)),
+            queries,
             keys,
             values,
-            attn_mask=mask.to(x.dtype),
+            attn_mask=mask.to(queries.dtype),
             dropout_p=self.dropout if self.training else 0.0,
         )
         batch, _, length, _ = attended.shape
@@ -343,15 +351,21 @@ class MotionDenoiser(nn.Module):
         return torch.where((tokens == self.mask_id)[..., None], self.mask_vector.to(codes.dtype), codes)
 
     def relative_position_bias(self, length: int, device: torch.device) -> torch.Tensor:
-        """(heads, L, L) learned bias indexed by the bucket of ``key - query`` (the buckets of a
-        length are computed once: a sampler asks for the same lengths at every step)."""
+        """(heads, L, L) learned bias indexed by the bucket of ``key - query``. The buckets of a
+        length are computed once (a sampler asks for the same lengths at every step), except under
+        ``torch.compile``, where they become part of the compiled graph: writing to a cache there
+        would make every call retrace."""
+        if torch.compiler.is_compiling():
+            return self.relative_bias(self._position_buckets(length, device)).permute(2, 0, 1)
         key = (length, str(device))
         if key not in self._buckets:
-            positions = torch.arange(length, device=device)
-            self._buckets[key] = relative_position_bucket(
-                positions[None, :] - positions[:, None], self.config.num_buckets, self.config.max_distance
-            )
+            self._buckets[key] = self._position_buckets(length, device)
         return self.relative_bias(self._buckets[key]).permute(2, 0, 1)
+
+    def _position_buckets(self, length: int, device: torch.device) -> torch.Tensor:
+        positions = torch.arange(length, device=device)
+        offsets = positions[None, :] - positions[:, None]
+        return relative_position_bucket(offsets, self.config.num_buckets, self.config.max_distance)
 
     def condition(
         self, text: torch.Tensor | None, text_mask: torch.Tensor | None, batch: int | None = None
@@ -409,7 +423,12 @@ class MotionDenoiser(nn.Module):
             )
             x = x + self.offset_embedding(features.to(x.dtype))
         time = self.time_embedding(t)
-        self_mask = self.relative_position_bias(length, tokens.device)[None] + _key_mask(padding_mask, torch.float32)
+        # built once in the dtype the attention computes in, so no block converts this (B, heads, L, L) mask again
+        dtype = _attention_dtype(tokens.device, self.head.weight.dtype)
+        bias = self.relative_position_bias(length, tokens.device)[None]
+        # contiguous: the bias is a permuted (L, L, heads) lookup, and a GPU's fused attention kernels
+        # need the mask's last dimension at stride 1 (else SDPA falls back to its math path, 10× slower)
+        self_mask = (bias + _key_mask(padding_mask, dtype)).to(dtype).contiguous()
         for block, keys_values in zip(self.blocks, condition.keys_values):
             x = block(x, time, self_mask, keys_values, condition.mask)
         return self.head(self.head_norm(x))

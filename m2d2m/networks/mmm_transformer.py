@@ -94,10 +94,13 @@ def canvas(tokens: torch.Tensor, lengths: torch.Tensor, config: MaskedTransforme
 
 def code_vectors(tokens: torch.Tensor, codebook: torch.Tensor, special: torch.Tensor) -> torch.Tensor:
     """(..., code_dim): ``codebook`` rows for codes 0..K−1, ``special`` rows for [END], [PAD], [MASK]
-    (K, K + 1, K + 2)."""
+    (K, K + 1, K + 2). A token outside them is a RuntimeError, asserted without reading the tokens
+    on the host (``torch._assert_async``: on a GPU it fails at a later kernel launch, as the
+    embedding's own index check would, rather than make every forward pass wait)."""
     last = codebook.shape[0] + SPECIAL_TOKENS - 1
-    if tokens.numel() and (int(tokens.min()) < 0 or int(tokens.max()) > last):
-        raise ValueError(f"tokens must lie in 0..{last} (codes, then END, PAD, MASK)")
+    torch._assert_async(
+        ((tokens >= 0) & (tokens <= last)).all(), f"tokens must lie in 0..{last} (codes, then END, PAD, MASK)"
+    )
     return F.embedding(tokens, torch.cat([codebook, special]))
 
 

@@ -15,7 +15,8 @@ end by repeating the last frame, the reconstruction cropped back); ``decode`` wo
 size; the quantizer computes in float32 even under autocast; dead codes are selected with
 ``torch.where`` so a long-dead code whose EMA count underflowed to 0 cannot turn into NaN; under
 ``torch.distributed`` the codebook statistics are all-reduced so every replica keeps the same
-codebook.
+codebook; a training step reads nothing back on the host (the code histogram is an ``index_add``,
+not ``bincount``, whose output size the host must learn; the reset is a ``torch.where``).
 """
 
 from __future__ import annotations
@@ -128,6 +129,10 @@ class EMACodebook(nn.Module):
     batches used it: a large codebook (8192) then keeps rarely used codes instead of re-drawing
     them every step. Its usage counter exists only then, so T2M-GPT-style model files keep their
     buffers.
+
+    Whether the codebook is initialised is a buffer (it travels with checkpoints); the quantizer
+    reads it on the host once, at its first training call after construction or a state dict
+    load, and remembers it, rather than at every step.
     """
 
     def __init__(self, codebook_size: int, code_dim: int, decay: float = 0.99, reset_every: int = 1) -> None:
@@ -143,6 +148,8 @@ class EMACodebook(nn.Module):
         if reset_every > 1:
             self.register_buffer("recent_usage", torch.zeros(codebook_size))
             self.register_buffer("updates", torch.tensor(0))
+        self._known_initialised = False  # the buffer read True since construction or the last load
+        self.register_load_state_dict_post_hook(_forget_initialised)
 
     def _sample(self, vectors: torch.Tensor) -> torch.Tensor:
         """``codebook_size`` rows drawn from ``vectors`` without replacement; when there are
@@ -166,6 +173,7 @@ class EMACodebook(nn.Module):
         self.code_sum.copy_(sample)
         self.code_count.fill_(1.0)
         self.initialised.fill_(True)
+        self._known_initialised = True
 
     def nearest(self, vectors: torch.Tensor) -> torch.Tensor:
         """Index of the nearest code (squared L2) for each row of ``vectors`` (N, code_dim)."""
@@ -188,15 +196,16 @@ class EMACodebook(nn.Module):
         self.codebook.copy_(torch.where(self._dead(counts).unsqueeze(1), self._sample(vectors), mean))
 
     def _dead(self, counts: torch.Tensor) -> torch.Tensor:
-        """(K,) bool: the codes to re-draw after this step's update."""
+        """(K,) bool: the codes to re-draw after this step's update; with ``reset_every`` N, those
+        unused since the last reset at every N-th update and none in between (decided on the
+        device)."""
         if self.reset_every == 1:
             return self.code_count < 1.0
         self.recent_usage.add_(counts)
         self.updates.add_(1)
-        if int(self.updates) % self.reset_every:
-            return torch.zeros_like(self.code_count, dtype=torch.bool)
-        dead = self.recent_usage == 0
-        self.recent_usage.zero_()
+        due = self.updates % self.reset_every == 0
+        dead = due & (self.recent_usage == 0)
+        self.recent_usage.masked_fill_(due, 0.0)
         return dead
 
     def forward(self, x: torch.Tensor) -> Quantized:
@@ -205,10 +214,14 @@ class EMACodebook(nn.Module):
         shape, dtype = x.shape, x.dtype
         with torch.autocast(device_type=x.device.type, enabled=False):
             flat = x.reshape(-1, self.code_dim).float()
-            if self.training and not bool(self.initialised):
-                self.initialise(flat)
+            if self.training and not self._known_initialised:
+                if not bool(self.initialised):  # once per construction or load: see the class
+                    self.initialise(flat)
+                self._known_initialised = True
             indices = self.nearest(flat)
-            counts = torch.bincount(indices, minlength=self.codebook_size).float()
+            counts = torch.zeros(self.codebook_size, device=flat.device).index_add_(
+                0, indices, torch.ones_like(indices, dtype=torch.float32)
+            )
             if self.training:
                 if _distributed():
                     dist.all_reduce(counts)
@@ -226,6 +239,11 @@ class EMACodebook(nn.Module):
             perplexity=perplexity,
             active_codes=(counts > 0).sum(),
         )
+
+
+def _forget_initialised(quantizer: EMACodebook, incompatible_keys: object) -> None:
+    """After a state dict load the ``initialised`` buffer may say otherwise: read it again."""
+    quantizer._known_initialised = False
 
 
 # --------------------------------------------------------------------------------------------------

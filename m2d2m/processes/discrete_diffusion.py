@@ -16,6 +16,7 @@ uniform, i.e. VQ-Diffusion.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
@@ -335,27 +336,34 @@ class TransitionSchedule:
             self._spans[t, s] = span
         return self._spans[t, s]
 
-    def _timesteps(self, t: int | Tensor, shape: torch.Size, low: int) -> Tensor:
-        """t broadcast to ``shape`` as a long tensor on the schedule's device, checked to lie in low..T."""
+    def _timesteps(self, t: int | Tensor, shape: torch.Size, low: int, validate: bool) -> Tensor:
+        """t broadcast to ``shape`` as a long tensor on the schedule's device; with ``validate``,
+        checked to lie in low..T (reading its range on the host: a device sync)."""
         tt = torch.as_tensor(t, device=self.device).long()
-        if tt.numel() and (int(tt.min()) < low or int(tt.max()) > self.steps):
+        if validate and tt.numel() and (int(tt.min()) < low or int(tt.max()) > self.steps):
             raise ValueError(f"t must lie in {low}..{self.steps}")
         return torch.broadcast_to(tt, shape)
 
-    def _codes(self, z: Tensor, upper: int, name: str) -> Tensor:
+    def _codes(self, z: Tensor, upper: int, name: str, validate: bool) -> Tensor:
+        """``z`` as long codes on the schedule's device; with ``validate``, checked to lie in 0..upper
+        (reading its range on the host: a device sync)."""
         z = z.to(self.device).long()
-        if z.numel() and (int(z.min()) < 0 or int(z.max()) > upper):
+        if validate and z.numel() and (int(z.min()) < 0 or int(z.max()) > upper):
             raise ValueError(f"{name} values must lie in 0..{upper}")
         return z
 
-    def q_sample(self, z0: Tensor, t: int | Tensor, generator: torch.Generator | None = None) -> Tensor:
+    def q_sample(
+        self, z0: Tensor, t: int | Tensor, generator: torch.Generator | None = None, validate: bool = True
+    ) -> Tensor:
         """Draw z_t ~ q(z_t | z0) = Q̄_t[:, z0]; t (1..T, or 0 for z0 itself) broadcasts with z0.
 
-        ``generator`` must live on the schedule's device.
+        ``generator`` must live on the schedule's device. ``validate=False`` skips the range checks
+        of z0 and t, which make the host wait for the device: for a training step, whose codes come
+        from the VQ-VAE and whose t from :class:`~m2d2m.processes.discrete_diffusion_loss.TimestepSampler`.
         """
-        z0 = self._codes(z0, self.num_codes - 1, "z0")
-        tt = self._timesteps(t, z0.shape, low=0).reshape(-1)
-        probs = self._cumulative[tt, :, z0.reshape(-1)]  # (N, K+1): column z0 of Q̄_t
+        z0 = self._codes(z0, self.num_codes - 1, "z0", validate)
+        tt = self._timesteps(t, z0.shape, low=0, validate=validate)
+        probs = self._cumulative[tt.reshape(-1), :, z0.reshape(-1)]  # (N, K+1): column z0 of Q̄_t
         cdf = probs.cumsum(dim=1)
         u = torch.rand(cdf.shape[0], 1, generator=generator, dtype=torch.float64, device=self.device)
         # counting cdf <= u·total never picks a zero-probability state and never exceeds K
@@ -368,36 +376,74 @@ class TransitionSchedule:
         codes = torch.randint(self.num_codes, shape, generator=generator, device=self.device)
         return torch.where(u < self.gamma_bar[-1], torch.full_like(codes, self.mask_index), codes)
 
-    def posterior_probs(self, z_t: Tensor, x0_probs: Tensor, t: int | Tensor, s: int | None = None) -> Tensor:
+    def posterior_probs(
+        self, z_t: Tensor, x0_probs: Tensor, t: int | Tensor, s: int | None = None, validate: bool = True
+    ) -> Tensor:
         """p(z_s | z_t) = Σ_k q(z_s | z_t, z0 = k)·x0_probs[k], float64 (..., K+1): the reverse step
         from t (1..T) to s = t − 1 by default, or to an earlier ``s`` (0 <= s < t; ``t`` one int then):
         the step-skipping sampler's jump, exact for any Δ = t − s.
 
         With Bayes' rule q(z_s = j | z_t = i, k) = Q_{t|s}[i, j]·Q̄_s[j, k] / Q̄_t[i, k] (Q_{t|t−1} = Q_t),
         the mixture is Q_{t|s}[i, :] ⊙ (Q̄_s · (x0_probs / Q̄_t[i, :])): two row gathers and one matrix
-        product per distinct s in the batch. Codes k that cannot produce z_t (Q̄_t[i, k] = 0) get no
-        weight. Differentiable in x0_probs.
+        product. Codes k that cannot produce z_t (Q̄_t[i, k] = 0) get no weight. Differentiable in
+        x0_probs.
+
+        ``t`` is one int (a sampler's step: one product), or a tensor that broadcasts with z_t: t per
+        sample (a training batch, shape (B, 1, …)) gathers each sample's Q̄_{t−1} and takes one batched
+        product (``torch.bmm``), with no grouping by value that would make the host read t. A t that
+        varies along every dimension takes one product per position. ``validate=False`` skips the
+        range checks of z_t and t, which read them on the host (a device sync): for callers whose
+        inputs are valid by construction.
         """
         num_codes = self.num_codes
-        z = self._codes(z_t, num_codes, "z_t")
+        z = self._codes(z_t, num_codes, "z_t", validate)
         if tuple(x0_probs.shape) != (*z.shape, num_codes):
             raise ValueError(f"x0_probs must have shape {(*z.shape, num_codes)}, got {tuple(x0_probs.shape)}")
-        tt = self._timesteps(t, z.shape, low=1).reshape(-1)
-        zf = z.reshape(-1)
-        if s is None:
-            rows = self._step[tt, zf]  # (N, K+1): q(z_t | z_{t−1} = j)
-            earlier = tt - 1
-        else:
-            if not isinstance(t, int):
-                raise ValueError("a skip to s needs one t for every position")
-            rows = self.span_matrix(t, s)[zf]  # q(z_t | z_s = j)
-            earlier = torch.full_like(tt, s)
-        probs = x0_probs.to(device=self.device, dtype=torch.float64).reshape(-1, num_codes)
-        reach = self._cumulative[tt, zf, :num_codes]  # (N, K): q(z_t | z0 = k)
-        feasible = reach > 0
-        weights = torch.where(feasible, probs / torch.where(feasible, reach, 1.0), 0.0)
-        propagated = weights.new_zeros(weights.shape[0], num_codes + 1)
-        for r in torch.unique(earlier).tolist():
-            chosen = torch.nonzero(earlier == r).squeeze(1)
-            propagated[chosen] = weights[chosen] @ self._cumulative[r, :, :num_codes].T
-        return (rows * propagated).reshape(*z.shape, num_codes + 1)
+        probs = x0_probs.to(device=self.device, dtype=torch.float64)
+        if isinstance(t, int):
+            if not 1 <= t <= self.steps:
+                raise ValueError(f"t must lie in 1..{self.steps}, got {t}")
+            s = t - 1 if s is None else s
+            rows = self.span_matrix(t, s)[z]  # (..., K+1): q(z_t | z_s = j)
+            weights = _x0_ratios(probs, self._cumulative[t][z, :num_codes]).reshape(-1, num_codes)
+            return rows * (weights @ self._cumulative[s, :, :num_codes].T).reshape(rows.shape)
+        if s is not None:
+            raise ValueError("a skip to s needs one t for every position")
+        t_group, z_group = self._groups(t, z, validate)
+        rows = self._step[t_group[:, None], z_group]  # (G, M, K+1): q(z_t | z_{t−1} = j)
+        reach = self._cumulative[t_group[:, None], z_group, :num_codes]  # (G, M, K): q(z_t | z0 = k)
+        weights = _x0_ratios(probs.reshape(*z_group.shape, num_codes), reach)
+        earlier = self._cumulative[t_group - 1, :, :num_codes]  # (G, K+1, K): Q̄_{t−1}
+        return (rows * torch.bmm(weights, earlier.transpose(1, 2))).reshape(*z.shape, num_codes + 1)
+
+    def true_posterior(self, z_t: Tensor, z0: Tensor, t: int | Tensor, validate: bool = True) -> Tensor:
+        """q(z_{t−1} | z_t, z0) for known codes z0, float64 (..., K+1): :meth:`posterior_probs` at a
+        one-hot x0, Q_t[z_t, j]·Q̄_{t−1}[j, z0] / Q̄_t[z_t, z0], by gathers alone (the target of the
+        training loss's KL, paper Eq. 3). Zero where z0 cannot produce z_t. ``t`` broadcasts with z_t."""
+        z = self._codes(z_t, self.num_codes, "z_t", validate)
+        codes = self._codes(z0, self.num_codes - 1, "z0", validate)
+        if codes.shape != z.shape:
+            raise ValueError(f"z0 must have the shape of z_t {tuple(z.shape)}, got {tuple(codes.shape)}")
+        tt = self._timesteps(t, z.shape, low=1, validate=validate)
+        weight = _x0_ratios(1.0, self._cumulative[tt, z, codes])  # 1 / q(z_t | z0)
+        earlier = self._cumulative[tt - 1, :, codes]  # (..., K+1): q(z_{t−1} = j | z0), indices' dims first
+        return self._step[tt, z] * (weight[..., None] * earlier)
+
+    def _groups(self, t: Tensor, z: Tensor, validate: bool) -> tuple[Tensor, Tensor]:
+        """t per group of positions that share it, (G,), and the codes as (G, M): the groups are the
+        leading dimensions of z along which t varies (t broadcasts with z as NumPy's rules say)."""
+        tt = torch.as_tensor(t, device=self.device).long()
+        if tt.dim() > z.dim():
+            raise ValueError(f"t of shape {tuple(tt.shape)} does not broadcast with z_t of shape {tuple(z.shape)}")
+        shape = (1,) * (z.dim() - tt.dim()) + tuple(tt.shape)
+        lead = max((d + 1 for d, n in enumerate(shape) if n != 1), default=0)
+        self._timesteps(tt, tt.shape, low=1, validate=validate)
+        t_group = torch.broadcast_to(tt.reshape(shape[:lead]), z.shape[:lead]).reshape(-1)
+        return t_group, z.reshape(t_group.shape[0], math.prod(z.shape[lead:]))
+
+
+def _x0_ratios(probs: Tensor | float, reach: Tensor) -> Tensor:
+    """x0_probs[k] / Q̄_t[z_t, k], each z0 = k's weight in the posterior mixture; zero where k
+    cannot produce z_t."""
+    feasible = reach > 0
+    return torch.where(feasible, probs / torch.where(feasible, reach, 1.0), 0.0)

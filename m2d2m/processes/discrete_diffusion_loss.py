@@ -30,12 +30,15 @@ class DiffusionLoss:
     aux: Tensor  # (B,): each sample's mean auxiliary cross-entropy over its valid positions
 
 
-def _per_sample(t: int | Tensor, like: Tensor) -> Tensor:
-    """t as a long tensor broadcast to ``like`` (B, ...): an int, a (B,) per-sample t, or t per position."""
+def _per_sample(t: int | Tensor, like: Tensor) -> int | Tensor:
+    """t as the posterior takes it: an int as it is, a (B,) per-sample t shaped (B, 1, …) to
+    broadcast with ``like`` (B, ...), t per position as it is."""
+    if isinstance(t, int):
+        return t
     tt = torch.as_tensor(t, device=like.device).long()
     if tt.dim() == 1 and like.dim() > 1:
         tt = tt.reshape(-1, *([1] * (like.dim() - 1)))
-    return torch.broadcast_to(tt, like.shape)
+    return tt
 
 
 def diffusion_loss(
@@ -48,6 +51,7 @@ def diffusion_loss(
     aux_weight: float = 5e-4,
     pt: Tensor | None = None,
     adaptive_aux: bool = False,
+    validate: bool = True,
 ) -> DiffusionLoss:
     """L_vlb + λ·CE(x0) for logits (B, ..., K), codes z0 and z_t (B, ...), t (int, (B,) or per position).
 
@@ -60,6 +64,11 @@ def diffusion_loss(
       tokens of the batch (VQ-Diffusion normalises per token too), each sample weighted by
       1/(T·pt): pt is the probability with which its t was drawn (None = uniform), so the weight is 1
       under uniform sampling and the estimate stays unbiased under importance sampling.
+
+    The KL is computed at every position and kept where it is the term (t > 1, valid): choosing the
+    positions first would make the host read the data (a device sync per step) for a saving of
+    1/T and the padding. ``validate=False`` skips the schedule's range checks of the codes and t
+    (each also a sync): for a training step, whose inputs are valid by construction.
     """
     num_codes = schedule.num_codes
     if z0.dim() < 1 or logits.shape[-1] != num_codes or logits.shape[:-1] != z0.shape or z0.shape != z_t.shape:
@@ -70,7 +79,8 @@ def diffusion_loss(
     device = logits.device
     z0 = z0.to(device).long()
     z_t = z_t.to(device).long()
-    tt = _per_sample(t, z0)
+    t_posterior = _per_sample(t, z0)
+    tt = torch.broadcast_to(torch.as_tensor(t_posterior, device=device), z0.shape)
     mask = torch.ones_like(z0, dtype=torch.bool) if valid is None else valid.to(device).bool()
     if mask.shape != z0.shape:
         raise ValueError(f"valid must have shape {tuple(z0.shape)}, got {tuple(mask.shape)}")
@@ -81,15 +91,11 @@ def diffusion_loss(
     log_x0 = F.log_softmax(logits.double(), dim=-1)
     nll = -log_x0.gather(-1, z0.unsqueeze(-1)).squeeze(-1)
 
+    model = schedule.posterior_probs(z_t, log_x0.exp(), t_posterior, validate=validate)
+    truth = schedule.true_posterior(z_t, z0, t_posterior, validate=validate)
+    kl = (truth * (truth.clamp_min(_LOG_FLOOR).log() - model.clamp_min(_LOG_FLOOR).log())).sum(dim=-1)
     later = (tt > 1) & mask  # positions whose L_vlb term is a KL; the rest are the t = 1 decoder NLL
-    kl = torch.zeros_like(nll)
-    if later.any():
-        t_later = tt[later].to(schedule.device)
-        model = schedule.posterior_probs(z_t[later], log_x0[later].exp(), t_later)
-        truth = schedule.posterior_probs(z_t[later], F.one_hot(z0[later], num_codes).double(), t_later)
-        terms = truth * (truth.clamp_min(_LOG_FLOOR).log() - model.clamp_min(_LOG_FLOOR).log())
-        kl = kl.masked_scatter(later, terms.sum(dim=-1).to(device))
-    vlb_pos = torch.where(later, kl, nll)
+    vlb_pos = torch.where(later, kl.to(device), nll)
 
     aux_pos = nll
     if adaptive_aux:
@@ -134,12 +140,13 @@ class TimestepSampler(nn.Module):
     def probs(self) -> Tensor:
         """p(t) for t = 1..T (float64, index t − 1)."""
         uniform = torch.full_like(self.history, 1.0 / self.steps)
-        if self.mode == "uniform" or not bool((self.count > self.warmup).all()):
+        if self.mode == "uniform":
             return uniform
         weights = self.history.sqrt() + 1e-4
         if self.steps > 1:
             weights[0] = weights[1]
-        return weights / weights.sum()
+        # chosen on the device: reading whether the warm-up is over would make the host wait every step
+        return torch.where((self.count > self.warmup).all(), weights / weights.sum(), uniform)
 
     def sample(self, batch: int, generator: torch.Generator | None = None) -> tuple[Tensor, Tensor]:
         """(t, pt): t long (B,) in 1..T on the sampler's device and the probability each was drawn with."""
@@ -149,11 +156,14 @@ class TimestepSampler(nn.Module):
 
     @torch.no_grad()
     def update(self, t: Tensor, vlb: Tensor) -> None:
-        """Fold a batch's per-sample L_vlb terms into the history (duplicate t's are averaged first)."""
+        """Fold a batch's per-sample L_vlb terms into the history (duplicate t's are averaged first).
+        A term that is not finite is left out, so that the steps a non-finite loss takes to be
+        noticed (training.losses.FiniteLossGuard) do not spoil p(t) for the draws in between."""
         index = t.to(self.history.device).long().reshape(-1) - 1
         squares = vlb.detach().to(self.history).reshape(-1).square()
-        sums = torch.zeros_like(self.history).index_add_(0, index, squares)
-        seen = torch.zeros_like(self.count).index_add_(0, index, torch.ones_like(index))
+        finite = torch.isfinite(squares)
+        sums = torch.zeros_like(self.history).index_add_(0, index, torch.where(finite, squares, 0.0))
+        seen = torch.zeros_like(self.count).index_add_(0, index, finite.long())
         mean = sums / seen.clamp_min(1)
         self.history.copy_(torch.where(seen > 0, (1 - self.decay) * self.history + self.decay * mean, self.history))
         self.count.add_(seen)

@@ -24,7 +24,9 @@ with σ from eq. 16 scaled by η).
 
 Indices are 0-based: index t is the paper's step t + 1, so ᾱ at index t is prod_{s<=t} α_s and the
 "previous" ᾱ at index 0 is 1 (x_{-1} stands for the clean x_0). The schedule is kept in float64
-numpy arrays and converted to the input tensor's dtype and device when indexed.
+numpy arrays, and each array a step indexes is converted to the input tensor's dtype and device
+once and kept there: a training or sampling step then copies nothing from the host (on a GPU, a
+copy from the host makes the host wait for the device's queue).
 """
 
 from __future__ import annotations
@@ -98,9 +100,22 @@ class GaussianDiffusion:
         self.alphas_cumprod = np.cumprod(self.alphas)
         self.alphas_cumprod_prev = np.concatenate([[1.0], self.alphas_cumprod[:-1]])
         self.posterior_variance = betas * (1.0 - self.alphas_cumprod_prev) / (1.0 - self.alphas_cumprod)
-        # Ho et al. eq. 7: μ̃_t = coef_x0 · x_0 + coef_xt · x_t
-        self._posterior_coef_x0 = betas * np.sqrt(self.alphas_cumprod_prev) / (1.0 - self.alphas_cumprod)
-        self._posterior_coef_xt = (1.0 - self.alphas_cumprod_prev) * np.sqrt(self.alphas) / (1.0 - self.alphas_cumprod)
+        # the arrays a step indexes, by name (float64), and their copies on devices (see _table)
+        self._arrays = {
+            "betas": betas,
+            "timesteps": steps,
+            "posterior_variance": self.posterior_variance,
+            "sqrt_alphas_cumprod": np.sqrt(self.alphas_cumprod),
+            "sqrt_one_minus_alphas_cumprod": np.sqrt(1.0 - self.alphas_cumprod),
+            "one_minus_alphas_cumprod": 1.0 - self.alphas_cumprod,
+            "sqrt_recip_alphas_cumprod": np.sqrt(1.0 / self.alphas_cumprod),
+            "sqrt_recipm1_alphas_cumprod": np.sqrt(1.0 / self.alphas_cumprod - 1.0),
+            "sqrt_alphas_cumprod_prev": np.sqrt(self.alphas_cumprod_prev),
+            # Ho et al. eq. 7: μ̃_t = coef_x0 · x_0 + coef_xt · x_t
+            "posterior_coef_x0": betas * np.sqrt(self.alphas_cumprod_prev) / (1.0 - self.alphas_cumprod),
+            "posterior_coef_xt": (1.0 - self.alphas_cumprod_prev) * np.sqrt(self.alphas) / (1.0 - self.alphas_cumprod),
+        }
+        self._tables: dict[tuple[str, torch.dtype, torch.device], Tensor] = {}
 
     @classmethod
     def from_config(cls, diffusion: dict[str, Any]) -> GaussianDiffusion:
@@ -133,54 +148,56 @@ class GaussianDiffusion:
     def __repr__(self) -> str:
         return f"{type(self).__name__}(num_steps={self.num_steps}, timesteps={self.timesteps[0]}..{self.timesteps[-1]})"
 
-    def _at(self, values: np.ndarray, t: Tensor, like: Tensor) -> Tensor:
-        """values[t] in ``like``'s dtype and device, shaped (B, 1, ...) to broadcast over a batch like ``like``."""
+    def _table(self, name: str, dtype: torch.dtype, device: torch.device) -> Tensor:
+        """The schedule array ``name`` as a tensor of ``dtype`` on ``device``, converted from its
+        float64 values once and kept."""
+        key = (name, dtype, device)
+        if key not in self._tables:
+            self._tables[key] = torch.as_tensor(self._arrays[name], dtype=dtype, device=device)
+        return self._tables[key]
+
+    def _at(self, name: str, t: Tensor, like: Tensor) -> Tensor:
+        """The schedule array ``name`` at t in ``like``'s dtype and device, shaped (B, 1, ...) to
+        broadcast over a batch like ``like``."""
         if t.dim() != 1 or t.shape[0] != like.shape[0]:
             raise ValueError(
                 f"t must have shape ({like.shape[0]},) to match a batch of shape {tuple(like.shape)}, "
                 f"got {tuple(t.shape)}"
             )
-        table = torch.as_tensor(values, dtype=like.dtype, device=like.device)
+        table = self._table(name, like.dtype, like.device)
         return table[t.to(like.device).long()].reshape(-1, *([1] * (like.dim() - 1)))
 
     def network_steps(self, t: Tensor) -> Tensor:
         """The original-schedule index each step stands for, the one the network was trained with."""
-        return torch.as_tensor(self.timesteps, device=t.device)[t.long()]
+        return self._table("timesteps", torch.long, t.device)[t.long()]
 
     def q_sample(self, x0: Tensor, t: Tensor, noise: Tensor) -> Tensor:
         """x_t ~ q(x_t | x_0) by reparameterisation (MotionDiffuse eq. 3, Ho et al. eq. 4)."""
-        return (
-            self._at(np.sqrt(self.alphas_cumprod), t, x0) * x0
-            + self._at(np.sqrt(1.0 - self.alphas_cumprod), t, x0) * noise
-        )
+        return self._at("sqrt_alphas_cumprod", t, x0) * x0 + self._at("sqrt_one_minus_alphas_cumprod", t, x0) * noise
 
     def q_mean_variance(self, x0: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         """Mean sqrt(ᾱ_t) x_0 and variance 1 - ᾱ_t (shaped to broadcast) of q(x_t | x_0)."""
-        return (self._at(np.sqrt(self.alphas_cumprod), t, x0) * x0, self._at(1.0 - self.alphas_cumprod, t, x0))
+        return self._at("sqrt_alphas_cumprod", t, x0) * x0, self._at("one_minus_alphas_cumprod", t, x0)
 
     def q_posterior(self, x0: Tensor, xt: Tensor, t: Tensor) -> tuple[Tensor, Tensor]:
         """Mean and variance β̃_t of q(x_{t-1} | x_t, x_0) (Ho et al. eq. 6-7); at t = 0 it is x_0 exactly."""
-        mean = self._at(self._posterior_coef_x0, t, x0) * x0 + self._at(self._posterior_coef_xt, t, xt) * xt
-        return mean, self._at(self.posterior_variance, t, xt)
+        mean = self._at("posterior_coef_x0", t, x0) * x0 + self._at("posterior_coef_xt", t, xt) * xt
+        return mean, self._at("posterior_variance", t, xt)
 
     def predict_eps(self, xt: Tensor, t: Tensor, x0: Tensor) -> Tensor:
         """The ε for which x_t = q_sample(x_0, t, ε): eq. 3 solved for ε (a predicted x_0's noise)."""
-        return (self._at(np.sqrt(1.0 / self.alphas_cumprod), t, xt) * xt - x0) / self._at(
-            np.sqrt(1.0 / self.alphas_cumprod - 1.0), t, xt
-        )
+        return (self._at("sqrt_recip_alphas_cumprod", t, xt) * xt - x0) / self._at("sqrt_recipm1_alphas_cumprod", t, xt)
 
     def predict_x0(self, xt: Tensor, t: Tensor, eps: Tensor) -> Tensor:
         """The x_0 for which x_t = q_sample(x_0, t, eps): eq. 3 solved for x_0."""
-        return (
-            self._at(np.sqrt(1.0 / self.alphas_cumprod), t, xt) * xt
-            - self._at(np.sqrt(1.0 / self.alphas_cumprod - 1.0), t, xt) * eps
-        )
+        return self._at("sqrt_recip_alphas_cumprod", t, xt) * xt - self._at("sqrt_recipm1_alphas_cumprod", t, xt) * eps
 
-    def _variance(self, variance: str) -> np.ndarray:
+    def _variance(self, variance: str) -> str:
+        """The name of the array of Σ_θ's choice."""
         if variance == "beta":
-            return self.betas
+            return "betas"
         if variance == "posterior":
-            return self.posterior_variance
+            return "posterior_variance"
         raise ConfigError(f"variance must be one of {VARIANCES}, got {variance!r}")
 
     def p_mean_variance(self, xt: Tensor, t: Tensor, eps: Tensor, variance: str = "beta") -> tuple[Tensor, Tensor]:
@@ -202,12 +219,15 @@ class GaussianDiffusion:
         """
         if not 0.0 <= eta <= 1.0:
             raise ConfigError(f"DDIM eta must lie in [0, 1], got {eta!r}")
-        prev = self.alphas_cumprod_prev
-        sigma = eta * np.sqrt((1.0 - prev) / (1.0 - self.alphas_cumprod) * (1.0 - self.alphas_cumprod / prev))
-        direction = np.sqrt(np.clip(1.0 - prev - sigma**2, 0.0, None))
+        sigma, direction = f"ddim_sigma@{eta!r}", f"ddim_direction@{eta!r}"
+        if sigma not in self._arrays:
+            prev = self.alphas_cumprod_prev
+            values = eta * np.sqrt((1.0 - prev) / (1.0 - self.alphas_cumprod) * (1.0 - self.alphas_cumprod / prev))
+            self._arrays[sigma] = values
+            self._arrays[direction] = np.sqrt(np.clip(1.0 - prev - values**2, 0.0, None))
         keep = (t != 0).to(device=xt.device, dtype=xt.dtype).reshape(-1, *([1] * (xt.dim() - 1)))
         return (
-            self._at(np.sqrt(prev), t, xt) * self.predict_x0(xt, t, eps)
+            self._at("sqrt_alphas_cumprod_prev", t, xt) * self.predict_x0(xt, t, eps)
             + self._at(direction, t, xt) * eps
             + keep * self._at(sigma, t, xt) * noise
         )

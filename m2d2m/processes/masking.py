@@ -94,11 +94,11 @@ def random_positions(lengths: Tensor, width: int, counts: Tensor, generator: tor
 
 def least_confident(confidence: Tensor, candidates: Tensor, counts: Tensor) -> Tensor:
     """(B, L) bool: for each row, the ``counts[b]`` candidate positions with the lowest confidence
-    (ties to the earlier position): what a decoding iteration masks again."""
+    (ties to the earlier position), or all of its candidates when it has fewer: what a decoding
+    iteration masks again. Shapes only are checked, so that a decoding step never reads a tensor
+    back on the host."""
     if confidence.shape != candidates.shape:
         raise ValueError(f"confidence {tuple(confidence.shape)} and candidates {tuple(candidates.shape)} differ")
-    if bool((counts > candidates.sum(dim=1)).any()):
-        raise ValueError("a row asks to re-mask more positions than it has candidates")
     score = confidence.double().masked_fill(~candidates, math.inf)
     rank = score.argsort(dim=1, stable=True).argsort(dim=1)
     return (rank < counts[:, None]) & candidates

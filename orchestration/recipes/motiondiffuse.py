@@ -27,6 +27,7 @@ class MotionDiffuseRecipe(Recipe):
             min_frames=data["min_frames"],
             max_frames=data["max_frames"],
             seed=config["seed"],
+            bucket=data.get("bucket", True),
         )
         return TrainingData(
             datamodule, Path(data["dir"]), caption_vocabulary(config, datamodule, lambda caption: [caption["text"]])

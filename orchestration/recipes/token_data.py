@@ -11,6 +11,7 @@ from typing import Any
 
 import torch
 
+from m2d2m.layout import relative_to_project
 from m2d2m.motion.body_parts import FULL, LOWER, UPPER
 from orchestration.recipe import Recipe, TrainingData, caption_vocabulary
 from orchestration.train import OpenedRun, ensure_tokens, validation_interval, vq_file
@@ -57,7 +58,7 @@ class TokenTraining(TrainingData):
 
     def records(self) -> dict[str, str]:
         """Where the run's tokenizer and tokens are, for its run.json."""
-        return {"vq": str(self.vq_path.resolve()), "tokens": str(self.tokens_dir.resolve())}
+        return {"vq": relative_to_project(self.vq_path), "tokens": relative_to_project(self.tokens_dir)}
 
 
 @dataclass
@@ -71,8 +72,8 @@ class BodyTokenTraining(TokenTraining):
     def records(self) -> dict[str, str]:
         return {
             **super().records(),
-            "lower_vq": str(self.lower_vq_path.resolve()),
-            "lower_tokens": str(self.lower_tokens_dir.resolve()),
+            "lower_vq": relative_to_project(self.lower_vq_path),
+            "lower_tokens": relative_to_project(self.lower_tokens_dir),
         }
 
 
@@ -98,6 +99,7 @@ def _loader_settings(config: dict[str, Any], max_tokens: int | None) -> dict[str
         "steps_per_epoch": validation_interval(config["trainer"]),
         "max_tokens": data["max_tokens"] or max_tokens,
         "seed": config["seed"],
+        "bucket": data.get("bucket", True),  # batches of similar lengths (docs/training.md, "Data loading")
     }
 
 
