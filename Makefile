@@ -15,19 +15,36 @@ RAW     ?= data/raw/$(DATASET)
 DEMO    ?= runs/demo
 
 .DEFAULT_GOAL := help
-.PHONY: help setup demo test test-all lint bench corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
+.PHONY: help setup demo test test-all lint bench bench-gpu corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
         train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
-        reproduce learning-curves ui serve clean
+        reproduce learning-curves ui serve clean rebuild-venv
 
 help:  ## list the verbs
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
 
+# .venv runs the code of the folder it was made in: its console scripts' #! lines name that folder's
+# interpreter and its editable install imports that folder's packages. The stamp records the folder; in a
+# copy of the project (rsync to a cluster node, a renamed folder) it names another one, and .venv is made
+# again. An older Makefile's stamp is empty: then .venv itself says where the m2d2m it imports lives.
+VENV_OWNER := $(or $(file <$(STAMP)),$(shell $(BIN)/python -I -c 'import importlib.util as u, pathlib as p; \
+	print(p.Path(u.find_spec("m2d2m").origin).parents[1])' 2>/dev/null))
+ifneq ($(VENV_OWNER),$(CURDIR))
+VENV_ELSEWHERE := 1
+endif
+
 # torch first, pinned, so that nothing resolves a CUDA build of several GB.
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(if $(VENV_ELSEWHERE),rebuild-venv)
+ifdef VENV_ELSEWHERE
+	@test ! -e $(BIN) || echo "$(VENV) belongs to $(or $(VENV_OWNER),another folder), not $(CURDIR): making it again"
+	$(PYTHON) -m venv --clear $(VENV)
+else
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+endif
 	$(BIN)/pip install --quiet --disable-pip-version-check torch==2.13.0
 	$(BIN)/pip install --quiet --disable-pip-version-check -e ".[test]"
-	@touch $@
+	@echo '$(CURDIR)' > $@
+
+rebuild-venv:  # a prerequisite that is never up to date: .venv belongs to another folder
 
 setup: $(STAMP)  ## create .venv with the project and its test tools
 
@@ -75,6 +92,9 @@ bench: $(STAMP)  ## measure speed; results go to BENCHMARKS.md by hand
 	$(BIN)/python bench/aits.py --dataset $(DATASET)
 	$(BIN)/python bench/attention.py
 	$(BIN)/python bench/serve.py --dataset $(DATASET)
+
+bench-gpu: $(STAMP)  ## training, sampling and the long sequence of every model on this machine's GPU, bf16 (BENCH_GPU_ARGS=--quick on a CPU)
+	$(BIN)/python bench/gpu.py $(BENCH_GPU_ARGS)
 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic
 	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)

@@ -53,7 +53,7 @@ TRAINING_DEFAULTS = {"trainer": {"ema": 0.0, "snapshots": []}}
 JOIN_RUN = "M2D2M_JOIN_RUN"  # environment: the run directory a DDP rank started by Lightning joins
 
 
-def _precision(setting: str) -> str:
+def lightning_precision(setting: str) -> str:
     """``auto``: bf16 mixed precision where a GPU supports it, full precision on a CPU."""
     if setting != "auto":
         return setting
@@ -305,7 +305,7 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
     trainer = pl.Trainer(
         **_placement(trainer_cfg, ray_train),
         max_steps=trainer_cfg["max_steps"],
-        precision=_precision(trainer_cfg["precision"]),
+        precision=lightning_precision(trainer_cfg["precision"]),
         logger=logger,
         # a bar on a terminal; plain lines in a log, where a bar's redraws show nothing or garbage
         callbacks=[checkpoints, LearningRateMonitor(logging_interval="step"), *callbacks]

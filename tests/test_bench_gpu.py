@@ -1,0 +1,79 @@
+"""bench/gpu.py --quick, the CPU mode of `make bench-gpu` that CI runs: every model trains, samples
+and makes the long sequence through the real modules, generators and recipes, and the tables are
+written; what it measures, not how fast."""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `timing` beside them
+import bench.gpu  # noqa: E402
+from bench.gpu import BF16_PEAKS, MODELS, machine, main, parse, training_batches  # noqa: E402
+
+
+def test_quick_measures_every_model_and_writes_the_tables(tmp_path, one_torch_thread):
+    lightning = logging.getLogger("lightning.pytorch")
+    level = lightning.level
+    result = main(["--quick", "--out", str(tmp_path)])
+    assert lightning.level == level  # its quiet logging ends with it, for what runs next in the process
+    assert [row["model"] for row in result["training"]] == list(MODELS)
+    for row in result["training"]:
+        assert row["size"] == "demo" and row["batch"] == 2 and row["precision"] == "32-true"
+        assert row["steps_per_s"] > 0 and row["gflop_per_step"] > 0 and row["parameters"] > 0
+        assert row["gpu_utilisation"] is None and row["peak_memory_gib"] is None  # a CPU has neither
+    sampled = {(row["model"], row["batch"]) for row in result["sampling"]}
+    assert sampled == {(name, batch) for name in MODELS if name != "vq" for batch in (1, 2)}
+    assert all(row["aits"] == row["seconds"] / row["batch"] for row in result["sampling"])
+    for row in result["sampling"]:  # MotionDiffuse sampled at 2 of its 1000 steps: the time at all, by proportion
+        assert row["aits_at_all_steps"] == (row["aits"] * 500 if row["model"] == "motiondiffuse" else row["aits"])
+    assert {row["model"]: row["method"] for row in result["long"]} == {
+        "m2d2m": "tps",
+        "mmm": "transition",
+        "motiondiffuse": "time-varied",
+    }
+    motiondiffuse = next(row for row in result["long"] if row["model"] == "motiondiffuse")
+    assert motiondiffuse["seconds_at_all_steps"] > motiondiffuse["seconds"]  # extrapolated to its 1000 steps
+    assert result["serving"] == {"skipped": "--quick"} and result["failures"] == []
+    assert json.loads((tmp_path / "gpu.json").read_text(encoding="utf-8")) == result
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["gpu.json", "gpu.md"]  # the model files went
+    markdown = (tmp_path / "gpu.md").read_text(encoding="utf-8")
+    assert markdown.count("| demo |") == 4 + 6 and "Serving: skipped" in markdown
+
+
+def test_the_card_s_peak_is_known_by_its_name(monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: "NVIDIA H100 80GB HBM3")
+    assert machine(torch.device("cuda", 0))["bf16_peak_tflops"] == 989.0
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: "NVIDIA H100 PCIe")
+    assert machine(torch.device("cuda", 0))["bf16_peak_tflops"] == dict(BF16_PEAKS)["H100 PCIe"]
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda device=None: "Some Future GPU")
+    assert machine(torch.device("cuda", 0))["bf16_peak_tflops"] is None
+    assert machine(torch.device("cpu"))["bf16_peak_tflops"] is None
+
+
+def test_a_failing_measurement_is_recorded_and_the_others_go_on(tmp_path, one_torch_thread, monkeypatch, capsys):
+    def broken(*args, **kwargs):
+        raise RuntimeError("CUDA error: out of memory")
+
+    monkeypatch.setattr(bench.gpu, "measure_long", broken)
+    with pytest.raises(SystemExit) as stopped:
+        main(["--quick", "--models", "vq", "m2d2m", "--out", str(tmp_path)])
+    assert stopped.value.code == 1
+    written = json.loads((tmp_path / "gpu.json").read_text(encoding="utf-8"))
+    assert written["failures"] == ["the 0.1-minute sequence by m2d2m: RuntimeError: CUDA error: out of memory"]
+    assert [row["model"] for row in written["training"]] == ["vq", "m2d2m"] and len(written["sampling"]) == 2
+    assert "Failed: the 0.1-minute sequence by m2d2m" in (tmp_path / "gpu.md").read_text(encoding="utf-8")
+
+
+def test_paper_batches_choose_the_paper_size_s_training_batches():
+    config = {"data": {"batch_size": 64}}
+    args = parse(["--paper-batches", "64", "256", "--out", "x"])
+    assert training_batches(args, "paper", config) == [64, 256] and training_batches(args, "demo", config) == [64]
+    assert training_batches(parse(["--out", "x"]), "paper", config) == [64]
+    assert training_batches(parse(["--batch", "8", "--paper-batches", "256", "--out", "x"]), "paper", config) == [8]
