@@ -38,6 +38,9 @@ from orchestration.tracking import experiment_name, tracked_run
 
 GENERATE_STAGE = "generate"
 DEFAULT_FORMATS = ("npy", "bvh", "gif")
+# a suffix that names a kind of file (.fbx, .glb, .json), not a folder name like "v1.2": --out with
+# one that is not a format is refused rather than made into a folder of that name
+FILE_SUFFIX = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}")
 # A 590-s clip took 293 s and a 182-MB GIF: a minute is several actions, and seconds to make.
 DEFAULT_MAX_SECONDS = 60.0
 
@@ -84,6 +87,11 @@ def plan_output(out: str | Path | None, name: str, formats: Sequence[str] | None
         raise UserError(
             f"--out {out} is an existing file, not a folder; give a folder, or a file name "
             f"ending in .{', .'.join(FORMATS)}"
+        )
+    elif directory is not None and not directory.exists() and FILE_SUFFIX.fullmatch(directory.suffix):
+        raise UserError(
+            f"--out {out} names a .{directory.suffix[1:]} file, a format m2d2m does not write "
+            f"(.{', .'.join(FORMATS)}); for a folder of that name, make it first"
         )
     if not name or Path(name).name != name:
         raise UserError(f"--name must be a plain file name, got {name!r}")

@@ -63,12 +63,13 @@ def multi_columns(table: dict[str, Any]) -> tuple[tuple[str, str], ...]:
 
 
 def _summary(values: Sequence[float]) -> dict[str, float | None]:
-    """Mean and 95 % CI half-width over the repeats; None where a repeat had no defined value."""
+    """Mean and 95 % CI half-width over the repeats; None where a repeat had no defined value.
+    One repeat has a mean but no interval (its spread says nothing): its ``ci`` is None."""
     values = np.asarray(values, dtype=np.float64)
     if not np.isfinite(values).all():
         return {"mean": None, "ci": None}
     mean, ci = mean_confidence_interval(values)
-    return {"mean": mean, "ci": ci}
+    return {"mean": mean, "ci": ci if len(values) > 1 else None}
 
 
 def summarize_rows(per_repeat: dict[str, list[dict[str, float]]]) -> dict[str, dict[str, dict[str, float | None]]]:
@@ -81,9 +82,12 @@ def summarize_rows(per_repeat: dict[str, list[dict[str, float]]]) -> dict[str, d
 
 
 def cell(summary: dict[str, float | None] | None) -> str:
-    """``mean ± ci`` to three decimals, or "–" for a value not measured (yet)."""
+    """``mean ± ci`` to three decimals, ``mean (n = 1)`` from one repeat, or "–" for a value not
+    measured (yet)."""
     if summary is None or summary["mean"] is None:
         return "–"
+    if summary["ci"] is None:
+        return f"{summary['mean']:.3f} (n = 1)"
     return f"{summary['mean']:.3f} ± {summary['ci']:.3f}"
 
 
@@ -110,7 +114,11 @@ def render_table(table: dict[str, Any]) -> str:
         f"# Evaluation of {judged}",
         "",
         f"Test set {testset['path']}: {testset['instances']} instances of N = {testset['n']} actions. "
-        f"Mean ± 95 % CI over {settings['repeats']} repeats.",
+        + (
+            f"Mean ± 95 % CI over {settings['repeats']} repeats."
+            if settings["repeats"] > 1
+            else "One repeat: means without an interval (`--repeats 2` or more gives 95 % CIs)."
+        ),
         "",
     ]
     lines += _markdown("Multi-motion (paper Tables 1–2)", multi_columns(table), table["multi"], titles)
@@ -223,5 +231,7 @@ def table_metrics(table: dict[str, Any]) -> dict[str, float]:
                 name = "/".join(["single", *row.split("/")[1:], metric])
             else:
                 name = f"{section}/{row}/{metric}"
-            names[name], names[f"{name}_ci"] = summary["mean"], summary["ci"]
+            names[name] = summary["mean"]
+            if summary["ci"] is not None:
+                names[f"{name}_ci"] = summary["ci"]
     return names

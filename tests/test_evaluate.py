@@ -14,7 +14,7 @@ import pytest
 import tests.test_testset as handmade
 from m2d2m.generators.m2d2m import M2D2MGenerator
 from orchestration.cli import main
-from orchestration.reports import MULTI_COLUMNS, SINGLE_COLUMNS
+from orchestration.reports import MULTI_COLUMNS, SINGLE_COLUMNS, table_metrics
 from pipelines.testset import build_testset
 from tests.helpers import latest_evaluation
 
@@ -207,6 +207,11 @@ def test_single_motion_alone_with_fewer_steps_and_the_no_multi_switch(trained_pr
     assert np.isfinite(table["single"]["generated"]["fid"]["mean"]) and table["settings"]["multi"] is False
     assert [p.name for p in (run_dir / "results").iterdir()] == ["single-r0.json"]
     assert "3 of 8 steps" in " ".join(table["notes"])
+    # one repeat has no interval: no "± 0.000" (which read as certainty), no _ci metric in MLflow
+    assert table["single"]["generated"]["fid"]["ci"] is None
+    markdown = (run_dir / "table.md").read_text(encoding="utf-8")
+    assert "(n = 1)" in markdown and "±" not in markdown
+    assert "single/fid" in table_metrics(table) and "single/fid_ci" not in table_metrics(table)
 
 
 @pytest.fixture(scope="module")

@@ -22,7 +22,7 @@ from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
 from m2d2m.motion.rotations import quat_from_axis_angle
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
-from orchestration.generate import Output, save_generation
+from orchestration.generate import Output, plan_output, save_generation
 from tests.helpers import pose_clip
 
 PROMPTS = ["a person walks forward", "a person jumps"]
@@ -179,6 +179,7 @@ def _loading_fails(monkeypatch) -> None:
         (["--out", "clip.gif", "--formats", "bvh"], "--out clip.gif names one .gif file; drop --formats"),
         (["--out", "made.gif"], "--out made.gif is a folder"),
         (["--name", "a/b"], "--name must be a plain file name"),
+        (["--out", "clip.fbx"], "--out clip.fbx names a .fbx file, a format m2d2m does not write (.npy, .bvh"),
     ],
 )
 def test_bad_outputs_are_one_line_before_loading(tmp_path, monkeypatch, capsys, arguments, message):
@@ -191,6 +192,7 @@ def test_bad_outputs_are_one_line_before_loading(tmp_path, monkeypatch, capsys, 
     err = capsys.readouterr().err.strip()
     assert code == 2 and message in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "runs").exists() and (tmp_path / "notes.txt").read_text() == "keep me\n"
+    assert not (tmp_path / "clip.fbx").exists()  # it was once made into a folder of npy, BVH and GIF
 
 
 def test_the_length_cap_is_one_line_before_sampling(trained_project, monkeypatch, capsys):
@@ -272,3 +274,13 @@ def test_sigterm_while_rendering_marks_the_run_failed_and_leaves_no_gif(tmp_path
     (run,) = (tmp_path / "runs" / "tiny" / "generate").iterdir()
     assert json.loads((run / "run.json").read_text(encoding="utf-8"))["status"] == "failed"
     assert sorted(p.name for p in run.iterdir()) == ["motion.features.npy", "motion.json", "motion.npy", "run.json"]
+
+
+@pytest.mark.parametrize("out", ["v1.2", "runs/take.3"])
+def test_a_folder_name_with_a_dot_is_still_a_folder(out):
+    assert plan_output(out, "motion", None).directory == Path(out)
+
+
+def test_an_existing_folder_named_like_a_file_is_used(tmp_path):
+    (tmp_path / "takes.final").mkdir()
+    assert plan_output(tmp_path / "takes.final", "motion", None).directory == tmp_path / "takes.final"
