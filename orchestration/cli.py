@@ -908,7 +908,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"m2d2m {args.verb}: error: {_unwritable(error)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"m2d2m {args.verb}: interrupted", file=sys.stderr)
+        again = f"; `m2d2m {args.verb} --resume` continues it" if hasattr(args, "resume") else ""
+        print(f"m2d2m {args.verb}: interrupted{again}", file=sys.stderr)
         return 130
     return 0
 

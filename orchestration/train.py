@@ -20,6 +20,8 @@ import contextlib
 import functools
 import math
 import os
+import signal
+import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -326,11 +328,21 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
         write_run_info(run_dir, mlflow_run_id=logger.run_id, world_size=trainer.world_size)
         if run.run_id is None:
             logger.log_hyperparams({**flatten(config), "world_size": trainer.world_size})
+    if run.resume and not fitted.last.exists() and fitted.primary:
+        print(f"{run_dir} has no checkpoint yet: it trains again from step 0", file=sys.stderr)
     try:
         with _joinable(run_dir):
             trainer.fit(
                 module, datamodule=datamodule, ckpt_path=fitted.last if run.resume and fitted.last.exists() else None
             )
+    except SystemExit as error:
+        if not trainer.interrupted:
+            raise
+        # Lightning ends a Ctrl-C inside fit with exit(1) after its own shutdown, and ignores SIGINT
+        # from then on (lightning/pytorch/trainer/call.py): give the command its Ctrl-C back, so the
+        # run is recorded interrupted and the command exits 130 (orchestration/cli.py)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        raise KeyboardInterrupt from error
     except NonFiniteLossError as error:
         if fitted.primary:
             write_run_info(run_dir, status="failed", error=str(error))

@@ -584,6 +584,36 @@ def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_pr
     assert marker.read_text().strip() == killed.name and (killed / model_file).is_file()
 
 
+def test_ctrl_c_in_training_is_recorded_interrupted_with_a_line_and_exit_130(matrix_project, capsys):
+    """Lightning turns a Ctrl-C inside fit into exit(1) after its own shutdown; the run must still
+    read ``interrupted`` (resumable), the command say so and exit 130 like any interrupted command.
+    A resume that finds no checkpoint yet says it starts from step 0."""
+    root = Path(matrix_project["root"])
+    folder = root / "runs" / "tiny" / "vq"
+    before = set(folder.iterdir())
+
+    def new_runs() -> set[Path]:
+        return {run for run in set(folder.iterdir()) - before if run.is_dir()}
+
+    settings = ["trainer.max_steps=40", "trainer.val_every_steps=2", "trainer.gif_every=1000"]
+    process = cli_process(["train-vq", "--config", "vq.yaml", *(a for s in settings for a in ("--set", s))], root)
+    deadline = time.monotonic() + 300
+    while process.poll() is None and not any(list(r.glob("checkpoints/*.ckpt")) for r in new_runs()):
+        assert time.monotonic() < deadline, "no checkpoint in 300 s"
+        time.sleep(0.01)
+    process.send_signal(signal.SIGINT)
+    stderr = process.communicate(timeout=120)[1]
+    assert process.returncode == 130, stderr[-2000:]
+    assert stderr.strip().splitlines()[-1] == "m2d2m train-vq: interrupted; `m2d2m train-vq --resume` continues it"
+    (run,) = new_runs()
+    assert json.loads((run / "run.json").read_text())["status"] == "interrupted"
+
+    shutil.rmtree(run / "checkpoints")  # as when Ctrl-C comes before the first validation
+    assert main(["train-vq", "--config", "vq.yaml", "--resume"]) == 0
+    assert f"{run.name} has no checkpoint yet: it trains again from step 0" in capsys.readouterr().err
+    assert json.loads((run / "run.json").read_text())["status"] == "finished"
+
+
 def test_a_killed_tokenize_leaves_no_token_set_and_a_rerun_equals_a_clean_one(matrix_project, tmp_path):
     from pipelines.tokenize import check_tokens, tokenize_dataset
 
