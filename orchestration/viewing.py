@@ -35,12 +35,38 @@ def _check_values(array: np.ndarray, origin: str) -> None:
         raise UserError(f"{origin}: {bad} NaN or infinite value(s); the motion cannot be drawn or exported")
 
 
+# a body whose legs are this many times (or this fraction of) the skeleton's own is in other units
+SCALE_LIMITS = (0.2, 5.0)
+
+
+def _check_body(joints: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray:
+    """``joints`` if they are a body in the skeleton's units: a bone of no length (joints collapsed
+    onto one point) would export a BVH of NaN rotations, and a body in centimetres a 160 m figure."""
+    lengths = skeleton.bone_lengths_of(joints.astype(np.float64)).mean(axis=0)
+    collapsed = [skeleton.joint_names[j] for j in skeleton.bones if lengths[j] <= 1e-3 * skeleton.bone_lengths[j]]
+    if collapsed:
+        raise UserError(
+            f"{origin}: the bone{'s' if len(collapsed) > 1 else ''} to {', '.join(collapsed[:4])}"
+            f"{' …' if len(collapsed) > 4 else ''} {'have' if len(collapsed) > 1 else 'has'} no length "
+            "(joints on one point): not a body to draw or export"
+        )
+    scale = skeleton.leg_length(lengths) / skeleton.leg_length(skeleton.bone_lengths)
+    if not SCALE_LIMITS[0] <= scale <= SCALE_LIMITS[1]:
+        unit = "metres" if skeleton.metres_per_unit == 1.0 else f"units of {skeleton.metres_per_unit:g} m"
+        raise UserError(
+            f"{origin}: the body is {scale:.3g}× the size of the {skeleton.name} skeleton's (legs "
+            f"{skeleton.leg_length(lengths):.3g} against {skeleton.leg_length(skeleton.bone_lengths):.3g}): "
+            f"give its joints in {unit}"
+        )
+    return joints
+
+
 def _as_joints(array: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray:
     _check_values(array, origin)
     if array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3):
-        return array.astype(np.float32)
+        return _check_body(array.astype(np.float32), skeleton, origin)
     if array.ndim == 2 and array.shape[1] == skeleton.feature_dim:
-        return features_to_joints(array.astype(np.float32), skeleton)
+        return _check_body(features_to_joints(array.astype(np.float32), skeleton), skeleton, origin)
     raise UserError(
         f"{origin}: shape {array.shape} is neither joints (T, {skeleton.num_joints}, 3) nor "
         f"{skeleton.feature_dim}-d features of skeleton {skeleton.name!r} (see --skeleton)"

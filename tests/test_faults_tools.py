@@ -41,6 +41,9 @@ def broken_motions(folder: Path, sample_joints: np.ndarray, sample_features: np.
         "inf-features": with_inf,
         "no-joints": np.zeros((0, 22, 3), np.float32),
         "no-features": np.zeros((0, 263), np.float32),
+        "joints-at-the-origin": np.zeros((1, 22, 3), np.float32),  # exported a BVH of NaN, exit 0
+        "zero-features": np.zeros((5, 263), np.float32),
+        "centimetre-joints": sample_joints[:10] * 100,  # exported a 160 m figure
     }
     files = {}
     for name, array in arrays.items():
@@ -59,6 +62,9 @@ def test_motions_that_cannot_be_drawn_are_one_line(tmp_path, capsys, sample_join
         "no-joints": "no frames",
         "no-features": "no frames",
         "zero-bytes": "not a readable .npy",
+        "joints-at-the-origin": "have no length (joints on one point): not a body to draw or export",
+        "zero-features": "have no length",
+        "centimetre-joints": "the body is 100× the size of the t2m skeleton's (legs",
     }
     for name, path in broken_motions(tmp_path, sample_joints, sample_features).items():
         assert expected[name] in one_line_error([verb, str(path), "--out", str(tmp_path / f"out.{suffix}")], capsys)
