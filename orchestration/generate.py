@@ -196,17 +196,20 @@ def share(total: int, typical: list[int]) -> list[int]:
     return [int(n) for n in raw]
 
 
-def check_length(frames: Sequence[int], fps: float, max_seconds: float | None) -> None:
+def check_length(frames: Sequence[int], fps: float, max_seconds: float | None, remedy: str | None = None) -> None:
     """A one-line refusal, before sampling, of a generation longer than ``max_seconds`` (None: no
-    cap): its time and its GIF grow with its length."""
+    cap): its time and its GIF grow with its length. ``remedy`` ends the line (default: the
+    command line's flags; the API names its own fields)."""
     if max_seconds is not None and not 0 < max_seconds < math.inf:
         raise UserError(f"--max-seconds must be a positive number (0 for no cap), got {max_seconds:g}")
     total = sum(frames) / fps
     if max_seconds is not None and total > max_seconds:
+        remedy = remedy or (
+            f"give fewer or shorter prompts (--seconds), or --max-seconds {math.ceil(total)} to make it anyway"
+        )
         raise UserError(
             f"the prompts make {total:.1f} s of motion in {len(frames)} action(s), over the "
-            f"{max_seconds:g}-s cap; give fewer or shorter prompts (--seconds), or --max-seconds "
-            f"{math.ceil(total)} to make it anyway"
+            f"{max_seconds:g}-s cap; {remedy}"
         )
 
 

@@ -193,6 +193,17 @@ LONG = "a person " + "walks " * 1700
         ({"seconds": 3}, 422, "seconds goes with prompt"),
         ({"seed": -1}, 422, "seed: Input should be greater than or equal to 0"),
         ({"speed": 2}, 422, "speed: Extra inputs are not permitted"),
+        # loose types were read as numbers ("3" as 3 s, true as 1 s, 1.0 as seed 1): refused now
+        ({"actions": [{"text": "a person jumps", "seconds": "3"}]}, 422, "actions.0.seconds: Input should be"),
+        ({"actions": [{"text": "a person jumps", "seconds": True}]}, 422, "actions.0.seconds: Input should be"),
+        ({"seed": 1.0}, 422, "seed: Input should be a valid integer"),
+        # text no model reads made a motion of nothing it said
+        ({"actions": [{"text": "🕺💃"}]}, 422, "actions.0.text: '🕺💃' has no English word"),
+        ({"actions": [{"text": "跳舞"}]}, 422, "has no English word; the models read English sentences"),
+        ({"actions": [{"text": "a person\u0000 jumps"}]}, 422, "holds the control character U+0000"),
+        ({"actions": None, "prompt": "走路"}, 422, "prompt: '走路' has no English word"),
+        # the cap's advice names the API's fields, not the command line's flags
+        ({"actions": [{"text": "a person jumps", "seconds": 4}] * 16}, 400, "give fewer actions or shorter seconds"),
     ],
 )
 def test_bad_input_is_a_4xx_with_one_sentence(client, body, status, message):

@@ -9,10 +9,11 @@ and the command line accept and refuse the same requests.
 
 from __future__ import annotations
 
+import unicodedata
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StrictStr, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StrictStr, field_validator, model_validator
 
 from orchestration.errors import UserError
 from orchestration.generate import PromptPlanner, check_length
@@ -23,21 +24,41 @@ MAX_TEXT = 500  # characters of one action's sentence
 MAX_PROMPT = 2000  # characters of a free prompt, split into actions by its verbs
 MAX_ACTIONS = 32
 MAX_SEED = 2**31 - 1
+# the end of the length cap's refusal, in the API's terms rather than the command line's flags
+API_LENGTH_REMEDY = "give fewer actions or shorter seconds (the cap is the server's: m2d2m serve --max-seconds)"
+
+
+def english_sentence(text: str | None) -> str | None:
+    """``text`` if it can be an action sentence: no control characters (a NUL byte reached the
+    tagger and the model before) and at least one Latin letter (the models read English words;
+    a text of emoji or CJK alone made a motion of nothing it said)."""
+    if text is None:
+        return None
+    control = next((c for c in text if unicodedata.category(c) == "Cc" and c not in "\t\n"), None)
+    if control is not None:
+        raise ValueError(f"holds the control character U+{ord(control):04X}; send plain text")
+    symbols = [c for c in text if not c.isspace() and not unicodedata.category(c).startswith("P")]
+    if symbols and not any("a" <= c.lower() <= "z" for c in symbols):  # blank or punctuation: the planner says so
+        raise ValueError(f"{text[:40]!r} has no English word; the models read English sentences")
+    return text
 
 
 class Action(BaseModel):
-    """One action: its sentence and, optionally, its length (none: the corpus's typical length)."""
+    """One action: its sentence and, optionally, its length (none: the corpus's typical length).
+    Types are strict: ``"seconds": "3"`` or ``true`` is refused, not read as 3 or 1."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
     text: str = Field(min_length=1, max_length=MAX_TEXT, description="the action in one sentence")
     seconds: float | None = Field(None, allow_inf_nan=False, description="its length; none: the typical length")
+
+    _english = field_validator("text")(english_sentence)
 
 
 class GenerateRequest(BaseModel):
     """Several actions in a row (``actions``), or one free sentence split by its verbs as `m2d2m
     generate` splits a prompt (``prompt``, with ``seconds`` for the whole)."""
 
-    model_config = ConfigDict(extra="forbid", protected_namespaces=())
+    model_config = ConfigDict(extra="forbid", protected_namespaces=(), strict=True)
     model: str = Field(DEFAULT_MODEL, max_length=64, description="a model of GET /api/models")
     run: str = Field(LATEST_RUN, max_length=64, description="one of the model's runs, or latest")
     actions: list[Action] | None = Field(None, min_length=1, max_length=MAX_ACTIONS)
@@ -48,6 +69,8 @@ class GenerateRequest(BaseModel):
         default_factory=dict, max_length=32, description="sampling knobs by name (GET /api/models lists them)"
     )
     seed: int = Field(0, ge=0, le=MAX_SEED)
+
+    _english = field_validator("prompt")(english_sentence)
 
     @model_validator(mode="after")
     def _one_way_of_asking(self) -> GenerateRequest:
@@ -85,7 +108,7 @@ def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: 
             prompts.append(action.text)
             actions += texts
             frames += lengths
-    check_length(frames, generator.fps, max_seconds)
+    check_length(frames, generator.fps, max_seconds, API_LENGTH_REMEDY)
     changes = dict(request.options)
     if request.method is not None:
         changes["method"] = request.method
