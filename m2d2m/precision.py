@@ -29,8 +29,13 @@ def resolve(precision: str | None, device: torch.device | str) -> str:
         raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r} ({ENVIRONMENT})")
     if precision != "auto":
         return precision
-    device = torch.device(device)
-    return "bf16" if device.type == "cuda" and torch.cuda.is_bf16_supported() else "fp32"
+    return "bf16" if fast_bf16(device) else "fp32"
+
+
+def fast_bf16(device: torch.device | str) -> bool:
+    """Whether ``device`` runs bfloat16 on its own hardware: a CUDA device that supports it (a CPU
+    without AVX-512 emulates it, slower than float32). Training's ``precision: auto`` asks the same."""
+    return torch.device(device).type == "cuda" and torch.cuda.is_bf16_supported()
 
 
 @contextlib.contextmanager

@@ -32,6 +32,7 @@ import yaml
 
 from m2d2m.layout import VQ_FILE, recorded_path, relative_to_project
 from m2d2m.motion.body_parts import FULL
+from m2d2m.precision import fast_bf16
 from orchestration.config import flatten, is_number, load_config, rename_keys
 from orchestration.errors import UserError
 from orchestration.runs import (
@@ -59,7 +60,7 @@ def lightning_precision(setting: str) -> str:
     """``auto``: bf16 mixed precision where a GPU supports it, full precision on a CPU."""
     if setting != "auto":
         return setting
-    return "bf16-mixed" if torch.cuda.is_available() and torch.cuda.is_bf16_supported() else "32-true"
+    return "bf16-mixed" if torch.cuda.is_available() and fast_bf16("cuda") else "32-true"
 
 
 def validation_interval(trainer_cfg: dict[str, Any]) -> int:
@@ -328,13 +329,12 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
         write_run_info(run_dir, mlflow_run_id=logger.run_id, world_size=trainer.world_size)
         if run.run_id is None:
             logger.log_hyperparams({**flatten(config), "world_size": trainer.world_size})
-    if run.resume and not fitted.last.exists() and fitted.primary:
+    resume_from = fitted.last if run.resume and fitted.last.exists() else None
+    if run.resume and resume_from is None and fitted.primary:
         print(f"{run_dir} has no checkpoint yet: it trains again from step 0", file=sys.stderr)
     try:
         with _joinable(run_dir):
-            trainer.fit(
-                module, datamodule=datamodule, ckpt_path=fitted.last if run.resume and fitted.last.exists() else None
-            )
+            trainer.fit(module, datamodule=datamodule, ckpt_path=resume_from)
     except SystemExit as error:
         if not trainer.interrupted:
             raise
