@@ -233,7 +233,12 @@ class Built:
 
 
 def _config(folder: str, name: str, clip: Path) -> dict[str, Any]:
-    config = load_config(folder, str(PROJECT / "configs" / folder / f"{name}.yaml"), [], TRAINING_DEFAULTS)
+    path = str(PROJECT / "configs" / folder / f"{name}.yaml")
+    if folder == "vq":
+        config = load_config(folder, path, [], TRAINING_DEFAULTS)
+    else:
+        entry = model(folder)
+        config = entry.load("recipe").load_config(entry, path)
     if config.get("text", {}).get("kind") == "clip":
         config["text"] = {**config["text"], "path": str(clip)}
     return config

@@ -12,6 +12,7 @@ A caption's condition is the concatenation of its action sentences' token featur
 
 from __future__ import annotations
 
+import inspect
 import math
 import re
 from collections import Counter
@@ -239,6 +240,17 @@ def encode_actions(encoder: TextEncoder, actions_per_caption: list[list[str]]) -
 
 
 _KINDS = {"clip": CLIPTextEncoder, "learned": LearnedTextEncoder}
+
+
+def option_names() -> frozenset[str]:
+    """The options a ``text`` config section may give beside ``kind``: any encoder's, each with
+    its own default (a CLIP section names ``path``, a learned one its sizes)."""
+    return frozenset(
+        name
+        for encoder in _KINDS.values()
+        for name in inspect.signature(encoder.__init__).parameters
+        if name not in ("self", "vocabulary")
+    )
 
 
 def text_encoder_from_config(text: dict[str, Any], vocabulary: list[str] | None = None) -> TextEncoder:

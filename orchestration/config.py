@@ -1,12 +1,16 @@
 """Stage configs: a YAML file under ``configs/<stage>/`` plus ``--set key.sub=value`` overrides.
 
-Every config is checked against its file's own keys, so a typo in an override is an error that
-names the key instead of a setting that silently does nothing.
+A file is checked against the stage's other configs in ``configs/<stage>/`` (a key none of them
+has is a typo, a key all of them have is required), and every override against the file's own
+keys, so a typo is an error that names the key before any work starts, never a setting that
+silently does nothing or a ``KeyError`` mid-run (docs/training.md, "Configs").
 """
 
 from __future__ import annotations
 
 import copy
+import difflib
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -126,24 +130,95 @@ def rename_keys(config: dict[str, Any], renamed: dict[str, str], where: str) -> 
     return result
 
 
-def load_config(
-    stage: str,
-    name_or_path: str,
-    overrides: list[str] | None = None,
-    defaults: dict[str, Any] | None = None,
-    renamed: dict[str, str] | None = None,
-) -> dict[str, Any]:
-    """The resolved config of a stage: the YAML file, its keys of older names ``renamed`` (old
-    dotted key → new), over ``defaults`` (settings every file of the stage may leave out, so an
-    override can still name them), with the overrides applied."""
-    path = resolve_config_path(stage, name_or_path)
+def _read_mapping(path: Path) -> dict[str, Any]:
     try:
         config = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as error:
         raise UserError(f"{path}: not valid YAML ({yaml_problem(error)})") from error
     if not isinstance(config, dict):
         raise UserError(f"{path}: expected a mapping of settings at the top level")
-    config = rename_keys(config, renamed or {}, str(path))
+    return config
+
+
+def _sibling_configs(stage: str, path: Path) -> list[dict[str, Any]]:
+    """The configs of ``configs/<stage>/`` other than ``path``: what a config of the stage is read against."""
+    siblings = sorted((CONFIG_ROOT / stage).glob("*.yaml"))
+    return [_read_mapping(p) for p in siblings if p.resolve() != path.resolve()]
+
+
+def _closest(key: str, known: set[str]) -> str:
+    match = difflib.get_close_matches(key, known, n=1, cutoff=0.75)
+    return f" (did you mean {match[0]}?)" if match else ""
+
+
+def check_keys(
+    config: dict[str, Any],
+    references: list[dict[str, Any]],
+    where: str,
+    optional: Iterable[str] = (),
+    free: tuple[str, ...] = (),
+) -> None:
+    """Refuse, in one line, a config with a key none of ``references`` has (a typo) or without a key
+    all of them have (a truncated file). The dotted keys ``optional`` may be given or left out; the sections named
+    in ``free`` hold keys of the user's choosing (a sweep's search space) and are not looked into.
+    With no references (a folder without the stage's configs) there is nothing to check against."""
+    if not references:
+        return
+    keys = [_keys(reference, free) for reference in references]
+    optional_keys = set(optional)
+    known, required = set.union(*keys) | optional_keys, set.intersection(*keys) - optional_keys
+    given = _keys(config, free)
+    unknown = sorted(key for key in given - known if not _under_a_leaf(key, known))
+    problems = [f"unknown key {key}{_closest(key, known)}" for key in unknown]
+    if required - given:
+        problems.append(f"missing {_sections(sorted(required - given), config)}")
+    if problems:
+        raise UserError(f"{where}: {'; '.join(problems)}")
+
+
+def _keys(config: dict[str, Any], free: tuple[str, ...]) -> set[str]:
+    """The dotted keys of ``config``, a ``free`` section counted as one key."""
+    return {key.split(".")[0] if key.split(".")[0] in free else key for key in flatten(config)}
+
+
+def _under_a_leaf(key: str, known: set[str]) -> bool:
+    """``a.b`` where the references hold ``a`` as one value (a null a mapping may replace)."""
+    parts = key.split(".")
+    return any(".".join(parts[:depth]) in known for depth in range(1, len(parts)))
+
+
+def _sections(missing: list[str], config: dict[str, Any]) -> str:
+    """``model (the whole section), data.window``: a section the config lacks altogether is named once."""
+    named: list[str] = []
+    for key in missing:
+        section = key.split(".")[0]
+        if "." in key and section not in config:
+            entry = f"{section} (the whole section)"
+            if entry not in named:
+                named.append(entry)
+        else:
+            named.append(key)
+    return ", ".join(named)
+
+
+def load_config(
+    stage: str,
+    name_or_path: str,
+    overrides: list[str] | None = None,
+    defaults: dict[str, Any] | None = None,
+    renamed: dict[str, str] | None = None,
+    optional: Iterable[str] = (),
+    free: tuple[str, ...] = (),
+) -> dict[str, Any]:
+    """The resolved config of a stage: the YAML file, its keys of older names ``renamed`` (old
+    dotted key → new), checked against the stage's other configs (:func:`check_keys`: the dotted
+    keys ``optional`` may be left out, ``free`` sections hold keys of the user's choosing), over
+    ``defaults`` (settings every file of the stage may leave out, so an override can still name
+    them), with the overrides applied."""
+    path = resolve_config_path(stage, name_or_path)
+    config = rename_keys(_read_mapping(path), renamed or {}, str(path))
+    optional = {*optional, *flatten(defaults or {})}
+    check_keys(config, _sibling_configs(stage, path), str(path), optional, free)
     return apply_overrides(with_defaults(config, defaults or {}), overrides or [])
 
 

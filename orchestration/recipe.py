@@ -46,6 +46,22 @@ class Recipe:
 
     monitor = "val/loss"  # the validation metric whose minimum is the run's best checkpoint
     renamed: ClassVar[dict[str, str]] = {}  # config keys of older names (old dotted key → new), still read
+    optional: ClassVar[frozenset[str]] = frozenset()  # dotted keys a config may leave out (beside text's)
+
+    @classmethod
+    def optional_keys(cls) -> frozenset[str]:
+        """The dotted keys this model's configs may leave out: its own and the text encoder's options."""
+        from m2d2m.text import option_names
+
+        return cls.optional | {f"text.{name}" for name in option_names()}
+
+    @classmethod
+    def load_config(cls, entry: ModelEntry, config_name: str) -> dict[str, Any]:
+        """``configs/<model>/<config_name>.yaml`` (or a path) read and checked as this model's runs read it."""
+        from orchestration.config import load_config
+        from orchestration.train import TRAINING_DEFAULTS
+
+        return load_config(entry.configs, config_name, [], TRAINING_DEFAULTS, cls.renamed, cls.optional_keys())
 
     def prepare(self, config: dict[str, Any]) -> None:
         """What must exist before trials train in parallel (made once by a sweep's driver)."""
@@ -109,10 +125,19 @@ def run_recipe(
     from training.data import length_prior
 
     recipe: Recipe = entry.load("recipe")
-    run = open_run(entry.stage, entry.configs, config_name, overrides or [], resume, join, recipe.renamed)
+    run = open_run(
+        entry.stage,
+        entry.configs,
+        config_name,
+        overrides or [],
+        resume,
+        join,
+        recipe.renamed,
+        recipe.optional_keys(),
+        recipe.check,  # before the run exists, and before hours of training, not at their end
+    )
     config = run.config
-    try:  # before hours of training, not at their end
-        recipe.check(config)
+    try:
         data = recipe.data(config)
     except (FileNotFoundError, ValueError) as error:
         raise UserError(str(error)) from error
@@ -179,8 +204,15 @@ def train_on_workers(
     from ray.train.torch import TorchTrainer
 
     entry = model(name)
+    recipe: Recipe = entry.load("recipe")
     run_dir = open_run(
-        entry.stage, entry.configs, config_name, overrides, resume=False, renamed=entry.load("recipe").renamed
+        entry.stage,
+        entry.configs,
+        config_name,
+        overrides,
+        resume=False,
+        renamed=recipe.renamed,
+        optional=recipe.optional_keys(),
     ).run_dir
     trainer = TorchTrainer(
         _ray_train_worker,

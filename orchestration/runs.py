@@ -111,18 +111,28 @@ def latest_run(dataset: str, stage: str, made_by: str, legacy: tuple[str, ...] =
     raise NotInProject(f"no finished {stage} run for dataset {dataset!r} yet; run `{made_by}` first")
 
 
+def never_trained(info: dict[str, Any]) -> bool:
+    """A run that failed before its training began (its data could not be made, say): it has no
+    MLflow run and nothing to continue."""
+    return info.get("status") == "failed" and "mlflow_run_id" not in info
+
+
 def newest_run(dataset: str, stage: str) -> Path:
-    """The most recently started run of a stage, finished or not (what ``--resume`` continues)."""
+    """The most recently started run of a stage, finished or not (what ``--resume`` continues);
+    runs that failed before training began are passed over."""
     runs = (
         [p for p in stage_dir(dataset, stage).iterdir() if (p / RUN_FILE).exists()]
         if stage_dir(dataset, stage).exists()
         else []
     )
+    infos = {run: read_run_info(run) for run in runs}
+    runs = [run for run in runs if not never_trained(infos[run])]
     if not runs:
         raise NotInProject(
-            f"nothing to resume: no {stage} run for dataset {dataset!r} under {stage_dir(dataset, stage)}"
+            f"nothing to resume: no {stage} run for dataset {dataset!r} under {stage_dir(dataset, stage)} "
+            "that began training"
         )
-    return max(runs, key=lambda p: read_run_info(p).get("started", 0.0))
+    return max(runs, key=lambda p: infos[p].get("started", 0.0))
 
 
 def find_run(reference: str, dataset: str, stage: str, legacy: tuple[str, ...] = ()) -> Path:

@@ -52,6 +52,17 @@ def trial_name(params: dict[str, Any]) -> str:
     return " ".join(f"{key}={value}" for key, value in params.items())
 
 
+# the keys a sweep config written before the model registry lacks or names otherwise (see _upgrade)
+OLDER_DEFAULTS = {"model": DEFAULT_MODEL, "train_config": None, "resources": {"workers": 0}}
+OLDER_NAMES = {"diffusion_config": "train_config"}
+
+
+def load_sweep_config(config_name: str, overrides: list[str]) -> dict[str, Any]:
+    """``configs/sweep/<config_name>.yaml`` (or a path) with the overrides: its keys checked against
+    the other sweep configs', its ``space`` holding knobs of the user's choosing."""
+    return _upgrade(load_config(SWEEP_STAGE, config_name, overrides, OLDER_DEFAULTS, OLDER_NAMES, free=("space",)))
+
+
 def _upgrade(config: dict[str, Any]) -> dict[str, Any]:
     """A sweep config written before the model registry: of the default model, M2D2M, its config
     as ``diffusion_config``."""
@@ -94,10 +105,8 @@ def training_overrides(params: dict[str, Any]) -> list[str]:
 def _check_training_space(config: dict[str, Any]) -> None:
     """Every value of the space applied to the model's training config, as the trials will: an
     unknown key or a value of the wrong kind is one line now, not a traceback inside a Ray trial."""
-    from orchestration.train import TRAINING_DEFAULTS
-
     entry = model(config["model"])
-    base = load_config(entry.configs, config["train_config"], [], TRAINING_DEFAULTS, entry.load("recipe").renamed)
+    base = entry.load("recipe").load_config(entry, config["train_config"])
     for key, values in config["space"].items():
         for value in values:
             try:
@@ -193,7 +202,7 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
         )
     else:
         recipe = entry.load("recipe")
-        recipe.prepare(load_config(entry.configs, config["train_config"], [], renamed=recipe.renamed))
+        recipe.prepare(recipe.load_config(entry, config["train_config"]))
     return {
         "project": str(Path.cwd().resolve()),
         "tracking_uri": tracking_uri(),
@@ -312,7 +321,7 @@ def sweep(
 
     from pipelines.features import init_ray
 
-    config = _upgrade(load_config(SWEEP_STAGE, config_name, overrides or []))
+    config = load_sweep_config(config_name, overrides or [])
     _check(config)
     name = name or Path(config_name).stem
     if not name or Path(name).name != name or name in (".", ".."):

@@ -22,7 +22,7 @@ import math
 import os
 import signal
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -174,16 +174,26 @@ def open_run(
     resume: bool | str,
     join: Path | None = None,
     renamed: dict[str, str] | None = None,
+    optional: Iterable[str] = (),
+    check: Callable[[dict[str, Any]], None] | None = None,
 ) -> OpenedRun:
     """The run of ``stage`` to train, new or resumed, with its config (``configs/<configs>/<config_name>.yaml``
     with the overrides; keys of older names ``renamed`` read under their new ones, in a file as
-    in a resumed run's record). A new run's config is written before training, so processes
-    that ``join`` it (or find it in :data:`JOIN_RUN`) train the same thing."""
+    in a resumed run's record; the dotted keys ``optional`` a file may leave out). Every check,
+    the model's own ``check`` (ValueError) among them, comes before a new run's directory exists:
+    a run that could never start is not left behind for ``--resume`` to pick. A new run's config
+    is written before training, so processes that ``join`` it (or find it in :data:`JOIN_RUN`)
+    train the same thing."""
     join = join or (Path(os.environ[JOIN_RUN]) if os.environ.get(JOIN_RUN) else None)
     if join is not None:
         return _recorded(stage, join, read_run_info(join), resume, renamed)
-    config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS, renamed)
+    config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS, renamed, optional)
     _check_settings(config)
+    try:
+        if check is not None:
+            check(config)
+    except ValueError as error:
+        raise UserError(str(error)) from error
     if not resume:
         run_dir = new_run_dir(config["dataset"], stage)
         lock = _hold(run_dir, stage)

@@ -1,5 +1,8 @@
 """Configs with checked overrides, and run directories with their `latest` marker."""
 
+import shutil
+from pathlib import Path
+
 import pytest
 import yaml
 
@@ -54,7 +57,7 @@ def test_repository_configs_load_and_flatten():
 def test_the_demo_departs_from_the_papers_setting_only_where_docs_say_ours(stage, ours):
     """``paper-demo.yaml`` is a copy of ``demo.yaml`` with the paper's values: an edit to one that
     misses the other would silently change what "the paper's setting" measures."""
-    demo, paper = flatten(load_config(stage, "demo")), flatten(load_config(stage, "paper-demo"))
+    demo, paper = flatten(_read_as_its_stage_does(stage, "demo")), flatten(_read_as_its_stage_does(stage, "paper-demo"))
     assert {key for key in demo.keys() | paper.keys() if demo.get(key) != paper.get(key)} == ours
 
 
@@ -66,8 +69,10 @@ def test_configs_written_before_a_key_was_renamed_read_under_the_new_name(tmp_pa
     assert rename_keys({"text_drop": 0.3}, renamed, "new.yaml") == {"text_drop": 0.3}
     with pytest.raises(UserError, match="both.yaml: both denoiser.condition_drop and text_drop are set"):
         rename_keys({**old, "text_drop": 0.3}, renamed, "both.yaml")
+    demo = yaml.safe_load(open("configs/m2d2m/demo.yaml", encoding="utf-8"))
+    demo["denoiser"]["condition_drop"] = demo.pop("text_drop")
     path = tmp_path / "old.yaml"
-    path.write_text(yaml.safe_dump(old), encoding="utf-8")
+    path.write_text(yaml.safe_dump(demo), encoding="utf-8")
     # an override names the new key even though the file has the old one
     assert load_config("m2d2m", str(path), ["text_drop=0.05"], renamed=renamed)["text_drop"] == 0.05
 
@@ -86,9 +91,84 @@ def test_every_renamed_key_is_renamed_to_a_key_of_the_models_configs(name):
     """A recipe's ``renamed`` maps old names onto the shipped configs' names, never to a key they lack."""
     entry = model(name)
     for name in ("demo", "humanml3d", "kit"):
-        config = flatten(load_config(entry.configs, name))
+        config = flatten(entry.load("recipe").load_config(entry, name))
         for old, new in entry.load("recipe").renamed.items():
             assert new in config and old not in config, (entry.name, name, old)
+
+
+def _read_as_its_stage_does(stage: str, path: str) -> dict:
+    from orchestration.sweep import load_sweep_config
+    from orchestration.train import TRAINING_DEFAULTS
+
+    if stage == "sweep":
+        return load_sweep_config(path, [])
+    if stage in ("vq", "evaluator"):
+        return load_config(stage, path, defaults=TRAINING_DEFAULTS)
+    entry = model(stage)
+    return entry.load("recipe").load_config(entry, path)
+
+
+@pytest.mark.parametrize(
+    "path", sorted(Path("configs").glob("*/*.yaml")), ids=lambda path: f"{path.parent.name}/{path.name}"
+)
+def test_every_shipped_config_reads_against_the_other_configs_of_its_stage(path):
+    """Each file's keys are checked against its siblings': a key only one file has must be declared
+    optional (a recipe's ``optional``, the text encoder's options), or the others' check fails."""
+    _read_as_its_stage_does(path.parent.name, str(path))
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (
+            lambda text: text.replace("  window:", "  windw:"),
+            "unknown key data.windw (did you mean data.window?); missing data.window",
+        ),
+        (
+            lambda text: text[: text.index("model:")],
+            "missing loss (the whole section), model (the whole section), optim (the whole section)",
+        ),
+        (lambda text: text + "trainer_extra: 1\n", "unknown key trainer_extra"),
+    ],
+    ids=["typo", "truncated", "unknown top-level key"],
+)
+def test_a_config_file_with_a_typo_or_cut_short_is_one_line_before_any_run_exists(
+    tmp_path, monkeypatch, capsys, edit, message
+):
+    """Issue 38, item 1: a typo inside a file was `KeyError: 'window'` after the run was made, and that
+    failed run was the one `--resume` then picked."""
+    from orchestration.cli import main
+
+    shutil.copytree(Path("configs"), tmp_path / "configs")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.yaml").write_text(edit((tmp_path / "configs/vq/demo.yaml").read_text()), encoding="utf-8")
+    assert main(["train-vq", "--config", "mine.yaml"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("m2d2m train-vq: error: mine.yaml: ") and message in line
+    assert not (tmp_path / "runs").exists()
+
+
+def test_a_bad_diffusion_setting_is_refused_before_tokenizing_and_before_a_run_exists(tmp_path, monkeypatch, capsys):
+    from orchestration.cli import main
+
+    shutil.copytree(Path("configs"), tmp_path / "configs")
+    monkeypatch.chdir(tmp_path)  # no data and no VQ run here: reading either would fail differently
+    assert main(["train-diffusion", "--set", "diffusion.kind=dinamic"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == "m2d2m train-diffusion: error: diffusion: kind must be one of ('uniform', 'dynamic'), got 'dinamic'"
+    assert not (tmp_path / "runs").exists()
+
+
+def test_resume_passes_over_a_run_that_failed_before_training_began(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    interrupted = new_run_dir("tiny", "vq")
+    write_run_info(interrupted, status="interrupted", mlflow_run_id="a" * 32)
+    never = new_run_dir("tiny", "vq")  # newer: its data could not be read
+    write_run_info(never, status="failed", error="NotInProject: no finished vq run")
+    assert newest_run("tiny", "vq") == interrupted
+    shutil.rmtree(interrupted)
+    with pytest.raises(UserError, match="nothing to resume: no vq run .* that began training"):
+        newest_run("tiny", "vq")
 
 
 def test_unknown_config_lists_the_available_ones():

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, ClassVar
 
+from m2d2m.generators.m2d2m_options import MODEL_DEFAULTS
 from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
 
 
@@ -18,8 +19,20 @@ def _sampling(config: dict[str, Any]) -> dict[str, Any]:
 
 class M2D2MRecipe(TokenRecipe):
     renamed: ClassVar[dict[str, str]] = {"denoiser.condition_drop": "text_drop"}
+    # a knob the sampling section leaves out samples as the preset says (paper-demo.yaml: guidance)
+    optional: ClassVar[frozenset[str]] = frozenset(f"sampling.{knob}" for knob in MODEL_DEFAULTS)
 
     def check(self, config: dict[str, Any]) -> None:
+        import torch
+
+        from m2d2m.processes.discrete_diffusion import TransitionSchedule
+
+        # the diffusion section's schedule built over a two-code stand-in codebook: its settings
+        # are refused now, not after tokenizing the dataset that brings the real codebook
+        try:
+            TransitionSchedule.from_config(torch.eye(2), config["diffusion"])
+        except ValueError as error:
+            raise ValueError(f"diffusion: {error}") from error
         _sampling(config)
 
     def data(self, config: dict[str, Any]) -> TokenTraining:
