@@ -49,6 +49,16 @@ return [drawn, digest];
 
 @pytest.fixture
 def browser(tmp_path) -> Iterator:
+    yield from _chromium(tmp_path)
+
+
+@pytest.fixture
+def offline_browser(tmp_path) -> Iterator:
+    """A Chromium that resolves no host but the loopback one: a machine without internet."""
+    yield from _chromium(tmp_path, "--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE 127.0.0.1")
+
+
+def _chromium(tmp_path: Path, *arguments: str) -> Iterator:
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -60,6 +70,7 @@ def browser(tmp_path) -> Iterator:
         "--disable-gpu",
         "--disable-dev-shm-usage",
         "--window-size=1400,900",
+        *arguments,
     ):
         options.add_argument(argument)
     options.add_experimental_option(
@@ -158,3 +169,34 @@ def test_a_newcomer_generates_three_actions_scrubs_compares_and_downloads_the_bv
         assert len(parse_bvh(bvh).motion) == frames
         errors = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
         assert not errors, errors
+
+
+# every resource the page asked for
+LOADED = "return performance.getEntriesByType('resource').map(entry => entry.name);"
+
+
+@pytest.mark.parametrize(
+    "path, rendered",
+    [("/docs", ".swagger-ui .info .title"), ("/redoc", "h1")],
+    ids=["swagger", "redoc"],
+)
+def test_the_api_documentation_renders_without_internet(tmp_path, monkeypatch, offline_browser, path, rendered):
+    """Issue 38, item 3: Swagger UI and ReDoc came from a CDN, so /docs and /redoc were blank offline."""
+    from selenium.webdriver.common.by import By
+
+    monkeypatch.chdir(tmp_path)  # no model needed to document the API
+    with live_server(ServeSettings(dataset="tiny", track=False)) as (base, _):
+        offline_browser.get(base + path)
+        title = wait_for(
+            lambda: [e.text for e in offline_browser.find_elements(By.CSS_SELECTOR, rendered) if e.text], 60, path
+        )
+        assert title[0].startswith("m2d2m")
+        # anything asked of another host was refused by the page's own policy, never sent
+        blocked = " ".join(
+            entry["message"] for entry in offline_browser.get_log("browser") if "blocked" in entry["message"]
+        )
+        elsewhere = [url for url in offline_browser.execute_script(LOADED) if not url.startswith(base)]
+        assert all(url in blocked for url in elsewhere), (elsewhere, blocked)
+        if path == "/docs":  # the operations are listed, each with its summary
+            operations = offline_browser.find_elements(By.CSS_SELECTOR, ".opblock-summary-path")
+            assert {"/api/generate", "/api/models"} <= {o.get_attribute("data-path") for o in operations}

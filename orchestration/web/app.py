@@ -9,6 +9,7 @@ link). ``POST /api/generate`` answers with the generation, or, asked for
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import json
 import logging
 import secrets
@@ -22,7 +23,8 @@ from typing import Any
 
 from fastapi import APIRouter, Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, StreamingResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
@@ -36,6 +38,7 @@ from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
 from orchestration.web.schema import GenerateRequest, plan_request
 
 STATIC = Path(__file__).parent / "static"
+DOCS_FILES = Path(importlib.util.find_spec("fastapi_offline").origin).parent / "static"  # Swagger UI, ReDoc
 NDJSON = "application/x-ndjson"
 MAX_BODY_BYTES = 1 << 20  # far above any request a person or a tool sends
 log = logging.getLogger("m2d2m.serve")
@@ -139,7 +142,10 @@ def create_app(settings: ServeSettings) -> FastAPI:
         title="m2d2m",
         summary="Multi-action text to motion: M2D2M, MMM and MotionDiffuse behind one interface",
         lifespan=lifespan,
+        docs_url=None,  # FastAPI's own pages load Swagger UI and ReDoc from a CDN: ours are served here
+        redoc_url=None,
     )
+    _serve_api_documentation(app)
     app.state.service = service
 
     def authorised(request: Request) -> None:
@@ -207,6 +213,40 @@ def create_app(settings: ServeSettings) -> FastAPI:
     _answer_errors_in_one_sentence(app)
     app.add_middleware(BoundedBody)
     return app
+
+
+def _serve_api_documentation(app: FastAPI) -> None:
+    """``/docs`` (Swagger UI) and ``/redoc`` (ReDoc) from files installed with the project
+    (fastapi-offline's copies), so that they work on a machine without internet; a content
+    policy keeps the rest home too (ReDoc's footer would fetch Redocly's logo from its CDN)."""
+    app.mount("/docs-files", StaticFiles(directory=DOCS_FILES), name="docs-files")
+    common = {"openapi_url": app.openapi_url, "title": f"{app.title}: the HTTP API"}
+
+    def at_home(page: HTMLResponse) -> HTMLResponse:
+        page.headers["Content-Security-Policy"] = "img-src 'self' data:; font-src 'self' data:; connect-src 'self'"
+        return page
+
+    @app.get("/docs", include_in_schema=False)
+    def swagger() -> HTMLResponse:
+        return at_home(
+            get_swagger_ui_html(
+                **common,
+                swagger_js_url="/docs-files/swagger-ui-bundle.js",
+                swagger_css_url="/docs-files/swagger-ui.css",
+                swagger_favicon_url="/docs-files/favicon.png",
+            )
+        )
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc() -> HTMLResponse:
+        return at_home(
+            get_redoc_html(
+                **common,
+                redoc_js_url="/docs-files/redoc.standalone.js",
+                redoc_favicon_url="/docs-files/favicon.png",
+                with_google_fonts=False,
+            )
+        )
 
 
 async def _stream(job: Job, events: asyncio.Queue, finishing: Any) -> AsyncIterator[bytes]:
