@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import re
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
@@ -34,7 +35,7 @@ from m2d2m.progress import progress
 from orchestration.errors import UserError
 from orchestration.registry import DEFAULT_MODEL, model, models
 from orchestration.runs import new_run_dir, run_file, write_run_info
-from orchestration.tracking import experiment_name, tracked_run
+from orchestration.tracking import experiment_name, tracked_run, unreachable
 
 GENERATE_STAGE = "generate"
 DEFAULT_FORMATS = ("npy", "bvh", "gif")
@@ -379,7 +380,7 @@ def save_generation(
             progress(total=frames, unit="frame", desc="rendering", leave=False, disable=not frames) as bar,
         ):
             files = motion.save(directory, output.name, output.formats, progress=lambda _: bar.update())
-            run_id = log_generation(motion, prompts, files, dataset) if track else None
+            run_id = _tracked(motion, prompts, files, dataset) if track else None
     except BaseException as error:
         if run_dir:
             write_run_info(directory, status="failed", error=f"{type(error).__name__}: {error}")
@@ -395,6 +396,20 @@ def save_generation(
             quality=motion.quality,
         )
     return files, run_id
+
+
+def _tracked(motion: Motion, prompts: Sequence[str], files: dict[str, Path], dataset: str) -> str | None:
+    """:func:`log_generation`, or, when the tracking store cannot take it, one warning line and
+    None: the files are written already, and a dead server must neither hold them nor lose them."""
+    problem = unreachable()
+    if problem is None:
+        try:
+            return log_generation(motion, prompts, files, dataset)
+        except Exception as error:  # MLflow's errors have no common base (HTTP, SQL, file store)
+            problem = f"MLflow could not record it ({type(error).__name__}: {str(error).splitlines()[0][:200]})"
+    folder = next(iter(files.values())).parent
+    print(f"warning: {problem}; the generation is not tracked, its files are in {folder}", file=sys.stderr)
+    return None
 
 
 def log_generation(motion: Motion, prompts: Sequence[str], files: dict[str, Path], dataset: str) -> str:

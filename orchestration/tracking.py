@@ -92,6 +92,29 @@ def follow_project(store: Path) -> None:
                     )
 
 
+SERVER_TIMEOUT_S = 5.0  # how long a tracking server may take to answer before a result goes unrecorded
+
+
+def unreachable(timeout_s: float = SERVER_TIMEOUT_S) -> str | None:
+    """Why the tracking server does not answer (None when it does, or when the store is not a
+    server): MLflow's client retries a dead one for minutes before it gives up, so a command
+    whose result is already on disk asks first, briefly."""
+    import urllib.error
+    import urllib.request
+
+    uri = tracking_uri()
+    if urlparse(uri).scheme not in ("http", "https"):
+        return None
+    try:
+        with urllib.request.urlopen(f"{uri.rstrip('/')}/health", timeout=timeout_s):
+            return None
+    except urllib.error.HTTPError:  # it answered (a proxy in front may not know /health)
+        return None
+    except (OSError, ValueError) as error:
+        reason = getattr(error, "reason", error)
+        return f"the MLflow server at {uri} did not answer in {timeout_s:g} s ({reason})"
+
+
 def experiment_name(dataset: str, stage: str) -> str:
     return f"{dataset}/{stage}"
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 from pathlib import Path
 
 import numpy as np
@@ -284,3 +285,29 @@ def test_a_folder_name_with_a_dot_is_still_a_folder(out):
 def test_an_existing_folder_named_like_a_file_is_used(tmp_path):
     (tmp_path / "takes.final").mkdir()
     assert plan_output(tmp_path / "takes.final", "motion", None).directory == tmp_path / "takes.final"
+
+
+@pytest.mark.parametrize("server", ["refuses", "never answers"])
+def test_a_dead_tracking_server_costs_one_warning_and_keeps_the_files(tmp_path, monkeypatch, capsys, server):
+    """Issue 38, item 4: with MLFLOW_TRACKING_URI at a dead server `generate` hung (killed after
+    150 s in MLflow's retries) although its files were written."""
+    monkeypatch.chdir(tmp_path)
+    joints = pose_clip(T2M, 12, seed=0)
+    motion = Motion(
+        np.zeros((12, T2M.feature_dim), np.float32), joints, 20.0, "t2m", ["a person jumps"], [(0, 12)]
+    ).on_rigid_skeleton()
+    with socket.socket() as dead:
+        dead.bind(("127.0.0.1", 0))
+        if server == "never answers":
+            dead.listen()  # connections wait in its backlog; nothing is ever read or written
+        port = dead.getsockname()[1]
+        if server == "refuses":
+            dead.close()
+        monkeypatch.setenv("MLFLOW_TRACKING_URI", f"http://127.0.0.1:{port}")
+        files, run_id = save_generation(motion, Output(None, "motion", ("npy",)), ["a person jumps"], "tiny")
+    assert run_id is None and files["npy"].is_file()
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"warning: the MLflow server at http://127.0.0.1:{port} did not answer in 5 s")
+    assert line.endswith(f"the generation is not tracked, its files are in {files['npy'].parent}")
+    info = json.loads((files["npy"].parent / "run.json").read_text(encoding="utf-8"))
+    assert info["status"] == "finished" and info["mlflow_run_id"] is None
