@@ -15,7 +15,7 @@ RAW     ?= data/raw/$(DATASET)
 DEMO    ?= runs/demo
 
 .DEFAULT_GOAL := help
-.PHONY: help setup demo test test-all lint bench bench-gpu corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
+.PHONY: help setup models demo test test-all lint bench bench-gpu corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
         train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
         reproduce learning-curves ui serve clean rebuild-venv
 
@@ -149,6 +149,9 @@ UI_PORT ?= 5000
 SERVE_ARGS ?=
 serve: $(STAMP)  ## the page and HTTP API at http://127.0.0.1:8000 (after make demo; SERVE_ARGS="--port 8080 --host 0.0.0.0 --token ...")
 	$(M2D2M) serve --dataset $(DATASET) $(SERVE_ARGS)
+
+models: $(STAMP)  ## what each trained model knows: its actions, lengths, words, methods and sampling defaults
+	$(M2D2M) models --dataset $(DATASET)
 
 ui: $(STAMP)  ## the MLflow UI on the project's tracking store (UI_PORT=5000)
 	$(M2D2M) ui --port $(UI_PORT)

@@ -32,6 +32,7 @@ class TextEncoder(nn.Module):
 
     dim: int
     trainable: bool
+    reads_any_word: bool = True  # False: only the words of its vocabulary (the others are <unk>)
 
     def encode(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         raise NotImplementedError
@@ -45,6 +46,10 @@ class TextEncoder(nn.Module):
         order = torch.argsort((~mask).to(torch.uint8), dim=1, stable=True)
         features = features.gather(1, order[..., None].expand_as(features))
         return features, mask.gather(1, order), mask.sum(dim=1).tolist()
+
+    def unknown_words(self, sentence: str) -> list[str]:
+        """The words of ``sentence`` this encoder cannot read (none: an open-vocabulary encoder)."""
+        return []
 
     def encode_pooled(self, sentences: list[str]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """:meth:`encode`'s features and mask, and one (N, dim) vector per sentence, for models that
@@ -130,6 +135,7 @@ class LearnedTextEncoder(TextEncoder):
     """Word embedding + sinusoidal positions + a small Transformer encoder, trained with the denoiser."""
 
     trainable = True
+    reads_any_word = False
 
     def __init__(
         self,
@@ -166,6 +172,10 @@ class LearnedTextEncoder(TextEncoder):
             (word for word, count in counts.items() if count >= min_count), key=lambda word: (-counts[word], word)
         )
         return [PAD, UNK, *kept]
+
+    def unknown_words(self, sentence: str) -> list[str]:
+        """The words of ``sentence`` its training captions never had: each is read as <unk>."""
+        return list(dict.fromkeys(word for word in _words(sentence) if word not in self.index))
 
     def _word_ids(self, sentences: list[str]) -> list[list[int]]:
         """Each sentence's word ids; an empty sentence becomes one <unk> so no row is all padding."""

@@ -252,10 +252,21 @@ def _export(args: argparse.Namespace) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     fps = args.fps or motion.skeleton.fps
     if suffix == ".bvh":
-        save_bvh(out, motion.joints, skeleton=motion.skeleton, fps=fps)
+        save_bvh(out, motion.joints, skeleton=motion.skeleton, fps=fps, rest_pose=args.rest)
+        print(f"wrote {out}\n{bvh_note(out, fps, args.rest)}")
     else:
         save_motion_npy(out, motion.joints, fps=fps, skeleton=motion.skeleton, segments=motion.segments or None)
-    print(f"wrote {out}")
+        print(f"wrote {out}")
+
+
+def bvh_note(path: Path, fps: float, rest_pose: str) -> str:
+    """What an animator must know to import a BVH: its rate (Blender keeps its scene's 24 fps
+    unless told) and its bind pose."""
+    rest = "a T-pose" if rest_pose == "tpose" else "HumanML3D's (arms down; --rest tpose for a T-pose)"
+    return (
+        f"{path.name}: {fps:g} fps (Frame Time {1 / fps:.4f} s; in Blender's BVH import tick "
+        f"'Update Scene FPS' or it plays at the scene's rate), rest pose {rest}"
+    )
 
 
 def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -282,7 +293,7 @@ def _generate(args: argparse.Namespace) -> None:
         )
     if args.edit is not None and args.seconds is not None:
         raise UserError("--seconds does not go with --edit: the edited motion is as long as the source")
-    output = plan_output(args.out, args.name, args.formats)
+    output = plan_output(args.out, args.name, args.formats, args.rest)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     if args.method is not None:
@@ -331,7 +342,7 @@ def _generate_parts(args: argparse.Namespace) -> None:
     if missing and not args.prompts:
         raise UserError(f"give a prompt for the parts not named ({', '.join(missing)}), or --part for each of them")
     parts.update({part: args.prompts[0] for part in missing})
-    output = plan_output(args.out, args.name, args.formats)
+    output = plan_output(args.out, args.name, args.formats, args.rest)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     motion = generate_parts(
@@ -370,6 +381,8 @@ def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespa
         f"{motion.settings['method']}; bone-length spread {motion.quality['bone_length_std_mm_mean']:.1f} mm "
         "before the rigid skeleton)"
     )
+    if "bvh" in files:
+        print(bvh_note(files["bvh"], motion.fps, args.rest))
     if run_id is not None:
         print(f"logged to MLflow run {run_id} (experiment {args.dataset}/{GENERATE_STAGE}); `make ui` to browse")
 
@@ -417,18 +430,25 @@ def _sweep(args: argparse.Namespace) -> None:
     print(f"sweep {sweep_dir}: its trials are child runs of one MLflow parent run; compare them with `make ui`")
 
 
+def _models(args: argparse.Namespace) -> None:
+    from orchestration.model_summary import summary_lines
+
+    print("\n".join(summary_lines(args.dataset)))
+
+
 def _ui(args: argparse.Namespace) -> None:
     import os
 
     from orchestration.serving import check_port_free, serve
-    from orchestration.tracking import tracking_uri, ui_command
+    from orchestration.tracking import tracking_uri, ui_command, ui_runs_page
 
     if os.environ.get("MLFLOW_TRACKING_URI", "").startswith("http"):
-        print(f"the runs are on the tracking server {os.environ['MLFLOW_TRACKING_URI']}: open it in a browser")
+        print(f"the runs are on the tracking server: open {ui_runs_page(os.environ['MLFLOW_TRACKING_URI'])}")
         return
     require_project()  # elsewhere it would open, and so create, an empty store
     check_port_free(args.host, args.port)
-    print(f"MLflow UI on {tracking_uri()}: http://{args.host}:{args.port}  (Ctrl-C stops it)", flush=True)
+    page = ui_runs_page(f"http://{args.host}:{args.port}")
+    print(f"MLflow UI on {tracking_uri()}: {page}  (Ctrl-C stops it)", flush=True)
     status = serve(ui_command(args.host, args.port))
     if status:
         raise UserError(f"the MLflow UI stopped with status {status}; its messages are above")
@@ -589,7 +609,11 @@ def sampling_help() -> str:
     the closing section of ``generate --help`` and ``evaluate --help``."""
     from m2d2m.generators.options import MULTI
 
-    lines = ["sampling options by model (--option KEY=VALUE; unset ones keep the multi-action preset):"]
+    lines = [
+        "sampling options by model (--option KEY=VALUE). An unset one keeps the model's default: the",
+        "multi-action preset shown here (the paper's), unless the model file chose its own (M2D2M: its",
+        "config's sampling section); `m2d2m models` shows each trained model's own defaults.",
+    ]
     for entry in models().values():
         sampling = entry.load("sampling")
         preset = sampling.presets[MULTI]
@@ -660,6 +684,7 @@ def _add_generate(verbs) -> None:
     )
     generate.add_argument("--name", default="motion", help="file name stem in the --out folder (default motion)")
     generate.add_argument("--formats", nargs="+", help="any of npy bvh gif mp4 (default npy bvh gif)")
+    _add_rest(generate)
     _add_max_seconds(generate, "a motion longer than this")
     generate.add_argument("--no-split", action="store_true", help="keep each prompt one action even with several verbs")
     generate.add_argument(
@@ -814,6 +839,14 @@ def _add_sweep(verbs) -> None:
     sweep.set_defaults(run=_sweep)
 
 
+def _add_models(verbs) -> None:
+    listing = verbs.add_parser(
+        "models", help="what each trained model knows: its actions, lengths, words, methods and defaults"
+    )
+    listing.add_argument("--dataset", default="synthetic", help="whose runs to describe (default synthetic)")
+    listing.set_defaults(run=_models)
+
+
 def _add_ui(verbs) -> None:
     ui = verbs.add_parser("ui", help="the MLflow UI on the project's tracking store")
     ui.add_argument("--port", type=_port, default=5000)
@@ -853,7 +886,21 @@ def _add_viewers(verbs) -> None:
         parser.add_argument("--skeleton", default="t2m", choices=["t2m", "kit"])
         parser.add_argument("--fps", type=_positive_float, help="frames per second (default: the skeleton's)")
         parser.add_argument("--out", required=True, help="output file; its suffix chooses the format")
+        if name == "export":
+            _add_rest(parser)
         parser.set_defaults(run=run)
+
+
+def _add_rest(parser: argparse.ArgumentParser) -> None:
+    from m2d2m.motion.export import REST_POSES
+
+    parser.add_argument(
+        "--rest",
+        choices=REST_POSES,
+        default=REST_POSES[0],
+        help="the BVH's bind pose: skeleton (HumanML3D's: arms down, head bone forward; default) or tpose "
+        "(arms out, head up: what retargeting tools expect); the motion is the same",
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -865,6 +912,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_training_verbs,
         _add_tokenize,
         _add_generate,
+        _add_models,
         _add_testset,
         _add_evaluate,
         _add_sweep,

@@ -49,20 +49,23 @@ DEFAULT_MAX_SECONDS = 60.0
 @dataclass(frozen=True)
 class Output:
     """Where a generation's files go: ``directory`` (None: a new run folder, made when the motion
-    is ready), the file stem ``name`` and the ``formats``."""
+    is ready), the file stem ``name``, the ``formats`` and a BVH's bind pose ``rest_pose``."""
 
     directory: Path | None
     name: str
     formats: tuple[str, ...]
+    rest_pose: str = "skeleton"
 
 
-def plan_output(out: str | Path | None, name: str, formats: Sequence[str] | None) -> Output:
+def plan_output(
+    out: str | Path | None, name: str, formats: Sequence[str] | None, rest_pose: str = "skeleton"
+) -> Output:
     """Check ``--out``, ``--name`` and ``--formats`` before anything is loaded or sampled.
 
     ``out`` ending in a format's suffix (``clip.gif``) is one file, as for ``m2d2m render`` and
     ``export``: its stem is the name and its suffix the format (``formats`` may only repeat it);
     any other ``out`` is a folder, which must not be an existing file; none is a new run folder.
-    MP4 needs an encoder here, found up front.
+    MP4 needs an encoder here, found up front. ``rest_pose`` is a BVH's bind pose.
     """
     chosen = tuple(dict.fromkeys(formats or ()))
     unknown = [f for f in chosen if f not in FORMATS]
@@ -102,7 +105,7 @@ def plan_output(out: str | Path | None, name: str, formats: Sequence[str] | None
             "mp4 needs ffmpeg, and none is here (on PATH or from imageio-ffmpeg): "
             "pip install imageio-ffmpeg, or choose gif"
         )
-    return Output(directory, name, chosen)
+    return Output(directory, name, chosen, rest_pose)
 
 
 def resolve_model_file(name: str, reference: str | Path, dataset: str) -> Path:
@@ -131,6 +134,7 @@ class PromptPlanner:
     def __init__(self, generator: MotionGenerator) -> None:
         self.generator = generator
         self._tagger = None
+        self._verbs: dict[str, str | None] = {}  # each action sentence split out so far → its verb
 
     def seconds_range(self) -> tuple[float, float]:
         """The shortest and longest action the model supports: one step of its granularity, and
@@ -151,7 +155,29 @@ class PromptPlanner:
         verbs: list[str | None] = (
             list(parts.verbs) if len(parts.verbs) == len(parts.actions) else [None] * len(parts.actions)
         )
+        self._verbs.update(zip(parts.actions, verbs))
         return list(parts.actions), verbs
+
+    def notices(self, actions: Sequence[str]) -> list[str]:
+        """What the model does not know of ``actions``, one sentence each, to say before sampling:
+        words its text encoder never read in training (it reads them as unknown), and the verb of
+        a split action that it was never shown alone. Nothing stops: it samples from the rest."""
+        known = self.generator.known_verbs
+        listed = ", ".join(sorted(known)[:12]) + (", …" if len(known) > 12 else "")
+        said = []
+        for action in dict.fromkeys(actions):
+            unknown = self.generator.unknown_words(action)
+            if unknown:
+                words = ", ".join(f"'{word}'" for word in unknown)
+                were = "it were" if len(unknown) == 1 else "they were"
+                said.append(f"{action!r}: the model never read {words} in training; it samples as if {were} not there")
+            verb = self._verbs.get(action)
+            if known and verb and verb not in known:
+                said.append(
+                    f"{action!r}: the model was never shown '{verb}' alone; it knows {len(known)} actions "
+                    f"({listed}; `m2d2m models` lists them)"
+                )
+        return said
 
     def plan(
         self, prompts: Sequence[str], seconds: Sequence[float] | None = None, split: bool = True
@@ -236,10 +262,13 @@ def generate(
     (:meth:`Motion.on_rigid_skeleton`; the decoded spread of bone lengths is in ``quality``)."""
     prompts = [prompts] if isinstance(prompts, str) else list(prompts)
     seconds = [seconds] if isinstance(seconds, (int, float)) else seconds
-    actions, frames = PromptPlanner(generator).plan(prompts, seconds, split)
+    planner = PromptPlanner(generator)
+    actions, frames = planner.plan(prompts, seconds, split)
     check_length(frames, generator.fps, max_seconds)
     try:
         settings = generator.options(**options)
+        for notice in planner.notices(actions):
+            print(f"warning: {notice}", file=sys.stderr)
         with _progress(f"sampling {len(actions)} action(s), {sum(frames) / generator.fps:.1f} s") as advance:
             motion = generator.generate([actions], [frames], settings, [seed], progress=advance)[0]
         return motion.on_rigid_skeleton()
@@ -379,7 +408,9 @@ def save_generation(
             _sigterm_as_interrupt(),
             progress(total=frames, unit="frame", desc="rendering", leave=False, disable=not frames) as bar,
         ):
-            files = motion.save(directory, output.name, output.formats, progress=lambda _: bar.update())
+            files = motion.save(
+                directory, output.name, output.formats, progress=lambda _: bar.update(), rest_pose=output.rest_pose
+            )
             run_id = _tracked(motion, prompts, files, dataset) if track else None
     except BaseException as error:
         if run_dir:

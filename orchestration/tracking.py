@@ -208,6 +208,19 @@ def download_model_file(run_id: str, name: str) -> Path:
         raise UserError(f"MLflow run {run_id} has no model/{name} ({type(error).__name__})") from error
 
 
+# MLflow 3's UI opens on its GenAI view (traces, token cost) unless a page's address asks for the
+# model-training one, where runs, params and metrics are (the UI's own workflowType parameter)
+RUNS_VIEW = "workflowType=machine_learning"
+
+
+def ui_runs_page(base: str, experiment_id: str | None = None, run_id: str | None = None) -> str:
+    """The MLflow UI's page of the experiments, of one experiment's runs, or of one run, in its
+    model-training view."""
+    page = "experiments" if experiment_id is None else f"experiments/{experiment_id}"
+    page += "" if run_id is None else f"/runs/{run_id}"
+    return f"{base.rstrip('/')}/#/{page}?{RUNS_VIEW}"
+
+
 def ui_command(host: str, port: int) -> list[str]:
     """The MLflow UI on the project's store (``mlflow server`` with the same backend as every run)."""
     import shutil

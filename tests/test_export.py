@@ -182,18 +182,38 @@ def test_bvh_reproduces_real_clip(tmp_path: Path, sample_joints: np.ndarray) -> 
     assert np.abs(np.diff(bvh.motion[:, 3:], axis=0)).max() < 180.0
 
 
-def test_bvh_tpose_rest_keeps_skeleton_offsets(tmp_path: Path) -> None:
-    joints, _ = build_rigid_clip(T2M, seed=1)
-    path = save_bvh(tmp_path / "t.bvh", joints, bone_lengths=T2M.bone_lengths, rest_pose="tpose")
-    bvh = parse_bvh(path)
-    order = in_skeleton_order(bvh, T2M)
-    np.testing.assert_allclose(bvh.offsets[order[1:]], T2M.offsets()[1:], atol=1e-6)
+@pytest.mark.parametrize("skeleton", [T2M, KIT], ids=lambda s: s.name)
+def test_a_tpose_rest_has_the_arms_out_and_the_head_up_and_still_reproduces_the_clip(tmp_path, skeleton) -> None:
+    """Issue 38, item 13: the only rest pose hung the arms down from the collars and pointed the head
+    bone forward; animation tools expect a T-pose bind pose."""
+    joints, _ = build_rigid_clip(skeleton, seed=1)
+    bvh = parse_bvh(save_bvh(tmp_path / "t.bvh", joints, skeleton, rest_pose="tpose"))
+    offsets = bvh.offsets[in_skeleton_order(bvh, skeleton)]
+    directions = offsets / np.maximum(np.linalg.norm(offsets, axis=-1, keepdims=True), 1e-12)
+    left, right = (
+        skeleton.joint_names.index(n) for n in (("left_wrist", "right_wrist") if skeleton is T2M else ("LW", "RW"))
+    )
+    elbows = [skeleton.parents[left], skeleton.parents[right]]
+    np.testing.assert_allclose(directions[[left, elbows[0]]], [[1, 0, 0]] * 2, atol=1e-9)  # the character's left: +X
+    np.testing.assert_allclose(directions[[right, elbows[1]]], [[-1, 0, 0]] * 2, atol=1e-9)
+    assert directions[skeleton.head_joint, 1] == pytest.approx(1.0)
+    unit = skeleton.bone_lengths.max()
+    np.testing.assert_allclose(
+        np.linalg.norm(offsets, axis=-1)[1:], skeleton.bone_lengths_of(joints)[0, 1:], atol=1e-5 * unit
+    )
     positions, _ = bvh_forward_kinematics(bvh)
-    assert np.abs(positions[:, order] - joints).max() < 1e-4
-    leaves = {"left_foot", "right_foot", "head", "left_wrist", "right_wrist"}
-    assert {bvh.names[j] for j in bvh.end_sites} == leaves
+    assert np.abs(positions[:, in_skeleton_order(bvh, skeleton)] - joints).max() < 1e-4 * unit
+    leaves = {bvh.names[j] for j in bvh.end_sites}
+    assert skeleton.joint_names[skeleton.head_joint] in leaves
     for j, end in bvh.end_sites.items():  # End Sites continue the leaf bone
         np.testing.assert_allclose(end, 0.5 * bvh.offsets[j], atol=1e-6)
+
+
+def test_a_real_clip_on_a_tpose_rest_comes_back_below_a_millimetre(tmp_path, sample_joints) -> None:
+    joints = sample_joints.astype(np.float64)
+    bvh = parse_bvh(save_bvh(tmp_path / "012314.bvh", joints, rest_pose="tpose"))
+    positions, _ = bvh_forward_kinematics(bvh)
+    assert np.linalg.norm(positions[:, in_skeleton_order(bvh, T2M)] - joints, axis=-1).max() < 1e-4
 
 
 def test_bvh_rejects_bad_input(tmp_path: Path) -> None:
@@ -226,3 +246,23 @@ def test_save_motion_npy_writes_conventions(tmp_path: Path, sample_joints: np.nd
     assert meta["segments"][1] == {"start_frame": 80, "end_frame": 170, "text": "turns around"}
     with pytest.raises(ValueError, match="segment"):
         save_motion_npy(tmp_path / "bad", joints, segments=[(100, 200, "too long")])
+
+
+def test_export_and_generate_say_the_rate_and_the_rest_pose(tmp_path, monkeypatch, capsys, sample_joints) -> None:
+    """Blender plays a BVH at its scene's 24 fps unless "Update Scene FPS" is ticked: the command
+    that writes one says its rate and bind pose, and `--rest tpose` chooses the T-pose."""
+    from orchestration.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    np.save(tmp_path / "clip.npy", sample_joints[:20])
+    assert main(["export", "clip.npy", "--out", "clip.bvh", "--rest", "tpose"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == (
+        "clip.bvh: 20 fps (Frame Time 0.0500 s; in Blender's BVH import tick 'Update Scene FPS' or it plays "
+        "at the scene's rate), rest pose a T-pose"
+    )
+    bvh = parse_bvh(tmp_path / "clip.bvh")
+    wrist = bvh.offsets[bvh.names.index("left_wrist")]
+    assert wrist[0] > 0 and abs(wrist[1]) < 1e-9 and bvh.frame_time == pytest.approx(0.05)
+    assert main(["export", "clip.npy", "--out", "plain.bvh", "--fps", "30"]) == 0
+    assert "plain.bvh: 30 fps" in capsys.readouterr().out
+    assert parse_bvh(tmp_path / "plain.bvh").offsets[bvh.names.index("left_wrist")][1] < 0  # hanging down

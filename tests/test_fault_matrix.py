@@ -364,6 +364,7 @@ BAD_ARGUMENTS: list[list[str]] = [
         for more in (["--fps", "0"], ["--fps", "-1"], ["--fps", "nan"])
     ],
     ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.fbx"],
+    ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.bvh", "--rest", "apose"],
     *_bad_files("export", [], BAD_MOTIONS, "--out", "{tmp}/out.bvh"),
     ["ui", "--port", "99999"],
     ["ui", "--port", "-1"],

@@ -81,6 +81,29 @@ def test_every_model_has_one_declaration_behind_its_entry_and_its_generator():
             assert sampling.presets[preset].method in sampling.methods
 
 
+@pytest.mark.parametrize("model", ["m2d2m", "mmm", "mmm-body", "motiondiffuse"])
+def test_every_knob_and_method_of_the_models_has_a_name_for_people(model):
+    """The page shows these, not ts or eta (issue 38, item 8); a knob for some methods only names them."""
+    sampling = models()[model].load("sampling")
+    assert set(sampling.method_labels) == set(sampling.methods)
+    for declared in sampling.knobs():
+        assert declared.label and declared.label != declared.name, declared.name
+        assert declared.methods is None or set(declared.methods) <= set(sampling.methods)
+
+
+def test_a_knob_or_a_label_naming_an_unknown_method_is_refused():
+    @dataclass(frozen=True)
+    class Misnamed:
+        method: str = knob("a", "how", choices=("a", "b"))
+        count: int = knob(2, "how many", label="Count", methods=("c",))
+
+    with pytest.raises(TypeError, match="count names unknown methods c"):
+        Sampling("toy", Misnamed, {MULTI: Misnamed(), SINGLE: Misnamed()})
+    with pytest.raises(TypeError, match="method_labels names unknown methods d"):
+        Sampling("toy", Toy, {MULTI: Toy(), SINGLE: Toy()}, {"d": "D"})
+    assert TOY.knob("count").label == "count"  # undeclared: its own name
+
+
 def test_declared_choices_are_the_processes_own():
     from m2d2m.generators.mmm_options import SCHEDULES
     from m2d2m.generators.motiondiffuse_options import VARIANCES

@@ -59,8 +59,16 @@ def test_models_lists_the_finished_runs_and_the_declared_knobs(client, trained_p
     latest = (trained_project / "runs/tiny/m2d2m/latest").read_text().strip()
     assert m2d2m["name"] == "m2d2m" and m2d2m["runs"] == [{"id": latest, "label": f"{latest} (latest)", "latest": True}]
     assert m2d2m["methods"] == list(SAMPLING.methods) and m2d2m["default_method"] == "tps"
+    assert m2d2m["method_labels"] == dict(SAMPLING.method_labels) and set(m2d2m["method_labels"]) == set(
+        SAMPLING.methods
+    )
     declared = {
-        knob.name: {**asdict(knob), "choices": knob.choices and list(knob.choices)} for knob in SAMPLING.knobs()
+        knob.name: {
+            **asdict(knob),
+            "choices": knob.choices and list(knob.choices),
+            "methods": None if knob.methods is None else list(knob.methods),
+        }
+        for knob in SAMPLING.knobs()
     }
     assert {knob.pop("name"): knob for knob in m2d2m["knobs"]} == {
         name: {**{k: v for k, v in knob.items() if k != "name"}, "default": getattr(SAMPLING.presets["multi"], name)}
@@ -155,7 +163,8 @@ def test_downloads_are_by_id_and_name_the_bvh_parses_and_the_gif_is_drawn_on_dem
     mlflow.set_tracking_uri(f"sqlite:///{trained_project / 'mlflow.db'}")
     names = {Path(a.path).name for a in mlflow.MlflowClient().list_artifacts(result["mlflow"]["run_id"], "motion")}
     assert {"motion.npy", "motion.bvh", "motion.json", "motion.gif"} <= names
-    assert result["mlflow"]["url"].endswith(f"/runs/{result['mlflow']['run_id']}")
+    # the UI's model-training view, where a run's params and files are (MLflow 3 opens on GenAI's)
+    assert result["mlflow"]["url"].endswith(f"/runs/{result['mlflow']['run_id']}?workflowType=machine_learning")
     for path in (
         f"/api/generations/{result['id']}/run.json",
         f"/api/generations/{result['id']}/..%2F..%2Fm2d2m%2Flatest",
@@ -211,6 +220,26 @@ def test_bad_input_is_a_4xx_with_one_sentence(client, body, status, message):
     assert answer.status_code == status, answer.text
     assert set(answer.json()) == {"error"} and message in answer.json()["error"]
     assert "\n" not in answer.json()["error"] and "Traceback" not in answer.text
+
+
+def test_the_bvh_comes_on_a_tpose_when_asked_and_the_page_gets_the_sides_and_the_head(client, trained_project):
+    """Issue 38, item 13: a T-pose bind pose on the page and in the API, the motion unchanged."""
+    result = generate(client, seed=6)
+    assert result["head_joint"] == T2M.head_joint == 15
+    assert (result["left_joints"], result["right_joints"]) == (list(T2M.left_joints), list(T2M.right_joints))
+    answer = client.get(result["files"]["bvh"] + "?rest=tpose")
+    assert answer.status_code == 200
+    assert answer.headers["content-disposition"].endswith(f'filename="{result["id"]}-motion.tpose.bvh"')
+    (trained_project / "tpose.bvh").write_bytes(answer.content)
+    bvh = parse_bvh(trained_project / "tpose.bvh")
+    wrist = bvh.offsets[bvh.names.index("right_wrist")]
+    assert wrist[0] < 0 and abs(wrist[1]) < 1e-9  # the right arm out along -X
+    positions, _ = bvh_forward_kinematics(bvh)
+    assert np.abs(positions[:, in_skeleton_order(bvh, T2M)] - np.array(result["joints"])).max() < 1e-3
+    refused = client.get(result["files"]["bvh"] + "?rest=apose")
+    assert refused.status_code == 400 and refused.json() == {
+        "error": "rest must be one of skeleton, tpose, got 'apose'"
+    }
 
 
 def test_a_body_that_is_not_json_or_too_large_is_a_4xx(client):

@@ -1,6 +1,10 @@
 """`m2d2m serve`'s page in a real Chromium (Debian's chromium and chromium-driver, driven by
 Selenium): three actions generated with the tiny model, a figure drawn, the timeline's three
-labels, scrubbing moving the figure, two methods compared in sync, and the BVH downloaded and parsed.
+labels, scrubbing moving the figure, two methods compared in sync, and the BVH downloaded and parsed;
+and what a newcomer's pass found (issue 38, items 7, 8, 12 and 13): the knobs named for people
+with their help in view, only the chosen method's, limits shown where the user types, titles in
+words, whole action labels and sentences, a head and the body's sides, one scale for compared
+players, the model's notices, and the BVH's rest pose.
 
 `.ci/run` installs Chromium when it runs as root with apt, so CI always runs this test; elsewhere
 it is skipped with a one-line reason. ``M2D2M_SCREENSHOT=<file.png>`` keeps a picture of the page;
@@ -10,14 +14,17 @@ is of the demo's: ``M2D2M_SERVE_PROJECT=. M2D2M_SCREENSHOT=docs/serve-page.png``
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import time
+import urllib.request
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
+from m2d2m.generators.m2d2m_options import SAMPLING
 from orchestration.web.app import ServeSettings
 from tests.live_server import live_server
 from tests.test_export import parse_bvh
@@ -45,6 +52,35 @@ for (let i = 0; i < data.length; i += 4) {
 }
 return [drawn, digest];
 """
+# The rows spanned by the figure on a player's canvas (pixels of exactly one of its colours, the
+# grid and the trail are others) and how many of each colour: [top, bottom, counts].
+FIGURE_ROWS = """
+const canvas = arguments[0], colours = arguments[1];
+const data = canvas.getContext('2d').getImageData(0, 0, canvas.width, canvas.height).data;
+let top = Infinity, bottom = -Infinity;
+const counts = colours.map(() => 0);
+for (let i = 0; i < data.length; i += 4) {
+  const k = colours.findIndex((c) => c[0] === data[i] && c[1] === data[i + 1] && c[2] === data[i + 2]);
+  if (k < 0) continue;
+  counts[k] += 1;
+  const row = Math.floor(i / 4 / canvas.width);
+  top = Math.min(top, row);
+  bottom = Math.max(bottom, row);
+}
+return [top, bottom, counts];
+"""
+# player.js's colours of the body's left, right and centre (its spine and head)
+LEFT, RIGHT, CENTRE = [0x1F, 0x5B, 0xD1], [0xC4, 0x3A, 0x2F], [0x27, 0x30, 0x3B]
+# The colour of three points inside the head's disc, off the head joint itself (above, left, right).
+HEAD_PIXELS = """
+const player = window.m2d2m.clock.players.find((p) => p.root === arguments[0]);
+const [x, y, r] = player.headOnScreen();
+const context = player.canvas.getContext('2d');
+return [[x, y - 0.6 * r], [x - 0.6 * r, y], [x + 0.6 * r, y]].map(
+  ([u, v]) => Array.from(context.getImageData(Math.round(u), Math.round(v), 1, 1).data.slice(0, 3)));
+"""
+# Whether an element shows all of its content: nothing cut at its right or bottom edge.
+SHOWN_WHOLE = "const e = arguments[0]; return e.scrollWidth <= e.clientWidth && e.scrollHeight <= e.clientHeight;"
 
 
 @pytest.fixture
@@ -151,7 +187,7 @@ def test_a_newcomer_generates_three_actions_scrubs_compares_and_downloads_the_bv
         find(By.ID, "generate").click()
         players = wait_for(lambda: len(found := find_all(By.CSS_SELECTOR, "#players .player")) == 2 and found)
         titles = [p.find_element(By.CSS_SELECTOR, ".player-title").text for p in players]
-        assert "tps" in titles[0] and "independent" in titles[1]
+        assert titles == [f"m2d2m · {SAMPLING.method_labels[method]}" for method in ("tps", "independent")]
         for each in players:
             assert browser.execute_script(CANVAS_PIXELS, each.find_element(By.TAG_NAME, "canvas"))[0] > 200
         if find(By.ID, "play").text.strip() == "Play":
@@ -200,3 +236,177 @@ def test_the_api_documentation_renders_without_internet(tmp_path, monkeypatch, o
         if path == "/docs":  # the operations are listed, each with its summary
             operations = offline_browser.find_elements(By.CSS_SELECTOR, ".opblock-summary-path")
             assert {"/api/generate", "/api/models"} <= {o.get_attribute("data-path") for o in operations}
+
+
+def find_all_css(browser, selector: str) -> list:
+    return browser.find_elements("css selector", selector)
+
+
+# whether the page has its first lane's run details (GET /api/models/{model}/runs/{run})
+RUN_DETAILS_LOADED = "return performance.getEntriesByType('resource').some((e) => e.name.includes('/runs/'));"
+
+
+def open_page(browser, base: str) -> None:
+    """The page, once its first lane has its run's details (its knobs, limits and actions)."""
+    browser.get(base + "/")
+    wait_for(lambda: browser.execute_script(RUN_DETAILS_LOADED), 60, "the run's details")
+    time.sleep(0.3)  # for the page to show them
+
+
+def choose_method(lane, method: str) -> None:
+    from selenium.webdriver.support.ui import Select
+
+    Select(lane.find_element("css selector", ".lane-method")).select_by_value(method)
+
+
+def test_the_knobs_are_named_for_people_with_their_help_in_view_and_only_the_methods_own(dataset, browser):
+    """Issue 38, item 8: knobs shown as ts, eta, guidance with help only in tooltips, and
+    handshake and slerp shown (and sent) for tps."""
+    from selenium.webdriver.common.by import By
+
+    with live_server(ServeSettings(dataset=dataset, track=False)) as (base, _):
+        open_page(browser, base)
+        lane = browser.find_element(By.CSS_SELECTOR, "#lanes .lane")
+        methods = lane.find_elements(By.CSS_SELECTOR, ".lane-method option")
+        assert [(o.get_attribute("value"), o.text) for o in methods] == list(SAMPLING.method_labels.items())
+
+        def shown() -> dict:
+            rows = lane.find_elements(By.CSS_SELECTOR, ".knob")
+            return {row.get_attribute("data-knob-row"): row for row in rows if row.is_displayed()}
+
+        for method in SAMPLING.methods:
+            choose_method(lane, method)
+            assert set(shown()) == {k.name for k in SAMPLING.knobs() if k.methods is None or method in k.methods}
+        choose_method(lane, "tps")
+        for name, row in shown().items():
+            knob = SAMPLING.knob(name)
+            assert row.find_element(By.CSS_SELECTOR, ".knob-label").text == knob.label != name
+            assert row.find_element(By.CSS_SELECTOR, ".knob-name").text == name  # the raw name, small
+            help_text = row.find_element(By.CSS_SELECTOR, ".knob-help")
+            assert help_text.is_displayed() and knob.help[1:] in help_text.text
+        truncation = shown()["truncation"]
+        field = truncation.find_element(By.TAG_NAME, "input")
+        assert (field.get_attribute("min"), field.get_attribute("max")) == ("0", "1")
+        assert truncation.find_element(By.CSS_SELECTOR, ".knob-range").text == "number, above 0, at most 1"
+
+        # a knob changed for one method and then hidden by another is not sent
+        ts = shown()["ts"].find_element(By.TAG_NAME, "input")
+        ts.send_keys("3")
+        sent = "return laneRequest(arguments[0]);"
+        assert browser.execute_script(sent, lane)["options"] == {"ts": 3}
+        choose_method(lane, "independent")
+        assert browser.execute_script(sent, lane) | {"run": None} == {
+            "model": "m2d2m",
+            "run": None,
+            "method": "independent",
+            "options": {},
+        }
+
+
+def test_the_limits_and_the_known_actions_are_shown_where_the_user_types(dataset, browser):
+    """Issue 38, items 7 and 8: the header said "up to 60 s" while an action is capped at a few
+    seconds, an action's field cut its sentence, and nothing said which actions the model knows."""
+    from selenium.webdriver.common.by import By
+
+    find = browser.find_element
+    with live_server(ServeSettings(dataset=dataset, track=False)) as (base, _):
+        open_page(browser, base)
+        with urllib.request.urlopen(base + "/api/models/m2d2m/runs/latest") as answer:
+            details = json.load(answer)
+        shortest, longest = (f"{s:g}" for s in details["seconds"])
+        assert find(By.ID, "dataset").text.endswith(f"up to 60 s in all, each action {shortest}–{longest} s")
+        hint = find(By.ID, "seconds-hint")
+        assert hint.is_displayed() and f"{shortest}–{longest} for each action" in hint.text
+        for seconds in find_all_css(browser, "#actions .action-seconds"):
+            assert (seconds.get_attribute("min"), seconds.get_attribute("max")) == (shortest, longest)
+
+        known = find(By.ID, "known-actions")
+        assert (
+            known.is_displayed()
+            and [c.text for c in known.find_elements(By.CSS_SELECTOR, ".chip")] == details["actions"]
+        )
+        known.find_element(By.CSS_SELECTOR, ".chip").click()  # "jump": a new action with its example
+        fields = find_all_css(browser, "#actions .action-text")
+        assert len(fields) == 3 and fields[-1].get_attribute("value").startswith(f"a person {details['actions'][0]}")
+
+        sentence = "a person walks forward slowly, turns around to the left and then waves with their right hand"
+        fields[0].clear()
+        fields[0].send_keys(sentence)
+        assert fields[0].get_attribute("value") == sentence
+        assert browser.execute_script(SHOWN_WHOLE, fields[0]), "the action's field cuts its sentence"
+
+
+def test_a_result_is_titled_in_words_with_whole_labels_a_head_sides_notices_and_a_tpose_bvh(dataset, browser):
+    """Issue 38, items 7, 8, 12 and 13: titles in the paper's notation, action labels cut to
+    'a person p…', no head or left/right in the player, compared lanes zoomed differently, the
+    model's notices unseen, an MLflow link with nothing said of `make ui`, one BVH rest pose."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    actions = ["a person walks forward", "a person waves their right hand high above their head", "a person jumps"]
+    with live_server(ServeSettings(dataset=dataset)) as (base, _):
+        open_page(browser, base)
+        browser.find_element(By.ID, "add-action").click()
+        for field, text in zip(find_all_css(browser, "#actions .action-text"), actions, strict=True):
+            field.clear()
+            field.send_keys(text)
+        browser.find_element(By.ID, "compare").click()
+        browser.find_element(By.ID, "generate").click()
+        players = wait_for(lambda: len(found := find_all_css(browser, "#players .player")) == 2 and found)
+        browser.find_element(By.ID, "play").click()  # pause, so every check sees one frame
+
+        notices = browser.find_element(By.ID, "notices")
+        assert notices.is_displayed() and "'high'" in notices.text  # a word the tiny model never read
+        assert not browser.find_element(By.ID, "error").is_displayed()
+
+        for player, method in zip(players, ("tps", "independent"), strict=True):
+            title = player.find_element(By.CSS_SELECTOR, ".player-title").text
+            assert title == f"m2d2m · {SAMPLING.method_labels[method]}"
+            settings = player.find_element(By.CSS_SELECTOR, ".player-settings").text
+            assert settings.startswith("Settings: ") and ("T_s = " in settings) == (method == "tps")
+
+            labels = player.find_elements(By.CSS_SELECTOR, ".timeline .segment-label")
+            for number, (label, text) in enumerate(zip(labels, actions, strict=True), 1):
+                assert label.text in (text, str(number)) and browser.execute_script(SHOWN_WHOLE, label)
+            legend = player.find_elements(By.CSS_SELECTOR, ".action-legend li")
+            assert [item.find_element(By.CSS_SELECTOR, ".legend-text").text for item in legend] == actions
+            assert all(browser.execute_script(SHOWN_WHOLE, item) for item in legend)
+
+            canvas = player.find_element(By.TAG_NAME, "canvas")
+            assert browser.execute_script(HEAD_PIXELS, player) == [CENTRE] * 3
+            _, _, (left, right, _) = browser.execute_script(FIGURE_ROWS, canvas, [LEFT, RIGHT, CENTRE])
+            assert left > 50 and right > 50
+            assert [side.text for side in player.find_elements(By.CSS_SELECTOR, ".side-legend span")] == [
+                "left",
+                "right",
+            ]
+            mlflow = player.find_element(By.CSS_SELECTOR, ".mlflow")
+            assert mlflow.find_element(By.TAG_NAME, "a") and "(opens with make ui running)" in mlflow.text
+
+        # one scale: the same body is as tall in both, wherever each one's motion wanders
+        scales = {player.get_attribute("data-scale") for player in players}
+        assert len(scales) == 1, scales
+        heights = [
+            (lambda top, bottom, _: bottom - top)(
+                *browser.execute_script(FIGURE_ROWS, p.find_element(By.TAG_NAME, "canvas"), [LEFT, RIGHT, CENTRE])
+            )
+            for p in players
+        ]
+        assert abs(heights[0] - heights[1]) <= 0.1 * max(heights), heights
+
+        # the BVH on a T-pose: the link changes, the file is at the result's fps and says so
+        first = players[0]
+        link = first.find_element(By.CSS_SELECTOR, ".downloads a[data-format='bvh']")
+        plain = link.get_attribute("href")
+        Select(first.find_element(By.CSS_SELECTOR, ".rest-pose select")).select_by_value("tpose")
+        assert link.get_attribute("href") == plain + "?rest=tpose"
+        assert "20 fps" in first.find_element(By.CSS_SELECTOR, ".bvh-note").text
+        link.click()
+        bvh: Path = wait_for(lambda: next(iter(browser.downloads.glob("*.tpose.bvh")), None), 30, "the T-pose BVH")
+        parsed = parse_bvh(bvh)
+        wrist = parsed.offsets[parsed.names.index("right_wrist")]
+        assert wrist[0] < 0 and abs(wrist[1]) < 1e-9  # the right arm out along -X
+        assert len(parsed.motion) == int(first.get_attribute("data-frames"))
+        assert abs(parsed.frame_time - 1 / 20) < 1e-6
+        errors = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
+        assert not errors, errors

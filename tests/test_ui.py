@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -27,6 +28,30 @@ def fetch(url: str, body: dict | None = None) -> tuple[int, bytes]:
     request = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json"})
     with urllib.request.urlopen(request, timeout=10) as response:
         return response.status, response.read()
+
+
+CHROMIUM = shutil.which("chromium") and shutil.which("chromedriver")
+
+
+def page_text(url: str, expected: str) -> str:
+    """The visible text of ``url`` in headless Chromium once it shows ``expected`` (60 s at most)."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    options = webdriver.ChromeOptions()
+    options.binary_location = shutil.which("chromium")
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"):
+        options.add_argument(argument)
+    driver = webdriver.Chrome(options=options, service=Service(shutil.which("chromedriver")))
+    try:
+        driver.get(url)
+        deadline = time.monotonic() + 60
+        while expected not in (text := driver.find_element("tag name", "body").text):
+            assert time.monotonic() < deadline, text[:500]
+            time.sleep(0.5)
+        return text
+    finally:
+        driver.quit()
 
 
 def alive(processes: list[psutil.Process]) -> list[psutil.Process]:
@@ -83,6 +108,11 @@ def test_the_ui_serves_the_project_store_and_sigterm_stops_all_of_it(tmp_path, m
                 assert time.monotonic() < deadline, "the UI did not come up within 90 s"
                 time.sleep(0.5)
         assert status == 200 and b"<html" in page.lower()
+        address = f"{base}/#/experiments?workflowType=machine_learning"
+        assert (tmp_path / "ui.log").read_text().splitlines()[0].split(": ", 1)[1].startswith(address)
+        if CHROMIUM:  # the address opens on the runs, not on MLflow 3's GenAI view (traces, token cost)
+            shown = page_text(f"{base}/#/experiments/{experiment}?workflowType=machine_learning", "a-run")
+            assert "Runs" in shown and "Token Usage" not in shown
         status, body = fetch(base + "/api/2.0/mlflow/runs/search", {"experiment_ids": [experiment]})
         runs = json.loads(body)["runs"]
         assert status == 200 and [r["info"]["run_name"] for r in runs] == ["a-run"]

@@ -6,7 +6,7 @@ VQ-VAE decoder, from one self-contained checkpoint (:mod:`m2d2m.generators.m2d2m
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -43,9 +43,10 @@ class M2D2MGenerator(TokenModelGenerator):
     def device(self) -> torch.device:
         return self.sampler.device
 
-    def preset(self, name: str) -> M2D2MOptions:
-        """The paper's preset, sampled as the model's config chose (steps, truncation, guidance)."""
-        return replace(super().preset(name), **self.checkpoint.sampling)
+    @property
+    def model_defaults(self) -> dict[str, Any]:
+        """The steps, truncation and guidance its config's ``sampling`` section chose."""
+        return dict(self.checkpoint.sampling)
 
     def check_options(self, options: M2D2MOptions) -> None:
         options.check(self.checkpoint.schedule.steps)

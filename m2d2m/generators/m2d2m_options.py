@@ -25,20 +25,59 @@ class M2D2MOptions:
         choices=METHODS,
     )
     ts: int | None = knob(
-        None, "TPS switch step T_s: joint for t > T_s, independent below (default 90 % of T)", minimum=0
+        None,
+        "the step T_s at which sampling switches from the whole sequence at once to each action alone "
+        "(default: 90 % of T)",
+        label="Switch to each action alone at step",
+        methods=("tps",),
+        minimum=0,
     )
-    eta: float | None = knob(None, "η of the dynamic transition at sampling (default: the trained η)", minimum=0)
+    eta: float | None = knob(
+        None,
+        "how much the noise favours codes far from a token's own in the codebook, the η of the dynamic "
+        "transition, eq. 7 (0: any code alike; default: as trained)",
+        label="Far-code noise weight",
+        minimum=0,
+    )
     guidance: float = knob(
-        2.0, "classifier-free guidance scale s of the paper's eq. 9 (0: the conditional alone)", minimum=0
+        2.0,
+        "how strongly the motion is pushed towards the text, the classifier-free guidance scale s of the "
+        "paper's eq. 9 (0: the text-conditioned prediction alone)",
+        label="Text guidance",
+        minimum=0,
     )
-    truncation: float = knob(1.0, "keep the most probable codes holding this much x0 mass (1: off)", above=0, maximum=1)
-    steps: int | None = knob(None, "reverse steps taken, skipping with exact posteriors (default: all T)", minimum=1)
-    handshake: int = knob(5, "tokens shared between neighbours (handshake); 5 tokens = 20 frames", minimum=1)
-    slerp: int = knob(2, "tokens left out before each later action (slerp); 2 tokens = 8 frames", minimum=0)
+    truncation: float = knob(
+        1.0,
+        "draw only among the most probable codes holding this much of the probability (1: all codes)",
+        label="Keep likeliest codes",
+        above=0,
+        maximum=1,
+    )
+    steps: int | None = knob(
+        None,
+        "reverse steps taken, skipping steps with exact posteriors: fewer is faster (default: all T)",
+        label="Denoising steps",
+        minimum=1,
+    )
+    handshake: int = knob(
+        5,
+        "tokens shared between neighbouring actions; 5 tokens = 20 frames",
+        label="Shared tokens",
+        methods=("handshake",),
+        minimum=1,
+    )
+    slerp: int = knob(
+        2,
+        "tokens left out before each later action and filled by SLERP; 2 tokens = 8 frames",
+        label="Blend length",
+        methods=("slerp",),
+        minimum=0,
+    )
     compile: str = knob(
         "off",
         "run the denoiser through torch.compile at a few padded shapes (CUDA graphs on a GPU): on, off, "
         "or auto (on CUDA only); each shape compiles once per process, so it pays off over many steps",
+        label="Compile the denoiser",
         choices=COMPILE,
     )
 
@@ -59,4 +98,14 @@ SINGLE_ACTION = M2D2MOptions(method="independent", eta=0.5, guidance=4.0)
 # chosen for that model on a validation split, not what the paper's single- and multi-action settings are
 MODEL_DEFAULTS = ("steps", "truncation", "guidance")
 
-SAMPLING = Sampling("m2d2m", M2D2MOptions, {MULTI: MULTI_ACTION, SINGLE: SINGLE_ACTION})
+SAMPLING = Sampling(
+    "m2d2m",
+    M2D2MOptions,
+    {MULTI: MULTI_ACTION, SINGLE: SINGLE_ACTION},
+    {
+        "tps": "Two-phase sampling (M2D2M)",
+        "independent": "Each action alone",
+        "handshake": "Shared tokens between actions",
+        "slerp": "Blend between actions",
+    },
+)

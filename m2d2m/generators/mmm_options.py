@@ -21,12 +21,30 @@ class DecodingOptions:
     """Knobs of parallel decoding; the defaults are the paper's (10 iterations for the longest
     motion, cosine schedule, temperature 1, no filtering)."""
 
-    iterations: int = knob(10, "decoding iterations for the longest motion (T of T_dyn)", minimum=1)
-    schedule: str = knob("cosine", "how many tokens stay masked after each iteration", choices=SCHEDULES)
-    temperature: float = knob(1.0, "softmax temperature of each draw", above=0)
-    top_k: int | None = knob(None, "draw among the k most probable codes (default: all)", minimum=1)
+    iterations: int = knob(
+        10,
+        "decoding iterations for the longest motion, fewer for shorter ones (T of T_dyn)",
+        label="Decoding iterations",
+        minimum=1,
+    )
+    schedule: str = knob(
+        "cosine",
+        "how many tokens stay masked after each iteration",
+        label="Unmasking schedule",
+        choices=SCHEDULES,
+    )
+    temperature: float = knob(
+        1.0, "softmax temperature of each draw: higher is more varied", label="Temperature", above=0
+    )
+    top_k: int | None = knob(
+        None, "draw among the k most probable codes (default: all)", label="Keep the k likeliest codes", minimum=1
+    )
     top_p: float | None = knob(
-        None, "draw among the fewest codes holding this much mass (default: all)", above=0, maximum=1
+        None,
+        "draw among the fewest codes holding this much of the probability (default: all)",
+        label="Keep likeliest codes",
+        above=0,
+        maximum=1,
     )
 
     def check(self) -> None:
@@ -44,7 +62,13 @@ class MMMOptions(DecodingOptions):
         "(transition) or each alone (independent)",
         choices=METHODS,
     )
-    transition: int = knob(2, "[MASK] tokens between neighbouring actions (transition); 2 tokens = 8 frames", minimum=1)
+    transition: int = knob(
+        2,
+        "[MASK] tokens decoded between neighbouring actions; 2 tokens = 8 frames",
+        label="Transition tokens",
+        methods=("transition",),
+        minimum=1,
+    )
 
 
 @dataclass(frozen=True)
@@ -56,10 +80,21 @@ class BodyOptions(DecodingOptions):
     lower_mask: float = knob(
         DEFAULT_LOWER_MASK,
         "fraction of the kept lower-body tokens hidden from the transformer: 0 follows the kept motion, 1 ignores it",
+        label="Hidden lower body",
         minimum=0,
         maximum=1,
     )
 
 
-SAMPLING = Sampling("mmm", MMMOptions, {MULTI: MMMOptions(), SINGLE: MMMOptions(method="independent")})
-BODY_SAMPLING = Sampling("mmm-body", BodyOptions, {MULTI: BodyOptions(), SINGLE: BodyOptions()})
+SAMPLING = Sampling(
+    "mmm",
+    MMMOptions,
+    {MULTI: MMMOptions(), SINGLE: MMMOptions(method="independent")},
+    {"transition": "Transition tokens between actions (MMM)", "independent": "Each action alone"},
+)
+BODY_SAMPLING = Sampling(
+    "mmm-body",
+    BodyOptions,
+    {MULTI: BodyOptions(), SINGLE: BodyOptions()},
+    {"independent": "Each action's upper body alone"},
+)

@@ -36,6 +36,7 @@ from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import Skeleton
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
+from m2d2m.text import TextEncoder
 
 
 class MotionDiffuseGenerator(MotionGenerator):
@@ -79,6 +80,14 @@ class MotionDiffuseGenerator(MotionGenerator):
     @property
     def longest_frames(self) -> int:
         return min(self.checkpoint.lengths.longest, self.checkpoint.network.config.max_frames)
+
+    @property
+    def known_verbs(self) -> tuple[str, ...]:
+        return tuple(self.checkpoint.lengths.per_verb)
+
+    @property
+    def text_encoder(self) -> TextEncoder:
+        return self.checkpoint.text_encoder
 
     # --------------------------------------------------------------------------- its options
     def check_options(self, options: MotionDiffuseOptions) -> None:

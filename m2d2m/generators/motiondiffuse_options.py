@@ -25,19 +25,49 @@ class MotionDiffuseOptions:
         "(time-varied, eq. 11), or each alone (independent)",
         choices=METHODS,
     )
-    steps: int | None = knob(None, "reverse steps, respaced (default: every step of the trained T)", minimum=1)
-    sampler: str = knob("ddpm", "ancestral steps (ddpm) or DDIM (ddim)", choices=SAMPLERS)
-    variance: str = knob(
-        "beta", "the ancestral steps' Σ: β_t (the paper) or the posterior's β̃_t (the public code)", choices=VARIANCES
+    steps: int | None = knob(
+        None,
+        "reverse steps, respaced: fewer is faster (default: every step of the trained T)",
+        label="Denoising steps",
+        minimum=1,
     )
-    ddim_eta: float = knob(0.0, "DDIM's η: 0 deterministic, 1 as noisy as ancestral", minimum=0, maximum=1)
-    overlap: int = knob(10, "frames each interval reaches into its neighbours (time-varied; ours)", minimum=0)
-    lambda_time: float = knob(0.01, "λ2 of eq. 11, pulling overlapping intervals together", minimum=0)
-    lambda_part: float = knob(0.01, "λ1 of eq. 10, pulling body parts together", minimum=0)
+    sampler: str = knob("ddpm", "ancestral steps (ddpm) or DDIM (ddim)", label="Sampler", choices=SAMPLERS)
+    variance: str = knob(
+        "beta",
+        "the ancestral steps' Σ: β_t (the paper) or the posterior's β̃_t (the public code)",
+        label="Ancestral noise",
+        choices=VARIANCES,
+    )
+    ddim_eta: float = knob(
+        0.0, "DDIM's η: 0 deterministic, 1 as noisy as ancestral", label="DDIM noise", minimum=0, maximum=1
+    )
+    overlap: int = knob(
+        10,
+        "frames each action's interval reaches into its neighbours (ours)",
+        label="Overlap frames",
+        methods=("time-varied",),
+        minimum=0,
+    )
+    lambda_time: float = knob(
+        0.01,
+        "how strongly overlapping intervals are pulled together, λ2 of eq. 11",
+        label="Overlap correction",
+        methods=("time-varied",),
+        minimum=0,
+    )
+    # body-part control only (`m2d2m generate --part`): no multi-action method reads it
+    lambda_part: float = knob(
+        0.01,
+        "how strongly the body parts' estimates are pulled together, λ1 of eq. 10",
+        label="Body-part correction",
+        methods=(),
+        minimum=0,
+    )
 
 
 SAMPLING = Sampling(
     "motiondiffuse",
     MotionDiffuseOptions,
     {MULTI: MotionDiffuseOptions(), SINGLE: MotionDiffuseOptions(method="independent")},
+    {"time-varied": "Overlapping actions (time-varied)", "independent": "Each action alone"},
 )

@@ -21,18 +21,30 @@ def knob(
     default: Any,
     help: str,
     *,
+    label: str = "",
+    methods: tuple[str, ...] | None = None,
     minimum: float | None = None,
     above: float | None = None,
     maximum: float | None = None,
     choices: tuple[str, ...] | None = None,
 ) -> Any:
-    """A field of an options dataclass with what a user is told about it: ``minimum`` and
-    ``maximum`` are inclusive bounds, ``above`` an exclusive lower one, ``choices`` the values a
-    text knob may take. Bounds that depend on the loaded model (steps ≤ the trained T) stay in the
-    generator's ``check_options``."""
+    """A field of an options dataclass with what a user is told about it: ``label`` its name for
+    people (the page shows it, with ``help`` under it), ``methods`` the multi-action methods it
+    matters for (None: every one; the page hides it for the others), ``minimum`` and ``maximum``
+    inclusive bounds, ``above`` an exclusive lower one, ``choices`` the values a text knob may take.
+    Bounds that depend on the loaded model (steps ≤ the trained T) stay in the generator's
+    ``check_options``."""
     return field(
         default=default,
-        metadata={"help": help, "minimum": minimum, "above": above, "maximum": maximum, "choices": choices},
+        metadata={
+            "help": help,
+            "label": label,
+            "methods": methods,
+            "minimum": minimum,
+            "above": above,
+            "maximum": maximum,
+            "choices": choices,
+        },
     )
 
 
@@ -57,11 +69,14 @@ class Knob:
     above: float | None = None
     maximum: float | None = None
     choices: tuple[str, ...] | None = None
+    label: str = ""  # its name for people; its own name where none was declared
+    methods: tuple[str, ...] | None = None  # the methods it matters for; None: every one
 
     @classmethod
     def of(cls, declared: Field) -> Knob:
         annotation = str(declared.type)
         meta = declared.metadata
+        methods = meta.get("methods")
         return cls(
             declared.name,
             annotation.split("|")[0].strip(),
@@ -71,6 +86,8 @@ class Knob:
             meta.get("above"),
             meta.get("maximum"),
             tuple(meta["choices"]) if meta.get("choices") else None,
+            meta.get("label") or declared.name,
+            None if methods is None else tuple(methods),
         )
 
     @property
@@ -121,18 +138,26 @@ def check_knobs(options: Any) -> None:
 class Sampling:
     """What a model's sampling takes: ``options_type``, a frozen dataclass of :func:`knob` fields
     whose ``method`` field lists the multi-action methods as its choices (the first the default),
-    and the :data:`SINGLE` and :data:`MULTI` presets, the paper's settings."""
+    the :data:`SINGLE` and :data:`MULTI` presets, the paper's settings, and ``method_labels``, each
+    method's name for people (the page's; a method without one is shown by its own name)."""
 
     model: str  # the registry's name of the model
     options_type: type
     presets: Mapping[str, Any]
+    method_labels: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        name = self.options_type.__name__
         missing = {SINGLE, MULTI} - set(self.presets)
         if missing:
-            raise TypeError(f"{self.options_type.__name__}: no {' or '.join(sorted(missing))} preset")
+            raise TypeError(f"{name}: no {' or '.join(sorted(missing))} preset")
         if "method" not in self.names(with_method=True) or not self.knob("method").choices:
-            raise TypeError(f"{self.options_type.__name__}: a method knob with its choices is needed")
+            raise TypeError(f"{name}: a method knob with its choices is needed")
+        # a misspelt method would silently hide a knob, or label nothing, on the page
+        for owner, named in [("method_labels", self.method_labels), *((k.name, k.methods) for k in self.knobs())]:
+            unknown = sorted(set(named or ()) - set(self.methods))
+            if unknown:
+                raise TypeError(f"{name}: {owner} names unknown methods {', '.join(unknown)}")
 
     def names(self, with_method: bool = False) -> tuple[str, ...]:
         return tuple(f.name for f in fields(self.options_type) if with_method or f.name != "method")
@@ -149,9 +174,12 @@ class Sampling:
         """The multi-action methods, the first the default."""
         return self.knob("method").choices or ()
 
-    def defaults(self, preset: str = MULTI) -> dict[str, Any]:
-        """A preset's value of every knob, the method included."""
-        return {name: getattr(self.presets[preset], name) for name in self.names(with_method=True)}
+    def defaults(self, preset: str = MULTI, chosen: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """A preset's value of every knob, the method included, with the values a model file chose
+        for every preset (``chosen``: M2D2M's ``sampling`` section) in their place: what a
+        generation with nothing set samples with."""
+        values = {name: getattr(self.presets[preset], name) for name in self.names(with_method=True)}
+        return {**values, **{name: value for name, value in (chosen or {}).items() if name in values}}
 
     def changed(self, base: Any, **changes: Any) -> Any:
         """``base`` options with ``changes``, each checked by its knob; ValueError in one sentence

@@ -15,7 +15,7 @@ from __future__ import annotations
 import functools
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -27,6 +27,7 @@ from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.skeleton import Skeleton
 from m2d2m.precision import autocast, resolve
+from m2d2m.text import TextEncoder
 
 
 @dataclass(frozen=True)
@@ -158,13 +159,35 @@ class MotionGenerator(ABC):
     def longest_frames(self) -> int:
         """The longest action it was trained on, in frames."""
 
+    @property
+    def known_verbs(self) -> tuple[str, ...]:
+        """The verbs of its single-action training captions (its length prior's): the actions it
+        was shown alone, and so the ones it can be asked for by name (empty: it does not say)."""
+        return ()
+
+    @property
+    def text_encoder(self) -> TextEncoder | None:
+        """What reads its prompts (None: it does not say)."""
+        return None
+
+    def unknown_words(self, sentence: str) -> list[str]:
+        """The words of ``sentence`` its text encoder never saw in training and reads as unknown
+        (none for CLIP, which reads any English): what the motion cannot follow."""
+        return [] if self.text_encoder is None else self.text_encoder.unknown_words(sentence)
+
+    @property
+    def model_defaults(self) -> dict[str, Any]:
+        """Knob values its model file chose for every preset (M2D2M: its config's ``sampling``
+        section, :func:`m2d2m.generators.options.Sampling.defaults`); none by default."""
+        return {}
+
     # --------------------------------------------------------------------------- its options
     def preset(self, name: str) -> Any:
         """The options of preset ``name`` (:data:`SINGLE`, :data:`MULTI`) for this model file: the
-        declared ones, or what the model file chose (M2D2M: its config's ``sampling`` section)."""
+        declared ones with what the model file chose in their place (:attr:`model_defaults`)."""
         if name not in self.sampling.presets:
             raise ValueError(f"unknown preset {name!r}: choose one of {', '.join(self.sampling.presets)}")
-        return self.sampling.presets[name]
+        return replace(self.sampling.presets[name], **self.model_defaults)
 
     def options(self, preset: str = MULTI, **changes: Any) -> Any:
         """The options of ``preset`` with ``changes``; ValueError names an unknown or bad knob."""

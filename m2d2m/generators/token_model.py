@@ -21,6 +21,7 @@ from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.vqvae import MotionVQVAE, vq_from_payload
 from m2d2m.precision import full_precision
+from m2d2m.text import TextEncoder
 
 FREE = -1  # a token position a generator fills (the samplers' and decoders' convention)
 
@@ -157,9 +158,18 @@ class TokenModelGenerator(MotionGenerator):
     ``codec``, ``lengths``, ``extra`` and ``source`` and implement sampling."""
 
     edits = ("inbetween",)  # kept frames become kept tokens (:meth:`given_tokens`)
+    checkpoint: Any  # the loaded model file: its networks, text encoder and records
     codec: TokenCodec
     lengths: LengthPrior
     extra: dict[str, Any]
+
+    @property
+    def text_encoder(self) -> TextEncoder:
+        return self.checkpoint.text_encoder
+
+    @property
+    def known_verbs(self) -> tuple[str, ...]:
+        return tuple(self.lengths.per_verb)
 
     @property
     def skeleton(self) -> Skeleton:

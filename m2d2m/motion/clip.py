@@ -90,10 +90,12 @@ class Motion:
         formats: tuple[str, ...] = ("npy", "bvh", "gif"),
         size: int = 480,
         progress: Callable[[int], None] | None = None,
+        rest_pose: str = "skeleton",
     ) -> dict[str, Path]:
         """Write ``<name>.<format>`` for each format into ``directory``, each file whole or not at
         all; returns format → path. The GIF/MP4 shows each action's text over its frames;
-        ``progress(t)`` is called after each frame of an animation is drawn."""
+        ``progress(t)`` is called after each frame of an animation is drawn; the BVH's bind pose
+        is ``rest_pose`` (:func:`m2d2m.motion.export.save_bvh`)."""
         unknown = sorted(set(formats) - set(FORMATS))
         if unknown:
             raise ValueError(f"unknown formats {unknown}: choose from {', '.join(FORMATS)}")
@@ -106,7 +108,7 @@ class Motion:
                 with atomic_path(directory / f"{name}.features.npy") as partial:
                     np.save(partial, self.features.astype(np.float32))
             elif kind == "bvh":
-                written[kind] = save_bvh(path, self.joints, self.skeleton, self.fps)
+                written[kind] = save_bvh(path, self.joints, self.skeleton, self.fps, rest_pose=rest_pose)
             else:
                 written[kind] = render_motion(
                     self.joints, path, self.skeleton, self.fps, self.segments, size=size, progress=progress

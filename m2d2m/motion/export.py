@@ -14,7 +14,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal, TextIO
+from typing import TextIO
 
 import numpy as np
 
@@ -24,6 +24,7 @@ from m2d2m.motion.rotations import matrix_to_euler, qbetween, quat_to_matrix
 from m2d2m.motion.skeleton import T2M, Skeleton
 
 EULER_ORDER = "ZYX"  # BVH channels Zrotation Yrotation Xrotation: R = Rz · Ry · Rx
+REST_POSES = ("skeleton", "tpose")  # a BVH's bind pose: HumanML3D's rest directions, or a T-pose
 _UNITS = {"t2m": "metre", "kit": "KIT-ML units (about 640 per metre)"}
 
 
@@ -33,33 +34,34 @@ def save_bvh(
     skeleton: Skeleton = T2M,
     fps: float | None = None,
     bone_lengths: np.ndarray | None = None,
-    rest_pose: Literal["fitted", "tpose"] = "fitted",
+    rest_pose: str = "skeleton",
 ) -> Path:
     """Write joint positions (T, J, 3) as a BVH file and return its path.
 
     Positions (root channels and OFFSETs) are in the clip's units — metres for T2M, so import
     into Blender at scale 1 — with +Y up; the character faces +Z (Blender's importer converts
-    to its Z-up axes). The frame time is ``1 / fps`` (default: the skeleton's, 20 fps for T2M).
+    to its Z-up axes). The frame time is ``1 / fps`` (default: the skeleton's, 20 fps for T2M);
+    BVH has no other place for the rate, and Blender uses it only with "Update Scene FPS".
     Rotations are in degrees, channels ``Zrotation Yrotation Xrotation`` on every joint.
 
-    The rest pose is the skeleton's raw directions × ``bone_lengths`` (default: the clip's own
-    lengths averaged over frames). Bodies built by forward kinematics from that T-pose are
-    reproduced exactly. Real (SMPL-derived) pelvis and chest shapes are rigid but not a T-pose
-    — the hips sit below the pelvis — so ``rest_pose="fitted"`` (default) replaces the child
-    offsets of joints with several children by the clip's own rigid shape, turned as close to
-    the T-pose as it goes, and FK of the file then reproduces the clip; ``"tpose"`` keeps the
-    pure T-pose (simpler retargeting) at the cost of errors of several cm for real data.
-    Twist about bones is not recoverable from positions: it is inherited from the parent.
+    The rest pose (the OFFSETs, a rig's bind pose) has the clip's own bone lengths (averaged over
+    frames) unless ``bone_lengths`` are given, in the directions of ``rest_pose``: ``skeleton``
+    (HumanML3D's: arms hanging from the collars, the head bone forward) or ``tpose`` (arms out
+    to the sides, the head up: what retargeting tools expect; :meth:`Skeleton.tpose_offsets`).
+    Either way the children of a joint with several (T2M's pelvis and chest) keep the clip's own
+    rigid shape, turned as close to the rest directions as it goes — real (SMPL-derived) hips sit
+    below the pelvis — so forward kinematics of the file reproduces the clip. Twist about bones
+    is not recoverable from positions: it is inherited from the parent.
     """
     joints = skeleton.check_joints(joints)
-    if rest_pose not in ("fitted", "tpose"):
-        raise ValueError(f"rest_pose must be 'fitted' or 'tpose', got {rest_pose!r}")
+    if rest_pose not in REST_POSES:
+        raise ValueError(f"rest_pose must be one of {', '.join(REST_POSES)}, got {rest_pose!r}")
     fps = float(skeleton.fps if fps is None else fps)
     if bone_lengths is None:
         bone_lengths = skeleton.bone_lengths_of(joints).mean(axis=0)
-    offsets = skeleton.offsets(np.asarray(bone_lengths, dtype=np.float64))
-    if rest_pose == "fitted":
-        offsets = _fit_rigid_branches(joints, skeleton, offsets)
+    lengths = np.asarray(bone_lengths, dtype=np.float64)
+    rest = skeleton.tpose_offsets(lengths) if rest_pose == "tpose" else skeleton.offsets(lengths)
+    offsets = _fit_rigid_branches(joints, skeleton, rest)
 
     local = _local_rotations(joints, skeleton, offsets)
     angles = np.degrees(matrix_to_euler(local, EULER_ORDER))

@@ -324,7 +324,7 @@ class _Panel:
         side[list(skeleton.right_joints)] = 1
         self.bone_side = side[self.bones]
         self.root_path = view.joints[:, 0] * [1.0, 0.0, 1.0]
-        self.head = _head_joint(skeleton)
+        self.head = skeleton.head_joint
         caption_points = _points(size, 11, smallest=7)
         self.wrap = max(16, int(size * 0.92 / (caption_points * _DPI / 72 * 0.5)))
         lw = _points(size, 3.2)
@@ -442,15 +442,6 @@ class _Panel:
 
     def _bone_segments(self, screen: np.ndarray) -> np.ndarray:
         return np.stack([screen[self.bone_parents], screen[self.bones]], axis=1)
-
-
-def _head_joint(skeleton: Skeleton) -> int:
-    """The highest leaf of the rest pose: where a head marker makes the figure readable."""
-    rest = np.zeros((skeleton.num_joints, 3))
-    for joint in skeleton.bones:
-        rest[joint] = rest[skeleton.parents[joint]] + skeleton.offsets()[joint]
-    leaves = np.setdiff1d(np.arange(skeleton.num_joints), skeleton.parents)
-    return int(leaves[np.argmax(rest[leaves, 1])])
 
 
 def can_write_mp4() -> bool:

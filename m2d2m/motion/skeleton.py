@@ -40,6 +40,10 @@ class Skeleton:
     left_joints: tuple[int, ...]
     right_joints: tuple[int, ...]
     metres_per_unit: float = 1.0
+    # bone directions that differ from ``raw_offsets`` in a T-pose: HumanML3D's rest hangs the arms
+    # down from the collars and points the head bone forward, where animation tools expect the arms
+    # straight out to the sides and the head up (a rig's bind pose; issue 38)
+    tpose_changes: tuple[tuple[int, tuple[float, float, float]], ...] = ()
 
     @property
     def num_joints(self) -> int:
@@ -114,6 +118,22 @@ class Skeleton:
         """Rest-pose offsets (J, 3): raw direction × bone length (the defaults when not given)."""
         lengths = self.bone_lengths if bone_lengths is None else np.asarray(bone_lengths)
         return self.raw_offsets * lengths[..., None]
+
+    def tpose_offsets(self, bone_lengths: np.ndarray | None = None) -> np.ndarray:
+        """T-pose offsets (J, 3): :meth:`offsets` with the arms out to the sides and the head up."""
+        offsets = self.offsets(bone_lengths)
+        for joint, direction in self.tpose_changes:
+            offsets[joint] = np.asarray(direction) * np.linalg.norm(offsets[joint])
+        return offsets
+
+    @cached_property
+    def head_joint(self) -> int:
+        """The highest leaf of the rest pose: where a head is drawn to make a figure readable."""
+        rest = np.zeros((self.num_joints, 3))
+        for joint in self.bones:
+            rest[joint] = rest[self.parents[joint]] + self.offsets()[joint]
+        leaves = np.setdiff1d(np.arange(self.num_joints), self.parents)
+        return int(leaves[np.argmax(rest[leaves, 1])])
 
     def bone_lengths_of(self, joints: np.ndarray) -> np.ndarray:
         """Bone lengths (..., J) of joint positions (..., J, 3); 0 at the root."""
@@ -263,6 +283,8 @@ T2M = Skeleton(
     contact_threshold=0.002,
     left_joints=(1, 4, 7, 10, 13, 16, 18, 20),
     right_joints=(2, 5, 8, 11, 14, 17, 19, 21),
+    # the character's left is +X: shoulder to elbow to wrist along +X (left) and −X (right)
+    tpose_changes=((15, _Y), (16, _X), (18, _X), (20, _X), (17, _NX), (19, _NX), (21, _NX)),
 )
 
 KIT = Skeleton(
@@ -338,6 +360,7 @@ KIT = Skeleton(
     left_joints=(5, 6, 7, 11, 12, 13, 14, 15),
     right_joints=(8, 9, 10, 16, 17, 18, 19, 20),
     metres_per_unit=1.0 / 640.0,
+    tpose_changes=((6, _X), (7, _X), (9, _NX), (10, _NX)),  # elbows and wrists; KIT's head (BUN) is up already
 )
 
 SKELETONS: dict[str, Skeleton] = {s.name: s for s in (T2M, KIT)}

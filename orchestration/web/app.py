@@ -30,12 +30,13 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from m2d2m.motion.clip import Motion
+from m2d2m.motion.export import REST_POSES
 from orchestration.errors import UserError
 from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
 from orchestration.web.catalog import Catalog, NotFound
 from orchestration.web.generations import FILES, Generations
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
-from orchestration.web.schema import GenerateRequest, plan_request
+from orchestration.web.schema import GenerateRequest, Plan, plan_request
 
 STATIC = Path(__file__).parent / "static"
 DOCS_FILES = Path(importlib.util.find_spec("fastapi_offline").origin).parent / "static"  # Swagger UI, ReDoc
@@ -93,22 +94,23 @@ class Service:
         self._planners: dict[int, PromptPlanner] = {}
         self._planning = threading.Lock()
 
-    def prepare(self, request: GenerateRequest) -> tuple[Job, list[str], str]:
+    def prepare(self, request: GenerateRequest) -> tuple[Job, Plan, str]:
         """Load the model (once), plan the request, and make its job (a blocking call)."""
         run, generator = self.catalog.generator(request.model, request.run)
         with self._planning:  # spaCy's tagger and the planners' caches are not shared across threads
             planner = self._planners.setdefault(id(generator), PromptPlanner(generator))
             plan = plan_request(request, planner, self.settings.max_seconds)
         job = Job(generator, (request.model, run, plan.options), plan.options, plan.actions, plan.frames, request.seed)
-        return job, plan.prompts, run
+        return job, plan, run
 
-    async def finish(self, job: Job, request: GenerateRequest, prompts: list[str], run: str) -> dict[str, Any]:
-        """The sampled motion, recorded; the API's answer."""
+    async def finish(self, job: Job, request: GenerateRequest, plan: Plan, run: str) -> dict[str, Any]:
+        """The sampled motion, recorded; the API's answer, with what the model did not know of it."""
         try:
             motion = await asyncio.wrap_future(job.done)
         except ValueError as error:  # the protocol's answer to a request a model cannot serve
             raise UserError(str(error)) from error
-        return await asyncio.wrap_future(self.recorder.submit(self._record, job, motion, request, prompts, run))
+        answer = await asyncio.wrap_future(self.recorder.submit(self._record, job, motion, request, plan.prompts, run))
+        return {**answer, "notices": plan.notices}
 
     def _record(
         self, job: Job, motion: Motion, request: GenerateRequest, prompts: list[str], run: str
@@ -176,7 +178,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
         responses={200: {"content": {NDJSON: {}}, "description": "the generation, or its progress and then it"}},
     )
     async def generate(body: GenerateRequest, request: Request) -> Any:
-        job, prompts, run = await run_in_threadpool(service.prepare, body)
+        job, plan, run = await run_in_threadpool(service.prepare, body)
         events: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
         loop = asyncio.get_running_loop()
         job.listener = lambda event: loop.call_soon_threadsafe(events.put_nowait, event)
@@ -185,9 +187,9 @@ def create_app(settings: ServeSettings) -> FastAPI:
         except QueueFull as error:
             raise ApiError(429, str(error)) from error
         if NDJSON in request.headers.get("accept", ""):
-            return StreamingResponse(_stream(job, events, service.finish(job, body, prompts, run)), media_type=NDJSON)
+            return StreamingResponse(_stream(job, events, service.finish(job, body, plan, run)), media_type=NDJSON)
         # a JSONResponse as it is: FastAPI's encoder would walk every joint coordinate in Python first
-        return JSONResponse(await _unless_disconnected(request, job, service.finish(job, body, prompts, run)))
+        return JSONResponse(await _unless_disconnected(request, job, service.finish(job, body, plan, run)))
 
     @api.get("/generations/{generation_id}", summary="A generation made by this server")
     def generation(generation_id: str) -> JSONResponse:
@@ -195,13 +197,14 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
     @api.get(
         "/generations/{generation_id}/{name}",
-        summary=f"A generation's file: {', '.join(FILES)} (an animation is drawn on first request)",
+        summary=f"A generation's file: {', '.join(FILES)} (an animation is drawn on first request; "
+        f"?rest={REST_POSES[1]} gives the BVH on a T-pose bind pose)",
         response_class=FileResponse,
     )
-    async def generation_file(generation_id: str, name: str) -> FileResponse:
+    async def generation_file(generation_id: str, name: str, rest: str = REST_POSES[0]) -> FileResponse:
         loop = asyncio.get_running_loop()
-        path = await loop.run_in_executor(service.painter, service.generations.file, generation_id, name)
-        return FileResponse(path, filename=f"{generation_id}-{name}")
+        path = await loop.run_in_executor(service.painter, service.generations.file, generation_id, name, rest)
+        return FileResponse(path, filename=f"{generation_id}-{path.name}")
 
     app.include_router(api)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")

@@ -30,12 +30,14 @@ class NotFound(UserError):
 
 @dataclass(frozen=True)
 class Run:
-    """A finished run of a model: its folder's name and its model file."""
+    """A finished run of a model: its folder's name, its model file, and the sampling defaults its
+    config chose (M2D2M's ``sampling`` section, which its model file carries too)."""
 
     name: str
     model_file: Path
     latest: bool
     started: float
+    sampling: dict[str, Any]
 
 
 def finished_runs(entry: ModelEntry, dataset: str) -> list[Run]:
@@ -50,7 +52,8 @@ def finished_runs(entry: ModelEntry, dataset: str) -> list[Run]:
             model_file = info_file.parent / entry.model_file
             if info.get("status") == "finished" and model_file.is_file():
                 name = info_file.parent.name
-                runs.append(Run(name, model_file, name == latest, float(info.get("started", 0.0))))
+                chosen = (info.get("config") or {}).get("sampling") or {}
+                runs.append(Run(name, model_file, name == latest, float(info.get("started", 0.0)), chosen))
     runs.sort(key=lambda run: (not run.latest, -run.started))
     return runs
 
@@ -81,7 +84,7 @@ class Catalog:
             if not runs:
                 continue
             sampling: Sampling = entry.load("sampling")
-            preset = sampling.defaults(MULTI)
+            preset = sampling.defaults(MULTI, runs[0].sampling)  # the run a request gets by default
             listed.append(
                 {
                     "name": name,
@@ -95,6 +98,7 @@ class Catalog:
                         for run in runs
                     ],
                     "methods": list(sampling.methods),
+                    "method_labels": dict(sampling.method_labels),
                     "default_method": preset["method"],
                     "knobs": knob_table(sampling, preset),
                 }
@@ -131,12 +135,14 @@ class Catalog:
         """A run's own sampling defaults (a model file may carry its own) and the action lengths it
         supports: ``GET /api/models/{model}/runs/{run}``."""
         name, generator = self.generator(model, run)
-        defaults = asdict(generator.preset(MULTI))  # the options dataclass: every knob and the method
+        defaults = generator.sampling.defaults(MULTI, generator.model_defaults)
         return {
             "model": model,
             "id": name,
             "fps": generator.fps,
             "seconds": [generator.frame_step / generator.fps, generator.longest_frames / generator.fps],
             "default_method": defaults["method"],
+            "method_labels": dict(generator.sampling.method_labels),
             "knobs": knob_table(generator.sampling, defaults),
+            "actions": sorted(generator.known_verbs),
         }

@@ -19,9 +19,11 @@ from typing import Any
 import numpy as np
 
 from m2d2m.motion.clip import ANIMATIONS, Motion
+from m2d2m.motion.export import REST_POSES, save_bvh
+from orchestration.errors import UserError
 from orchestration.generate import GENERATE_STAGE, Output, save_generation
 from orchestration.runs import write_run_info
-from orchestration.tracking import client, ensure_experiment, experiment_name, tracking_uri
+from orchestration.tracking import client, ensure_experiment, experiment_name, tracking_uri, ui_runs_page
 from orchestration.web.catalog import NotFound
 
 STEM = "motion"
@@ -100,14 +102,29 @@ class Generations:
                 raise NotFound(f"no generation {generation_id!r} on this server")
             return self._kept[generation_id]
 
-    def file(self, generation_id: str, name: str) -> Path:
-        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation is drawn
-        on first request (a blocking call) and logged to the generation's MLflow run."""
+    def file(self, generation_id: str, name: str, rest_pose: str = REST_POSES[0]) -> Path:
+        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, or a
+        BVH on another bind pose (``rest_pose``), is made on first request (a blocking call) and
+        logged to the generation's MLflow run."""
         generation = self.get(generation_id)
         if name not in FILES:
             raise NotFound(f"no file {name!r}; a generation has {', '.join(FILES)}")
+        if rest_pose not in REST_POSES:
+            raise UserError(f"rest must be one of {', '.join(REST_POSES)}, got {rest_pose!r}")
+        if FILES[name] == "bvh" and rest_pose != REST_POSES[0]:
+            name = f"{STEM}.{rest_pose}.bvh"
+            with generation.drawing:
+                if not (generation.directory / name).exists():
+                    path = save_bvh(
+                        generation.directory / name,
+                        generation.motion.joints,
+                        generation.motion.skeleton,
+                        generation.motion.fps,
+                        rest_pose=rest_pose,
+                    )
+                    self._keep(generation, f"bvh_{rest_pose}", path)
         path = generation.directory / name
-        if FILES[name] in ANIMATIONS:
+        if FILES.get(name) in ANIMATIONS:
             with generation.drawing:
                 if not path.exists():
                     self._draw(generation, FILES[name])
@@ -120,6 +137,10 @@ class Generations:
 
         plan_output(None, STEM, [kind])  # an MP4 needs an encoder: a one-line error when there is none
         (path,) = generation.motion.save(generation.directory, STEM, (kind,)).values()
+        self._keep(generation, kind, path)
+
+    def _keep(self, generation: Generation, kind: str, path: Path) -> None:
+        """A file made after the generation: named in its run's record and logged to its MLflow run."""
         write_run_info(generation.directory, **{f"file_{kind}": str(path)})
         if generation.mlflow_run_id is not None:
             client().log_artifact(generation.mlflow_run_id, str(path), artifact_path="motion")
@@ -139,6 +160,9 @@ class Generations:
             "fps": motion.fps,
             "skeleton": motion.skeleton_name,
             "parents": [int(parent) for parent in motion.skeleton.parents],
+            "left_joints": list(motion.skeleton.left_joints),
+            "right_joints": list(motion.skeleton.right_joints),
+            "head_joint": motion.skeleton.head_joint,
             # 10 µm steps: far below what a body shows, a third of the bytes; the .npy is exact
             "joints": motion.joints.astype(np.float64).round(5).tolist(),
             "actions": [{"text": text, "first": first, "end": end} for first, end, text in motion.segments],
@@ -150,7 +174,7 @@ class Generations:
                 "run_id": generation.mlflow_run_id,
                 "experiment": experiment_name(self.dataset, GENERATE_STAGE),
                 "url": (
-                    f"{self.mlflow_ui}/#/experiments/{generation.experiment_id}/runs/{generation.mlflow_run_id}"
+                    ui_runs_page(self.mlflow_ui, generation.experiment_id, generation.mlflow_run_id)
                     if self.mlflow_ui and generation.mlflow_run_id
                     else None
                 ),

@@ -89,6 +89,7 @@ class Plan:
     frames: list[int]
     options: Any
     prompts: list[str]  # what the user typed, for the run's record
+    notices: list[str]  # what the model does not know of the actions (PromptPlanner.notices)
 
 
 def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: float | None) -> Plan:
@@ -116,4 +117,4 @@ def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: 
         options = generator.options(**changes)
     except ValueError as error:
         raise UserError(str(error)) from error
-    return Plan(actions, frames, options, prompts)
+    return Plan(actions, frames, options, prompts, planner.notices(actions))

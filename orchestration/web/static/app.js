@@ -50,20 +50,65 @@ function showError(message) {
   box.hidden = !message;
 }
 
+/** `href` with `key=value` added to its query (after a ? or an &, as it already has one). */
+function withQuery(href, key, value) {
+  return `${href}${href.includes('?') ? '&' : '?'}${key}=${encodeURIComponent(value)}`;
+}
+
 function withToken(href) {
-  if (!state.token) return href;
-  return `${href}${href.includes('?') ? '&' : '?'}token=${encodeURIComponent(state.token)}`;
+  return state.token ? withQuery(href, 'token', state.token) : href;
 }
 
 // ---- actions ----------------------------------------------------------------------
 
 function addAction(text = '', seconds = null) {
   const row = $('#action-template').content.firstElementChild.cloneNode(true);
-  $('.action-text', row).value = text;
+  const field = $('.action-text', row);
+  field.value = text;
+  field.addEventListener('input', () => onActionInput(field));
+  field.addEventListener('keydown', onActionKey);
   $('.action-seconds', row).value = seconds === null ? '' : String(seconds);
-  if (state.catalog?.max_seconds) $('.action-seconds', row).max = state.catalog.max_seconds;
   $('#actions').append(row);
+  limitSeconds($('.action-seconds', row), actionRange());
+  fitHeight(field);
   return row;
+}
+
+/** An action is one line of text (a line break is a control character the server refuses),
+ *  shown whole: the field grows with its sentence. */
+function onActionInput(field) {
+  if (/[\r\n]/.test(field.value)) field.value = field.value.replace(/\s*[\r\n]+\s*/g, ' ');
+  fitHeight(field);
+}
+
+/** Enter generates, as in a one-line field. */
+function onActionKey(event) {
+  if (event.key !== 'Enter' || event.shiftKey || event.isComposing) return;
+  event.preventDefault();
+  $('#form').requestSubmit();
+}
+
+/** Grow a textarea to its text's height, so no part of its sentence is out of sight. */
+function fitHeight(field) {
+  if (field.offsetParent === null) return; // not laid out: fitted when shown
+  field.style.height = 'auto';
+  field.style.height = `${field.scrollHeight + field.offsetHeight - field.clientHeight}px`;
+}
+
+/** Put an example sentence in the last empty action, or in a new one; in one-sentence mode, at
+ *  the end of the sentence. */
+function useExample(example) {
+  if (mode() === 'sentence') {
+    const prompt = $('#prompt');
+    prompt.value = prompt.value.trim() ? `${prompt.value.trim()} and then ${example}` : example;
+    prompt.focus();
+    return;
+  }
+  const empty = $$('#actions .action-text').filter((field) => !field.value.trim()).pop();
+  const field = empty || $('.action-text', addAction());
+  field.value = example;
+  fitHeight(field);
+  field.focus();
 }
 
 /** Up, down and remove buttons of every row, through one listener on the list. */
@@ -83,6 +128,7 @@ function mode() {
 function showMode() {
   $('#list-mode').hidden = mode() !== 'list';
   $('#sentence-mode').hidden = mode() !== 'sentence';
+  $$('#actions .action-text').forEach(fitHeight);
 }
 
 /** An empty seconds input means "the model's typical length": null. */
@@ -124,7 +170,7 @@ function knobInput(knob) {
     else {
       input.type = 'number';
       input.step = knob.kind === 'int' ? '1' : 'any';
-      // "above" is an exclusive bound, which HTML cannot say: the server checks it
+      // "above" is an exclusive bound, which HTML cannot say: the hint says it, the server checks it
       const low = knob.minimum ?? knob.above;
       if (low !== null && low !== undefined) input.min = String(low);
       if (knob.maximum !== null && knob.maximum !== undefined) input.max = String(knob.maximum);
@@ -133,19 +179,57 @@ function knobInput(knob) {
   }
   input.value = knob.default === null || knob.default === undefined ? '' : String(knob.default);
   input.dataset.knob = knob.name;
-  input.title = knob.help || knob.name;
+  input.dataset.label = knob.label || knob.name;
   return input;
 }
 
-function knobRow(knob) {
-  const label = document.createElement('label');
-  label.className = 'knob';
-  label.title = knob.help || '';
-  const name = document.createElement('span');
-  name.textContent = knob.name;
-  label.append(name, knobInput(knob));
-  return label;
+const given = (value) => value !== null && value !== undefined;
+
+/** The values a number knob takes, in words: "whole number, at least 1", "above 0, at most 1". */
+function rangeHint(knob) {
+  if (knob.kind === 'str') return '';
+  const bounds = [];
+  if (given(knob.minimum)) bounds.push(`at least ${knob.minimum}`);
+  if (given(knob.above)) bounds.push(`above ${knob.above}`);
+  if (given(knob.maximum)) bounds.push(`at most ${knob.maximum}`);
+  if (given(knob.minimum) && given(knob.maximum)) bounds.splice(0, 2, `${knob.minimum} to ${knob.maximum}`);
+  const words = [knob.kind === 'int' ? 'whole number' : 'number', ...bounds].join(', ');
+  return knob.optional ? `${words}; empty: the model decides` : words;
 }
+
+/** Help as the page shows it, a sentence: a declaration's starts lower-case, as on the command line. */
+const asSentence = (text) => (text ? `${text[0].toUpperCase()}${text.slice(1)}${/[.!?]$/.test(text) ? '' : '.'}` : '');
+
+/** A knob for people: its label, its own name as a small hint, the field with its limits beside
+ *  it, and its help in view under it. */
+function knobRow(knob) {
+  const row = document.createElement('label');
+  row.className = 'knob';
+  row.dataset.knobRow = knob.name;
+  const title = document.createElement('span');
+  title.className = 'knob-title';
+  const label = document.createElement('span');
+  label.className = 'knob-label';
+  label.textContent = knob.label || knob.name;
+  const name = document.createElement('code');
+  name.className = 'knob-name';
+  name.textContent = knob.name;
+  title.append(label, name);
+  const field = document.createElement('span');
+  field.className = 'knob-field';
+  const range = document.createElement('span');
+  range.className = 'knob-range';
+  range.textContent = rangeHint(knob);
+  field.append(knobInput(knob), range);
+  const help = document.createElement('span');
+  help.className = 'knob-help';
+  help.textContent = asSentence(knob.help);
+  row.append(title, field, help);
+  return row;
+}
+
+/** Whether a knob matters for `method` (a knob that names none matters for every method). */
+const knobApplies = (knob, method) => !knob.methods || knob.methods.includes(method);
 
 /** The knob's value when the user changed it from its default, else undefined (not sent). */
 function knobValue(input, knob) {
@@ -170,7 +254,8 @@ function addLane(modelName, runId, method) {
   setOptions($('.lane-model', lane), models.map((m) => [m.name, m.name]));
   $('.lane-model', lane).addEventListener('change', (e) => fillLane(lane, e.target.value));
   $('.lane-run', lane).addEventListener('change', () => loadRunKnobs(lane));
-  $('.lane-remove', lane).addEventListener('click', () => { lane.remove(); numberLanes(); });
+  $('.lane-method', lane).addEventListener('change', () => showMethodKnobs(lane));
+  $('.lane-remove', lane).addEventListener('click', () => { lane.remove(); numberLanes(); showRunFacts(); });
   $('#lanes').append(lane);
   fillLane(lane, modelName || models[0].name, runId, method);
   numberLanes();
@@ -185,8 +270,11 @@ function fillLane(lane, modelName, runId, method) {
   const latest = model.runs.find((r) => r.latest) || model.runs[0];
   setOptions($('.lane-run', lane), model.runs.map((r) => [r.id, r.label || r.id]), runId || latest.id);
   const methods = model.methods || [];
-  setOptions($('.lane-method', lane), methods.map((m) => [m, m]), method || model.default_method);
+  const labels = model.method_labels || {};
+  setOptions($('.lane-method', lane), methods.map((m) => [m, labels[m] || m]), method || model.default_method);
   $('.lane-method-label', lane).hidden = methods.length === 0;
+  lane.details = null; // the run's facts, until the server has told them
+  showRunFacts();
   showKnobs(lane, model.knobs || []);
   loadRunKnobs(lane);
 }
@@ -194,6 +282,20 @@ function fillLane(lane, modelName, runId, method) {
 function showKnobs(lane, knobs) {
   lane.knobs = knobs;
   $('.lane-knobs', lane).replaceChildren(...knobs.map(knobRow));
+  showMethodKnobs(lane);
+}
+
+/** Show only the knobs that matter for the lane's method; the hidden ones are not sent. */
+function showMethodKnobs(lane) {
+  const method = laneMethod(lane);
+  for (const knob of lane.knobs || []) {
+    $(`[data-knob-row="${CSS.escape(knob.name)}"]`, lane).hidden = !knobApplies(knob, method);
+  }
+}
+
+/** The lane's method, or null for a model with none. */
+function laneMethod(lane) {
+  return $('.lane-method-label', lane).hidden ? null : $('.lane-method', lane).value;
 }
 
 /** A model file may carry its own sampling defaults (the steps it was tuned for): ask the server
@@ -205,7 +307,10 @@ async function loadRunKnobs(lane) {
     const path = `/api/models/${encodeURIComponent(model)}/runs/${encodeURIComponent(run)}`;
     const details = await (await api(path)).json();
     const unchanged = $('.lane-model', lane).value === model && $('.lane-run', lane).value === run;
-    if (unchanged) showKnobs(lane, details.knobs);
+    if (!unchanged) return;
+    lane.details = details;
+    showKnobs(lane, details.knobs);
+    showRunFacts();
   } catch (err) {
     showError(err.message);
   }
@@ -230,19 +335,110 @@ function addCompareLane() {
 }
 
 function laneRequest(lane) {
-  const model = modelNamed($('.lane-model', lane).value);
-  const body = { model: model.name, run: $('.lane-run', lane).value, options: {} };
-  if ((model.methods || []).length) body.method = $('.lane-method', lane).value;
-  for (const knob of lane.knobs || []) {
+  const body = { model: $('.lane-model', lane).value, run: $('.lane-run', lane).value, options: {} };
+  const method = laneMethod(lane);
+  if (method !== null) body.method = method;
+  for (const knob of (lane.knobs || []).filter((k) => knobApplies(k, method))) {
     const value = knobValue($(`[data-knob="${CSS.escape(knob.name)}"]`, lane), knob);
     if (value !== undefined) body.options[knob.name] = value;
   }
   return body;
 }
 
+/** "model · method", the method by its label. */
+function modelTitle(modelName, method) {
+  const labels = modelNamed(modelName)?.method_labels || {};
+  return [modelName, method && (labels[method] || method)].filter(Boolean).join(' · ');
+}
+
 function laneTitle(lane) {
-  const method = $('.lane-method-label', lane).hidden ? '' : ` · ${$('.lane-method', lane).value}`;
-  return `${$('.lane-model', lane).value}${method}`;
+  return modelTitle($('.lane-model', lane).value, laneMethod(lane));
+}
+
+// ---- what the lanes' runs accept and know: the action lengths, the actions -------------
+
+/** Seconds as people write them: 0.2, 4.8, 60. */
+const secondsText = (seconds) => String(Number(seconds.toFixed(2)));
+
+/** The seconds one action may last in every lane's run and under the server's cap:
+ *  [shortest, longest], or null until the runs are known. */
+function actionRange() {
+  const ranges = $$('#lanes .lane').map((lane) => lane.details?.seconds).filter(Boolean);
+  if (!ranges.length) return null;
+  const longest = Math.min(...ranges.map((r) => r[1]), state.catalog?.max_seconds || Infinity);
+  return [Math.max(...ranges.map((r) => r[0])), longest];
+}
+
+/** An action's seconds field takes what the runs accept; "any" step, as the shortest need not be
+ *  a multiple of 0.1 and HTML counts steps from the minimum. */
+function limitSeconds(input, range) {
+  input.step = 'any';
+  if (range) Object.assign(input, { min: String(range[0]), max: String(range[1]) });
+  input.title = range ? `${secondsText(range[0])}–${secondsText(range[1])} s; empty: the model's typical length` : '';
+}
+
+/** The header's and the fields' limits, and the actions the runs know: after any lane changes. */
+function showRunFacts() {
+  if (!state.catalog) return;
+  const range = actionRange();
+  const max = state.catalog.max_seconds;
+  const span = range && `${secondsText(range[0])}–${secondsText(range[1])}`;
+  const total = max ? `up to ${secondsText(max)} s in all` : 'no cap on the total';
+  $('#dataset').textContent = `dataset: ${state.catalog.dataset} · ${total}${range ? `, each action ${span} s` : ''}`;
+  $$('#actions .action-seconds').forEach((input) => limitSeconds(input, range));
+  const whole = $('#prompt-seconds');
+  if (range) whole.min = String(range[0]);
+  if (max) whole.max = String(max);
+  const cap = max ? `; at most ${secondsText(max)} s in all` : '';
+  $('#seconds-hint').textContent = range
+    ? `Seconds: ${span} for each action; empty: the model's typical length${cap}.`
+    : "Empty seconds: the model's typical length for that action.";
+  $('#prompt-seconds-hint').textContent = range ? `Each action ${span} s${cap}; empty: typical lengths.` : '';
+  showKnownActions();
+}
+
+/** "a person jumps": an example sentence for a verb the model was shown alone. */
+function exampleOf(verb) {
+  if (/(s|sh|ch|x|z|o)$/.test(verb)) return `a person ${verb}es`;
+  if (/[^aeiou]y$/.test(verb)) return `a person ${verb.slice(0, -1)}ies`;
+  return `a person ${verb}s`;
+}
+
+const SHOWN_VERBS = 24; // more are behind "more", so a big model's list does not bury the form
+
+/** The actions each lane's run was shown alone, each a button that adds its example sentence. */
+function showKnownActions() {
+  const runs = new Map();
+  for (const lane of $$('#lanes .lane')) {
+    const details = lane.details;
+    if (details?.actions?.length) runs.set(`${details.model}/${details.id}`, details);
+  }
+  const lines = [...runs.values()].map((details) => {
+    const line = document.createElement('div');
+    line.className = 'known';
+    const who = runs.size > 1 ? `${details.model} (run ${details.id}) knows` : 'This model knows';
+    line.append(`${who} ${details.actions.length} action${details.actions.length === 1 ? '' : 's'}: `);
+    const chips = details.actions.map((verb) => {
+      const chip = document.createElement('button');
+      chip.type = 'button';
+      chip.className = 'chip';
+      chip.textContent = verb;
+      chip.title = `Add “${exampleOf(verb)}”`;
+      chip.addEventListener('click', () => useExample(exampleOf(verb)));
+      return chip;
+    });
+    line.append(...chips.slice(0, SHOWN_VERBS));
+    if (chips.length > SHOWN_VERBS) {
+      const more = document.createElement('details');
+      const summary = document.createElement('summary');
+      summary.textContent = `${chips.length - SHOWN_VERBS} more`;
+      more.append(summary, ...chips.slice(SHOWN_VERBS));
+      line.append(more);
+    }
+    return line;
+  });
+  $('#known-actions').replaceChildren(...lines);
+  $('#known-actions').hidden = lines.length === 0;
 }
 
 // ---- generate: one streamed request per lane, all at once -----------------------------
@@ -295,7 +491,7 @@ function formIsValid() {
   const bad = shown.find((el) => !el.checkValidity());
   if (!bad) return true;
   bad.reportValidity();
-  const name = bad.dataset.knob || bad.getAttribute('aria-label') || bad.id || 'A field';
+  const name = bad.dataset.label || bad.getAttribute('aria-label') || bad.id || 'A field';
   showError(`${name}: ${bad.validationMessage}`);
   return false;
 }
@@ -329,14 +525,28 @@ function reportOutcomes(lanes, outcomes) {
   showError(failed.map(([o, lane]) => prefix(lane) + o.reason.message).join(' '));
   const results = outcomes.filter((o) => o.status === 'fulfilled').map((o) => o.value);
   if (results.length) showResults(results);
+  showNotices(results);
+}
+
+/** What the models did not know of the actions (words never read, verbs never shown alone):
+ *  worth knowing, not an error; each said once however many lanes say it. */
+function showNotices(results) {
+  const notices = [...new Set(results.flatMap((result) => result.notices || []))];
+  const items = notices.map((notice) => {
+    const item = document.createElement('li');
+    item.textContent = notice;
+    return item;
+  });
+  $('#notices ul').replaceChildren(...items);
+  $('#notices').hidden = items.length === 0;
 }
 
 // ---- results ----------------------------------------------------------------------------
 
-function downloadLinks(files) {
+function downloadLinks(result) {
   const box = document.createElement('div');
   box.className = 'downloads';
-  for (const [format, href] of Object.entries(files || {})) {
+  for (const [format, href] of Object.entries(result.files || {})) {
     const link = document.createElement('a');
     link.href = withToken(href);
     link.download = '';
@@ -344,7 +554,29 @@ function downloadLinks(files) {
     link.textContent = format.toUpperCase();
     box.append(link);
   }
+  const bvh = $('a[data-format="bvh"]', box);
+  if (bvh) box.append(restPoseChoice(bvh), bvhNote(result.fps));
   return box;
+}
+
+/** The BVH's rest pose: the skeleton's own (as generated), or a T-pose for tools that expect one. */
+function restPoseChoice(link) {
+  const base = link.href;
+  const label = document.createElement('label');
+  label.className = 'rest-pose';
+  const select = document.createElement('select');
+  select.add(new Option('As generated', ''));
+  select.add(new Option('T-pose', 'tpose'));
+  select.addEventListener('change', () => { link.href = select.value ? withQuery(base, 'rest', select.value) : base; });
+  label.append('BVH rest pose ', select);
+  return label;
+}
+
+function bvhNote(fps) {
+  const note = document.createElement('p');
+  note.className = 'bvh-note muted small';
+  note.textContent = `The BVH is at ${fps} fps: in Blender's BVH import, tick “Update Scene FPS”.`;
+  return note;
 }
 
 function mlflowLine(mlflow) {
@@ -356,20 +588,37 @@ function mlflowLine(mlflow) {
   id.textContent = mlflow.run_id;
   if (mlflow.url) Object.assign(id, { href: mlflow.url, target: '_blank', rel: 'noopener' });
   line.append(id);
+  if (mlflow.url) {
+    // the address is MLflow's UI, which nothing here starts
+    const note = document.createElement('span');
+    note.className = 'mlflow-note';
+    note.append(' (opens with ');
+    const command = document.createElement('code');
+    command.textContent = 'make ui';
+    note.append(command, ' running)');
+    line.append(note);
+  }
   return line;
 }
 
+/** The result's heading for people (model and method), with the generator's exact settings
+ *  (its own notation) kept on a line of their own. */
 function playerElement(result) {
   const article = document.createElement('article');
   article.className = 'player';
   const title = document.createElement('h3');
   title.className = 'player-title';
-  title.textContent = [result.model, result.method, result.describe].filter(Boolean).join(' · ');
-  title.title = title.textContent; // the full title when the heading is cut short
+  title.textContent = modelTitle(result.model, result.method);
   const meta = document.createElement('p');
   meta.className = 'player-meta muted small';
   meta.textContent = `run ${result.run} · seed ${result.seed} · ${Number(result.seconds).toFixed(1)} s at ${result.fps} fps`;
   article.append(title, meta);
+  if (result.describe) {
+    const settings = document.createElement('p');
+    settings.className = 'player-settings muted small';
+    settings.textContent = `Settings: ${result.describe}`;
+    article.append(settings);
+  }
   return article;
 }
 
@@ -377,14 +626,15 @@ function showResults(results) {
   const area = $('#players');
   area.replaceChildren();
   const seek = (seconds) => { state.clock.pause(); state.clock.seek(seconds); };
+  area.classList.toggle('many', results.length > 1); // before the players measure their canvases
   const players = results.map((result) => {
     const article = playerElement(result);
     area.append(article);
     const player = new SkeletonPlayer(article, result, { onSeek: seek });
-    article.append(downloadLinks(result.files), mlflowLine(result.mlflow));
+    article.append(downloadLinks(result), mlflowLine(result.mlflow));
     return player;
   });
-  area.classList.toggle('many', players.length > 1);
+  SkeletonPlayer.shareScale(players);
   state.clock.setPlayers(players);
   state.clock.play();
 }
@@ -427,9 +677,8 @@ async function loadModels() {
     showError(err.message);
     return;
   }
-  const { dataset, max_seconds: max, models } = state.catalog;
-  $('#dataset').textContent = `dataset: ${dataset} · ${max ? `up to ${max} s` : 'no length cap'}`;
-  if (max) $$('.action-seconds, #prompt-seconds').forEach((input) => { input.max = max; });
+  const { models } = state.catalog;
+  showRunFacts();
   $('#lanes').replaceChildren();
   if (!models.length) {
     showError('No trained model yet: train one, then reload this page.');
@@ -452,6 +701,9 @@ function start() {
   readToken();
   addAction('a person walks forward', 3);
   addAction('a person jumps', 2);
+  // a narrower form (a scroll bar, a window) can make a sentence need another line
+  new ResizeObserver(() => requestAnimationFrame(() => $$('#actions .action-text').forEach(fitHeight)))
+    .observe($('#actions'));
   $('#actions').addEventListener('click', onActionButton);
   $('#add-action').addEventListener('click', () => $('.action-text', addAction()).focus());
   $$('input[name="mode"]').forEach((radio) => radio.addEventListener('change', showMode));

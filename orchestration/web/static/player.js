@@ -2,13 +2,6 @@
 // player.js: a 3D skeleton player drawn by hand on a 2D canvas, and the Clock that
 // keeps several players in step (compare view). Data is y-up, in metres.
 
-// Left/right joints of the skeletons m2d2m exports (as in m2d2m/motion/skeleton.py);
-// an unknown skeleton is simply drawn in one colour.
-const SIDES = {
-  t2m: { left: [1, 4, 7, 10, 13, 16, 18, 20], right: [2, 5, 8, 11, 14, 17, 19, 21] },
-  kit: { left: [5, 6, 7, 11, 12, 13, 14, 15], right: [8, 9, 10, 16, 17, 18, 19, 20] },
-};
-
 const COLOURS = {
   background: '#f7f8fa',
   grid: '#e1e5ea',
@@ -104,9 +97,14 @@ function clippedLine(ctx, view, a, b) {
   ctx.lineTo(x1, y1);
 }
 
+/** A frame's time in seconds as the legend shows it: 0, 1.6, 2.85. */
+const secondsAt = (frame, fps) => String(Number((frame / fps).toFixed(2)));
+
 /**
- * One result on its own canvas, with a timeline of its actions under it.
- * `root` is the .player element; the player appends its canvas and timeline to it.
+ * One result on its own canvas, with a timeline of its actions and their legend under it.
+ * `root` is the .player element; the player appends its canvas, timeline and legend to it. The result
+ * says which joints are the body's left and right and which is the head; without them the
+ * figure is drawn in one colour and without a head.
  */
 class SkeletonPlayer {
   constructor(root, result, { onSeek } = {}) {
@@ -119,37 +117,64 @@ class SkeletonPlayer {
     this.duration = this.frames / this.fps;
     this.frame = 0;
     this.onSeek = onSeek || (() => {});
-    this.side = this.sidesOf(result.skeleton);
+    this.side = this.parents.map(() => 'centre');
+    (result.left_joints || []).forEach((j) => { this.side[j] = 'left'; });
+    (result.right_joints || []).forEach((j) => { this.side[j] = 'right'; });
+    this.head = result.head_joint ?? null;
     this.bounds = motionBounds(this.joints);
+    // the head's disc is a ninth of the body's height across, as in the GIF
+    const heights = this.joints[0].map((p) => p[1]);
+    this.headRadius = (Math.max(...heights) - Math.min(...heights)) / 18;
     this.camera = new Camera();
     root.dataset.frames = String(this.frames);
-    this.buildCanvas();
+    this.buildCanvas(Boolean(result.left_joints?.length && result.right_joints?.length));
     this.buildTimeline();
+    this.buildLegend();
     this.fitted = false;
     this.resize(); // root is already in the page, so its size is known now
     this.resizer = new ResizeObserver(() => this.resize());
     this.resizer.observe(this.wrap);
   }
 
-  sidesOf(skeleton) {
-    const side = this.parents.map(() => 'centre');
-    const known = SIDES[skeleton];
-    if (known && this.parents.length === Math.max(...known.left, ...known.right) + 1) {
-      known.left.forEach((j) => { side[j] = 'left'; });
-      known.right.forEach((j) => { side[j] = 'right'; });
-    }
-    return side;
+  /**
+   * Give compared players one scale: each is fitted to its own motion, then all take the
+   * farthest camera among them, so the same body is the same size in each.
+   */
+  static shareScale(players) {
+    const distance = Math.max(...players.map((p) => p.camera.home.distance));
+    players.forEach((p) => p.setHomeDistance(distance));
   }
 
-  buildCanvas() {
+  setHomeDistance(distance) {
+    this.camera.home.distance = distance;
+    this.camera.reset();
+    this.draw();
+  }
+
+  buildCanvas(withSides) {
     this.wrap = document.createElement('div');
     this.wrap.className = 'canvas-wrap';
     this.canvas = document.createElement('canvas');
     this.label = document.createElement('span');
     this.label.className = 'frame-label';
     this.wrap.append(this.canvas, this.label);
+    if (withSides) this.wrap.append(this.sideLegend());
     this.root.append(this.wrap);
     this.bindOrbit();
+  }
+
+  /** Which colour is the body's left and which its right, as the GIF says too. */
+  sideLegend() {
+    const legend = document.createElement('span');
+    legend.className = 'side-legend';
+    for (const side of ['left', 'right']) {
+      const item = document.createElement('span');
+      item.className = `side-${side}`;
+      item.style.color = COLOURS[side];
+      item.textContent = side;
+      legend.append(item);
+    }
+    return legend;
   }
 
   /** Drag to orbit, wheel to zoom, double-click to go back to the fitted view. */
@@ -189,7 +214,7 @@ class SkeletonPlayer {
       seg.style.left = `${(100 * action.first) / this.frames}%`;
       seg.style.width = `${(100 * (action.end - action.first)) / this.frames}%`;
       const text = document.createElement('span');
-      text.textContent = action.text;
+      text.className = 'segment-label';
       seg.append(text);
       return seg;
     });
@@ -198,6 +223,39 @@ class SkeletonPlayer {
     this.timeline.append(...this.segments, this.playhead);
     this.timeline.addEventListener('pointerdown', (e) => this.seekFromTimeline(e));
     this.root.append(this.timeline);
+  }
+
+  /** Every action with its number and seconds, in full: what a short segment has no room for. */
+  buildLegend() {
+    this.legend = document.createElement('ol');
+    this.legend.className = 'action-legend';
+    this.legendItems = this.actions.map((action) => {
+      const item = document.createElement('li');
+      const text = document.createElement('span');
+      text.className = 'legend-text';
+      text.textContent = action.text;
+      const time = document.createElement('span');
+      time.className = 'legend-time';
+      time.textContent = `${secondsAt(action.first, this.fps)}–${secondsAt(action.end, this.fps)} s`;
+      item.append(text, time);
+      return item;
+    });
+    this.legend.append(...this.legendItems);
+    this.root.append(this.legend);
+  }
+
+  /** Each segment shows its action's whole text (over two lines at most), or, where that does
+   *  not fit, its number in the legend: never a cut sentence. */
+  fitLabels() {
+    this.segments.forEach((seg, i) => {
+      const label = seg.firstElementChild;
+      label.textContent = this.actions[i].text;
+      seg.classList.remove('numbered');
+      if (label.scrollWidth > label.clientWidth || label.scrollHeight > label.clientHeight) {
+        label.textContent = String(i + 1);
+        seg.classList.add('numbered');
+      }
+    });
   }
 
   seekFromTimeline(e) {
@@ -214,9 +272,10 @@ class SkeletonPlayer {
   setFrame(frame) {
     this.frame = frame;
     this.playhead.style.left = `${(100 * (frame + 0.5)) / this.frames}%`;
-    this.segments.forEach((seg, i) => {
-      const a = this.actions[i];
-      seg.classList.toggle('active', a.first <= frame && frame < a.end);
+    this.actions.forEach((a, i) => {
+      const active = a.first <= frame && frame < a.end;
+      this.segments[i].classList.toggle('active', active);
+      this.legendItems[i].classList.toggle('active', active);
     });
     this.label.textContent = `frame ${frame + 1} / ${this.frames} · ${(frame / this.fps).toFixed(2)} s`;
     this.draw();
@@ -236,6 +295,7 @@ class SkeletonPlayer {
       this.camera.fit(this.bounds, w, h);
       this.fitted = true;
     }
+    this.fitLabels();
     this.draw();
   }
 
@@ -249,7 +309,29 @@ class SkeletonPlayer {
     this.drawGrid(ctx, view, dpr);
     this.drawTrail(ctx, view, dpr);
     this.drawFigure(ctx, view, dpr, this.joints[this.frame]);
+    this.drawHead(ctx, view);
     this.root.dataset.frame = String(this.frame);
+    // CSS pixels per metre at the point the camera looks at: equal in compared players
+    this.root.dataset.scale = (view.focal / this.camera.distance / dpr).toFixed(3);
+  }
+
+  /** The head's disc on the canvas, [x, y, radius] in canvas pixels, or null when there is none
+   *  or it is behind the camera. */
+  headOnScreen(view = this.camera.view(this.canvas.width, this.canvas.height)) {
+    if (this.head === null) return null;
+    const q = view.toCamera(this.joints[this.frame][this.head]);
+    if (q[2] < NEAR) return null;
+    return [...view.toScreen(q), (view.focal * this.headRadius) / q[2]];
+  }
+
+  /** A head on top of the figure, as the GIF draws one: the figure reads as a person at a glance. */
+  drawHead(ctx, view) {
+    const head = this.headOnScreen(view);
+    if (!head) return;
+    ctx.beginPath();
+    ctx.arc(head[0], head[1], head[2], 0, 2 * Math.PI);
+    ctx.fillStyle = COLOURS.centre;
+    ctx.fill();
   }
 
   /** Half-metre grid on the floor (y = 0) around the whole motion, every metre a bit darker. */

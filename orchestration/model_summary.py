@@ -1,0 +1,63 @@
+"""``m2d2m models``: what each trained model of a dataset can be asked for, before anyone asks —
+the actions it was shown, how long an action may be, the words it reads, its methods and the
+defaults a generation with nothing set samples with (issue 38: the demo model's 18 actions and
+0.2–10 s per action were shown nowhere until an error)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from m2d2m.generators.options import MULTI
+from m2d2m.generators.protocol import MotionGenerator
+from m2d2m.layout import relative_to_project
+from orchestration.errors import NotInProject, UserError
+from orchestration.registry import ModelEntry, models
+from orchestration.web.catalog import finished_runs
+
+
+def summary_lines(dataset: str) -> list[str]:
+    """The summary of every registered model with a finished run of ``dataset``: its latest run's."""
+    lines: list[str] = []
+    for entry in models().values():
+        runs = finished_runs(entry, dataset)
+        if not runs:
+            continue
+        try:
+            generator = entry.load("generator").load(runs[0].model_file, "cpu")
+        except (FileNotFoundError, ValueError, KeyError) as error:
+            raise UserError(f"{entry.name} run {runs[0].name} cannot be loaded: {error}") from error
+        others = f", {len(runs) - 1} older" if len(runs) > 1 else ""
+        lines += [
+            f"{entry.name}: {entry.summary}",
+            f"  run {runs[0].name}{others} ({relative_to_project(runs[0].model_file)})",
+        ]
+        lines += [f"  {line}" for line in _knowledge(entry, generator)]
+    if not lines:
+        raise NotInProject(f"no model of dataset {dataset!r} has finished training; run `make train-diffusion` first")
+    return lines
+
+
+def _knowledge(entry: ModelEntry, generator: MotionGenerator) -> list[str]:
+    verbs = sorted(generator.known_verbs)
+    shortest, longest = generator.frame_step / generator.fps, generator.longest_frames / generator.fps
+    encoder = generator.text_encoder
+    reads = (
+        "what its model file does not say"
+        if encoder is None
+        else "any English"
+        if encoder.reads_any_word
+        else "only the words of its training captions (others are warned about)"
+    )
+    defaults: dict[str, Any] = generator.sampling.defaults(MULTI, generator.model_defaults)
+    method = defaults.pop("method")
+    lines = [
+        f"actions it was shown alone ({len(verbs)}): {', '.join(verbs) or 'none recorded'}",
+        f"each action {shortest:g}–{longest:g} s, at {generator.fps:g} frames per second; it reads {reads}",
+    ]
+    if entry.load("generator").needs_keep is not None:
+        lines.append(f"an editor: {entry.load('generator').needs_keep}")
+    lines += [
+        f"methods: {', '.join(m + (' (default)' if m == method else '') for m in generator.sampling.methods)}",
+        "defaults: " + ", ".join(f"{name} {'none' if value is None else value}" for name, value in defaults.items()),
+    ]
+    return lines
