@@ -1,0 +1,199 @@
+"""Reading BVH motion capture: the hierarchy, the frames, and world joint positions by forward
+kinematics, for any channel and rotation order, in metres.
+
+BVH (Biovision Hierarchy; the format as CMU's cgspeed conversions and Blender write it): a
+``HIERARCHY`` of ``ROOT``/``JOINT`` blocks, each with an ``OFFSET`` from its parent and the
+``CHANNELS`` it animates, ``End Site`` leaves, then ``MOTION``, ``Frames:``, ``Frame Time:`` and
+one line of channel values per frame. A joint's rotation is the product of its rotation channels
+in the order listed, ``R = R_c1 · R_c2 · R_c3`` acting on column vectors (what
+:func:`m2d2m.motion.export.save_bvh` writes, and Blender's importer reads); position channels,
+where a joint has them, give its translation from its parent in place of its ``OFFSET``. Angles
+are degrees. Every malformed file is a :class:`BvhError` (a ``ValueError``) in one sentence.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from m2d2m.motion.rotations import euler_to_matrix
+
+POSITIONS = ("Xposition", "Yposition", "Zposition")
+ROTATIONS = ("Xrotation", "Yrotation", "Zrotation")
+
+
+class BvhError(ValueError):
+    """A file that is not a readable BVH: what is wrong with it and where, in one sentence."""
+
+
+@dataclass(frozen=True)
+class BvhClip:
+    """A BVH file's skeleton and motion, lengths in metres."""
+
+    names: tuple[str, ...]
+    parents: np.ndarray  # (J,) each joint's parent, -1 for the root; parents come first
+    offsets: np.ndarray  # (J, 3) each joint's rest offset from its parent
+    end_sites: dict[int, np.ndarray]  # joint → its End Site's offset, for joints that have one
+    channels: tuple[tuple[str, ...], ...]  # each joint's channel names, in file order
+    values: np.ndarray  # (T, C) the frames' channel values, in file order (positions in metres)
+    frame_time: float  # seconds per frame
+
+    @property
+    def fps(self) -> float:
+        return 1.0 / self.frame_time
+
+    def joint(self, name: str) -> int:
+        """The index of the joint ``name``, or a BvhError naming the joints there are."""
+        if name not in self.names:
+            raise BvhError(f"no joint {name!r} in the BVH; it has {', '.join(self.names)}")
+        return self.names.index(name)
+
+    def positions(self) -> np.ndarray:
+        """World positions (T, J, 3) of every joint in every frame, by forward kinematics."""
+        frames, count = len(self.values), len(self.names)
+        world_rotation = np.empty((frames, count, 3, 3))
+        world_position = np.empty((frames, count, 3))
+        column = 0
+        for joint, channels in enumerate(self.channels):
+            block = self.values[:, column : column + len(channels)]
+            column += len(channels)
+            translation = np.broadcast_to(self.offsets[joint], (frames, 3)).copy()
+            rotation = np.broadcast_to(np.eye(3), (frames, 3, 3))
+            axes = "".join(name[0] for name in channels if name in ROTATIONS)
+            if axes:
+                angles = block[:, [i for i, name in enumerate(channels) if name in ROTATIONS]]
+                rotation = euler_to_matrix(np.radians(angles), axes)
+            for i, name in enumerate(channels):
+                if name in POSITIONS:
+                    translation[:, POSITIONS.index(name)] = block[:, i]
+            parent = self.parents[joint]
+            if parent < 0:
+                world_rotation[:, joint], world_position[:, joint] = rotation, translation
+            else:
+                world_rotation[:, joint] = world_rotation[:, parent] @ rotation
+                world_position[:, joint] = world_position[:, parent] + np.einsum(
+                    "tij,tj->ti", world_rotation[:, parent], translation
+                )
+        return world_position
+
+
+def read_bvh(path: str | Path, metres_per_unit: float = 1.0) -> BvhClip:
+    """The BVH file at ``path``, its lengths (offsets, position channels) × ``metres_per_unit``:
+    1 for a file in metres, 0.056444 for CMU's cgspeed conversions (1/0.45 inch a unit)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except OSError as error:
+        raise BvhError(f"{path}: cannot be read ({error.strerror})") from error
+    head, separator, motion = text.partition("MOTION")
+    if not head.lstrip().startswith("HIERARCHY") or not separator:
+        raise BvhError(f"{path}: not a BVH file (it must start with HIERARCHY and have a MOTION section)")
+    names, parents, offsets, end_sites, channels = _hierarchy(head.split()[1:], path)
+    values, frame_time = _frames(motion, sum(len(c) for c in channels), path)
+    scale = np.ones(values.shape[1])
+    scale[[i for i, name in enumerate(n for c in channels for n in c) if name in POSITIONS]] = metres_per_unit
+    return BvhClip(
+        tuple(names),
+        np.asarray(parents, dtype=np.int64),
+        np.asarray(offsets, dtype=np.float64) * metres_per_unit,
+        {joint: np.asarray(offset) * metres_per_unit for joint, offset in end_sites.items()},
+        tuple(tuple(c) for c in channels),
+        values * scale,
+        frame_time,
+    )
+
+
+def _hierarchy(tokens: list[str], path: Path):
+    """Names, parents, offsets, End Sites and channels of the joints, from the tokens after HIERARCHY."""
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[list[float]] = []
+    end_sites: dict[int, list[float]] = {}
+    channels: list[list[str]] = []
+    stack: list[int] = []  # the open joints; -1 marks an open End Site
+    i = 0
+    try:
+        while i < len(tokens):
+            token = tokens[i]
+            if token in ("ROOT", "JOINT"):
+                if (token == "ROOT") != (not stack):
+                    raise BvhError(f"{path}: a {token} at the wrong place in the hierarchy")
+                names.append(tokens[i + 1])
+                parents.append(stack[-1] if stack else -1)
+                offsets.append([0.0, 0.0, 0.0])
+                channels.append([])
+                stack.append(len(names) - 1)
+                i += 2
+            elif token == "End":  # "End Site"
+                stack.append(-1)
+                i += 2
+            elif token == "OFFSET":
+                offset = [float(v) for v in tokens[i + 1 : i + 4]]
+                if stack[-1] < 0:
+                    end_sites[stack[-2]] = offset
+                else:
+                    offsets[stack[-1]] = offset
+                i += 4
+            elif token == "CHANNELS":
+                count = int(tokens[i + 1])
+                listed = tokens[i + 2 : i + 2 + count]
+                unknown = [name for name in listed if name not in POSITIONS + ROTATIONS]
+                if unknown:
+                    raise BvhError(f"{path}: unknown channel {unknown[0]!r} of joint {names[stack[-1]]!r}")
+                channels[stack[-1]] = listed
+                i += 2 + count
+            elif token == "{":
+                i += 1
+            elif token == "}":
+                stack.pop()
+                i += 1
+            else:
+                raise BvhError(f"{path}: unexpected {token!r} in the hierarchy")
+    except BvhError:
+        raise
+    except (IndexError, ValueError) as error:  # a block cut short, or a number that is not one
+        raise BvhError(f"{path}: a malformed hierarchy near token {i} ({error})") from error
+    if not names or stack:
+        raise BvhError(f"{path}: the hierarchy has no joints or an unclosed block")
+    return names, parents, offsets, end_sites, channels
+
+
+def _frames(motion: str, width: int, path: Path) -> tuple[np.ndarray, float]:
+    """The channel values (T, width) and the frame time of the MOTION section."""
+    lines = motion.strip().splitlines()
+    try:
+        count = int(lines[0].split(":")[1])
+        frame_time = float(lines[1].split(":")[1])
+        values = np.array([[float(v) for v in line.split()] for line in lines[2 : 2 + count]], dtype=np.float64)
+    except (IndexError, ValueError) as error:
+        raise BvhError(f"{path}: a malformed MOTION section (Frames:, Frame Time:, then the frames)") from error
+    if count < 1:
+        raise BvhError(f"{path}: no frames")
+    if not (math.isfinite(frame_time) and frame_time > 0):
+        raise BvhError(f"{path}: Frame Time must be a positive number of seconds, got {frame_time:g}")
+    if values.shape != (count, width):
+        raise BvhError(
+            f"{path}: {count} frames of {width} channels announced, but {len(values)} lines "
+            f"{'of ' + str(values.shape[1]) + ' values ' if values.ndim == 2 else ''}follow"
+        )
+    if not np.isfinite(values).all():
+        raise BvhError(f"{path}: a frame holds NaN or infinite values")
+    return values, frame_time
+
+
+def resample(positions: np.ndarray, fps: float, target_fps: float) -> np.ndarray:
+    """Positions (T, ...) at ``fps`` taken to ``target_fps``: every n-th frame where ``fps`` is n
+    times the target (HumanML3D's rule: ``pose_seq[::down_sample]``, so ceil(T / n) frames),
+    else linear interpolation at the target's instants within the clip."""
+    ratio = fps / target_fps
+    if abs(ratio - round(ratio)) < 1e-3 and round(ratio) >= 1:  # a Frame Time printed as .0083333
+        return positions[:: int(round(ratio))]
+    times = np.arange(0.0, (len(positions) - 1) / fps + 1e-9, 1.0 / target_fps)
+    source = times * fps
+    below = np.floor(source).astype(int).clip(0, len(positions) - 1)
+    above = np.minimum(below + 1, len(positions) - 1)
+    weight = (source - below).reshape(-1, *([1] * (positions.ndim - 1)))
+    return (1.0 - weight) * positions[below] + weight * positions[above]
