@@ -1,0 +1,153 @@
+"""A rig's joints as a skeleton's: which joint of a BVH file (or the midpoint of several) stands
+for each joint of the 22-joint T2M layout, so that motion capture becomes HumanML3D's joints.
+
+Presets name CMU's two cgspeed releases of its database (CMU's ASF bones as BVH joints, each joint
+at the start of its bone): the "3dsMax-friendly" names (``LeftHip``, ``Chest``, ``LeftCollar``…)
+and the "MotionBuilder-friendly" ones (``LeftUpLeg``, ``Spine``, ``LeftShoulder``…). CMU's spine
+and neck have other joints than SMPL's, so the map is approximate there: SMPL's ``spine2`` is the
+midpoint of CMU's upper back and thorax, and its collars the midpoints of the clavicles (the
+features made from them are not HumanML3D's, and their scores must not be set beside published
+ones). A user's own rig is a YAML map: ``our joint: their joint`` or ``our joint: [theirs, …]``
+for a midpoint, every joint of the layout named once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from m2d2m.motion.bvh_reader import BvhClip, BvhError
+from m2d2m.motion.skeleton import T2M, Skeleton
+
+
+@dataclass(frozen=True)
+class JointMap:
+    """For each joint of a skeleton, the joints of a rig whose mean position it takes."""
+
+    name: str
+    sources: dict[str, tuple[str, ...]]  # our joint → their joints (one, or several for a midpoint)
+
+    def check(self, skeleton: Skeleton = T2M) -> JointMap:
+        """This map, or ValueError when it leaves out a joint of ``skeleton`` or names one it lacks."""
+        missing = [joint for joint in skeleton.joint_names if joint not in self.sources]
+        unknown = [joint for joint in self.sources if joint not in skeleton.joint_names]
+        empty = [joint for joint, theirs in self.sources.items() if not theirs]
+        if missing or unknown or empty:
+            problems = [
+                f"it leaves out {', '.join(missing)}" if missing else "",
+                f"{skeleton.name} has no joint {', '.join(unknown)}" if unknown else "",
+                f"no joint of the rig given for {', '.join(empty)}" if empty else "",
+            ]
+            raise ValueError(f"joint map {self.name}: {'; '.join(p for p in problems if p)}")
+        return self
+
+    def fits(self, clip: BvhClip) -> bool:
+        """Whether every joint this map reads is in ``clip``."""
+        return all(name in clip.names for theirs in self.sources.values() for name in theirs)
+
+    def joints(self, clip: BvhClip, skeleton: Skeleton = T2M) -> np.ndarray:
+        """``clip``'s motion as ``skeleton``'s joints (T, J, 3), in metres; BvhError names the
+        joints the map reads that the file lacks."""
+        lacking = sorted({name for theirs in self.sources.values() for name in theirs} - set(clip.names))
+        if lacking:
+            raise BvhError(f"joint map {self.name} reads {', '.join(lacking)}, which the BVH lacks")
+        positions = clip.positions()
+        return np.stack(
+            [
+                positions[:, [clip.joint(name) for name in self.sources[joint]]].mean(axis=1)
+                for joint in skeleton.joint_names
+            ],
+            axis=1,
+        )
+
+    @classmethod
+    def from_yaml(cls, path: str | Path, skeleton: Skeleton = T2M) -> JointMap:
+        """A user's map: a YAML mapping of our joint → their joint, or a list of theirs for a midpoint."""
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        except (OSError, yaml.YAMLError) as error:
+            raise ValueError(f"{path}: not a readable YAML joint map ({error})") from error
+        if not isinstance(data, dict) or not all(isinstance(v, (str, list)) for v in data.values()):
+            raise ValueError(f"{path}: a joint map is a mapping of our joint → their joint or a list of theirs")
+        sources = {
+            str(ours): (theirs,) if isinstance(theirs, str) else tuple(map(str, theirs))
+            for ours, theirs in data.items()
+        }
+        return cls(str(path), sources).check(skeleton)
+
+
+def _cmu(
+    hip: str,
+    knee: str,
+    ankle: str,
+    toe: str,
+    upperback: str,
+    thorax: str,
+    upperneck: str,
+    clavicle: str,
+    humerus: str,
+    radius: str,
+    wrist: str,
+    name: str,
+) -> JointMap:
+    """CMU's map in one release's names; each side's names begin with Left/Right (L/R for the rest)."""
+    sides = {"left": "Left", "right": "Right"}
+    sources: dict[str, tuple[str, ...]] = {
+        "pelvis": ("Hips",),
+        "spine1": (upperback,),
+        "spine2": (upperback, thorax),
+        "spine3": (thorax,),
+        "neck": (upperneck,),
+        "head": ("Head",),
+    }
+    for side, prefix in sides.items():
+        sources |= {
+            f"{side}_hip": (prefix + hip,),
+            f"{side}_knee": (prefix + knee,),
+            f"{side}_ankle": (prefix + ankle,),
+            f"{side}_foot": (prefix + toe,),
+            f"{side}_collar": (prefix + clavicle, prefix + humerus),
+            f"{side}_shoulder": (prefix + humerus,),
+            f"{side}_elbow": (prefix + radius,),
+            f"{side}_wrist": (prefix + wrist,),
+        }
+    return JointMap(name, sources).check()
+
+
+PRESETS: dict[str, JointMap] = {
+    "cmu": _cmu(
+        "Hip", "Knee", "Ankle", "Toe", "Chest", "Chest2", "Neck", "Collar", "Shoulder", "Elbow", "Wrist", "cmu"
+    ),
+    "cmu-motionbuilder": _cmu(
+        "UpLeg",
+        "Leg",
+        "Foot",
+        "ToeBase",
+        "Spine",
+        "Spine1",
+        "Neck1",
+        "Shoulder",
+        "Arm",
+        "ForeArm",
+        "Hand",
+        "cmu-motionbuilder",
+    ),
+}
+
+
+def joint_map_for(clip: BvhClip, given: str | Path | None = None) -> JointMap:
+    """The map ``given`` (a preset's name or a YAML file), or the preset whose joints ``clip`` has;
+    BvhError when none fits."""
+    if given is not None:
+        return PRESETS[str(given)] if str(given) in PRESETS else JointMap.from_yaml(given)
+    for preset in PRESETS.values():
+        if preset.fits(clip):
+            return preset
+    raise BvhError(
+        f"no joint map preset ({', '.join(PRESETS)}) fits a BVH with joints {', '.join(clip.names[:8])}, …; "
+        "give a YAML map of our joint → yours"
+    )
