@@ -279,7 +279,7 @@ def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import edit_part, generate, load_generator, plan_output
+    from orchestration.generate import edit_part, generate, load_generator
     from orchestration.viewing import load_features
 
     if args.part:
@@ -293,7 +293,7 @@ def _generate(args: argparse.Namespace) -> None:
         )
     if args.edit is not None and args.seconds is not None:
         raise UserError("--seconds does not go with --edit: the edited motion is as long as the source")
-    output = plan_output(args.out, args.name, args.formats, args.rest)
+    output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     if args.method is not None:
@@ -322,11 +322,23 @@ def _generate(args: argparse.Namespace) -> None:
     _report(motion, output, args.prompts, args)
 
 
+def _planned_output(args: argparse.Namespace) -> Any:
+    """Where a generation's files go, checked before the model loads: ``--out``, and without it
+    the generate runs' folder, made now (a file in its way is one line, not a lost sampling)."""
+    from orchestration.generate import GENERATE_STAGE, plan_output
+    from orchestration.runs import ensure_stage_dir
+
+    output = plan_output(args.out, args.name, args.formats, args.rest)
+    if output.directory is None:
+        ensure_stage_dir(args.dataset, GENERATE_STAGE)
+    return output
+
+
 def _generate_parts(args: argparse.Namespace) -> None:
     """``generate --part PART=TEXT``: one sentence per body part; a prompt, if given, drives the parts
     not named."""
     from m2d2m.motion.body_parts import PARTS
-    from orchestration.generate import generate_parts, load_generator, plan_output
+    from orchestration.generate import generate_parts, load_generator
 
     if args.edit is not None:
         raise UserError("--part does not go with --edit: body-part control generates the whole motion")
@@ -342,7 +354,7 @@ def _generate_parts(args: argparse.Namespace) -> None:
     if missing and not args.prompts:
         raise UserError(f"give a prompt for the parts not named ({', '.join(missing)}), or --part for each of them")
     parts.update({part: args.prompts[0] for part in missing})
-    output = plan_output(args.out, args.name, args.formats, args.rest)
+    output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     motion = generate_parts(

@@ -265,12 +265,21 @@ def generate(
     planner = PromptPlanner(generator)
     actions, frames = planner.plan(prompts, seconds, split)
     check_length(frames, generator.fps, max_seconds)
+    notices = planner.notices(actions)
+
+    def warn() -> None:
+        """Say what the model does not know once sampling has begun: a request refused before
+        that stays the one line of its error."""
+        while notices:
+            print(f"warning: {notices.pop(0)}", file=sys.stderr)
+
     try:
         settings = generator.options(**options)
-        for notice in planner.notices(actions):
-            print(f"warning: {notice}", file=sys.stderr)
         with _progress(f"sampling {len(actions)} action(s), {sum(frames) / generator.fps:.1f} s") as advance:
-            motion = generator.generate([actions], [frames], settings, [seed], progress=advance)[0]
+            motion = generator.generate(
+                [actions], [frames], settings, [seed], progress=lambda done: (warn(), advance(done))
+            )[0]
+        warn()
         return motion.on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error

@@ -56,6 +56,20 @@ def stage_dir(dataset: str, stage: str) -> Path:
     return RUNS_ROOT / dataset / stage
 
 
+def ensure_stage_dir(dataset: str, stage: str) -> Path:
+    """The folder of a stage's runs, made now: a file in its way, or a folder one may not write,
+    is one line before any work rather than after it."""
+    folder = stage_dir(dataset, stage)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UserError(
+            f"cannot make the run folder {folder}/: {error.strerror}; "
+            f"{folder} and the folders above it must be folders you can write"
+        ) from error
+    return folder
+
+
 def new_run_dir(dataset: str, stage: str) -> Path:
     """A fresh, sortable run directory: ``<UTC time>-<random>``, recording when and by which
     process it was started (so a bench tells its own runs from those of a command run beside it)."""
