@@ -324,12 +324,13 @@ def _generate(args: argparse.Namespace) -> None:
 
 def _planned_output(args: argparse.Namespace) -> Any:
     """Where a generation's files go, checked before the model loads: ``--out``, and without it
-    the generate runs' folder, made now (a file in its way is one line, not a lost sampling)."""
+    the project's generate runs' folder, made now (a file in its way is one line, not a lost
+    sampling; outside a project nothing is made before the verb says where it runs)."""
     from orchestration.generate import GENERATE_STAGE, plan_output
     from orchestration.runs import ensure_stage_dir
 
     output = plan_output(args.out, args.name, args.formats, args.rest)
-    if output.directory is None:
+    if output.directory is None and is_project(Path.cwd()):
         ensure_stage_dir(args.dataset, GENERATE_STAGE)
     return output
 
