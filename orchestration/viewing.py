@@ -85,7 +85,14 @@ def load_features(source: str | Path, skeleton: Skeleton) -> np.ndarray:
     if array.ndim == 2 and array.shape[1] == skeleton.feature_dim:
         return array.astype(np.float32)
     if array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3) and len(array) >= 2:
-        return joints_to_features(array, skeleton)
+        with np.errstate(invalid="ignore", divide="ignore"):  # said below, once, in words
+            features = joints_to_features(array, skeleton)
+        if not np.isfinite(features).all():
+            raise UserError(
+                f"{path}: these joints give no finite features: HumanML3D's processing needs a body whose "
+                "hips and shoulders show which way it faces"
+            )
+        return features
     raise UserError(
         f"{path}: shape {array.shape} is neither {skeleton.feature_dim}-d features nor joints "
         f"(T >= 2, {skeleton.num_joints}, 3) of the model's skeleton {skeleton.name!r}"

@@ -5,6 +5,7 @@ steps it is bounded by instead of printing "Epoch 0/-2"."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import lightning.pytorch as pl
@@ -152,3 +153,19 @@ def test_the_progress_bar_counts_steps_where_lightning_says_epoch_0_of_minus_2(t
     assert trainer.global_step == 5 and trainer.max_epochs == -1
     assert "/-2" in RichProgressBar._get_train_description(bar, 0)  # what Lightning itself would say
     assert [text.strip() for text in shown] == ["Steps 1–2 of 5", "Steps 3–4 of 5", "Step 5 of 5"]
+
+
+def test_joints_that_show_no_facing_are_refused_as_a_motion_to_edit(tmp_path):
+    """Every joint on one vertical line: HumanML3D's processing has no facing to turn the body to,
+    and gave NaN features (with a RuntimeWarning) that an edit would have started from."""
+    from m2d2m.motion.skeleton import T2M
+    from orchestration.errors import UserError
+    from orchestration.viewing import load_features
+
+    joints = np.zeros((12, 22, 3), dtype=np.float32)
+    joints[:, :, 1] = np.linspace(0.0, 1.7, 22)
+    np.save(tmp_path / "line.npy", joints)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no RuntimeWarning on the way
+        with pytest.raises(UserError, match="no finite features: .* show which way it faces"):
+            load_features(tmp_path / "line.npy", T2M)
