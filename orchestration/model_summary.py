@@ -10,9 +10,9 @@ from typing import Any
 from m2d2m.generators.options import MULTI
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.layout import relative_to_project
-from orchestration.errors import NotInProject, UserError
-from orchestration.registry import ModelEntry, models
-from orchestration.web.catalog import finished_runs
+from orchestration.errors import NotInProject
+from orchestration.registry import models
+from orchestration.web.catalog import finished_runs, load_run
 
 
 def summary_lines(dataset: str) -> list[str]:
@@ -22,22 +22,19 @@ def summary_lines(dataset: str) -> list[str]:
         runs = finished_runs(entry, dataset)
         if not runs:
             continue
-        try:
-            generator = entry.load("generator").load(runs[0].model_file, "cpu")
-        except (FileNotFoundError, ValueError, KeyError) as error:
-            raise UserError(f"{entry.name} run {runs[0].name} cannot be loaded: {error}") from error
+        generator = load_run(entry, runs[0])
         others = f", {len(runs) - 1} older" if len(runs) > 1 else ""
         lines += [
             f"{entry.name}: {entry.summary}",
             f"  run {runs[0].name}{others} ({relative_to_project(runs[0].model_file)})",
         ]
-        lines += [f"  {line}" for line in _knowledge(entry, generator)]
+        lines += [f"  {line}" for line in _knowledge(generator)]
     if not lines:
         raise NotInProject(f"no model of dataset {dataset!r} has finished training; run `make train-diffusion` first")
     return lines
 
 
-def _knowledge(entry: ModelEntry, generator: MotionGenerator) -> list[str]:
+def _knowledge(generator: MotionGenerator) -> list[str]:
     verbs = sorted(generator.known_verbs)
     shortest, longest = generator.frame_step / generator.fps, generator.longest_frames / generator.fps
     encoder = generator.text_encoder
@@ -54,8 +51,8 @@ def _knowledge(entry: ModelEntry, generator: MotionGenerator) -> list[str]:
         f"actions it was shown alone ({len(verbs)}): {', '.join(verbs) or 'none recorded'}",
         f"each action {shortest:g}–{longest:g} s, at {generator.fps:g} frames per second; it reads {reads}",
     ]
-    if entry.load("generator").needs_keep is not None:
-        lines.append(f"an editor: {entry.load('generator').needs_keep}")
+    if generator.needs_keep is not None:
+        lines.append(f"an editor: {generator.needs_keep}")
     lines += [
         f"methods: {', '.join(m + (' (default)' if m == method else '') for m in generator.sampling.methods)}",
         "defaults: " + ", ".join(f"{name} {'none' if value is None else value}" for name, value in defaults.items()),

@@ -63,31 +63,33 @@ def ensure_stage_dir(dataset: str, stage: str) -> Path:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        raise UserError(
-            f"cannot make the run folder {folder}/: {error.strerror}; "
-            f"{folder} and the folders above it must be folders you can write"
-        ) from error
+        raise _unmade(f"{folder}/", folder, error) from error
     return folder
+
+
+def _unmade(path: str | Path, folder: Path, error: OSError) -> UserError:
+    return UserError(
+        f"cannot make the run folder {path}: {error.strerror}; "
+        f"{folder} and the folders above it must be folders you can write"
+    )
 
 
 def new_run_dir(dataset: str, stage: str) -> Path:
     """A fresh, sortable run directory: ``<UTC time>-<random>``, recording when and by which
     process it was started (so a bench tells its own runs from those of a command run beside it)."""
+    folder = ensure_stage_dir(dataset, stage)
     started = time.time()
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime(started))
     while True:
-        path = stage_dir(dataset, stage) / f"{stamp}-{secrets.token_hex(2)}"
+        path = folder / f"{stamp}-{secrets.token_hex(2)}"
         try:
-            path.mkdir(parents=True)
+            path.mkdir()
             break
         except FileExistsError:  # the same second and the same four hex digits: draw again
             if not path.is_dir():
                 raise UserError(f"cannot make the run folder {path}: a file is in the way") from None
-        except OSError as error:  # a file where a folder of the path should be, a read-only disk
-            raise UserError(
-                f"cannot make the run folder {path}: {error.strerror}; "
-                f"{stage_dir(dataset, stage)} and the folders above it must be folders you can write"
-            ) from error
+        except OSError as error:  # a read-only folder, a full disk
+            raise _unmade(path, folder, error) from error
     write_run_info(path, started=started, pid=os.getpid())
     return path
 

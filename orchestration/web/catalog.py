@@ -58,6 +58,14 @@ def finished_runs(entry: ModelEntry, dataset: str) -> list[Run]:
     return runs
 
 
+def load_run(entry: ModelEntry, run: Run, device: str = "cpu") -> MotionGenerator:
+    """The generator of a finished run, or a one-line error naming the run that cannot be loaded."""
+    try:
+        return entry.load("generator").load(run.model_file, device)
+    except (FileNotFoundError, ValueError, KeyError) as error:
+        raise UserError(f"{entry.name} run {run.name} cannot be loaded: {error}") from error
+
+
 def knob_table(sampling: Sampling, defaults: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The knobs as JSON: name, kind, optional, help, bounds, choices and the default."""
     return [{**asdict(knob), "default": defaults[knob.name]} for knob in sampling.knobs()]
@@ -125,10 +133,7 @@ class Catalog:
         key = (model, chosen.name)
         with self._loading:
             if key not in self._generators:
-                try:
-                    self._generators[key] = entry.load("generator").load(chosen.model_file, self.device)
-                except (FileNotFoundError, ValueError, KeyError) as error:
-                    raise UserError(f"{model} run {chosen.name} cannot be loaded: {error}") from error
+                self._generators[key] = load_run(entry, chosen, self.device)
             return chosen.name, self._generators[key]
 
     def run_details(self, model: str, run: str) -> dict[str, Any]:

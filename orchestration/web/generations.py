@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from m2d2m.motion.clip import ANIMATIONS, Motion
-from m2d2m.motion.export import REST_POSES, save_bvh
+from m2d2m.motion.export import REST_POSES
 from orchestration.errors import UserError
 from orchestration.generate import GENERATE_STAGE, Output, save_generation
 from orchestration.runs import write_run_info
@@ -111,37 +111,26 @@ class Generations:
             raise NotFound(f"no file {name!r}; a generation has {', '.join(FILES)}")
         if rest_pose not in REST_POSES:
             raise UserError(f"rest must be one of {', '.join(REST_POSES)}, got {rest_pose!r}")
-        if FILES[name] == "bvh" and rest_pose != REST_POSES[0]:
-            name = f"{STEM}.{rest_pose}.bvh"
-            with generation.drawing:
-                if not (generation.directory / name).exists():
-                    path = save_bvh(
-                        generation.directory / name,
-                        generation.motion.joints,
-                        generation.motion.skeleton,
-                        generation.motion.fps,
-                        rest_pose=rest_pose,
-                    )
-                    self._keep(generation, f"bvh_{rest_pose}", path)
-        path = generation.directory / name
-        if FILES.get(name) in ANIMATIONS:
+        kind = FILES[name]
+        stem = f"{STEM}.{rest_pose}" if kind == "bvh" and rest_pose != REST_POSES[0] else STEM
+        path = generation.directory / (name if stem == STEM else f"{stem}.{kind}")
+        if kind in ANIMATIONS or stem != STEM:  # not written with the motion: made on first request
             with generation.drawing:
                 if not path.exists():
-                    self._draw(generation, FILES[name])
+                    self._make(generation, kind, stem, rest_pose)
         if not path.is_file():
             raise NotFound(f"generation {generation_id} has no {name} any more (its run folder was changed)")
         return path
 
-    def _draw(self, generation: Generation, kind: str) -> None:
+    def _make(self, generation: Generation, kind: str, stem: str, rest_pose: str) -> None:
+        """Write a file of the generation after the fact, name it in its run's record and log it to
+        its MLflow run."""
         from orchestration.generate import plan_output
 
-        plan_output(None, STEM, [kind])  # an MP4 needs an encoder: a one-line error when there is none
-        (path,) = generation.motion.save(generation.directory, STEM, (kind,)).values()
-        self._keep(generation, kind, path)
-
-    def _keep(self, generation: Generation, kind: str, path: Path) -> None:
-        """A file made after the generation: named in its run's record and logged to its MLflow run."""
-        write_run_info(generation.directory, **{f"file_{kind}": str(path)})
+        plan_output(None, stem, [kind])  # an MP4 needs an encoder: a one-line error when there is none
+        (path,) = generation.motion.save(generation.directory, stem, (kind,), rest_pose=rest_pose).values()
+        record = kind if stem == STEM else f"{kind}_{rest_pose}"
+        write_run_info(generation.directory, **{f"file_{record}": str(path)})
         if generation.mlflow_run_id is not None:
             client().log_artifact(generation.mlflow_run_id, str(path), artifact_path="motion")
 
