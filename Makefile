@@ -9,6 +9,10 @@ M2D2M  := $(BIN)/m2d2m
 
 DATASET ?= synthetic
 SET     ?=
+# DATASET named on the command line also retargets the training and sweep configs: --set dataset=<it>
+# (their data/<dataset> follows, docs/data.md), so a humanml3d config trains on humanml3d-public.
+SETS     = $(foreach s,$(if $(filter command line environment,$(origin DATASET)),dataset=$(DATASET)) $(SET),--set $(s))
+DATA_ARGS ?=
 CLIPS   ?= 2000
 SEED    ?= 0
 RAW     ?= data/raw/$(DATASET)
@@ -99,32 +103,32 @@ bench-gpu: $(STAMP)  ## training, sampling and the long sequence of every model 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic
 	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)
 
-data: $(STAMP)  ## preprocess a corpus into WebDataset shards (DATASET=synthetic|humanml3d|kit, RAW=dir)
-	$(M2D2M) data --dataset $(DATASET) --raw $(RAW)
+data: $(STAMP)  ## preprocess a corpus into WebDataset shards (DATASET=synthetic|humanml3d|kit|humanml3d-public|bvh, RAW=dir, DATA_ARGS="--bvh DIR")
+	$(M2D2M) data --dataset $(DATASET) --raw $(RAW) $(DATA_ARGS)
 
 VQ_CONFIG ?= demo
 train-vq: $(STAMP)  ## train the motion VQ-VAE (VQ_CONFIG=demo|humanml3d|kit, SET="key=value ...")
-	$(M2D2M) train-vq --config $(VQ_CONFIG) $(foreach s,$(SET),--set $(s))
+	$(M2D2M) train-vq --config $(VQ_CONFIG) $(SETS)
 
 tokens: $(STAMP)  ## encode every motion with the latest VQ-VAE into token shards
 	$(M2D2M) tokenize --dataset $(DATASET)
 
 DIFFUSION_CONFIG ?= demo
 train-diffusion: $(STAMP)  ## train the denoiser with beta(t, d) (DIFFUSION_CONFIG=demo|humanml3d|kit, SET=...); tokenizes first if needed
-	$(M2D2M) train-diffusion --config $(DIFFUSION_CONFIG) $(foreach s,$(SET),--set $(s))
+	$(M2D2M) train-diffusion --config $(DIFFUSION_CONFIG) $(SETS)
 
 MMM_CONFIG ?= demo
 train-mmm: $(STAMP)  ## train MMM's masked transformer on the latest VQ run's tokens, the demo's by default (MMM_CONFIG=demo|humanml3d|kit, SET=...)
-	$(M2D2M) train-mmm --config $(MMM_CONFIG) $(foreach s,$(SET),--set $(s))
+	$(M2D2M) train-mmm --config $(MMM_CONFIG) $(SETS)
 
 BODY_VQ_CONFIG ?= demo
 train-body-vq: $(STAMP)  ## train MMM's upper- and lower-body tokenizers (configs/vq/mmm-{upper,lower}-$(BODY_VQ_CONFIG).yaml: demo|humanml3d|kit; SET=...)
-	$(M2D2M) train-vq --config mmm-upper-$(BODY_VQ_CONFIG) $(foreach s,$(SET),--set $(s))
-	$(M2D2M) train-vq --config mmm-lower-$(BODY_VQ_CONFIG) $(foreach s,$(SET),--set $(s))
+	$(M2D2M) train-vq --config mmm-upper-$(BODY_VQ_CONFIG) $(SETS)
+	$(M2D2M) train-vq --config mmm-lower-$(BODY_VQ_CONFIG) $(SETS)
 
 MMM_BODY_CONFIG ?= demo
 train-mmm-body: $(STAMP)  ## train MMM's upper-body editor on the latest part tokenizers' tokens (make train-body-vq first; MMM_BODY_CONFIG=demo|humanml3d|kit, SET=...)
-	$(M2D2M) train-mmm-body --config $(MMM_BODY_CONFIG) $(foreach s,$(SET),--set $(s))
+	$(M2D2M) train-mmm-body --config $(MMM_BODY_CONFIG) $(SETS)
 
 SOURCE ?=
 EDIT_PROMPT ?= "a person waves their right hand"
@@ -134,7 +138,7 @@ edit-upper: $(STAMP)  ## new upper body for a motion, its lower body kept (SOURC
 
 MOTIONDIFFUSE_CONFIG ?= demo
 train-motiondiffuse: $(STAMP)  ## train MotionDiffuse on the dataset's features (MOTIONDIFFUSE_CONFIG=demo|humanml3d|kit, SET=...)
-	$(M2D2M) train-motiondiffuse --config $(MOTIONDIFFUSE_CONFIG) $(foreach s,$(SET),--set $(s))
+	$(M2D2M) train-motiondiffuse --config $(MOTIONDIFFUSE_CONFIG) $(SETS)
 
 PROMPTS ?= "a person walks forward" "a person jumps" "a person sits down"
 GENERATE_ARGS ?=
@@ -143,7 +147,7 @@ generate: $(STAMP)  ## text to motion with the latest denoiser (PROMPTS='"a pers
 
 EVALUATOR_CONFIG ?= demo
 train-evaluator: $(STAMP)  ## train the text-motion evaluator for the metrics (EVALUATOR_CONFIG=demo|humanml3d|kit, SET=...)
-	$(M2D2M) train-evaluator --config $(EVALUATOR_CONFIG) $(foreach s,$(SET),--set $(s))
+	$(M2D2M) train-evaluator --config $(EVALUATOR_CONFIG) $(SETS)
 
 UI_PORT ?= 5000
 SERVE_ARGS ?=
@@ -200,7 +204,7 @@ compare: $(STAMP)  ## M2D2M, MMM and MotionDiffuse trained (what is missing) and
 SWEEP_CONFIG ?= demo
 RAY_ADDRESS_ARG ?=
 sweep: $(STAMP)  ## Ray Tune sweep (SWEEP_CONFIG=demo: 2 eta x 3 T_s on the latest denoiser; SET=...; RAY_ADDRESS_ARG="--ray-address auto")
-	$(M2D2M) sweep --config $(SWEEP_CONFIG) $(foreach s,$(SET),--set $(s)) $(RAY_ADDRESS_ARG)
+	$(M2D2M) sweep --config $(SWEEP_CONFIG) $(SETS) $(RAY_ADDRESS_ARG)
 
 REPRODUCE_ARGS ?=
 reproduce: $(STAMP)  ## the paper's Tables 5, 6 and a T_s curve on the embedded default with the paper's exact setting (configs/m2d2m/paper-demo.yaml), trained twice as long as the demo (about 100 min on 2 CPU cores; REPRODUCE_ARGS="--quick")

@@ -15,11 +15,14 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from orchestration.errors import NotInProject, UserError
 from orchestration.project import is_project, outside_project, require_project
 from orchestration.registry import DEFAULT_MODEL, models
+
+if TYPE_CHECKING:
+    from pipelines.corpora import CorpusLayout
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -120,6 +123,28 @@ def _report_problems(directory: Path, problems: list[str], what: str) -> None:
     print(f"{directory}: OK ({what} match the manifest)")
 
 
+# The options of `m2d2m data` that a corpus's layout takes (CorpusLayout.options), and which are paths.
+LAYOUT_OPTIONS = {"bvh": "--bvh", "joint_map": "--joint-map", "units": "--units"}
+
+
+def _layout_options(args: argparse.Namespace, layout: CorpusLayout) -> dict[str, str]:
+    """The layout options given, paths made absolute (Ray tasks may run elsewhere); one line
+    naming the option a corpus does not take."""
+    from m2d2m.motion.joint_map import PRESETS
+
+    given = {name: getattr(args, name) for name in LAYOUT_OPTIONS if getattr(args, name) is not None}
+    for name in given.keys() - set(layout.options):
+        takes = ", ".join(LAYOUT_OPTIONS[o] for o in layout.options) or "none"
+        raise UserError(f"{LAYOUT_OPTIONS[name]}: the {args.dataset} corpus does not take it (it takes {takes})")
+    if "bvh" in given:
+        given["bvh"] = str(Path(given["bvh"]).resolve())
+    if "joint_map" in given and given["joint_map"] not in PRESETS:
+        if not Path(given["joint_map"]).is_file():
+            raise UserError(f"--joint-map: {given['joint_map']} is neither a preset ({', '.join(PRESETS)}) nor a file")
+        given["joint_map"] = str(Path(given["joint_map"]).resolve())
+    return given
+
+
 def _data(args: argparse.Namespace) -> None:
     from m2d2m.plugins import plugins_for_workers
     from orchestration.registry import load_plugins
@@ -145,6 +170,7 @@ def _data(args: argparse.Namespace) -> None:
         _synthesize(
             argparse.Namespace(out=str(raw), clips=2000, seed=0, families=None, workers=args.workers, force=False)
         )
+    layout_options = _layout_options(args, corpus(args.dataset).layout)
     config = DataConfig(
         dataset=args.dataset,
         raw=str(raw),
@@ -155,6 +181,7 @@ def _data(args: argparse.Namespace) -> None:
         workers=args.workers,
         ray_address=args.ray_address,
         plugins=plugins_for_workers(),
+        layout_options=layout_options,
     )
     existing = None if args.force else reusable_dataset(config)
     if existing is not None:
@@ -528,6 +555,17 @@ def _add_data(verbs) -> None:
         "--replace", action="store_true", help="replace an --out built from another raw corpus (or holding no dataset)"
     )
     data.add_argument("--check", metavar="DIR", help="verify a processed dataset against its manifest and exit")
+    mocap = data.add_argument_group("motion capture (the bvh and humanml3d-public corpora; docs/data.md)")
+    mocap.add_argument("--bvh", metavar="DIR", help="humanml3d-public: a folder of CMU's BVH files")
+    mocap.add_argument(
+        "--joint-map",
+        metavar="MAP",
+        help="cmu, cmu-motionbuilder, or a YAML file: our joint → yours (default: the preset the file's joints fit)",
+    )
+    mocap.add_argument(
+        "--units",
+        help="bvh: m, cm, mm, inch, cmu or metres per unit (default: the unit the rig stands a person's height in)",
+    )
     data.set_defaults(run=_data)
 
 

@@ -219,7 +219,18 @@ def load_config(
     config = rename_keys(_read_mapping(path), renamed or {}, str(path))
     optional = {*optional, *flatten(defaults or {})}
     check_keys(config, _sibling_configs(stage, path), str(path), optional, free)
-    return apply_overrides(with_defaults(config, defaults or {}), overrides or [])
+    return follow_dataset(config, apply_overrides(with_defaults(config, defaults or {}), overrides or []))
+
+
+def follow_dataset(written: dict[str, Any], resolved: dict[str, Any]) -> dict[str, Any]:
+    """``resolved`` with its data directory moved to ``data/<dataset>`` where an override chose
+    another dataset and left the file's ``data/<its dataset>`` in place: ``--set
+    dataset=humanml3d-public`` trains a humanml3d config on that corpus's data (docs/data.md)."""
+    before, after = written.get("dataset"), resolved.get("dataset")
+    data = resolved.get("data")
+    if before != after and isinstance(data, dict) and data.get("dir") == f"data/{before}":
+        return {**resolved, "data": {**data, "dir": f"data/{after}"}}
+    return resolved
 
 
 def flatten(config: dict[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -128,6 +128,12 @@ def load_generator(
         raise UserError(str(error)) from error
 
 
+def require_words(prompt: str) -> None:
+    """Refuse, in one line, a prompt of punctuation or emoji alone: the model would sample from no words."""
+    if not re.search(r"[^\W_]", prompt):
+        raise UserError(f"the prompt {prompt!r} has no words; describe an action, e.g. 'a person walks forward'")
+
+
 class PromptPlanner:
     """Free-text prompts → action sentences and lengths in frames for one generator."""
 
@@ -145,6 +151,7 @@ class PromptPlanner:
         """Action sentences and their verbs, split as the corpus's captions were."""
         from pipelines.language import decompose, load_tagger
 
+        require_words(prompt)
         if self._tagger is None:
             data_dir = self.generator.data_dir
             try:
@@ -191,9 +198,8 @@ class PromptPlanner:
         prompts = list(prompts)
         if not prompts or any(not p.strip() for p in prompts):
             raise UserError("give at least one non-empty prompt")
-        wordless = next((p for p in prompts if not re.search(r"[^\W_]", p)), None)
-        if wordless is not None:  # punctuation or emoji alone: the model would sample from no words
-            raise UserError(f"the prompt {wordless!r} has no words; describe an action, e.g. 'a person walks forward'")
+        for prompt in prompts:
+            require_words(prompt)
         if seconds is not None and len(seconds) not in (1, len(prompts)):
             raise UserError(f"give one duration per prompt ({len(prompts)}) or one for all, not {len(seconds)}")
         lo, hi = self.seconds_range()

@@ -12,6 +12,7 @@ line of ``quarantine.jsonl``, so nothing is dropped silently.
 
 from __future__ import annotations
 
+import importlib
 import math
 import zipfile
 from collections.abc import Callable
@@ -157,19 +158,24 @@ def never_mirrored(rows: list[dict[str, Any]]) -> bool:
 
 @dataclass(frozen=True)
 class CorpusLayout:
-    """How a corpus on disk becomes inputs. ``list_rows(raw)`` gives one JSON-able row per input,
-    in split then file order, each with ``id``, ``split`` (one of :data:`SPLITS`) and ``kind``
-    (``joints``: (T, J, 3) positions in metres, or ``features``: (T, D)), and whatever the readers
-    need; rows travel to the Ray tasks as JSON. ``read_motion(row, skeleton)`` and
-    ``read_captions(row)`` (dicts of text, tokens as ``word/POS``, start and end seconds) raise
-    :class:`Rejected` for an input that cannot become a sample. ``ships_mirrors(rows)``: whether
-    the corpus lists its own mirrors, so the pipeline makes none."""
+    """How a corpus on disk becomes inputs. ``list_rows(raw, **options)`` gives one JSON-able row
+    per input, in split then file order, each with ``id``, ``split`` (one of :data:`SPLITS`) and
+    ``kind`` (``joints``: (T, J, 3) positions in metres, or ``features``: (T, D)), and whatever the
+    readers need; rows travel to the Ray tasks as JSON. ``options`` names the keyword arguments
+    ``list_rows`` takes beyond ``raw`` (``m2d2m data --bvh``, ``--joint-map``, ``--units``).
+    ``read_motion(row, skeleton)`` and ``read_captions(row)`` (dicts of text, tokens as
+    ``word/POS``, start and end seconds) raise :class:`Rejected` for an input that cannot become a
+    sample. ``tagged_captions``: whether the captions come with their tags; where they do not,
+    their tokens are ``None`` and the pipeline tags them. ``ships_mirrors(rows)``: whether the
+    corpus lists its own mirrors, so the pipeline makes none."""
 
     name: str
-    list_rows: Callable[[str | Path], list[dict[str, Any]]]
+    list_rows: Callable[..., list[dict[str, Any]]]
     read_motion: Callable[[dict[str, Any], Skeleton], np.ndarray]
     read_captions: Callable[[dict[str, Any]], list[dict[str, Any]]]
     ships_mirrors: Callable[[list[dict[str, Any]]], bool] = never_mirrored
+    options: tuple[str, ...] = ()
+    tagged_captions: bool = True
 
 
 HUMANML3D_LAYOUT = CorpusLayout("humanml3d", list_corpus, load_motion, load_captions, corpus_ships_mirrors)
@@ -187,6 +193,8 @@ class Corpus:
 
 
 _CORPORA: dict[str, Corpus] = {}
+# Layouts of this package that live in modules of their own and register when imported.
+_BUILT_IN_MODULES = ("pipelines.bvh_corpus", "pipelines.humanml3d_public")
 
 
 def register_corpus(corpus: Corpus) -> Corpus:
@@ -197,12 +205,14 @@ def register_corpus(corpus: Corpus) -> Corpus:
 
 def corpora() -> dict[str, Corpus]:
     """Every registered corpus, by name."""
+    for module in _BUILT_IN_MODULES:
+        importlib.import_module(module)
     return dict(_CORPORA)
 
 
 def corpus(name: str) -> Corpus:
     """The corpus ``name``, or ValueError listing those there are."""
-    if name not in _CORPORA:
+    if name not in corpora():
         raise ValueError(f"unknown dataset {name!r}; choose one of {', '.join(_CORPORA)}")
     return _CORPORA[name]
 

@@ -21,6 +21,7 @@ from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +38,8 @@ from m2d2m.plugins import import_plugins
 from m2d2m.progress import ProgressLines, on_terminal
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, FrameBounds, Rejected, corpus
 from pipelines.dataset import encode_sample, reason_kind, stage_counts, summary_table
-from pipelines.language import SMALL_MODEL, decompose, parse_tagged_tokens, train_tagger
+from pipelines.language import SMALL_MODEL, Tagger, decompose, load_tagger, parse_tagged_tokens, train_tagger
+from pipelines.synthetic.corpus import tagged_captions
 from pipelines.shards import SCHEMA_VERSION, ShardWriter, shard_records, write_json_atomically
 
 
@@ -58,6 +60,8 @@ class DataConfig:
     ray_address: str | None = None
     # the plugins the Ray tasks import (m2d2m.plugins.plugins_for_workers), for a plugin's corpus
     plugins: dict[str, list[str]] = field(default_factory=dict)
+    # what the corpus's layout takes beyond --raw (CorpusLayout.options: --bvh, --joint-map, --units)
+    layout_options: dict[str, str] = field(default_factory=dict)
 
     @property
     def corpus(self) -> Corpus:
@@ -78,6 +82,10 @@ class DataConfig:
         for key in ("out", "workers", "ray_address", "plugins"):
             record.pop(key)
         record["raw"] = relative_to_project(self.raw)
+        record["layout_options"] = {
+            name: relative_to_project(value) if Path(value).is_absolute() else value
+            for name, value in self.layout_options.items()
+        }
         record["min_frames"], record["max_frames"] = self.bounds.minimum, self.bounds.maximum
         return record
 
@@ -133,13 +141,22 @@ def _to_features(motion: np.ndarray, kind: str, skeleton: Skeleton, bounds: Fram
 
 
 def process_motion(
-    row: dict[str, Any], layout: CorpusLayout, skeleton: Skeleton, bounds: FrameBounds, make_mirror: bool
+    row: dict[str, Any],
+    layout: CorpusLayout,
+    skeleton: Skeleton,
+    bounds: FrameBounds,
+    make_mirror: bool,
+    tagger: Tagger | None = None,
 ) -> list[dict[str, Any]]:
-    """One corpus row → its sample (and mirror), or one quarantine record saying why not."""
+    """One corpus row → its sample (and mirror), or one quarantine record saying why not.
+    ``tagger`` tags the captions a layout reads untagged."""
     try:
         motion = layout.read_motion(row, skeleton)
         features = _to_features(motion, row["kind"], skeleton, bounds)
-        captions = layout.read_captions(row)
+        captions = [
+            {**c, "tokens": tagger.corpus_tokens(c["text"])} if c["tokens"] is None and tagger else c
+            for c in layout.read_captions(row)
+        ]
         samples = [_sample(row["id"], row["id"], features, captions, skeleton.fps, False)]
         if make_mirror:
             joints = motion if row["kind"] == "joints" else features_to_joints(motion, skeleton)
@@ -211,6 +228,7 @@ def write_shard(task: dict[str, Any], config: DataConfig, make_mirror: bool) -> 
     needs — the shard's record, counts, partial train statistics, quarantine and tagged captions."""
     import_plugins(**config.plugins)  # a plugin's corpus is registered in this process too
     layout, skeleton, bounds = config.corpus.layout, config.skeleton, config.bounds
+    tagger = None if layout.tagged_captions else _saved_tagger(str(Path(config.out).resolve() / NLP))
     split = task["split"]
     counts = SplitCounts()
     moments = RunningMoments(skeleton.feature_dim)
@@ -221,7 +239,7 @@ def write_shard(task: dict[str, Any], config: DataConfig, make_mirror: bool) -> 
     with writer:
         for row in task["rows"]:
             counts.inputs_seen += 1
-            for record in process_motion(row, layout, skeleton, bounds, make_mirror):
+            for record in process_motion(row, layout, skeleton, bounds, make_mirror, tagger):
                 if record["status"] == "quarantined":
                     counts.quarantined += 1
                     quarantine.append(
@@ -322,6 +340,24 @@ def prepare_tagger(captions: list[tuple[str, list[tuple[str, str]]]], out: Path,
     shutil.rmtree(out / NLP, ignore_errors=True)
     train_tagger(captions, out / NLP, seed=config.seed)
     return f"trained on {len(captions)} train captions"
+
+
+def prepare_caption_tagger(out: Path, config: DataConfig) -> str:
+    """The tagger of a corpus whose captions come untagged, made before its shards (which it tags)
+    and kept for prompts: an installed spaCy English pipeline, else one trained on the tagged
+    captions of the embedded corpus's plans (:func:`pipelines.synthetic.corpus.tagged_captions`)."""
+    import spacy
+
+    if spacy.util.is_package(SMALL_MODEL):
+        return f"installed {SMALL_MODEL}"
+    train_tagger(tagged_captions(config.tagger_captions, config.seed), out / NLP, seed=config.seed)
+    return f"trained on {config.tagger_captions} captions of the embedded corpus (this corpus's come untagged)"
+
+
+@lru_cache(maxsize=2)
+def _saved_tagger(path: str) -> Tagger:
+    """The tagger a build saved, loaded once per process (a Ray worker writes many shards)."""
+    return load_tagger(path)
 
 
 def reusable_dataset(config: DataConfig) -> dict[str, Any] | None:
@@ -446,21 +482,22 @@ def _build(config: DataConfig) -> dict[str, Any]:
     """Every stage, writing ``config.out`` (a fresh directory); the manifest last."""
     skeleton, raw, out = config.skeleton, Path(config.raw).resolve(), Path(config.out).resolve()
     layout = config.corpus.layout
-    rows = layout.list_rows(raw)
+    rows = layout.list_rows(raw, **config.layout_options)
     make_mirror = not layout.ships_mirrors(rows)
+    caption_tagger = None if layout.tagged_captions else prepare_caption_tagger(out, config)
 
     counts = {split: SplitCounts() for split in SPLITS}
     shards: dict[str, list[dict[str, Any]]] = {split: [] for split in SPLITS}
     moments = RunningMoments(skeleton.feature_dim)
     quarantine: list[dict[str, Any]] = []
-    tagged_captions: list[tuple[str, list[tuple[str, str]]]] = []
+    corpus_tagged: list[tuple[str, list[tuple[str, str]]]] = []
     for result in run_shard_tasks(config, plan_shards(rows, config.samples_per_shard, make_mirror), make_mirror):
         split = result["split"]
         counts[split].add(SplitCounts(**result["counts"]))
         shards[split] += result["shards"]
         moments.merge(RunningMoments.from_state(result["moments"]))
         quarantine += result["quarantine"]
-        tagged_captions += [(text, parse_tagged_tokens(" ".join(tokens))) for text, tokens in result["tagged"]]
+        corpus_tagged += [(text, parse_tagged_tokens(" ".join(tokens))) for text, tokens in result["tagged"]]
 
     with atomic_path(out / QUARANTINE) as partial, partial.open("w", encoding="utf-8") as handle:
         for line in quarantine:
@@ -471,7 +508,7 @@ def _build(config: DataConfig) -> dict[str, Any]:
         raise _no_statistics(raw, quarantine)
     mean, std = provided if provided is not None else (moments.mean(), group_averaged_std(moments.std(), skeleton))
     Normalizer(mean, std, config.feat_bias).save(out / STATS)
-    tagger = prepare_tagger(tagged_captions, out, config)
+    tagger = caption_tagger or prepare_tagger(corpus_tagged, out, config)
 
     manifest = {
         "schema_version": SCHEMA_VERSION,

@@ -49,10 +49,21 @@ def test_a_real_cmu_take_becomes_t2m_features_of_a_person_walking_on_the_floor(t
     assert 1.3 < np.median(body[:, T2M.head_joint, 1] - feet) < 1.7
 
 
-def test_cmus_two_releases_give_the_same_joints(tmp_path):
-    text = (CMU / "131_01.bvh").read_text(encoding="utf-8")
+def motionbuilder_release(take: str) -> str:
+    """A take of the 3dsMax-friendly release as the MotionBuilder-friendly one writes it: its
+    joints renamed, and a T-pose (every channel zero) as its first frame."""
+    text = (CMU / f"{take}.bvh").read_text(encoding="utf-8")
     renamed = re.sub(r"\b(ROOT|JOINT) (\S+)", lambda m: f"{m[1]} {MOTIONBUILDER_NAMES.get(m[2], m[2])}", text)
-    (tmp_path / "131_01.bvh").write_text(renamed, encoding="utf-8")
+    head, frames = renamed.split("Frame Time:")
+    frame_time, first, rest = frames.lstrip().split("\n", 2)
+    count = int(head.rsplit("Frames:", 1)[1])
+    tpose = " ".join(["0"] * len(first.split()))
+    head = head.rsplit("Frames:", 1)[0] + f"Frames: {count + 1}\n"
+    return f"{head}Frame Time: {frame_time}\n{tpose}\n{first}\n{rest}"
+
+
+def test_cmus_two_releases_give_the_same_joints(tmp_path):
+    (tmp_path / "131_01.bvh").write_text(motionbuilder_release("131_01"), encoding="utf-8")
     theirs = read_bvh(tmp_path / "131_01.bvh", CMU_METRES)
     assert joint_map_for(theirs) is PRESETS["cmu-motionbuilder"]
     ours = read_bvh(CMU / "131_01.bvh", CMU_METRES)

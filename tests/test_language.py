@@ -48,8 +48,8 @@ TABLE: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     (
         "a person walks forward while waving",
         "a/DET person/NOUN walk/VERB forward/ADV while/SCONJ wave/VERB",
-        ("walk", "wave"),
-        ("a person walks forward", "a person waves"),
+        ("walk",),
+        ("a person walks forward while waving",),
     ),
     (
         "walking forward, the man waves",
@@ -227,8 +227,8 @@ TABLE: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
         "a person waves their hand while stepping sideways, then jumps up and spins",
         "a/DET person/NOUN wave/VERB their/DET hand/NOUN while/SCONJ step/VERB sideways/ADV then/ADV "
         "jump/VERB up/ADV and/CCONJ spin/VERB",
-        ("wave", "step", "jump", "spin"),
-        ("a person waves their hand", "a person steps sideways", "a person jumps up", "a person spins"),
+        ("wave", "jump", "spin"),
+        ("a person waves their hand while stepping sideways", "a person jumps up", "a person spins"),
     ),
     (
         "a person's arms swing back and forth",
@@ -280,6 +280,24 @@ TABLE: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
         "a/DET person/NOUN stretch/VERB and/CCONJ then/ADV bend/VERB over/ADP",
         ("stretch", "bend"),
         ("a person stretches", "a person bends over"),
+    ),
+    (
+        "a person is in a fighting position and avoids a punch",
+        "a/DET person/NOUN is/AUX in/ADP a/DET fight/VERB position/NOUN and/CCONJ avoid/VERB a/DET punch/NOUN",
+        ("be", "avoid"),
+        ("a person is in a fighting position", "a person avoids a punch"),
+    ),
+    (
+        "a person walks a quarter circle, taking four steps",
+        "a/DET person/NOUN walk/VERB a/DET quarter/NOUN circle/NOUN take/VERB four/NUM step/NOUN",
+        ("walk",),
+        ("a person walks a quarter circle, taking four steps",),
+    ),
+    (
+        "a man keeps on walking",
+        "a/DET man/NOUN keep/VERB on/ADP walk/VERB",
+        ("walk",),
+        ("a person walks",),
     ),
 ]
 
@@ -593,6 +611,9 @@ def test_decompose_needs_a_caption_and_tags_or_a_tagger() -> None:
         ("tiptoe", "tiptoes"),
         ("stay", "stays"),
         ("Stretch", "stretches"),
+        ("bounce", "bounces"),
+        ("look", "looks"),
+        ("perfom", "perfoms"),  # a verb lemminflect does not know: its rules
     ],
 )
 def test_inflect_third_person(lemma: str, expected: str) -> None:

@@ -135,6 +135,26 @@ def test_a_prompt_is_split_by_its_verbs_as_the_command_line_splits_it(client, tr
     assert np.abs(np.array(result["joints"]) - np.load(trained_project / "p/motion.npy")).max() <= 5e-6
 
 
+def test_a_prompt_can_be_split_first_to_check_it_before_generating(client):
+    """Issue 39, §4: the split a prompt gets is shown before sampling; it is the one generating
+    the prompt would sample."""
+    prompt = "a person walks forward and then jumps"
+    answer = client.post("/api/split", json={"prompt": prompt})
+    assert answer.status_code == 200, answer.text
+    split = answer.json()
+    assert split["actions"] == ["a person walks forward", "a person jumps"] and split["verbs"] == ["walk", "jump"]
+    result = generate(client, actions=None, prompt=prompt, seconds=3.0)
+    assert [a["text"] for a in result["actions"]] == split["actions"]
+    assert split["notices"] == result["notices"]
+    for body, status, message in (
+        ({"prompt": "!!! ..."}, 400, "the prompt '!!! ...' has no words"),
+        ({"prompt": "走路"}, 422, "prompt: '走路' has no English word"),
+        ({"prompt": prompt, "model": "nope"}, 404, "unknown model 'nope'"),
+    ):
+        refused = client.post("/api/split", json=body)
+        assert refused.status_code == status and message in refused.json()["error"], refused.text
+
+
 def test_streaming_sends_the_queue_and_progress_then_the_result(client):
     answer = client.post("/api/generate", json={"actions": ACTIONS, "options": {"ts": 4}}, headers=NDJSON)
     assert answer.status_code == 200 and answer.headers["content-type"].startswith("application/x-ndjson")

@@ -410,3 +410,30 @@ def test_a_result_is_titled_in_words_with_whole_labels_a_head_sides_notices_and_
         assert abs(parsed.frame_time - 1 / 20) < 1e-6
         errors = [entry for entry in browser.get_log("browser") if entry["level"] == "SEVERE"]
         assert not errors, errors
+
+
+def test_a_sentence_is_split_into_the_list_to_fix_before_generating(dataset, browser):
+    """Issue 39, §4: the page shows the split of a sentence before sampling, and lets a person fix it."""
+    from selenium.webdriver.common.by import By
+
+    find = browser.find_element
+    with live_server(ServeSettings(dataset=dataset, track=False)) as (base, _):
+        open_page(browser, base)
+        find(By.CSS_SELECTOR, "input[name='mode'][value='sentence']").click()
+        find(By.ID, "prompt").send_keys("a person walks forward and then jumps")
+        find(By.ID, "prompt-seconds").send_keys("3")
+        find(By.ID, "split-prompt").click()
+        wait_for(lambda: find(By.ID, "list-mode").is_displayed(), 30, "the list of the split actions")
+        rows = find_all_css(browser, "#actions .action")
+        assert [r.find_element(By.CSS_SELECTOR, ".action-text").get_attribute("value") for r in rows] == [
+            "a person walks forward",
+            "a person jumps",
+        ]
+        assert [r.find_element(By.CSS_SELECTOR, ".action-seconds").get_attribute("value") for r in rows] == ["1.5"] * 2
+        fixed = rows[1].find_element(By.CSS_SELECTOR, ".action-text")
+        fixed.clear()
+        fixed.send_keys("a person jumps forward")
+        find(By.ID, "generate").click()
+        player = wait_for(lambda: find_all_css(browser, "#players .player"), what="the player")[0]
+        labels = [segment.text for segment in player.find_elements(By.CSS_SELECTOR, ".timeline .segment")]
+        assert labels == ["a person walks forward", "a person jumps forward"]

@@ -1,6 +1,7 @@
 """The VQ-VAE's DataModule, and the bucketing of MotionDiffuse's caption/motion pairs, on a tiny
 dataset built by the real pipeline (Ray, local, 2 CPUs)."""
 
+import json
 import logging
 import shutil
 
@@ -209,3 +210,14 @@ def test_an_unbuilt_or_incomplete_dataset_says_what_to_run(dataset, tmp_path):
         MotionWindowDataModule(tmp_path)
     with pytest.raises(ValueError, match="window must be a positive"):
         MotionWindowDataModule(dataset[0], window=0)
+
+
+def test_a_dataset_without_val_motions_is_refused_in_one_line_before_training(dataset, tmp_path):
+    """A small BVH corpus split by hash can leave val empty: that was a traceback at the first validation."""
+    out = tmp_path / "no-val"
+    shutil.copytree(dataset[0], out)
+    manifest = json.loads((out / MANIFEST).read_text(encoding="utf-8"))
+    manifest["shards"]["val"] = []
+    (out / MANIFEST).write_text(json.dumps(manifest), encoding="utf-8")
+    with pytest.raises(ValueError, match=r"no-val: no val motions, and training needs both; rebuild the dataset"):
+        MotionWindowDataModule(out)

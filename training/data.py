@@ -65,6 +65,19 @@ def require_positive(**values: int) -> None:
             raise ValueError(f"{name} must be a positive integer, got {value}")
 
 
+def require_training_splits(urls: dict[str, list[str]], directory: Path) -> dict[str, list[str]]:
+    """``urls`` when both the train and the val split have shards: training samples the one and
+    validates (and keeps its checkpoints) on the other, so a dataset lacking either is refused in
+    one line before anything runs, not with a traceback at the first validation."""
+    empty = [split for split in ("train", "val") if not urls.get(split)]
+    if empty:
+        raise ValueError(
+            f"{directory}: no {' and no '.join(empty)} motions, and training needs both; rebuild the dataset "
+            "with motions in each split (the bvh corpus: name some in the split column of captions.csv)"
+        )
+    return urls
+
+
 def worker_generator(seed: int, rank: int, *stream: int) -> np.random.Generator:
     """A Generator seeded from (seed, rank, DataLoader worker id): draws differ between workers and
     ranks, and never depend on global random state. Call it inside the worker, on first use.
@@ -429,7 +442,9 @@ class FeatureShardDataModule(ShardDataModule):
             raise FileNotFoundError(f"{stats}: missing; the dataset is incomplete (rebuild it with `m2d2m data`)")
         self.normalizer = Normalizer.load(stats)
         # Checked here, where the stages turn a refusal into one line, not once the trainer runs.
-        self._urls = {split: shard_urls(self.data_dir, split) for split in self.manifest["shards"]}
+        self._urls = require_training_splits(
+            {split: shard_urls(self.data_dir, split) for split in self.manifest["shards"]}, self.data_dir
+        )
 
     @property
     def feature_dim(self) -> int:
@@ -630,7 +645,9 @@ class TokenDataModule(ShardDataModule):
         self.manifest = read_token_manifest(self.tokens_dir)
         self.max_tokens = max_tokens
         # A split's token shards sit in the token directory itself (no ``shards/``).
-        self._urls = {split: token_shard_urls(self.tokens_dir, split) for split in self.manifest["shards"]}
+        self._urls = require_training_splits(
+            {split: token_shard_urls(self.tokens_dir, split) for split in self.manifest["shards"]}, self.tokens_dir
+        )
 
     @property
     def codebook_size(self) -> int:

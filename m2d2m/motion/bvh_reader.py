@@ -51,6 +51,14 @@ class BvhClip:
             raise BvhError(f"no joint {name!r} in the BVH; it has {', '.join(self.names)}")
         return self.names.index(name)
 
+    def rest_positions(self) -> np.ndarray:
+        """(J, 3) every joint's position in the rest pose: each rotation zero, each joint at its
+        OFFSET from its parent."""
+        rest = np.zeros((len(self.names), 3))
+        for joint, parent in enumerate(self.parents):
+            rest[joint] = self.offsets[joint] + (rest[parent] if parent >= 0 else 0.0)
+        return rest
+
     def positions(self) -> np.ndarray:
         """World positions (T, J, 3) of every joint in every frame, by forward kinematics."""
         frames, count = len(self.values), len(self.names)
@@ -104,6 +112,38 @@ def read_bvh(path: str | Path, metres_per_unit: float = 1.0) -> BvhClip:
         values * scale,
         frame_time,
     )
+
+
+@dataclass(frozen=True)
+class BvhHeader:
+    """What a BVH file says before its frames: its joints' names, its frame count and frame time."""
+
+    names: tuple[str, ...]
+    frames: int
+    frame_time: float
+
+
+def read_bvh_header(path: str | Path) -> BvhHeader:
+    """The header of the BVH file at ``path``, read up to its ``Frame Time:`` line only: listing a
+    corpus of thousands of takes needs their lengths, not their frames."""
+    path = Path(path)
+    names: list[str] = []
+    frames = None
+    try:
+        with path.open(encoding="utf-8", errors="replace") as handle:
+            for line in handle:
+                words = line.split()
+                if words[:1] in (["ROOT"], ["JOINT"]) and len(words) > 1:
+                    names.append(words[1])
+                elif words[:1] == ["Frames:"]:
+                    frames = int(words[1])
+                elif line.lstrip().startswith("Frame Time:") and frames is not None:
+                    return BvhHeader(tuple(names), frames, float(line.split(":")[1]))
+    except OSError as error:
+        raise BvhError(f"{path}: cannot be read ({error.strerror})") from error
+    except (IndexError, ValueError) as error:
+        raise BvhError(f"{path}: a malformed MOTION section (Frames:, Frame Time:, then the frames)") from error
+    raise BvhError(f"{path}: not a BVH file (no Frames: and Frame Time: lines)")
 
 
 def _hierarchy(tokens: list[str], path: Path):

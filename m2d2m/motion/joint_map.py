@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from m2d2m.motion.bvh_reader import BvhClip, BvhError
+from m2d2m.motion.bvh_reader import BvhClip, BvhError, BvhHeader
 from m2d2m.motion.skeleton import T2M, Skeleton
 
 
@@ -29,6 +29,7 @@ class JointMap:
 
     name: str
     sources: dict[str, tuple[str, ...]]  # our joint → their joints (one, or several for a midpoint)
+    rest_frames: int = 0  # frames a file of this rig opens with that hold its rest pose, not motion
 
     def check(self, skeleton: Skeleton = T2M) -> JointMap:
         """This map, or ValueError when it leaves out a joint of ``skeleton`` or names one it lacks."""
@@ -44,17 +45,22 @@ class JointMap:
             raise ValueError(f"joint map {self.name}: {'; '.join(p for p in problems if p)}")
         return self
 
-    def fits(self, clip: BvhClip) -> bool:
+    def fits(self, clip: BvhClip | BvhHeader) -> bool:
         """Whether every joint this map reads is in ``clip``."""
         return all(name in clip.names for theirs in self.sources.values() for name in theirs)
 
     def joints(self, clip: BvhClip, skeleton: Skeleton = T2M) -> np.ndarray:
-        """``clip``'s motion as ``skeleton``'s joints (T, J, 3), in metres; BvhError names the
-        joints the map reads that the file lacks."""
+        """``clip``'s motion as ``skeleton``'s joints (T, J, 3), in the clip's lengths, its rest
+        frames left out; BvhError names the joints the map reads that the file lacks, or says
+        that no frame of motion is left."""
+        if len(clip.values) <= self.rest_frames:
+            raise BvhError(f"joint map {self.name}: the file holds its rest pose and no motion after it")
+        return self._mapped(clip.positions()[self.rest_frames :], clip, skeleton)
+
+    def _mapped(self, positions: np.ndarray, clip: BvhClip, skeleton: Skeleton) -> np.ndarray:
         lacking = sorted({name for theirs in self.sources.values() for name in theirs} - set(clip.names))
         if lacking:
             raise BvhError(f"joint map {self.name} reads {', '.join(lacking)}, which the BVH lacks")
-        positions = clip.positions()
         return np.stack(
             [
                 positions[:, [clip.joint(name) for name in self.sources[joint]]].mean(axis=1)
@@ -62,6 +68,13 @@ class JointMap:
             ],
             axis=1,
         )
+
+    def stature(self, clip: BvhClip, skeleton: Skeleton = T2M) -> np.ndarray:
+        """The vector from the feet to the head of the rig's rest pose (every rotation zero), in
+        the clip's lengths: how tall it stands, and along which axis."""
+        rest = self._mapped(clip.rest_positions()[None], clip, skeleton)[0]
+        feet = rest[list(skeleton.feet_left + skeleton.feet_right)].mean(axis=0)
+        return rest[skeleton.head_joint] - feet
 
     @classmethod
     def from_yaml(cls, path: str | Path, skeleton: Skeleton = T2M) -> JointMap:
@@ -93,6 +106,7 @@ def _cmu(
     radius: str,
     wrist: str,
     name: str,
+    rest_frames: int,
 ) -> JointMap:
     """CMU's map in one release's names; each side's names begin with Left/Right (L/R for the rest)."""
     sides = {"left": "Left", "right": "Right"}
@@ -115,12 +129,12 @@ def _cmu(
             f"{side}_elbow": (prefix + radius,),
             f"{side}_wrist": (prefix + wrist,),
         }
-    return JointMap(name, sources).check()
+    return JointMap(name, sources, rest_frames).check()
 
 
 PRESETS: dict[str, JointMap] = {
     "cmu": _cmu(
-        "Hip", "Knee", "Ankle", "Toe", "Chest", "Chest2", "Neck", "Collar", "Shoulder", "Elbow", "Wrist", "cmu"
+        "Hip", "Knee", "Ankle", "Toe", "Chest", "Chest2", "Neck", "Collar", "Shoulder", "Elbow", "Wrist", "cmu", 0
     ),
     "cmu-motionbuilder": _cmu(
         "UpLeg",
@@ -135,11 +149,12 @@ PRESETS: dict[str, JointMap] = {
         "ForeArm",
         "Hand",
         "cmu-motionbuilder",
+        1,  # this release opens every take with a T-pose
     ),
 }
 
 
-def joint_map_for(clip: BvhClip, given: str | Path | None = None) -> JointMap:
+def joint_map_for(clip: BvhClip | BvhHeader, given: str | Path | None = None) -> JointMap:
     """The map ``given`` (a preset's name or a YAML file), or the preset whose joints ``clip`` has;
     BvhError when none fits."""
     if given is not None:

@@ -36,7 +36,7 @@ from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
 from orchestration.web.catalog import Catalog, NotFound
 from orchestration.web.generations import FILES, Generations
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
-from orchestration.web.schema import GenerateRequest, Plan, plan_request
+from orchestration.web.schema import GenerateRequest, Plan, SplitRequest, plan_request
 
 STATIC = Path(__file__).parent / "static"
 DOCS_FILES = Path(importlib.util.find_spec("fastapi_offline").origin).parent / "static"  # Swagger UI, ReDoc
@@ -102,6 +102,15 @@ class Service:
             plan = plan_request(request, planner, self.settings.max_seconds)
         job = Job(generator, (request.model, run, plan.options), plan.options, plan.actions, plan.frames, request.seed)
         return job, plan, run
+
+    def split(self, request: SplitRequest) -> dict[str, Any]:
+        """The action sentences a prompt becomes for a run, their verbs, and what the run does not
+        know of them (a blocking call: it may load the model and its tagger)."""
+        _, generator = self.catalog.generator(request.model, request.run)
+        with self._planning:
+            planner = self._planners.setdefault(id(generator), PromptPlanner(generator))
+            actions, verbs = planner.split(request.prompt)
+            return {"actions": actions, "verbs": verbs, "notices": planner.notices(actions)}
 
     async def finish(self, job: Job, request: GenerateRequest, plan: Plan, run: str) -> dict[str, Any]:
         """The sampled motion, recorded; the API's answer, with what the model did not know of it."""
@@ -190,6 +199,10 @@ def create_app(settings: ServeSettings) -> FastAPI:
             return StreamingResponse(_stream(job, events, service.finish(job, body, plan, run)), media_type=NDJSON)
         # a JSONResponse as it is: FastAPI's encoder would walk every joint coordinate in Python first
         return JSONResponse(await _unless_disconnected(request, job, service.finish(job, body, plan, run)))
+
+    @api.post("/split", summary="The actions a prompt is split into, to check and fix before generating")
+    async def split(body: SplitRequest) -> dict[str, Any]:
+        return await run_in_threadpool(service.split, body)
 
     @api.get("/generations/{generation_id}", summary="A generation made by this server")
     def generation(generation_id: str) -> JSONResponse:

@@ -81,6 +81,18 @@ class GenerateRequest(BaseModel):
         return self
 
 
+class SplitRequest(BaseModel):
+    """A sentence to split into action sentences as ``prompt`` of ``POST /api/generate`` would be,
+    by the named run's tagger, to see (and fix) them before sampling."""
+
+    model_config = ConfigDict(extra="forbid", protected_namespaces=(), strict=True)
+    model: str = Field(DEFAULT_MODEL, max_length=64, description="a model of GET /api/models")
+    run: str = Field(LATEST_RUN, max_length=64, description="one of the model's runs, or latest")
+    prompt: str = Field(min_length=1, max_length=MAX_PROMPT)
+
+    _english = field_validator("prompt")(english_sentence)
+
+
 @dataclass(frozen=True)
 class Plan:
     """A request made concrete for one generator: the action sentences, their frames, the options."""

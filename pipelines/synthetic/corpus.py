@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from pipelines.synthetic.body import FPS
-from pipelines.synthetic.captions import is_multi_verb
-from pipelines.synthetic.clips import TEXTURE, check_families, make_clip
+from pipelines.synthetic.captions import is_multi_verb, make_captions
+from pipelines.synthetic.clips import TEXTURE, check_families, make_clip, sample_plan
 from pipelines.synthetic.families import FAMILIES
-from pipelines.synthetic.words import caption_line
+from pipelines.synthetic.words import caption_line, caption_text
 
 GENERATOR_VERSION = "1.1"
 
@@ -28,6 +28,18 @@ SPLITS = {"train": 0.80, "val": 0.05, "test": 0.15}
 
 
 _ID = re.compile(r"^\d{6}$")
+
+
+def tagged_captions(count: int, seed: int) -> list[tuple[str, list[tuple[str, str]]]]:
+    """``count`` captions of plans drawn as the corpus draws them, with the tags its text files
+    carry (HumanML3D's ``word/UPOS``): what a tagger learns from where a corpus's captions come
+    untagged. No motion is made, so thousands take a second."""
+    rng = np.random.default_rng(seed)
+    captions = []
+    for _ in range(count):
+        tokens = make_captions(sample_plan(rng, FAMILIES), rng, count=1)[0]
+        captions.append((caption_text(tokens), [(t.lemma, t.tag) for t in tokens if t.lemma.isalpha()]))
+    return captions
 
 
 def assign_splits(ids: Sequence[str], seed: int) -> dict[str, list[str]]:

@@ -131,6 +131,32 @@ function showMode() {
   $$('#actions .action-text').forEach(fitHeight);
 }
 
+/** The sentence split into actions by the first lane's run, as generating it would split it,
+ *  put in the list (the sentence's seconds shared among them) to be checked and fixed there. */
+async function splitPrompt() {
+  showError('');
+  const prompt = $('#prompt').value.trim();
+  if (!prompt) { showError('Write a sentence describing the motion.'); return; }
+  const lane = $('#lanes .lane');
+  if (!lane) { showError('No trained model yet: train one, then reload this page.'); return; }
+  const { model, run } = laneRequest(lane);
+  let split;
+  try {
+    const request = { method: 'POST', headers: { 'Content-Type': 'application/json' } };
+    split = await (await api('/api/split', { ...request, body: JSON.stringify({ model, run, prompt }) })).json();
+  } catch (err) {
+    showError(err.message);
+    return;
+  }
+  const total = secondsOf($('#prompt-seconds'));
+  const each = total === null ? null : Number((total / split.actions.length).toFixed(2));
+  $('#actions').replaceChildren();
+  split.actions.forEach((action) => addAction(action, each));
+  $('input[name="mode"][value="list"]').checked = true;
+  showMode();
+  showNotices([split]);
+}
+
 /** An empty seconds input means "the model's typical length": null. */
 function secondsOf(input) {
   return input.value.trim() === '' ? null : Number(input.value);
@@ -706,6 +732,7 @@ function start() {
     .observe($('#actions'));
   $('#actions').addEventListener('click', onActionButton);
   $('#add-action').addEventListener('click', () => $('.action-text', addAction()).focus());
+  $('#split-prompt').addEventListener('click', splitPrompt);
   $$('input[name="mode"]').forEach((radio) => radio.addEventListener('change', showMode));
   $('#compare').addEventListener('click', addCompareLane);
   $('#form').addEventListener('submit', (e) => { e.preventDefault(); generate(); });
