@@ -39,8 +39,8 @@ from m2d2m.progress import ProgressLines, on_terminal
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, FrameBounds, Rejected, corpus
 from pipelines.dataset import encode_sample, reason_kind, stage_counts, summary_table
 from pipelines.language import SMALL_MODEL, Tagger, decompose, load_tagger, parse_tagged_tokens, train_tagger
-from pipelines.synthetic.corpus import tagged_captions
 from pipelines.shards import SCHEMA_VERSION, ShardWriter, shard_records, write_json_atomically
+from pipelines.synthetic.corpus import tagged_captions
 
 
 @dataclass(frozen=True)
