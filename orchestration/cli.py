@@ -943,7 +943,7 @@ def _add_viewers(verbs) -> None:
 
 
 def _add_rest(parser: argparse.ArgumentParser) -> None:
-    from m2d2m.motion.export import REST_POSES
+    from m2d2m.motion.pose import REST_POSES
 
     parser.add_argument(
         "--rest",

@@ -1,12 +1,6 @@
 """Export of joint positions for tools outside M2D2M: BVH for animation software, and ``.npy``
-with a JSON sidecar that states every convention (users ask for both; see users.md §3.3).
-
-Joint positions carry no twist about a bone, so BVH rotations are reconstructed by inverse
-kinematics: a joint with one child gets the swing that turns the rest bone onto the actual bone,
-measured in its parent's frame (so a limb inherits its parent's twist and the choice stays
-continuous, flipping only when a bone points exactly opposite to its rest direction relative to
-its parent); a joint with several children (T2M's pelvis and upper spine) gets the best-fit
-(Kabsch) rotation of its rest child offsets onto the actual ones.
+with a JSON sidecar that states every convention (users ask for both; see users.md §3.3). The BVH's
+rotations are the rig's animation of the positions (:mod:`m2d2m.motion.pose`).
 """
 
 from __future__ import annotations
@@ -19,12 +13,12 @@ from typing import TextIO
 import numpy as np
 
 from m2d2m.atomic import atomic_path
-from m2d2m.motion.rigid import best_fit_rotation, children, rigid_shape
-from m2d2m.motion.rotations import matrix_to_euler, qbetween, quat_to_matrix
+from m2d2m.motion.pose import pose_of, topological_order
+from m2d2m.motion.rigid import children
+from m2d2m.motion.rotations import matrix_to_euler
 from m2d2m.motion.skeleton import T2M, Skeleton
 
 EULER_ORDER = "ZYX"  # BVH channels Zrotation Yrotation Xrotation: R = Rz · Ry · Rx
-REST_POSES = ("skeleton", "tpose")  # a BVH's bind pose: HumanML3D's rest directions, or a T-pose
 _UNITS = {"t2m": "metre", "kit": "KIT-ML units (about 640 per metre)"}
 
 
@@ -53,26 +47,17 @@ def save_bvh(
     below the pelvis — so forward kinematics of the file reproduces the clip. Twist about bones
     is not recoverable from positions: it is inherited from the parent.
     """
-    joints = skeleton.check_joints(joints)
-    if rest_pose not in REST_POSES:
-        raise ValueError(f"rest_pose must be one of {', '.join(REST_POSES)}, got {rest_pose!r}")
     fps = float(skeleton.fps if fps is None else fps)
-    if bone_lengths is None:
-        bone_lengths = skeleton.bone_lengths_of(joints).mean(axis=0)
-    lengths = np.asarray(bone_lengths, dtype=np.float64)
-    rest = skeleton.tpose_offsets(lengths) if rest_pose == "tpose" else skeleton.offsets(lengths)
-    offsets = _fit_rigid_branches(joints, skeleton, rest)
-
-    local = _local_rotations(joints, skeleton, offsets)
-    angles = np.degrees(matrix_to_euler(local, EULER_ORDER))
+    pose = pose_of(joints, skeleton, bone_lengths, rest_pose)
+    angles = np.degrees(matrix_to_euler(pose.local, EULER_ORDER))
     angles = np.unwrap(angles, axis=0, period=360.0)  # continuous curves for interpolation
     order = _depth_first(skeleton)
-    motion = np.concatenate([joints[:, 0, :], angles[:, order].reshape(len(joints), -1)], axis=1)
+    motion = np.concatenate([pose.root, angles[:, order].reshape(len(joints), -1)], axis=1)
 
     path = Path(path)
     with atomic_path(path) as partial, partial.open("w") as f:
         f.write("HIERARCHY\n")
-        _write_joint(f, skeleton, children(skeleton), offsets, joint=order[0], depth=0)
+        _write_joint(f, skeleton, children(skeleton), pose.offsets, joint=order[0], depth=0)
         f.write(f"MOTION\nFrames: {len(joints)}\nFrame Time: {1.0 / fps:.8f}\n")
         np.savetxt(f, motion, fmt="%.6f")
     return path
@@ -121,57 +106,15 @@ def save_motion_npy(
     return npy
 
 
-def _topological(skeleton: Skeleton) -> list[int]:
-    """Root first, then every joint after its parent."""
-    return [int(np.flatnonzero(skeleton.parents < 0)[0])] + skeleton.bones.tolist()
-
-
 def _depth_first(skeleton: Skeleton) -> list[int]:
     """Joints in the order BVH lists them (and their channels)."""
     kids_of = children(skeleton)
-    order, stack = [], [_topological(skeleton)[0]]
+    order, stack = [], [topological_order(skeleton)[0]]
     while stack:
         joint = stack.pop()
         order.append(joint)
         stack.extend(reversed(kids_of[joint]))
     return order
-
-
-def _fit_rigid_branches(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray) -> np.ndarray:
-    """Offsets whose children of branching joints form the clip's rigid shape of that part
-    (:func:`m2d2m.motion.rigid.rigid_shape`), turned as close to the T-pose as it goes."""
-    offsets = offsets.copy()
-    for joint, kids in enumerate(children(skeleton)):
-        if len(kids) < 2:
-            continue
-        shape = rigid_shape(joints[:, kids] - joints[:, [joint]], offsets[kids])
-        offsets[kids] = shape @ best_fit_rotation(offsets[kids], shape)
-    return offsets
-
-
-def _local_rotations(joints: np.ndarray, skeleton: Skeleton, offsets: np.ndarray) -> np.ndarray:
-    """BVH rotation matrices (T, J, 3, 3) of every joint relative to its parent joint."""
-    n_frames, n_joints = joints.shape[:2]
-    kids_of = children(skeleton)
-    world = np.empty((n_frames, n_joints, 3, 3))
-    local = np.empty_like(world)
-    identity = np.broadcast_to(np.eye(3), (n_frames, 3, 3))
-    for joint in _topological(skeleton):
-        parent = skeleton.parents[joint]
-        parent_world = identity if parent < 0 else world[:, parent]
-        kids = kids_of[joint]
-        if len(kids) > 1:
-            world[:, joint] = best_fit_rotation(offsets[kids], joints[:, kids] - joints[:, [joint]])
-            local[:, joint] = np.swapaxes(parent_world, -1, -2) @ world[:, joint]
-        elif len(kids) == 1:
-            bone = joints[:, kids[0]] - joints[:, joint]
-            in_parent = np.einsum("tji,tj->ti", parent_world, bone)
-            local[:, joint] = quat_to_matrix(qbetween(offsets[kids[0]], in_parent))
-            world[:, joint] = parent_world @ local[:, joint]
-        else:  # a leaf: nothing below it to turn, so it follows its parent
-            local[:, joint] = np.eye(3)
-            world[:, joint] = parent_world
-    return local
 
 
 def _write_joint(

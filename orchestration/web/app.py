@@ -30,7 +30,7 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.export import REST_POSES
+from m2d2m.motion.pose import REST_POSES
 from orchestration.errors import UserError
 from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
 from orchestration.web.catalog import Catalog, NotFound

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from m2d2m.motion.clip import ANIMATIONS, Motion
-from m2d2m.motion.export import REST_POSES
+from m2d2m.motion.pose import REST_POSES
 from orchestration.errors import UserError
 from orchestration.generate import GENERATE_STAGE, Output, save_generation
 from orchestration.runs import write_run_info
