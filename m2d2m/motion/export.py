@@ -13,7 +13,7 @@ from typing import TextIO
 import numpy as np
 
 from m2d2m.atomic import atomic_path
-from m2d2m.motion.pose import pose_of, topological_order
+from m2d2m.motion.pose import pose_of
 from m2d2m.motion.rigid import children
 from m2d2m.motion.rotations import matrix_to_euler
 from m2d2m.motion.skeleton import T2M, Skeleton
@@ -47,18 +47,46 @@ def save_bvh(
     below the pelvis — so forward kinematics of the file reproduces the clip. Twist about bones
     is not recoverable from positions: it is inherited from the parent.
     """
-    fps = float(skeleton.fps if fps is None else fps)
     pose = pose_of(joints, skeleton, bone_lengths, rest_pose)
-    angles = np.degrees(matrix_to_euler(pose.local, EULER_ORDER))
-    angles = np.unwrap(angles, axis=0, period=360.0)  # continuous curves for interpolation
-    order = _depth_first(skeleton)
-    motion = np.concatenate([pose.root, angles[:, order].reshape(len(joints), -1)], axis=1)
+    leaves = [joint for joint, kids in enumerate(children(skeleton)) if not kids]
+    return write_bvh(
+        path,
+        skeleton.joint_names,
+        skeleton.parents,
+        pose.offsets,
+        pose.root,
+        pose.local,
+        float(skeleton.fps if fps is None else fps),
+        # an End Site half the last bone again, so the leaf bone shows its direction
+        end_sites={leaf: 0.5 * pose.offsets[leaf] for leaf in leaves},
+    )
 
+
+def write_bvh(
+    path: str | Path,
+    names: Sequence[str],
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    root: np.ndarray,
+    local: np.ndarray,
+    fps: float,
+    end_sites: dict[int, np.ndarray] | None = None,
+) -> Path:
+    """Write any rig's animation as BVH: joints ``names`` with ``parents`` (-1 for the root),
+    rest ``offsets`` (J, 3), the root's positions (T, 3) and every joint's rotation relative to its
+    parent (T, J, 3, 3); ``end_sites`` the End Site offset of the leaves that have one. The root
+    has channels ``Xposition Yposition Zposition`` and every joint ``Zrotation Yrotation
+    Xrotation`` (degrees, unwrapped into continuous curves for interpolation)."""
+    angles = np.degrees(matrix_to_euler(local, EULER_ORDER))
+    angles = np.unwrap(angles, axis=0, period=360.0)
+    kids_of = children(parents)
+    order = _depth_first(kids_of, int(np.flatnonzero(np.asarray(parents) < 0)[0]))
+    motion = np.concatenate([root, angles[:, order].reshape(len(root), -1)], axis=1)
     path = Path(path)
     with atomic_path(path) as partial, partial.open("w") as f:
         f.write("HIERARCHY\n")
-        _write_joint(f, skeleton, children(skeleton), pose.offsets, joint=order[0], depth=0)
-        f.write(f"MOTION\nFrames: {len(joints)}\nFrame Time: {1.0 / fps:.8f}\n")
+        _write_joint(f, names, kids_of, offsets, end_sites or {}, joint=order[0], depth=0)
+        f.write(f"MOTION\nFrames: {len(root)}\nFrame Time: {1.0 / fps:.8f}\n")
         np.savetxt(f, motion, fmt="%.6f")
     return path
 
@@ -106,10 +134,9 @@ def save_motion_npy(
     return npy
 
 
-def _depth_first(skeleton: Skeleton) -> list[int]:
+def _depth_first(kids_of: list[list[int]], root: int) -> list[int]:
     """Joints in the order BVH lists them (and their channels)."""
-    kids_of = children(skeleton)
-    order, stack = [], [topological_order(skeleton)[0]]
+    order, stack = [], [root]
     while stack:
         joint = stack.pop()
         order.append(joint)
@@ -119,26 +146,25 @@ def _depth_first(skeleton: Skeleton) -> list[int]:
 
 def _write_joint(
     f: TextIO,
-    skeleton: Skeleton,
+    names: Sequence[str],
     kids_of: list[list[int]],
     offsets: np.ndarray,
+    end_sites: dict[int, np.ndarray],
     joint: int,
     depth: int,
 ) -> None:
     """Write one joint's HIERARCHY block and, recursively, its descendants'."""
     pad = "\t" * depth
-    name = skeleton.joint_names[joint]
-    if skeleton.parents[joint] < 0:
-        f.write(f"{pad}ROOT {name}\n{pad}{{\n{pad}\tOFFSET 0.000000 0.000000 0.000000\n")
+    if depth == 0:
+        f.write(f"{pad}ROOT {names[joint]}\n{pad}{{\n{pad}\tOFFSET 0.000000 0.000000 0.000000\n")
         f.write(f"{pad}\tCHANNELS 6 Xposition Yposition Zposition {_rotation_channels()}\n")
     else:
-        f.write(f"{pad}JOINT {name}\n{pad}{{\n{pad}\tOFFSET {_triple(offsets[joint])}\n")
+        f.write(f"{pad}JOINT {names[joint]}\n{pad}{{\n{pad}\tOFFSET {_triple(offsets[joint])}\n")
         f.write(f"{pad}\tCHANNELS 3 {_rotation_channels()}\n")
-    kids = kids_of[joint]
-    for kid in kids:
-        _write_joint(f, skeleton, kids_of, offsets, kid, depth + 1)
-    if not kids:  # End Site: half the last bone again, so the leaf bone shows its direction
-        end = _triple(0.5 * offsets[joint])
+    for kid in kids_of[joint]:
+        _write_joint(f, names, kids_of, offsets, end_sites, kid, depth + 1)
+    if joint in end_sites:
+        end = _triple(end_sites[joint])
         f.write(f"{pad}\tEnd Site\n{pad}\t{{\n{pad}\t\tOFFSET {end}\n{pad}\t}}\n")
     f.write(f"{pad}}}\n")
 

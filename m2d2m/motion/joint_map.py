@@ -7,8 +7,11 @@ and the "MotionBuilder-friendly" ones (``LeftUpLeg``, ``Spine``, ``LeftShoulder`
 and neck have other joints than SMPL's, so the map is approximate there: SMPL's ``spine2`` is the
 midpoint of CMU's upper back and thorax, and its collars the midpoints of the clavicles (the
 features made from them are not HumanML3D's, and their scores must not be set beside published
-ones). A user's own rig is a YAML map: ``our joint: their joint`` or ``our joint: [theirs, …]``
-for a midpoint, every joint of the layout named once.
+ones). Two more presets serve retargeting onto a character (:mod:`m2d2m.motion.retarget`):
+Mixamo's rigs (``mixamorig:Hips``, ``mixamorig:LeftUpLeg``…, each of ours one of theirs) and
+SMPL's 24 joints, whose first 22 are T2M's under the same names. A user's own rig is a YAML map:
+``our joint: their joint`` or ``our joint: [theirs, …]`` for a midpoint, every joint of the
+layout named once.
 """
 
 from __future__ import annotations
@@ -132,6 +135,31 @@ def _cmu(
     return JointMap(name, sources, rest_frames).check()
 
 
+def _mixamo() -> JointMap:
+    """Mixamo's humanoid rig (``mixamorig:`` names): each of our joints one of its joints, our
+    collars its ``Shoulder`` and our shoulders its ``Arm``."""
+    sources = {
+        "pelvis": "Hips",
+        "spine1": "Spine",
+        "spine2": "Spine1",
+        "spine3": "Spine2",
+        "neck": "Neck",
+        "head": "Head",
+    }
+    for side, prefix in (("left", "Left"), ("right", "Right")):
+        sources |= {
+            f"{side}_hip": f"{prefix}UpLeg",
+            f"{side}_knee": f"{prefix}Leg",
+            f"{side}_ankle": f"{prefix}Foot",
+            f"{side}_foot": f"{prefix}ToeBase",
+            f"{side}_collar": f"{prefix}Shoulder",
+            f"{side}_shoulder": f"{prefix}Arm",
+            f"{side}_elbow": f"{prefix}ForeArm",
+            f"{side}_wrist": f"{prefix}Hand",
+        }
+    return JointMap("mixamo", {ours: (f"mixamorig:{theirs}",) for ours, theirs in sources.items()}).check()
+
+
 PRESETS: dict[str, JointMap] = {
     "cmu": _cmu(
         "Hip", "Knee", "Ankle", "Toe", "Chest", "Chest2", "Neck", "Collar", "Shoulder", "Elbow", "Wrist", "cmu", 0
@@ -151,6 +179,8 @@ PRESETS: dict[str, JointMap] = {
         "cmu-motionbuilder",
         1,  # this release opens every take with a T-pose
     ),
+    "mixamo": _mixamo(),
+    "smpl": JointMap("smpl", {name: (name,) for name in T2M.joint_names}).check(),
 }
 
 

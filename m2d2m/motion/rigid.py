@@ -44,9 +44,10 @@ def rigid_shape(actual: np.ndarray, start: np.ndarray) -> np.ndarray:
     return shape
 
 
-def children(skeleton: Skeleton) -> list[list[int]]:
-    """Each joint's child joints."""
-    return [np.flatnonzero(skeleton.parents == j).tolist() for j in range(skeleton.num_joints)]
+def children(skeleton: Skeleton | np.ndarray) -> list[list[int]]:
+    """Each joint's child joints, of a skeleton or of any rig's parents array (-1 for the root)."""
+    parents = np.asarray(skeleton.parents if isinstance(skeleton, Skeleton) else skeleton)
+    return [np.flatnonzero(parents == j).tolist() for j in range(len(parents))]
 
 
 def bone_length_spread(joints: np.ndarray, skeleton: Skeleton) -> dict[str, float]:

@@ -1,0 +1,168 @@
+"""A motion on someone else's rig: the rotations that make their skeleton, with its own bone
+lengths and rest pose, move as ours does (issue 40 §2; docs/generation.md, "On your own rig").
+
+The rig comes from a BVH file (its hierarchy and OFFSETs; its first frame is not used) and a
+:class:`~m2d2m.motion.joint_map.JointMap` naming which of its joints stand for ours (the presets
+of CMU's two cgspeed releases, Mixamo's ``mixamorig:`` names and SMPL's, or a user's YAML). Each
+of its joints is turned, root first, so that the mapped joints below it point where ours point:
+
+* a joint with one mapped joint below it (through any unmapped ones) gets the swing that turns
+  its rest vector to that joint onto our bone's direction, measured in its parent's frame (no
+  twist, as :mod:`m2d2m.motion.pose` does for our own rig);
+* a joint with several (a pelvis: both hips and the spine) gets the best-fit (Kabsch) rotation of
+  its rest vectors onto our directions;
+* a joint with none (fingers, an end bone) keeps its rest rotation relative to its parent, so a
+  hand continues its forearm rather than spinning (momask-codes#42's complaint).
+
+The direction of an unmapped joint's aim is taken from its nearest mapped ancestor in our clip,
+which is exact where the rig puts that joint on its ancestor (CMU's ``LHipJoint``, ``lowerback``,
+``LeftCollar`` have zero OFFSETs). Bone lengths are the rig's, so the root's path is scaled by the
+ratio of the rig's leg length to ours: feet cover the ground a leg of that length covers, instead
+of sliding.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from m2d2m.motion.bvh_reader import BvhClip, read_bvh
+from m2d2m.motion.export import write_bvh
+from m2d2m.motion.joint_map import JointMap, joint_map_for
+from m2d2m.motion.rigid import best_fit_rotation, children
+from m2d2m.motion.rotations import qbetween, quat_to_matrix
+from m2d2m.motion.skeleton import T2M, Skeleton
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A character's skeleton: joint ``names``, ``parents`` (-1 for the root, parents first),
+    rest ``offsets`` (J, 3) from each parent in metres, and the End Sites of its leaves."""
+
+    names: tuple[str, ...]
+    parents: np.ndarray
+    offsets: np.ndarray
+    end_sites: dict[int, np.ndarray]
+
+    @classmethod
+    def from_bvh(cls, clip: BvhClip) -> Rig:
+        return cls(clip.names, clip.parents, clip.offsets, clip.end_sites)
+
+    def rest_positions(self) -> np.ndarray:
+        """(J, 3) every joint where the rest pose puts it (each rotation zero)."""
+        rest = np.zeros((len(self.names), 3))
+        for joint, parent in enumerate(self.parents):
+            rest[joint] = self.offsets[joint] + (rest[parent] if parent >= 0 else 0.0)
+        return rest
+
+
+@dataclass(frozen=True)
+class RigMotion:
+    """A rig's animation: its root's positions (T, 3) and every joint's rotation relative to its
+    parent (T, J, 3, 3)."""
+
+    rig: Rig
+    root: np.ndarray
+    local: np.ndarray
+
+    def positions(self) -> np.ndarray:
+        """(T, J, 3) every joint's world position, by forward kinematics."""
+        frames, count = self.local.shape[:2]
+        world = np.empty_like(self.local)
+        positions = np.empty((frames, count, 3))
+        for joint, parent in enumerate(self.rig.parents):
+            if parent < 0:
+                world[:, joint], positions[:, joint] = self.local[:, joint], self.root
+            else:
+                world[:, joint] = world[:, parent] @ self.local[:, joint]
+                positions[:, joint] = positions[:, parent] + world[:, parent] @ self.rig.offsets[joint]
+        return positions
+
+    def save_bvh(self, path: str | Path, fps: float) -> Path:
+        return write_bvh(
+            path, self.rig.names, self.rig.parents, self.rig.offsets, self.root, self.local, fps, self.rig.end_sites
+        )
+
+
+def _ours_of(rig: Rig, joint_map: JointMap, skeleton: Skeleton) -> dict[int, int]:
+    """The rig's joints that stand for one of ours (a map's midpoints stand for none), → ours."""
+    mapped = {}
+    for ours, theirs in joint_map.sources.items():
+        if len(theirs) == 1 and theirs[0] in rig.names:
+            mapped[rig.names.index(theirs[0])] = skeleton.joint_names.index(ours)
+    return mapped
+
+
+def _aims(rig: Rig, mapped: dict[int, int]) -> list[list[int]]:
+    """For each joint, the first mapped joint below each of its children (depth first)."""
+    kids_of = children(rig.parents)
+
+    def first_mapped(joint: int) -> int | None:
+        if joint in mapped:
+            return joint
+        return next((found for kid in kids_of[joint] if (found := first_mapped(kid)) is not None), None)
+
+    return [
+        [found for kid in kids_of[joint] if (found := first_mapped(kid)) is not None] for joint in range(len(kids_of))
+    ]
+
+
+def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skeleton = T2M) -> RigMotion:
+    """Our joint positions (T, J, 3) as ``rig``'s animation; ValueError when the map names no
+    joint of the rig for our root or for the legs the root path is scaled by."""
+    joints = np.asarray(skeleton.check_joints(joints), dtype=np.float64)
+    mapped = _ours_of(rig, joint_map, skeleton)
+    theirs = {ours: joint for joint, ours in mapped.items()}
+    legs = [skeleton.joint_names.index(name) for name in ("left_hip", "left_knee", "left_ankle")]
+    missing = [skeleton.joint_names[j] for j in [0, *legs] if j not in theirs]
+    if missing:
+        raise ValueError(f"joint map {joint_map.name} names no joint of the rig for our {', '.join(missing)}")
+    rest = rig.rest_positions()
+    rig_leg = sum(np.linalg.norm(rest[theirs[b]] - rest[theirs[a]]) for a, b in zip(legs, legs[1:]))
+    our_leg = sum(np.linalg.norm(joints[:, b] - joints[:, a], axis=-1).mean() for a, b in zip(legs, legs[1:]))
+    scale = rig_leg / our_leg
+
+    anchor = np.empty(len(rig.names), dtype=np.int64)  # each joint's nearest mapped ancestor-or-self, as ours
+    frames = len(joints)
+    world = np.empty((frames, len(rig.names), 3, 3))
+    local = np.empty_like(world)
+    identity = np.broadcast_to(np.eye(3), (frames, 3, 3))
+    for joint, targets in enumerate(_aims(rig, mapped)):
+        parent = rig.parents[joint]
+        parent_world = identity if parent < 0 else world[:, parent]
+        anchor[joint] = mapped.get(joint, anchor[parent] if parent >= 0 else 0)
+        wanted = (
+            np.stack([joints[:, mapped[t]] - joints[:, anchor[joint]] for t in targets], axis=1) if targets else None
+        )
+        if wanted is None:
+            local[:, joint] = np.eye(3)
+        elif len(targets) == 1:
+            in_parent = np.einsum("tji,tj->ti", parent_world, wanted[:, 0])
+            local[:, joint] = quat_to_matrix(qbetween(rest[targets[0]] - rest[joint], in_parent))
+        else:
+            directions = wanted / np.linalg.norm(wanted, axis=-1, keepdims=True)
+            vectors = rest[targets] - rest[joint]
+            fitted = best_fit_rotation(vectors / np.linalg.norm(vectors, axis=-1, keepdims=True), directions)
+            local[:, joint] = np.swapaxes(parent_world, -1, -2) @ fitted
+        world[:, joint] = parent_world @ local[:, joint]
+    root_index = int(np.flatnonzero(rig.parents < 0)[0])
+    root = joints[:, anchor[root_index]] * scale + (rest[root_index] - rest[theirs[anchor[root_index]]])
+    return RigMotion(rig, root, local)
+
+
+def retarget_to_bvh(
+    path: str | Path,
+    joints: np.ndarray,
+    rig_file: str | Path,
+    joint_map: str | Path | None = None,
+    fps: float | None = None,
+    skeleton: Skeleton = T2M,
+    metres_per_unit: float = 1.0,
+) -> Path:
+    """Our joints as a BVH on the rig of ``rig_file`` (a BVH: its hierarchy and OFFSETs), through
+    ``joint_map`` (a preset's name, a YAML file, or by default the preset its joints fit)."""
+    clip = read_bvh(rig_file, metres_per_unit)
+    motion = retarget(joints, Rig.from_bvh(clip), joint_map_for(clip, joint_map), skeleton)
+    return motion.save_bvh(path, float(skeleton.fps if fps is None else fps))

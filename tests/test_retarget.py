@@ -1,0 +1,96 @@
+"""A motion on another rig (issue 40 §2), tested on a real rig unlike ours: CMU's 31-joint
+skeleton of tests/fixtures/cmu-bvh. A CMU take made into our joints and retargeted back onto its
+own rig gives the take's joints back; on a rig scaled up the motion scales with it; HumanML3D's
+own clip on CMU's rig points every mapped bone where ours points, hands continue their forearms,
+and the BVH written reads back as the rig's animation."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from m2d2m.motion.bvh_reader import read_bvh
+from m2d2m.motion.joint_map import PRESETS, JointMap
+from m2d2m.motion.retarget import Rig, retarget, retarget_to_bvh
+from m2d2m.motion.skeleton import T2M
+from tests.test_bvh_reader import CMU, CMU_METRES
+
+SAMPLE = Path(__file__).parents[2] / "shared" / "data" / "humanml3d-sample" / "new_joints" / "012314.npy"
+
+
+@pytest.fixture(scope="module")
+def take():
+    """CMU's 131_01 in metres, its 22 T2M joints (every 4th frame, for speed) and its rig."""
+    clip = read_bvh(CMU / "131_01.bvh", CMU_METRES)
+    return clip.positions()[::4], PRESETS["cmu"].joints(clip)[::4], Rig.from_bvh(clip)
+
+
+def single_sources(joint_map: JointMap, rig: Rig) -> dict[int, int]:
+    """The rig's joints that stand for one of ours → ours."""
+    return {
+        rig.names.index(theirs[0]): T2M.joint_names.index(ours)
+        for ours, theirs in joint_map.sources.items()
+        if len(theirs) == 1
+    }
+
+
+def test_a_cmu_take_retargeted_onto_its_own_rig_is_the_take(take):
+    positions, ours, rig = take
+    moved = retarget(ours, rig, PRESETS["cmu"]).positions()
+    mapped = sorted(single_sources(PRESETS["cmu"], rig))
+    assert np.abs(moved[:, mapped] - positions[:, mapped]).max() < 1e-6
+
+
+def test_on_a_bigger_rig_the_motion_scales_with_it(take):
+    positions, ours, rig = take
+    bigger = replace(rig, offsets=rig.offsets * 1.3)
+    moved = retarget(ours, bigger, PRESETS["cmu"]).positions()
+    mapped = sorted(single_sources(PRESETS["cmu"], rig))
+    assert np.abs(moved[:, mapped] - 1.3 * positions[:, mapped]).max() < 1e-6
+
+
+def bone_angles(moved: np.ndarray, ours: np.ndarray, pairs: list[tuple[int, int, int, int]]) -> np.ndarray:
+    """Degrees between each rig bone (a, b) and our bone (a', b'), per frame."""
+    theirs = np.stack([moved[:, b] - moved[:, a] for a, b, _, _ in pairs], axis=1)
+    mine = np.stack([ours[:, b] - ours[:, a] for _, _, a, b in pairs], axis=1)
+    cosine = np.sum(theirs * mine, axis=-1) / np.linalg.norm(theirs, axis=-1) / np.linalg.norm(mine, axis=-1)
+    return np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0)))
+
+
+def test_humanml3ds_clip_on_cmus_rig_points_every_mapped_bone_as_ours(take):
+    _, _, rig = take
+    ours = np.load(SAMPLE).astype(np.float64)
+    moved = retarget(ours, rig, PRESETS["cmu"]).positions()
+    sources = single_sources(PRESETS["cmu"], rig)
+    theirs_of = {mine: joint for joint, mine in sources.items()}
+    pairs = [
+        (theirs_of[int(T2M.parents[child])], theirs_of[child], int(T2M.parents[child]), child)
+        for child in range(1, 22)
+        if child in theirs_of and int(T2M.parents[child]) in theirs_of
+    ]
+    assert len(pairs) >= 14  # legs, feet, spine, neck, head, arms
+    assert bone_angles(moved, ours, pairs).max() < 1e-4
+    hand, fingers, forearm = (rig.names.index(n) for n in ("LeftWrist", "LFingers", "LeftElbow"))
+    assert bone_angles(moved, moved, [(hand, fingers, forearm, hand)]).max() < 1.0  # the hand continues the forearm
+    feet = moved[:, [rig.names.index(n) for n in ("LeftToe", "RightToe")], 1].min(axis=1)
+    scale = np.ptp(moved[:, :, 1], axis=1).mean() / np.ptp(ours[:, :, 1], axis=1).mean()
+    assert abs(feet.min() - scale * ours[:, [10, 11], 1].min()) < 0.03  # on the floor as ours are
+
+
+def test_the_bvh_on_the_rig_reads_back_as_its_animation(take, tmp_path):
+    _, ours, rig = take
+    path = retarget_to_bvh(tmp_path / "on-cmu.bvh", ours, CMU / "131_01.bvh", metres_per_unit=CMU_METRES, fps=30)
+    written = read_bvh(path)
+    assert written.names == rig.names and written.fps == pytest.approx(30.0)
+    expected = retarget(ours, rig, PRESETS["cmu"]).positions()
+    assert np.abs(written.positions() - expected).max() < 1e-4
+
+
+def test_a_map_without_our_root_or_legs_is_one_line(take):
+    _, ours, rig = take
+    partial = JointMap("arms only", {"left_wrist": ("LeftWrist",)})
+    with pytest.raises(ValueError, match="joint map arms only names no joint of the rig for our pelvis, left_hip"):
+        retarget(ours, rig, partial)
