@@ -79,8 +79,8 @@ def test_a_users_yaml_map_reads_their_rig(tmp_path):
     expected = joints.copy()
     expected[:, 6] = (joints[:, 3] + joints[:, 9]) / 2
     assert np.abs(mapped - expected).max() < 1e-4
-    with pytest.raises(BvhError, match="no joint map preset"):
-        joint_map_for(clip)
+    assert joint_map_for(clip) is PRESETS["smpl"]  # our own BVH: SMPL's names
+    assert np.abs(PRESETS["smpl"].joints(clip) - joints).max() < 1e-4
 
 
 @pytest.mark.parametrize(

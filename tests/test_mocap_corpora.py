@@ -107,7 +107,7 @@ WIDTH = len((CMU / "131_01.bvh").read_text(encoding="utf-8").split("Frame Time:"
             "robot.bvh",
             "HIERARCHY\nROOT Base\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n End Site\n {\n"
             "  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 1\nFrame Time: 0.05\n0 0 0\n",
-            "no joint map preset (cmu, cmu-motionbuilder) fits a BVH with joints Base",
+            "no joint map preset (cmu, cmu-motionbuilder, mixamo, smpl) fits a BVH with joints Base",
         ),
         ("empty.bvh", f"{HIERARCHY}MOTION\nFrames: 0\nFrame Time: 0.008333\n", "no frames"),
         (
@@ -244,7 +244,7 @@ def test_data_says_in_one_line_when_a_corpus_does_not_take_an_option(capsys):
     assert main(["data", "--dataset", "synthetic", "--bvh", str(CMU), "--out", "/tmp/never"]) == 2
     assert "--bvh: the synthetic corpus does not take it (it takes none)" in capsys.readouterr().err
     assert main(["data", "--dataset", "bvh", "--raw", str(CMU), "--joint-map", "nope.yaml", "--out", "/tmp/x"]) == 2
-    assert "--joint-map: nope.yaml is neither a preset (cmu, cmu-motionbuilder) nor a file" in capsys.readouterr().err
+    assert "--joint-map: nope.yaml is neither a preset (cmu, cmu-motionbuilder, mixamo, smpl) nor a file" in capsys.readouterr().err
 
 
 def shard_samples(out: Path) -> dict[str, dict]:
