@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from m2d2m.motion.feet import skating_ratio
+
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -55,3 +57,13 @@ def measure_sequences(sequences: Sequence[tuple[np.ndarray, Sequence[int]]], ske
         metric.name: [float(metric.measure(joints, boundaries, skeleton)) for joints, boundaries in sequences]
         for metric in sequence_metrics()
     }
+
+
+def skating(joints: np.ndarray, boundaries: Sequence[int], skeleton: Any) -> float:
+    """GMD's foot skating ratio at the skeleton's frame rate (:func:`m2d2m.motion.feet.skating_ratio`),
+    registered here, not by a plugin, so that every evaluation reports how much each row's feet
+    slide (docs/evaluation.md, "Feet that stay planted")."""
+    return skating_ratio(joints, skeleton, skeleton.fps)
+
+
+SKATING = register_metric(SequenceMetric("skating", "Skating ↓", skating))

@@ -1,0 +1,228 @@
+"""Feet that stay planted (m2d2m/motion/feet.py): the two-bone IK against closed forms, the fix on a
+synthetic walk whose stance feet slide, GMD's skating ratio by hand, and HumanML3D's real clip."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from m2d2m.evaluation.sequence_metrics import measure_sequences
+from m2d2m.motion.feet import foot_contacts, moving_average, plant_feet, skating_ratio, two_bone_ik
+from m2d2m.motion.skeleton import KIT, T2M, Skeleton
+
+FPS = 20.0
+LEGS = [4, 7, 10, 5, 8, 11]  # T2M's knees, ankles and toes: what planting may move
+
+
+def random_legs(rng: np.random.Generator, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``count`` bent legs (hip, knee, ankle) of random bone lengths and directions."""
+    hip = rng.normal(size=(count, 3))
+    knee = hip + rng.uniform(0.3, 0.5, (count, 1)) * unit(rng.normal(size=(count, 3)))
+    ankle = knee + rng.uniform(0.3, 0.5, (count, 1)) * unit(rng.normal(size=(count, 3)))
+    return hip, knee, ankle
+
+
+def unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def test_a_reachable_target_is_reached_with_exact_bones_and_the_knee_in_its_plane():
+    rng = np.random.default_rng(0)
+    hip, knee, ankle = random_legs(rng, 200)
+    thigh, shin = np.linalg.norm(knee - hip, axis=-1), np.linalg.norm(ankle - knee, axis=-1)
+    reach = rng.uniform(np.abs(thigh - shin) + 0.01, thigh + shin - 0.01)
+    target = hip + reach[:, None] * unit(rng.normal(size=(200, 3)))
+
+    new_knee, new_ankle = two_bone_ik(hip, knee, ankle, target)
+
+    np.testing.assert_allclose(new_ankle, target, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(new_knee - hip, axis=-1), thigh, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(new_ankle - new_knee, axis=-1), shin, rtol=1e-12)
+    # the knee lies in the plane of the hip–target line and the old knee, on the old knee's side
+    volume = np.einsum("ni,ni->n", np.cross(target - hip, knee - hip), new_knee - hip)
+    np.testing.assert_allclose(volume, 0.0, atol=1e-12)
+    line = unit(target - hip)
+    old_side = (knee - hip) - np.einsum("ni,ni->n", knee - hip, line)[:, None] * line
+    assert (np.einsum("ni,ni->n", new_knee - hip, old_side) > 0).all()
+
+
+def test_the_target_it_started_from_gives_the_leg_back():
+    hip, knee, ankle = random_legs(np.random.default_rng(1), 50)
+    new_knee, new_ankle = two_bone_ik(hip, knee, ankle, ankle)
+    np.testing.assert_allclose(new_knee, knee, atol=1e-12)
+    np.testing.assert_allclose(new_ankle, ankle, atol=1e-12)
+
+
+@pytest.mark.parametrize("scale", [2.0, 0.3], ids=["too far", "too near"])
+def test_an_unreachable_target_gives_the_nearest_reachable_point(scale):
+    """The reachable ankles form a shell about the hip; none of 20,000 sampled in it is nearer to
+    the target than the one returned, which lies on the hip–target ray."""
+    rng = np.random.default_rng(2)
+    hip, knee, ankle = random_legs(rng, 1)
+    thigh, shin = np.linalg.norm(knee - hip), np.linalg.norm(ankle - knee)
+    direction = unit(rng.normal(size=(1, 3)))
+    limit = thigh + shin if scale > 1 else abs(thigh - shin)
+    target = hip + scale * limit * direction
+
+    new_knee, new_ankle = two_bone_ik(hip, knee, ankle, target)
+
+    np.testing.assert_allclose(new_ankle, hip + limit * direction, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(new_knee - hip), thigh, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(new_ankle - new_knee), shin, rtol=1e-12)
+    samples = hip + rng.uniform(abs(thigh - shin), thigh + shin, (20000, 1)) * unit(rng.normal(size=(20000, 3)))
+    assert np.linalg.norm(samples - target, axis=-1).min() >= np.linalg.norm(new_ankle - target) - 1e-12
+
+
+def rest_pose(skeleton: Skeleton) -> np.ndarray:
+    """Joint positions (J, 3) of the skeleton's rest pose, root at the origin."""
+    pose = np.zeros((skeleton.num_joints, 3))
+    for joint in skeleton.bones:
+        pose[joint] = pose[skeleton.parents[joint]] + skeleton.offsets()[joint]
+    return pose
+
+
+def walk(slide: float, seconds: float = 3.0, speed: float = 0.8) -> np.ndarray:
+    """T2M walking along +Z at ``speed`` m/s, 20 fps, one step a second per foot (12 stance
+    frames, 8 swing), the upper body in its rest pose. Each stance foot slides forward at
+    ``slide`` m/s about its footprint, which is under the hip at mid-stance; the knees come from
+    the law of cosines in the sagittal plane, as angles (this test's own solution), so every bone
+    has its skeleton length in every frame."""
+    frames = np.arange(int(seconds * FPS))
+    time = frames / FPS
+    joints = rest_pose(T2M)[None] + np.stack([0 * time, np.full(len(time), 0.8), speed * time], -1)[:, None]
+    lengths = T2M.bone_lengths
+    for hip, knee, ankle, toe, delay in ((1, 4, 7, 10, 0), (2, 5, 8, 11, 10)):
+        phase = (frames + delay) % 20
+        middle = ((frames + delay) // 20 * 20 - delay + 5.5) / FPS  # this step's mid-stance
+        lift_off = speed * middle + slide * 5.5 / FPS  # where the stance ends
+        touch_down = speed * (middle + 1.0) - slide * 5.5 / FPS  # where the next one starts
+        s = (phase - 11) / 9.0  # swing progress at phases 12..19
+        swinging = phase >= 12
+        eased = lift_off + s * s * (3 - 2 * s) * (touch_down - lift_off)
+        ankle_z = np.where(swinging, eased, speed * middle + slide * (time - middle))
+        ankle_y = np.where(swinging, 0.08 + 0.12 * np.sin(np.pi * s), 0.08)
+        joints[:, ankle] = np.stack([joints[:, hip, 0], ankle_y, ankle_z], -1)
+        drop = 0.06  # the toe below the ankle
+        joints[:, toe] = joints[:, ankle] + [0.0, -drop, np.sqrt(lengths[toe] ** 2 - drop**2)]
+        dz, dy = ankle_z - joints[:, hip, 2], ankle_y - joints[:, hip, 1]
+        reach, thigh, shin = np.hypot(dz, dy), lengths[knee], lengths[ankle]
+        assert (reach < thigh + shin).all(), "the walk must be reachable"
+        angle = np.arctan2(dy, dz) + np.arccos((thigh**2 + reach**2 - shin**2) / (2 * thigh * reach))
+        joints[:, knee] = joints[:, hip] + thigh * np.stack([0 * time, np.sin(angle), np.cos(angle)], -1)
+    return joints
+
+
+def test_the_synthetic_walk_is_rigid_and_does_not_skate_until_its_stance_feet_slide():
+    clean, sliding = walk(0.0), walk(0.6)
+    for joints in (clean, sliding):
+        np.testing.assert_allclose(
+            T2M.bone_lengths_of(joints)[:, T2M.bones],
+            np.broadcast_to(T2M.bone_lengths[T2M.bones], (len(joints), len(T2M.bones))),
+            atol=1e-12,
+        )
+    assert skating_ratio(clean, T2M, FPS) == 0.0
+    assert skating_ratio(sliding, T2M, FPS) > 0.9  # a stance toe slides at 0.6 m/s in nearly every step
+
+
+def test_planting_stops_the_slide_and_moves_nothing_but_the_legs():
+    sliding = walk(0.6)
+    planted = plant_feet(sliding, T2M, FPS)
+
+    assert skating_ratio(planted, T2M, FPS) == 0.0
+    others = np.setdiff1d(np.arange(T2M.num_joints), LEGS)
+    np.testing.assert_array_equal(planted[:, others], sliding[:, others])
+    np.testing.assert_allclose(T2M.bone_lengths_of(planted), T2M.bone_lengths_of(sliding), atol=1e-12)
+    contacts = foot_contacts(sliding, T2M, FPS)
+    for channel, toe in ((1, 10), (3, 11)):  # inside a contact run the toe stands still over the ground
+        held = contacts[:-1, channel] & contacts[1:, channel]
+        step = np.diff(planted[:, toe, [0, 2]], axis=0)[held]
+        np.testing.assert_allclose(step, 0.0, atol=1e-12)
+
+
+def test_planting_a_clip_without_contacts_changes_nothing():
+    sliding = walk(0.6)
+    untouched = plant_feet(sliding, T2M, FPS, np.zeros((len(sliding), 4), dtype=bool))
+    np.testing.assert_array_equal(untouched, sliding)
+
+
+def test_planting_works_on_kit_whose_contact_pair_is_below_the_ankle():
+    """KIT's contact joints (19, 20) and (14, 15) hang below the ankles (18, 13): the whole foot
+    turns with the pair, and every bone keeps its length."""
+    frames = 12
+    rest = rest_pose(KIT)
+    drift = np.stack([np.linspace(0, 20, frames), np.zeros(frames), np.linspace(0, 40, frames)], -1)
+    joints = rest[None] + drift[:, None]  # a standing figure gliding over the ground (KIT's units)
+    planted = plant_feet(joints, KIT, KIT.fps, np.ones((frames, 4), dtype=bool))
+    np.testing.assert_allclose(KIT.bone_lengths_of(planted), KIT.bone_lengths_of(joints), atol=1e-9)
+    moved = np.flatnonzero(np.abs(planted - joints).max(axis=(0, 2)) > 0)
+    assert set(moved) <= {12, 13, 14, 15, 17, 18, 19, 20}  # knees, ankles and feet
+    glide = np.linalg.norm(np.diff(joints[:, 20, [0, 2]], axis=0), axis=-1).sum()
+    assert np.linalg.norm(np.diff(planted[:, 20, [0, 2]], axis=0), axis=-1).sum() < glide / 2
+
+
+def test_skating_ratio_by_hand():
+    """Seven frames: the left toe moves 1, 4, 4, 4, 1, 0 cm along x (0.2, 0.8, 0.8, 0.8, 0.2, 0
+    m/s), low (2 cm) but for frame 5 (6 cm); the right toe bobs up and down at 0.8 m/s but never
+    moves over the ground. 5-step means with zeros beyond the ends: 0.36, 0.52, 0.56, 0.52, 0.36,
+    0.2. Steps 1, 2 and 3 are low in both frames and above 0.5 m/s both ways: 3 of 6."""
+    joints = np.zeros((7, T2M.num_joints, 3))
+    joints[:, 10, 0] = [0.0, 0.01, 0.05, 0.09, 0.13, 0.14, 0.14]
+    joints[:, 10, 1] = [0.02, 0.02, 0.02, 0.02, 0.02, 0.06, 0.02]
+    joints[:, 11, 1] = [0.0, 0.04, 0.0, 0.04, 0.0, 0.04, 0.0]
+    assert skating_ratio(joints, T2M, FPS) == pytest.approx(3 / 6)
+    assert skating_ratio(joints, T2M, FPS, speed=0.53) == pytest.approx(1 / 6)  # only step 2's mean clears it
+    assert skating_ratio(joints, T2M, FPS, height=0.01) == 0.0
+    assert np.isnan(skating_ratio(joints[:1], T2M, FPS))
+
+
+@pytest.mark.parametrize("window", [5, 4, 1])
+def test_the_moving_average_is_scipys_uniform_filter_with_zeros_beyond_the_ends(window):
+    ndimage = pytest.importorskip("scipy.ndimage")
+    values = np.random.default_rng(3).normal(size=(2, 23))
+    expected = ndimage.uniform_filter1d(values, size=window, axis=-1, mode="constant")
+    np.testing.assert_allclose(moving_average(values, window), expected, atol=1e-12)
+
+
+def test_the_real_clips_contacts_from_its_features_are_those_of_its_joints(sample_joints, sample_features):
+    """HumanML3D's features carry the contacts of the joints they were made from (its rule, at
+    its frame rate): the two agree on every frame of clip 012314."""
+    from_features = foot_contacts(sample_joints, T2M, FPS, sample_features)
+    np.testing.assert_array_equal(foot_contacts(sample_joints, T2M, FPS), from_features)
+    assert from_features.mean() > 0.5  # a clip that stands more than it steps
+
+
+def test_the_real_clip_skates_and_planting_does_not_make_it_skate_more(sample_joints, sample_features):
+    """Clip 012314 skates in 23 of its 169 steps by GMD's measure (a low toe that sweeps fast,
+    swinging or pivoting); planting its own contacts takes two pivoting steps away and adds none."""
+    assert skating_ratio(sample_joints, T2M, FPS) == pytest.approx(23 / 169)
+    contacts = foot_contacts(sample_joints, T2M, FPS, sample_features)
+    planted = plant_feet(sample_joints, T2M, FPS, contacts)
+    assert skating_ratio(planted, T2M, FPS) == pytest.approx(21 / 169)
+    np.testing.assert_allclose(T2M.bone_lengths_of(planted), T2M.bone_lengths_of(sample_joints), atol=1e-6)
+
+
+def test_every_evaluation_measures_skating(sample_joints):
+    values = measure_sequences([(sample_joints, [])], T2M)
+    assert values["skating"] == [skating_ratio(sample_joints, T2M, FPS)]
+
+
+def test_contacts_at_another_frame_rate_keep_the_speed_threshold():
+    """HumanML3D's 0.002 m² per frame at 20 fps is 0.894 m/s: a toe at 0.85 m/s touches, at
+    0.95 m/s does not, whether sampled at 20 or 60 fps."""
+    for fps in (20.0, 60.0):
+        time = np.arange(10) / fps
+        joints = np.zeros((10, T2M.num_joints, 3))
+        joints[:, 10, 0] = 0.85 * time
+        joints[:, 11, 0] = 0.95 * time
+        contacts = foot_contacts(joints, T2M, fps)
+        assert contacts[:, 1].all() and not contacts[:, 3].any()
+
+
+def test_a_straight_leg_bends_towards_the_pole():
+    hip, knee, ankle = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.6, 0.0]), np.array([0.0, 0.1, 0.0])
+    target = np.array([0.0, 0.4, 0.0])
+    new_knee, new_ankle = two_bone_ik(hip, knee, ankle, target, pole=np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(new_ankle, target, atol=1e-12)
+    # thigh 0.4 and shin 0.5 over 0.6: cos α = (0.16 + 0.36 − 0.25) / (2·0.4·0.6) = 0.5625
+    cos = 0.27 / 0.48
+    np.testing.assert_allclose(new_knee, [0.0, 1.0 - 0.4 * cos, 0.4 * np.sqrt(1 - cos**2)], atol=1e-12)
