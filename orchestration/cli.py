@@ -268,28 +268,79 @@ def _render(args: argparse.Namespace) -> None:
 
 
 def _export(args: argparse.Namespace) -> None:
-    from m2d2m.motion.export import save_bvh, save_motion_npy
+    import numpy as np
+
+    from m2d2m.motion.clip import Motion
+    from orchestration.generate import plan_output
     from orchestration.viewing import load_motion
 
     out = Path(args.out)
-    suffix = out.suffix.lower()
-    if suffix not in (".bvh", ".npy"):
-        raise UserError(f"{out}: export writes .bvh or .npy (with a .json sidecar)")
-    motion = load_motion(args.source, args.id, args.skeleton)
+    if out.suffix.lower() not in EXPORTED:
+        raise UserError(f"{out}: export writes {', '.join(EXPORTED)} (the suffix is the format)")
+    output = plan_output(out, "motion", None, _delivery(args))
+    shown = load_motion(args.source, args.id, args.skeleton)
+    fps = args.source_fps or shown.skeleton.fps
+    segments = shown.segments or [(0, len(shown.joints), shown.caption or "")]
+    motion = Motion(
+        np.zeros((len(shown.joints), 0), np.float32),  # no features: contacts come from the joints
+        shown.joints,
+        fps,
+        shown.skeleton.name,
+        [text for _, _, text in segments],
+        [(first, end) for first, end, _ in segments],
+    ).delivered(output.delivery)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fps = args.fps or motion.skeleton.fps
-    if suffix == ".bvh":
-        save_bvh(out, motion.joints, skeleton=motion.skeleton, fps=fps, rest_pose=args.rest)
-        print(f"wrote {out}\n{bvh_note(out, fps, args.rest)}")
-    else:
-        save_motion_npy(out, motion.joints, fps=fps, skeleton=motion.skeleton, segments=motion.segments or None)
-        print(f"wrote {out}")
+    try:
+        (written,) = motion.save(out.parent, out.stem, output.formats, delivery=output.delivery).values()
+    except (OSError, RuntimeError, ValueError) as error:  # Blender failed, or a rig it cannot read
+        raise UserError(str(error)) from error
+    print(f"wrote {written}")
+    _delivery_notes({output.formats[0]: written}, motion, output.delivery)
 
 
-def bvh_note(path: Path, fps: float, rest_pose: str) -> str:
+# What `m2d2m export` writes, by suffix (GIF and MP4 are `m2d2m render`'s).
+EXPORTED = (".npy", ".bvh", ".glb", ".fbx")
+
+
+def _delivery(args: argparse.Namespace) -> Any:
+    """The delivery the command line asks for (``--fps``, ``--root``, ``--loop``,
+    ``--no-foot-fix``, ``--rest``, ``--rig``, ``--joint-map``), checked in one line before anything runs."""
+    from m2d2m.motion.delivery import Delivery
+
+    try:
+        return Delivery(
+            fps=args.fps,
+            root=args.root,
+            loop=args.loop,
+            plant_feet=not args.no_foot_fix,
+            rest_pose=args.rest,
+            rig=None if args.rig is None else str(Path(args.rig).resolve()),
+            joint_map=args.joint_map,
+        )
+    except ValueError as error:
+        raise UserError(str(error)) from error
+
+
+def _delivery_notes(files: dict[str, Path], motion: Any, delivery: Any) -> None:
+    """What an animator must know of the files written: a BVH's rate and bind pose, an in-place
+    clip's root track, a loop's travel."""
+    if "bvh" in files:
+        print(bvh_note(files["bvh"], motion.fps, delivery.rest_pose, delivery.rig))
+    if motion.root_track is not None:
+        print(
+            "root motion: taken out of the clip (in place); the GLB keeps it as its 'root motion' animation, the npy beside it"
+        )
+    if delivery.loop:
+        print(f"loop: one cycle of {motion.seconds:.2f} s, travelling {motion.quality['loop_travel_m']:.2f} m a cycle")
+
+
+def bvh_note(path: Path, fps: float, rest_pose: str, rig: str | None = None) -> str:
     """What an animator must know to import a BVH: its rate (Blender keeps its scene's 24 fps
     unless told) and its bind pose."""
-    rest = "a T-pose" if rest_pose == "tpose" else "HumanML3D's (arms down; --rest tpose for a T-pose)"
+    if rig is not None:
+        rest = f"the rig's own ({Path(rig).name})"
+    else:
+        rest = "a T-pose" if rest_pose == "tpose" else "HumanML3D's (arms down; --rest tpose for a T-pose)"
     return (
         f"{path.name}: {fps:g} fps (Frame Time {1 / fps:.4f} s; in Blender's BVH import tick "
         f"'Update Scene FPS' or it plays at the scene's rate), rest pose {rest}"
@@ -325,28 +376,41 @@ def _generate(args: argparse.Namespace) -> None:
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    if args.edit is not None:
-        motion = edit_part(
-            generator,
-            load_features(args.edit, generator.skeleton),
-            args.prompts,
-            args.keep_body,
-            seed=args.seed,
-            split=not args.no_split,
-            max_seconds=_max_seconds(args),
-            **options,
-        )
-    else:
-        motion = generate(
-            generator,
-            args.prompts,
-            seconds=args.seconds,
-            seed=args.seed,
-            split=not args.no_split,
-            max_seconds=_max_seconds(args),
-            **options,
-        )
-    _report(motion, output, args.prompts, args)
+    for seed, variation in _variations(args, output):
+        if args.edit is not None:
+            motion = edit_part(
+                generator,
+                load_features(args.edit, generator.skeleton),
+                args.prompts,
+                args.keep_body,
+                seed=seed,
+                split=not args.no_split,
+                max_seconds=_max_seconds(args),
+                **options,
+            )
+        else:
+            motion = generate(
+                generator,
+                args.prompts,
+                seconds=args.seconds,
+                seed=seed,
+                split=not args.no_split,
+                max_seconds=_max_seconds(args),
+                **options,
+            )
+        _report(motion, variation, args.prompts, args)
+
+
+def _variations(args: argparse.Namespace, output: Any) -> list[tuple[int, Any]]:
+    """``--variations N``: the seeds to sample and where each sample goes (in a folder or file
+    named, ``<name>-seed<seed>``; without ``--out`` each in its own run folder)."""
+    from dataclasses import replace
+
+    seeds = [args.seed + k for k in range(args.variations)]
+    if args.variations == 1:
+        return [(args.seed, output)]
+    named = output.directory is not None
+    return [(seed, replace(output, name=f"{output.name}-seed{seed}") if named else output) for seed in seeds]
 
 
 def _planned_output(args: argparse.Namespace) -> Any:
@@ -356,7 +420,7 @@ def _planned_output(args: argparse.Namespace) -> Any:
     from orchestration.generate import GENERATE_STAGE, plan_output
     from orchestration.runs import ensure_stage_dir
 
-    output = plan_output(args.out, args.name, args.formats, args.rest)
+    output = plan_output(args.out, args.name, args.formats, _delivery(args))
     if output.directory is None and is_project(Path.cwd()):
         ensure_stage_dir(args.dataset, GENERATE_STAGE)
     return output
@@ -410,9 +474,10 @@ def _add_max_seconds(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespace) -> None:
-    """Save a generation's files, log it, and say what was made."""
+    """Deliver a generation as asked, save its files, log it, and say what was made."""
     from orchestration.generate import GENERATE_STAGE, save_generation
 
+    motion = motion.delivered(output.delivery)
     files, run_id = save_generation(motion, output, prompts, args.dataset, track=not args.no_track)
     for text, (first, end) in zip(motion.actions, motion.ranges):
         print(f"  {first / motion.fps:5.1f}–{end / motion.fps:5.1f} s  {text}")
@@ -421,8 +486,7 @@ def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespa
         f"{motion.settings['method']}; bone-length spread {motion.quality['bone_length_std_mm_mean']:.1f} mm "
         "before the rigid skeleton)"
     )
-    if "bvh" in files:
-        print(bvh_note(files["bvh"], motion.fps, args.rest))
+    _delivery_notes(files, motion, output.delivery)
     if run_id is not None:
         print(f"logged to MLflow run {run_id} (experiment {args.dataset}/{GENERATE_STAGE}); `make ui` to browse")
 
@@ -730,12 +794,19 @@ def _add_generate(verbs) -> None:
     generate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     generate.add_argument(
         "--out",
-        help="a folder, or one file whose suffix (.npy .bvh .gif .mp4) is its format "
+        help="a folder, or one file whose suffix (.npy .bvh .glb .fbx .gif .mp4) is its format "
         "(default: the folder runs/<dataset>/generate/<new run>)",
     )
     generate.add_argument("--name", default="motion", help="file name stem in the --out folder (default motion)")
-    generate.add_argument("--formats", nargs="+", help="any of npy bvh gif mp4 (default npy bvh gif)")
-    _add_rest(generate)
+    generate.add_argument("--formats", nargs="+", help="any of npy bvh glb fbx gif mp4 (default npy bvh gif)")
+    generate.add_argument(
+        "--variations",
+        type=_positive_int,
+        default=1,
+        metavar="N",
+        help="N samples of the request, with seeds --seed, --seed + 1, …, to pick from (default 1)",
+    )
+    _add_delivery(generate)
     _add_max_seconds(generate, "a motion longer than this")
     generate.add_argument("--no-split", action="store_true", help="keep each prompt one action even with several verbs")
     generate.add_argument(
@@ -927,30 +998,56 @@ def _add_serve(verbs) -> None:
 
 
 def _add_viewers(verbs) -> None:
-    for name, description, run in (
-        ("render", "draw a motion as a stick-figure GIF or MP4", _render),
-        ("export", "write a motion as BVH (for Blender, game engines) or npy + json", _export),
-    ):
-        parser = verbs.add_parser(name, help=description)
+    render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
+    export = verbs.add_parser(
+        "export",
+        help="write a motion as BVH (for Blender, game engines; on your rig with --rig), GLB, FBX or npy + json",
+    )
+    for parser, run in ((render, _render), (export, _export)):
         parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
         parser.add_argument("--id", help="clip id when SOURCE is a corpus directory")
         parser.add_argument("--skeleton", default="t2m", choices=["t2m", "kit"])
-        parser.add_argument("--fps", type=_positive_float, help="frames per second (default: the skeleton's)")
         parser.add_argument("--out", required=True, help="output file; its suffix chooses the format")
-        if name == "export":
-            _add_rest(parser)
         parser.set_defaults(run=run)
+    render.add_argument("--fps", type=_positive_float, help="the motion's frames per second (default: the skeleton's)")
+    export.add_argument(
+        "--source-fps", type=_positive_float, help="the source's frames per second (default: the skeleton's)"
+    )
+    _add_delivery(export)
 
 
-def _add_rest(parser: argparse.ArgumentParser) -> None:
+def _add_delivery(parser: argparse.ArgumentParser) -> None:
+    """How a clip is delivered (docs/generation.md, "Delivering a clip"): one set of options for
+    `m2d2m generate` and `m2d2m export`, as the API's fields and the page's menu."""
     from m2d2m.motion.pose import REST_POSES
+    from m2d2m.motion.retime import ROOT_MODES
 
-    parser.add_argument(
+    group = parser.add_argument_group('delivery (docs/generation.md, "Delivering a clip")')
+    group.add_argument(
+        "--fps",
+        type=_positive_float,
+        help="the files' frame rate, resampled by slerp (24, 30, 60…; default: the model's)",
+    )
+    group.add_argument(
+        "--root",
+        choices=ROOT_MODES,
+        default=ROOT_MODES[0],
+        help="keep the root's path, take it out (in-place: the GLB and the npy keep it as a track), or ground the clip",
+    )
+    group.add_argument("--loop", action="store_true", help="one seamless cycle: the end blended into the start")
+    group.add_argument(
+        "--no-foot-fix", action="store_true", help="keep the feet as generated (default: planted where they touch down)"
+    )
+    group.add_argument(
         "--rest",
         choices=REST_POSES,
         default=REST_POSES[0],
-        help="the BVH's bind pose: skeleton (HumanML3D's: arms down, head bone forward; default) or tpose "
-        "(arms out, head up: what retargeting tools expect); the motion is the same",
+        help="the BVH's and GLB's bind pose: skeleton (HumanML3D's: arms down, head bone forward; default) or "
+        "tpose (arms out, head up: what retargeting tools expect); the motion is the same",
+    )
+    group.add_argument("--rig", metavar="BVH", help="write the BVH on this rig (its hierarchy and OFFSETs)")
+    group.add_argument(
+        "--joint-map", metavar="MAP", help="the rig's joints for ours: cmu, cmu-motionbuilder, mixamo, smpl or a YAML"
     )
 
 

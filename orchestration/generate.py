@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import re
+import shutil
 import signal
 import sys
 import threading
@@ -30,6 +31,8 @@ import torch
 from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
 from m2d2m.layout import NLP, recorded_path
 from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
+from m2d2m.motion.delivery import Delivery
+from m2d2m.motion.gltf import BLENDER_PACKAGES
 from m2d2m.motion.render import can_write_mp4
 from m2d2m.progress import progress
 from orchestration.errors import UserError
@@ -49,23 +52,24 @@ DEFAULT_MAX_SECONDS = 60.0
 @dataclass(frozen=True)
 class Output:
     """Where a generation's files go: ``directory`` (None: a new run folder, made when the motion
-    is ready), the file stem ``name``, the ``formats`` and a BVH's bind pose ``rest_pose``."""
+    is ready), the file stem ``name``, the ``formats``, and how the clip is delivered (its feet,
+    frame rate, loop, root motion, bind pose and rig: :class:`~m2d2m.motion.delivery.Delivery`)."""
 
     directory: Path | None
     name: str
     formats: tuple[str, ...]
-    rest_pose: str = "skeleton"
+    delivery: Delivery = Delivery()
 
 
 def plan_output(
-    out: str | Path | None, name: str, formats: Sequence[str] | None, rest_pose: str = "skeleton"
+    out: str | Path | None, name: str, formats: Sequence[str] | None, delivery: Delivery = Delivery()
 ) -> Output:
     """Check ``--out``, ``--name`` and ``--formats`` before anything is loaded or sampled.
 
     ``out`` ending in a format's suffix (``clip.gif``) is one file, as for ``m2d2m render`` and
     ``export``: its stem is the name and its suffix the format (``formats`` may only repeat it);
     any other ``out`` is a folder, which must not be an existing file; none is a new run folder.
-    MP4 needs an encoder here, found up front. ``rest_pose`` is a BVH's bind pose.
+    MP4 needs an encoder here and FBX Blender, found up front.
     """
     chosen = tuple(dict.fromkeys(formats or ()))
     unknown = [f for f in chosen if f not in FORMATS]
@@ -105,7 +109,11 @@ def plan_output(
             "mp4 needs ffmpeg, and none is here (on PATH or from imageio-ffmpeg): "
             "pip install imageio-ffmpeg, or choose gif"
         )
-    return Output(directory, name, chosen, rest_pose)
+    if "fbx" in chosen and shutil.which("blender") is None:
+        raise UserError(
+            f"fbx is written by Blender's exporter, and no blender is on the PATH: apt-get install {BLENDER_PACKAGES}"
+        )
+    return Output(directory, name, chosen, delivery)
 
 
 def resolve_model_file(name: str, reference: str | Path, dataset: str) -> Path:
@@ -424,7 +432,7 @@ def save_generation(
             progress(total=frames, unit="frame", desc="rendering", leave=False, disable=not frames) as bar,
         ):
             files = motion.save(
-                directory, output.name, output.formats, progress=lambda _: bar.update(), rest_pose=output.rest_pose
+                directory, output.name, output.formats, progress=lambda _: bar.update(), delivery=output.delivery
             )
             run_id = _tracked(motion, prompts, files, dataset) if track else None
     except BaseException as error:

@@ -42,7 +42,10 @@ def test_the_installed_entry_point_ends_a_user_error_in_one_line(tmp_path):
         (["render", "{tmp}", "--id", "000123", "--out", "x.gif"], "no clip '000123'"),
         (["render", "{tmp}/bad.npy", "--out", "x.gif"], "neither joints"),
         (["render", "{tmp}/joints.npy", "--out", "x.png"], "use .gif or .mp4"),
-        (["export", "{tmp}/joints.npy", "--out", "{tmp}/x.fbx"], "writes .bvh or .npy"),
+        (
+            ["export", "{tmp}/joints.npy", "--out", "{tmp}/x.gif"],
+            "export writes .npy, .bvh, .glb, .fbx (the suffix is the format)",
+        ),
         (["render", "{tmp}/corrupt.npy", "--out", "x.gif"], "not a readable .npy"),
         (["data", "--dataset", "humanml3d", "--raw", "{tmp}/nowhere"], "pass --raw /path/to/humanml3d"),
         (["data", "--dataset", "amass"], "unknown dataset 'amass'"),

@@ -174,13 +174,13 @@ def _loading_fails(monkeypatch) -> None:
 @pytest.mark.parametrize(
     "arguments, message",
     [
-        (["--formats", "xyz"], "unknown format xyz: choose from npy, bvh, gif, mp4"),
+        (["--formats", "xyz"], "unknown format xyz: choose from npy, bvh, glb, fbx, gif, mp4"),
         (["--formats", "gif", "mp4"], "mp4 needs ffmpeg"),
         (["--out", "notes.txt"], "--out notes.txt is an existing file, not a folder"),
         (["--out", "clip.gif", "--formats", "bvh"], "--out clip.gif names one .gif file; drop --formats"),
         (["--out", "made.gif"], "--out made.gif is a folder"),
         (["--name", "a/b"], "--name must be a plain file name"),
-        (["--out", "clip.fbx"], "--out clip.fbx names a .fbx file, a format m2d2m does not write (.npy, .bvh"),
+        (["--out", "clip.obj"], "--out clip.obj names a .obj file, a format m2d2m does not write (.npy, .bvh"),
     ],
 )
 def test_bad_outputs_are_one_line_before_loading(tmp_path, monkeypatch, capsys, arguments, message):
@@ -193,7 +193,7 @@ def test_bad_outputs_are_one_line_before_loading(tmp_path, monkeypatch, capsys, 
     err = capsys.readouterr().err.strip()
     assert code == 2 and message in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "runs").exists() and (tmp_path / "notes.txt").read_text() == "keep me\n"
-    assert not (tmp_path / "clip.fbx").exists()  # it was once made into a folder of npy, BVH and GIF
+    assert not (tmp_path / "clip.obj").exists()  # it was once made into a folder of npy, BVH and GIF
 
 
 def test_the_length_cap_is_one_line_before_sampling(trained_project, monkeypatch, capsys):

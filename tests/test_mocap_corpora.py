@@ -244,7 +244,10 @@ def test_data_says_in_one_line_when_a_corpus_does_not_take_an_option(capsys):
     assert main(["data", "--dataset", "synthetic", "--bvh", str(CMU), "--out", "/tmp/never"]) == 2
     assert "--bvh: the synthetic corpus does not take it (it takes none)" in capsys.readouterr().err
     assert main(["data", "--dataset", "bvh", "--raw", str(CMU), "--joint-map", "nope.yaml", "--out", "/tmp/x"]) == 2
-    assert "--joint-map: nope.yaml is neither a preset (cmu, cmu-motionbuilder, mixamo, smpl) nor a file" in capsys.readouterr().err
+    assert (
+        "--joint-map: nope.yaml is neither a preset (cmu, cmu-motionbuilder, mixamo, smpl) nor a file"
+        in capsys.readouterr().err
+    )
 
 
 def shard_samples(out: Path) -> dict[str, dict]:

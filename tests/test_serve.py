@@ -195,6 +195,21 @@ def test_downloads_are_by_id_and_name_the_bvh_parses_and_the_gif_is_drawn_on_dem
         assert answer.status_code == 404 and set(answer.json()) == {"error"}, path
 
 
+def test_a_clip_is_delivered_as_asked_and_comes_as_a_glb(client, trained_project):
+    """Issue 40: the frame rate, the root, the loop and the feet, as `m2d2m generate` takes them."""
+    result = generate(client, seed=3, fps=30.0, root="in-place", loop=False, plant_feet=True)
+    joints = np.array(result["joints"])
+    assert result["fps"] == 30.0 and len(joints) == 83  # 2.8 s of actions: 56 frames at 20 fps, 83 at 30
+    assert np.abs(joints[:, 0, [0, 2]]).max() < 1e-5  # in place
+    glb = client.get(result["files"]["glb"])
+    assert glb.status_code == 200 and glb.content[:4] == b"glTF"
+    raw = generate(client, seed=3, plant_feet=False)
+    planted = generate(client, seed=3)
+    assert not np.allclose(np.array(raw["joints"]), np.array(planted["joints"]))  # the feet fix is on by default
+    refused = client.post("/api/generate", json={"actions": ACTIONS, "root": "floating"})
+    assert refused.status_code == 400 and "root must be one of keep, in-place, ground" in refused.json()["error"]
+
+
 LONG = "a person " + "walks " * 1700
 
 

@@ -1,28 +1,33 @@
 """A generated motion: features, joints, frame rate and the frames each action occupies, with the
-files an animator wants from it (joints ``.npy`` with a JSON sidecar, BVH, GIF or MP4)."""
+files an animator wants from it (joints ``.npy`` with a JSON sidecar, BVH, glTF, FBX, GIF or MP4),
+delivered as asked (:mod:`m2d2m.motion.delivery`)."""
 
 from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from m2d2m.atomic import atomic_path
+from m2d2m.motion.delivery import Delivery, deliver
 from m2d2m.motion.export import save_bvh, save_motion_npy
+from m2d2m.motion.gltf import save_fbx, save_glb
 from m2d2m.motion.render import render_motion
+from m2d2m.motion.retarget import retarget_to_bvh
 from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 
-FORMATS = ("npy", "bvh", "gif", "mp4")
+FORMATS = ("npy", "bvh", "glb", "fbx", "gif", "mp4")
 ANIMATIONS = ("gif", "mp4")
 
 
 @dataclass
 class Motion:
-    """``features`` (F, D) HumanML3D features (denormalised), ``joints`` (F, J, 3) global positions,
+    """``features`` (F, D) HumanML3D features (denormalised; (F, 0) for a motion known only by its
+    joints), ``joints`` (F, J, 3) global positions,
     ``ranges[i]`` = (first, end) frames of ``actions[i]`` (end exclusive). Frames between two
     ranges belong to no action: a baseline's transition window. ``settings`` records how it was
     made (method, seed, ...), ``quality`` figures of the joints (``bone_length_std_mm_mean`` and
@@ -37,6 +42,7 @@ class Motion:
     settings: dict = field(default_factory=dict)
     tokens: np.ndarray | None = None  # the generated motion tokens, in order, when it was generated
     quality: dict[str, float] = field(default_factory=dict)
+    root_track: np.ndarray | None = None  # (F, 3) the root motion an in-place delivery took out
 
     def __post_init__(self) -> None:
         if len(self.actions) != len(self.ranges):
@@ -83,6 +89,22 @@ class Motion:
             },
         )
 
+    def delivered(self, delivery: Delivery) -> Motion:
+        """This motion as ``delivery`` asks for it (feet planted, frame rate, loop, root motion:
+        :func:`m2d2m.motion.delivery.deliver`), the delivery recorded in ``settings`` and its
+        figures in ``quality``. The features stay the model's own, at its rate: what an edit reads."""
+        done = deliver(self.joints, self.fps, self.skeleton, self.ranges, delivery, self.features)
+        return replace(
+            self,
+            joints=done.joints,
+            fps=done.fps,
+            actions=[self.actions[i] for i in done.kept],
+            ranges=done.ranges,
+            settings={**self.settings, "delivery": asdict(delivery)},
+            quality={**self.quality, **done.quality},
+            root_track=done.root_track,
+        )
+
     def save(
         self,
         directory: str | Path,
@@ -90,12 +112,14 @@ class Motion:
         formats: tuple[str, ...] = ("npy", "bvh", "gif"),
         size: int = 480,
         progress: Callable[[int], None] | None = None,
-        rest_pose: str = "skeleton",
+        delivery: Delivery = Delivery(),
     ) -> dict[str, Path]:
         """Write ``<name>.<format>`` for each format into ``directory``, each file whole or not at
         all; returns format → path. The GIF/MP4 shows each action's text over its frames;
-        ``progress(t)`` is called after each frame of an animation is drawn; the BVH's bind pose
-        is ``rest_pose`` (:func:`m2d2m.motion.export.save_bvh`)."""
+        ``progress(t)`` is called after each frame of an animation is drawn. The joints are
+        written as they are (:meth:`delivered` edits them); ``delivery`` says the BVH's and GLB's
+        bind pose and the rig a BVH goes on, and an in-place clip's root track goes into the
+        GLB (its "root motion" animation) and beside the ``.npy`` (``<name>.root_motion.npy``)."""
         unknown = sorted(set(formats) - set(FORMATS))
         if unknown:
             raise ValueError(f"unknown formats {unknown}: choose from {', '.join(FORMATS)}")
@@ -104,16 +128,34 @@ class Motion:
         for kind in formats:
             path = directory / f"{name}.{kind}"
             if kind == "npy":
-                written[kind] = save_motion_npy(path, self.joints, self.fps, self.skeleton, self.segments, self.quality)
-                with atomic_path(directory / f"{name}.features.npy") as partial:
-                    np.save(partial, self.features.astype(np.float32))
+                written[kind] = save_motion_npy(
+                    path, self.joints, self.fps, self.skeleton, self.segments, self.quality, self.root_track
+                )
+                if self.features.size:  # a motion known only by its joints (m2d2m export) has none
+                    with atomic_path(directory / f"{name}.features.npy") as partial:
+                        np.save(partial, self.features.astype(np.float32))
+            elif kind == "bvh" and delivery.rig is not None:
+                written[kind] = retarget_to_bvh(
+                    path, self.joints, delivery.rig, delivery.joint_map, self.fps, self.skeleton
+                )
             elif kind == "bvh":
-                written[kind] = save_bvh(path, self.joints, self.skeleton, self.fps, rest_pose=rest_pose)
+                written[kind] = save_bvh(path, self.joints, self.skeleton, self.fps, rest_pose=delivery.rest_pose)
+            elif kind in ("glb", "fbx"):
+                written[kind] = self._save_gltf(path, kind, delivery.rest_pose)
             else:
                 written[kind] = render_motion(
                     self.joints, path, self.skeleton, self.fps, self.segments, size=size, progress=progress
                 )
         return written
+
+    def _save_gltf(self, path: Path, kind: str, rest_pose: str) -> Path:
+        """A GLB (with the root track, if any, as its own animation over the clip's path) or FBX."""
+        if kind == "fbx":
+            return save_fbx(path, self.joints, self.skeleton, self.fps, self.segments, rest_pose)
+        if self.root_track is None:
+            return save_glb(path, self.joints, self.skeleton, self.fps, self.segments, rest_pose)
+        path_kept = self.joints + self.root_track[:, None]
+        return save_glb(path, path_kept, self.skeleton, self.fps, self.segments, rest_pose, self.joints[:, 0])
 
 
 def save_motions(path: str | Path, motions: Sequence[Motion]) -> Path:
@@ -126,6 +168,8 @@ def save_motions(path: str | Path, motions: Sequence[Motion]) -> Path:
         arrays[f"joints{index}"] = motion.joints
         if motion.tokens is not None:
             arrays[f"tokens{index}"] = np.asarray(motion.tokens)
+        if motion.root_track is not None:
+            arrays[f"root_track{index}"] = motion.root_track
         described.append(
             {
                 "fps": motion.fps,
@@ -156,6 +200,7 @@ def load_motions(path: str | Path) -> list[Motion]:
                 info["settings"],
                 stored[f"tokens{index}"] if f"tokens{index}" in stored else None,
                 info["quality"],
+                stored[f"root_track{index}"] if f"root_track{index}" in stored else None,
             )
             for index, info in enumerate(json.loads(str(stored["described"])))
         ]

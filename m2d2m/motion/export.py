@@ -98,11 +98,13 @@ def save_motion_npy(
     skeleton: Skeleton = T2M,
     segments: Sequence[tuple[int, int, str]] | None = None,
     quality: dict[str, float] | None = None,
+    root_track: np.ndarray | None = None,
 ) -> Path:
     """Write ``<name>.npy`` (float32, T × J × 3) and a ``<name>.json`` sidecar beside it stating
     joint names and order, units, axes, fps, the ``(start, end, text)`` segments (``end``
-    exclusive) and, when given, ``quality`` figures of how the joints were made; return the
-    ``.npy`` path."""
+    exclusive) and, when given, ``quality`` figures of how the joints were made and the root
+    motion an in-place clip took out (``<name>.root_motion.npy``, T × 3: add it to every joint
+    for the clip's own path); return the ``.npy`` path."""
     joints = skeleton.check_joints(joints).astype(np.float32)
     fps = float(skeleton.fps if fps is None else fps)
     n_frames = len(joints)
@@ -113,6 +115,10 @@ def save_motion_npy(
     npy = Path(path).with_suffix(".npy")
     with atomic_path(npy) as partial:
         np.save(partial, joints)
+    track = npy.with_suffix(".root_motion.npy") if root_track is not None else None
+    if track is not None:
+        with atomic_path(track) as partial:
+            np.save(partial, np.asarray(root_track, dtype=np.float32))
     sidecar = {
         "file": npy.name,
         "shape": list(joints.shape),
@@ -128,6 +134,7 @@ def save_motion_npy(
         "segments": [{"start_frame": int(s), "end_frame": int(e), "text": str(text)} for s, e, text in segments],
         "segments_end": "exclusive",
         **({"quality": dict(quality)} if quality else {}),
+        **({"root_motion": track.name} if track is not None else {}),
     }
     with atomic_path(npy.with_suffix(".json")) as partial:
         partial.write_text(json.dumps(sidecar, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")

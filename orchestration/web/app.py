@@ -118,17 +118,17 @@ class Service:
             motion = await asyncio.wrap_future(job.done)
         except ValueError as error:  # the protocol's answer to a request a model cannot serve
             raise UserError(str(error)) from error
-        answer = await asyncio.wrap_future(self.recorder.submit(self._record, job, motion, request, plan.prompts, run))
+        answer = await asyncio.wrap_future(self.recorder.submit(self._record, job, motion, request, plan, run))
         return {**answer, "notices": plan.notices}
 
-    def _record(
-        self, job: Job, motion: Motion, request: GenerateRequest, prompts: list[str], run: str
-    ) -> dict[str, Any]:
-        """On the recorder's thread, not the event loop: the rigid skeleton, the files and MLflow
-        run, and the answer with every joint coordinate (milliseconds each, for a batch of 16)."""
+    def _record(self, job: Job, motion: Motion, request: GenerateRequest, plan: Plan, run: str) -> dict[str, Any]:
+        """On the recorder's thread, not the event loop: the rigid skeleton, the delivery, the
+        files and MLflow run, and the answer with every joint coordinate (milliseconds each, for a
+        batch of 16)."""
         describe = job.generator.describe(job.options)
+        delivered = motion.on_rigid_skeleton().delivered(plan.delivery)
         generation = self.generations.record(
-            motion.on_rigid_skeleton(), prompts, request.model, run, request.seed, describe
+            delivered, plan.prompts, request.model, run, request.seed, describe, plan.delivery
         )
         return self.generations.describe(generation)
 

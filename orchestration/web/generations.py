@@ -9,16 +9,18 @@ generation this server made: no request value becomes a path.
 
 from __future__ import annotations
 
+import shutil
 import threading
 from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from m2d2m.motion.clip import ANIMATIONS, Motion
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.delivery import Delivery
 from m2d2m.motion.pose import REST_POSES
 from orchestration.errors import UserError
 from orchestration.generate import GENERATE_STAGE, Output, save_generation
@@ -27,11 +29,13 @@ from orchestration.tracking import client, ensure_experiment, experiment_name, t
 from orchestration.web.catalog import NotFound
 
 STEM = "motion"
-WRITTEN = ("npy", "bvh")  # with the motion; the animations (ANIMATIONS) when first asked for
+WRITTEN = ("npy", "bvh", "glb")  # with the motion; the rest (ANIMATIONS, FBX) when first asked for
 # a generation's files: the key of each in the API's answer → its suffix and the format that makes
 # it (the sidecar and the features come with npy)
 FILE_KINDS = {
     "bvh": ("bvh", "bvh"),
+    "glb": ("glb", "glb"),
+    "fbx": ("fbx", "fbx"),
     "npy": ("npy", "npy"),
     "json": ("json", "npy"),
     "features": ("features.npy", "npy"),
@@ -39,6 +43,11 @@ FILE_KINDS = {
     "mp4": ("mp4", "mp4"),
 }
 FILES = {f"{STEM}.{suffix}": made_by for suffix, made_by in FILE_KINDS.values()}  # the names served
+
+
+def _makeable(kind: str) -> bool:
+    """Whether this machine can make a file of ``kind``: FBX needs Blender (m2d2m.motion.gltf)."""
+    return kind != "fbx" or shutil.which("blender") is not None
 
 
 @dataclass
@@ -54,6 +63,7 @@ class Generation:
     describe: str
     mlflow_run_id: str | None
     experiment_id: str | None
+    delivery: Delivery = Delivery()
     drawing: threading.Lock = field(default_factory=threading.Lock)
 
 
@@ -80,15 +90,24 @@ class Generations:
         self._experiment_id: str | None = None
 
     def record(
-        self, motion: Motion, prompts: Sequence[str], model: str, run: str, seed: int, describe: str
+        self,
+        motion: Motion,
+        prompts: Sequence[str],
+        model: str,
+        run: str,
+        seed: int,
+        describe: str,
+        delivery: Delivery = Delivery(),
     ) -> Generation:
-        """Write the motion's files into a new generate run and log it to MLflow (a blocking call)."""
-        files, mlflow_run_id = save_generation(motion, Output(None, STEM, WRITTEN), prompts, self.dataset, self.track)
+        """Write the (delivered) motion's files into a new generate run and log it to MLflow (a
+        blocking call)."""
+        output = Output(None, STEM, WRITTEN, delivery)
+        files, mlflow_run_id = save_generation(motion, output, prompts, self.dataset, self.track)
         directory = files["npy"].parent
         if mlflow_run_id is not None and self._experiment_id is None:
             self._experiment_id = ensure_experiment(experiment_name(self.dataset, GENERATE_STAGE))
         generation = Generation(
-            directory.name, directory, motion, model, run, seed, describe, mlflow_run_id, self._experiment_id
+            directory.name, directory, motion, model, run, seed, describe, mlflow_run_id, self._experiment_id, delivery
         )
         with self._lock:
             self._kept[generation.id] = generation
@@ -114,7 +133,7 @@ class Generations:
         kind = FILES[name]
         stem = f"{STEM}.{rest_pose}" if kind == "bvh" and rest_pose != REST_POSES[0] else STEM
         path = generation.directory / (name if stem == STEM else f"{stem}.{kind}")
-        if kind in ANIMATIONS or stem != STEM:  # not written with the motion: made on first request
+        if kind not in WRITTEN or stem != STEM:  # not written with the motion: made on first request
             with generation.drawing:
                 if not path.exists():
                     self._make(generation, kind, stem, rest_pose)
@@ -127,8 +146,9 @@ class Generations:
         its MLflow run."""
         from orchestration.generate import plan_output
 
-        plan_output(None, stem, [kind])  # an MP4 needs an encoder: a one-line error when there is none
-        (path,) = generation.motion.save(generation.directory, stem, (kind,), rest_pose=rest_pose).values()
+        plan_output(None, stem, [kind])  # MP4 and FBX need their tools: a one-line error when there are none
+        delivery = replace(generation.delivery, rest_pose=rest_pose)
+        (path,) = generation.motion.save(generation.directory, stem, (kind,), delivery=delivery).values()
         record = kind if stem == STEM else f"{kind}_{rest_pose}"
         write_run_info(generation.directory, **{f"file_{record}": str(path)})
         if generation.mlflow_run_id is not None:
@@ -158,7 +178,7 @@ class Generations:
             "boundaries": motion.boundaries,
             "seconds": motion.seconds,
             "quality": motion.quality,
-            "files": {key: f"{url}/{STEM}.{suffix}" for key, (suffix, _) in FILE_KINDS.items()},
+            "files": {key: f"{url}/{STEM}.{suffix}" for key, (suffix, _) in FILE_KINDS.items() if _makeable(key)},
             "mlflow": {
                 "run_id": generation.mlflow_run_id,
                 "experiment": experiment_name(self.dataset, GENERATE_STAGE),

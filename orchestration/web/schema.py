@@ -15,6 +15,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StrictStr, field_validator, model_validator
 
+from m2d2m.motion.delivery import Delivery
 from orchestration.errors import UserError
 from orchestration.generate import PromptPlanner, check_length
 from orchestration.registry import DEFAULT_MODEL
@@ -69,6 +70,11 @@ class GenerateRequest(BaseModel):
         default_factory=dict, max_length=32, description="sampling knobs by name (GET /api/models lists them)"
     )
     seed: int = Field(0, ge=0, le=MAX_SEED)
+    # how the clip is delivered, as `m2d2m generate`'s options (m2d2m.motion.delivery.Delivery)
+    fps: float | None = Field(None, allow_inf_nan=False, description="the files' frame rate; none: the model's")
+    root: str = Field("keep", max_length=16, description="keep, in-place (the root's path taken out) or ground")
+    loop: bool = Field(False, description="one seamless cycle, the end blended into the start")
+    plant_feet: bool = Field(True, description="feet planted where they touch down (false: as generated)")
 
     _english = field_validator("prompt")(english_sentence)
 
@@ -102,6 +108,7 @@ class Plan:
     options: Any
     prompts: list[str]  # what the user typed, for the run's record
     notices: list[str]  # what the model does not know of the actions (PromptPlanner.notices)
+    delivery: Delivery  # how the clip is delivered
 
 
 def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: float | None) -> Plan:
@@ -129,4 +136,8 @@ def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: 
         options = generator.options(**changes)
     except ValueError as error:
         raise UserError(str(error)) from error
-    return Plan(actions, frames, options, prompts, planner.notices(actions))
+    try:
+        delivery = Delivery(fps=request.fps, root=request.root, loop=request.loop, plant_feet=request.plant_feet)
+    except ValueError as error:
+        raise UserError(str(error)) from error
+    return Plan(actions, frames, options, prompts, planner.notices(actions), delivery)

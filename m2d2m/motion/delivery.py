@@ -1,0 +1,100 @@
+"""What an animator asks of a clip before its files are written (issue 40; docs/generation.md,
+"Delivering a clip"): feet planted, a frame rate, a loop, root motion, the rig a BVH is on.
+
+The edits run in one order, each on the one before's output: feet first, at the model's rate and
+with the model's own contact channels (:mod:`m2d2m.motion.feet`); then the frame rate (by slerp,
+:mod:`m2d2m.motion.retime`), so that a loop's period is a whole number of frames at the asked rate;
+then the loop; then the root (an in-place clip of a loop is an in-place loop). Action ranges
+follow every step. ``m2d2m generate``, ``m2d2m export``, the HTTP API and the page all take a
+:class:`Delivery`, so the four deliver the same clip.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from m2d2m.motion.feet import foot_contacts, plant_feet, skating_ratio
+from m2d2m.motion.pose import REST_POSES
+from m2d2m.motion.retime import ROOT_MODES, check_fps, make_loop, resample, resample_ranges, root_motion
+from m2d2m.motion.skeleton import Skeleton
+
+
+@dataclass(frozen=True)
+class Delivery:
+    """``fps``: the files' frame rate (None: the model's); ``root``: ``keep``, ``in-place`` or
+    ``ground``; ``loop``: one seamless cycle; ``plant_feet``: the contact-preserving foot fix (on
+    by default, as every tool animators use does it); ``rest_pose``: a BVH's or GLB's bind pose;
+    ``rig``: a BVH whose skeleton the BVH is written on, through ``joint_map`` (a preset or a
+    YAML file; default: the preset the rig's joints fit). ValueError in one line for a value no
+    clip can take."""
+
+    fps: float | None = None
+    root: str = "keep"
+    loop: bool = False
+    plant_feet: bool = True
+    rest_pose: str = "skeleton"
+    rig: str | None = None
+    joint_map: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.fps is not None:
+            check_fps(self.fps)
+        if self.root not in ROOT_MODES:
+            raise ValueError(f"root must be one of {', '.join(ROOT_MODES)}, got {self.root!r}")
+        if self.rest_pose not in REST_POSES:
+            raise ValueError(f"rest pose must be one of {', '.join(REST_POSES)}, got {self.rest_pose!r}")
+        if self.rig is not None and not Path(self.rig).is_file():
+            raise ValueError(f"rig {self.rig}: no such BVH file")
+        if self.joint_map is not None and self.rig is None:
+            raise ValueError("a joint map goes with a rig: give the rig's BVH too")
+
+
+@dataclass(frozen=True)
+class Delivered:
+    """A clip as delivered: its ``joints`` at ``fps``, the ``ranges`` of the actions ``kept`` (a
+    loop may cut some), the ``root_track`` an in-place clip took out, and ``quality`` figures."""
+
+    joints: np.ndarray
+    fps: float
+    ranges: list[tuple[int, int]]
+    kept: list[int]
+    root_track: np.ndarray | None
+    quality: dict[str, float] = field(default_factory=dict)
+
+
+def deliver(
+    joints: np.ndarray,
+    fps: float,
+    skeleton: Skeleton,
+    ranges: list[tuple[int, int]],
+    delivery: Delivery,
+    features: np.ndarray | None = None,
+) -> Delivered:
+    """``joints`` (T, J, 3) at ``fps`` with the actions' frame ``ranges``, edited as ``delivery``
+    asks; ``features`` (T, D), the model's own, give the foot contacts when they match the joints."""
+    quality: dict[str, float] = {}
+    kept = list(range(len(ranges)))
+    if delivery.plant_feet:
+        matching = features is not None and features.shape == (len(joints), skeleton.feature_dim)
+        contacts = foot_contacts(joints, skeleton, fps, features if matching else None)
+        quality["skating_before_fix"] = skating_ratio(joints, skeleton, fps)
+        joints = plant_feet(joints, skeleton, fps, contacts)
+        quality["skating"] = skating_ratio(joints, skeleton, fps)
+    if delivery.fps is not None and delivery.fps != fps:
+        target = float(delivery.fps)
+        joints = resample(joints, skeleton, fps, target)
+        ranges = resample_ranges(ranges, fps, target, len(joints))
+        fps = target
+    if delivery.loop:
+        loop = make_loop(joints, fps, skeleton)
+        first, end = loop.span
+        looped = [(max(a, first) - first, min(b, end) - first) for a, b in ranges]
+        kept = [i for i, (a, b) in zip(kept, looped) if a < b]
+        ranges = [(a, b) for a, b in looped if a < b]
+        joints = loop.joints
+        quality["loop_travel_m"] = float(np.linalg.norm(loop.travel))
+    joints, track = root_motion(joints, delivery.root)
+    return Delivered(joints.astype(np.float32), fps, ranges, kept, track, quality)
