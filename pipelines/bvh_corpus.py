@@ -8,7 +8,8 @@ are ``file`` (the BVH's path in the folder), ``caption``, and optionally ``start
 lines of one file with the same start and end are one motion with several captions. Each take
 goes through :func:`take_joints`: forward kinematics, a joint map to the 22 T2M joints
 (``--joint-map``: a preset, a YAML file, or by default the preset whose joints the file has),
-lengths in metres (``--units``, by default the unit in which the rig stands a person's height)
+lengths in metres (``--units``, by default the unit in which the rig stands a person's height:
+:meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`)
 and the corpus's frame rate. A take that cannot become joints (not a BVH, a joint the map lacks,
 no frames, NaN, an unknown unit) is quarantined with its reason, as is a BVH that no caption
 names; nothing in the folder is passed over.
@@ -31,34 +32,7 @@ from m2d2m.motion.skeleton import T2M, Skeleton
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, Rejected, register_corpus
 
 CAPTIONS = "captions.csv"
-# Metres per unit of the units BVH files come in; "cmu" is CMU's cgspeed conversions' 1/0.45 inch.
-UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "cmu": 0.0254 / 0.45}
-STANDING_METRES = (1.0, 2.4)  # how tall a rig's rest pose may stand to be taken for a person's
 _SPLIT_SHARES = (("train", 0.8), ("val", 0.05), ("test", 0.15))  # HumanML3D's proportions
-
-
-def metres_per_unit(units: str | None, stature: float) -> float:
-    """Metres per unit of a rig that stands ``stature`` units tall: ``units`` named (a key of
-    :data:`UNITS` or a number), or else the one unit in which it stands a person's height."""
-    if units is not None:
-        if units in UNITS:
-            return UNITS[units]
-        try:
-            value = float(units)
-        except ValueError:
-            raise Rejected(
-                "read", f"unknown unit {units!r}; give one of {', '.join(UNITS)} or metres per unit"
-            ) from None
-        if not value > 0:
-            raise Rejected("read", f"metres per unit must be positive, got {units}")
-        return value
-    fitting = [name for name, scale in UNITS.items() if STANDING_METRES[0] <= stature * scale <= STANDING_METRES[1]]
-    if len(fitting) != 1:
-        raise Rejected(
-            "read",
-            f"cannot tell the unit: the rig stands {stature:.4g} units tall; give --units ({', '.join(UNITS)})",
-        )
-    return UNITS[fitting[0]]
 
 
 def take_joints(
@@ -74,10 +48,7 @@ def take_joints(
     try:
         clip = read_bvh(path)
         mapping = joint_map_for(clip, joint_map)
-        stature = mapping.stature(clip, skeleton)
-        if np.argmax(np.abs(stature)) != 1 or stature[1] <= 0:
-            raise Rejected("validate", "the rig does not stand along +Y in its rest pose; m2d2m reads Y-up BVH")
-        scale = metres_per_unit(units, float(np.linalg.norm(stature)))
+        scale = mapping.metres_per_unit(clip, units, skeleton)
         joints = resample(mapping.joints(clip, skeleton) * scale, fps or clip.fps, skeleton.fps)
     except (BvhError, ValueError) as error:  # a YAML map that is not one is a ValueError
         raise Rejected("read", str(error).removeprefix(f"{path}: ")) from error  # the row names the file

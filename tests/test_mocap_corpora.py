@@ -9,17 +9,20 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from m2d2m.layout import relative_to_project, shard_urls
+from m2d2m.motion.bvh_reader import read_bvh
+from m2d2m.motion.joint_map import PRESETS, UNITS
 from m2d2m.motion.representation import joints_to_features
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
 from orchestration.config import load_config
-from pipelines.bvh_corpus import BVH_LAYOUT, UNITS, list_takes, metres_per_unit, read_take, stable_split, take_joints
+from pipelines.bvh_corpus import BVH_LAYOUT, list_takes, read_take, stable_split, take_joints
 from pipelines.corpora import FrameBounds, Rejected, corpus
 from pipelines.features import DataConfig, build_dataset, process_motion
 from pipelines.humanml3d_public import frame_step, list_public_rows, read_public_motion
@@ -61,26 +64,34 @@ def test_a_take_reads_at_humanml3ds_frame_count_and_a_span_as_its_frames():
 
 def test_the_unit_is_found_from_the_rigs_height():
     """131_01 in CMU's units and the same take in metres (converted by someone else) read alike,
-    each in the unit it stands a person's height in."""
+    each in the unit it stands a person's height in; so does the take in centimetres."""
     in_cmu_units, _ = take_joints(CMU / "131_01.bvh")
     in_metres, _ = take_joints(CMU / "scaled_131_01.bvh")
     np.testing.assert_allclose(in_cmu_units, in_metres, atol=1e-4)
-    assert metres_per_unit(None, 1.7 / UNITS["cmu"]) == UNITS["cmu"]
-    assert metres_per_unit(None, 170.0) == UNITS["cm"]
-    assert metres_per_unit("0.5", 3.0) == 0.5
+    in_centimetres = read_bvh(CMU / "131_01.bvh", UNITS["cmu"] / UNITS["cm"])
+    assert PRESETS["cmu"].metres_per_unit(in_centimetres) == UNITS["cm"]
+    assert PRESETS["cmu"].metres_per_unit(in_centimetres, "0.5") == 0.5
+
+
+def stands(tall: float, up: str = "y"):
+    """CMU's 131_01 rig standing ``tall`` units high, along +Y or (swapping axes) +Z."""
+    clip = read_bvh(CMU / "131_01.bvh")
+    clip = replace(clip, offsets=clip.offsets * tall / np.linalg.norm(PRESETS["cmu"].stature(clip)))
+    return clip if up == "y" else replace(clip, offsets=clip.offsets[:, [0, 2, 1]])
 
 
 @pytest.mark.parametrize(
-    "units, stature, message",
+    "clip, units, message",
     [
-        (None, 7.0, "cannot tell the unit: the rig stands 7 units tall; give --units"),
-        ("furlong", 1.7, "unknown unit 'furlong'"),
-        ("-1", 1.7, "metres per unit must be positive"),
+        (stands(7.0), None, "cannot tell the unit: the rig stands 7 units tall; give --units"),
+        (stands(1.7), "furlong", "unknown unit 'furlong'"),
+        (stands(1.7), "-1", "metres per unit must be positive"),
+        (stands(1.7, up="z"), None, "the rig does not stand along \\+Y in its rest pose"),
     ],
 )
-def test_a_unit_that_cannot_be_told_is_one_line(units, stature, message):
-    with pytest.raises(Rejected, match=message):
-        metres_per_unit(units, stature)
+def test_a_unit_that_cannot_be_told_is_one_line(clip, units, message):
+    with pytest.raises(ValueError, match=message):
+        PRESETS["cmu"].metres_per_unit(clip, units)
 
 
 def test_a_take_without_a_split_goes_where_its_name_hashes_and_stays_there():

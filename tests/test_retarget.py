@@ -82,8 +82,8 @@ def test_humanml3ds_clip_on_cmus_rig_points_every_mapped_bone_as_ours(take):
 
 def test_the_bvh_on_the_rig_reads_back_as_its_animation(take, tmp_path):
     _, ours, rig = take
-    path = retarget_to_bvh(tmp_path / "on-cmu.bvh", ours, CMU / "131_01.bvh", metres_per_unit=CMU_METRES, fps=30)
-    written = read_bvh(path)
+    path = retarget_to_bvh(tmp_path / "on-cmu.bvh", ours, CMU / "131_01.bvh", fps=30)
+    written = read_bvh(path, CMU_METRES)  # in the rig's own units, found from its height
     assert written.names == rig.names and written.fps == pytest.approx(30.0)
     expected = retarget(ours, rig, PRESETS["cmu"]).positions()
     assert np.abs(written.positions() - expected).max() < 1e-4

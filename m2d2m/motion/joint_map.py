@@ -25,6 +25,10 @@ import yaml
 from m2d2m.motion.bvh_reader import BvhClip, BvhError, BvhHeader
 from m2d2m.motion.skeleton import T2M, Skeleton
 
+# Metres per unit of the units BVH files come in; "cmu" is CMU's cgspeed conversions' 1/0.45 inch.
+UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "cmu": 0.0254 / 0.45}
+STANDING_METRES = (1.0, 2.4)  # how tall a rig's rest pose may stand to be taken for a person's
+
 
 @dataclass(frozen=True)
 class JointMap:
@@ -78,6 +82,32 @@ class JointMap:
         rest = self._mapped(clip.rest_positions()[None], clip, skeleton)[0]
         feet = rest[list(skeleton.feet_left + skeleton.feet_right)].mean(axis=0)
         return rest[skeleton.head_joint] - feet
+
+    def metres_per_unit(self, clip: BvhClip, units: str | None = None, skeleton: Skeleton = T2M) -> float:
+        """Metres per unit of ``clip``'s lengths: ``units`` named (a key of :data:`UNITS` or a
+        number), or else the one unit in which the rig's rest pose stands a person's height
+        (:data:`STANDING_METRES`); ValueError in one line when it cannot be told, or when the rig
+        does not stand along +Y (m2d2m reads Y-up BVH, as CMU's, Blender's and Mixamo's are)."""
+        stature = self.stature(clip, skeleton)
+        if np.argmax(np.abs(stature)) != 1 or stature[1] <= 0:
+            raise ValueError("the rig does not stand along +Y in its rest pose; m2d2m reads Y-up BVH")
+        if units is not None:
+            if units in UNITS:
+                return UNITS[units]
+            try:
+                value = float(units)
+            except ValueError:
+                raise ValueError(f"unknown unit {units!r}; give one of {', '.join(UNITS)} or metres per unit") from None
+            if not value > 0:
+                raise ValueError(f"metres per unit must be positive, got {units}")
+            return value
+        tall = float(np.linalg.norm(stature))
+        fitting = [name for name, scale in UNITS.items() if STANDING_METRES[0] <= tall * scale <= STANDING_METRES[1]]
+        if len(fitting) != 1:
+            raise ValueError(
+                f"cannot tell the unit: the rig stands {tall:.4g} units tall; give --units ({', '.join(UNITS)})"
+            )
+        return UNITS[fitting[0]]
 
     @classmethod
     def from_yaml(cls, path: str | Path, skeleton: Skeleton = T2M) -> JointMap:

@@ -23,7 +23,7 @@ of sliding.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -79,11 +79,6 @@ class RigMotion:
                 world[:, joint] = world[:, parent] @ self.local[:, joint]
                 positions[:, joint] = positions[:, parent] + world[:, parent] @ self.rig.offsets[joint]
         return positions
-
-    def save_bvh(self, path: str | Path, fps: float) -> Path:
-        return write_bvh(
-            path, self.rig.names, self.rig.parents, self.rig.offsets, self.root, self.local, fps, self.rig.end_sites
-        )
 
 
 def _ours_of(rig: Rig, joint_map: JointMap, skeleton: Skeleton) -> dict[int, int]:
@@ -159,10 +154,17 @@ def retarget_to_bvh(
     joint_map: str | Path | None = None,
     fps: float | None = None,
     skeleton: Skeleton = T2M,
-    metres_per_unit: float = 1.0,
+    units: str | None = None,
 ) -> Path:
     """Our joints as a BVH on the rig of ``rig_file`` (a BVH: its hierarchy and OFFSETs), through
-    ``joint_map`` (a preset's name, a YAML file, or by default the preset its joints fit)."""
-    clip = read_bvh(rig_file, metres_per_unit)
-    motion = retarget(joints, Rig.from_bvh(clip), joint_map_for(clip, joint_map), skeleton)
-    return motion.save_bvh(path, float(skeleton.fps if fps is None else fps))
+    ``joint_map`` (a preset's name, a YAML file, or by default the preset its joints fit), written
+    in the rig's own units (``units``, or by default the one it stands a person's height in:
+    :meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`), so it drops onto the character."""
+    clip = read_bvh(rig_file)
+    mapping = joint_map_for(clip, joint_map)
+    scale = mapping.metres_per_unit(clip, units, skeleton)
+    rig = Rig.from_bvh(clip)
+    in_metres = replace(rig, offsets=rig.offsets * scale)
+    motion = retarget(joints, in_metres, mapping, skeleton)
+    fps = float(skeleton.fps if fps is None else fps)
+    return write_bvh(path, rig.names, rig.parents, rig.offsets, motion.root / scale, motion.local, fps, rig.end_sites)
