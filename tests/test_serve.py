@@ -210,6 +210,36 @@ def test_a_clip_is_delivered_as_asked_and_comes_as_a_glb(client, trained_project
     assert refused.status_code == 400 and "root must be one of keep, in-place, ground" in refused.json()["error"]
 
 
+def test_a_generation_downloads_on_an_uploaded_rig(client, trained_project):
+    """Issue 40 §2, §5: a person uploads their character's BVH and gets the clip on it."""
+    from m2d2m.motion.bvh_reader import read_bvh
+    from tests.test_bvh_reader import CMU
+
+    rig = (CMU / "131_01.bvh").read_bytes()
+    uploaded = client.post("/api/rigs", content=rig, headers={"Content-Type": "application/octet-stream"})
+    assert uploaded.status_code == 200, uploaded.text
+    assert uploaded.json()["joints"] == 31 and uploaded.json()["joint_map"] == "cmu"
+    assert client.post("/api/rigs", content=rig).json()["id"] == uploaded.json()["id"]  # kept by its bytes
+    result = generate(client, seed=4)
+    answer = client.get(result["files"]["bvh"], params={"rig": uploaded.json()["id"]})
+    assert answer.status_code == 200
+    (trained_project / "on-rig.bvh").write_bytes(answer.content)
+    on_rig = read_bvh(trained_project / "on-rig.bvh")
+    assert on_rig.names == read_bvh(CMU / "131_01.bvh").names and len(on_rig.values) == len(result["joints"])
+    for content, params, status, message in (
+        (b"HIERARCHY nothing", {}, 400, "the rig cannot take our motions: "),
+        (b"", {}, 400, "the rig is empty"),
+        (rig, {"joint_map": "robot"}, 400, "joint_map must be one of cmu, cmu-motionbuilder, mixamo, smpl"),
+        (rig, {"joint_map": "mixamo"}, 400, "the rig cannot take our motions: joint map mixamo reads"),
+    ):
+        refused = client.post("/api/rigs", content=content, params=params)
+        assert refused.status_code == status and message in refused.json()["error"], refused.text
+    unknown = client.get(result["files"]["bvh"], params={"rig": "0" * 16})
+    assert unknown.status_code == 404 and "upload it with POST /api/rigs" in unknown.json()["error"]
+    gif = client.get(result["files"]["gif"], params={"rig": uploaded.json()["id"]})
+    assert gif.status_code == 400 and "a rig goes with the BVH" in gif.json()["error"]
+
+
 LONG = "a person " + "walks " * 1700
 
 

@@ -33,8 +33,10 @@ from m2d2m.motion.clip import Motion
 from m2d2m.motion.pose import REST_POSES
 from orchestration.errors import UserError
 from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
+from orchestration.runs import stage_dir
 from orchestration.web.catalog import Catalog, NotFound
 from orchestration.web.generations import FILES, Generations
+from orchestration.web.rigs import RIGS_STAGE, Rigs
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
 from orchestration.web.schema import GenerateRequest, Plan, SplitRequest, plan_request
 
@@ -88,6 +90,7 @@ class Service:
         self.catalog = Catalog(settings.dataset, settings.device)
         self.sampler = Sampler(settings.queue, settings.max_batch, settings.gather_s)
         self.generations = Generations(settings.dataset, settings.track, mlflow_ui=settings.mlflow_ui)
+        self.rigs = Rigs(stage_dir(settings.dataset, RIGS_STAGE))
         # one writer to the run folders and MLflow's store, one painter of GIFs and MP4s
         self.recorder = ThreadPoolExecutor(1, thread_name_prefix="m2d2m-recorder")
         self.painter = ThreadPoolExecutor(1, thread_name_prefix="m2d2m-painter")
@@ -214,10 +217,24 @@ def create_app(settings: ServeSettings) -> FastAPI:
         f"?rest={REST_POSES[1]} gives the BVH on a T-pose bind pose)",
         response_class=FileResponse,
     )
-    async def generation_file(generation_id: str, name: str, rest: str = REST_POSES[0]) -> FileResponse:
+    async def generation_file(
+        generation_id: str, name: str, rest: str = REST_POSES[0], rig: str | None = None
+    ) -> FileResponse:
+        uploaded = None if rig is None else service.rigs.get(rig)
         loop = asyncio.get_running_loop()
-        path = await loop.run_in_executor(service.painter, service.generations.file, generation_id, name, rest)
+        path = await loop.run_in_executor(
+            service.painter, service.generations.file, generation_id, name, rest, uploaded
+        )
         return FileResponse(path, filename=f"{generation_id}-{path.name}")
+
+    @api.post(
+        "/rigs",
+        summary="Upload a character's rig (the bytes of a BVH: its hierarchy and OFFSETs) to download "
+        "generations on it: GET a generation's motion.bvh?rig=<id>",
+    )
+    async def add_rig(request: Request, joint_map: str | None = None) -> dict[str, Any]:
+        rig = await run_in_threadpool(service.rigs.add, await request.body(), joint_map)
+        return {"id": rig.id, "joints": rig.joints, "joint_map": rig.joint_map}
 
     app.include_router(api)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")

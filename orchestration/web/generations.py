@@ -27,6 +27,7 @@ from orchestration.generate import GENERATE_STAGE, Output, save_generation
 from orchestration.runs import write_run_info
 from orchestration.tracking import client, ensure_experiment, experiment_name, tracking_uri, ui_runs_page
 from orchestration.web.catalog import NotFound
+from orchestration.web.rigs import UploadedRig
 
 STEM = "motion"
 WRITTEN = ("npy", "bvh", "glb")  # with the motion; the rest (ANIMATIONS, FBX) when first asked for
@@ -121,35 +122,48 @@ class Generations:
                 raise NotFound(f"no generation {generation_id!r} on this server")
             return self._kept[generation_id]
 
-    def file(self, generation_id: str, name: str, rest_pose: str = REST_POSES[0]) -> Path:
-        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, or a
-        BVH on another bind pose (``rest_pose``), is made on first request (a blocking call) and
-        logged to the generation's MLflow run."""
+    def file(
+        self, generation_id: str, name: str, rest_pose: str = REST_POSES[0], rig: UploadedRig | None = None
+    ) -> Path:
+        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, a BVH on
+        another bind pose (``rest_pose``) or on an uploaded ``rig``, is made on first request (a
+        blocking call) and logged to the generation's MLflow run."""
         generation = self.get(generation_id)
         if name not in FILES:
             raise NotFound(f"no file {name!r}; a generation has {', '.join(FILES)}")
         if rest_pose not in REST_POSES:
             raise UserError(f"rest must be one of {', '.join(REST_POSES)}, got {rest_pose!r}")
         kind = FILES[name]
-        stem = f"{STEM}.{rest_pose}" if kind == "bvh" and rest_pose != REST_POSES[0] else STEM
+        if rig is not None and kind != "bvh":
+            raise UserError(f"a rig goes with the BVH, not {name}")
+        delivery = replace(
+            generation.delivery,
+            rest_pose=rest_pose,
+            rig=None if rig is None else str(rig.path),
+            joint_map=None if rig is None else rig.joint_map,
+        )
+        variant = f"rig-{rig.id}" if rig is not None else rest_pose if kind == "bvh" else REST_POSES[0]
+        stem = STEM if variant == REST_POSES[0] else f"{STEM}.{variant}"
         path = generation.directory / (name if stem == STEM else f"{stem}.{kind}")
         if kind not in WRITTEN or stem != STEM:  # not written with the motion: made on first request
             with generation.drawing:
                 if not path.exists():
-                    self._make(generation, kind, stem, rest_pose)
+                    self._make(generation, kind, stem, delivery, variant)
         if not path.is_file():
             raise NotFound(f"generation {generation_id} has no {name} any more (its run folder was changed)")
         return path
 
-    def _make(self, generation: Generation, kind: str, stem: str, rest_pose: str) -> None:
+    def _make(self, generation: Generation, kind: str, stem: str, delivery: Delivery, variant: str) -> None:
         """Write a file of the generation after the fact, name it in its run's record and log it to
         its MLflow run."""
         from orchestration.generate import plan_output
 
         plan_output(None, stem, [kind])  # MP4 and FBX need their tools: a one-line error when there are none
-        delivery = replace(generation.delivery, rest_pose=rest_pose)
-        (path,) = generation.motion.save(generation.directory, stem, (kind,), delivery=delivery).values()
-        record = kind if stem == STEM else f"{kind}_{rest_pose}"
+        try:
+            (path,) = generation.motion.save(generation.directory, stem, (kind,), delivery=delivery).values()
+        except (OSError, RuntimeError, ValueError) as error:  # Blender failed, or a rig it cannot take
+            raise UserError(str(error)) from error
+        record = kind if stem == STEM else f"{kind}_{variant}"
         write_run_info(generation.directory, **{f"file_{record}": str(path)})
         if generation.mlflow_run_id is not None:
             client().log_artifact(generation.mlflow_run_id, str(path), artifact_path="motion")
