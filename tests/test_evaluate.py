@@ -76,6 +76,19 @@ def test_the_testset_command_builds_and_logs_the_counts(trained_project, capsys)
     assert files == {"manifest.json", "instances.jsonl", "motions.npz"}
 
 
+def test_every_multi_row_has_its_feet_rows_and_the_skating_column(evaluated):
+    """Issue 40 §3: GMD's skating ratio on the ground truth, each method's raw output, the same
+    with its feet planted, and the control (features re-derived, feet as generated)."""
+    table = json.loads((evaluated / "table.json").read_text(encoding="utf-8"))
+    for row in ("gt_single", "gt_concat", *METHODS, *(f"{m}.{v}" for m in METHODS for v in ("planted", "rederived"))):
+        assert 0.0 <= table["multi"][row]["skating"]["mean"] <= 1.0, row
+    for method in METHODS:
+        assert table["multi"][f"{method}.planted"]["skating"]["mean"] <= table["multi"][method]["skating"]["mean"]
+        assert np.isfinite(table["multi"][f"{method}.planted"]["fid"]["mean"])
+        assert table["titles"][f"{method}.planted"].endswith(", feet planted")
+    assert "| Skating ↓ |" in (evaluated / "table.md").read_text(encoding="utf-8")
+
+
 def test_evaluate_writes_both_tables_and_fig5(evaluated):
     table = json.loads((evaluated / "table.json").read_text(encoding="utf-8"))
     assert table["testset"]["instances"] == 8 and table["testset"]["items"] == 16

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import zlib
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -56,8 +56,9 @@ from m2d2m.evaluation.sequence_metrics import measure_sequences
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.generators.protocol import Keep, MotionGenerator, keep_part
 from m2d2m.motion.clip import Motion
+from m2d2m.motion.feet import foot_contacts, plant_feet
 from m2d2m.motion.joining import slerp_join
-from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.representation import features_to_joints, joints_to_features
 from m2d2m.motion.rigid import bone_length_spread
 
 WINDOW = 40  # transition frames around a boundary (paper §5.1, after PriorMDM)
@@ -240,6 +241,7 @@ class Reference:
     concat_profile: dict[str, Any]
     bone_std: float  # mm, of the ground-truth segments' joints as recovered from their features
     registered_concat: dict[str, float]  # each registered sequence metric of the concatenated items
+    registered_single: dict[str, float]  # each registered sequence metric of the items, alone
     features: list[list[np.ndarray]] = field(default_factory=list)  # each segment cut to its generated length
     reconstructions: dict[str, Reconstruction] = field(default_factory=dict)  # by the models sharing a codec
 
@@ -299,6 +301,10 @@ class Reference:
             concat_profile=mean_profile([p for j, b in concat for p in transition_profiles(j, b)]),
             bone_std=_nanmean([bone_length_spread(j, skeleton)["mean"] for clips in joints for j in clips]),
             registered_concat={name: _nanmean(values) for name, values in measure_sequences(concat, skeleton).items()},
+            registered_single={
+                name: _nanmean(values)
+                for name, values in measure_sequences([(j, []) for clips in joints for j in clips], skeleton).items()
+            },
             features=features,
         )
         return reference
@@ -333,6 +339,7 @@ class Reference:
             "jerk": self.jerk_single,
             **self.flowmdm_single,
             "bone_std": self.bone_std,
+            **self.registered_single,
         }
 
     def reconstruction_rows(self, label: str, repeat: int) -> tuple[dict[str, float], dict[str, float]]:
@@ -414,15 +421,19 @@ class Evaluation:
         reference = self.reference
         options = self.generator.options(MULTI, method=method, **self.knobs)
         seeds = _seeds(repeat, "multi", len(reference.actions))
-        measures = MultiMeasures()
+        skeleton = self.generator.skeleton
+        measures = {variant: MultiMeasures() for variant in ("raw", *FEET_VARIANTS)}
         label = f"{method} r{repeat}"
         for motions in self._generate(reference.actions, reference.frames, options, seeds, label, "multi"):
-            measures.add(motions, self.evaluator, self.generator.skeleton)
+            measures["raw"].add(motions, self.evaluator, skeleton)
+            for variant, planted in FEET_VARIANTS.items():
+                measures[variant].add([with_feet(m, skeleton, planted) for m in motions], self.evaluator, skeleton)
         return {
             "method": method,
             "repeat": repeat,
-            "metrics": measures.metrics(reference, repeat),
-            "profile": mean_profile(measures.profiles),
+            "metrics": measures["raw"].metrics(reference, repeat),
+            **{f"metrics_{variant}": measures[variant].metrics(reference, repeat) for variant in FEET_VARIANTS},
+            "profile": mean_profile(measures["raw"].profiles),
         }
 
     def single(self, repeat: int) -> dict[str, Any]:
@@ -500,6 +511,25 @@ class Evaluation:
                 for motions in self._generate(actions, frames, options, seeds, label, part, keep)
             ]
         )
+
+
+# The rows each multi-motion row gets beside it (issue 40 §3): its motions with the feet planted
+# (m2d2m.motion.feet.plant_feet) and, as the control, the same motions through the same re-derivation
+# of features from joints with the feet left as generated, so that a change of FID or R-Top3 is
+# told apart between the fix and the round trip.
+FEET_VARIANTS = {"planted": True, "rederived": False}
+
+
+def with_feet(motion: Motion, skeleton: Any, planted: bool) -> Motion:
+    """``motion`` with its feet planted (or not), its features re-derived from the joints (the
+    evaluator embeds features): the last frame's repeated, as HumanML3D's features have one frame
+    fewer than the joints."""
+    joints = motion.joints
+    if planted:  # where the model's own contact channels say the feet are down, as a delivery plants them
+        contacts = foot_contacts(joints, skeleton, motion.fps, motion.features)
+        joints = plant_feet(joints, skeleton, motion.fps, contacts)
+    features = joints_to_features(joints, skeleton)
+    return replace(motion, joints=joints, features=np.concatenate([features, features[-1:]]).astype(np.float32))
 
 
 def inbetween_keep(features: np.ndarray, skeleton: Any) -> Keep:

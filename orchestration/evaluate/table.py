@@ -8,12 +8,13 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.evaluation.measurements import JERK_FPS, WINDOW, Reference, mean_profile
+from m2d2m.evaluation.measurements import FEET_VARIANTS, JERK_FPS, WINDOW, Reference, mean_profile
 from orchestration.evaluate.jobs import jobs, read_result, result_file
 from orchestration.evaluate.records import Sampling
 from orchestration.evaluate.settings import EvalSettings
 from orchestration.reports import (
     EDIT_TITLES,
+    FEET_TITLES,
     FIGURE,
     GT_CONCAT,
     GT_SINGLE,
@@ -50,6 +51,19 @@ def _titles(settings: EvalSettings, codec_rows: dict[str, str]) -> dict[str, str
     return titles
 
 
+def _feet_rows(results: dict[tuple[str, str], list[dict[str, Any]]]) -> dict[str, list[dict[str, float]]]:
+    """Each multi-motion row's motions with the feet planted, and its control (features re-derived
+    from the joints, feet as generated), as rows ``<row>.planted`` and ``<row>.rederived`` (MLflow
+    takes periods in metric names, not "+"); results written before these were measured have none."""
+    return {
+        f"{row}.{variant}": [result[f"metrics_{variant}"] for result in found]
+        for (kind, row), found in results.items()
+        if kind == "multi"
+        for variant in FEET_VARIANTS
+        if all(f"metrics_{variant}" in result for result in found)
+    }
+
+
 def build_table(
     run_dir: Path,
     settings: EvalSettings,
@@ -64,6 +78,7 @@ def build_table(
     for job in jobs(settings):
         results.setdefault((job.table, job.row), []).append(read_result(result_file(run_dir, job)))
     metrics = {key: [result["metrics"] for result in found] for key, found in results.items()}
+    feet_rows = _feet_rows(results)
     codecs = {
         label: [reference.reconstruction_rows(label, r) for r in range(settings.repeats)]
         for label in reference.reconstructions
@@ -71,6 +86,11 @@ def build_table(
     codec_row = {label: f"{RECONSTRUCTION}/{label}" if len(codecs) > 1 else RECONSTRUCTION for label in codecs}
     owners = {name: codec_row[label] for name, label in codec_of.items()}
     titles = _titles(settings, owners)
+    titles |= {
+        row: f"{titles.get(base, base)}{FEET_TITLES[variant]}"
+        for row in feet_rows
+        for base, variant in [row.rsplit(".", 1)]
+    }
     gt_single = [reference.measure(r) for r in range(settings.repeats)]
     columns = {metric for metric, _ in SINGLE_COLUMNS}
     gt_items = [{k: v for k, v in m.items() if k in columns} for m in gt_single]
@@ -92,6 +112,7 @@ def build_table(
                 GT_CONCAT: [reference.concat_row()] * settings.repeats,
                 **{codec_row[label]: [rows[0] for rows in repeats] for label, repeats in codecs.items()},
                 **{row: found for (kind, row), found in metrics.items() if kind == "multi"},
+                **feet_rows,
             }
         ),
     }
