@@ -4,7 +4,8 @@ labels, scrubbing moving the figure, two methods compared in sync, and the BVH d
 and what a newcomer's pass found (issue 38, items 7, 8, 12 and 13): the knobs named for people
 with their help in view, only the chosen method's, limits shown where the user types, titles in
 words, whole action labels and sentences, a head and the body's sides, one scale for compared
-players, the model's notices, and the BVH's rest pose.
+players, the model's notices, and the BVH's rest pose; and the delivery menu (issue 40, §5): a
+30-fps in-place GLB, a BVH on CMU's rig uploaded from the page, and variations with their seeds.
 
 `.ci/run` installs Chromium when it runs as root with apt, so CI always runs this test; elsewhere
 it is skipped with a one-line reason. ``M2D2M_SCREENSHOT=<file.png>`` keeps a picture of the page;
@@ -17,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import struct
 import time
 import urllib.request
 from collections.abc import Callable, Iterator
@@ -437,3 +439,83 @@ def test_a_sentence_is_split_into_the_list_to_fix_before_generating(dataset, bro
         player = wait_for(lambda: find_all_css(browser, "#players .player"), what="the player")[0]
         labels = [segment.text for segment in player.find_elements(By.CSS_SELECTOR, ".timeline .segment")]
         assert labels == ["a person walks forward", "a person jumps forward"]
+
+
+CMU_RIG = Path(__file__).parent / "fixtures" / "cmu-bvh" / "131_01.bvh"
+
+
+def glb_json(path: Path) -> dict:
+    """The JSON chunk of a GLB (glTF 2.0, §4.4: a 12-byte header, then the JSON chunk's length and type)."""
+    data = path.read_bytes()
+    assert data[:4] == b"glTF", data[:4]
+    length, kind = struct.unpack_from("<I4s", data, 12)
+    assert kind == b"JSON"
+    return json.loads(data[20 : 20 + length])
+
+
+def download(browser, link, pattern: str) -> Path:
+    """Click a download link and wait for the file it gives (Chromium names it once it is whole)."""
+    before = set(browser.downloads.glob(pattern))
+    link.click()
+    return wait_for(lambda: next(iter(set(browser.downloads.glob(pattern)) - before), None), 60, pattern)
+
+
+def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_variations(dataset, browser):
+    """Issue 40, §5: the page's download menu takes `m2d2m generate`'s options (frame rate, root,
+    loop, foot fix, variations) and a rig uploaded from the page, and downloads what they make."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+
+    find = browser.find_element
+    with live_server(ServeSettings(dataset=dataset, track=False)) as (base, _):
+        open_page(browser, base)
+        fps = Select(find(By.ID, "fps"))
+        assert fps.first_selected_option.text == "The model's (20 fps)"
+        assert find(By.ID, "plant-feet").is_selected() and not find(By.ID, "delivery-loop").is_selected()
+        fps.select_by_value("30")
+        Select(find(By.ID, "root")).select_by_value("in-place")
+        find(By.ID, "generate").click()
+        player = wait_for(lambda: find_all_css(browser, "#players .player"), what="the player")[0]
+        frames = int(player.get_attribute("data-frames"))
+        assert player.find_element(By.CSS_SELECTOR, ".player-meta").text.endswith("at 30 fps")
+        links = {a.get_attribute("data-format"): a for a in player.find_elements(By.CSS_SELECTOR, ".downloads a")}
+        shown = {kind for kind, link in links.items() if link.is_displayed()}
+        assert {"npy", "bvh", "glb", "gif", "mp4"} <= shown and "bvh-rig" not in shown
+        assert ("fbx" in shown) == bool(shutil.which("blender"))
+
+        # the GLB: its whole-clip animation keyed at 30 fps up to the delivered clip's last frame
+        gltf = glb_json(download(browser, links["glb"], "*.glb"))
+        animations = {animation["name"]: animation for animation in gltf["animations"]}
+        times = gltf["accessors"][animations["clip"]["samplers"][0]["input"]]
+        assert times["count"] == frames and abs(times["max"][0] - (frames - 1) / 30) < 1e-5
+        assert "root motion" in animations  # in place: the path kept as its own animation
+
+        # a file that is no BVH: the server's sentence, and no rig to download on
+        rig_file, status = find(By.ID, "rig-file"), find(By.ID, "rig-status")
+        rig_file.send_keys(str((CMU_RIG.parent / "captions.csv").resolve()))
+        wait_for(lambda: "failed" in status.get_attribute("class"), 30, "the refusal of a file that is no BVH")
+        assert status.text and not links["bvh-rig"].is_displayed()
+
+        # CMU's rig: the server's answer, then the BVH on it
+        rig = parse_bvh(CMU_RIG)
+        rig_file.send_keys(str(CMU_RIG.resolve()))
+        wait_for(lambda: "joints" in status.text, 30, "the rig's upload")
+        assert status.text == f"Rig: {len(rig.names)} joints, cmu map."
+        assert "failed" not in status.get_attribute("class")
+        assert links["bvh-rig"].is_displayed() and links["bvh-rig"].text == "BVH on your rig"
+        on_rig = parse_bvh(download(browser, links["bvh-rig"], "*.bvh"))
+        assert on_rig.names == rig.names and "LeftHip" in on_rig.names
+        assert len(on_rig.motion) == frames and abs(on_rig.frame_time - 1 / 30) < 1e-6
+
+        # two variations: the lane's request twice, seeds 0 and 1, side by side, each with the rig's BVH
+        variations = find(By.ID, "variations")
+        variations.clear()
+        variations.send_keys("2")
+        find(By.ID, "generate").click()
+        players = wait_for(lambda: len(found := find_all_css(browser, "#players .player")) == 2 and found)
+        metas = [p.find_element(By.CSS_SELECTOR, ".player-meta").text for p in players]
+        assert [meta.split(" · ")[1] for meta in metas] == ["seed 0", "seed 1"], metas
+        assert all(p.find_element(By.CSS_SELECTOR, "a[data-format='bvh-rig']").is_displayed() for p in players)
+        # the one SEVERE entry allowed: the console's note of the refused upload (400)
+        errors = [e for e in browser.get_log("browser") if e["level"] == "SEVERE" and "/api/rigs" not in e["message"]]
+        assert not errors, errors

@@ -4,7 +4,7 @@
 const $ = (selector, root = document) => root.querySelector(selector);
 const $$ = (selector, root = document) => [...root.querySelectorAll(selector)];
 
-const state = { token: null, catalog: null, clock: new Clock() };
+const state = { token: null, catalog: null, clock: new Clock(), rig: null };
 window.m2d2m = state; // for poking at from the browser console
 
 // ---- token and API --------------------------------------------------------------
@@ -162,9 +162,20 @@ function secondsOf(input) {
   return input.value.trim() === '' ? null : Number(input.value);
 }
 
-/** The part of the request every lane shares: the actions (or the sentence) and the seed. */
+/** How the files are delivered, as `m2d2m generate`'s options: the same for every lane. */
+function deliveryRequest() {
+  return {
+    fps: $('#fps').value ? Number($('#fps').value) : null, // null: the model's own rate
+    root: $('#root').value,
+    loop: $('#delivery-loop').checked,
+    plant_feet: $('#plant-feet').checked,
+  };
+}
+
+/** The part of the request every lane shares: the actions (or the sentence), the first seed and
+ *  the delivery. */
 function sharedRequest() {
-  const body = { seed: Number($('#seed').value || 0) };
+  const body = { seed: Number($('#seed').value || 0), ...deliveryRequest() };
   if (mode() === 'sentence') {
     body.prompt = $('#prompt').value.trim();
     if (!body.prompt) throw new Error('Write a sentence describing the motion.');
@@ -420,7 +431,14 @@ function showRunFacts() {
     ? `Seconds: ${span} for each action; empty: the model's typical length${cap}.`
     : "Empty seconds: the model's typical length for that action.";
   $('#prompt-seconds-hint').textContent = range ? `Each action ${span} s${cap}; empty: typical lengths.` : '';
+  showModelRate();
   showKnownActions();
+}
+
+/** The frame-rate menu's first choice says the runs' own rate: "The model's (20 fps)". */
+function showModelRate() {
+  const rates = [...new Set($$('#lanes .lane').map((lane) => lane.details?.fps).filter(Boolean))];
+  $('#fps').options[0].textContent = rates.length ? `The model's (${rates.join(' or ')} fps)` : "The model's";
 }
 
 /** "a person jumps": an example sentence for a verb the model was shown alone. */
@@ -467,7 +485,7 @@ function showKnownActions() {
   $('#known-actions').hidden = lines.length === 0;
 }
 
-// ---- generate: one streamed request per lane, all at once -----------------------------
+// ---- generate: one streamed request per lane and variation, all at once ---------------
 
 /** Call `onMessage` with each JSON line of a streamed (NDJSON) answer. */
 async function readLines(response, onMessage) {
@@ -484,30 +502,48 @@ async function readLines(response, onMessage) {
   }
 }
 
-function setLaneProgress(lane, fraction, status) {
+const mean = (values) => values.reduce((a, b) => a + b, 0) / values.length;
+
+/** One request's progress shown in its lane, whose bar is the mean of its variations'; without a
+ *  `status`, the lane's status says that mean. */
+function setLaneProgress(job, fraction, status) {
+  const lane = job.lane;
+  lane.fractions[job.variation] = fraction;
+  const done = mean(lane.fractions);
   $('.lane-state', lane).hidden = false;
-  $('.lane-progress', lane).value = fraction;
-  $('.lane-status', lane).textContent = status;
-  const all = $$('#lanes .lane-progress').map((p) => p.value);
-  $('#progress').value = all.reduce((a, b) => a + b, 0) / all.length;
+  $('.lane-progress', lane).value = done;
+  $('.lane-status', lane).textContent = status ?? (done === 1 ? 'done' : `${Math.round(done * 100)} %`);
+  $('#progress').value = mean($$('#lanes .lane-progress').map((p) => p.value));
 }
 
-async function runLane(lane, body) {
-  setLaneProgress(lane, 0, 'starting…');
+/** Every lane's request once per variation, lane by lane, the seeds counting up from the form's;
+ *  each lane's progress starts again at 0. */
+function jobsOf(lanes, shared) {
+  const variations = Number($('#variations').value || 1);
+  return lanes.flatMap((lane) => {
+    lane.fractions = new Array(variations).fill(0);
+    const body = { ...shared, ...laneRequest(lane) };
+    const seeded = (variation) => ({ lane, variation, body: { ...body, seed: body.seed + variation } });
+    return Array.from({ length: variations }, (_, variation) => seeded(variation));
+  });
+}
+
+async function runJob(job) {
+  setLaneProgress(job, 0, 'starting…');
   const response = await api('/api/generate', {
     method: 'POST',
     headers: { 'Content-Type': 'application/json', Accept: 'application/x-ndjson' },
-    body: JSON.stringify(body),
+    body: JSON.stringify(job.body),
   });
   let result = null;
   await readLines(response, (message) => {
     if (message.error) throw new Error(message.error);
     if (message.result) result = message.result;
-    else if ('queued' in message) setLaneProgress(lane, 0, `queued: position ${message.queued}`);
-    else if ('progress' in message) setLaneProgress(lane, message.progress, `${Math.round(message.progress * 100)} %`);
+    else if ('queued' in message) setLaneProgress(job, 0, `queued: position ${message.queued}`);
+    else if ('progress' in message) setLaneProgress(job, message.progress);
   });
   if (!result) throw new Error('The server ended its answer without a result.');
-  setLaneProgress(lane, 1, 'done');
+  setLaneProgress(job, 1);
   return result;
 }
 
@@ -538,17 +574,20 @@ async function generate() {
   $('#progress').hidden = false;
   $('#progress').value = 0;
   state.clock.pause();
-  const outcomes = await Promise.allSettled(lanes.map((lane) => runLane(lane, { ...shared, ...laneRequest(lane) })));
+  const jobs = jobsOf(lanes, shared);
+  const outcomes = await Promise.allSettled(jobs.map(runJob));
   button.disabled = false;
   $('#progress').hidden = true;
-  reportOutcomes(lanes, outcomes);
+  reportOutcomes(lanes, jobs, outcomes);
 }
 
-function reportOutcomes(lanes, outcomes) {
-  const failed = outcomes.map((o, i) => [o, lanes[i]]).filter(([o]) => o.status === 'rejected');
-  failed.forEach(([, lane]) => setLaneProgress(lane, 0, 'failed'));
+/** The results side by side; each failure said once, though every variation of a lane (whose
+ *  seed seldom matters to a refusal) fails with the same sentence. */
+function reportOutcomes(lanes, jobs, outcomes) {
+  const failed = outcomes.map((o, i) => [o, jobs[i]]).filter(([o]) => o.status === 'rejected');
+  failed.forEach(([, job]) => setLaneProgress(job, 0, 'failed'));
   const prefix = (lane) => (lanes.length > 1 ? `${laneTitle(lane)}: ` : '');
-  showError(failed.map(([o, lane]) => prefix(lane) + o.reason.message).join(' '));
+  showError([...new Set(failed.map(([o, job]) => prefix(job.lane) + o.reason.message))].join(' '));
   const results = outcomes.filter((o) => o.status === 'fulfilled').map((o) => o.value);
   if (results.length) showResults(results);
   showNotices(results);
@@ -581,8 +620,24 @@ function downloadLinks(result) {
     box.append(link);
   }
   const bvh = $('a[data-format="bvh"]', box);
-  if (bvh) box.append(restPoseChoice(bvh), bvhNote(result.fps));
+  if (bvh) box.append(rigLink(bvh), restPoseChoice(bvh), bvhNote(result.fps));
   return box;
+}
+
+/** "BVH on your rig": the result's BVH on the uploaded rig's skeleton, there while a rig is. */
+function rigLink(bvh) {
+  const link = document.createElement('a');
+  link.dataset.format = 'bvh-rig';
+  link.dataset.base = bvh.href; // the plain BVH's: the rig has its own rest pose
+  link.download = '';
+  link.textContent = 'BVH on your rig';
+  showRigLink(link);
+  return link;
+}
+
+function showRigLink(link) {
+  link.hidden = !state.rig;
+  if (state.rig) link.href = withQuery(link.dataset.base, 'rig', state.rig.id);
 }
 
 /** The BVH's rest pose: the skeleton's own (as generated), or a T-pose for tools that expect one. */
@@ -665,6 +720,36 @@ function showResults(results) {
   state.clock.play();
 }
 
+// ---- the user's rig: uploaded once, every result's BVH then to be had on it -----------
+
+/** Send the chosen BVH (and its joint naming, unless detected) to the server, which keeps it and
+ *  says how many joints it has and which naming it read them by. */
+async function uploadRig() {
+  const file = $('#rig-file').files[0];
+  const map = $('#rig-map').value;
+  setRig(null, file ? `Reading ${file.name}…` : '');
+  if (!file) return;
+  // a later choice has the last word, whichever answer comes first
+  const unchanged = () => $('#rig-file').files[0] === file && $('#rig-map').value === map;
+  try {
+    const request = { method: 'POST', headers: { 'Content-Type': 'application/octet-stream' }, body: file };
+    const rig = await (await api(map ? withQuery('/api/rigs', 'joint_map', map) : '/api/rigs', request)).json();
+    if (unchanged()) setRig(rig, `Rig: ${rig.joints} joints, ${rig.joint_map} map.`);
+  } catch (err) {
+    if (unchanged()) setRig(null, err.message, true);
+  }
+}
+
+/** The rig of the results' "BVH on your rig" links (null: none), and what the server said of it. */
+function setRig(rig, message, failed = false) {
+  state.rig = rig;
+  const status = $('#rig-status');
+  status.textContent = message;
+  status.hidden = !message;
+  status.classList.toggle('failed', failed);
+  $$('#players a[data-format="bvh-rig"]').forEach(showRigLink);
+}
+
 // ---- transport: one for all players ---------------------------------------------------
 
 function bindTransport() {
@@ -735,6 +820,8 @@ function start() {
   $('#split-prompt').addEventListener('click', splitPrompt);
   $$('input[name="mode"]').forEach((radio) => radio.addEventListener('change', showMode));
   $('#compare').addEventListener('click', addCompareLane);
+  $('#rig-file').addEventListener('change', uploadRig);
+  $('#rig-map').addEventListener('change', uploadRig);
   $('#form').addEventListener('submit', (e) => { e.preventDefault(); generate(); });
   $('#token-retry').addEventListener('click', retryWithToken);
   bindTransport();
