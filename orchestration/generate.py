@@ -176,7 +176,10 @@ class PromptPlanner:
     def notices(self, actions: Sequence[str]) -> list[str]:
         """What the model does not know of ``actions``, one sentence each, to say before sampling:
         words its text encoder never read in training (it reads them as unknown), and the verb of
-        a split action that it was never shown alone. Nothing stops: it samples from the rest."""
+        a split action that it was never shown alone (not a light verb's, "does a cartwheel": its
+        action is its object's). Nothing stops: it samples from the rest."""
+        from pipelines.language import LIGHT_VERBS
+
         known = self.generator.known_verbs
         listed = ", ".join(sorted(known)[:12]) + (", …" if len(known) > 12 else "")
         said = []
@@ -187,7 +190,7 @@ class PromptPlanner:
                 were = "it were" if len(unknown) == 1 else "they were"
                 said.append(f"{action!r}: the model never read {words} in training; it samples as if {were} not there")
             verb = self._verbs.get(action)
-            if known and verb and verb not in known:
+            if known and verb and verb not in known and verb not in LIGHT_VERBS:
                 said.append(
                     f"{action!r}: the model was never shown '{verb}' alone; it knows {len(known)} actions "
                     f"({listed}; `m2d2m models` lists them)"

@@ -80,7 +80,7 @@ _CATENATIVE = frozenset(
     | {"prepare", "appear", "seem", "tend", "manage"}
 )
 _STATIVE = frozenset({"appear", "seem"})
-_LIGHT = frozenset({"do", "perform", "make"})  # "does jumping jacks": the gerund is the object
+LIGHT_VERBS = frozenset({"do", "perform", "make"})  # "does jumping jacks": the gerund is the object
 _STOP = frozenset({"stop", "finish", "quit", "cease"})  # "stops walking": one action, "stop"
 # Words whose verb reading captions never use ("turns left", "steps back", "stands still").
 _NEVER_VERBS = frozenset({"left", "right", "up", "down", "back", "forward", "forwards", "over", "still", "front"})
@@ -351,7 +351,10 @@ def _verb_slot(left: Sequence[_Tok], word: str, right: Sequence[_Tok]) -> bool:
         gerund = prev.lemma in _CATENATIVE and _verb_form(word, "VBG") and not (j > 0 and left[j - 1].pos == "DET")
         return gerund or (j < len(left) - 1 and _verb_form(word, "VBZ"))
     participle = _verb_form(word, "VBN") and word not in _readings(word)["VERB"]  # "elbows bent"
-    return prev.pos in ("NOUN", "PRON", "PROPN") and _subject_before(left, j) and not participle
+    # a subject's noun ("a person walks a person walks", captions run on without punctuation) starts a
+    # clause even after a verb, where another noun phrase would be its object ("walks a few steps")
+    run_on = prev.text in _SUBJECTS and _verb_form(word, "VBZ")
+    return prev.pos in ("NOUN", "PRON", "PROPN") and (_subject_before(left, j) or run_on) and not participle
 
 
 def _checked(left: Sequence[_Tok], tok: _Tok, right: Sequence[_Tok]) -> _Tok:
@@ -454,7 +457,7 @@ def _is_modifier(toks: Sequence[_Tok], i: int) -> bool:
         _in_relative_clause(toks, i)
         or prev.pos in _MODIFIER_BEFORE
         or prev.text in _POSSESSIVES
-        or (prev.pos == "VERB" and prev.lemma in _LIGHT)
+        or (prev.pos == "VERB" and prev.lemma in LIGHT_VERBS)
         or (prev.pos == "VERB" and prev.lemma in _STOP and toks[i].text.endswith("ing"))
         or (prev.pos in ("NOUN", "PRON", "PROPN") and _in_with_phrase(toks, i))
     )
@@ -543,10 +546,15 @@ def _split(toks: Sequence[_Tok], prev_verb: int, verb: int, dropped: set[int]) -
         j -= 1
     if j < separators_end:
         return j
-    # A run-on ("walks forward turns around"): only auxiliaries go to the next clause.
+    # A run-on ("walks forward turns around"): only auxiliaries go to the next clause, and a
+    # subject of its own with its determiner ("walks forward a man turns around").
     j = verb
     while j - 1 > prev_verb and (toks[j - 1].pos in ("AUX", "PART") or j - 1 in dropped):
         j -= 1
+    if j - 1 > prev_verb and toks[j - 1].text in _SUBJECTS:
+        j -= 1
+        while j - 1 > prev_verb and toks[j - 1].pos in ("DET", "ADJ"):
+            j -= 1
     return j
 
 

@@ -149,9 +149,11 @@ def test_a_read_checks_size_always_and_sha256_once(tmp_path, monkeypatch, damage
 
 
 def test_token_shards_are_checked_before_training_reads_them(tmp_path):
-    with ShardWriter(tmp_path, "train", 2) as writer:
-        writer.write("a", {"tokens.npy": b"\0" * 2000, "meta.json": b"{}"})
-    shards = {"train": shard_records(writer.shards), "val": [], "test": []}
+    shards = {"test": []}
+    for split in ("train", "val"):  # training needs both (training/data.py, require_training_splits)
+        with ShardWriter(tmp_path, split, 2) as writer:
+            writer.write("a", {"tokens.npy": b"\0" * 2000, "meta.json": b"{}"})
+        shards[split] = shard_records(writer.shards)
     (tmp_path / MANIFEST).write_text(json.dumps({"kind": "tokens", "shards": shards}), encoding="utf-8")
     assert TokenDataModule(tmp_path).urls("train") == [str(tmp_path / "train-000000.tar")]
     flip_byte(tmp_path / "train-000000.tar", offset=600)

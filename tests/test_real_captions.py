@@ -103,6 +103,7 @@ def test_each_case_of_the_issue(tagger: Tagger, row: dict) -> None:
         ("someone raises both hands to shoulder height", ("a person raises both hands to shoulder height",)),
         ("a person claps after jumping twice", ("a person jumps twice", "a person claps")),
         ("a person is spinning around while walking", ("a person spins around while walking",)),
+        ("a man walks forward a man turns around", ("a person walks forward", "a person turns around")),
     ],
 )
 def test_the_issue_rules(tagger: Tagger, caption: str, actions: tuple[str, ...]) -> None:
