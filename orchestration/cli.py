@@ -281,14 +281,17 @@ def _export(args: argparse.Namespace) -> None:
     shown = load_motion(args.source, args.id, args.skeleton)
     fps = args.source_fps or shown.skeleton.fps
     segments = shown.segments or [(0, len(shown.joints), shown.caption or "")]
-    motion = Motion(
-        np.zeros((len(shown.joints), 0), np.float32),  # no features: contacts come from the joints
-        shown.joints,
-        fps,
-        shown.skeleton.name,
-        [text for _, _, text in segments],
-        [(first, end) for first, end, _ in segments],
-    ).delivered(output.delivery)
+    motion = _delivered(
+        Motion(
+            np.zeros((len(shown.joints), 0), np.float32),  # no features: contacts come from the joints
+            shown.joints,
+            fps,
+            shown.skeleton.name,
+            [text for _, _, text in segments],
+            [(first, end) for first, end, _ in segments],
+        ),
+        output.delivery,
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         (written,) = motion.save(out.parent, out.stem, output.formats, delivery=output.delivery).values()
@@ -321,15 +324,30 @@ def _delivery(args: argparse.Namespace) -> Any:
         raise UserError(str(error)) from error
 
 
+def _delivered(motion: Any, delivery: Any) -> Any:
+    """``motion`` delivered as asked; a clip the delivery cannot take (a loop of a clip shorter
+    than its cross-fade) is one line."""
+    try:
+        return motion.delivered(delivery)
+    except ValueError as error:
+        raise UserError(str(error)) from error
+
+
 def _delivery_notes(files: dict[str, Path], motion: Any, delivery: Any) -> None:
     """What an animator must know of the files written: a BVH's rate and bind pose, an in-place
-    clip's root track, a loop's travel."""
+    clip's root track (where the files keep it), a loop's travel."""
     if "bvh" in files:
         print(bvh_note(files["bvh"], motion.fps, delivery.rest_pose, delivery.rig))
     if motion.root_track is not None:
-        print(
-            "root motion: taken out of the clip (in place); the GLB keeps it as its 'root motion' animation, the npy beside it"
+        kept = [
+            place
+            for kind, place in (("glb", "the GLB's 'root motion' animation"), ("npy", "root_motion.npy beside the npy"))
+            if kind in files
+        ]
+        where = (
+            f"kept in {' and '.join(kept)}" if kept else "not kept: BVH, FBX and the animations have no place for it"
         )
+        print(f"root motion: taken out of the clip (in place); {where}")
     if delivery.loop:
         print(f"loop: one cycle of {motion.seconds:.2f} s, travelling {motion.quality['loop_travel_m']:.2f} m a cycle")
 
@@ -477,7 +495,7 @@ def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespa
     """Deliver a generation as asked, save its files, log it, and say what was made."""
     from orchestration.generate import GENERATE_STAGE, save_generation
 
-    motion = motion.delivered(output.delivery)
+    motion = _delivered(motion, output.delivery)
     files, run_id = save_generation(motion, output, prompts, args.dataset, track=not args.no_track)
     for text, (first, end) in zip(motion.actions, motion.ranges):
         print(f"  {first / motion.fps:5.1f}–{end / motion.fps:5.1f} s  {text}")

@@ -109,6 +109,8 @@ def plan_output(
             "mp4 needs ffmpeg, and none is here (on PATH or from imageio-ffmpeg): "
             "pip install imageio-ffmpeg, or choose gif"
         )
+    if delivery.rig is not None and "bvh" not in chosen:
+        raise UserError("--rig goes with a BVH, the format written on a rig: add bvh to --formats, or --out x.bvh")
     if "fbx" in chosen and shutil.which("blender") is None:
         raise UserError(
             f"fbx is written by Blender's exporter, and no blender is on the PATH: apt-get install {BLENDER_PACKAGES}"

@@ -141,3 +141,12 @@ def test_generate_writes_the_issues_clip_and_variations_with_their_seeds(trained
     )
     first, second = (np.load(folder / f"motion-seed{seed}.npy") for seed in (7, 8))
     assert first.shape == second.shape and not np.allclose(first, second)
+
+
+def test_a_delivery_the_clip_cannot_take_is_one_line(clip, tmp_path, capsys):
+    joints, _ = clip
+    np.save(tmp_path / "short.npy", joints[:12])
+    assert main(["export", str(tmp_path / "short.npy"), "--out", str(tmp_path / "x.glb"), "--loop"]) == 2
+    assert "a loop needs at least 15 frames (0.75 s), got 12" in capsys.readouterr().err
+    assert main(["generate", "a person walks", "--out", str(tmp_path / "x.glb"), "--rig", str(CMU / "131_01.bvh")]) == 2
+    assert "--rig goes with a BVH, the format written on a rig" in capsys.readouterr().err

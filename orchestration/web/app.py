@@ -121,7 +121,10 @@ class Service:
             motion = await asyncio.wrap_future(job.done)
         except ValueError as error:  # the protocol's answer to a request a model cannot serve
             raise UserError(str(error)) from error
-        answer = await asyncio.wrap_future(self.recorder.submit(self._record, job, motion, request, plan, run))
+        try:
+            answer = await asyncio.wrap_future(self.recorder.submit(self._record, job, motion, request, plan, run))
+        except ValueError as error:  # a delivery the clip cannot take: a loop of a clip shorter than its fade
+            raise UserError(str(error)) from error
         return {**answer, "notices": plan.notices}
 
     def _record(self, job: Job, motion: Motion, request: GenerateRequest, plan: Plan, run: str) -> dict[str, Any]:
