@@ -6,6 +6,9 @@ and the BVH written reads back as the rig's animation."""
 
 from __future__ import annotations
 
+import json
+import shutil
+import subprocess
 from dataclasses import replace
 from pathlib import Path
 
@@ -94,3 +97,48 @@ def test_a_map_without_our_root_or_legs_is_one_line(take):
     partial = JointMap("arms only", {"left_wrist": ("LeftWrist",)})
     with pytest.raises(ValueError, match="joint map arms only names no joint of the rig for our pelvis, left_hip"):
         retarget(ours, rig, partial)
+
+
+# Run inside Blender: import a BVH with Blender's own importer (Y up in the file) and write every
+# pose bone's head in world coordinates, per frame, as JSON. Debian's Blender 3.4 runs on Python
+# 3.11, whose open() no longer takes the mode "rU" its BVH importer asks for: the U is dropped here
+# (Blender's own builds bundle a Python that still takes it).
+BLENDER_BVH_HEADS = """
+import builtins, json, sys, bpy
+_open = builtins.open
+builtins.open = lambda file, mode="r", *args, **kwargs: _open(file, mode.replace("U", ""), *args, **kwargs)
+source, out, scale, frames = sys.argv[sys.argv.index("--") + 1:]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_anim.bvh(filepath=source, global_scale=float(scale), axis_forward="-Z", axis_up="Y")
+armature = next(o for o in bpy.data.objects if o.type == "ARMATURE")
+heads = []
+for frame in range(1, int(frames) + 1):  # the importer keys the file's first frame on frame 1
+    bpy.context.scene.frame_set(frame)
+    heads.append({bone.name: list(armature.matrix_world @ bone.head) for bone in armature.pose.bones})
+json.dump(heads, open(out, "w"))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("blender") is None, reason="no blender here (apt-get install blender)")
+def test_blender_imports_the_bvh_on_cmus_rig_with_its_joints_where_ours_put_them(take, tmp_path):
+    """Issue 40's "--rig with CMU's skeleton writes a BVH Blender imports on that rig"."""
+    _, _, rig = take
+    ours = np.load(SAMPLE).astype(np.float64)[:40]
+    path = retarget_to_bvh(tmp_path / "on-cmu.bvh", ours, CMU / "131_01.bvh")
+    out = tmp_path / "heads.json"
+    command = ["blender", "--background", "--factory-startup", "--python-exit-code", "1"]
+    result = subprocess.run(
+        [*command, "--python-expr", BLENDER_BVH_HEADS, "--", str(path), str(out), str(CMU_METRES), str(len(ours))],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
+    z_up = np.array([[frame[name] for name in rig.names] for frame in json.loads(out.read_text())])
+    heads = np.stack([z_up[..., 0], z_up[..., 2], -z_up[..., 1]], axis=-1)  # Blender's Z up back to Y up
+    expected = retarget(ours, rig, PRESETS["cmu"]).positions()
+    error = np.abs(heads - expected).max()
+    print(f"Blender's BVH import on CMU's rig: largest joint error {error * 1000:.3f} mm")
+    assert error < 1e-3
