@@ -414,16 +414,9 @@ def _past_or_participle(tok: _Tok) -> bool:
 
 
 def _is_separator(toks: Sequence[_Tok], i: int, dropped: set[int]) -> bool:
-    """Whether token ``i`` can end one clause and introduce the next."""
-    t = toks[i]
-    return (
-        t.text in _SEPARATOR_PUNCT
-        or t.pos in ("CCONJ", "SCONJ")
-        or t.text in _SEQUENCE_ADVERBS
-        or t.text in _ORDER_WORDS
-        or (t.text == "to" and i not in dropped)
-        or (t.text in _ANAPHORS and i > 0 and toks[i - 1].text in ("after", "before"))
-    )
+    """Whether token ``i`` can end one clause and introduce the next: what opens a clause
+    (:func:`_opens_clause`), or an infinitive "to" that is not a catenative's ("walks to sit")."""
+    return _opens_clause(toks, i) or (toks[i].text == "to" and i not in dropped)
 
 
 def _in_with_phrase(toks: Sequence[_Tok], i: int) -> bool:

@@ -19,7 +19,7 @@ import numpy as np
 import pygltflib as gl
 import pytest
 
-from m2d2m.motion.gltf import CLIP_ANIMATION, ROOT_MOTION_ANIMATION, _quaternions_xyzw, save_fbx, save_glb
+from m2d2m.motion.gltf import CLIP_ANIMATION, ROOT_MOTION_ANIMATION, _xyzw, save_fbx, save_glb
 from m2d2m.motion.rotations import qnormalize, quat_to_matrix
 from m2d2m.motion.skeleton import KIT, T2M, Skeleton
 from tests.test_export import build_rigid_clip
@@ -201,7 +201,7 @@ def test_rotations_become_unit_quaternions_near_half_turns_too():
     axes = rng.normal(size=(200, 3))
     angles = np.concatenate([rng.uniform(0, np.pi, 100), np.pi - rng.uniform(0, 1e-7, 100)])
     wxyz = np.concatenate([np.cos(angles / 2)[:, None], np.sin(angles / 2)[:, None] * qnormalize(axes)], axis=1)
-    xyzw = _quaternions_xyzw(quat_to_matrix(wxyz))
+    xyzw = _xyzw(quat_to_matrix(wxyz))
     np.testing.assert_allclose(np.linalg.norm(xyzw, axis=-1), 1.0, atol=1e-12)
     np.testing.assert_allclose(np.abs(np.sum(xyzw * np.roll(wxyz, -1, axis=-1), axis=-1)), 1.0, atol=1e-12)
 

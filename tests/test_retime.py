@@ -14,7 +14,6 @@ from scipy.spatial.transform import Rotation, Slerp
 from m2d2m.motion.pose import pose_of
 from m2d2m.motion.retime import (
     make_loop,
-    matrix_to_quat,
     resample,
     resample_pose,
     resample_ranges,
@@ -22,6 +21,7 @@ from m2d2m.motion.retime import (
     source_positions,
 )
 from m2d2m.motion.rigid import on_rigid_skeleton
+from m2d2m.motion.rotations import matrix_to_quat
 from m2d2m.motion.skeleton import T2M
 from tests.test_export import build_rigid_clip
 

@@ -27,7 +27,7 @@ import pygltflib as gl
 
 from m2d2m.atomic import atomic_path
 from m2d2m.motion.pose import pose_of, topological_order
-from m2d2m.motion.rotations import cross, normalize
+from m2d2m.motion.rotations import cross, matrix_to_quat, normalize
 from m2d2m.motion.skeleton import T2M, Skeleton
 
 CLIP_ANIMATION = "clip"
@@ -100,7 +100,7 @@ def save_glb(
     body = _add_body(gltf, blob, skeleton, rest)
 
     keys = _Keys(blob, (np.arange(len(joints)) / fps).astype(np.float32))
-    rotations = _continuous(_quaternions_xyzw(pose.local))
+    rotations = _continuous(_xyzw(pose.local))
     rig = [keys.add(root, gl.TRANSLATION, path_keys)]
     rig += [keys.add(joint, gl.ROTATION, rotations[:, joint]) for joint in range(skeleton.num_joints)]
     gltf.animations.append(keys.animation(CLIP_ANIMATION, rig, 0, len(joints)))
@@ -342,26 +342,9 @@ def _box(start: np.ndarray, end: np.ndarray, start_half: float, end_half: float)
     return np.array(corners)
 
 
-def _quaternions_xyzw(matrices: np.ndarray) -> np.ndarray:
-    """Unit quaternions (..., 4), ``(x, y, z, w)`` as glTF stores rotations (§3.5.3), of rotation
-    matrices (..., 3, 3) acting on column vectors. Each is computed from the largest of its four
-    components, the numerically stable choice (Shepperd, 1978)."""
-    m = matrices
-    d0, d1, d2 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
-    xy, xz, yz = m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2]
-    wx, wy, wz = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
-    # 4·q·qᵀ in (x, y, z, w) order: row k is the quaternion scaled by 4·q_k, and its diagonal 4·q_k²
-    outer = np.stack(
-        [
-            np.stack([1 + d0 - d1 - d2, xy, xz, wx], -1),
-            np.stack([xy, 1 - d0 + d1 - d2, yz, wy], -1),
-            np.stack([xz, yz, 1 - d0 - d1 + d2, wz], -1),
-            np.stack([wx, wy, wz, 1 + d0 + d1 + d2], -1),
-        ],
-        -2,
-    )
-    largest = np.argmax(np.diagonal(outer, axis1=-2, axis2=-1), axis=-1)
-    return normalize(np.take_along_axis(outer, largest[..., None, None], axis=-2)[..., 0, :])
+def _xyzw(matrices: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) of rotation matrices, ``(x, y, z, w)`` as glTF stores rotations (§3.5.3)."""
+    return matrix_to_quat(matrices)[..., [1, 2, 3, 0]]
 
 
 def _continuous(quaternions: np.ndarray) -> np.ndarray:

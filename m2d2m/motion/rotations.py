@@ -123,6 +123,29 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
 
 
+def matrix_to_quat(matrices: np.ndarray) -> np.ndarray:
+    """Unit quaternions ``(w, x, y, z)`` (..., 4) of rotation matrices (..., 3, 3), by Shepperd's
+    method (1978, "Quaternion from rotation matrix", J. Guidance and Control 1(3)): the largest
+    component comes from the diagonal and the others from sums and differences of the off-diagonal
+    terms divided by it, so nothing is divided by a number near zero."""
+    m = matrices
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    diagonal = [1.0 + trace] + [1.0 + 2.0 * m[..., i, i] - trace for i in range(3)]  # 4w², 4x², 4y², 4z²
+    wx, wy, wz = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]  # 4w·(x, y, z)
+    xy, xz, yz = m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2]  # 4xy, 4xz, 4yz
+    candidates = np.stack(  # row i is 4·q_i·q: the quaternion up to the scale 4·q_i
+        [
+            np.stack([diagonal[0], wx, wy, wz], axis=-1),
+            np.stack([wx, diagonal[1], xy, xz], axis=-1),
+            np.stack([wy, xy, diagonal[2], yz], axis=-1),
+            np.stack([wz, xz, yz, diagonal[3]], axis=-1),
+        ],
+        axis=-2,
+    )
+    largest = np.argmax(np.stack(diagonal, axis=-1), axis=-1)[..., None, None]
+    return qnormalize(np.take_along_axis(candidates, largest, axis=-2)[..., 0, :])
+
+
 def quat_to_cont6d(q: np.ndarray) -> np.ndarray:
     """Continuous 6D rotation: the first two columns of the rotation matrix, ``[c0, c1]``."""
     m = quat_to_matrix(q)
