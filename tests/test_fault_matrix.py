@@ -363,8 +363,12 @@ BAD_ARGUMENTS: list[list[str]] = [
         ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.bvh", *more]
         for more in (["--fps", "0"], ["--fps", "-1"], ["--fps", "nan"])
     ],
-    ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.fbx"],
+    ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.obj"],
     ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.bvh", "--rest", "apose"],
+    *[
+        ["export", "{tmp}/joints.npy", "--out", "{tmp}/out.glb", *more]
+        for more in (["--root", "sideways"], ["--fps", "5000"], ["--rig", "{tmp}/no-rig.bvh"], ["--joint-map", "cmu"])
+    ],
     *_bad_files("export", [], BAD_MOTIONS, "--out", "{tmp}/out.bvh"),
     ["ui", "--port", "99999"],
     ["ui", "--port", "-1"],

@@ -14,6 +14,7 @@ import yaml
 
 from orchestration.cli import main
 from orchestration.recipe import train_model
+from orchestration.reports import FEET_TITLES
 from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_MMM, latest_evaluation
 
@@ -119,7 +120,8 @@ def test_mmm_and_m2d2m_are_judged_in_one_table_and_one_mlflow_run(trained_projec
     run_dir = latest_evaluation(trained_project)
     table = json.loads((run_dir / "table.json").read_text())
     rows = ["m2d2m/tps", "m2d2m/independent", "mmm/transition", "mmm/independent"]
-    assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction", *rows}
+    feet = {f"{row}.{variant}" for row in rows for variant in ("planted", "rederived")}  # issue 40's rows
+    assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction", *rows, *feet}
     assert all(np.isfinite(table["multi"][row]["fid"]["mean"]) for row in rows)
     # both models decode through the one VQ-VAE: its reconstruction is measured once, for both
     assert table["codecs"] == {"m2d2m": "reconstruction", "mmm": "reconstruction"}
@@ -135,14 +137,13 @@ def test_mmm_and_m2d2m_are_judged_in_one_table_and_one_mlflow_run(trained_projec
         for line in markdown.split("## Single")[0].splitlines()
         if line.startswith("| ") and "(n = 1)" in line  # one repeat: means without an interval
     ]
+    methods = ["m2d2m tps", "m2d2m independent", "mmm transition", "mmm independent"]
     assert titles == [
         "Ground truth (single)",
         "Ground truth (concat)",
         "VQ-VAE reconstruction (m2d2m, mmm)",
-        "m2d2m tps",
-        "m2d2m independent",
-        "mmm transition",
-        "mmm independent",
+        *methods,
+        *(f"{method}{suffix}" for method in methods for suffix in FEET_TITLES.values()),
     ]
     assert {p.name for p in (run_dir / "results").iterdir()} >= {
         "multi-m2d2m-tps-r0.json",

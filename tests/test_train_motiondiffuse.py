@@ -145,7 +145,8 @@ def test_the_three_models_are_judged_in_one_evaluate_run(trained_project, tiny_t
     run_dir = latest_evaluation(trained_project)
     table = json.loads((run_dir / "table.json").read_text())
     rows = ["m2d2m/tps", "m2d2m/independent", "mmm/transition", "motiondiffuse/time-varied"]
-    assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction", *rows}
+    feet = {f"{row}.{variant}" for row in rows for variant in ("planted", "rederived")}  # issue 40's rows
+    assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction", *rows, *feet}
     assert all(np.isfinite(table["multi"][row]["fid"]["mean"]) for row in rows)
     assert table["multi"]["motiondiffuse/time-varied"]["jerk"]["mean"] is not None
     # MotionDiffuse has no codec: the one reconstruction row is the shared VQ-VAE's
