@@ -19,10 +19,11 @@ from m2d2m.motion.feet import skating_ratio
 from m2d2m.motion.rigid import on_rigid_skeleton
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
+from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU
 from tests.test_generate_outputs import PROMPTS, QUICK
 
-SAMPLE = Path(__file__).parents[2] / "shared" / "data" / "humanml3d-sample"
+SAMPLE = HUMANML3D_SAMPLE
 RANGES = [(0, 60), (60, 170)]
 
 

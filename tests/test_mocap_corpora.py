@@ -26,6 +26,7 @@ from pipelines.bvh_corpus import BVH_LAYOUT, list_takes, read_take, stable_split
 from pipelines.corpora import FrameBounds, Rejected, corpus
 from pipelines.features import DataConfig, build_dataset, process_motion
 from pipelines.humanml3d_public import frame_step, list_public_rows, read_public_motion
+from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU, HUMANML3D_FRAMES
 from tests.test_data_pipeline import read_split
 from tests.test_joint_map import motionbuilder_release
@@ -193,7 +194,7 @@ def public_copy(tmp_path: Path) -> Path:
     HumanML3D's own sample clip (no HumanAct12 file is in the repository)."""
     raw = tmp_path / "HumanML3D-clone"
     shutil.copytree(PUBLIC, raw)
-    sample = np.load(Path(__file__).parents[2] / "shared" / "data" / "humanml3d-sample" / "new_joints" / "012314.npy")
+    sample = np.load(HUMANML3D_SAMPLE / "new_joints" / "012314.npy")
     extra = sample[:, [20, 21]] + [0.0, 0.0, 0.08]  # hands, as HumanAct12's joints 22 and 23
     folder = raw / "pose_data" / "humanact12" / "humanact12"
     folder.mkdir(parents=True)

@@ -10,7 +10,6 @@ import json
 import shutil
 import subprocess
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,9 +18,10 @@ from m2d2m.motion.bvh_reader import read_bvh
 from m2d2m.motion.joint_map import PRESETS, JointMap
 from m2d2m.motion.retarget import Rig, retarget, retarget_to_bvh
 from m2d2m.motion.skeleton import T2M
+from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU, CMU_METRES
 
-SAMPLE = Path(__file__).parents[2] / "shared" / "data" / "humanml3d-sample" / "new_joints" / "012314.npy"
+SAMPLE = HUMANML3D_SAMPLE / "new_joints" / "012314.npy"
 
 
 @pytest.fixture(scope="module")

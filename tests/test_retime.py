@@ -5,8 +5,6 @@ where a loop without the cross-fade is not."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
@@ -23,9 +21,10 @@ from m2d2m.motion.retime import (
 from m2d2m.motion.rigid import on_rigid_skeleton
 from m2d2m.motion.rotations import matrix_to_quat
 from m2d2m.motion.skeleton import T2M
+from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_export import build_rigid_clip
 
-SAMPLE = Path(__file__).parents[2] / "shared" / "data" / "humanml3d-sample" / "new_joints" / "012314.npy"
+SAMPLE = HUMANML3D_SAMPLE / "new_joints" / "012314.npy"
 
 
 @pytest.fixture(scope="module")
