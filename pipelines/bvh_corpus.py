@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from m2d2m.layout import relative_to_project
 from m2d2m.motion.bvh_reader import BvhError, read_bvh, resample
 from m2d2m.motion.joint_map import JointMap, joint_map_for
 from m2d2m.motion.skeleton import T2M, Skeleton
@@ -155,7 +156,7 @@ def list_takes(raw: str | Path, joint_map: str | None = None, units: str | None 
 def read_take(row: dict[str, Any], skeleton: Skeleton) -> np.ndarray:
     """The row's span of its take as the skeleton's joints."""
     if not Path(row["path"]).is_file():
-        raise Rejected("read", f"no such BVH file {row['path']} (named in {CAPTIONS})")
+        raise Rejected("read", f"no such BVH file {relative_to_project(row['path'])} (named in {CAPTIONS})")
     joints, _ = take_joints(row["path"], skeleton, row["joint_map"], row["units"])
     return slice_seconds(joints, row["start"], row["end"], skeleton.fps)
 

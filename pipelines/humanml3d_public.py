@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from m2d2m.layout import relative_to_project
 from m2d2m.motion.bvh_reader import BvhError, read_bvh_header
 from m2d2m.motion.joint_map import joint_map_for
 from m2d2m.motion.skeleton import T2M, Skeleton
@@ -115,7 +116,11 @@ def _cmu_rows(rows: list[dict[str, Any]], bvh: dict[str, Path], bvh_folder: str 
     for take, take_rows in by_take.items():
         path = bvh.get(take)
         if path is None:
-            where = f"no {take}.bvh under {bvh_folder}" if bvh_folder else "pass --bvh <a folder of CMU's BVH>"
+            where = (
+                f"no {take}.bvh under {relative_to_project(bvh_folder)}"
+                if bvh_folder
+                else "pass --bvh <a folder of CMU's BVH>"
+            )
             reason = f"needs CMU's BVH: {where}"
         else:
             try:
@@ -183,7 +188,7 @@ def _humanact12_joints(row: dict[str, Any], skeleton: Skeleton) -> np.ndarray:
     if not path.is_file():
         raise Rejected(
             "read",
-            f"no HumanAct12 joints: {path.name} is not in {path.parent} (unzip pose_data/humanact12.zip in pose_data/)",
+            f"no HumanAct12 joints: {path.name} is not in {relative_to_project(path.parent)} (unzip pose_data/humanact12.zip in pose_data/)",
         )
     try:
         joints = np.load(path, allow_pickle=False)

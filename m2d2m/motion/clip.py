@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from m2d2m.atomic import atomic_path
+from m2d2m.layout import relative_to_project
 from m2d2m.motion.delivery import Delivery, deliver
 from m2d2m.motion.export import save_bvh, save_motion_npy
 from m2d2m.motion.gltf import save_fbx, save_glb
@@ -100,7 +101,11 @@ class Motion:
             fps=done.fps,
             actions=[self.actions[i] for i in done.kept],
             ranges=done.ranges,
-            settings={**self.settings, "delivery": asdict(delivery)},
+            # a rig as run records name files: relative to the project, so a moved project reads alike
+            settings={
+                **self.settings,
+                "delivery": {**asdict(delivery), "rig": delivery.rig and relative_to_project(delivery.rig)},
+            },
             quality={**self.quality, **done.quality},
             root_track=done.root_track,
         )
