@@ -61,13 +61,11 @@ class Rigs:
         with tempfile.TemporaryDirectory(prefix="m2d2m-rig-") as folder:
             candidate = Path(folder) / "rig.bvh"
             candidate.write_bytes(data)
-            mapping = _checked(candidate, joint_map)
+            mapping, joints = _checked(candidate, joint_map)
             self.folder.mkdir(parents=True, exist_ok=True)
             with atomic_path(self.folder / f"{rig_id}.bvh") as partial:
                 partial.write_bytes(data)
-        rig = UploadedRig(
-            rig_id, self.folder / f"{rig_id}.bvh", len(read_bvh(self.folder / f"{rig_id}.bvh").names), mapping
-        )
+        rig = UploadedRig(rig_id, self.folder / f"{rig_id}.bvh", joints, mapping)
         with self._lock:
             self._kept[rig_id] = rig
         return rig
@@ -79,9 +77,9 @@ class Rigs:
             return self._kept[rig_id]
 
 
-def _checked(path: Path, joint_map: str | None) -> str:
-    """The name of the joint map a rig's joints take, having retargeted our rest pose onto it
-    once; a UserError saying why not."""
+def _checked(path: Path, joint_map: str | None) -> tuple[str, int]:
+    """The name of the joint map a rig's joints take and their count, having retargeted our rest
+    pose onto it once; a UserError saying why not."""
     try:
         clip = read_bvh(path)
         mapping = joint_map_for(clip, joint_map)
@@ -91,4 +89,4 @@ def _checked(path: Path, joint_map: str | None) -> str:
         retarget(rest, Rig(rig.names, rig.parents, rig.offsets * scale, rig.end_sites), mapping)
     except (BvhError, ValueError) as error:
         raise UserError(f"the rig cannot take our motions: {str(error).removeprefix(f'{path}: ')}") from error
-    return mapping.name
+    return mapping.name, len(rig.names)
