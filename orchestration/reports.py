@@ -48,7 +48,7 @@ EDIT_COLUMNS = (
 )  # MMM Table 3's, and R-Top3 as every table here has
 EDIT_TITLES = {"inbetween": "In-betweening", "upper": "Upper-body editing"}
 # the suffix of a multi-motion row's feet rows (m2d2m.evaluation.measurements.FEET_VARIANTS)
-FEET_TITLES = {"planted": ", feet planted", "rederived": ", features from its joints (control)"}
+FEET_TITLES = {"planted": ", feet planted"}
 ROW_TITLES = {
     GT_SINGLE: "Ground truth (single)",
     GT_CONCAT: "Ground truth (concat)",

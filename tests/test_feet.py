@@ -3,11 +3,23 @@ synthetic walk whose stance feet slide, GMD's skating ratio by hand, and HumanML
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from m2d2m.evaluation.measurements import with_planted_feet
 from m2d2m.evaluation.sequence_metrics import measure_sequences
-from m2d2m.motion.feet import foot_contacts, moving_average, plant_feet, skating_ratio, two_bone_ik
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.feet import (
+    foot_contacts,
+    hold_while_grounded,
+    moving_average,
+    plant_feet,
+    skating_ratio,
+    two_bone_ik,
+)
+from m2d2m.motion.representation import joints_to_features
 from m2d2m.motion.skeleton import KIT, T2M, Skeleton
 
 FPS = 20.0
@@ -193,12 +205,30 @@ def test_the_real_clips_contacts_from_its_features_are_those_of_its_joints(sampl
 
 def test_the_real_clip_skates_and_planting_does_not_make_it_skate_more(sample_joints, sample_features):
     """Clip 012314 skates in 23 of its 169 steps by GMD's measure (a low toe that sweeps fast,
-    swinging or pivoting); planting its own contacts takes two pivoting steps away and adds none."""
+    swinging or pivoting); planting its own contacts, held on while a toe stays near the ground,
+    leaves 6 of them: those where a toe sweeps low through a swing far from any contact."""
     assert skating_ratio(sample_joints, T2M, FPS) == pytest.approx(23 / 169)
     contacts = foot_contacts(sample_joints, T2M, FPS, sample_features)
     planted = plant_feet(sample_joints, T2M, FPS, contacts)
-    assert skating_ratio(planted, T2M, FPS) == pytest.approx(21 / 169)
+    assert skating_ratio(planted, T2M, FPS) == pytest.approx(6 / 169)
     np.testing.assert_allclose(T2M.bone_lengths_of(planted), T2M.bone_lengths_of(sample_joints), atol=1e-6)
+
+
+def test_a_contact_is_held_on_while_its_foot_is_grounded_but_not_into_the_next():
+    """Runs at 3–4 and 9–10, the foot grounded on 0–2, 5–6 and 8, at most 2 frames each way: the
+    first grows to 1–6, the second back to 8 (7 is in the air) and not on (11 is in the air)."""
+    flags = np.zeros(12, dtype=bool)
+    flags[[3, 4, 9, 10]] = True
+    grounded = np.zeros(12, dtype=bool)
+    grounded[[0, 1, 2, 5, 6, 8]] = True
+    held = hold_while_grounded(flags, grounded, limit=2)
+    np.testing.assert_array_equal(np.flatnonzero(held), [1, 2, 3, 4, 5, 6, 8, 9, 10])
+    # two runs two frames apart, the gap grounded: the first takes the frame after it, the second
+    # stops short of that, so a frame is left between the two locks
+    flags = np.zeros(8, dtype=bool)
+    flags[[1, 2, 5, 6]] = True
+    held = hold_while_grounded(flags, np.ones(8, dtype=bool), limit=3)
+    np.testing.assert_array_equal(np.flatnonzero(held), [0, 1, 2, 3, 5, 6, 7])
 
 
 def test_every_evaluation_measures_skating(sample_joints):
@@ -226,3 +256,23 @@ def test_a_straight_leg_bends_towards_the_pole():
     # thigh 0.4 and shin 0.5 over 0.6: cos α = (0.16 + 0.36 − 0.25) / (2·0.4·0.6) = 0.5625
     cos = 0.27 / 0.48
     np.testing.assert_allclose(new_knee, [0.0, 1.0 - 0.4 * cos, 0.4 * np.sqrt(1 - cos**2)], atol=1e-12)
+
+
+def test_the_planted_row_adds_to_the_models_features_what_the_fix_changed(sample_joints, sample_features):
+    """The evaluation's planted row (m2d2m/evaluation/measurements.py): the contact channels stay
+    the model's; for a clip whose features are its joints' own, the rest equals the planted
+    joints' features, so the row differs from a re-derivation only where a model's features
+    disagree with its joints; and where nothing is planted, nothing changes."""
+    derived = joints_to_features(sample_joints, T2M)
+    features = np.concatenate([derived, derived[-1:]]).astype(np.float32)
+    features[:, -4:] = sample_features[:, -4:]  # HumanML3D's contacts of this clip, which the fix plants
+    motion = Motion(features, sample_joints, FPS, T2M.name, ["walk"], [(0, len(sample_joints))])
+    planted = with_planted_feet(motion, T2M)
+    contacts = foot_contacts(sample_joints, T2M, FPS, features)
+    np.testing.assert_array_equal(planted.joints, plant_feet(sample_joints, T2M, FPS, contacts))
+    np.testing.assert_array_equal(planted.features[:, -4:], features[:, -4:])
+    np.testing.assert_allclose(planted.features[:-1, :-4], joints_to_features(planted.joints, T2M)[:, :-4], atol=1e-4)
+    assert np.abs(planted.features - features).max() > 0.01  # the fix did change the legs
+    features[:, -4:] = 0.0
+    still = with_planted_feet(replace(motion, features=features), T2M)
+    np.testing.assert_array_equal(still.features, features)

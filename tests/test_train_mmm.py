@@ -120,7 +120,7 @@ def test_mmm_and_m2d2m_are_judged_in_one_table_and_one_mlflow_run(trained_projec
     run_dir = latest_evaluation(trained_project)
     table = json.loads((run_dir / "table.json").read_text())
     rows = ["m2d2m/tps", "m2d2m/independent", "mmm/transition", "mmm/independent"]
-    feet = {f"{row}.{variant}" for row in rows for variant in ("planted", "rederived")}  # issue 40's rows
+    feet = {f"{row}.{variant}" for row in rows for variant in FEET_TITLES}  # issue 40's rows
     assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction", *rows, *feet}
     assert all(np.isfinite(table["multi"][row]["fid"]["mean"]) for row in rows)
     # both models decode through the one VQ-VAE: its reconstruction is measured once, for both

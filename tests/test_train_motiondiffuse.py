@@ -15,6 +15,7 @@ import yaml
 
 from orchestration.cli import main
 from orchestration.recipe import train_model
+from orchestration.reports import FEET_TITLES
 from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE, latest_evaluation
 
@@ -145,7 +146,7 @@ def test_the_three_models_are_judged_in_one_evaluate_run(trained_project, tiny_t
     run_dir = latest_evaluation(trained_project)
     table = json.loads((run_dir / "table.json").read_text())
     rows = ["m2d2m/tps", "m2d2m/independent", "mmm/transition", "motiondiffuse/time-varied"]
-    feet = {f"{row}.{variant}" for row in rows for variant in ("planted", "rederived")}  # issue 40's rows
+    feet = {f"{row}.{variant}" for row in rows for variant in FEET_TITLES}  # issue 40's rows
     assert set(table["multi"]) == {"gt_single", "gt_concat", "reconstruction", *rows, *feet}
     assert all(np.isfinite(table["multi"][row]["fid"]["mean"]) for row in rows)
     assert table["multi"]["motiondiffuse/time-varied"]["jerk"]["mean"] is not None

@@ -7,8 +7,9 @@ and a measure of how much they slide (docs/evaluation.md, "Feet that stay plante
   when its squared displacement to the next frame is below the threshold; the height test that
   ``foot_detect`` also defines is commented out there, so contacts are velocity only).
 - :func:`plant_feet`: each contact run of an ankle or toe held still over the ground (at the
-  run's mean horizontal position), the leg solved with analytic two-bone IK
-  (:func:`two_bone_ik`), blended in and out at the run's edges.
+  run's mean horizontal position), and held on while the foot has not yet left the ground
+  (:func:`hold_while_grounded`), the leg solved with analytic two-bone IK (:func:`two_bone_ik`),
+  blended in and out at the run's edges.
 - :func:`skating_ratio`: GMD's foot skating ratio (Karunratanakul et al., "Guided Motion Diffusion
   for Controllable Human Motion Synthesis", ICCV 2023, §6.1 "Evaluation metrics";
   korrawe/guided-motion-diffusion ``data_loaders/humanml/utils/metrics.py``,
@@ -33,6 +34,7 @@ SKATING_HEIGHT_M = 0.05
 SKATING_SPEED_M_S = 0.5
 SKATING_WINDOW = 5
 BLEND_SECONDS = 0.2  # how long a correction takes to fade in before a contact and out after it
+HOLD_SECONDS = 0.2  # how long a contact is held on at most while its foot's toe is still near the ground
 _EPS = 1e-9
 
 
@@ -102,6 +104,28 @@ def contact_runs(flags: np.ndarray) -> list[tuple[int, int]]:
     return [(int(first), int(end)) for first, end in zip(edges[::2], edges[1::2])]
 
 
+def hold_while_grounded(flags: np.ndarray, grounded: np.ndarray, limit: int) -> np.ndarray:
+    """``flags`` (T,) with each run of True grown, before and after, over the next frames in which
+    ``grounded`` (T,) holds, ``limit`` frames at most each way, stopping one frame short of the
+    next run (or of what an earlier run grew into) so that two runs stay two locks.
+
+    Why: a model's contact flags often end while the foot is still on the ground (lift-off) or
+    begin after it is (touch-down). Fading a lock out over such frames makes the foot catch up with
+    its generated path while it still touches the ground, which is the very slide the fix is for;
+    held on until the foot leaves the ground, the catching up happens in the air.
+    """
+    flags = np.asarray(flags, dtype=bool)
+    held = flags.copy()
+    for first, end in contact_runs(flags):
+        for frames in (range(end, min(len(flags), end + limit)), range(first - 1, max(-1, first - 1 - limit), -1)):
+            for frame in frames:
+                neighbour = frame + (1 if frames.step > 0 else -1)
+                if not grounded[frame] or held[frame] or (0 <= neighbour < len(flags) and held[neighbour]):
+                    break
+                held[frame] = True
+    return held
+
+
 def planting(positions: np.ndarray, flags: np.ndarray, blend_frames: int) -> tuple[np.ndarray, np.ndarray]:
     """Where one joint should move: per frame a horizontal offset (T, 3) and how planted the joint
     is (T,), in [0, 1].
@@ -148,12 +172,16 @@ def plant_feet(
     fps: float,
     contacts: np.ndarray | None = None,
     blend: float = BLEND_SECONDS,
+    hold: float = HOLD_SECONDS,
+    ground: float = SKATING_HEIGHT_M,
 ) -> np.ndarray:
     """The clip (T, J, 3) with each contact's foot joint kept from sliding and the legs solved to
     reach.
 
     ``contacts`` (T, 4) in :func:`foot_contacts`'s order (computed from the joints when not
-    given); ``blend`` seconds of fading at a run's edges. Per foot, the two contact joints (ankle,
+    given); ``blend`` seconds of fading at a run's edges; a foot's contacts are held on for up to
+    ``hold`` seconds while its toe stays below ``ground`` metres (GMD's height of a foot near the
+    ground) by :func:`hold_while_grounded`. Per foot, the two contact joints (ankle,
     toe) get their targets from :func:`planting`; the segment between them keeps its length,
     anchored between the two targets by how planted each is (all on the ankle when only the heel
     is planted, all on the toe when only the toe is); the rest of the foot turns rigidly with it;
@@ -165,14 +193,16 @@ def plant_feet(
     contacts = foot_contacts(joints, skeleton, fps) if contacts is None else np.asarray(contacts, dtype=bool)
     if contacts.shape != (len(joints), 4):
         raise ValueError(f"expected contacts of shape ({len(joints)}, 4), got {contacts.shape}")
-    blend_frames = int(round(blend * fps))
+    blend_frames, hold_frames = int(round(blend * fps)), int(round(hold * fps))
     planted = joints.copy()
     for side, pair in enumerate((skeleton.feet_left, skeleton.feet_right)):
         chain = leg_of(skeleton, pair)
         hip, knee, ankle, foot = chain[1], chain[2], chain[3], list(chain[3:])
         heel, toe = joints[:, pair[0]], joints[:, pair[1]]
-        heel_offset, heel_weight = planting(heel, contacts[:, 2 * side], blend_frames)
-        toe_offset, toe_weight = planting(toe, contacts[:, 2 * side + 1], blend_frames)
+        grounded = toe[:, 1] * skeleton.metres_per_unit < ground
+        heel_flags, toe_flags = (hold_while_grounded(contacts[:, 2 * side + k], grounded, hold_frames) for k in (0, 1))
+        heel_offset, heel_weight = planting(heel, heel_flags, blend_frames)
+        toe_offset, toe_weight = planting(toe, toe_flags, blend_frames)
         moved = heel_weight + toe_weight > 0
         if not moved.any():
             continue

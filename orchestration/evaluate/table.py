@@ -52,9 +52,8 @@ def _titles(settings: EvalSettings, codec_rows: dict[str, str]) -> dict[str, str
 
 
 def _feet_rows(results: dict[tuple[str, str], list[dict[str, Any]]]) -> dict[str, list[dict[str, float]]]:
-    """Each multi-motion row's motions with the feet planted, and its control (features re-derived
-    from the joints, feet as generated), as rows ``<row>.planted`` and ``<row>.rederived`` (MLflow
-    takes periods in metric names, not "+"); results written before these were measured have none."""
+    """Each multi-motion row's motions with the feet planted as row ``<row>.planted`` (MLflow takes
+    periods in metric names, not "+"); results written before these were measured have none."""
     return {
         f"{row}.{variant}": [result[f"metrics_{variant}"] for result in found]
         for (kind, row), found in results.items()
