@@ -258,7 +258,7 @@ def _render(args: argparse.Namespace) -> None:
             motion.joints,
             out,
             skeleton=motion.skeleton,
-            fps=args.fps,
+            fps=args.fps or motion.fps,
             segments=motion.segments or None,
             title=motion.caption,
         )
@@ -279,7 +279,7 @@ def _export(args: argparse.Namespace) -> None:
         raise UserError(f"{out}: export writes {', '.join(EXPORTED)} (the suffix is the format)")
     output = plan_output(out, "motion", None, _delivery(args))
     shown = load_motion(args.source, args.id, args.skeleton)
-    fps = args.source_fps or shown.skeleton.fps
+    fps = args.source_fps or shown.fps or shown.skeleton.fps
     segments = shown.segments or [(0, len(shown.joints), shown.caption or "")]
     motion = _delivered(
         Motion(
@@ -1024,12 +1024,20 @@ def _add_viewers(verbs) -> None:
     for parser, run in ((render, _render), (export, _export)):
         parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
         parser.add_argument("--id", help="clip id when SOURCE is a corpus directory")
-        parser.add_argument("--skeleton", default="t2m", choices=["t2m", "kit"])
+        parser.add_argument(
+            "--skeleton", choices=["t2m", "kit"], help="the motion's skeleton (default: its sidecar's, else t2m)"
+        )
         parser.add_argument("--out", required=True, help="output file; its suffix chooses the format")
         parser.set_defaults(run=run)
-    render.add_argument("--fps", type=_positive_float, help="the motion's frames per second (default: the skeleton's)")
+    render.add_argument(
+        "--fps",
+        type=_positive_float,
+        help="the motion's frames per second (default: its sidecar's, else the skeleton's)",
+    )
     export.add_argument(
-        "--source-fps", type=_positive_float, help="the source's frames per second (default: the skeleton's)"
+        "--source-fps",
+        type=_positive_float,
+        help="the source's frames per second (default: its sidecar's, else the skeleton's)",
     )
     _add_delivery(export)
 
@@ -1063,7 +1071,9 @@ def _add_delivery(parser: argparse.ArgumentParser) -> None:
         help="the BVH's and GLB's bind pose: skeleton (HumanML3D's: arms down, head bone forward; default) or "
         "tpose (arms out, head up: what retargeting tools expect); the motion is the same",
     )
-    group.add_argument("--rig", metavar="BVH", help="write the BVH on this rig (its hierarchy and OFFSETs)")
+    group.add_argument(
+        "--rig", metavar="FILE", help="write the BVH on this rig: a BVH (its hierarchy and OFFSETs) or a skinned GLB"
+    )
     group.add_argument(
         "--joint-map", metavar="MAP", help="the rig's joints for ours: cmu, cmu-motionbuilder, mixamo, smpl or a YAML"
     )

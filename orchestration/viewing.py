@@ -1,6 +1,6 @@
-"""Load a motion for looking at, exporting or editing: a ``.npy`` of joints or features, or a clip
-of a raw corpus in HumanML3D's layout (with its captions and, for the synthetic corpus, its
-actions)."""
+"""Load a motion for looking at, exporting or editing: a ``.npy`` of joints or features (with what
+its JSON sidecar says, when it has one: docs/generation.md, "Output files"), or a clip of a raw
+corpus in HumanML3D's layout (with its captions and, for the synthetic corpus, its actions)."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ class LoadedMotion:
     skeleton: Skeleton
     segments: list[tuple[int, int, str]]
     caption: str | None
+    fps: float | None = None  # the frame rate its sidecar states (none: the skeleton's)
 
 
 def _check_values(array: np.ndarray, origin: str) -> None:
@@ -130,16 +131,55 @@ def _segments_of(corpus: Path, clip_id: str) -> list[tuple[int, int, str]]:
     return []
 
 
-def load_motion(source: str | Path, clip_id: str | None = None, skeleton: str = "t2m") -> LoadedMotion:
-    """Joints and captions of ``source``: a ``.npy`` file, or a corpus directory with ``clip_id``."""
-    if skeleton not in SKELETONS:
+def _read_sidecar(npy: Path, frames: int) -> dict | None:
+    """The JSON sidecar that :func:`m2d2m.motion.export.save_joints` wrote beside ``npy`` (none: a
+    file without one); one line when it is not one, or belongs to an array of another length."""
+    sidecar = npy.with_suffix(".json")
+    if not sidecar.is_file():
+        return None
+    try:
+        record = json.loads(sidecar.read_text(encoding="utf-8"))
+        stated = int(record["num_frames"]), float(record["fps"]), record["skeleton"], record["segments"]
+    except (ValueError, KeyError, TypeError) as error:
+        raise UserError(f"{sidecar}: not the sidecar m2d2m writes beside a .npy ({error}); fix or move it") from error
+    if stated[0] != frames:
+        raise UserError(f"{sidecar}: states {stated[0]} frames, {npy.name} has {frames}; it belongs to another file")
+    return record
+
+
+def _from_npy(path: Path, skeleton: str | None) -> LoadedMotion:
+    """A ``.npy`` of joints or features; its sidecar, when there is one, gives the skeleton (unless
+    ``skeleton`` names one), the frame rate, the actions and, for an in-place clip, the root motion
+    taken out, put back so that the clip is what was generated."""
+    array = _load_npy(path)
+    sidecar = _read_sidecar(path, len(array)) if array.ndim == 3 else None
+    name = skeleton or (sidecar or {}).get("skeleton", "t2m")
+    if name not in SKELETONS:
+        raise UserError(f"unknown skeleton {name!r}; choose one of {', '.join(SKELETONS)}")
+    skel = SKELETONS[name]
+    joints = _as_joints(array, skel, str(path))
+    if sidecar is None:
+        return LoadedMotion(joints, skel, [], None)
+    if "root_motion" in sidecar:
+        track = _load_npy(path.parent / sidecar["root_motion"])
+        if track.shape != (len(joints), 3):
+            raise UserError(f"{path.parent / sidecar['root_motion']}: shape {track.shape}, expected ({len(joints)}, 3)")
+        joints = joints + track[:, None, :].astype(np.float32)
+    segments = [(int(s["start_frame"]), int(s["end_frame"]), str(s["text"])) for s in sidecar["segments"]]
+    return LoadedMotion(joints, skel, segments, None, float(sidecar["fps"]))
+
+
+def load_motion(source: str | Path, clip_id: str | None = None, skeleton: str | None = None) -> LoadedMotion:
+    """Joints and captions of ``source``: a ``.npy`` file, or a corpus directory with ``clip_id``
+    (skeleton: t2m unless named, or stated by a .npy's sidecar)."""
+    if skeleton is not None and skeleton not in SKELETONS:
         raise UserError(f"unknown skeleton {skeleton!r}; choose one of {', '.join(SKELETONS)}")
-    skel = SKELETONS[skeleton]
     path = Path(source)
     if not path.exists():
         raise UserError(f"{path}: no such file or directory")
     if path.is_file():
-        return LoadedMotion(_as_joints(_load_npy(path), skel, str(path)), skel, [], None)
+        return _from_npy(path, skeleton)
+    skel = SKELETONS[skeleton or "t2m"]
     if clip_id is None:
         raise UserError(f"{path} is a directory: name the clip with --id (e.g. --id 000000)")
     for folder in ("joints", "new_joint_vecs"):

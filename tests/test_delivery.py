@@ -6,6 +6,7 @@ option through `m2d2m export` and `m2d2m generate` into files that read back as 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -66,12 +67,12 @@ def test_frame_rate_loop_and_root_follow_each_other_with_the_actions(clip):
         ({"fps": 0}, "fps must be a frame rate from 1 to 1000"),
         ({"root": "floating"}, "root must be one of keep, in-place, ground"),
         ({"rest_pose": "apose"}, "rest pose must be one of skeleton, tpose"),
-        ({"rig": "/nowhere/rig.bvh"}, "rig /nowhere/rig.bvh: no such BVH file"),
+        ({"rig": "/nowhere/rig.bvh"}, "rig /nowhere/rig.bvh: no such file (a BVH or GLB)"),
         ({"joint_map": "cmu"}, "a joint map goes with a rig"),
     ],
 )
 def test_a_delivery_no_clip_can_take_is_one_line(options, message):
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValueError, match=re.escape(message)):
         Delivery(**options)
 
 
@@ -124,6 +125,29 @@ def test_a_motion_saves_its_root_track_beside_the_npy(clip, tmp_path):
     track = np.load(tmp_path / "m.root_motion.npy")
     np.testing.assert_allclose(np.load(files["npy"]) + track[:, None], motion.joints + motion.root_track[:, None])
     assert motion.settings["delivery"]["root"] == "in-place"
+
+
+def test_export_reads_what_an_npys_sidecar_says(clip, tmp_path, capsys):
+    """An npy of ours at 30 fps, in place, with two actions: exported again it keeps its rate and
+    actions, its root motion is put back (in place again on request), and a sidecar of another
+    file is one line."""
+    joints, features = clip
+    actions = ["a person walks", "a person stops"]
+    motion = Motion(features, joints, 20.0, "t2m", actions, RANGES).delivered(Delivery(fps=30.0, root="in-place"))
+    motion.save(tmp_path, "m", ("npy",))
+    assert main(["export", str(tmp_path / "m.npy"), "--out", str(tmp_path / "again.npy"), "--no-foot-fix"]) == 0
+    again = json.loads((tmp_path / "again.json").read_text(encoding="utf-8"))
+    assert again["fps"] == 30.0 and [s["text"] for s in again["segments"]] == actions
+    assert "root_motion" not in again  # kept: the clip's own path is back in its joints
+    np.testing.assert_allclose(np.load(tmp_path / "again.npy"), motion.joints + motion.root_track[:, None], atol=1e-5)
+    argv = ["export", str(tmp_path / "m.npy"), "--out", str(tmp_path / "again.glb"), "--root", "in-place"]
+    assert main(argv) == 0
+    _, keys = glb_clip(tmp_path / "again.glb")
+    assert keys["frames"] == len(motion.joints) and keys["end"] == pytest.approx((len(motion.joints) - 1) / 30)
+    np.save(tmp_path / "m.npy", joints)  # 170 frames now, the sidecar's 254
+    capsys.readouterr()
+    assert main(["export", str(tmp_path / "m.npy"), "--out", str(tmp_path / "x.bvh")]) == 2
+    assert "m.json: states 254 frames, m.npy has 170; it belongs to another file" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -2,7 +2,7 @@
 skeleton of tests/fixtures/cmu-bvh. A CMU take made into our joints and retargeted back onto its
 own rig gives the take's joints back; on a rig scaled up the motion scales with it; HumanML3D's
 own clip on CMU's rig points every mapped bone where ours points, hands continue their forearms,
-and the BVH written reads back as the rig's animation."""
+and the BVH written reads back as the rig's animation. A GLB character is a rig as its BVH is."""
 
 from __future__ import annotations
 
@@ -12,11 +12,15 @@ import subprocess
 from dataclasses import replace
 
 import numpy as np
+import pygltflib
 import pytest
 
-from m2d2m.motion.bvh_reader import read_bvh
+from m2d2m.motion.bvh_reader import BvhError, read_bvh
+from m2d2m.motion.gltf import save_glb
 from m2d2m.motion.joint_map import PRESETS, JointMap
-from m2d2m.motion.retarget import Rig, retarget, retarget_to_bvh
+from m2d2m.motion.retarget import Rig, read_rig, retarget, retarget_to_bvh
+from m2d2m.motion.rigid import on_rigid_skeleton
+from m2d2m.motion.rotations import quat_to_matrix
 from m2d2m.motion.skeleton import T2M
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU, CMU_METRES
@@ -142,3 +146,66 @@ def test_blender_imports_the_bvh_on_cmus_rig_with_its_joints_where_ours_put_them
     error = np.abs(heads - expected).max()
     print(f"Blender's BVH import on CMU's rig: largest joint error {error * 1000:.3f} mm")
     assert error < 1e-3
+
+
+def cmu_rig_as_glb(path, rig: Rig, seed: int = 0) -> None:
+    """CMU's rig as a skinned GLB the way a DCC tool exports a character in centimetres: an
+    "Armature" node scaling by 0.01 above the root, each joint node with a rest rotation of its
+    own (random) and the translation that puts it where the BVH's rest pose does."""
+    rng = np.random.default_rng(seed)
+    quaternions = rng.normal(size=(len(rig.names), 4))
+    quaternions /= np.linalg.norm(quaternions, axis=1, keepdims=True)  # w, x, y, z
+    turns = quat_to_matrix(quaternions)
+    rest_cm = rig.rest_positions() * 100.0
+    world = np.empty_like(turns)
+    nodes = [pygltflib.Node(name="Armature", scale=[0.01] * 3, children=[1])]
+    for joint, parent in enumerate(rig.parents):
+        above = np.eye(3) if parent < 0 else world[parent]
+        world[joint] = above @ turns[joint]
+        step = rest_cm[joint] - (rest_cm[parent] if parent >= 0 else 0.0)
+        nodes.append(
+            pygltflib.Node(
+                name=rig.names[joint],
+                translation=(above.T @ step).tolist(),
+                rotation=quaternions[joint, [1, 2, 3, 0]].tolist(),
+                children=[int(k) + 1 for k in np.flatnonzero(rig.parents == joint)],
+            )
+        )
+    gltf = pygltflib.GLTF2(
+        scenes=[pygltflib.Scene(nodes=[0])],
+        nodes=nodes,
+        skins=[pygltflib.Skin(joints=list(range(1, len(nodes))))],
+    )
+    gltf.save_binary(str(path))
+
+
+def test_a_glb_characters_skeleton_is_a_rig_as_its_bvh_is(take, tmp_path):
+    """CMU's rig written as a GLB in centimetres with rest rotations of its own: read back, it
+    stands where the BVH's rest pose stands, and a motion retargeted onto it is the one on the BVH."""
+    _, ours, rig = take
+    cmu_rig_as_glb(tmp_path / "cmu.glb", rig)
+    read = read_rig(tmp_path / "cmu.glb")
+    assert read.names == rig.names
+    np.testing.assert_allclose(read.rest_positions(), rig.rest_positions(), atol=1e-9)
+    on_glb = read_bvh(retarget_to_bvh(tmp_path / "on-glb.bvh", ours, tmp_path / "cmu.glb", "cmu"))
+    on_bvh = read_bvh(retarget_to_bvh(tmp_path / "on-bvh.bvh", ours, CMU / "131_01.bvh", "cmu"), CMU_METRES)
+    assert np.abs(on_glb.positions() - on_bvh.positions()).max() < 1e-4
+
+
+def test_our_own_glb_is_a_rig_and_a_glb_without_a_skin_is_one_line(take, tmp_path):
+    """The GLB `m2d2m export` writes is SMPL-named: as a rig it takes our motion back unchanged."""
+    _, ours, _ = take
+    rigid = on_rigid_skeleton(ours, T2M)
+    save_glb(tmp_path / "ours.glb", rigid, T2M, 20.0)
+    back = read_bvh(retarget_to_bvh(tmp_path / "on-ours.bvh", rigid, tmp_path / "ours.glb", "smpl"))
+    assert sorted(back.names) == sorted(T2M.joint_names)  # listed depth first, as a BVH lists them
+    in_our_order = back.positions()[:, [back.names.index(name) for name in T2M.joint_names]]
+    assert np.abs(in_our_order - rigid).max() < 1e-4
+    pygltflib.GLTF2(nodes=[pygltflib.Node(name="hips")], scenes=[pygltflib.Scene(nodes=[0])]).save_binary(
+        str(tmp_path / "bare.glb")
+    )
+    with pytest.raises(BvhError, match="bare.glb: no skin, so no skeleton to retarget to"):
+        read_rig(tmp_path / "bare.glb")
+    (tmp_path / "text.glb").write_text("not a model", encoding="utf-8")
+    with pytest.raises(BvhError, match="text.glb: not a glTF file"):
+        read_rig(tmp_path / "text.glb")

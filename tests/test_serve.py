@@ -211,9 +211,11 @@ def test_a_clip_is_delivered_as_asked_and_comes_as_a_glb(client, trained_project
 
 
 def test_a_generation_downloads_on_an_uploaded_rig(client, trained_project):
-    """Issue 40 §2, §5: a person uploads their character's BVH and gets the clip on it."""
+    """Issue 40 §2, §5: a person uploads their character's BVH, or its GLB, and gets the clip on it."""
     from m2d2m.motion.bvh_reader import read_bvh
+    from m2d2m.motion.retarget import Rig
     from tests.test_bvh_reader import CMU
+    from tests.test_retarget import cmu_rig_as_glb
 
     rig = (CMU / "131_01.bvh").read_bytes()
     uploaded = client.post("/api/rigs", content=rig, headers={"Content-Type": "application/octet-stream"})
@@ -238,6 +240,12 @@ def test_a_generation_downloads_on_an_uploaded_rig(client, trained_project):
     assert unknown.status_code == 404 and "upload it with POST /api/rigs" in unknown.json()["error"]
     gif = client.get(result["files"]["gif"], params={"rig": uploaded.json()["id"]})
     assert gif.status_code == 400 and "a rig goes with the BVH" in gif.json()["error"]
+    cmu_rig_as_glb(trained_project / "cmu.glb", Rig.from_bvh(read_bvh(CMU / "131_01.bvh")))
+    character = client.post("/api/rigs", content=(trained_project / "cmu.glb").read_bytes())
+    assert character.status_code == 200 and character.json()["joint_map"] == "cmu", character.text
+    answer = client.get(result["files"]["bvh"], params={"rig": character.json()["id"]})
+    (trained_project / "on-glb.bvh").write_bytes(answer.content)
+    assert read_bvh(trained_project / "on-glb.bvh").names == on_rig.names
 
 
 LONG = "a person " + "walks " * 1700

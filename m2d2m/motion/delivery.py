@@ -27,7 +27,7 @@ class Delivery:
     """``fps``: the files' frame rate (None: the model's); ``root``: ``keep``, ``in-place`` or
     ``ground``; ``loop``: one seamless cycle; ``plant_feet``: the contact-preserving foot fix (on
     by default, as every tool animators use does it); ``rest_pose``: a BVH's or GLB's bind pose;
-    ``rig``: a BVH whose skeleton the BVH is written on, through ``joint_map`` (a preset or a
+    ``rig``: a BVH or glTF character whose skeleton the BVH is written on, through ``joint_map`` (a preset or a
     YAML file; default: the preset the rig's joints fit). ValueError in one line for a value no
     clip can take."""
 
@@ -47,9 +47,9 @@ class Delivery:
         if self.rest_pose not in REST_POSES:
             raise ValueError(f"rest pose must be one of {', '.join(REST_POSES)}, got {self.rest_pose!r}")
         if self.rig is not None and not Path(self.rig).is_file():
-            raise ValueError(f"rig {self.rig}: no such BVH file")
+            raise ValueError(f"rig {self.rig}: no such file (a BVH or GLB)")
         if self.joint_map is not None and self.rig is None:
-            raise ValueError("a joint map goes with a rig: give the rig's BVH too")
+            raise ValueError("a joint map goes with a rig: give the rig too")
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,8 @@
 """A motion on someone else's rig: the rotations that make their skeleton, with its own bone
 lengths and rest pose, move as ours does (issue 40 §2; docs/generation.md, "On your own rig").
 
-The rig comes from a BVH file (its hierarchy and OFFSETs; its first frame is not used) and a
+The rig comes from a BVH file (its hierarchy and OFFSETs; its first frame is not used) or a
+skinned glTF/GLB character (:mod:`m2d2m.motion.gltf_rig`: its skin's joints as they stand), and a
 :class:`~m2d2m.motion.joint_map.JointMap` naming which of its joints stand for ours (the presets
 of CMU's two cgspeed releases, Mixamo's ``mixamorig:`` names and SMPL's, or a user's YAML). Each
 of its joints is turned, root first, so that the mapped joints below it point where ours point:
@@ -30,6 +31,7 @@ import numpy as np
 
 from m2d2m.motion.bvh_reader import BvhClip, read_bvh
 from m2d2m.motion.export import write_bvh
+from m2d2m.motion.gltf_rig import GLTF_SUFFIXES, read_gltf_rig
 from m2d2m.motion.joint_map import JointMap, joint_map_for
 from m2d2m.motion.rigid import best_fit_rotation, children
 from m2d2m.motion.rotations import qbetween, quat_to_matrix
@@ -147,6 +149,11 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
     return RigMotion(rig, root, local)
 
 
+def read_rig(path: str | Path) -> BvhClip:
+    """The rig in the file at ``path``: a glTF character (``.glb``, ``.gltf``) or else a BVH."""
+    return read_gltf_rig(path) if Path(path).suffix.lower() in GLTF_SUFFIXES else read_bvh(path)
+
+
 def retarget_to_bvh(
     path: str | Path,
     joints: np.ndarray,
@@ -156,11 +163,11 @@ def retarget_to_bvh(
     skeleton: Skeleton = T2M,
     units: str | None = None,
 ) -> Path:
-    """Our joints as a BVH on the rig of ``rig_file`` (a BVH: its hierarchy and OFFSETs), through
+    """Our joints as a BVH on the rig of ``rig_file`` (:func:`read_rig`: a BVH or a glTF character), through
     ``joint_map`` (a preset's name, a YAML file, or by default the preset its joints fit), written
     in the rig's own units (``units``, or by default the one it stands a person's height in:
     :meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`), so it drops onto the character."""
-    clip = read_bvh(rig_file)
+    clip = read_rig(rig_file)
     mapping = joint_map_for(clip, joint_map)
     scale = mapping.metres_per_unit(clip, units, skeleton)
     rig = Rig.from_bvh(clip)

@@ -232,7 +232,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
     @api.post(
         "/rigs",
-        summary="Upload a character's rig (the bytes of a BVH: its hierarchy and OFFSETs) to download "
+        summary="Upload a character's rig (the bytes of a BVH, or of a skinned GLB) to download "
         "generations on it: GET a generation's motion.bvh?rig=<id>",
     )
     async def add_rig(request: Request, joint_map: str | None = None) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """Characters' rigs a person uploads to the server, to download generations retargeted onto them
-(issue 40 §2, §5; docs/serving.md): each a BVH file (its hierarchy and OFFSETs) kept by the hash
-of its bytes, with the joint map its joints take, checked on upload so that a download never
+(issue 40 §2, §5; docs/serving.md): each a BVH file (its hierarchy and OFFSETs) or a GLB
+character (its skin's skeleton as it stands), kept by the hash of its bytes, with the joint map its joints take, checked on upload so that a download never
 fails on the rig."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from m2d2m.atomic import atomic_path
-from m2d2m.motion.bvh_reader import BvhError, read_bvh
+from m2d2m.motion.bvh_reader import BvhError
 from m2d2m.motion.joint_map import PRESETS, joint_map_for
-from m2d2m.motion.retarget import Rig, retarget
+from m2d2m.motion.retarget import Rig, read_rig, retarget
 from m2d2m.motion.skeleton import T2M
 from orchestration.errors import UserError
 from orchestration.web.catalog import NotFound
@@ -36,7 +36,7 @@ class UploadedRig:
 
 
 class Rigs:
-    """The rigs uploaded to this server, in ``folder`` (one ``<id>.bvh`` each)."""
+    """The rigs uploaded to this server, in ``folder`` (one ``<id>.bvh`` or ``<id>.glb`` each)."""
 
     def __init__(self, folder: Path) -> None:
         self.folder = folder
@@ -44,10 +44,11 @@ class Rigs:
         self._lock = threading.Lock()
 
     def add(self, data: bytes, joint_map: str | None = None) -> UploadedRig:
-        """Check a BVH's bytes as a rig our motions go onto (a UserError in one sentence when they
-        cannot) and keep it; the same bytes and map give the same rig."""
+        """Check a BVH's or GLB's bytes (told apart by GLB's magic, §4.4.2 of the glTF 2.0
+        specification) as a rig our motions go onto (a UserError in one sentence when they cannot)
+        and keep it; the same bytes and map give the same rig."""
         if not data:
-            raise UserError("the rig is empty: send the bytes of a BVH file")
+            raise UserError("the rig is empty: send the bytes of a BVH or GLB file")
         if len(data) > MAX_RIG_BYTES:
             raise UserError(
                 f"the rig is {len(data) / 2**20:.0f} MiB, over the {MAX_RIG_BYTES // 2**20} MiB a rig may be"
@@ -58,14 +59,15 @@ class Rigs:
         with self._lock:
             if rig_id in self._kept:
                 return self._kept[rig_id]
+        suffix = ".glb" if data[:4] == b"glTF" else ".bvh"
         with tempfile.TemporaryDirectory(prefix="m2d2m-rig-") as folder:
-            candidate = Path(folder) / "rig.bvh"
+            candidate = Path(folder) / f"rig{suffix}"
             candidate.write_bytes(data)
             mapping, joints = _checked(candidate, joint_map)
             self.folder.mkdir(parents=True, exist_ok=True)
-            with atomic_path(self.folder / f"{rig_id}.bvh") as partial:
+            with atomic_path(self.folder / f"{rig_id}{suffix}") as partial:
                 partial.write_bytes(data)
-        rig = UploadedRig(rig_id, self.folder / f"{rig_id}.bvh", joints, mapping)
+        rig = UploadedRig(rig_id, self.folder / f"{rig_id}{suffix}", joints, mapping)
         with self._lock:
             self._kept[rig_id] = rig
         return rig
@@ -81,7 +83,7 @@ def _checked(path: Path, joint_map: str | None) -> tuple[str, int]:
     """The name of the joint map a rig's joints take and their count, having retargeted our rest
     pose onto it once; a UserError saying why not."""
     try:
-        clip = read_bvh(path)
+        clip = read_rig(path)
         mapping = joint_map_for(clip, joint_map)
         scale = mapping.metres_per_unit(clip)
         rig = Rig.from_bvh(clip)
