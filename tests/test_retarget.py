@@ -10,6 +10,7 @@ import json
 import shutil
 import subprocess
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pygltflib
@@ -17,7 +18,7 @@ import pytest
 
 from m2d2m.motion.bvh_reader import BvhError, read_bvh
 from m2d2m.motion.gltf import save_glb
-from m2d2m.motion.joint_map import PRESETS, JointMap
+from m2d2m.motion.joint_map import PRESETS, JointMap, joint_map_for
 from m2d2m.motion.retarget import Rig, read_rig, retarget, retarget_to_bvh
 from m2d2m.motion.rigid import on_rigid_skeleton
 from m2d2m.motion.rotations import quat_to_matrix
@@ -209,3 +210,39 @@ def test_our_own_glb_is_a_rig_and_a_glb_without_a_skin_is_one_line(take, tmp_pat
     (tmp_path / "text.glb").write_text("not a model", encoding="utf-8")
     with pytest.raises(BvhError, match="text.glb: not a glTF file"):
         read_rig(tmp_path / "text.glb")
+
+
+def test_humanml3ds_clip_on_mixamos_x_bot_points_every_mapped_bone_as_ours(tmp_path):
+    """Mixamo's real X Bot (tests/fixtures/mixamo: an Armature turned a quarter about X and
+    scaled to centimetres above 65 ``mixamorig:`` joints, each with its own rest rotation): the
+    preset fits it, it stands 1.82 m tall in metres; on it, every mapped bone of HumanML3D's clip
+    from a joint with one mapped child points where ours points, and those from the pelvis and the
+    chest (several children, a best fit of the rig's own shape: hips set wider and lower than ours)
+    keep one angle from ours all clip long, 16° at most; each hand continues its forearm, and its
+    BVH reads back."""
+    rig_file = Path(__file__).parent / "fixtures" / "mixamo" / "xbot-skeleton.glb"
+    clip = read_rig(rig_file)
+    assert len(clip.names) == 65 and joint_map_for(clip).name == "mixamo"
+    assert PRESETS["mixamo"].metres_per_unit(clip) == 1.0
+    assert clip.rest_positions()[:, 1].max() == pytest.approx(1.82, abs=0.01)
+    ours = on_rigid_skeleton(np.load(SAMPLE), T2M)
+    rig = Rig.from_bvh(clip)
+    moved = retarget(ours, rig, PRESETS["mixamo"]).positions()
+    sources = single_sources(PRESETS["mixamo"], rig)
+    theirs_of = {mine: joint for joint, mine in sources.items()}
+    pairs = [
+        (theirs_of[int(T2M.parents[child])], theirs_of[child], int(T2M.parents[child]), child)
+        for child in range(1, 22)
+        if child in theirs_of and int(T2M.parents[child]) in theirs_of
+    ]
+    angles = bone_angles(moved, ours, pairs)
+    branching = np.array([np.count_nonzero(T2M.parents == parent) > 1 for _, _, parent, _ in pairs])
+    assert len(pairs) == 21 and branching.sum() == 6  # pelvis: hips and spine; chest: neck and collars
+    assert angles[:, ~branching].max() < 1e-4
+    assert angles[:, branching].max() < 16.0 and np.ptp(angles[:, branching], axis=0).max() < 1e-4
+    for side in ("Left", "Right"):
+        hand, finger, forearm = (rig.names.index(f"mixamorig:{side}{n}") for n in ("Hand", "HandMiddle1", "ForeArm"))
+        assert bone_angles(moved, moved, [(hand, finger, forearm, hand)]).max() < 15.0  # as the rig's rest bends it
+    written = read_bvh(retarget_to_bvh(tmp_path / "on-xbot.bvh", ours, rig_file))
+    assert written.names == clip.names
+    assert np.abs(written.positions() - moved).max() < 1e-4
