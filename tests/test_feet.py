@@ -214,7 +214,7 @@ def test_the_real_clip_skates_and_planting_does_not_make_it_skate_more(sample_jo
     np.testing.assert_allclose(T2M.bone_lengths_of(planted), T2M.bone_lengths_of(sample_joints), atol=1e-6)
 
 
-def test_a_contact_is_held_on_while_its_foot_is_grounded_but_not_into_the_next():
+def test_a_contact_is_held_on_while_its_foot_is_grounded_and_a_grounded_gap_closes():
     """Runs at 3–4 and 9–10, the foot grounded on 0–2, 5–6 and 8, at most 2 frames each way: the
     first grows to 1–6, the second back to 8 (7 is in the air) and not on (11 is in the air)."""
     flags = np.zeros(12, dtype=bool)
@@ -223,12 +223,16 @@ def test_a_contact_is_held_on_while_its_foot_is_grounded_but_not_into_the_next()
     grounded[[0, 1, 2, 5, 6, 8]] = True
     held = hold_while_grounded(flags, grounded, limit=2)
     np.testing.assert_array_equal(np.flatnonzero(held), [1, 2, 3, 4, 5, 6, 8, 9, 10])
-    # two runs two frames apart, the gap grounded: the first takes the frame after it, the second
-    # stops short of that, so a frame is left between the two locks
-    flags = np.zeros(8, dtype=bool)
-    flags[[1, 2, 5, 6]] = True
-    held = hold_while_grounded(flags, np.ones(8, dtype=bool), limit=3)
-    np.testing.assert_array_equal(np.flatnonzero(held), [0, 1, 2, 3, 5, 6, 7])
+    # a grounded gap of 2 * limit frames closes (one contact); one frame longer, or with a frame in
+    # the air, stays open: two steps
+    for gap, lifted, closed in ((4, None, True), (5, None, False), (4, 3, False)):
+        flags = np.zeros(12, dtype=bool)
+        flags[[1, 2 + gap]] = True
+        grounded = np.ones(12, dtype=bool)
+        if lifted is not None:
+            grounded[lifted] = False
+        held = hold_while_grounded(flags, grounded, limit=2)
+        assert held[1 : 3 + gap].all() == closed, (gap, lifted)
 
 
 def test_every_evaluation_measures_skating(sample_joints):
