@@ -205,12 +205,12 @@ def test_the_real_clips_contacts_from_its_features_are_those_of_its_joints(sampl
 
 def test_the_real_clip_skates_and_planting_does_not_make_it_skate_more(sample_joints, sample_features):
     """Clip 012314 skates in 23 of its 169 steps by GMD's measure (a low toe that sweeps fast,
-    swinging or pivoting); planting its own contacts, held on while a toe stays near the ground,
-    leaves 6 of them: those where a toe sweeps low through a swing far from any contact."""
+    swinging or pivoting); planting its own contacts takes two pivoting steps away and adds none:
+    the others are swings (2.8-4.5 m/s), which no contact is held into, however low the toe."""
     assert skating_ratio(sample_joints, T2M, FPS) == pytest.approx(23 / 169)
     contacts = foot_contacts(sample_joints, T2M, FPS, sample_features)
     planted = plant_feet(sample_joints, T2M, FPS, contacts)
-    assert skating_ratio(planted, T2M, FPS) == pytest.approx(6 / 169)
+    assert skating_ratio(planted, T2M, FPS) == pytest.approx(21 / 169)
     np.testing.assert_allclose(T2M.bone_lengths_of(planted), T2M.bone_lengths_of(sample_joints), atol=1e-6)
 
 

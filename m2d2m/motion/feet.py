@@ -7,8 +7,8 @@ and a measure of how much they slide (docs/evaluation.md, "Feet that stay plante
   when its squared displacement to the next frame is below the threshold; the height test that
   ``foot_detect`` also defines is commented out there, so contacts are velocity only).
 - :func:`plant_feet`: each contact run of an ankle or toe held still over the ground (at the
-  run's mean horizontal position), and held on while the foot has not yet left the ground
-  (:func:`hold_while_grounded`), the leg solved with analytic two-bone IK (:func:`two_bone_ik`),
+  run's mean horizontal position), and held on while the foot has not yet left the ground, low
+  and slower than a swing (:func:`hold_while_grounded`), the leg solved with analytic two-bone IK (:func:`two_bone_ik`),
   blended in and out at the run's edges.
 - :func:`skating_ratio`: GMD's foot skating ratio (Karunratanakul et al., "Guided Motion Diffusion
   for Controllable Human Motion Synthesis", ICCV 2023, §6.1 "Evaluation metrics";
@@ -35,6 +35,10 @@ SKATING_SPEED_M_S = 0.5
 SKATING_WINDOW = 5
 BLEND_SECONDS = 0.2  # how long a correction takes to fade in before a contact and out after it
 HOLD_SECONDS = 0.2  # how long a contact is held on at most while its foot's toe is still near the ground
+# ... and moving slower than this: a foot faster is swinging, not on the ground, however low (the
+# sample clip's low swings run at 2.8-4.5 m/s; a walking foot's swing averages about twice the
+# walking speed of 1.2-1.4 m/s). Holding such a foot drags it after the body (its leg cannot reach).
+HOLD_SPEED_M_S = 2.0
 _EPS = 1e-9
 
 
@@ -175,6 +179,7 @@ def plant_feet(
     blend: float = BLEND_SECONDS,
     hold: float = HOLD_SECONDS,
     ground: float = SKATING_HEIGHT_M,
+    hold_speed: float = HOLD_SPEED_M_S,
 ) -> np.ndarray:
     """The clip (T, J, 3) with each contact's foot joint kept from sliding and the legs solved to
     reach.
@@ -182,7 +187,8 @@ def plant_feet(
     ``contacts`` (T, 4) in :func:`foot_contacts`'s order (computed from the joints when not
     given); ``blend`` seconds of fading at a run's edges; a foot's contacts are held on for up to
     ``hold`` seconds while its toe stays below ``ground`` metres (GMD's height of a foot near the
-    ground) by :func:`hold_while_grounded`. Per foot, the two contact joints (ankle,
+    ground) and slower than ``hold_speed`` m/s (:data:`HOLD_SPEED_M_S`) by
+    :func:`hold_while_grounded`. Per foot, the two contact joints (ankle,
     toe) get their targets from :func:`planting`; the segment between them keeps its length,
     anchored between the two targets by how planted each is (all on the ankle when only the heel
     is planted, all on the toe when only the toe is); the rest of the foot turns rigidly with it;
@@ -200,7 +206,7 @@ def plant_feet(
         chain = leg_of(skeleton, pair)
         hip, knee, ankle, foot = chain[1], chain[2], chain[3], list(chain[3:])
         heel, toe = joints[:, pair[0]], joints[:, pair[1]]
-        grounded = toe[:, 1] * skeleton.metres_per_unit < ground
+        grounded = (toe[:, 1] * skeleton.metres_per_unit < ground) & (_speeds(toe, skeleton, fps) < hold_speed)
         heel_flags, toe_flags = (hold_while_grounded(contacts[:, 2 * side + k], grounded, hold_frames) for k in (0, 1))
         heel_offset, heel_weight = planting(heel, heel_flags, blend_frames)
         toe_offset, toe_weight = planting(toe, toe_flags, blend_frames)
@@ -219,6 +225,13 @@ def plant_feet(
         planted[np.flatnonzero(moved)[:, None], foot] = new_foot + (new_ankle - new_foot[:, 0])[:, None]
         planted[moved, knee] = new_knee
     return planted
+
+
+def _speeds(positions: np.ndarray, skeleton: Skeleton, fps: float) -> np.ndarray:
+    """(T,) each frame's horizontal speed in m/s, the faster of the steps into and out of it."""
+    step = np.diff(positions[:, [0, 2]], axis=0)
+    speed = np.sqrt(dot(step, step)) * fps * skeleton.metres_per_unit
+    return np.maximum(np.concatenate([speed[:1], speed]), np.concatenate([speed, speed[-1:]]))
 
 
 def moving_average(values: np.ndarray, window: int) -> np.ndarray:
