@@ -43,6 +43,14 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _pose_reference(value: str) -> tuple[str, int]:
+    """POSE@FRAME: a result's .npy and one of its frames (at the model's rate)."""
+    path, at, frame = value.rpartition("@")
+    if not at or not path or not frame.isdigit():
+        raise argparse.ArgumentTypeError(f"expected POSE@FRAME (a .npy and a frame number), got {value!r}")
+    return path, int(frame)
+
+
 def _positive_float(text: str) -> float:
     """A finite number above zero (frames per second: 0 divides by zero, -1 writes a BVH
     whose frame time is negative)."""
@@ -380,15 +388,17 @@ def _generate(args: argparse.Namespace) -> None:
 
     if args.part:
         return _generate_parts(args)
+    if args.edit is not None and args.keep_body is None:
+        return _edit_timeline(args)
     if not args.prompts:
         raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
-    if (args.edit is None) != (args.keep_body is None):
+    if args.keep_body is not None and args.edit is None:
         raise UserError(
-            "--edit SOURCE and --keep-body PART go together: the motion to edit and the body part of it "
+            "--keep-body PART goes with --edit SOURCE: the motion to edit and the body part of it "
             "to keep, e.g. --model mmm-body --edit motion.features.npy --keep-body lower"
         )
     if args.edit is not None and args.seconds is not None:
-        raise UserError("--seconds does not go with --edit: the edited motion is as long as the source")
+        raise UserError("--seconds does not go with --keep-body: the edited motion is as long as the source")
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
@@ -417,6 +427,32 @@ def _generate(args: argparse.Namespace) -> None:
                 **options,
             )
         _report(motion, variation, args.prompts, args)
+
+
+def _edit_timeline(args: argparse.Namespace) -> None:
+    """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
+    from orchestration.editing import plan_edit, sample_edit
+    from orchestration.generate import load_generator
+
+    output = _planned_output(args)
+    generator = load_generator(args.model, args.checkpoint, args.dataset)
+    edit, said = plan_edit(
+        generator,
+        args.edit,
+        args.prompts,
+        args.seconds,
+        regenerate=args.regenerate,
+        fill_to=args.fill_to,
+        pin=args.pin,
+        at=args.at,
+        extend=args.extend,
+    )
+    print(f"{args.edit}: {said}")
+    options = _sampling_options(args)
+    if args.method is not None:
+        options["method"] = args.method
+    for seed, variation in _variations(args, output):
+        _report(sample_edit(generator, edit, seed, f"{args.edit}: {said}", **options), variation, edit.actions, args)
 
 
 def _variations(args: argparse.Namespace, output: Any) -> list[tuple[int, Any]]:
@@ -832,6 +868,32 @@ def _add_generate(verbs) -> None:
         metavar="SOURCE",
         help="edit this motion instead: a .npy of features (the .features.npy generate writes) "
         "or joints; the prompts share its length (with --keep-body)",
+    )
+    generate.add_argument(
+        "--regenerate",
+        type=_positive_int,
+        metavar="K",
+        help="with --edit: sample action K again (a prompt: its new text; --seconds: its new length), "
+        "the others kept outside a 0.4-s margin",
+    )
+    generate.add_argument(
+        "--fill-to",
+        metavar="SECOND",
+        help="with --edit: join SOURCE to this second result by --seconds (default 1) of new motion "
+        "(a prompt: what happens in it)",
+    )
+    generate.add_argument(
+        "--pin",
+        type=_pose_reference,
+        metavar="POSE@FRAME",
+        help="with --edit and --at: the motion passes through this pose (a result's .npy and its frame)",
+    )
+    generate.add_argument("--at", type=float, metavar="SECONDS", help="where --pin pins its pose")
+    generate.add_argument(
+        "--continue",
+        dest="extend",
+        action="store_true",
+        help="with --edit: append the prompts to SOURCE (--seconds each), its end sampled again to lead into them",
     )
     generate.add_argument(
         "--keep-body",

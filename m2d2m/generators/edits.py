@@ -1,0 +1,199 @@
+"""Edits of a result on its timeline (issue 41; docs/generation.md, "Editing a result"): redo one
+action and keep the rest, fill a gap between two clips, pin a pose, continue a clip.
+
+Every operation is one generation request any model that keeps frames can serve (the
+:class:`~m2d2m.generators.protocol.Keep` of its ``generate``): a new timeline of actions and
+lengths, the features to keep laid out on it, and the frames copied back bit for bit once the
+model has sampled (:class:`Edit`). Around each span that changes, ``margin`` frames of what is
+kept are sampled again, so that the model joins old and new itself; outside the margins the result
+is the source. The operations work on features, the representation every model shares; the
+joints follow from them (:func:`apply_edit`), so the actions before an edit stand where they
+stood and those after it continue from where the new motion ends.
+
+Discrete diffusion and MMM fill the free tokens around kept ones (M2D2M §3; MMM §3.3, its
+in-betweening); MotionDiffuse replaces the kept entries at every step (its editing by
+replacement). A span is widened to whole steps of the model (``step``: 4 frames for the token
+models) so that no token holds both kept and free frames.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from m2d2m.generators.protocol import Keep
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.skeleton import Skeleton
+
+EDIT_MARGIN_SECONDS = 0.4  # sampled again on each side of a changed span, so that the join is the model's
+
+
+@dataclass(frozen=True)
+class Edit:
+    """A request on a new timeline: ``actions`` with their lengths in ``frames`` (they tile it),
+    the ``keep`` the model is given (features laid out on the timeline, the frames it keeps), and
+    ``paste`` (F,), the frames whose features are copied from ``keep.features`` into the result."""
+
+    actions: list[str]
+    frames: list[int]
+    keep: Keep
+    paste: np.ndarray
+
+    def __post_init__(self) -> None:
+        if len(self.actions) != len(self.frames) or sum(self.frames) != len(self.keep.features):
+            raise ValueError(
+                f"{len(self.actions)} actions of {sum(self.frames)} frames on a timeline of {len(self.keep.features)}"
+            )
+        if not self.keep.frames.any():
+            raise ValueError("the edit keeps nothing of the source: generate it anew instead")
+        if self.keep.frames.all():
+            raise ValueError("the edit leaves nothing to sample: every frame is kept")
+
+
+@dataclass(frozen=True)
+class Timeline:
+    """A result's features (F, D) and its actions' texts and ``(first, end)`` frames: the
+    actions tile the features (an action runs to the next one's start; the last to the end)."""
+
+    features: np.ndarray
+    actions: list[str]
+    starts: list[int]
+
+    @classmethod
+    def of(cls, motion: Motion) -> Timeline:
+        starts = [first for first, _ in motion.ranges]
+        if not starts or starts[0] != 0:
+            starts = [0, *starts[1:]] if starts else [0]
+        return cls(np.asarray(motion.features, dtype=np.float32), list(motion.actions) or [""], starts)
+
+    @property
+    def frames(self) -> list[int]:
+        """Each action's length: to the next action's start, the last to the end."""
+        ends = [*self.starts[1:], len(self.features)]
+        return [end - start for start, end in zip(self.starts, ends)]
+
+    def span(self, index: int) -> tuple[int, int]:
+        """Action ``index``'s first and end frames; IndexError in one line for one it lacks."""
+        if not 0 <= index < len(self.actions):
+            raise IndexError(f"action {index + 1} of a result with {len(self.actions)} action(s)")
+        return self.starts[index], self.starts[index] + self.frames[index]
+
+
+def _free(count: int, span: tuple[int, int], margin: int) -> np.ndarray:
+    """(count,) True outside ``span`` widened by ``margin`` on each side: the frames kept."""
+    kept = np.ones(count, dtype=bool)
+    kept[max(0, span[0] - margin) : min(count, span[1] + margin)] = False
+    return kept
+
+
+def _placeholder(before: np.ndarray, after: np.ndarray, frames: int) -> np.ndarray:
+    """Features for ``frames`` new frames between ``before`` and ``after`` (either may be empty):
+    the nearer edge frame repeated. The model samples them anew; they only stand in where a
+    codec reads the neighbourhood of a kept frame."""
+    if not len(before):
+        return np.repeat(after[:1], frames, axis=0)
+    if not len(after):
+        return np.repeat(before[-1:], frames, axis=0)
+    half = frames // 2
+    return np.concatenate([np.repeat(before[-1:], half, axis=0), np.repeat(after[:1], frames - half, axis=0)])
+
+
+def _edit(features: np.ndarray, actions: list[str], frames: list[int], kept: np.ndarray) -> Edit:
+    return Edit(actions, frames, Keep(features, kept), kept.copy())
+
+
+def regenerate_action(
+    timeline: Timeline, index: int, margin: int, text: str | None = None, frames: int | None = None
+) -> Edit:
+    """Action ``index`` sampled again (under ``text``, ``frames`` long: by default its own), every
+    other action kept outside ``margin`` frames on each side of it."""
+    first, end = timeline.span(index)
+    frames = end - first if frames is None else frames
+    if frames <= 0:
+        raise ValueError(f"an action needs at least one frame, got {frames}")
+    before, after = timeline.features[:first], timeline.features[end:]
+    features = np.concatenate([before, _placeholder(before, after, frames), after])
+    actions = list(timeline.actions)
+    actions[index] = actions[index] if text is None else text
+    lengths = list(timeline.frames)
+    lengths[index] = frames
+    return _edit(features, actions, lengths, _free(len(features), (first, first + frames), margin))
+
+
+def fill_between(first: Timeline, second: Timeline, gap: int, margin: int, text: str = "") -> Edit:
+    """``first``, then ``gap`` new frames doing ``text`` (empty: whatever joins them, the model's
+    null condition), then ``second``: the in-between sampled with both ends kept outside
+    ``margin`` frames of it."""
+    if gap <= 0:
+        raise ValueError(f"a gap of at least one frame, got {gap}")
+    features = np.concatenate([first.features, _placeholder(first.features, second.features, gap), second.features])
+    start = len(first.features)
+    return _edit(
+        features,
+        [*first.actions, text, *second.actions],
+        [*first.frames, gap, *second.frames],
+        _free(len(features), (start, start + gap), margin),
+    )
+
+
+def continue_after(timeline: Timeline, actions: Sequence[str], frames: Sequence[int], margin: int) -> Edit:
+    """``actions`` (``frames`` long each) appended to the timeline, its end sampled again over
+    ``margin`` frames so that the new actions start from it."""
+    if not actions or len(actions) != len(frames) or min(frames) <= 0:
+        raise ValueError("give each new action a length of at least one frame")
+    added = sum(frames)
+    features = np.concatenate([timeline.features, _placeholder(timeline.features, timeline.features[:0], added)])
+    end = len(timeline.features)
+    return _edit(
+        features,
+        [*timeline.actions, *actions],
+        [*timeline.frames, *frames],
+        _free(len(features), (end, end + added), margin),
+    )
+
+
+def hold_pose(timeline: Timeline, pose: np.ndarray, frame: int, step: int, margin: int) -> Edit:
+    """The motion passing through ``pose`` (one frame's features, D) at ``frame``: the ``step``
+    frames from there (one token of a token model) are the pose, kept; ``margin`` frames on
+    each side are sampled again; the rest is the source. Only the source's frames are pasted
+    back: how close the result comes to the pose is the model's (:func:`pin_error`)."""
+    count = len(timeline.features)
+    if not 0 <= frame <= count - step:
+        raise ValueError(f"a pose pinned at frame {frame} lies outside the motion's {count} frames")
+    if pose.shape != timeline.features.shape[1:]:
+        raise ValueError(f"a pose of {timeline.features.shape[1]} features, got shape {pose.shape}")
+    features = timeline.features.copy()
+    features[frame : frame + step] = pose
+    pasted = _free(count, (frame, frame + step), margin)
+    kept = pasted.copy()
+    kept[frame : frame + step] = True
+    return Edit(list(timeline.actions), list(timeline.frames), Keep(features, kept), pasted)
+
+
+def apply_edit(edit: Edit, sampled: Motion, skeleton: Skeleton) -> Motion:
+    """The model's result of ``edit`` with the pasted frames' features set back to the source's
+    exactly, its joints derived from the features (HumanML3D's recovery: the root integrated from
+    the first frame) and its actions' frames those of the edit's timeline."""
+    if len(sampled.features) != len(edit.paste):
+        raise ValueError(f"the model made {len(sampled.features)} frames for a timeline of {len(edit.paste)}")
+    features = np.array(sampled.features, dtype=np.float32)
+    features[edit.paste] = edit.keep.features[edit.paste]
+    starts = np.cumsum([0, *edit.frames])
+    return replace(
+        sampled,
+        features=features,
+        joints=np.asarray(features_to_joints(features, skeleton), dtype=np.float32),
+        actions=list(edit.actions),
+        ranges=[(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:])],
+    )
+
+
+def pin_error(motion: Motion, pose_joints: np.ndarray, frame: int) -> float:
+    """The largest distance (in the skeleton's units) between a pinned pose's joints and the
+    result's at ``frame``, both with the root at the origin: how closely it passes through."""
+    ours = motion.joints[frame] - motion.joints[frame, :1]
+    theirs = pose_joints - pose_joints[:1]
+    return float(np.linalg.norm(ours - theirs, axis=-1).max())

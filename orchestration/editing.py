@@ -1,0 +1,207 @@
+"""Editing a result on its timeline, in seconds, for the command line, the API and Python (issue 41;
+docs/generation.md, "Editing a result"): a result read back from the files ``m2d2m generate``
+wrote, each operation of :mod:`m2d2m.generators.edits` sized for a model, and the edit sampled.
+
+A result's timeline is its ``.features.npy`` (the model's own features, at its frame rate) and
+the actions of its ``.json`` sidecar (their frames converted from the sidecar's rate, which a
+``--fps`` delivery changed). A model that works in steps (the token models' 4 frames) gets whole
+steps: an action whose length is not one loses its last frames (said in a warning), the margins
+and a pinned pose are whole steps.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from m2d2m.generators.edits import (
+    EDIT_MARGIN_SECONDS,
+    Edit,
+    Timeline,
+    apply_edit,
+    continue_after,
+    fill_between,
+    hold_pose,
+    regenerate_action,
+)
+from m2d2m.generators.protocol import MotionGenerator
+from m2d2m.motion.clip import Motion
+from orchestration.errors import UserError
+from orchestration.viewing import load_features
+
+# a model whose multi-action method decodes actions together cannot keep frames across them
+# (MMM's transition tokens): it edits with its independent method, each action with its own kept tokens
+EDIT_METHODS = {"mmm": "independent"}
+
+
+def _sidecar_of(path: Path) -> Path:
+    """motion.npy and motion.features.npy both have motion.json."""
+    return path.with_name(path.name.removesuffix(".npy").removesuffix(".features") + ".json")
+
+
+def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
+    """The timeline of a result on disk (its ``.npy`` or ``.features.npy``; the features beside the
+    joints when there are, else features made from the joints), its actions from its sidecar;
+    a file without one is one action. Fitted to the model's steps."""
+    path = Path(path)
+    features_file = path if path.name.endswith(".features.npy") else path.with_name(path.stem + ".features.npy")
+    features = load_features(features_file if features_file.is_file() else path, generator.skeleton)
+    actions, starts = [""], [0]
+    sidecar = _sidecar_of(path)
+    if sidecar.is_file():
+        try:
+            record = json.loads(sidecar.read_text(encoding="utf-8"))
+            scale = generator.fps / float(record["fps"])
+            segments = [(round(s["start_frame"] * scale), str(s["text"])) for s in record["segments"]]
+        except (ValueError, KeyError, TypeError) as error:
+            raise UserError(f"{sidecar}: not the sidecar m2d2m writes beside a .npy ({error})") from error
+        if segments:
+            starts = [0, *(start for start, _ in segments[1:])]
+            actions = [text for _, text in segments]
+    return _fitted(Timeline(features, actions, starts), generator.frame_step, path)
+
+
+def _fitted(timeline: Timeline, step: int, origin: Path) -> Timeline:
+    """``timeline`` with each action cut to whole steps of ``step`` frames (a warning says how many
+    frames went); an action shorter than a step is one line."""
+    kept = [n // step * step for n in timeline.frames]
+    if min(kept) == 0:
+        raise UserError(f"{origin}: an action is shorter than the model's step of {step} frames")
+    if kept == timeline.frames:
+        return timeline
+    pieces = [timeline.features[s : s + n] for s, n in zip(timeline.starts, kept)]
+    print(
+        f"warning: {origin}: {sum(timeline.frames) - sum(kept)} frame(s) cut so that each action is whole "
+        f"steps of {step} frames",
+        file=sys.stderr,
+    )
+    return Timeline(np.concatenate(pieces), timeline.actions, [int(s) for s in np.cumsum([0, *kept[:-1]])])
+
+
+def _frames(generator: MotionGenerator, seconds: float, what: str) -> int:
+    if not seconds > 0:
+        raise UserError(f"{what} must be a positive number of seconds, got {seconds:g}")
+    return generator.round_frames(round(seconds * generator.fps))
+
+
+def margin_frames(generator: MotionGenerator) -> int:
+    """:data:`EDIT_MARGIN_SECONDS` in whole steps of the model."""
+    return generator.round_frames(round(EDIT_MARGIN_SECONDS * generator.fps))
+
+
+def redo_action(
+    generator: MotionGenerator, timeline: Timeline, action: int, text: str | None = None, seconds: float | None = None
+) -> Edit:
+    """Action ``action`` (counted from 1) sampled again, under ``text`` and ``seconds`` when given."""
+    frames = None if seconds is None else _frames(generator, seconds, "--seconds")
+    try:
+        return regenerate_action(timeline, action - 1, margin_frames(generator), text, frames)
+    except (IndexError, ValueError) as error:
+        raise UserError(str(error)) from error
+
+
+def fill(generator: MotionGenerator, first: Timeline, second: Timeline, seconds: float, text: str = "") -> Edit:
+    """``seconds`` of new motion doing ``text`` between ``first`` and ``second``."""
+    try:
+        return fill_between(first, second, _frames(generator, seconds, "the gap"), margin_frames(generator), text)
+    except ValueError as error:
+        raise UserError(str(error)) from error
+
+
+def extend_with(generator: MotionGenerator, timeline: Timeline, texts: Sequence[str], seconds: Sequence[float]) -> Edit:
+    """``texts`` appended, each ``seconds`` long."""
+    if len(texts) != len(seconds):
+        raise UserError(f"give one length per new action: {len(texts)} action(s), {len(seconds)} length(s)")
+    frames = [_frames(generator, s, "--seconds") for s in seconds]
+    try:
+        return continue_after(timeline, list(texts), frames, margin_frames(generator))
+    except ValueError as error:
+        raise UserError(str(error)) from error
+
+
+def pin_pose(generator: MotionGenerator, timeline: Timeline, pose: np.ndarray, seconds: float) -> tuple[Edit, int]:
+    """``pose`` (one frame's features) pinned at ``seconds``: the edit and the frame it lands on."""
+    step = generator.frame_step
+    frame = int(round(seconds * generator.fps)) // step * step
+    try:
+        return hold_pose(timeline, pose, frame, step, margin_frames(generator)), frame
+    except ValueError as error:
+        raise UserError(str(error)) from error
+
+
+def sample_edit(generator: MotionGenerator, edit: Edit, seed: int = 0, said: str = "", **options: Any) -> Motion:
+    """``edit`` sampled by ``generator`` with ``seed``: the result on one rigid skeleton, its
+    settings recording the edit (``said``: what it does) and naming the method it was sampled
+    with, another where the model edits with another (:data:`EDIT_METHODS`)."""
+    if generator.model in EDIT_METHODS and len(edit.actions) > 1:
+        options = {**options, "method": EDIT_METHODS[generator.model]}
+    try:
+        sampled = generator.generate([edit.actions], [edit.frames], generator.options(**options), [seed], [edit.keep])
+    except ValueError as error:
+        raise UserError(str(error)) from error
+    motion = apply_edit(edit, sampled[0], generator.skeleton)
+    settings = {**motion.settings, "edit": said, "edited_frames": int((~edit.paste).sum())}
+    return replace(motion, settings=settings).on_rigid_skeleton()
+
+
+# the operations of `m2d2m generate --edit SOURCE`, one of which goes with it (--keep-body is
+# the body-part editing of orchestration.generate.edit_part)
+OPERATIONS = ("regenerate", "fill_to", "pin", "extend")
+
+
+def plan_edit(
+    generator: MotionGenerator,
+    source: str | Path,
+    prompts: Sequence[str],
+    seconds: Sequence[float] | None,
+    regenerate: int | None = None,
+    fill_to: str | Path | None = None,
+    pin: tuple[str, int] | None = None,
+    at: float | None = None,
+    extend: bool = False,
+) -> tuple[Edit, str]:
+    """The edit a command line asks for on the result ``source`` and a line saying what it does:
+    ``regenerate`` action K (one prompt: its new text; one ``seconds``: its new length);
+    ``fill_to`` a second result after a gap (one ``seconds``, default 1 s; one prompt: what
+    happens in it); ``pin`` a pose (a result's path and frame) ``at`` seconds; ``extend`` the
+    result with ``prompts``, each ``seconds`` long (default: the model's typical lengths)."""
+    chosen = [name for name, value in zip(OPERATIONS, (regenerate, fill_to, pin, extend)) if value]
+    if len(chosen) != 1:
+        raise UserError("--edit SOURCE goes with one of --regenerate K, --fill-to SECOND, --pin POSE@FRAME, --continue")
+    seconds = list(seconds or [])
+    timeline = read_result(source, generator)
+    if regenerate is not None:
+        if len(prompts) > 1 or len(seconds) > 1:
+            raise UserError("--regenerate takes at most one prompt (the new text) and one --seconds")
+        text = prompts[0] if prompts else None
+        edit = redo_action(generator, timeline, regenerate, text, seconds[0] if seconds else None)
+        return edit, f"action {regenerate} of {len(timeline.actions)} sampled again"
+    if fill_to is not None:
+        if len(prompts) > 1 or len(seconds) > 1:
+            raise UserError(
+                "--fill-to takes at most one prompt (what happens in the gap) and one --seconds (its length)"
+            )
+        gap = seconds[0] if seconds else 1.0
+        edit = fill(generator, timeline, read_result(fill_to, generator), gap, prompts[0] if prompts else "")
+        return edit, f"{gap:g} s filled between the two results"
+    if pin is not None:
+        if at is None or prompts or seconds:
+            raise UserError("--pin POSE@FRAME goes with --at SECONDS alone (no prompt, no --seconds)")
+        pose_source, pose_frame = pin
+        poses = read_result(pose_source, generator).features
+        if not 0 <= pose_frame < len(poses):
+            raise UserError(f"--pin: {pose_source} has frames 0 to {len(poses) - 1}, not {pose_frame}")
+        edit, frame = pin_pose(generator, timeline, poses[pose_frame], at)
+        return edit, f"the pose of {Path(pose_source).name} frame {pose_frame} pinned at frame {frame}"
+    if not prompts:
+        raise UserError("--continue takes the new actions as prompts")
+    lengths = seconds * len(prompts) if len(seconds) == 1 else seconds
+    if not lengths:
+        lengths = [generator.typical_frames(None) / generator.fps] * len(prompts)
+    return extend_with(generator, timeline, prompts, lengths), f"{len(prompts)} action(s) added"

@@ -1,0 +1,140 @@
+"""Editing a result on its timeline (issue 41): each operation's timeline, what it keeps and pastes
+back, checked by hand on small features; then every operation through `m2d2m generate --edit` on
+the trained demo model, whose kept frames come back bit for bit outside the margins."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from m2d2m.generators.edits import (
+    Timeline,
+    apply_edit,
+    continue_after,
+    fill_between,
+    hold_pose,
+    regenerate_action,
+)
+from m2d2m.motion.clip import Motion
+from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.skeleton import T2M
+from orchestration.cli import main
+
+D = T2M.feature_dim
+MODEL = ["--dataset", "tiny", "--ts", "4", "--no-track", "--formats", "npy"]  # the trained demo model, quickly
+
+
+def timeline(lengths: list[int]) -> Timeline:
+    """Actions a, b, c… whose frames carry their index + 1 in every feature, frame by frame apart."""
+    frames = [np.full((n, D), k + 1.0) + np.arange(n)[:, None] / 100 for k, n in enumerate(lengths)]
+    return Timeline(
+        np.concatenate(frames).astype(np.float32), list("abcd"[: len(lengths)]), list(np.cumsum([0, *lengths[:-1]]))
+    )
+
+
+def test_regenerating_an_action_frees_it_and_its_margins_and_keeps_the_rest():
+    edit = regenerate_action(timeline([8, 12, 8]), 1, margin=4, text="jump", frames=16)
+    assert edit.actions == ["a", "jump", "c"] and edit.frames == [8, 16, 8]
+    kept = np.flatnonzero(edit.keep.frames)
+    np.testing.assert_array_equal(kept, [*range(0, 4), *range(28, 32)])
+    np.testing.assert_array_equal(edit.paste, edit.keep.frames)
+    source = timeline([8, 12, 8]).features
+    np.testing.assert_array_equal(edit.keep.features[:8], source[:8])
+    np.testing.assert_array_equal(edit.keep.features[24:], source[20:])  # c moved by the 4 added frames
+    same = regenerate_action(timeline([8, 12, 8]), 2, margin=4)
+    assert same.actions == list("abc") and same.frames == [8, 12, 8]
+    np.testing.assert_array_equal(np.flatnonzero(~same.keep.frames), range(16, 28))
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda t: regenerate_action(t, 3, 4), "action 4 of a result with 3 action(s)"),
+        (lambda t: regenerate_action(t, 0, 4, frames=0), "an action needs at least one frame"),
+        (lambda t: regenerate_action(t, 1, 40), "the edit keeps nothing of the source"),
+        (
+            lambda t: hold_pose(t, np.zeros(D), 27, 4, 2),
+            "a pose pinned at frame 27 lies outside the motion's 28 frames",
+        ),
+        (lambda t: hold_pose(t, np.zeros(5), 4, 4, 2), f"a pose of {D} features, got shape (5,)"),
+        (lambda t: continue_after(t, ["x"], [0], 4), "give each new action a length of at least one frame"),
+    ],
+)
+def test_an_edit_that_cannot_be_made_says_why(call, message):
+    with pytest.raises((ValueError, IndexError), match=re.escape(message)):
+        call(timeline([8, 12, 8]))
+
+
+def test_filling_between_two_results_and_continuing_one():
+    first, second = timeline([8, 8]), timeline([12])
+    edit = fill_between(first, second, gap=8, margin=4, text="")
+    assert edit.actions == ["a", "b", "", "a"] and edit.frames == [8, 8, 8, 12]
+    np.testing.assert_array_equal(np.flatnonzero(~edit.keep.frames), range(12, 28))
+    np.testing.assert_array_equal(edit.keep.features[28:], second.features[4:])
+    more = continue_after(first, ["sit", "stand"], [8, 4], margin=4)
+    assert more.actions == ["a", "b", "sit", "stand"] and more.frames == [8, 8, 8, 4]
+    np.testing.assert_array_equal(np.flatnonzero(more.keep.frames), range(12))
+
+
+def test_a_pinned_pose_is_kept_but_not_pasted():
+    source = timeline([8, 12, 8])
+    pose = np.full(D, 9.0, dtype=np.float32)
+    edit = hold_pose(source, pose, frame=12, step=4, margin=4)
+    np.testing.assert_array_equal(np.flatnonzero(~edit.keep.frames), [*range(8, 12), *range(16, 20)])
+    np.testing.assert_array_equal(edit.keep.features[12:16], np.repeat(pose[None], 4, axis=0))
+    np.testing.assert_array_equal(np.flatnonzero(~edit.paste), range(8, 20))
+
+
+def test_applying_an_edit_pastes_the_kept_features_and_derives_the_joints():
+    rng = np.random.default_rng(0)
+    source = Timeline(rng.normal(size=(24, D)).astype(np.float32) * 0.1, ["a", "b"], [0, 12])
+    edit = regenerate_action(source, 1, margin=4, text="new")
+    sampled = rng.normal(size=(24, D)).astype(np.float32) * 0.1
+    motion = Motion(sampled, features_to_joints(sampled, T2M), 20.0, T2M.name, ["x", "y"], [(0, 12), (12, 24)])
+    done = apply_edit(edit, motion, T2M)
+    np.testing.assert_array_equal(done.features[:8], source.features[:8])
+    np.testing.assert_array_equal(done.features[8:], sampled[8:])
+    np.testing.assert_array_equal(done.joints[:8], features_to_joints(source.features, T2M)[:8])
+    assert done.actions == ["a", "new"] and done.ranges == [(0, 12), (12, 24)]
+
+
+@pytest.mark.slow
+def test_every_operation_from_the_command_line(trained_project, tmp_path, capsys):
+    """Four actions generated, the third sampled again with new text: the others' features bit for
+    bit outside 0.4 s of it; a gap filled between two results; a pose pinned; two actions added."""
+    four = ["a person walks forward", "a person jumps", "a person waves", "a person sits down"]
+    common = MODEL
+    assert main(["generate", *four, "--no-split", "--seconds", "1.2", *common, "--out", str(tmp_path / "four")]) == 0
+    source = tmp_path / "four" / "motion.npy"
+    argv = ["generate", "--edit", str(source), *common]
+    assert main([*argv, "--regenerate", "3", "a person kicks", "--out", str(tmp_path / "redo")]) == 0
+    assert "action 3 of 4 sampled again" in capsys.readouterr().out
+    before, after = (np.load(tmp_path / name / "motion.features.npy") for name in ("four", "redo"))
+    segments = json.loads((tmp_path / "redo" / "motion.json").read_text(encoding="utf-8"))["segments"]
+    assert [s["text"] for s in segments] == [*four[:2], "a person kicks", four[3]]
+    first, end = segments[2]["start_frame"], segments[2]["end_frame"]
+    np.testing.assert_array_equal(after[: first - 8], before[: first - 8])  # 0.4 s at 20 fps
+    np.testing.assert_array_equal(after[end + 8 :], before[end + 8 :])
+    assert not np.array_equal(after[first:end], before[first:end])
+    assert main([*argv, "--fill-to", str(source), "--seconds", "0.8", "--out", str(tmp_path / "fill")]) == 0
+    filled = np.load(tmp_path / "fill" / "motion.features.npy")
+    assert len(filled) == 2 * len(before) + 16
+    np.testing.assert_array_equal(filled[-len(before) + 8 :], before[8:])
+    assert main([*argv, "--pin", f"{source}@4", "--at", "2.0", "--out", str(tmp_path / "pin")]) == 0
+    assert "pinned at frame 40" in capsys.readouterr().out
+    assert main([*argv, "--continue", "a person stands up", "--seconds", "1.2", "--out", str(tmp_path / "more")]) == 0
+    longer = np.load(tmp_path / "more" / "motion.features.npy")
+    assert len(longer) == len(before) + 24
+    np.testing.assert_array_equal(longer[: len(before) - 8], before[: len(before) - 8])
+    for extra, message in (
+        (["--regenerate", "9"], "action 9 of a result with 4 action(s)"),
+        (["--regenerate", "1", "--continue", "x"], "--edit SOURCE goes with one of"),
+        (["--pin", f"{source}@999", "--at", "1"], f"--pin: {source} has frames 0 to"),
+        (["--pin", f"{source}@1"], "--pin POSE@FRAME goes with --at SECONDS alone"),
+        (["--continue"], "--continue takes the new actions as prompts"),
+    ):
+        assert main([*argv, *extra, "--out", str(tmp_path / "bad")]) == 2
+        assert message in capsys.readouterr().err
