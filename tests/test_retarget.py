@@ -60,6 +60,17 @@ def test_on_a_bigger_rig_the_motion_scales_with_it(take):
     assert np.abs(moved[:, mapped] - 1.3 * positions[:, mapped]).max() < 1e-6
 
 
+def mapped_bones(joint_map: JointMap, rig: Rig) -> list[tuple[int, int, int, int]]:
+    """Each bone of ours whose two joints the rig has, as (its parent, its child, our parent, our
+    child): the rig's bone that should point where ours does."""
+    theirs_of = {mine: joint for joint, mine in single_sources(joint_map, rig).items()}
+    return [
+        (theirs_of[int(T2M.parents[child])], theirs_of[child], int(T2M.parents[child]), child)
+        for child in range(1, T2M.num_joints)
+        if child in theirs_of and int(T2M.parents[child]) in theirs_of
+    ]
+
+
 def bone_angles(moved: np.ndarray, ours: np.ndarray, pairs: list[tuple[int, int, int, int]]) -> np.ndarray:
     """Degrees between each rig bone (a, b) and our bone (a', b'), per frame."""
     theirs = np.stack([moved[:, b] - moved[:, a] for a, b, _, _ in pairs], axis=1)
@@ -72,13 +83,7 @@ def test_humanml3ds_clip_on_cmus_rig_points_every_mapped_bone_as_ours(take):
     _, _, rig = take
     ours = np.load(SAMPLE).astype(np.float64)
     moved = retarget(ours, rig, PRESETS["cmu"]).positions()
-    sources = single_sources(PRESETS["cmu"], rig)
-    theirs_of = {mine: joint for joint, mine in sources.items()}
-    pairs = [
-        (theirs_of[int(T2M.parents[child])], theirs_of[child], int(T2M.parents[child]), child)
-        for child in range(1, 22)
-        if child in theirs_of and int(T2M.parents[child]) in theirs_of
-    ]
+    pairs = mapped_bones(PRESETS["cmu"], rig)
     assert len(pairs) >= 14  # legs, feet, spine, neck, head, arms
     assert bone_angles(moved, ours, pairs).max() < 1e-4
     hand, fingers, forearm = (rig.names.index(n) for n in ("LeftWrist", "LFingers", "LeftElbow"))
@@ -228,13 +233,7 @@ def test_humanml3ds_clip_on_mixamos_x_bot_points_every_mapped_bone_as_ours(tmp_p
     ours = on_rigid_skeleton(np.load(SAMPLE), T2M)
     rig = Rig.from_bvh(clip)
     moved = retarget(ours, rig, PRESETS["mixamo"]).positions()
-    sources = single_sources(PRESETS["mixamo"], rig)
-    theirs_of = {mine: joint for joint, mine in sources.items()}
-    pairs = [
-        (theirs_of[int(T2M.parents[child])], theirs_of[child], int(T2M.parents[child]), child)
-        for child in range(1, 22)
-        if child in theirs_of and int(T2M.parents[child]) in theirs_of
-    ]
+    pairs = mapped_bones(PRESETS["mixamo"], rig)
     angles = bone_angles(moved, ours, pairs)
     branching = np.array([np.count_nonzero(T2M.parents == parent) > 1 for _, _, parent, _ in pairs])
     assert len(pairs) == 21 and branching.sum() == 6  # pelvis: hips and spine; chest: neck and collars
