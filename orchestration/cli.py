@@ -431,19 +431,23 @@ def _generate(args: argparse.Namespace) -> None:
 
 def _edit_timeline(args: argparse.Namespace) -> None:
     """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
-    from orchestration.editing import plan_edit, sample_edit
+    from orchestration.editing import plan_edit, pose_at, read_result, sample_edit
     from orchestration.generate import load_generator
 
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
+    pose = None
+    if args.pin is not None:
+        source, frame = args.pin
+        pose = pose_at(read_result(source, generator), frame, f"--pin: {source}")
     edit, said = plan_edit(
         generator,
-        args.edit,
+        read_result(args.edit, generator),
         args.prompts,
         args.seconds,
         regenerate=args.regenerate,
-        fill_to=args.fill_to,
-        pin=args.pin,
+        fill_to=None if args.fill_to is None else read_result(args.fill_to, generator),
+        pose=pose,
         at=args.at,
         extend=args.extend,
     )

@@ -64,10 +64,20 @@ def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
         if segments:
             starts = [0, *(start for start, _ in segments[1:])]
             actions = [text for _, text in segments]
-    return _fitted(Timeline(features, actions, starts), generator.frame_step, path)
+    return _fitted(Timeline(features, actions, starts), generator.frame_step, str(path))
 
 
-def _fitted(timeline: Timeline, step: int, origin: Path) -> Timeline:
+def timeline_of(motion: Motion, generator: MotionGenerator, origin: str) -> Timeline:
+    """The timeline of a result in memory (a served generation): its features, at the model's
+    rate, and its actions, whose frames a delivery at another rate changed."""
+    scale = generator.fps / motion.fps
+    starts = [0, *(round(first * scale) for first, _ in motion.ranges[1:])]
+    return _fitted(
+        Timeline(np.asarray(motion.features), list(motion.actions) or [""], starts), generator.frame_step, origin
+    )
+
+
+def _fitted(timeline: Timeline, step: int, origin: str) -> Timeline:
     """``timeline`` with each action cut to whole steps of ``step`` frames (a warning says how many
     frames went); an action shorter than a step is one line."""
     kept = [n // step * step for n in timeline.frames]
@@ -135,73 +145,90 @@ def pin_pose(generator: MotionGenerator, timeline: Timeline, pose: np.ndarray, s
         raise UserError(str(error)) from error
 
 
-def sample_edit(generator: MotionGenerator, edit: Edit, seed: int = 0, said: str = "", **options: Any) -> Motion:
-    """``edit`` sampled by ``generator`` with ``seed``: the result on one rigid skeleton, its
-    settings recording the edit (``said``: what it does) and naming the method it was sampled
-    with, another where the model edits with another (:data:`EDIT_METHODS`)."""
+def edit_options(generator: MotionGenerator, edit: Edit, options: dict[str, Any]) -> dict[str, Any]:
+    """The sampling options an edit is made with: the asked ones, with the model's editing method
+    where it has one (:data:`EDIT_METHODS`)."""
     if generator.model in EDIT_METHODS and len(edit.actions) > 1:
-        options = {**options, "method": EDIT_METHODS[generator.model]}
-    try:
-        sampled = generator.generate([edit.actions], [edit.frames], generator.options(**options), [seed], [edit.keep])
-    except ValueError as error:
-        raise UserError(str(error)) from error
-    motion = apply_edit(edit, sampled[0], generator.skeleton)
-    settings = {**motion.settings, "edit": said, "edited_frames": int((~edit.paste).sum())}
+        return {**options, "method": EDIT_METHODS[generator.model]}
+    return dict(options)
+
+
+def finish_edit(edit: Edit, sampled: Motion, generator: MotionGenerator, said: str, **recorded: Any) -> Motion:
+    """The model's sample of ``edit`` with the kept frames pasted back, on one rigid skeleton, its
+    settings recording the edit (``said``: what it does; ``recorded``: more, such as its parent)."""
+    motion = apply_edit(edit, sampled, generator.skeleton)
+    settings = {**motion.settings, "edit": said, "edited_frames": int((~edit.paste).sum()), **recorded}
     return replace(motion, settings=settings).on_rigid_skeleton()
 
 
-# the operations of `m2d2m generate --edit SOURCE`, one of which goes with it (--keep-body is
-# the body-part editing of orchestration.generate.edit_part)
-OPERATIONS = ("regenerate", "fill_to", "pin", "extend")
+def sample_edit(generator: MotionGenerator, edit: Edit, seed: int = 0, said: str = "", **options: Any) -> Motion:
+    """``edit`` sampled by ``generator`` with ``seed`` and finished (:func:`finish_edit`)."""
+    try:
+        settings = generator.options(**edit_options(generator, edit, options))
+        sampled = generator.generate([edit.actions], [edit.frames], settings, [seed], [edit.keep])
+    except ValueError as error:
+        raise UserError(str(error)) from error
+    return finish_edit(edit, sampled[0], generator, said)
+
+
+def pose_at(timeline: Timeline, frame: int, origin: str) -> np.ndarray:
+    """One frame's features of a result, to pin: a UserError naming the frames it has."""
+    if not 0 <= frame < len(timeline.features):
+        raise UserError(f"{origin} has frames 0 to {len(timeline.features) - 1}, not {frame}")
+    return timeline.features[frame]
 
 
 def plan_edit(
     generator: MotionGenerator,
-    source: str | Path,
+    timeline: Timeline,
     prompts: Sequence[str],
     seconds: Sequence[float] | None,
     regenerate: int | None = None,
-    fill_to: str | Path | None = None,
-    pin: tuple[str, int] | None = None,
+    fill_to: Timeline | None = None,
+    pose: np.ndarray | None = None,
     at: float | None = None,
     extend: bool = False,
 ) -> tuple[Edit, str]:
-    """The edit a command line asks for on the result ``source`` and a line saying what it does:
-    ``regenerate`` action K (one prompt: its new text; one ``seconds``: its new length);
-    ``fill_to`` a second result after a gap (one ``seconds``, default 1 s; one prompt: what
-    happens in it); ``pin`` a pose (a result's path and frame) ``at`` seconds; ``extend`` the
-    result with ``prompts``, each ``seconds`` long (default: the model's typical lengths)."""
-    chosen = [name for name, value in zip(OPERATIONS, (regenerate, fill_to, pin, extend)) if value]
+    """The one edit asked for on ``timeline`` and a line saying what it does: ``regenerate``
+    action K (one prompt: its new text; one ``seconds``: its new length); ``fill_to`` a second
+    result after a gap (one ``seconds``, default 1 s; one prompt: what happens in it); a ``pose``
+    pinned ``at`` seconds; ``extend`` it with ``prompts``, each ``seconds`` long (one for all;
+    default: the model's typical length). The command line's flags and the API's fields alike."""
+    chosen = [
+        name
+        for name, given in zip(OPERATIONS, (regenerate, fill_to, pose, extend))
+        if given is not None and given is not False
+    ]
     if len(chosen) != 1:
-        raise UserError("--edit SOURCE goes with one of --regenerate K, --fill-to SECOND, --pin POSE@FRAME, --continue")
+        raise UserError(
+            "an edit is one of: regenerate an action, fill to a second result, pin a pose, continue (one at a time)"
+        )
     seconds = list(seconds or [])
-    timeline = read_result(source, generator)
     if regenerate is not None:
         if len(prompts) > 1 or len(seconds) > 1:
-            raise UserError("--regenerate takes at most one prompt (the new text) and one --seconds")
-        text = prompts[0] if prompts else None
-        edit = redo_action(generator, timeline, regenerate, text, seconds[0] if seconds else None)
+            raise UserError("regenerating takes at most one text (the action's new one) and one length")
+        edit = redo_action(
+            generator, timeline, regenerate, prompts[0] if prompts else None, seconds[0] if seconds else None
+        )
         return edit, f"action {regenerate} of {len(timeline.actions)} sampled again"
     if fill_to is not None:
         if len(prompts) > 1 or len(seconds) > 1:
-            raise UserError(
-                "--fill-to takes at most one prompt (what happens in the gap) and one --seconds (its length)"
-            )
+            raise UserError("filling takes at most one text (what happens in the gap) and one length (the gap's)")
         gap = seconds[0] if seconds else 1.0
-        edit = fill(generator, timeline, read_result(fill_to, generator), gap, prompts[0] if prompts else "")
-        return edit, f"{gap:g} s filled between the two results"
-    if pin is not None:
+        return fill(
+            generator, timeline, fill_to, gap, prompts[0] if prompts else ""
+        ), f"{gap:g} s filled between two results"
+    if pose is not None:
         if at is None or prompts or seconds:
-            raise UserError("--pin POSE@FRAME goes with --at SECONDS alone (no prompt, no --seconds)")
-        pose_source, pose_frame = pin
-        poses = read_result(pose_source, generator).features
-        if not 0 <= pose_frame < len(poses):
-            raise UserError(f"--pin: {pose_source} has frames 0 to {len(poses) - 1}, not {pose_frame}")
-        edit, frame = pin_pose(generator, timeline, poses[pose_frame], at)
-        return edit, f"the pose of {Path(pose_source).name} frame {pose_frame} pinned at frame {frame}"
+            raise UserError("pinning a pose takes the time to pin it at (--at; the API's at) and no text or length")
+        edit, frame = pin_pose(generator, timeline, pose, at)
+        return edit, f"a pose pinned at frame {frame}"
     if not prompts:
-        raise UserError("--continue takes the new actions as prompts")
+        raise UserError("continuing takes the new actions' texts (prompts)")
     lengths = seconds * len(prompts) if len(seconds) == 1 else seconds
     if not lengths:
         lengths = [generator.typical_frames(None) / generator.fps] * len(prompts)
     return extend_with(generator, timeline, prompts, lengths), f"{len(prompts)} action(s) added"
+
+
+OPERATIONS = ("regenerate", "fill_to", "pose", "extend")

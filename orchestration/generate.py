@@ -487,6 +487,8 @@ def log_generation(motion: Motion, prompts: Sequence[str], files: dict[str, Path
         "model": str(motion.settings.get("model")),
         "method": str(motion.settings.get("method")),
     }
+    if "edit_parent_run" in motion.settings:  # an edit of a served generation: nested under it in the MLflow UI
+        tags["mlflow.parentRunId"] = str(motion.settings["edit_parent_run"])
     with tracked_run(experiment_name(dataset, GENERATE_STAGE), tags=tags, params=params) as (client, run_id):
         for name, value in motion.quality.items():
             client.log_metric(run_id, name, value)

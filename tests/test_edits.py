@@ -131,10 +131,10 @@ def test_every_operation_from_the_command_line(trained_project, tmp_path, capsys
     np.testing.assert_array_equal(longer[: len(before) - 8], before[: len(before) - 8])
     for extra, message in (
         (["--regenerate", "9"], "action 9 of a result with 4 action(s)"),
-        (["--regenerate", "1", "--continue", "x"], "--edit SOURCE goes with one of"),
+        (["--regenerate", "1", "--continue", "x"], "an edit is one of: regenerate an action, fill to"),
         (["--pin", f"{source}@999", "--at", "1"], f"--pin: {source} has frames 0 to"),
-        (["--pin", f"{source}@1"], "--pin POSE@FRAME goes with --at SECONDS alone"),
-        (["--continue"], "--continue takes the new actions as prompts"),
+        (["--pin", f"{source}@1"], "pinning a pose takes the time to pin it at (--at"),
+        (["--continue"], "continuing takes the new actions' texts (prompts)"),
     ):
         assert main([*argv, *extra, "--out", str(tmp_path / "bad")]) == 2
         assert message in capsys.readouterr().err

@@ -458,3 +458,62 @@ def test_sigterm_answers_the_request_in_flight_then_exits_leaving_nothing(traine
     finally:
         if server.poll() is None:
             server.kill()
+
+
+def test_a_generation_is_edited_on_its_timeline(client, trained_project):
+    """Issue 41 §2: four actions, the third regenerated with new text (the other actions' features
+    bit for bit outside the margins, the parent in the MLflow run), a gap filled, a pose pinned,
+    an action added; a bad edit is a 4xx sentence."""
+    from orchestration.tracking import client as mlflow_client
+
+    four = [
+        {"text": text, "seconds": 1.2}
+        for text in ("a person walks", "a person jumps", "a person waves", "a person sits")
+    ]
+    parent = generate(client, actions=four, seed=2)
+    edit_url = f"/api/generations/{parent['id']}/edit"
+    answer = client.post(
+        edit_url, json={"operation": "regenerate", "action": 3, "text": "a person kicks", "options": {"ts": 4}}
+    )
+    assert answer.status_code == 200, answer.text
+    redone = answer.json()
+    assert [a["text"] for a in redone["actions"]] == [
+        "a person walks",
+        "a person jumps",
+        "a person kicks",
+        "a person sits",
+    ]
+    assert redone["settings"]["edit_parent"] == parent["id"]
+    originals = {}
+    for name, generation in (("parent", parent), ("redone", redone)):
+        (trained_project / f"{name}.features.npy").write_bytes(client.get(generation["files"]["features"]).content)
+        originals[name] = np.load(trained_project / f"{name}.features.npy")
+    first, end = redone["actions"][2]["first"], redone["actions"][2]["end"]
+    np.testing.assert_array_equal(originals["redone"][: first - 8], originals["parent"][: first - 8])
+    np.testing.assert_array_equal(originals["redone"][end + 8 :], originals["parent"][end + 8 :])
+    run = mlflow_client().get_run(redone["mlflow"]["run_id"])
+    assert run.data.tags["mlflow.parentRunId"] == parent["mlflow"]["run_id"]
+    for body in (
+        {"operation": "fill", "then": redone["id"], "seconds": 0.8},
+        {"operation": "pin", "pose": {"generation": redone["id"], "frame": 4}, "at": 2.0},
+        {"operation": "continue", "actions": [{"text": "a person stands up", "seconds": 1.2}]},
+    ):
+        answer = client.post(edit_url, json={**body, "options": {"ts": 4}})
+        assert answer.status_code == 200, (body, answer.text)
+    for body, status, message in (
+        ({"operation": "regenerate", "action": 9}, 400, "action 9 of a result with 4 action(s)"),
+        ({"operation": "regenerate"}, 400, "regenerate names the action"),
+        ({"operation": "regenerate", "action": 1, "at": 1.0}, 400, "at does not go with the operation regenerate"),
+        ({"operation": "fill", "then": "nowhere"}, 404, "no generation 'nowhere' on this server"),
+        ({"operation": "pin", "pose": {"generation": parent["id"], "frame": 999}, "at": 1.0}, 400, "has frames 0 to"),
+        (
+            {"operation": "pin", "pose": {"generation": parent["id"], "frame": 1}, "at": 99.0},
+            400,
+            "lies outside the motion",
+        ),
+        ({"operation": "dance"}, 422, "operation"),
+    ):
+        refused = client.post(edit_url, json=body)
+        assert refused.status_code == status and message in refused.json()["error"], (body, refused.text)
+    unknown = client.post("/api/generations/nowhere/edit", json={"operation": "regenerate", "action": 1})
+    assert unknown.status_code == 404

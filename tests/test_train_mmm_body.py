@@ -92,7 +92,7 @@ def test_the_editor_trains_and_edits_through_the_command_line(body_project, tiny
     assert edited.shape == (40, 263)
 
     for argv, message in (
-        (["--keep-body", "lower"], "go together"),
+        (["--keep-body", "lower"], "--keep-body PART goes with --edit SOURCE"),
         (["--edit", str(body_project / "missing.npy"), "--keep-body", "lower"], "no such file"),
         (["--edit", str(body_project / "source.npy"), "--keep-body", "upper"], "lower body to keep on every frame"),
         (["--edit", str(body_project / "source.npy"), "--keep-body", "arms"], "unknown body part 'arms'"),

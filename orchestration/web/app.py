@@ -14,7 +14,7 @@ import json
 import logging
 import secrets
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import asynccontextmanager
 from dataclasses import asdict, dataclass
@@ -31,14 +31,16 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.pose import REST_POSES
+from orchestration.editing import finish_edit
 from orchestration.errors import UserError
 from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
 from orchestration.runs import stage_dir
 from orchestration.web.catalog import Catalog, NotFound
+from orchestration.web.edits import plan_edit_request
 from orchestration.web.generations import FILES, Generations
 from orchestration.web.rigs import RIGS_STAGE, Rigs
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
-from orchestration.web.schema import GenerateRequest, Plan, SplitRequest, plan_request
+from orchestration.web.schema import EditRequest, GenerateRequest, Plan, SplitRequest, plan_request
 
 STATIC = Path(__file__).parent / "static"
 DOCS_FILES = Path(importlib.util.find_spec("fastapi_offline").origin).parent / "static"  # Swagger UI, ReDoc
@@ -106,6 +108,21 @@ class Service:
         job = Job(generator, (request.model, run, plan.options), plan.options, plan.actions, plan.frames, request.seed)
         return job, plan, run
 
+    def prepare_edit(self, parent_id: str, request: EditRequest) -> tuple[Job, Plan, str, Callable[[Motion], Motion]]:
+        """An edit of a generation by the model and run that made it: its job, its plan, the run,
+        and how its sample is finished (the kept frames pasted back, the parent recorded)."""
+        parent = self.generations.get(parent_id)
+        run, generator = self.catalog.generator(parent.model, parent.run)
+        edit, said, plan = plan_edit_request(request, parent, self.generations, generator)
+        key = (parent.model, run, plan.options)
+        job = Job(generator, key, plan.options, plan.actions, plan.frames, request.seed, edit.keep)
+        parent_run = {"edit_parent_run": parent.mlflow_run_id} if parent.mlflow_run_id else {}
+
+        def finishing(sampled: Motion) -> Motion:
+            return finish_edit(edit, sampled, generator, said, edit_parent=parent.id, **parent_run)
+
+        return job, plan, run, finishing
+
     def split(self, request: SplitRequest) -> dict[str, Any]:
         """The action sentences a prompt becomes for a run, their verbs, and what the run does not
         know of them (a blocking call: it may load the model and its tagger)."""
@@ -115,27 +132,36 @@ class Service:
             actions, verbs = planner.split(request.prompt)
             return {"actions": actions, "verbs": verbs, "notices": planner.notices(actions)}
 
-    async def finish(self, job: Job, request: GenerateRequest, plan: Plan, run: str) -> dict[str, Any]:
-        """The sampled motion, recorded; the API's answer, with what the model did not know of it."""
+    async def finish(
+        self,
+        job: Job,
+        model: str,
+        plan: Plan,
+        run: str,
+        finishing: Callable[[Motion], Motion] = Motion.on_rigid_skeleton,
+    ) -> dict[str, Any]:
+        """The sampled motion, finished (on one rigid skeleton; an edit's kept frames pasted back)
+        and recorded; the API's answer, with what the model did not know of it."""
         try:
             motion = await asyncio.wrap_future(job.done)
         except ValueError as error:  # the protocol's answer to a request a model cannot serve
             raise UserError(str(error)) from error
         try:
-            answer = await asyncio.wrap_future(self.recorder.submit(self._record, job, motion, request, plan, run))
+            answer = await asyncio.wrap_future(
+                self.recorder.submit(self._record, job, motion, model, plan, run, finishing)
+            )
         except ValueError as error:  # a delivery the clip cannot take: a loop of a clip shorter than its fade
             raise UserError(str(error)) from error
         return {**answer, "notices": plan.notices}
 
-    def _record(self, job: Job, motion: Motion, request: GenerateRequest, plan: Plan, run: str) -> dict[str, Any]:
-        """On the recorder's thread, not the event loop: the rigid skeleton, the delivery, the
-        files and MLflow run, and the answer with every joint coordinate (milliseconds each, for a
-        batch of 16)."""
+    def _record(
+        self, job: Job, motion: Motion, model: str, plan: Plan, run: str, finishing: Callable[[Motion], Motion]
+    ) -> dict[str, Any]:
+        """On the recorder's thread, not the event loop: the finishing, the delivery, the files and
+        MLflow run, and the answer with every joint coordinate (milliseconds each, for a batch of 16)."""
         describe = job.generator.describe(job.options)
-        delivered = motion.on_rigid_skeleton().delivered(plan.delivery)
-        generation = self.generations.record(
-            delivered, plan.prompts, request.model, run, request.seed, describe, plan.delivery
-        )
+        delivered = finishing(motion).delivered(plan.delivery)
+        generation = self.generations.record(delivered, plan.prompts, model, run, job.seed, describe, plan.delivery)
         return self.generations.describe(generation)
 
     def close(self) -> None:
@@ -194,17 +220,33 @@ def create_app(settings: ServeSettings) -> FastAPI:
     )
     async def generate(body: GenerateRequest, request: Request) -> Any:
         job, plan, run = await run_in_threadpool(service.prepare, body)
+        return await _sampled(request, job, service.finish(job, body.model, plan, run))
+
+    @api.post(
+        "/generations/{generation_id}/edit",
+        summary="Edit a generation on its timeline: regenerate an action, fill a gap, pin a pose, continue",
+        responses={200: {"content": {NDJSON: {}}, "description": "the new generation, or its progress and then it"}},
+    )
+    async def edit(generation_id: str, body: EditRequest, request: Request) -> Any:
+        job, plan, run, finishing = await run_in_threadpool(service.prepare_edit, generation_id, body)
+        parent = service.generations.get(generation_id)
+        return await _sampled(request, job, service.finish(job, parent.model, plan, run, finishing))
+
+    async def _sampled(request: Request, job: Job, finishing: Any) -> Any:
+        """Queue ``job``; the answer when it is sampled and ``finishing`` is done, or its progress
+        as NDJSON lines before it when the client asks for them."""
         events: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue()
         loop = asyncio.get_running_loop()
         job.listener = lambda event: loop.call_soon_threadsafe(events.put_nowait, event)
         try:
             service.sampler.submit(job)
         except QueueFull as error:
+            finishing.close()
             raise ApiError(429, str(error)) from error
         if NDJSON in request.headers.get("accept", ""):
-            return StreamingResponse(_stream(job, events, service.finish(job, body, plan, run)), media_type=NDJSON)
+            return StreamingResponse(_stream(job, events, finishing), media_type=NDJSON)
         # a JSONResponse as it is: FastAPI's encoder would walk every joint coordinate in Python first
-        return JSONResponse(await _unless_disconnected(request, job, service.finish(job, body, plan, run)))
+        return JSONResponse(await _unless_disconnected(request, job, finishing))
 
     @api.post("/split", summary="The actions a prompt is split into, to check and fix before generating")
     async def split(body: SplitRequest) -> dict[str, Any]:

@@ -18,7 +18,7 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
 
-from m2d2m.generators.protocol import MotionGenerator
+from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.clip import Motion
 
 Event = dict[str, Any]  # {"queued": n} or {"progress": fraction}; None ends a job's events
@@ -34,8 +34,9 @@ class Cancelled(Exception):
 
 @dataclass(eq=False)
 class Job:
-    """One sequence to sample: ``actions`` of ``frames`` each, drawn with ``seed``; ``batch_key``
-    says which other jobs may share its generator call (same generator, same options)."""
+    """One sequence to sample: ``actions`` of ``frames`` each, drawn with ``seed``, keeping what
+    ``keep`` holds (an edit); ``batch_key`` says which other jobs may share its generator call
+    (same generator, same options)."""
 
     generator: MotionGenerator
     batch_key: Hashable
@@ -43,6 +44,7 @@ class Job:
     actions: list[str]
     frames: list[int]
     seed: int
+    keep: Keep | None = None
     listener: Callable[[Event | None], None] = lambda event: None
     done: Future = field(default_factory=Future)
     cancelled: threading.Event = field(default_factory=threading.Event)
@@ -189,6 +191,7 @@ class Sampler:
             [job.frames for job in batch],
             first.options,
             [job.seed for job in batch],
+            [job.keep for job in batch],
             progress=progress,
         )
 

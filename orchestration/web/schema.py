@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import unicodedata
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StrictStr, field_validator, model_validator
 
@@ -87,6 +87,49 @@ class GenerateRequest(BaseModel):
         return self
 
 
+class PoseReference(BaseModel):
+    """A frame of a generation this server made, at its model's frame rate."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    generation: str = Field(max_length=64, description="a generation's id")
+    frame: int = Field(ge=0, description="its frame, at the model's rate")
+
+
+class EditRequest(BaseModel):
+    """One edit of a generation (docs/generation.md, "Editing a result"), by the model and run
+    that made it: ``regenerate`` action ``action`` (``text``, ``seconds``: its new ones), ``fill``
+    the gap of ``seconds`` to generation ``then`` (``text``: what happens in it), ``pin`` the pose
+    ``pose`` at ``at`` seconds, or ``continue`` with ``actions``. Answers as ``POST /api/generate``."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    operation: Literal["regenerate", "fill", "pin", "continue"]
+    action: int | None = Field(None, ge=1, le=MAX_ACTIONS, description="regenerate: the action, counted from 1")
+    text: str | None = Field(None, min_length=1, max_length=MAX_TEXT, description="regenerate, fill: the new text")
+    seconds: float | None = Field(None, allow_inf_nan=False, description="regenerate: its length; fill: the gap's")
+    then: str | None = Field(None, max_length=64, description="fill: the generation that follows the gap")
+    pose: PoseReference | None = Field(None, description="pin: the pose, a frame of a generation")
+    at: float | None = Field(None, allow_inf_nan=False, description="pin: where, in seconds")
+    actions: list[Action] | None = Field(
+        None, min_length=1, max_length=MAX_ACTIONS, description="continue: the new actions"
+    )
+    options: dict[str, StrictInt | StrictFloat | StrictStr | None] = Field(default_factory=dict, max_length=32)
+    seed: int = Field(0, ge=0, le=MAX_SEED)
+    fps: float | None = Field(None, allow_inf_nan=False, description="the files' frame rate; none: the model's")
+    root: str = Field("keep", max_length=16, description="keep, in-place or ground")
+    loop: bool = Field(False, description="one seamless cycle")
+    plant_feet: bool = Field(True, description="feet planted where they touch down")
+
+    _english = field_validator("text")(english_sentence)
+
+
+def delivery_of(request: GenerateRequest | EditRequest) -> Delivery:
+    """How a request's clip is delivered, or a UserError in one sentence."""
+    try:
+        return Delivery(fps=request.fps, root=request.root, loop=request.loop, plant_feet=request.plant_feet)
+    except ValueError as error:
+        raise UserError(str(error)) from error
+
+
 class SplitRequest(BaseModel):
     """A sentence to split into action sentences as ``prompt`` of ``POST /api/generate`` would be,
     by the named run's tagger, to see (and fix) them before sampling."""
@@ -136,8 +179,4 @@ def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: 
         options = generator.options(**changes)
     except ValueError as error:
         raise UserError(str(error)) from error
-    try:
-        delivery = Delivery(fps=request.fps, root=request.root, loop=request.loop, plant_feet=request.plant_feet)
-    except ValueError as error:
-        raise UserError(str(error)) from error
-    return Plan(actions, frames, options, prompts, planner.notices(actions), delivery)
+    return Plan(actions, frames, options, prompts, planner.notices(actions), delivery_of(request))

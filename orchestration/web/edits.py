@@ -1,0 +1,74 @@
+"""``POST /api/generations/{id}/edit``: an edit of a generation this server made, planned as `m2d2m
+generate --edit` plans one (orchestration/editing.py), so the API and the command line accept and
+refuse the same edits (docs/generation.md, "Editing a result")."""
+
+from __future__ import annotations
+
+from m2d2m.generators.edits import Edit, Timeline
+from m2d2m.generators.protocol import MotionGenerator
+from orchestration.editing import edit_options, plan_edit, pose_at, timeline_of
+from orchestration.errors import UserError
+from orchestration.web.generations import Generation, Generations
+from orchestration.web.schema import EditRequest, Plan, delivery_of
+
+# the fields each operation takes; any other one set is refused, not ignored
+FIELDS = {
+    "regenerate": {"action", "text", "seconds"},
+    "fill": {"then", "text", "seconds"},
+    "pin": {"pose", "at"},
+    "continue": {"actions"},
+}
+OPERATION_FIELDS = set().union(*FIELDS.values())
+
+
+def plan_edit_request(
+    request: EditRequest, parent: Generation, generations: Generations, generator: MotionGenerator
+) -> tuple[Edit, str, Plan]:
+    """The edit ``request`` asks of ``parent`` (by ``generator``, the model and run that made it),
+    what it does in a line, and its plan: a UserError in one sentence for one it cannot be."""
+    given = {name for name in OPERATION_FIELDS if getattr(request, name) is not None}
+    stray = sorted(given - FIELDS[request.operation])
+    if stray:
+        raise UserError(f"{', '.join(stray)} does not go with the operation {request.operation}")
+    if request.operation == "regenerate" and request.action is None:
+        raise UserError("regenerate names the action to sample again (action, counted from 1)")
+    if request.operation == "fill" and request.then is None:
+        raise UserError("fill names the generation that follows the gap (then)")
+    if request.operation == "pin" and request.pose is None:
+        raise UserError("pin names the pose (pose: a generation and its frame)")
+
+    def timeline(generation: Generation) -> Timeline:
+        return timeline_of(generation.motion, generator, f"generation {generation.id}")
+
+    texts = [request.text] if request.text is not None else [a.text for a in request.actions or ()]
+    if request.actions is not None:
+        seconds = [
+            a.seconds if a.seconds is not None else generator.typical_frames(None) / generator.fps
+            for a in request.actions
+        ]
+    else:
+        seconds = [] if request.seconds is None else [request.seconds]
+    pose = None
+    if request.pose is not None:
+        source = generations.get(request.pose.generation)
+        pose = pose_at(timeline(source), request.pose.frame, f"generation {source.id}")
+    edit, said = plan_edit(
+        generator,
+        timeline(parent),
+        texts,
+        seconds,
+        regenerate=request.action,
+        fill_to=None if request.then is None else timeline(generations.get(request.then)),
+        pose=pose,
+        at=request.at,
+        extend=request.operation == "continue",
+    )
+    try:
+        options = generator.options(**edit_options(generator, edit, request.options))
+    except ValueError as error:
+        raise UserError(str(error)) from error
+    return (
+        edit,
+        f"generation {parent.id}: {said}",
+        Plan(edit.actions, edit.frames, options, edit.actions, [], delivery_of(request)),
+    )
