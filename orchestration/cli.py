@@ -456,7 +456,10 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     if args.method is not None:
         options["method"] = args.method
     for seed, variation in _variations(args, output):
-        _report(sample_edit(generator, edit, seed, f"{args.edit}: {said}", **options), variation, edit.actions, args)
+        motion = sample_edit(generator, edit, seed, f"{args.edit}: {said}", **options)
+        _report(motion, variation, edit.actions, args)
+        if "pin_error_m" in motion.quality:
+            print(f"  the pose is met within {motion.quality['pin_error_m'] * 1000:.0f} mm (its farthest joint)")
 
 
 def _variations(args: argparse.Namespace, output: Any) -> list[tuple[int, Any]]:

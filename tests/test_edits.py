@@ -16,6 +16,7 @@ from m2d2m.generators.edits import (
     continue_after,
     fill_between,
     hold_pose,
+    pin_error,
     regenerate_action,
 )
 from m2d2m.motion.clip import Motion
@@ -88,6 +89,19 @@ def test_a_pinned_pose_is_kept_but_not_pasted():
     np.testing.assert_array_equal(np.flatnonzero(~edit.paste), range(8, 20))
 
 
+def test_a_pins_error_is_its_farthest_joint_around_the_root():
+    """A pose whose left hand (joint 20) is 3 cm higher than the motion's: 0.03 m, whatever the
+    root's path and heading (channels 0–3) say."""
+    rng = np.random.default_rng(1)
+    features = rng.normal(size=(10, D)).astype(np.float32)
+    pose = features[6].copy()
+    pose[:4] += 5.0  # another place and heading
+    pose[4 + 3 * 19 + 1] += 0.03
+    assert pin_error(features, pose, 6, T2M) == pytest.approx(0.03, abs=1e-6)
+    edit = hold_pose(timeline([8, 12, 8]), pose, frame=12, step=4, margin=4)
+    assert edit.pin[0] == 12
+
+
 def test_applying_an_edit_pastes_the_kept_features_and_derives_the_joints():
     rng = np.random.default_rng(0)
     source = Timeline(rng.normal(size=(24, D)).astype(np.float32) * 0.1, ["a", "b"], [0, 12])
@@ -124,7 +138,9 @@ def test_every_operation_from_the_command_line(trained_project, tmp_path, capsys
     assert len(filled) == 2 * len(before) + 16
     np.testing.assert_array_equal(filled[-len(before) + 8 :], before[8:])
     assert main([*argv, "--pin", f"{source}@4", "--at", "2.0", "--out", str(tmp_path / "pin")]) == 0
-    assert "pinned at frame 40" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "pinned at frame 40" in printed and "the pose is met within" in printed
+    assert json.loads((tmp_path / "pin" / "motion.json").read_text(encoding="utf-8"))["quality"]["pin_error_m"] >= 0
     assert main([*argv, "--continue", "a person stands up", "--seconds", "1.2", "--out", str(tmp_path / "more")]) == 0
     longer = np.load(tmp_path / "more" / "motion.features.npy")
     assert len(longer) == len(before) + 24

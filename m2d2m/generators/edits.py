@@ -35,12 +35,14 @@ EDIT_MARGIN_SECONDS = 0.4  # sampled again on each side of a changed span, so th
 class Edit:
     """A request on a new timeline: ``actions`` with their lengths in ``frames`` (they tile it),
     the ``keep`` the model is given (features laid out on the timeline, the frames it keeps), and
-    ``paste`` (F,), the frames whose features are copied from ``keep.features`` into the result."""
+    ``paste`` (F,), the frames whose features are copied from ``keep.features`` into the result;
+    ``pin``: the frame and features of a pinned pose, which the result is measured against."""
 
     actions: list[str]
     frames: list[int]
     keep: Keep
     paste: np.ndarray
+    pin: tuple[int, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         if len(self.actions) != len(self.frames) or sum(self.frames) != len(self.keep.features):
@@ -159,7 +161,8 @@ def hold_pose(timeline: Timeline, pose: np.ndarray, frame: int, step: int, margi
     """The motion passing through ``pose`` (one frame's features, D) at ``frame``: the ``step``
     frames from there (one token of a token model) are the pose, kept; ``margin`` frames on
     each side are sampled again; the rest is the source. Only the source's frames are pasted
-    back: how close the result comes to the pose is the model's (:func:`pin_error`)."""
+    back: how close the result comes to the pose is the model's (:func:`pin_error`, in the
+    result's ``quality``)."""
     count = len(timeline.features)
     if not 0 <= frame <= count - step:
         raise ValueError(f"a pose pinned at frame {frame} lies outside the motion's {count} frames")
@@ -170,20 +173,25 @@ def hold_pose(timeline: Timeline, pose: np.ndarray, frame: int, step: int, margi
     pasted = _free(count, (frame, frame + step), margin)
     kept = pasted.copy()
     kept[frame : frame + step] = True
-    return Edit(list(timeline.actions), list(timeline.frames), Keep(features, kept), pasted)
+    return Edit(list(timeline.actions), list(timeline.frames), Keep(features, kept), pasted, (frame, pose))
 
 
 def apply_edit(edit: Edit, sampled: Motion, skeleton: Skeleton) -> Motion:
     """The model's result of ``edit`` with the pasted frames' features set back to the source's
     exactly, its joints derived from the features (HumanML3D's recovery: the root integrated from
-    the first frame) and its actions' frames those of the edit's timeline."""
+    the first frame), its actions' frames those of the edit's timeline, and for a pinned pose
+    its distance from the pose (``quality["pin_error_m"]``)."""
     if len(sampled.features) != len(edit.paste):
         raise ValueError(f"the model made {len(sampled.features)} frames for a timeline of {len(edit.paste)}")
     features = np.array(sampled.features, dtype=np.float32)
     features[edit.paste] = edit.keep.features[edit.paste]
     starts = np.cumsum([0, *edit.frames])
+    quality = dict(sampled.quality)
+    if edit.pin is not None:
+        quality["pin_error_m"] = pin_error(features, edit.pin[1], edit.pin[0], skeleton)
     return replace(
         sampled,
+        quality=quality,
         features=features,
         joints=np.asarray(features_to_joints(features, skeleton), dtype=np.float32),
         actions=list(edit.actions),
@@ -191,9 +199,12 @@ def apply_edit(edit: Edit, sampled: Motion, skeleton: Skeleton) -> Motion:
     )
 
 
-def pin_error(motion: Motion, pose_joints: np.ndarray, frame: int) -> float:
-    """The largest distance (in the skeleton's units) between a pinned pose's joints and the
-    result's at ``frame``, both with the root at the origin: how closely it passes through."""
-    ours = motion.joints[frame] - motion.joints[frame, :1]
-    theirs = pose_joints - pose_joints[:1]
-    return float(np.linalg.norm(ours - theirs, axis=-1).max())
+def pin_error(features: np.ndarray, pose: np.ndarray, frame: int, skeleton: Skeleton) -> float:
+    """How far (metres) the motion ``features`` is from the pose at ``frame``: the largest distance
+    between a joint of the two, each placed around its root and facing its heading (the features'
+    root-relative positions, HumanML3D's RIC), so a pose pinned from a clip facing elsewhere counts
+    only by its shape and height."""
+    count = 3 * (skeleton.num_joints - 1)
+    ours = features[frame, 4 : 4 + count].reshape(-1, 3)
+    theirs = pose[4 : 4 + count].reshape(-1, 3)
+    return float(np.linalg.norm(ours - theirs, axis=-1).max() * skeleton.metres_per_unit)
