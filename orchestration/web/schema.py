@@ -55,7 +55,23 @@ class Action(BaseModel):
     _english = field_validator("text")(english_sentence)
 
 
-class GenerateRequest(BaseModel):
+class Sampled(BaseModel):
+    """What every request that samples takes: the model's knobs, the seed, and how the clip is
+    delivered, as `m2d2m generate`'s options (m2d2m.motion.delivery.Delivery)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    options: dict[str, StrictInt | StrictFloat | StrictStr | None] = Field(
+        default_factory=dict, max_length=32, description="sampling knobs by name (GET /api/models lists them)"
+    )
+    seed: int = Field(0, ge=0, le=MAX_SEED)
+    # how the clip is delivered, as `m2d2m generate`'s options (m2d2m.motion.delivery.Delivery)
+    fps: float | None = Field(None, allow_inf_nan=False, description="the files' frame rate; none: the model's")
+    root: str = Field("keep", max_length=16, description="keep, in-place (the root's path taken out) or ground")
+    loop: bool = Field(False, description="one seamless cycle, the end blended into the start")
+    plant_feet: bool = Field(True, description="feet planted where they touch down (false: as generated)")
+
+
+class GenerateRequest(Sampled):
     """Several actions in a row (``actions``), or one free sentence split by its verbs as `m2d2m
     generate` splits a prompt (``prompt``, with ``seconds`` for the whole)."""
 
@@ -66,15 +82,6 @@ class GenerateRequest(BaseModel):
     prompt: str | None = Field(None, min_length=1, max_length=MAX_PROMPT)
     seconds: float | None = Field(None, allow_inf_nan=False, description="the prompt's length")
     method: str | None = Field(None, max_length=64, description="the multi-action method; none: the model's default")
-    options: dict[str, StrictInt | StrictFloat | StrictStr | None] = Field(
-        default_factory=dict, max_length=32, description="sampling knobs by name (GET /api/models lists them)"
-    )
-    seed: int = Field(0, ge=0, le=MAX_SEED)
-    # how the clip is delivered, as `m2d2m generate`'s options (m2d2m.motion.delivery.Delivery)
-    fps: float | None = Field(None, allow_inf_nan=False, description="the files' frame rate; none: the model's")
-    root: str = Field("keep", max_length=16, description="keep, in-place (the root's path taken out) or ground")
-    loop: bool = Field(False, description="one seamless cycle, the end blended into the start")
-    plant_feet: bool = Field(True, description="feet planted where they touch down (false: as generated)")
 
     _english = field_validator("prompt")(english_sentence)
 
@@ -95,7 +102,7 @@ class PoseReference(BaseModel):
     frame: int = Field(ge=0, description="its frame, at the model's rate")
 
 
-class EditRequest(BaseModel):
+class EditRequest(Sampled):
     """One edit of a generation (docs/generation.md, "Editing a result"), by the model and run
     that made it: ``regenerate`` action ``action`` (``text``, ``seconds``: its new ones), ``fill``
     the gap of ``seconds`` to generation ``then`` (``text``: what happens in it), ``pin`` the pose
@@ -112,12 +119,6 @@ class EditRequest(BaseModel):
     actions: list[Action] | None = Field(
         None, min_length=1, max_length=MAX_ACTIONS, description="continue: the new actions"
     )
-    options: dict[str, StrictInt | StrictFloat | StrictStr | None] = Field(default_factory=dict, max_length=32)
-    seed: int = Field(0, ge=0, le=MAX_SEED)
-    fps: float | None = Field(None, allow_inf_nan=False, description="the files' frame rate; none: the model's")
-    root: str = Field("keep", max_length=16, description="keep, in-place or ground")
-    loop: bool = Field(False, description="one seamless cycle")
-    plant_feet: bool = Field(True, description="feet planted where they touch down")
 
     _english = field_validator("text")(english_sentence)
 
