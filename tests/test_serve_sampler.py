@@ -6,25 +6,29 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from m2d2m.generators.protocol import Keep
 from m2d2m.motion.clip import Motion
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
 
 
 class CountingGenerator:
     """Answers each sequence with a motion whose joints hold its seed; refuses seed 13; calls
-    ``progress`` ``steps`` times, ``step_s`` apart."""
+    ``progress`` ``steps`` times, ``step_s`` apart; records the keeps it was given."""
 
     def __init__(self, steps: int = 1, step_s: float = 0.0) -> None:
         self.calls: list[list[int]] = []
         self.steps, self.step_s = steps, step_s
         self.started = threading.Event()
+        self.keeps = None
 
-    def generate(self, actions, frames, options, seeds, progress=None):
+    def generate(self, actions, frames, options, seeds, keep=None, progress=None):
         self.calls.append(list(seeds))
+        self.keeps = keep
         self.started.set()
         if 13 in seeds:
             raise ValueError("seed 13 is refused")
@@ -93,3 +97,15 @@ def test_the_queue_is_bounded_and_events_say_where_a_job_waits():
     sampler.start()
     sampler.stop()
     assert events[0] == {"queued": 1} and events[-1] is None and {"progress": 1.0} in events
+
+
+def test_an_edits_keep_reaches_the_generator_beside_jobs_without_one():
+    generator = CountingGenerator()
+    sampler = Sampler(capacity=8, max_batch=3, gather_s=0.3)
+    kept = Keep(np.zeros((4, 263)), np.array([True, True, False, False]))
+    jobs = [job(generator, 1), replace(job(generator, 2), keep=kept)]
+    for each in jobs:
+        sampler.submit(each)
+    sampler.start()
+    sampler.stop()
+    assert generator.calls == [[1, 2]] and generator.keeps == [None, kept]

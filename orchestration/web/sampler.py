@@ -191,7 +191,7 @@ class Sampler:
             [job.frames for job in batch],
             first.options,
             [job.seed for job in batch],
-            [job.keep for job in batch],
+            keep=[job.keep for job in batch],
             progress=progress,
         )
 
