@@ -51,6 +51,18 @@ def _pose_reference(value: str) -> tuple[str, int]:
     return path, int(frame)
 
 
+def _span(value: str) -> tuple[float, float]:
+    """START:END seconds, START before END."""
+    start, colon, end = value.partition(":")
+    try:
+        span = float(start), float(end)
+    except ValueError:
+        span = None
+    if not colon or span is None or not 0 <= span[0] < span[1]:
+        raise argparse.ArgumentTypeError(f"expected START:END in seconds, START before END, got {value!r}")
+    return span
+
+
 def _positive_float(text: str) -> float:
     """A finite number above zero (frames per second: 0 divides by zero, -1 writes a BVH
     whose frame time is negative)."""
@@ -450,6 +462,8 @@ def _edit_timeline(args: argparse.Namespace) -> None:
         pose=pose,
         at=args.at,
         extend=args.extend,
+        layer=args.layer,
+        span=args.span,
     )
     print(f"{args.edit}: {said}")
     options = _sampling_options(args)
@@ -902,6 +916,14 @@ def _add_generate(verbs) -> None:
         action="store_true",
         help="with --edit: append the prompts to SOURCE (--seconds each), its end sampled again to lead into them",
     )
+    generate.add_argument(
+        "--layer",
+        type=_body_part,
+        metavar="PART=TEXT",
+        help="with --edit and --span: this body part does TEXT over the span, the rest of the body as it was, "
+        'e.g. upper="a person waves" (--model motiondiffuse)',
+    )
+    generate.add_argument("--span", type=_span, metavar="START:END", help="where --layer lays its action, in seconds")
     generate.add_argument(
         "--keep-body",
         metavar="PART",

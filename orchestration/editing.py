@@ -28,9 +28,11 @@ from m2d2m.generators.edits import (
     continue_after,
     fill_between,
     hold_pose,
+    layer_part,
     regenerate_action,
 )
 from m2d2m.generators.protocol import MotionGenerator
+from m2d2m.motion.body_parts import PARTS, part_mask
 from m2d2m.motion.clip import Motion
 from orchestration.errors import UserError
 from orchestration.viewing import load_features
@@ -157,7 +159,8 @@ def finish_edit(edit: Edit, sampled: Motion, generator: MotionGenerator, said: s
     """The model's sample of ``edit`` with the kept frames pasted back, on one rigid skeleton, its
     settings recording the edit (``said``: what it does; ``recorded``: more, such as its parent)."""
     motion = apply_edit(edit, sampled, generator.skeleton)
-    settings = {**motion.settings, "edit": said, "edited_frames": int((~edit.paste).sum()), **recorded}
+    edited = ~edit.paste.reshape(len(edit.paste), -1).all(axis=1)  # a frame with any entry sampled
+    settings = {**motion.settings, "edit": said, "edited_frames": int(edited.sum()), **recorded}
     return replace(motion, settings=settings).on_rigid_skeleton()
 
 
@@ -169,6 +172,20 @@ def sample_edit(generator: MotionGenerator, edit: Edit, seed: int = 0, said: str
     except ValueError as error:
         raise UserError(str(error)) from error
     return finish_edit(edit, sampled[0], generator, said)
+
+
+def lay_part(generator: MotionGenerator, timeline: Timeline, part: str, text: str, span: tuple[float, float]) -> Edit:
+    """Body part ``part`` doing ``text`` over ``span`` (start, end seconds), the rest of the body
+    as it was: a model that keeps some dimensions alone (MotionDiffuse) can; the token models
+    keep whole frames and refuse when sampling."""
+    if part not in PARTS:
+        raise UserError(f"unknown body part {part!r}: choose from {', '.join(PARTS)}")
+    step = generator.frame_step
+    first, end = (int(round(seconds * generator.fps)) // step * step for seconds in span)
+    try:
+        return layer_part(timeline, (first, end), part_mask(generator.skeleton, part), text, margin_frames(generator))
+    except ValueError as error:
+        raise UserError(str(error)) from error
 
 
 def pose_at(timeline: Timeline, frame: int, origin: str) -> np.ndarray:
@@ -188,20 +205,24 @@ def plan_edit(
     pose: np.ndarray | None = None,
     at: float | None = None,
     extend: bool = False,
+    layer: tuple[str, str] | None = None,
+    span: tuple[float, float] | None = None,
 ) -> tuple[Edit, str]:
     """The one edit asked for on ``timeline`` and a line saying what it does: ``regenerate``
     action K (one prompt: its new text; one ``seconds``: its new length); ``fill_to`` a second
     result after a gap (one ``seconds``, default 1 s; one prompt: what happens in it); a ``pose``
     pinned ``at`` seconds; ``extend`` it with ``prompts``, each ``seconds`` long (one for all;
-    default: the model's typical length). The command line's flags and the API's fields alike."""
+    default: the model's typical length); ``layer`` a body part's (part, text) over ``span``
+    seconds. The command line's flags and the API's fields alike."""
     chosen = [
         name
-        for name, given in zip(OPERATIONS, (regenerate, fill_to, pose, extend))
+        for name, given in zip(OPERATIONS, (regenerate, fill_to, pose, extend, layer))
         if given is not None and given is not False
     ]
     if len(chosen) != 1:
         raise UserError(
-            "an edit is one of: regenerate an action, fill to a second result, pin a pose, continue (one at a time)"
+            "an edit is one of: regenerate an action, fill to a second result, pin a pose, continue, "
+            "lay a body part's action over a span (one at a time)"
         )
     seconds = list(seconds or [])
     if regenerate is not None:
@@ -223,6 +244,12 @@ def plan_edit(
             raise UserError("pinning a pose takes the time to pin it at (--at; the API's at) and no text or length")
         edit, frame = pin_pose(generator, timeline, pose, at)
         return edit, f"a pose pinned at frame {frame}"
+    if layer is not None:
+        if span is None or prompts or seconds:
+            raise UserError("laying a body part's action takes the span it lasts (--span; the API's span) alone")
+        return lay_part(
+            generator, timeline, *layer, span
+        ), f"{layer[0]} body doing {layer[1]!r} from {span[0]:g} to {span[1]:g} s"
     if not prompts:
         raise UserError("continuing takes the new actions' texts (prompts)")
     lengths = seconds * len(prompts) if len(seconds) == 1 else seconds
@@ -231,4 +258,4 @@ def plan_edit(
     return extend_with(generator, timeline, prompts, lengths), f"{len(prompts)} action(s) added"
 
 
-OPERATIONS = ("regenerate", "fill_to", "pose", "extend")
+OPERATIONS = ("regenerate", "fill_to", "pose", "extend", "layer")

@@ -16,9 +16,11 @@ from m2d2m.generators.edits import (
     continue_after,
     fill_between,
     hold_pose,
+    layer_part,
     pin_error,
     regenerate_action,
 )
+from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import T2M
@@ -154,3 +156,15 @@ def test_every_operation_from_the_command_line(trained_project, tmp_path, capsys
     ):
         assert main([*argv, *extra, "--out", str(tmp_path / "bad")]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_a_body_part_laid_over_a_span_splits_the_actions_it_cuts_and_keeps_the_other_part():
+    upper = part_mask(T2M, "upper")
+    edit = layer_part(timeline([8, 12, 8]), (4, 16), upper, "wave", margin=2)
+    assert edit.actions == ["a", "wave", "b", "c"] and edit.frames == [4, 12, 4, 8]
+    entries = edit.keep.entries
+    assert entries[:2].all() and entries[18:].all()  # whole frames outside the span and its margins
+    assert (entries[2:18] == ~upper).all()  # the rest of the body kept over them
+    np.testing.assert_array_equal(edit.paste, entries)
+    with pytest.raises(ValueError, match="a span of frames 20 to 40 outside the motion's 28 frames"):
+        layer_part(timeline([8, 12, 8]), (20, 40), upper, "wave", margin=2)

@@ -511,6 +511,12 @@ def test_a_generation_is_edited_on_its_timeline(client, trained_project):
             400,
             "lies outside the motion",
         ),
+        ({"operation": "layer", "part": "upper"}, 400, "layer names the body part, its text and its span"),
+        (
+            {"operation": "layer", "part": "upper", "text": "a person waves", "span": [0.4, 1.6]},
+            400,
+            "m2d2m keeps whole frames, not a body part alone",
+        ),
         ({"operation": "dance"}, 422, "operation"),
     ):
         refused = client.post(edit_url, json=body)

@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
+from m2d2m.motion.body_parts import part_mask
+from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
 from orchestration.recipe import train_model
 from orchestration.reports import FEET_TITLES
@@ -96,6 +98,26 @@ def test_generate_writes_a_multi_action_and_a_body_part_request(trained_project,
     ]
     assert sidecar["num_frames"] == 40  # 2 s at 20 fps
     assert {p.suffix for p in parts.iterdir()} >= {".gif", ".bvh", ".npy"}
+
+
+def test_an_upper_body_action_is_laid_over_a_span_of_the_multi_action_result(trained_project, motiondiffuse_run):
+    """Issue 41's body-part track: "waves" over 1–2.5 s of the walk-then-jump result; the lower
+    body's features are the source's on every frame, the upper body's outside the span and its
+    0.4-s margins; m2d2m, which keeps whole frames, refuses the layer in one line."""
+    source = trained_project / "md-multi" / "motion.npy"
+    out = trained_project / "md-layer"
+    argv = ["generate", "--edit", str(source), "--layer", "upper=a person waves", "--span", "1:2.5"]
+    quick = ["--dataset", "tiny", "--no-track", "--formats", "npy", "--option", "steps=10"]
+    assert main([*argv, "--model", "motiondiffuse", *quick, "--out", str(out)]) == 0
+    before, after = (np.load(folder / "motion.features.npy") for folder in (source.parent, out))
+    upper = part_mask(T2M, "upper")
+    np.testing.assert_array_equal(after[:, ~upper], before[:, ~upper])
+    np.testing.assert_array_equal(after[:12], before[:12])  # 1 s - 0.4 s at 20 fps
+    np.testing.assert_array_equal(after[58:], before[58:])  # 2.5 s + 0.4 s
+    assert not np.array_equal(after[20:50], before[20:50])
+    texts = [s["text"] for s in json.loads((out / "motion.json").read_text())["segments"]]
+    assert texts == ["a person walks forward", "a person waves", "a person jumps"]
+    assert main([*argv, "--model", "m2d2m", *quick[:-2], "--out", str(out)]) == 2
 
 
 @pytest.mark.parametrize(

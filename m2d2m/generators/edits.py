@@ -1,5 +1,6 @@
 """Edits of a result on its timeline (issue 41; docs/generation.md, "Editing a result"): redo one
-action and keep the rest, fill a gap between two clips, pin a pose, continue a clip.
+action and keep the rest, fill a gap between two clips, pin a pose, continue a clip, lay a body
+part's action over a span.
 
 Every operation is one generation request any model that keeps frames can serve (the
 :class:`~m2d2m.generators.protocol.Keep` of its ``generate``): a new timeline of actions and
@@ -35,7 +36,8 @@ EDIT_MARGIN_SECONDS = 0.4  # sampled again on each side of a changed span, so th
 class Edit:
     """A request on a new timeline: ``actions`` with their lengths in ``frames`` (they tile it),
     the ``keep`` the model is given (features laid out on the timeline, the frames it keeps), and
-    ``paste`` (F,), the frames whose features are copied from ``keep.features`` into the result;
+    ``paste``, the frames (F,) or entries (F, D) whose features are copied from ``keep.features``
+    into the result;
     ``pin``: the frame and features of a pinned pose, which the result is measured against."""
 
     actions: list[str]
@@ -51,7 +53,7 @@ class Edit:
             )
         if not self.keep.frames.any():
             raise ValueError("the edit keeps nothing of the source: generate it anew instead")
-        if self.keep.frames.all():
+        if self.keep.entries.all():
             raise ValueError("the edit leaves nothing to sample: every frame is kept")
 
 
@@ -174,6 +176,26 @@ def hold_pose(timeline: Timeline, pose: np.ndarray, frame: int, step: int, margi
     kept = pasted.copy()
     kept[frame : frame + step] = True
     return Edit(list(timeline.actions), list(timeline.frames), Keep(features, kept), pasted, (frame, pose))
+
+
+def layer_part(timeline: Timeline, span: tuple[int, int], part: np.ndarray, text: str, margin: int) -> Edit:
+    """A body part doing ``text`` over the frames ``span`` while the rest of the body does what it
+    did (STMC's body-part tracks; MotionDiffuse's editing by replacement): ``part`` (D,) is the
+    part's feature dimensions, free over the span and ``margin`` frames on each side (so that it
+    eases in and out); every other dimension is kept there, and whole frames elsewhere, all of
+    them pasted back. The actions the span cuts are split around it, the span one action doing
+    ``text``."""
+    first, end = span
+    count = len(timeline.features)
+    if not 0 <= first < end <= count:
+        raise ValueError(f"a span of frames {first} to {end} outside the motion's {count} frames")
+    cuts = sorted({*(start for start in timeline.starts if not first < start < end), first, end, count})
+    owner = np.searchsorted(timeline.starts, cuts[:-1], side="right") - 1
+    actions = [text if first <= a < end else timeline.actions[k] for a, k in zip(cuts[:-1], owner)]
+    entries = np.ones(timeline.features.shape, dtype=bool)
+    entries[max(0, first - margin) : min(count, end + margin)] &= ~part
+    keep = Keep(timeline.features, np.ones(count, dtype=bool), entries)
+    return Edit(actions, list(np.diff(cuts).tolist()), keep, entries.copy())
 
 
 def apply_edit(edit: Edit, sampled: Motion, skeleton: Skeleton) -> Motion:

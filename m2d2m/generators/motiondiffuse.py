@@ -195,9 +195,8 @@ class MotionDiffuseGenerator(MotionGenerator):
             return None, None
         if len(keep.features) != frames:
             raise ValueError(f"the kept motion holds {len(keep.features)} frames but the request asks for {frames}")
-        dims = np.ones(self.feature_dim, dtype=bool) if keep.dims is None else keep.dims
         features = self.checkpoint.normalizer.normalize(np.asarray(keep.features, dtype=np.float32))
-        return torch.as_tensor(features), torch.as_tensor(keep.frames[:, None] & dims[None, :])
+        return torch.as_tensor(features), torch.as_tensor(keep.entries)
 
     def _sample(
         self,

@@ -34,8 +34,9 @@ from m2d2m.text import TextEncoder
 class Keep:
     """What to keep of a sequence while the rest is generated (editing): the frames of
     ``features`` (F, D, un-normalised) where ``frames`` (F,) is True, and of those only the
-    feature dimensions where ``dims`` (D,) is True (None: every dimension, whole frames). A model
-    that generates in coarser units keeps every unit that holds a kept frame; one that cannot keep
+    feature dimensions where ``dims`` is True: (D,) the same on every frame, (F, D) frame by frame
+    (a body part kept over a span only), None every dimension, whole frames. A model that
+    generates in coarser units keeps every unit that holds a kept frame; one that cannot keep
     some dimensions alone (a body part: :mod:`m2d2m.motion.body_parts`) refuses such a Keep."""
 
     features: np.ndarray
@@ -48,11 +49,19 @@ class Keep:
                 f"keep: one boolean per frame of the features ({len(self.features)}), "
                 f"got {self.frames.dtype} of shape {self.frames.shape}"
             )
-        if self.dims is not None and (self.dims.shape != self.features.shape[1:] or self.dims.dtype != bool):
+        if self.dims is not None and (
+            self.dims.shape not in (self.features.shape[1:], self.features.shape) or self.dims.dtype != bool
+        ):
             raise ValueError(
-                f"keep: one boolean per feature dimension ({self.features.shape[1]}), "
-                f"got {self.dims.dtype} of shape {self.dims.shape}"
+                f"keep: one boolean per feature dimension ({self.features.shape[1]}), on every frame or "
+                f"frame by frame, got {self.dims.dtype} of shape {self.dims.shape}"
             )
+
+    @property
+    def entries(self) -> np.ndarray:
+        """(F, D) every kept entry: a kept frame's kept dimensions."""
+        dims = np.ones(self.features.shape, dtype=bool) if self.dims is None else self.dims
+        return self.frames[:, None] & np.broadcast_to(dims, self.features.shape)
 
     @property
     def whole_frames(self) -> bool:

@@ -17,6 +17,7 @@ FIELDS = {
     "fill": {"then", "text", "seconds"},
     "pin": {"pose", "at"},
     "continue": {"actions"},
+    "layer": {"part", "text", "span"},
 }
 OPERATION_FIELDS = set().union(*FIELDS.values())
 
@@ -36,11 +37,21 @@ def plan_edit_request(
         raise UserError("fill names the generation that follows the gap (then)")
     if request.operation == "pin" and request.pose is None:
         raise UserError("pin names the pose (pose: a generation and its frame)")
+    layer = None
+    if request.operation == "layer":
+        if request.part is None or request.text is None or request.span is None:
+            raise UserError("layer names the body part, its text and its span (part, text, span)")
+        layer = (request.part, request.text)
 
     def timeline(generation: Generation) -> Timeline:
         return timeline_of(generation.motion, generator, f"generation {generation.id}")
 
-    texts = [request.text] if request.text is not None else [a.text for a in request.actions or ()]
+    if layer is not None:  # its text is the layer's, not an action's
+        texts = []
+    elif request.text is not None:
+        texts = [request.text]
+    else:
+        texts = [action.text for action in request.actions or ()]
     if request.actions is not None:
         seconds = [
             a.seconds if a.seconds is not None else generator.typical_frames(None) / generator.fps
@@ -62,6 +73,8 @@ def plan_edit_request(
         pose=pose,
         at=request.at,
         extend=request.operation == "continue",
+        layer=layer,
+        span=None if request.span is None else (request.span[0], request.span[1]),
     )
     try:
         options = generator.options(**edit_options(generator, edit, request.options))

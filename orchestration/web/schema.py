@@ -106,18 +106,23 @@ class EditRequest(Sampled):
     """One edit of a generation (docs/generation.md, "Editing a result"), by the model and run
     that made it: ``regenerate`` action ``action`` (``text``, ``seconds``: its new ones), ``fill``
     the gap of ``seconds`` to generation ``then`` (``text``: what happens in it), ``pin`` the pose
-    ``pose`` at ``at`` seconds, or ``continue`` with ``actions``. Answers as ``POST /api/generate``."""
+    ``pose`` at ``at`` seconds, ``continue`` with ``actions``, or ``layer`` body ``part`` doing
+    ``text`` over ``span``. Answers as ``POST /api/generate``."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
-    operation: Literal["regenerate", "fill", "pin", "continue"]
+    operation: Literal["regenerate", "fill", "pin", "continue", "layer"]
     action: int | None = Field(None, ge=1, le=MAX_ACTIONS, description="regenerate: the action, counted from 1")
-    text: str | None = Field(None, min_length=1, max_length=MAX_TEXT, description="regenerate, fill: the new text")
+    text: str | None = Field(None, min_length=1, max_length=MAX_TEXT, description="regenerate, fill, layer: the text")
     seconds: float | None = Field(None, allow_inf_nan=False, description="regenerate: its length; fill: the gap's")
     then: str | None = Field(None, max_length=64, description="fill: the generation that follows the gap")
     pose: PoseReference | None = Field(None, description="pin: the pose, a frame of a generation")
     at: float | None = Field(None, allow_inf_nan=False, description="pin: where, in seconds")
     actions: list[Action] | None = Field(
         None, min_length=1, max_length=MAX_ACTIONS, description="continue: the new actions"
+    )
+    part: str | None = Field(None, max_length=16, description="layer: the body part (upper, lower) doing text")
+    span: list[float] | None = Field(
+        None, min_length=2, max_length=2, description="layer: its start and end, in seconds"
     )
 
     _english = field_validator("text")(english_sentence)
