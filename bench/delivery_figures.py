@@ -34,7 +34,7 @@ import numpy as np
 
 from m2d2m.motion.bvh_reader import read_bvh
 from m2d2m.motion.delivery import Delivered, Delivery, deliver
-from m2d2m.motion.feet import SKATING_HEIGHT_M, SKATING_SPEED_M_S, contact_runs, foot_contacts
+from m2d2m.motion.feet import SKATING_HEIGHT_M, SKATING_SPEED_M_S, contact_runs, foot_contacts, step_speeds
 from m2d2m.motion.joint_map import joint_map_for
 from m2d2m.motion.retarget import Rig, retarget
 from m2d2m.motion.retime import make_loop
@@ -105,11 +105,6 @@ def within(metres: float) -> str:
     return "exactly" if metres == 0 else f"to {metres:.1g} m"
 
 
-def horizontal_speed(track: np.ndarray, fps: float) -> np.ndarray:
-    """(T − 1,) m/s between consecutive frames of a joint's positions (T, 3), in the ground plane."""
-    return np.linalg.norm(np.diff(track[:, [0, 2]], axis=0), axis=-1) * fps
-
-
 def shade_runs(axes: Axes, flags: np.ndarray, fps: float, label: str) -> None:
     """The runs of True in ``flags`` (T,) as grey bands over the frames they cover."""
     for index, (first, end) in enumerate(contact_runs(flags)):
@@ -129,7 +124,7 @@ def feet_figure(clip: Clip) -> tuple[Figure, dict[str, float]]:
         (clip.planted, OURS, "feet planted", "after"),
     ):
         toe = joints[:, TOE]
-        speed = horizontal_speed(toe, clip.fps)
+        speed = step_speeds(toe, clip.fps)
         numbers[f"toe_speed_in_contact_{key}_m_s"] = float(speed[in_contact].mean())
         speed_axes.plot(clip.seconds(steps, 0.5), speed, color=colour, label=label)
         height_axes.plot(clip.seconds(len(toe)), toe[:, 1] * 100.0, color=colour, label=label)
@@ -196,7 +191,7 @@ def root_figure(clip: Clip) -> tuple[Figure, dict[str, float]]:
     done = clip.delivered(Delivery(root="in-place"))
     in_place, track = done.joints, done.root_track.astype(np.float32)
     numbers = {
-        "pelvis_path_m": float(horizontal_speed(track, 1.0).sum()),
+        "pelvis_path_m": float(step_speeds(track, 1.0).sum()),
         "in_place_drift_m": float(np.abs(in_place[:, 0, [0, 2]]).max()),
         "restored_m": float(np.abs(in_place + track[:, None] - kept).max()),
     }

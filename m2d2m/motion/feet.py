@@ -8,8 +8,8 @@ and a measure of how much they slide (docs/evaluation.md, "Feet that stay plante
   ``foot_detect`` also defines is commented out there, so contacts are velocity only).
 - :func:`plant_feet`: each contact run of an ankle or toe held still over the ground (at the
   run's mean horizontal position), and held on while the foot has not yet left the ground, low
-  and slower than a swing (:func:`hold_while_grounded`), the leg solved with analytic two-bone IK (:func:`two_bone_ik`),
-  blended in and out at the run's edges.
+  and slower than a swing (:func:`hold_while_grounded`), the leg solved with analytic two-bone
+  IK (:func:`two_bone_ik`), blended in and out at the run's edges.
 - :func:`skating_ratio`: GMD's foot skating ratio (Karunratanakul et al., "Guided Motion Diffusion
   for Controllable Human Motion Synthesis", ICCV 2023, §6.1 "Evaluation metrics";
   korrawe/guided-motion-diffusion ``data_loaders/humanml/utils/metrics.py``,
@@ -227,10 +227,16 @@ def plant_feet(
     return planted
 
 
+def step_speeds(positions: np.ndarray, fps: float) -> np.ndarray:
+    """(T − 1, ...) the horizontal speed of each step between frames of ``positions`` (T, ..., 3),
+    in their units per second."""
+    step = np.diff(positions[..., [0, 2]], axis=0)
+    return np.sqrt(dot(step, step)) * fps
+
+
 def _speeds(positions: np.ndarray, skeleton: Skeleton, fps: float) -> np.ndarray:
     """(T,) each frame's horizontal speed in m/s, the faster of the steps into and out of it."""
-    step = np.diff(positions[:, [0, 2]], axis=0)
-    speed = np.sqrt(dot(step, step)) * fps * skeleton.metres_per_unit
+    speed = step_speeds(positions * skeleton.metres_per_unit, fps)
     return np.maximum(np.concatenate([speed[:1], speed]), np.concatenate([speed, speed[-1:]]))
 
 
@@ -262,8 +268,7 @@ def skating_ratio(
     if len(joints) < 2:
         return float("nan")
     toes = joints[:, [skeleton.feet_left[1], skeleton.feet_right[1]]] * skeleton.metres_per_unit
-    step = np.diff(toes[..., [0, 2]], axis=0)
-    horizontal = np.sqrt(dot(step, step)).T * fps  # (2, T − 1) m/s
+    horizontal = step_speeds(toes, fps).T  # (2, T − 1) m/s
     low = toes[..., 1].T < height
     skating = (low[:, :-1] & low[:, 1:]) & (horizontal > speed) & (moving_average(horizontal, window) > speed)
     return float(skating.any(axis=0).mean())
