@@ -443,6 +443,7 @@ def _generate(args: argparse.Namespace) -> None:
 
 def _edit_timeline(args: argparse.Namespace) -> None:
     """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
+    from m2d2m.layout import relative_to_project
     from orchestration.editing import plan_edit, pose_at, read_result, sample_edit
     from orchestration.generate import load_generator
 
@@ -470,7 +471,7 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     if args.method is not None:
         options["method"] = args.method
     for seed, variation in _variations(args, output):
-        motion = sample_edit(generator, edit, seed, f"{args.edit}: {said}", **options)
+        motion = sample_edit(generator, edit, seed, f"{relative_to_project(args.edit)}: {said}", **options)
         _report(motion, variation, edit.actions, args)
         if "pin_error_m" in motion.quality:
             print(f"  the pose is met within {motion.quality['pin_error_m'] * 1000:.0f} mm (its farthest joint)")

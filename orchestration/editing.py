@@ -11,7 +11,6 @@ and a pinned pose are whole steps.
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Sequence
 from dataclasses import replace
@@ -35,16 +34,11 @@ from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.motion.body_parts import PARTS, part_mask
 from m2d2m.motion.clip import Motion
 from orchestration.errors import UserError
-from orchestration.viewing import load_features
+from orchestration.viewing import load_features, read_sidecar
 
 # a model whose multi-action method decodes actions together cannot keep frames across them
 # (MMM's transition tokens): it edits with its independent method, each action with its own kept tokens
 EDIT_METHODS = {"mmm": "independent"}
-
-
-def _sidecar_of(path: Path) -> Path:
-    """motion.npy and motion.features.npy both have motion.json."""
-    return path.with_name(path.name.removesuffix(".npy").removesuffix(".features") + ".json")
 
 
 def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
@@ -54,29 +48,40 @@ def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
     path = Path(path)
     features_file = path if path.name.endswith(".features.npy") else path.with_name(path.stem + ".features.npy")
     features = load_features(features_file if features_file.is_file() else path, generator.skeleton)
-    actions, starts = [""], [0]
-    sidecar = _sidecar_of(path)
-    if sidecar.is_file():
-        try:
-            record = json.loads(sidecar.read_text(encoding="utf-8"))
-            scale = generator.fps / float(record["fps"])
-            segments = [(round(s["start_frame"] * scale), str(s["text"])) for s in record["segments"]]
-        except (ValueError, KeyError, TypeError) as error:
-            raise UserError(f"{sidecar}: not the sidecar m2d2m writes beside a .npy ({error})") from error
-        if segments:
-            starts = [0, *(start for start, _ in segments[1:])]
-            actions = [text for _, text in segments]
-    return _fitted(Timeline(features, actions, starts), generator.frame_step, str(path))
+    sidecar = read_sidecar(path)
+    if sidecar is None or not sidecar["segments"]:
+        return _fitted(Timeline(features, [""], [0]), generator.frame_step, str(path))
+    segments = sidecar["segments"]
+    return _timeline(
+        features,
+        [str(s["text"]) for s in segments],
+        [s["start_frame"] for s in segments],
+        generator,
+        float(sidecar["fps"]),
+        str(path),
+    )
 
 
 def timeline_of(motion: Motion, generator: MotionGenerator, origin: str) -> Timeline:
     """The timeline of a result in memory (a served generation): its features, at the model's
     rate, and its actions, whose frames a delivery at another rate changed."""
-    scale = generator.fps / motion.fps
-    starts = [0, *(round(first * scale) for first, _ in motion.ranges[1:])]
-    return _fitted(
-        Timeline(np.asarray(motion.features), list(motion.actions) or [""], starts), generator.frame_step, origin
-    )
+    firsts = [first for first, _ in motion.ranges]
+    return _timeline(np.asarray(motion.features), list(motion.actions), firsts, generator, motion.fps, origin)
+
+
+def _timeline(
+    features: np.ndarray,
+    actions: list[str],
+    firsts: list[int],
+    generator: MotionGenerator,
+    fps: float,
+    origin: str,
+) -> Timeline:
+    """Features at the model's rate with actions starting at ``firsts`` frames of ``fps`` (the
+    first action from frame 0), fitted to the model's steps."""
+    scale = generator.fps / fps
+    starts = [0, *(round(first * scale) for first in firsts[1:])]
+    return _fitted(Timeline(features, actions or [""], starts), generator.frame_step, origin)
 
 
 def _fitted(timeline: Timeline, step: int, origin: str) -> Timeline:
@@ -100,6 +105,12 @@ def _frames(generator: MotionGenerator, seconds: float, what: str) -> int:
     if not seconds > 0:
         raise UserError(f"{what} must be a positive number of seconds, got {seconds:g}")
     return generator.round_frames(round(seconds * generator.fps))
+
+
+def _frame_at(generator: MotionGenerator, seconds: float) -> int:
+    """The frame at ``seconds``, on the model's step grid (a token's first frame)."""
+    step = generator.frame_step
+    return int(round(seconds * generator.fps)) // step * step
 
 
 def margin_frames(generator: MotionGenerator) -> int:
@@ -126,11 +137,16 @@ def fill(generator: MotionGenerator, first: Timeline, second: Timeline, seconds:
         raise UserError(str(error)) from error
 
 
-def extend_with(generator: MotionGenerator, timeline: Timeline, texts: Sequence[str], seconds: Sequence[float]) -> Edit:
-    """``texts`` appended, each ``seconds`` long."""
+def extend_with(
+    generator: MotionGenerator, timeline: Timeline, texts: Sequence[str], seconds: Sequence[float | None]
+) -> Edit:
+    """``texts`` appended, each ``seconds`` long (None: the model's typical length)."""
     if len(texts) != len(seconds):
         raise UserError(f"give one length per new action: {len(texts)} action(s), {len(seconds)} length(s)")
-    frames = [_frames(generator, s, "--seconds") for s in seconds]
+    frames = [
+        generator.round_frames(generator.typical_frames(None)) if s is None else _frames(generator, s, "--seconds")
+        for s in seconds
+    ]
     try:
         return continue_after(timeline, list(texts), frames, margin_frames(generator))
     except ValueError as error:
@@ -139,10 +155,9 @@ def extend_with(generator: MotionGenerator, timeline: Timeline, texts: Sequence[
 
 def pin_pose(generator: MotionGenerator, timeline: Timeline, pose: np.ndarray, seconds: float) -> tuple[Edit, int]:
     """``pose`` (one frame's features) pinned at ``seconds``: the edit and the frame it lands on."""
-    step = generator.frame_step
-    frame = int(round(seconds * generator.fps)) // step * step
+    frame = _frame_at(generator, seconds)
     try:
-        return hold_pose(timeline, pose, frame, step, margin_frames(generator)), frame
+        return hold_pose(timeline, pose, frame, generator.frame_step, margin_frames(generator)), frame
     except ValueError as error:
         raise UserError(str(error)) from error
 
@@ -180,8 +195,7 @@ def lay_part(generator: MotionGenerator, timeline: Timeline, part: str, text: st
     keep whole frames and refuse when sampling."""
     if part not in PARTS:
         raise UserError(f"unknown body part {part!r}: choose from {', '.join(PARTS)}")
-    step = generator.frame_step
-    first, end = (int(round(seconds * generator.fps)) // step * step for seconds in span)
+    first, end = (_frame_at(generator, seconds) for seconds in span)
     try:
         return layer_part(timeline, (first, end), part_mask(generator.skeleton, part), text, margin_frames(generator))
     except ValueError as error:
@@ -199,7 +213,7 @@ def plan_edit(
     generator: MotionGenerator,
     timeline: Timeline,
     prompts: Sequence[str],
-    seconds: Sequence[float] | None,
+    seconds: Sequence[float | None] | None,
     regenerate: int | None = None,
     fill_to: Timeline | None = None,
     pose: np.ndarray | None = None,
@@ -252,9 +266,7 @@ def plan_edit(
         ), f"{layer[0]} body doing {layer[1]!r} from {span[0]:g} to {span[1]:g} s"
     if not prompts:
         raise UserError("continuing takes the new actions' texts (prompts)")
-    lengths = seconds * len(prompts) if len(seconds) == 1 else seconds
-    if not lengths:
-        lengths = [generator.typical_frames(None) / generator.fps] * len(prompts)
+    lengths = seconds * len(prompts) if len(seconds) == 1 else seconds or [None] * len(prompts)
     return extend_with(generator, timeline, prompts, lengths), f"{len(prompts)} action(s) added"
 
 

@@ -131,19 +131,20 @@ def _segments_of(corpus: Path, clip_id: str) -> list[tuple[int, int, str]]:
     return []
 
 
-def _read_sidecar(npy: Path, frames: int) -> dict | None:
-    """The JSON sidecar that :func:`m2d2m.motion.export.save_joints` wrote beside ``npy`` (none: a
-    file without one); one line when it is not one, or belongs to an array of another length."""
-    sidecar = npy.with_suffix(".json")
+def read_sidecar(npy: Path) -> dict | None:
+    """The JSON sidecar that :func:`m2d2m.motion.export.save_motion_npy` wrote beside ``npy``
+    (``motion.json`` for ``motion.npy`` and ``motion.features.npy`` alike; none: a file without
+    one), its fields checked; one line when it is not one."""
+    sidecar = npy.with_name(npy.name.removesuffix(".npy").removesuffix(".features") + ".json")
     if not sidecar.is_file():
         return None
     try:
         record = json.loads(sidecar.read_text(encoding="utf-8"))
-        stated = int(record["num_frames"]), float(record["fps"]), record["skeleton"], record["segments"]
+        # each field as its readers take it, so that a broken one is this line and not theirs
+        int(record["num_frames"]), float(record["fps"]), str(record["skeleton"])
+        [(int(s["start_frame"]), int(s["end_frame"]), str(s["text"])) for s in record["segments"]]
     except (ValueError, KeyError, TypeError) as error:
         raise UserError(f"{sidecar}: not the sidecar m2d2m writes beside a .npy ({error}); fix or move it") from error
-    if stated[0] != frames:
-        raise UserError(f"{sidecar}: states {stated[0]} frames, {npy.name} has {frames}; it belongs to another file")
     return record
 
 
@@ -152,7 +153,12 @@ def _from_npy(path: Path, skeleton: str | None) -> LoadedMotion:
     ``skeleton`` names one), the frame rate, the actions and, for an in-place clip, the root motion
     taken out, put back so that the clip is what was generated."""
     array = _load_npy(path)
-    sidecar = _read_sidecar(path, len(array)) if array.ndim == 3 else None
+    sidecar = read_sidecar(path) if array.ndim == 3 else None
+    if sidecar is not None and int(sidecar["num_frames"]) != len(array):
+        raise UserError(
+            f"{path.with_suffix('.json')}: states {sidecar['num_frames']} frames, {path.name} has {len(array)}; "
+            "it belongs to another file"
+        )
     name = skeleton or (sidecar or {}).get("skeleton", "t2m")
     if name not in SKELETONS:
         raise UserError(f"unknown skeleton {name!r}; choose one of {', '.join(SKELETONS)}")

@@ -37,8 +37,8 @@ class Edit:
     """A request on a new timeline: ``actions`` with their lengths in ``frames`` (they tile it),
     the ``keep`` the model is given (features laid out on the timeline, the frames it keeps), and
     ``paste``, the frames (F,) or entries (F, D) whose features are copied from ``keep.features``
-    into the result;
-    ``pin``: the frame and features of a pinned pose, which the result is measured against."""
+    into the result; ``pin``: the frame and features of a pinned pose, which the result is
+    measured against."""
 
     actions: list[str]
     frames: list[int]
@@ -65,13 +65,6 @@ class Timeline:
     features: np.ndarray
     actions: list[str]
     starts: list[int]
-
-    @classmethod
-    def of(cls, motion: Motion) -> Timeline:
-        starts = [first for first, _ in motion.ranges]
-        if not starts or starts[0] != 0:
-            starts = [0, *starts[1:]] if starts else [0]
-        return cls(np.asarray(motion.features, dtype=np.float32), list(motion.actions) or [""], starts)
 
     @property
     def frames(self) -> list[int]:

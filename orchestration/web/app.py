@@ -37,7 +37,7 @@ from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
 from orchestration.runs import stage_dir
 from orchestration.web.catalog import Catalog, NotFound
 from orchestration.web.edits import plan_edit_request
-from orchestration.web.generations import FILES, Generations
+from orchestration.web.generations import FILES, Generation, Generations
 from orchestration.web.rigs import RIGS_STAGE, Rigs
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
 from orchestration.web.schema import EditRequest, GenerateRequest, Plan, SplitRequest, plan_request
@@ -108,10 +108,11 @@ class Service:
         job = Job(generator, (request.model, run, plan.options), plan.options, plan.actions, plan.frames, request.seed)
         return job, plan, run
 
-    def prepare_edit(self, parent_id: str, request: EditRequest) -> tuple[Job, Plan, str, Callable[[Motion], Motion]]:
+    def prepare_edit(
+        self, parent: Generation, request: EditRequest
+    ) -> tuple[Job, Plan, str, Callable[[Motion], Motion]]:
         """An edit of a generation by the model and run that made it: its job, its plan, the run,
         and how its sample is finished (the kept frames pasted back, the parent recorded)."""
-        parent = self.generations.get(parent_id)
         run, generator = self.catalog.generator(parent.model, parent.run)
         edit, said, plan = plan_edit_request(request, parent, self.generations, generator)
         key = (parent.model, run, plan.options)
@@ -228,8 +229,8 @@ def create_app(settings: ServeSettings) -> FastAPI:
         responses={200: {"content": {NDJSON: {}}, "description": "the new generation, or its progress and then it"}},
     )
     async def edit(generation_id: str, body: EditRequest, request: Request) -> Any:
-        job, plan, run, finishing = await run_in_threadpool(service.prepare_edit, generation_id, body)
         parent = service.generations.get(generation_id)
+        job, plan, run, finishing = await run_in_threadpool(service.prepare_edit, parent, body)
         return await _sampled(request, job, service.finish(job, parent.model, plan, run, finishing))
 
     async def _sampled(request: Request, job: Job, finishing: Any) -> Any:

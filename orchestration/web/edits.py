@@ -53,10 +53,7 @@ def plan_edit_request(
     else:
         texts = [action.text for action in request.actions or ()]
     if request.actions is not None:
-        seconds = [
-            a.seconds if a.seconds is not None else generator.typical_frames(None) / generator.fps
-            for a in request.actions
-        ]
+        seconds = [action.seconds for action in request.actions]  # None: the model's typical length
     else:
         seconds = [] if request.seconds is None else [request.seconds]
     pose = None

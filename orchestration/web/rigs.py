@@ -1,7 +1,7 @@
 """Characters' rigs a person uploads to the server, to download generations retargeted onto them
 (issue 40 §2, §5; docs/serving.md): each a BVH file (its hierarchy and OFFSETs) or a GLB
-character (its skin's skeleton as it stands), kept by the hash of its bytes, with the joint map its joints take, checked on upload so that a download never
-fails on the rig."""
+character (its skin's skeleton as it stands), kept by the hash of its bytes, with the joint map
+its joints take, checked on upload so that a download never fails on the rig."""
 
 from __future__ import annotations
 
