@@ -19,7 +19,9 @@ import torch
 import yaml
 from torch.utils._python_dispatch import TorchDispatchMode
 
+from m2d2m.generators.edits import Timeline, layer_part
 from m2d2m.generators.protocol import keep_part
+from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.representation import joints_to_features
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
@@ -140,6 +142,15 @@ def test_every_generator_samples_under_bf16_autocast(bf16_project):
     source = joints_to_features(pose_clip(T2M, 41, seed=3), T2M)
     keep = keep_part(source, T2M, "lower")
     _sampled_in_bf16(lambda: editor.generate([["a person claps"]], [[40]], editor.options(), [0], [keep]))
+    # an edit's keep frame by frame (a body part over a span: m2d2m.generators.edits.layer_part)
+    layered = layer_part(Timeline(source[:40], ["a person walks"], [0]), (8, 32), part_mask(T2M, "upper"), "waves", 4)
+    (edited,) = _sampled_in_bf16(
+        lambda: motiondiffuse.generate(
+            [layered.actions], [layered.frames], motiondiffuse.options(), [0], [layered.keep]
+        )
+    )
+    lower = ~part_mask(T2M, "upper")
+    assert np.abs(edited.features[:, lower] - source[:40, lower]).max() < 1e-3  # the rest of the body replaced
     # a token model's reconstruction row: encoded and decoded by the codec, in float32
     m2d2m = load_generator("m2d2m", "latest", "tiny", device="cpu").use_precision("bf16")
     (reconstruction,) = m2d2m.reconstruct([[source[:32], source[8:40]]])
