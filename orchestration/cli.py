@@ -1042,6 +1042,13 @@ def _add_evaluate(verbs) -> None:
         "given the lower; mmm-body); repeatable or a comma list",
     )
     evaluate.add_argument(
+        "--regenerate",
+        type=_positive_int,
+        metavar="K",
+        help="also the timeline-editing table: action K of every instance sampled again by an edit that keeps "
+        "the rest, against the whole sequence sampled again (R-Top3, FID, transition FID, Jerk)",
+    )
+    evaluate.add_argument(
         "--batch-size", type=_positive_int, default=64, help="sequences generated at once (default 64)"
     )
     evaluate.add_argument(

@@ -20,14 +20,15 @@ from typing import Any
 import numpy as np
 
 from m2d2m.generators.edits import (
-    EDIT_MARGIN_SECONDS,
     Edit,
     Timeline,
     apply_edit,
+    body_of,
     continue_after,
     fill_between,
     hold_pose,
     layer_part,
+    margin_frames,
     regenerate_action,
 )
 from m2d2m.generators.protocol import MotionGenerator
@@ -113,11 +114,6 @@ def _frame_at(generator: MotionGenerator, seconds: float) -> int:
     return int(round(seconds * generator.fps)) // step * step
 
 
-def margin_frames(generator: MotionGenerator) -> int:
-    """:data:`EDIT_MARGIN_SECONDS` in whole steps of the model."""
-    return generator.round_frames(round(EDIT_MARGIN_SECONDS * generator.fps))
-
-
 def redo_action(
     generator: MotionGenerator, timeline: Timeline, action: int, text: str | None = None, seconds: float | None = None
 ) -> Edit:
@@ -176,7 +172,7 @@ def finish_edit(edit: Edit, sampled: Motion, generator: MotionGenerator, said: s
     motion = apply_edit(edit, sampled, generator.skeleton)
     edited = ~edit.paste.reshape(len(edit.paste), -1).all(axis=1)  # a frame with any entry sampled
     settings = {**motion.settings, "edit": said, "edited_frames": int(edited.sum()), **recorded}
-    return replace(motion, settings=settings).on_rigid_skeleton()
+    return replace(motion, settings=settings).on_rigid_skeleton(body_of(edit, generator.skeleton))
 
 
 def sample_edit(generator: MotionGenerator, edit: Edit, seed: int = 0, said: str = "", **options: Any) -> Motion:

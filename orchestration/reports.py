@@ -46,6 +46,12 @@ EDIT_COLUMNS = (
     ("mm_dist", "MM-Dist ↓"),
     ("diversity", "Diversity →"),
 )  # MMM Table 3's, and R-Top3 as every table here has
+REGENERATE_COLUMNS = (
+    ("r_top3", "R-Top3 ↑"),
+    ("fid", "FID ↓"),
+    ("transition_fid", "Transition FID ↓"),
+    ("jerk", "Jerk →"),
+)  # the timeline-editing table's: the regenerated action, and the transitions at its joins
 EDIT_TITLES = {"inbetween": "In-betweening", "upper": "Upper-body editing"}
 # the suffix of a multi-motion row's feet rows (m2d2m.evaluation.measurements.FEET_VARIANTS)
 FEET_TITLES = {"planted": ", feet planted"}
@@ -128,6 +134,9 @@ def render_table(table: dict[str, Any]) -> str:
         lines += _markdown("Single-motion (paper Table 3)", SINGLE_COLUMNS, table["single"], titles)
     if "editing" in table:
         lines += _markdown("Editing (MMM Table 3)", EDIT_COLUMNS, table["editing"], titles)
+    if "regenerate" in table:
+        title = f"Editing on the timeline: action {settings['regenerate']} of {testset['n']} sampled again"
+        lines += _markdown(title, REGENERATE_COLUMNS, table["regenerate"], titles)
     lines += [f"- {note}" for note in table["notes"]]
     return "\n".join(lines) + "\n"
 
@@ -214,7 +223,8 @@ def table_metrics(table: dict[str, Any]) -> dict[str, float]:
     models are judged; ``multi/reconstruction/jerk``), ``gt/<metric>_single``, ``gt/jerk_concat``,
     ``single/<metric>`` (``single/<model>/<metric>`` for several models),
     ``single/reconstruction/<metric>``, ``edit/<task>/<text|no_text>/<metric>`` (the editing table's
-    rows, ``edit/<model>/...`` for several models), each with a ``_ci`` twin; undefined values are left out."""
+    rows, ``edit/<model>/...`` for several models), ``regenerate/regenerate<K>/<edit|whole>/<metric>``
+    (the timeline-editing table's), each with a ``_ci`` twin; undefined values are left out."""
     names = {}
     sections = [("multi", row, values) for row, values in table["multi"].items()]
     sections += [("single", row, values) for row, values in table.get("single", {}).items() if row != GT_SINGLE]
@@ -223,6 +233,7 @@ def table_metrics(table: dict[str, Any]) -> dict[str, float]:
         for row, values in table.get("editing", {}).items()
         if row != GT_SINGLE and not row.startswith(RECONSTRUCTION)
     ]
+    sections += [("regenerate", row, values) for row, values in table.get("regenerate", {}).items()]
     for section, row, values in sections:
         for metric, summary in values.items():
             if summary["mean"] is None:

@@ -17,6 +17,7 @@ from orchestration.train import train_evaluator, train_vq
 from pipelines.features import DataConfig, build_dataset
 from tests.helpers import TINY_DIFFUSION, TINY_EVALUATOR, TINY_VQ_RUN, write_corpus
 
+pytest_plugins = ["tests.browser"]  # the page tests' Chromium
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 HUMANML3D_SAMPLE = PROJECT_ROOT / "tests" / "fixtures" / "humanml3d-sample"
 

@@ -13,6 +13,7 @@ import pytest
 from m2d2m.generators.edits import (
     Timeline,
     apply_edit,
+    body_of,
     continue_after,
     fill_between,
     hold_pose,
@@ -115,6 +116,24 @@ def test_applying_an_edit_pastes_the_kept_features_and_derives_the_joints():
     np.testing.assert_array_equal(done.features[8:], sampled[8:])
     np.testing.assert_array_equal(done.joints[:8], features_to_joints(source.features, T2M)[:8])
     assert done.actions == ["a", "new"] and done.ranges == [(0, 12), (12, 24)]
+
+
+def test_an_edit_put_on_its_sources_body_keeps_the_kept_frames_joints(sample_features):
+    """HumanML3D's clip 012314 with its last two seconds sampled again (here: its own frames with
+    a model's jitter of a few centimetres on every joint): on the source's rigid body (body_of) the
+    kept frames' joints are the source's own on one rigid skeleton, where a body fitted to the new
+    clip moves them by millimetres."""
+    source = Timeline(sample_features, ["walk", "turn"], [0, 130])
+    edit = regenerate_action(source, 1, margin=8)
+    jitter = np.random.default_rng(0).normal(scale=0.03, size=(170, 21 * 3)).astype(np.float32)
+    sampled = sample_features.copy()
+    sampled[:, 4 : 4 + 21 * 3] += jitter
+    joints = features_to_joints(sampled, T2M)
+    motion = apply_edit(edit, Motion(sampled, joints, 20.0, T2M.name, ["x", "y"], [(0, 130), (130, 170)]), T2M)
+    original = Motion(sample_features, features_to_joints(sample_features, T2M), 20.0, T2M.name, ["w"], [(0, 170)])
+    kept = original.on_rigid_skeleton().joints[:122]
+    np.testing.assert_allclose(motion.on_rigid_skeleton(body_of(edit, T2M)).joints[:122], kept, atol=1e-5)
+    assert np.abs(motion.on_rigid_skeleton().joints[:122] - kept).max() > 1e-3
 
 
 @pytest.mark.slow

@@ -21,23 +21,17 @@ import shutil
 import struct
 import time
 import urllib.request
-from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 from m2d2m.generators.m2d2m_options import SAMPLING
 from orchestration.web.app import ServeSettings
+from tests.browser import NEEDS_CHROMIUM, find_all_css, open_page, wait_for
 from tests.live_server import live_server
 from tests.test_export import parse_bvh
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-DRIVER = shutil.which("chromedriver")
-pytestmark = pytest.mark.skipif(
-    not (CHROMIUM and DRIVER), reason="no chromium and chromedriver here (apt-get install chromium chromium-driver)"
-)
-# read at import, while the working directory is still the one the command was started in
-SERVE_PROJECT = Path(os.environ["M2D2M_SERVE_PROJECT"]).resolve() if os.environ.get("M2D2M_SERVE_PROJECT") else None
+pytestmark = NEEDS_CHROMIUM
 ACTIONS = [("a person walks forward", "1.6"), ("a person jumps", "1.2"), ("a person waves their right hand", "2")]
 
 # Pixels of the player's canvas that differ from its corner's colour (the background), and a
@@ -85,67 +79,12 @@ return [[x, y - 0.6 * r], [x - 0.6 * r, y], [x + 0.6 * r, y]].map(
 SHOWN_WHOLE = "const e = arguments[0]; return e.scrollWidth <= e.clientWidth && e.scrollHeight <= e.clientHeight;"
 
 
-@pytest.fixture
-def browser(tmp_path) -> Iterator:
-    yield from _chromium(tmp_path)
-
-
-@pytest.fixture
-def offline_browser(tmp_path) -> Iterator:
-    """A Chromium that resolves no host but the loopback one: a machine without internet."""
-    yield from _chromium(tmp_path, "--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE 127.0.0.1")
-
-
-def _chromium(tmp_path: Path, *arguments: str) -> Iterator:
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for argument in (
-        "--headless=new",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-dev-shm-usage",
-        "--window-size=1400,900",
-        *arguments,
-    ):
-        options.add_argument(argument)
-    options.add_experimental_option(
-        "prefs", {"download.default_directory": str(tmp_path), "download.prompt_for_download": False}
-    )
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(options=options, service=Service(DRIVER))
-    driver.downloads = tmp_path
-    try:
-        yield driver
-    finally:
-        driver.quit()
-
-
-@pytest.fixture
-def dataset(trained_project, monkeypatch) -> str:
-    """The dataset whose models the page serves: the tiny project's, or another project's demo models."""
-    if SERVE_PROJECT is not None:
-        monkeypatch.chdir(SERVE_PROJECT)
-        return "synthetic"
-    return "tiny"
-
-
-def wait_for(condition: Callable[[], object], seconds: float = 120, what: str = "") -> object:
-    deadline = time.monotonic() + seconds
-    while not (value := condition()):
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.1)
-    return value
-
-
-def test_a_newcomer_generates_three_actions_scrubs_compares_and_downloads_the_bvh(dataset, browser):
+def test_a_newcomer_generates_three_actions_scrubs_compares_and_downloads_the_bvh(served_dataset, browser):
     from selenium.webdriver.common.by import By
 
     find = browser.find_element
     find_all = browser.find_elements
-    with live_server(ServeSettings(dataset=dataset)) as (base, _):
+    with live_server(ServeSettings(dataset=served_dataset)) as (base, _):
         browser.get(base + "/")
         wait_for(lambda: find_all(By.CSS_SELECTOR, "#lanes .lane [data-knob]"), 60, "the model's knobs")
         find(By.ID, "add-action").click()
@@ -240,33 +179,18 @@ def test_the_api_documentation_renders_without_internet(tmp_path, monkeypatch, o
             assert {"/api/generate", "/api/models"} <= {o.get_attribute("data-path") for o in operations}
 
 
-def find_all_css(browser, selector: str) -> list:
-    return browser.find_elements("css selector", selector)
-
-
-# whether the page has its first lane's run details (GET /api/models/{model}/runs/{run})
-RUN_DETAILS_LOADED = "return performance.getEntriesByType('resource').some((e) => e.name.includes('/runs/'));"
-
-
-def open_page(browser, base: str) -> None:
-    """The page, once its first lane has its run's details (its knobs, limits and actions)."""
-    browser.get(base + "/")
-    wait_for(lambda: browser.execute_script(RUN_DETAILS_LOADED), 60, "the run's details")
-    time.sleep(0.3)  # for the page to show them
-
-
 def choose_method(lane, method: str) -> None:
     from selenium.webdriver.support.ui import Select
 
     Select(lane.find_element("css selector", ".lane-method")).select_by_value(method)
 
 
-def test_the_knobs_are_named_for_people_with_their_help_in_view_and_only_the_methods_own(dataset, browser):
+def test_the_knobs_are_named_for_people_with_their_help_in_view_and_only_the_methods_own(served_dataset, browser):
     """Issue 38, item 8: knobs shown as ts, eta, guidance with help only in tooltips, and
     handshake and slerp shown (and sent) for tps."""
     from selenium.webdriver.common.by import By
 
-    with live_server(ServeSettings(dataset=dataset, track=False)) as (base, _):
+    with live_server(ServeSettings(dataset=served_dataset, track=False)) as (base, _):
         open_page(browser, base)
         lane = browser.find_element(By.CSS_SELECTOR, "#lanes .lane")
         methods = lane.find_elements(By.CSS_SELECTOR, ".lane-method option")
@@ -305,13 +229,13 @@ def test_the_knobs_are_named_for_people_with_their_help_in_view_and_only_the_met
         }
 
 
-def test_the_limits_and_the_known_actions_are_shown_where_the_user_types(dataset, browser):
+def test_the_limits_and_the_known_actions_are_shown_where_the_user_types(served_dataset, browser):
     """Issue 38, items 7 and 8: the header said "up to 60 s" while an action is capped at a few
     seconds, an action's field cut its sentence, and nothing said which actions the model knows."""
     from selenium.webdriver.common.by import By
 
     find = browser.find_element
-    with live_server(ServeSettings(dataset=dataset, track=False)) as (base, _):
+    with live_server(ServeSettings(dataset=served_dataset, track=False)) as (base, _):
         open_page(browser, base)
         with urllib.request.urlopen(base + "/api/models/m2d2m/runs/latest") as answer:
             details = json.load(answer)
@@ -338,7 +262,7 @@ def test_the_limits_and_the_known_actions_are_shown_where_the_user_types(dataset
         assert browser.execute_script(SHOWN_WHOLE, fields[0]), "the action's field cuts its sentence"
 
 
-def test_a_result_is_titled_in_words_with_whole_labels_a_head_sides_notices_and_a_tpose_bvh(dataset, browser):
+def test_a_result_is_titled_in_words_with_whole_labels_a_head_sides_notices_and_a_tpose_bvh(served_dataset, browser):
     """Issue 38, items 7, 8, 12 and 13: titles in the paper's notation, action labels cut to
     'a person p…', no head or left/right in the player, compared lanes zoomed differently, the
     model's notices unseen, an MLflow link with nothing said of `make ui`, one BVH rest pose."""
@@ -346,7 +270,7 @@ def test_a_result_is_titled_in_words_with_whole_labels_a_head_sides_notices_and_
     from selenium.webdriver.support.ui import Select
 
     actions = ["a person walks forward", "a person waves their right hand high above their head", "a person jumps"]
-    with live_server(ServeSettings(dataset=dataset)) as (base, _):
+    with live_server(ServeSettings(dataset=served_dataset)) as (base, _):
         open_page(browser, base)
         browser.find_element(By.ID, "add-action").click()
         for field, text in zip(find_all_css(browser, "#actions .action-text"), actions, strict=True):
@@ -414,12 +338,12 @@ def test_a_result_is_titled_in_words_with_whole_labels_a_head_sides_notices_and_
         assert not errors, errors
 
 
-def test_a_sentence_is_split_into_the_list_to_fix_before_generating(dataset, browser):
+def test_a_sentence_is_split_into_the_list_to_fix_before_generating(served_dataset, browser):
     """Issue 39, §4: the page shows the split of a sentence before sampling, and lets a person fix it."""
     from selenium.webdriver.common.by import By
 
     find = browser.find_element
-    with live_server(ServeSettings(dataset=dataset, track=False)) as (base, _):
+    with live_server(ServeSettings(dataset=served_dataset, track=False)) as (base, _):
         open_page(browser, base)
         find(By.CSS_SELECTOR, "input[name='mode'][value='sentence']").click()
         find(By.ID, "prompt").send_keys("a person walks forward and then jumps")
@@ -460,14 +384,14 @@ def download(browser, link, pattern: str) -> Path:
     return wait_for(lambda: next(iter(set(browser.downloads.glob(pattern)) - before), None), 60, pattern)
 
 
-def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_variations(dataset, browser):
+def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_variations(served_dataset, browser):
     """Issue 40, §5: the page's download menu takes `m2d2m generate`'s options (frame rate, root,
     loop, foot fix, variations) and a rig uploaded from the page, and downloads what they make."""
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import Select
 
     find = browser.find_element
-    with live_server(ServeSettings(dataset=dataset, track=False)) as (base, _):
+    with live_server(ServeSettings(dataset=served_dataset, track=False)) as (base, _):
         open_page(browser, base)
         fps = Select(find(By.ID, "fps"))
         assert fps.first_selected_option.text == "The model's (20 fps)"

@@ -159,6 +159,8 @@ def test_the_three_models_are_judged_in_one_evaluate_run(trained_project, tiny_t
                 "--single",
                 "--edit",
                 "upper",
+                "--regenerate",
+                "2",
                 "--batch-size",
                 "4",
             ]
@@ -176,8 +178,20 @@ def test_the_three_models_are_judged_in_one_evaluate_run(trained_project, tiny_t
     assert table["codecs"] == {"m2d2m": "reconstruction", "mmm": "reconstruction"}
     assert set(table["single"]) >= {"generated/m2d2m", "generated/mmm", "generated/motiondiffuse"}
     assert {"motiondiffuse/upper/text", "motiondiffuse/upper/no_text"} <= set(table["editing"])
+    # issue 41's table: the second action sampled again by an edit, against the whole sequence again
+    regenerated = {
+        f"{name}/regenerate2/{version}" for name in ("m2d2m", "mmm", "motiondiffuse") for version in ("edit", "whole")
+    }
+    assert set(table["regenerate"]) == regenerated
+    assert all(
+        np.isfinite(table["regenerate"][row][metric]["mean"])
+        for row in regenerated
+        for metric in ("r_top3", "fid", "transition_fid", "jerk")
+    )
+    assert "## Editing on the timeline: action 2 of 2 sampled again" in (run_dir / "table.md").read_text()
     client = mlflow.MlflowClient(f"sqlite:///{trained_project / 'mlflow.db'}")
     parent = client.get_run(read_run_info(run_dir)["mlflow_run_id"])
+    assert "regenerate/mmm/regenerate2/edit/fid" in parent.data.metrics
     children = client.search_runs([parent.info.experiment_id], f"tags.mlflow.parentRunId = '{parent.info.run_id}'")
     assert {run.info.run_name for run in children} == {"m2d2m", "mmm", "motiondiffuse"}
     assert (run_dir / "fig5.png").exists()

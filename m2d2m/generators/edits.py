@@ -24,9 +24,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from m2d2m.generators.protocol import Keep
+from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.rigid import rigid_shapes
 from m2d2m.motion.skeleton import Skeleton
 
 EDIT_MARGIN_SECONDS = 0.4  # sampled again on each side of a changed span, so that the join is the model's
@@ -37,13 +38,15 @@ class Edit:
     """A request on a new timeline: ``actions`` with their lengths in ``frames`` (they tile it),
     the ``keep`` the model is given (features laid out on the timeline, the frames it keeps), and
     ``paste``, the frames (F,) or entries (F, D) whose features are copied from ``keep.features``
-    into the result; ``pin``: the frame and features of a pinned pose, which the result is
+    into the result; ``body``: the source's features, whose rigid body the result is put on
+    (:func:`body_of`); ``pin``: the frame and features of a pinned pose, which the result is
     measured against."""
 
     actions: list[str]
     frames: list[int]
     keep: Keep
     paste: np.ndarray
+    body: np.ndarray
     pin: tuple[int, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
@@ -79,6 +82,11 @@ class Timeline:
         return self.starts[index], self.starts[index] + self.frames[index]
 
 
+def margin_frames(generator: MotionGenerator) -> int:
+    """:data:`EDIT_MARGIN_SECONDS` in whole steps of the model."""
+    return generator.round_frames(round(EDIT_MARGIN_SECONDS * generator.fps))
+
+
 def _free(count: int, span: tuple[int, int], margin: int) -> np.ndarray:
     """(count,) True outside ``span`` widened by ``margin`` on each side: the frames kept."""
     kept = np.ones(count, dtype=bool)
@@ -98,8 +106,8 @@ def _placeholder(before: np.ndarray, after: np.ndarray, frames: int) -> np.ndarr
     return np.concatenate([np.repeat(before[-1:], half, axis=0), np.repeat(after[:1], frames - half, axis=0)])
 
 
-def _edit(features: np.ndarray, actions: list[str], frames: list[int], kept: np.ndarray) -> Edit:
-    return Edit(actions, frames, Keep(features, kept), kept.copy())
+def _edit(features: np.ndarray, actions: list[str], frames: list[int], kept: np.ndarray, body: np.ndarray) -> Edit:
+    return Edit(actions, frames, Keep(features, kept), kept.copy(), body)
 
 
 def regenerate_action(
@@ -117,13 +125,14 @@ def regenerate_action(
     actions[index] = actions[index] if text is None else text
     lengths = list(timeline.frames)
     lengths[index] = frames
-    return _edit(features, actions, lengths, _free(len(features), (first, first + frames), margin))
+    return _edit(features, actions, lengths, _free(len(features), (first, first + frames), margin), timeline.features)
 
 
 def fill_between(first: Timeline, second: Timeline, gap: int, margin: int, text: str = "") -> Edit:
     """``first``, then ``gap`` new frames doing ``text`` (empty: whatever joins them, the model's
     null condition), then ``second``: the in-between sampled with both ends kept outside
-    ``margin`` frames of it."""
+    ``margin`` frames of it. The result takes ``first``'s body, which ``second``'s frames may
+    differ from by millimetres."""
     if gap <= 0:
         raise ValueError(f"a gap of at least one frame, got {gap}")
     features = np.concatenate([first.features, _placeholder(first.features, second.features, gap), second.features])
@@ -133,6 +142,7 @@ def fill_between(first: Timeline, second: Timeline, gap: int, margin: int, text:
         [*first.actions, text, *second.actions],
         [*first.frames, gap, *second.frames],
         _free(len(features), (start, start + gap), margin),
+        first.features,
     )
 
 
@@ -149,6 +159,7 @@ def continue_after(timeline: Timeline, actions: Sequence[str], frames: Sequence[
         [*timeline.actions, *actions],
         [*timeline.frames, *frames],
         _free(len(features), (end, end + added), margin),
+        timeline.features,
     )
 
 
@@ -168,7 +179,9 @@ def hold_pose(timeline: Timeline, pose: np.ndarray, frame: int, step: int, margi
     pasted = _free(count, (frame, frame + step), margin)
     kept = pasted.copy()
     kept[frame : frame + step] = True
-    return Edit(list(timeline.actions), list(timeline.frames), Keep(features, kept), pasted, (frame, pose))
+    return Edit(
+        list(timeline.actions), list(timeline.frames), Keep(features, kept), pasted, timeline.features, (frame, pose)
+    )
 
 
 def layer_part(timeline: Timeline, span: tuple[int, int], part: np.ndarray, text: str, margin: int) -> Edit:
@@ -188,7 +201,7 @@ def layer_part(timeline: Timeline, span: tuple[int, int], part: np.ndarray, text
     entries = np.ones(timeline.features.shape, dtype=bool)
     entries[max(0, first - margin) : min(count, end + margin)] &= ~part
     keep = Keep(timeline.features, np.ones(count, dtype=bool), entries)
-    return Edit(actions, list(np.diff(cuts).tolist()), keep, entries.copy())
+    return Edit(actions, list(np.diff(cuts).tolist()), keep, entries.copy(), timeline.features)
 
 
 def apply_edit(edit: Edit, sampled: Motion, skeleton: Skeleton) -> Motion:
@@ -212,6 +225,13 @@ def apply_edit(edit: Edit, sampled: Motion, skeleton: Skeleton) -> Motion:
         actions=list(edit.actions),
         ranges=[(int(a), int(b)) for a, b in zip(starts[:-1], starts[1:])],
     )
+
+
+def body_of(edit: Edit, skeleton: Skeleton) -> dict[int, np.ndarray]:
+    """The rigid body of the edit's source (:func:`m2d2m.motion.rigid.rigid_shapes`): the result
+    put on it, its kept frames have the joints the source had; a body fitted to the result's own
+    frames would move them by up to centimetres."""
+    return rigid_shapes(features_to_joints(edit.body, skeleton), skeleton)
 
 
 def pin_error(features: np.ndarray, pose: np.ndarray, frame: int, skeleton: Skeleton) -> float:

@@ -74,12 +74,12 @@ class Motion:
     def segments(self) -> list[tuple[int, int, str]]:
         return [(first, end, text) for (first, end), text in zip(self.ranges, self.actions)]
 
-    def on_rigid_skeleton(self) -> Motion:
-        """This motion with its joints on one rigid skeleton (:mod:`m2d2m.motion.rigid`), so that a
-        BVH of it reproduces the ``.npy`` and the animation; the spread of bone lengths it had is
-        kept in ``quality``. The features stay the model's own."""
+    def on_rigid_skeleton(self, shapes: dict[int, np.ndarray] | None = None) -> Motion:
+        """This motion with its joints on one rigid skeleton (:mod:`m2d2m.motion.rigid`; ``shapes``:
+        another clip's body), so that a BVH of it reproduces the ``.npy`` and the animation; the
+        spread of bone lengths it had is kept in ``quality``. The features stay the model's own."""
         spread = bone_length_spread(self.joints, self.skeleton)
-        joints = on_rigid_skeleton(self.joints, self.skeleton).astype(np.float32)
+        joints = on_rigid_skeleton(self.joints, self.skeleton, shapes=shapes).astype(np.float32)
         return replace(
             self,
             joints=joints,

@@ -14,6 +14,8 @@ spine) move as one rigid shape, their generalised-Procrustes mean (Gower, 1975).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from m2d2m.motion.skeleton import Skeleton
@@ -58,23 +60,58 @@ def bone_length_spread(joints: np.ndarray, skeleton: Skeleton) -> dict[str, floa
     return {"mean": float(spread.mean()), "max": float(spread.max())}
 
 
-def on_rigid_skeleton(joints: np.ndarray, skeleton: Skeleton, bone_lengths: np.ndarray | None = None) -> np.ndarray:
+def on_rigid_skeleton(
+    joints: np.ndarray,
+    skeleton: Skeleton,
+    bone_lengths: np.ndarray | None = None,
+    shapes: dict[int, np.ndarray] | None = None,
+) -> np.ndarray:
     """Joints (T, J, 3) on one rigid skeleton with ``bone_lengths`` (default: the skeleton's
     target lengths, to which the data pipeline retargets every corpus clip — HumanML3D's
     ``uniform_skeleton`` — so they are the body the model was trained on).
 
     Walking the tree from the root: the root path is kept; a joint with one child keeps its
     bone's direction in every frame and gets the bone's length; the children of a joint with
-    several become their rigid mean shape (directions scaled to the lengths first), turned in
-    each frame by its best-fit rotation onto the frame's directions.
+    several become one rigid shape — ``shapes[joint]`` when given (another clip's body, as
+    :func:`rigid_shapes` measured it), else their mean shape here (directions scaled to the
+    lengths first) — turned in each frame by its best-fit rotation onto the frame's directions.
     """
     joints = skeleton.check_joints(joints)
     lengths = np.asarray(skeleton.bone_lengths if bone_lengths is None else bone_lengths, dtype=np.float64)
-    rest = skeleton.offsets(lengths)
     out = np.empty_like(joints)
     root = int(np.flatnonzero(skeleton.parents < 0)[0])
     out[:, root] = joints[:, root]
+    shapes = shapes or {}
+    for joint, kids, bones in _scaled_bones(joints, skeleton, lengths):
+        if len(kids) > 1:
+            shape = shapes[joint] if joint in shapes else _mean_shape(bones, skeleton, lengths, kids)
+            bones = np.einsum("tij,nj->tni", best_fit_rotation(shape, bones), shape)
+        out[:, kids] = out[:, [joint]] + bones
+    return out
+
+
+def rigid_shapes(
+    joints: np.ndarray, skeleton: Skeleton, bone_lengths: np.ndarray | None = None
+) -> dict[int, np.ndarray]:
+    """The rigid shape :func:`on_rigid_skeleton` gives the children of each joint with several
+    (T2M's pelvis and upper spine) for ``joints``: given back to it for another clip, that clip's
+    frames come out as these would (an edit's kept frames as its source had them)."""
+    joints = skeleton.check_joints(joints)
+    lengths = np.asarray(skeleton.bone_lengths if bone_lengths is None else bone_lengths, dtype=np.float64)
+    return {
+        joint: _mean_shape(bones, skeleton, lengths, kids)
+        for joint, kids, bones in _scaled_bones(joints, skeleton, lengths)
+        if len(kids) > 1
+    }
+
+
+def _scaled_bones(
+    joints: np.ndarray, skeleton: Skeleton, lengths: np.ndarray
+) -> Iterator[tuple[int, list[int], np.ndarray]]:
+    """For each joint with children, root first: the joint, its children and their bones (T, N, 3),
+    each in its direction in the frame (its rest direction where it has none) at its length."""
     kids_of = children(skeleton)
+    root = int(np.flatnonzero(skeleton.parents < 0)[0])
     for joint in [root, *skeleton.bones.tolist()]:
         kids = kids_of[joint]
         if not kids:
@@ -84,10 +121,10 @@ def on_rigid_skeleton(joints: np.ndarray, skeleton: Skeleton, bone_lengths: np.n
         direction = np.where(
             norm > _SHORTEST_BONE, delta / np.maximum(norm, _SHORTEST_BONE), skeleton.raw_offsets[kids]
         )
-        bones = direction * lengths[kids, None]
-        if len(kids) > 1:
-            shape = rigid_shape(bones, rest[kids])
-            shape *= lengths[kids, None] / np.maximum(np.linalg.norm(shape, axis=-1, keepdims=True), _SHORTEST_BONE)
-            bones = np.einsum("tij,nj->tni", best_fit_rotation(shape, bones), shape)
-        out[:, kids] = out[:, [joint]] + bones
-    return out
+        yield joint, kids, direction * lengths[kids, None]
+
+
+def _mean_shape(bones: np.ndarray, skeleton: Skeleton, lengths: np.ndarray, kids: list[int]) -> np.ndarray:
+    """The rigid mean shape of ``bones`` (T, N, 3), each bone at its length."""
+    shape = rigid_shape(bones, skeleton.offsets(lengths)[kids])
+    return shape * lengths[kids, None] / np.maximum(np.linalg.norm(shape, axis=-1, keepdims=True), _SHORTEST_BONE)

@@ -23,7 +23,7 @@ class Job:
     """One result file's worth of work: a candidate's row of one table in one repeat."""
 
     candidate: Candidate
-    table: str  # "multi", "single" or "editing"
+    table: str  # "multi", "single", "editing" or "regenerate"
     row: str  # the table's row (the candidate's only one in the single-motion table)
     repeat: int
     method: str | None = None  # multi: the method
@@ -33,7 +33,7 @@ class Job:
     @property
     def batches(self) -> str:
         """Which batch count of :func:`evaluate`'s progress bar a job advances by."""
-        return "multi" if self.table == "multi" else "items" if self.table == "editing" else "single"
+        return {"multi": "multi", "editing": "items", "regenerate": "regenerate"}.get(self.table, "single")
 
 
 def jobs(settings: EvalSettings) -> list[Job]:
@@ -50,6 +50,13 @@ def jobs(settings: EvalSettings) -> list[Job]:
             if c.methods
             for r in range(settings.repeats)
         ]
+    if settings.regenerate is not None:
+        jobs += [
+            Job(c, "regenerate", settings.regenerate_row(c), r, method=c.methods[0])
+            for c in settings.candidates
+            if c.methods
+            for r in range(settings.repeats)
+        ]
     return jobs + [
         Job(c, "editing", row, r, task=task, text=text)
         for c in settings.candidates
@@ -59,11 +66,12 @@ def jobs(settings: EvalSettings) -> list[Job]:
 
 
 def result_file(run_dir: Path, job: Job) -> Path:
-    """results/multi-<row>-r<repeat>.json, single-[<model>-]r<repeat>.json, edit-<row>-r<repeat>.json."""
+    """results/multi-<row>-r<repeat>.json, single-[<model>-]r<repeat>.json, edit-<row>-r<repeat>.json,
+    timeline-<row>-r<repeat>.json."""
     if job.table == "single":
         owner = "" if job.row == GENERATED else f"{job.candidate.model}-"
         return run_dir / RESULTS / f"single-{owner}r{job.repeat}.json"
-    prefix = "edit" if job.table == "editing" else "multi"
+    prefix = {"editing": "edit", "regenerate": "timeline"}.get(job.table, "multi")
     return run_dir / RESULTS / f"{prefix}-{job.row.replace('/', '-')}-r{job.repeat}.json"
 
 

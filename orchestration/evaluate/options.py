@@ -25,6 +25,7 @@ KNOBS = (
     "single",
     "editing",
     "multi",
+    "regenerate",
 )
 
 

@@ -152,6 +152,13 @@ def log_children(
                 row.removeprefix(f"{candidate.model}/"): table["editing"][row]
                 for _, _, row in settings.edit_rows(candidate)
             }
+        if "regenerate" in table and candidate.methods:
+            stem = settings.regenerate_row(candidate)
+            one["regenerate"] = {
+                row.removeprefix(f"{candidate.model}/"): values
+                for row, values in table["regenerate"].items()
+                if row.startswith(f"{stem}/")
+            }
         if candidate.model not in children:
             tags = {
                 "dataset": dataset,

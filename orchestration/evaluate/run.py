@@ -17,6 +17,7 @@ from m2d2m.generators.options import MULTI
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.layout import relative_to_project
 from m2d2m.progress import progress as progress_bar
+from orchestration.editing import EDIT_METHODS
 from orchestration.errors import UserError
 from orchestration.evaluate.jobs import RESULTS, KeptBatches, jobs, result_file
 from orchestration.evaluate.records import ParentRun, describe_sampling, log_children, start
@@ -60,6 +61,8 @@ def _check(
             + ", ".join(f"{n}: {s}" for n, s in skeletons.items())
             + "); judge models of one dataset together"
         )
+    if settings.regenerate is not None and settings.regenerate > testset.n:
+        raise UserError(f"--regenerate {settings.regenerate}: {testset.path}'s instances have {testset.n} actions")
     if testset.n < 2 or len(testset) < 2:
         raise UserError(
             f"{testset.path}: multi-motion evaluation needs N >= 2 actions and at least 2 instances "
@@ -108,6 +111,7 @@ def evaluate(
             "items": -(-reference.items // batch_size),
             "single": -(-reference.items // batch_size)
             + -(-min(MM_PROMPTS, reference.items) * MM_GENERATIONS // batch_size),
+            "regenerate": 3 * -(-len(reference.actions) // batch_size),  # the sources, the edits, the wholes
         }
         try:
             with finishing(run_id) as client:
@@ -131,6 +135,13 @@ def evaluate(
                             if job.table == "multi"
                             else evaluation.single(job.repeat)
                             if job.table == "single"
+                            else evaluation.regenerate(
+                                job.method,
+                                EDIT_METHODS.get(job.candidate.model, job.method),
+                                settings.regenerate,
+                                job.repeat,
+                            )
+                            if job.table == "regenerate"
                             else evaluation.edit(job.task, job.text, job.repeat)
                         )
                         write_json_atomically(result_file(run_dir, job), result)

@@ -48,6 +48,7 @@ class EvalSettings:
     single: bool
     editing: tuple[str, ...] = ()  # tasks of the editing table (MMM Table 3), each with and without text
     multi: bool = True  # the multi-motion table's generated rows (False: single-motion or editing only)
+    regenerate: int | None = None  # the timeline-editing table's action, counted from 1 (issue 41)
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> EvalSettings:
@@ -83,6 +84,11 @@ class EvalSettings:
         """The single-motion table's row of a candidate's generations."""
         return GENERATED if len(self.candidates) == 1 else f"{GENERATED}/{candidate.model}"
 
+    def regenerate_row(self, candidate: Candidate) -> str:
+        """The timeline-editing table's row stem of a candidate: ``<stem>/edit`` and ``<stem>/whole``."""
+        owner = "" if len(self.candidates) == 1 else f"{candidate.model}/"
+        return f"{owner}regenerate{self.regenerate}"
+
     def edit_rows(self, candidate: Candidate) -> list[tuple[str, bool, str]]:
         """The editing table's rows of a candidate: (task, with text, row)."""
         owner = "" if len(self.candidates) == 1 else f"{candidate.model}/"
@@ -108,12 +114,14 @@ def new_settings(
     single: bool = False,
     editing: Sequence[str] | None = None,
     multi: bool = True,
+    regenerate: int | None = None,
 ) -> EvalSettings:
     """The settings of a new evaluation of one model or several (``model_name``: a name, a
     comma list or a list; ``checkpoint``: ``REF`` or ``MODEL=REF`` entries, ``latest`` for a
     model not named), with references resolved to files (so that a later ``latest``
     cannot change what a resumed run measures). Defaults: each model's first method, its
-    multi-action preset (the paper's T_s = 0.9·T, η = 0.25, s = 2 for M2D2M), 10 repeats."""
+    multi-action preset (the paper's T_s = 0.9·T, η = 0.25, s = 2 for M2D2M), 10 repeats.
+    ``regenerate``: also the timeline-editing table, that action of each instance sampled again."""
     names = split_list(model_name)
     if not names:
         raise UserError("--model: no model given")
@@ -121,8 +129,10 @@ def new_settings(
     if repeats < 1:
         raise UserError(f"--repeats must be at least 1, got {repeats}")
     tasks = tuple(split_list(editing))
-    if not (multi or single or tasks):
-        raise UserError("--no-multi leaves nothing to evaluate: add --single or --edit TASK")
+    if not (multi or single or tasks or regenerate):
+        raise UserError("--no-multi leaves nothing to evaluate: add --single, --edit TASK or --regenerate K")
+    if regenerate is not None and regenerate < 1:
+        raise UserError(f"--regenerate counts actions from 1, got {regenerate}")
     chosen_edits = assign_edits(tasks, generators)
     checkpoints = parse_checkpoints(names, checkpoint)
     chosen_methods, chosen_options = (
@@ -163,6 +173,7 @@ def new_settings(
         single=bool(single),
         editing=tasks,
         multi=bool(multi),
+        regenerate=regenerate,
     )
 
 

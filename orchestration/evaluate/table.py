@@ -8,7 +8,16 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.evaluation.measurements import FEET_VARIANTS, JERK_FPS, WINDOW, Reference, mean_profile
+from m2d2m.evaluation.measurements import (
+    FEET_VARIANTS,
+    JERK_FPS,
+    R_PRECISION_BATCH,
+    WINDOW,
+    Reference,
+    mean_profile,
+)
+from m2d2m.generators.edits import EDIT_MARGIN_SECONDS
+from orchestration.editing import EDIT_METHODS
 from orchestration.evaluate.jobs import jobs, read_result, result_file
 from orchestration.evaluate.records import Sampling
 from orchestration.evaluate.settings import EvalSettings
@@ -41,6 +50,11 @@ def _titles(settings: EvalSettings, codec_rows: dict[str, str]) -> dict[str, str
         for c in settings.candidates
         for task, text, row in settings.edit_rows(c)
     }
+    if settings.regenerate is not None:
+        for c in settings.candidates:
+            stem = settings.regenerate_row(c)
+            titles[f"{stem}/edit"] = f"{owner[c.model]}action {settings.regenerate} by an edit, the rest kept"
+            titles[f"{stem}/whole"] = f"{owner[c.model]}the whole sequence again"
     if several:
         titles |= {settings.row(c, m): f"{c.model} {m}" for c, m in settings.rows()}
         titles |= {settings.single_row(c): f"{c.model} (single action)" for c in settings.candidates}
@@ -49,6 +63,13 @@ def _titles(settings: EvalSettings, codec_rows: dict[str, str]) -> dict[str, str
             for row in set(codec_rows.values())
         }
     return titles
+
+
+def _edit_methods(settings: EvalSettings) -> str:
+    """How the judged models that edit with another method than their own say so: " (mmm with its
+    independent method)", or nothing."""
+    own = [f"{name} with its {EDIT_METHODS[name]} method" for name in settings.models if name in EDIT_METHODS]
+    return f" ({', '.join(own)})" if own else ""
 
 
 def _feet_rows(results: dict[tuple[str, str], list[dict[str, Any]]]) -> dict[str, list[dict[str, float]]]:
@@ -119,6 +140,21 @@ def build_table(
         rows = {row: found for (owner, row), found in metrics.items() if owner == kind}
         if rows:
             table[kind] = summarize_rows({GT_SINGLE: gt_items, **items_through_codecs, **rows})
+    regenerated = {
+        f"{row}/{version}": [result[key] for result in found]
+        for (kind, row), found in results.items()
+        if kind == "regenerate"
+        for version, key in (("edit", "metrics"), ("whole", "metrics_whole"))
+    }
+    if regenerated:
+        table["regenerate"] = summarize_rows(regenerated)
+        table["notes"].append(
+            f"editing on the timeline: action {settings.regenerate} of each instance (sampled as its multi-motion "
+            f"row samples it) sampled again, every other frame kept outside {EDIT_MARGIN_SECONDS:g}-s margins"
+            f"{_edit_methods(settings)}; against the whole sequence sampled again, with the same new "
+            f"seeds. R-Top3 over groups of {min(R_PRECISION_BATCH, len(reference.actions))} regenerated actions; "
+            "transition FID and Jerk at the action's joins"
+        )
     write_json_atomically(run_dir / TABLE_JSON, table)
     (run_dir / TABLE_MD).write_text(render_table(table), encoding="utf-8")
     curves = {

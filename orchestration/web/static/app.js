@@ -4,7 +4,7 @@
 const $ = (selector, root = document) => root.querySelector(selector);
 const $$ = (selector, root = document) => [...root.querySelectorAll(selector)];
 
-const state = { token: null, catalog: null, clock: new Clock(), rig: null };
+const state = { token: null, catalog: null, clock: new Clock(), rig: null, clips: [], editors: [], runFacts: {} };
 window.m2d2m = state; // for poking at from the browser console
 
 // ---- token and API --------------------------------------------------------------
@@ -528,22 +528,32 @@ function jobsOf(lanes, shared) {
   });
 }
 
-async function runJob(job) {
-  setLaneProgress(job, 0, 'starting…');
-  const response = await api('/api/generate', {
+/** POST `body` to a sampling endpoint, its progress streamed to `onProgress(fraction, status)`;
+ *  the result it ends with. */
+async function sample(path, body, onProgress) {
+  const response = await api(path, {
     method: 'POST',
     headers: { 'Content-Type': 'application/json', Accept: 'application/x-ndjson' },
-    body: JSON.stringify(job.body),
+    body: JSON.stringify(body),
   });
   let result = null;
   await readLines(response, (message) => {
     if (message.error) throw new Error(message.error);
     if (message.result) result = message.result;
-    else if ('queued' in message) setLaneProgress(job, 0, `queued: position ${message.queued}`);
-    else if ('progress' in message) setLaneProgress(job, message.progress);
+    else if ('queued' in message) onProgress(0, `queued: position ${message.queued}`);
+    else if ('progress' in message) onProgress(message.progress);
   });
   if (!result) throw new Error('The server ended its answer without a result.');
+  return result;
+}
+
+/** One lane's variation sampled; the result remembers its knobs, which its edits are sampled with. */
+async function runJob(job) {
+  setLaneProgress(job, 0, 'starting…');
+  const result = await sample('/api/generate', job.body, (fraction, status) => setLaneProgress(job, fraction, status));
   setLaneProgress(job, 1);
+  const { method } = job.body;
+  result.sampling = { ...job.body.options, ...(method ? { method } : {}) };
   return result;
 }
 
@@ -700,25 +710,73 @@ function playerElement(result) {
     settings.textContent = `Settings: ${result.describe}`;
     article.append(settings);
   }
+  const edit = result.settings?.edit;
+  if (edit) {
+    const line = document.createElement('p');
+    line.className = 'player-edit muted small';
+    const pin = result.quality?.pin_error_m;
+    line.textContent = `Edited: ${edit}${pin === undefined ? '' : `, the pose met within ${Math.round(pin * 1000)} mm`}.`;
+    article.append(line);
+  }
   return article;
 }
 
+/** New results, each a clip of its own, playing from the start. */
 function showResults(results) {
+  state.clips = results.map((result) => new Clip(result));
+  showClips();
+  state.clock.play();
+}
+
+/** Every clip as it is now (after its edits), with its editor; the playhead stays where it was. */
+function showClips() {
   const area = $('#players');
+  const time = state.clock.time;
   area.replaceChildren();
   const seek = (seconds) => { state.clock.pause(); state.clock.seek(seconds); };
-  area.classList.toggle('many', results.length > 1); // before the players measure their canvases
-  const players = results.map((result) => {
+  area.classList.toggle('many', state.clips.length > 1); // before the players measure their canvases
+  state.editors = [];
+  const players = state.clips.map((clip) => {
+    const { result } = clip;
     const article = playerElement(result);
     area.append(article);
     const player = new SkeletonPlayer(article, result, { onSeek: seek });
-    article.append(downloadLinks(result), mlflowLine(result.mlflow));
+    const editor = new ClipEditor(article, clip, player, editing);
+    state.editors.push(editor);
+    article.append(editor.element, downloadLinks(result), mlflowLine(result.mlflow));
     return player;
   });
   SkeletonPlayer.shareScale(players);
   state.clock.setPlayers(players);
-  state.clock.play();
+  state.clock.seek(time);
 }
+
+/** What the clips' editors share (editor.js, ClipEditor). */
+const editing = {
+  copied: null,
+  clips: () => state.clips,
+  show: showClips,
+  time: () => state.clock.time,
+  copy(pose) {
+    this.copied = pose;
+    state.editors.forEach((editor) => editor.showCopied());
+  },
+  /** An edit of `clip` sampled with its knobs, its seed one more than its own, the delivery the
+   *  form asks for now. */
+  async send(clip, request, onProgress) {
+    const { result } = clip;
+    const body = { ...request, options: result.sampling || {}, seed: result.seed + 1, ...deliveryRequest() };
+    const edited = await sample(`/api/generations/${encodeURIComponent(result.id)}/edit`, body, onProgress);
+    edited.sampling = result.sampling;
+    return edited;
+  },
+  /** The frame rate of `result`'s model, which a pose's frame is counted at (its run's, asked once). */
+  async modelFps(result) {
+    const path = `/api/models/${encodeURIComponent(result.model)}/runs/${encodeURIComponent(result.run)}`;
+    state.runFacts[path] ??= api(path).then((response) => response.json());
+    return (await state.runFacts[path]).fps;
+  },
+};
 
 // ---- the user's rig: uploaded once, every result's BVH then to be had on it -----------
 
