@@ -189,7 +189,8 @@ eval-power: $(STAMP)  ## the multi-motion table with Jerk half-widths <= 0.03: 7
 COMPARE_REPEATS  ?= 2
 COMPARE_MD_STEPS ?= 25
 COMPARE_METHODS  := m2d2m:tps,m2d2m:independent,m2d2m:handshake,m2d2m:slerp,mmm:transition,motiondiffuse:time-varied
-compare: $(STAMP)  ## M2D2M, MMM and MotionDiffuse trained (what is missing) and judged in one evaluate run (COMPARE_REPEATS=2 COMPARE_MD_STEPS=25)
+COMPARE_ARGS     ?=
+compare: $(STAMP)  ## M2D2M, MMM and MotionDiffuse trained (what is missing) and judged in one evaluate run (COMPARE_REPEATS=2 COMPARE_MD_STEPS=25; COMPARE_ARGS="--regenerate 3" adds the timeline-editing table)
 	@test -f data/synthetic/manifest.json || { $(M2D2M) synthesize --out data/raw/synthetic --clips $(CLIPS) --seed $(SEED) \
 		&& $(M2D2M) data --dataset synthetic --raw data/raw/synthetic; }
 	@test -f runs/synthetic/vq/latest || $(M2D2M) train-vq --config demo
@@ -199,7 +200,7 @@ compare: $(STAMP)  ## M2D2M, MMM and MotionDiffuse trained (what is missing) and
 	@test -f runs/synthetic/evaluator/latest || $(M2D2M) train-evaluator --config demo
 	$(M2D2M) testset --dataset synthetic --n 4 --seed 0
 	$(M2D2M) evaluate --dataset synthetic --model m2d2m,mmm,motiondiffuse --method $(COMPARE_METHODS) --single \
-		--repeats $(COMPARE_REPEATS) --option motiondiffuse.steps=$(COMPARE_MD_STEPS)
+		--repeats $(COMPARE_REPEATS) --option motiondiffuse.steps=$(COMPARE_MD_STEPS) $(COMPARE_ARGS)
 
 SWEEP_CONFIG ?= demo
 RAY_ADDRESS_ARG ?=

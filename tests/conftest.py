@@ -22,6 +22,18 @@ PROJECT_ROOT = Path(__file__).resolve().parents[1]
 HUMANML3D_SAMPLE = PROJECT_ROOT / "tests" / "fixtures" / "humanml3d-sample"
 
 
+# Fixtures that make a test slow, whatever else it does: Ray (and so every dataset built, every model
+# trained on one), Chromium. `make test` leaves these tests to `make test-all` (what CI runs).
+SLOW_FIXTURES = {"ray_local", "browser", "offline_browser"}
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark ``slow`` every test that asks, directly or through its fixtures, for a slow fixture."""
+    for item in items:
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+
+
 @pytest.fixture(scope="session")
 def humanml3d_sample() -> Path:
     """The directory of real HumanML3D files (one clip, Mean.npy, Std.npy)."""

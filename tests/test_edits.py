@@ -139,7 +139,8 @@ def test_an_edit_put_on_its_sources_body_keeps_the_kept_frames_joints(sample_fea
 @pytest.mark.slow
 def test_every_operation_from_the_command_line(trained_project, tmp_path, capsys):
     """Four actions generated, the third sampled again with new text: the others' features bit for
-    bit outside 0.4 s of it; a gap filled between two results; a pose pinned; two actions added."""
+    bit outside 0.4 s of it (and their joints, without the foot fix); with its own seed and text,
+    the action comes back; a gap filled between two results; a pose pinned; two actions added."""
     four = ["a person walks forward", "a person jumps", "a person waves", "a person sits down"]
     common = MODEL
     assert main(["generate", *four, "--no-split", "--seconds", "1.2", *common, "--out", str(tmp_path / "four")]) == 0
@@ -154,6 +155,20 @@ def test_every_operation_from_the_command_line(trained_project, tmp_path, capsys
     np.testing.assert_array_equal(after[: first - 8], before[: first - 8])  # 0.4 s at 20 fps
     np.testing.assert_array_equal(after[end + 8 :], before[end + 8 :])
     assert not np.array_equal(after[first:end], before[first:end])
+    # without the foot fix (a delivery step that re-plants a contact crossing the margin), the kept
+    # frames' joints too are the source's bit for bit; the same seed and text give the action back
+    raw = ["--no-foot-fix", "--out"]
+    assert main(["generate", *four, "--no-split", "--seconds", "1.2", *common, *raw, str(tmp_path / "raw")]) == 0
+    plain = ["generate", "--edit", str(tmp_path / "raw" / "motion.npy"), *common, "--regenerate", "3", *raw]
+    assert main([*plain, str(tmp_path / "same")]) == 0
+    assert main([*plain[:-2], "--seed", "1", *raw, str(tmp_path / "other")]) == 0
+    (original, again, other), (joints, joints_again) = (
+        [np.load(tmp_path / name / "motion.features.npy") for name in ("raw", "same", "other")],
+        [np.load(tmp_path / name / "motion.npy") for name in ("raw", "same")],
+    )
+    np.testing.assert_array_equal(joints_again[: first - 8], joints[: first - 8])
+    same_seed, new_seed = (np.abs(edited[first:end] - original[first:end]).mean() for edited in (again, other))
+    assert same_seed < new_seed / 10, (same_seed, new_seed)
     assert main([*argv, "--fill-to", str(source), "--seconds", "0.8", "--out", str(tmp_path / "fill")]) == 0
     filled = np.load(tmp_path / "fill" / "motion.features.npy")
     assert len(filled) == 2 * len(before) + 16

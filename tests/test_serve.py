@@ -327,10 +327,14 @@ def test_health_and_the_page_and_the_documentation(client):
     health = client.get("/api/health").json()
     assert health["status"] == "ok" and {"queued", "running", "served", "batches", "cancelled"} <= set(health)
     page = client.get("/")
-    assert page.status_code == 200 and '<script src="/static/player.js"' in page.text
-    for name in ("index.html", "app.js", "player.js", "style.css"):  # nothing from another origin
-        text = (STATIC / name).read_text(encoding="utf-8")
-        assert not re.search(r"(src|href)\s*=\s*[\"']?(https?:)?//|@import|url\(\s*['\"]?https?:", text), name
+    assert page.status_code == 200
+    files = sorted(STATIC.iterdir())
+    assert {f.name for f in files} >= {"index.html", "app.js", "player.js", "editor.js", "style.css"}
+    for path in files:  # nothing from another origin
+        text = path.read_text(encoding="utf-8")
+        assert not re.search(r"(src|href)\s*=\s*[\"']?(https?:)?//|@import|url\(\s*['\"]?https?:", text), path.name
+    for script in ("player.js", "editor.js", "app.js"):
+        assert f'<script src="/static/{script}"></script>' in page.text
     assert client.get("/openapi.json").json()["paths"].keys() >= {"/api/generate", "/api/models", "/api/health"}
     assert client.get("/docs").status_code == 200
 
