@@ -1,7 +1,6 @@
 """Plugins: modules outside this repository that register a model, a metric or a corpus when
 imported (docs/architecture.md, "How to add a model", "... a metric", "... a corpus"). They are
-named in ``M2D2M_PLUGINS`` (comma-separated; ``M2D2M_MODELS``, its name when plugins could only
-add models, is read too) and imported once per process. Processes that work for another (Ray
+named in ``M2D2M_PLUGINS`` (comma-separated) and imported once per process. Processes that work for another (Ray
 trials, Ray Train workers, the data pipeline's Ray tasks) import the same ones from
 :func:`plugins_for_workers`, which also says where to find them."""
 
@@ -14,14 +13,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 PLUGINS_VARIABLE = "M2D2M_PLUGINS"
-OLD_PLUGINS_VARIABLE = "M2D2M_MODELS"
 
 _imported: list[str] = []
 
 
 def named_plugins() -> list[str]:
     """The plugin modules the environment names, in order, each once."""
-    named = ",".join(os.environ.get(variable, "") for variable in (PLUGINS_VARIABLE, OLD_PLUGINS_VARIABLE))
+    named = os.environ.get(PLUGINS_VARIABLE, "")
     return list(dict.fromkeys(module.strip() for module in named.split(",") if module.strip()))
 
 

@@ -109,27 +109,6 @@ def with_defaults(config: dict[str, Any], defaults: dict[str, Any]) -> dict[str,
     return merged
 
 
-def rename_keys(config: dict[str, Any], renamed: dict[str, str], where: str) -> dict[str, Any]:
-    """A copy of ``config`` with each old dotted key of ``renamed`` moved to its new name, so that
-    configs written before a key was renamed still read; both names set is an error."""
-    result = copy.deepcopy(config)
-    for old, new in renamed.items():
-        *section_path, key = old.split(".")
-        section = result
-        for name in section_path:
-            section = section.get(name) if isinstance(section, dict) else None
-        if not isinstance(section, dict) or key not in section:
-            continue
-        *new_path, new_key = new.split(".")
-        target = result
-        for name in new_path:
-            target = target.setdefault(name, {})
-        if new_key in target:
-            raise UserError(f"{where}: both {old} and {new} are set; {new} replaces {old}, keep only it")
-        target[new_key] = section.pop(key)
-    return result
-
-
 def _read_mapping(path: Path) -> dict[str, Any]:
     try:
         config = yaml.safe_load(path.read_text(encoding="utf-8"))
@@ -206,17 +185,15 @@ def load_config(
     name_or_path: str,
     overrides: list[str] | None = None,
     defaults: dict[str, Any] | None = None,
-    renamed: dict[str, str] | None = None,
     optional: Iterable[str] = (),
     free: tuple[str, ...] = (),
 ) -> dict[str, Any]:
-    """The resolved config of a stage: the YAML file, its keys of older names ``renamed`` (old
-    dotted key → new), checked against the stage's other configs (:func:`check_keys`: the dotted
+    """The resolved config of a stage: the YAML file, checked against the stage's other configs (:func:`check_keys`: the dotted
     keys ``optional`` may be left out, ``free`` sections hold keys of the user's choosing), over
     ``defaults`` (settings every file of the stage may leave out, so an override can still name
     them), with the overrides applied."""
     path = resolve_config_path(stage, name_or_path)
-    config = rename_keys(_read_mapping(path), renamed or {}, str(path))
+    config = _read_mapping(path)
     optional = {*optional, *flatten(defaults or {})}
     check_keys(config, _sibling_configs(stage, path), str(path), optional, free)
     return follow_dataset(config, apply_overrides(with_defaults(config, defaults or {}), overrides or []))

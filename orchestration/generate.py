@@ -122,7 +122,7 @@ def resolve_model_file(name: str, reference: str | Path, dataset: str) -> Path:
     """The model file of model ``name`` from a path, a run directory, ``latest``, a run name or an
     MLflow run id."""
     entry = model(name)
-    return run_file(reference, dataset, entry.stage, entry.model_file, f"make {entry.train_verb}", entry.legacy_stages)
+    return run_file(reference, dataset, entry.stage, entry.model_file, f"make {entry.train_verb}")
 
 
 def load_generator(

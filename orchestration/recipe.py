@@ -45,7 +45,6 @@ class Recipe:
     :meth:`save`; the rest have defaults that most models keep."""
 
     monitor = "val/loss"  # the validation metric whose minimum is the run's best checkpoint
-    renamed: ClassVar[dict[str, str]] = {}  # config keys of older names (old dotted key → new), still read
     optional: ClassVar[frozenset[str]] = frozenset()  # dotted keys a config may leave out (beside text's)
 
     @classmethod
@@ -61,7 +60,7 @@ class Recipe:
         from orchestration.config import load_config
         from orchestration.train import TRAINING_DEFAULTS
 
-        return load_config(entry.configs, config_name, [], TRAINING_DEFAULTS, cls.renamed, cls.optional_keys())
+        return load_config(entry.configs, config_name, [], TRAINING_DEFAULTS, cls.optional_keys())
 
     def prepare(self, config: dict[str, Any]) -> None:
         """What must exist before trials train in parallel (made once by a sweep's driver)."""
@@ -132,7 +131,6 @@ def run_recipe(
         overrides or [],
         resume,
         join,
-        recipe.renamed,
         recipe.optional_keys(),
         recipe.check,  # before the run exists, and before hours of training, not at their end
     )
@@ -211,7 +209,6 @@ def train_on_workers(
         config_name,
         overrides,
         resume=False,
-        renamed=recipe.renamed,
         optional=recipe.optional_keys(),
     ).run_dir
     trainer = TorchTrainer(

@@ -25,12 +25,11 @@ from orchestration.errors import UserError
 @dataclass(frozen=True)
 class ModelEntry:
     """One model. ``stage`` names its run directories (``runs/<dataset>/<stage>/``) and MLflow
-    experiments; ``legacy_stages`` are older names of those directories, still read."""
+    experiments."""
 
     name: str
     summary: str  # one line for the command line's help
     stage: str
-    legacy_stages: tuple[str, ...]
     configs: str  # configs/<configs>/<name>.yaml
     train_verb: str  # `m2d2m <train_verb>`, `make <train_verb>`
     model_file: str  # what a finished run directory holds
@@ -63,7 +62,6 @@ register(
         name="m2d2m",
         summary="M2D2M: discrete diffusion over VQ tokens, β(t, d), Two-Phase Sampling",
         stage="m2d2m",
-        legacy_stages=("diffusion",),
         configs="m2d2m",
         train_verb="train-diffusion",
         model_file="model.pt",
@@ -79,7 +77,6 @@ register(
         name="mmm",
         summary="MMM: a masked motion model over VQ tokens, parallel decoding, transition tokens",
         stage="mmm",
-        legacy_stages=(),
         configs="mmm",
         train_verb="train-mmm",
         model_file="model.pt",
@@ -94,7 +91,6 @@ register(
         name="mmm-body",
         summary="MMM's upper-body editor: new upper body from text, the lower body kept",
         stage="mmm-body",
-        legacy_stages=(),
         configs="mmm-body",
         train_verb="train-mmm-body",
         model_file="model.pt",
@@ -109,7 +105,6 @@ register(
         name="motiondiffuse",
         summary="MotionDiffuse: Gaussian diffusion on features, time-varied and body-part control",
         stage="motiondiffuse",
-        legacy_stages=(),
         configs="motiondiffuse",
         train_verb="train-motiondiffuse",
         model_file="model.pt",

@@ -117,13 +117,12 @@ def mark_latest(run_dir: Path) -> None:
         partial.write_text(run_dir.name + "\n", encoding="utf-8")
 
 
-def latest_run(dataset: str, stage: str, made_by: str, legacy: tuple[str, ...] = ()) -> Path:
+def latest_run(dataset: str, stage: str, made_by: str) -> Path:
     """The newest successful run of a stage, or a one-line error naming ``made_by``, the command
-    that makes one. ``legacy``: older names of the stage's folder, read when it has no run yet."""
-    for name in (stage, *legacy):
-        marker = stage_dir(dataset, name) / LATEST
-        if marker.exists():
-            return marker.parent / marker.read_text(encoding="utf-8").strip()
+    that makes one."""
+    marker = stage_dir(dataset, stage) / LATEST
+    if marker.exists():
+        return marker.parent / marker.read_text(encoding="utf-8").strip()
     raise NotInProject(f"no finished {stage} run for dataset {dataset!r} yet; run `{made_by}` first")
 
 
@@ -151,27 +150,24 @@ def newest_run(dataset: str, stage: str) -> Path:
     return max(runs, key=lambda p: infos[p].get("started", 0.0))
 
 
-def find_run(reference: str, dataset: str, stage: str, legacy: tuple[str, ...] = ()) -> Path:
+def find_run(reference: str, dataset: str, stage: str) -> Path:
     """A run given as a directory, a run-id folder name, or an MLflow run id (looked up in the
-    stage's folder and its ``legacy`` names)."""
+    stage's folder)."""
     as_path = Path(reference)
     if (as_path / RUN_FILE).exists():
         return as_path
-    for name in (stage, *legacy):
-        candidate = stage_dir(dataset, name) / reference
-        if (candidate / RUN_FILE).exists():
-            return candidate
-        for run_file in stage_dir(dataset, name).glob(f"*/{RUN_FILE}"):
-            if json.loads(run_file.read_text(encoding="utf-8")).get("mlflow_run_id") == reference:
-                return run_file.parent
+    candidate = stage_dir(dataset, stage) / reference
+    if (candidate / RUN_FILE).exists():
+        return candidate
+    for run_file in stage_dir(dataset, stage).glob(f"*/{RUN_FILE}"):
+        if json.loads(run_file.read_text(encoding="utf-8")).get("mlflow_run_id") == reference:
+            return run_file.parent
     raise NotInProject(
         f"no {stage} run {reference!r} for dataset {dataset!r} (a run directory, its name, or its MLflow run id)"
     )
 
 
-def run_file(
-    reference: str | Path, dataset: str, stage: str, name: str, made_by: str, legacy: tuple[str, ...] = ()
-) -> Path:
+def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by: str) -> Path:
     """The file ``name`` of a run given as that file itself, ``latest``, a run directory, its name
     or its MLflow run id — downloaded from the tracking store (every stage logs its model files
     under ``model/``) when no local run has that id; a run without the file did not finish,
@@ -184,9 +180,9 @@ def run_file(
         return path / name
     try:
         run_dir = (
-            latest_run(dataset, stage, made_by, legacy)
+            latest_run(dataset, stage, made_by)
             if str(reference) == "latest"
-            else find_run(str(reference), dataset, stage, legacy)
+            else find_run(str(reference), dataset, stage)
         )
     except UserError:
         if not MLFLOW_ID.match(str(reference)):

@@ -52,25 +52,14 @@ def trial_name(params: dict[str, Any]) -> str:
     return " ".join(f"{key}={value}" for key, value in params.items())
 
 
-# the keys a sweep config written before the model registry lacks or names otherwise (see _upgrade)
-OLDER_DEFAULTS = {"model": DEFAULT_MODEL, "train_config": None, "resources": {"workers": 0}}
-OLDER_NAMES = {"diffusion_config": "train_config"}
+# the keys a sweep config may leave out: a sampling sweep of the default model, trials in-process
+SWEEP_DEFAULTS = {"model": DEFAULT_MODEL, "train_config": None, "resources": {"workers": 0}}
 
 
 def load_sweep_config(config_name: str, overrides: list[str]) -> dict[str, Any]:
     """``configs/sweep/<config_name>.yaml`` (or a path) with the overrides: its keys checked against
     the other sweep configs', its ``space`` holding knobs of the user's choosing."""
-    return _upgrade(load_config(SWEEP_STAGE, config_name, overrides, OLDER_DEFAULTS, OLDER_NAMES, free=("space",)))
-
-
-def _upgrade(config: dict[str, Any]) -> dict[str, Any]:
-    """A sweep config written before the model registry: of the default model, M2D2M, its config
-    as ``diffusion_config``."""
-    config.setdefault("model", DEFAULT_MODEL)
-    if "diffusion_config" in config:
-        config.setdefault("train_config", config.pop("diffusion_config"))
-    config["resources"].setdefault("workers", 0)  # configs written before Ray Train workers existed
-    return config
+    return load_config(SWEEP_STAGE, config_name, overrides, SWEEP_DEFAULTS, free=("space",))
 
 
 def _check(config: dict[str, Any]) -> None:
@@ -255,7 +244,7 @@ def _check_resumable(sweep_dir: Path, config: dict[str, Any]) -> None:
             f"{sweep_dir} was started by an m2d2m without the model registry and cannot be "
             f"resumed; --restart replaces it"
         )
-    before, now = flatten(_upgrade(saved["config"])), flatten(json.loads(json.dumps(config)))
+    before, now = flatten(saved["config"]), flatten(json.loads(json.dumps(config)))
     changed = sorted(key for key in before.keys() | now.keys() if before.get(key, ()) != now.get(key, ()))
     if changed:
         raise UserError(

@@ -33,7 +33,7 @@ import yaml
 from m2d2m.layout import VQ_FILE, recorded_path, relative_to_project
 from m2d2m.motion.body_parts import FULL
 from m2d2m.precision import fast_bf16
-from orchestration.config import flatten, is_number, load_config, rename_keys
+from orchestration.config import flatten, is_number, load_config
 from orchestration.errors import UserError
 from orchestration.runs import (
     exclusive,
@@ -173,21 +173,19 @@ def open_run(
     overrides: list[str],
     resume: bool | str,
     join: Path | None = None,
-    renamed: dict[str, str] | None = None,
     optional: Iterable[str] = (),
     check: Callable[[dict[str, Any]], None] | None = None,
 ) -> OpenedRun:
     """The run of ``stage`` to train, new or resumed, with its config (``configs/<configs>/<config_name>.yaml``
-    with the overrides; keys of older names ``renamed`` read under their new ones, in a file as
-    in a resumed run's record; the dotted keys ``optional`` a file may leave out). Every check,
+    with the overrides; the dotted keys ``optional`` a file may leave out). Every check,
     the model's own ``check`` (ValueError) among them, comes before a new run's directory exists:
     a run that could never start is not left behind for ``--resume`` to pick. A new run's config
     is written before training, so processes that ``join`` it (or find it in :data:`JOIN_RUN`)
     train the same thing."""
     join = join or (Path(os.environ[JOIN_RUN]) if os.environ.get(JOIN_RUN) else None)
     if join is not None:
-        return _recorded(stage, join, read_run_info(join), resume, renamed)
-    config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS, renamed, optional)
+        return _recorded(stage, join, read_run_info(join), resume)
+    config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS, optional)
     _check_settings(config)
     try:
         if check is not None:
@@ -214,7 +212,7 @@ def open_run(
     lock = _hold(run_dir, stage)  # before anything is written: a run another command trains refuses here
     write_run_info(run_dir, status="running")
     _opened.append((run_dir, lock))
-    return _recorded(stage, run_dir, info, resume, renamed)
+    return _recorded(stage, run_dir, info, resume)
 
 
 def _hold(run_dir: Path, stage: str) -> contextlib.ExitStack:
@@ -226,13 +224,10 @@ def _hold(run_dir: Path, stage: str) -> contextlib.ExitStack:
     return lock
 
 
-def _recorded(
-    stage: str, run_dir: Path, info: dict[str, Any], resume: bool | str, renamed: dict[str, str] | None
-) -> OpenedRun:
-    """A run that exists, with the config its run.json (``info``) records, keys of older names
-    ``renamed`` read under their new ones (for the process that resumes it and every rank that joins it)."""
-    config = rename_keys(info["config"], renamed or {}, str(run_dir / "run.json"))
-    return OpenedRun(stage, run_dir, config, info.get("mlflow_run_id"), resume)
+def _recorded(stage: str, run_dir: Path, info: dict[str, Any], resume: bool | str) -> OpenedRun:
+    """A run that exists, with the config its run.json (``info``) records (for the process that
+    resumes it and every rank that joins it)."""
+    return OpenedRun(stage, run_dir, info["config"], info.get("mlflow_run_id"), resume)
 
 
 def _mlflow_logger(dataset: str, stage: str, run_dir: Path, run_id: str | None):

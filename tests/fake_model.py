@@ -1,5 +1,5 @@
 """A model that is no model, registered from outside the framework as a plugin
-(``M2D2M_MODELS=tests.fake_model``): its generator plays back the ground-truth clip of each action
+(``M2D2M_PLUGINS=tests.fake_model``): its generator plays back the ground-truth clip of each action
 sentence, laid end to end. If evaluation or sweeps knew anything of M2D2M beyond the registry and
 the generator protocol, this model could not go through them."""
 
@@ -143,7 +143,6 @@ register(
         name=NAME,
         summary="ground truth played back (a test of the registry)",
         stage=NAME,
-        legacy_stages=(),
         configs=NAME,
         train_verb="train-playback",
         model_file="playback.npz",

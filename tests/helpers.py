@@ -256,3 +256,19 @@ def latest_evaluation(project: Path) -> Path:
     """The run directory of the newest finished `m2d2m evaluate` on the tiny dataset of ``project``."""
     stage = project / "runs" / "tiny" / "eval"
     return stage / (stage / "latest").read_text(encoding="utf-8").strip()
+
+
+def one_line_error(argv: list[str], capture) -> str:
+    """Run the command line on ``argv`` (``capture``: pytest's capsys or capfd): it must fail with
+    status 2 and one line on stderr, no traceback, argparse's refusals included; that line."""
+    from orchestration.cli import main
+
+    capture.readouterr()
+    try:
+        status = main(argv)
+    except SystemExit as stopped:  # argparse's errors
+        status = stopped.code
+    err = capture.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert status == 2 and len(lines) == 1 and "Traceback" not in err, (status, err)
+    return lines[0]

@@ -91,7 +91,7 @@ def test_data_and_a_sweep_run_on_a_cluster_started_with_ray_start(ray_head, trai
         "dataset": "tiny",
         "kind": "sampling",
         "checkpoint": "latest",
-        "diffusion_config": "unused",
+        "train_config": "unused",
         "evaluator": "latest",
         "testset": str(tiny_testset),
         "method": "tps",

@@ -19,6 +19,7 @@ import yaml
 
 from orchestration.cli import main
 from pipelines.tokenize import check_tokens
+from tests.helpers import one_line_error
 from tests.test_sweep import sweep_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -66,10 +67,8 @@ def wait_until(condition: Callable[[], bool], process: subprocess.Popen, what: s
 
 
 def one_line_refusal(capfd, verb: str, argv: list[str], says: str) -> None:
-    capfd.readouterr()
-    assert main(argv) == 2
-    err = [line for line in capfd.readouterr().err.splitlines() if line.strip()]
-    assert len(err) == 1 and err[0].startswith(f"m2d2m {verb}: error:") and says in err[0], err
+    line = one_line_error(argv, capfd)
+    assert line.startswith(f"m2d2m {verb}: error:") and says in line, line
 
 
 def finished_runs(project: Path, stage: str) -> set[str]:

@@ -1,12 +1,12 @@
 """Configs with checked overrides, and run directories with their `latest` marker."""
 
+import json
 import shutil
 from pathlib import Path
 
 import pytest
-import yaml
 
-from orchestration.config import apply_overrides, flatten, load_config, rename_keys
+from orchestration.config import apply_overrides, flatten, load_config
 from orchestration.errors import UserError
 from orchestration.registry import model
 from orchestration.runs import find_run, latest_run, mark_latest, new_run_dir, newest_run, write_run_info
@@ -59,41 +59,6 @@ def test_the_demo_departs_from_the_papers_setting_only_where_docs_say_ours(stage
     misses the other would silently change what "the paper's setting" measures."""
     demo, paper = flatten(_read_as_its_stage_does(stage, "demo")), flatten(_read_as_its_stage_does(stage, "paper-demo"))
     assert {key for key in demo.keys() | paper.keys() if demo.get(key) != paper.get(key)} == ours
-
-
-def test_configs_written_before_a_key_was_renamed_read_under_the_new_name(tmp_path):
-    renamed = {"denoiser.condition_drop": "text_drop"}
-    old = {"seed": 1, "denoiser": {"layers": 2, "condition_drop": 0.2}}
-    assert rename_keys(old, renamed, "old.yaml") == {"seed": 1, "denoiser": {"layers": 2}, "text_drop": 0.2}
-    assert old["denoiser"]["condition_drop"] == 0.2  # the original is untouched
-    assert rename_keys({"text_drop": 0.3}, renamed, "new.yaml") == {"text_drop": 0.3}
-    with pytest.raises(UserError, match="both.yaml: both denoiser.condition_drop and text_drop are set"):
-        rename_keys({**old, "text_drop": 0.3}, renamed, "both.yaml")
-    demo = yaml.safe_load(open("configs/m2d2m/demo.yaml", encoding="utf-8"))
-    demo["denoiser"]["condition_drop"] = demo.pop("text_drop")
-    path = tmp_path / "old.yaml"
-    path.write_text(yaml.safe_dump(demo), encoding="utf-8")
-    # an override names the new key even though the file has the old one
-    assert load_config("m2d2m", str(path), ["text_drop=0.05"], renamed=renamed)["text_drop"] == 0.05
-
-
-def test_a_run_recorded_before_a_key_was_renamed_is_joined_under_the_new_name(tmp_path):
-    """Every DDP rank that joins a resumed run reads its record's older keys as the resuming one does."""
-    from orchestration.train import open_run
-
-    write_run_info(tmp_path, stage="m2d2m", config={"seed": 1, "denoiser": {"layers": 2, "condition_drop": 0.2}})
-    run = open_run("m2d2m", "m2d2m", "demo", [], True, join=tmp_path, renamed={"denoiser.condition_drop": "text_drop"})
-    assert run.config == {"seed": 1, "denoiser": {"layers": 2}, "text_drop": 0.2}
-
-
-@pytest.mark.parametrize("name", ["m2d2m", "mmm", "mmm-body", "motiondiffuse"])
-def test_every_renamed_key_is_renamed_to_a_key_of_the_models_configs(name):
-    """A recipe's ``renamed`` maps old names onto the shipped configs' names, never to a key they lack."""
-    entry = model(name)
-    for name in ("demo", "humanml3d", "kit"):
-        config = flatten(entry.load("recipe").load_config(entry, name))
-        for old, new in entry.load("recipe").renamed.items():
-            assert new in config and old not in config, (entry.name, name, old)
 
 
 def _read_as_its_stage_does(stage: str, path: str) -> dict:
@@ -193,71 +158,24 @@ def test_runs_are_found_by_name_mlflow_id_and_latest_marker(tmp_path, monkeypatc
         find_run("zzz", "synthetic", "vq")
 
 
-def test_runs_of_the_old_diffusion_stage_still_resolve(tmp_path, monkeypatch):
-    """M2D2M's runs lived under runs/<dataset>/diffusion/ before the model registry named the stage
-    m2d2m: `latest`, a run name and an MLflow id still find them there."""
-    from orchestration.generate import resolve_model_file
-
-    monkeypatch.chdir(tmp_path)
-    old = tmp_path / "runs" / "tiny" / "diffusion" / "20250101-000000-abcd"
-    old.mkdir(parents=True)
-    (old / "run.json").write_text('{"mlflow_run_id": "' + "0" * 32 + '"}', encoding="utf-8")
-    (old / "model.pt").write_bytes(b"")
-    (old.parent / "latest").write_text(old.name + "\n", encoding="utf-8")
-    for reference in ("latest", old.name, "0" * 32):
-        assert resolve_model_file("m2d2m", reference, "tiny").resolve() == (old / "model.pt").resolve()
-
-
-def test_evaluation_settings_recorded_before_the_registry_read_as_m2d2m():
-    from orchestration.evaluate import EvalSettings
-
-    recorded = {
-        "checkpoint": "model.pt",
-        "testset": None,
-        "evaluator": "evaluator.pt",
-        "glove": None,
-        "meta": None,
-        "methods": ["tps"],
-        "ts": 80,
-        "eta": 0.25,
-        "guidance": 2.0,
-        "repeats": 2,
-        "single": False,
-    }
-    settings = EvalSettings.from_dict(recorded)
-    (only,) = settings.candidates
-    assert only.model == "m2d2m" and only.options == {"ts": 80, "eta": 0.25, "guidance": 2.0}
-    assert only.methods == ("tps",) and only.checkpoint == "model.pt" and settings.repeats == 2
-
-
-def test_one_model_evaluation_settings_read_as_one_candidate_and_round_trip():
+def test_evaluation_settings_round_trip_through_their_record():
     from dataclasses import asdict
 
-    from orchestration.evaluate import EvalSettings
+    from orchestration.evaluate import Candidate, EvalSettings
 
-    recorded = {
-        "model": "mmm",
-        "checkpoint": "model.pt",
-        "testset": None,
-        "evaluator": "evaluator.pt",
-        "glove": None,
-        "meta": None,
-        "methods": ["transition"],
-        "options": {"temperature": 0.5},
-        "repeats": 1,
-        "single": True,
-    }
-    settings = EvalSettings.from_dict(recorded)
-    assert settings.models == ("mmm",) and settings.candidates[0].options == {"temperature": 0.5}
-    assert EvalSettings.from_dict(asdict(settings)) == settings
-
-
-def test_sweep_configs_written_before_the_registry_still_load():
-    from orchestration.sweep import _upgrade
-
-    config = _upgrade({"kind": "training", "diffusion_config": "demo", "resources": {"cpu": 1, "gpu": 0}})
-    assert config["model"] == "m2d2m" and config["train_config"] == "demo" and "diffusion_config" not in config
-    assert config["resources"]["workers"] == 0
+    settings = EvalSettings(
+        candidates=(Candidate("mmm", "model.pt", ("transition",), {"temperature": 0.5}, ("inbetween",)),),
+        testset=None,
+        evaluator="evaluator.pt",
+        glove=None,
+        meta=None,
+        repeats=1,
+        single=True,
+        editing=("inbetween",),
+        regenerate=3,
+    )
+    recorded = json.loads(json.dumps(asdict(settings)))  # as run.json holds it: lists, not tuples
+    assert EvalSettings.from_dict(recorded) == settings
 
 
 @pytest.mark.parametrize(

@@ -18,7 +18,7 @@ from orchestration.cli import main
 from pipelines.shards import ShardWriter, sha256_of, shard_records
 from pipelines.testset import build_testset
 from pipelines.tokenize import tokenize_dataset
-from tests.helpers import random_vq, write_corpus
+from tests.helpers import one_line_error, random_vq, write_corpus
 from training.data import TokenDataModule
 
 
@@ -34,14 +34,6 @@ def flip_byte(path: Path, offset: int = 1000) -> None:
     data = bytearray(path.read_bytes())
     data[offset] ^= 0xFF
     path.write_bytes(bytes(data))
-
-
-def one_line_error(capsys) -> str:
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    return lines[0]
 
 
 def data_command(raw: Path, out: Path, *flags: str) -> list[str]:
@@ -69,8 +61,7 @@ def test_a_rebuild_that_fails_leaves_the_dataset_byte_identical(dataset, tmp_pat
     no_texts = tmp_path / "no-texts"
     shutil.copytree(raw, no_texts, ignore=shutil.ignore_patterns("texts"))
     before = checksums(out)
-    assert main(data_command(no_texts, out, "--replace")) == 2
-    error = one_line_error(capsys)
+    error = one_line_error(data_command(no_texts, out, "--replace"), capsys)
     assert "no valid training motion" in error and "read: no text file" in error
     assert checksums(out) == before
     assert siblings(out) <= {out.name, f".{out.name}.lock"}  # the failed build is gone
@@ -81,8 +72,7 @@ def test_replacing_a_dataset_of_another_corpus_needs_replace_and_keeps_derived_s
     other = tmp_path / "other-raw"
     write_corpus(other, {"train": 3, "val": 1, "test": 1}, T2M, seed=5)
     before = checksums(out)
-    assert main(data_command(other, out)) == 2
-    error = one_line_error(capsys)
+    error = one_line_error(data_command(other, out), capsys)
     assert "--replace" in error and str(raw.resolve()) in error
     assert checksums(out) == before
 
@@ -114,8 +104,7 @@ def test_training_refuses_a_shard_changed_after_the_build(project, tmp_path, tin
     flip_byte(data / "shards" / "train-000001.tar")
     assert main(["data", "--check", str(data)]) == 2
     capsys.readouterr()
-    assert main(["train-vq", "--config", str(project / "tiny.yaml"), "--set", f"data.dir={data}"]) == 2
-    error = one_line_error(capsys)
+    error = one_line_error(["train-vq", "--config", str(project / "tiny.yaml"), "--set", f"data.dir={data}"], capsys)
     assert "train-000001.tar: sha256 differs" in error and f"m2d2m data --check {data}" in error
 
 

@@ -7,6 +7,7 @@ import time
 import pytest
 import torch
 
+from m2d2m.networks.config import ConfigError
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser, guided_logits, relative_position_bucket
 
 SMALL = DenoiserConfig(
@@ -40,9 +41,10 @@ def test_config_round_trip_and_rejects_unknown_keys():
         DenoiserConfig(width=30, heads=4)
 
 
-def test_model_files_written_before_text_drop_left_the_network_config_still_load():
-    """Older files hold ``condition_drop``, a training rate now the run config's ``text_drop``."""
-    assert DenoiserConfig.from_dict({**SMALL.to_dict(), "condition_drop": 0.1}) == SMALL
+def test_a_network_config_with_a_key_it_does_not_know_is_refused():
+    """A typo (or a key of a retired format) is an error, never silently dropped."""
+    with pytest.raises(ConfigError, match="unknown DenoiserConfig keys: condition_drop"):
+        DenoiserConfig.from_dict({**SMALL.to_dict(), "condition_drop": 0.1})
 
 
 def test_output_shape_excludes_the_mask_class():

@@ -17,20 +17,8 @@ from lightning.pytorch.callbacks import RichProgressBar
 from m2d2m.generators.m2d2m_checkpoint import M2D2M_FILE
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.vqvae import VQ_FILE, MotionVQVAE, save_vq
-from orchestration.cli import main
-from tests.helpers import TINY_VQ
+from tests.helpers import TINY_VQ, one_line_error
 from training.callbacks import StepProgressBar
-
-
-def one_line_error(argv: list[str], capsys) -> str:
-    """Run the CLI; assert it failed with status 2 and one line, no traceback; that line."""
-    try:
-        status = main(argv)
-    except SystemExit as stopped:  # argparse's errors
-        status = stopped.code
-    err = capsys.readouterr().err.strip()
-    assert status == 2 and "Traceback" not in err and len(err.splitlines()) == 1, err
-    return err
 
 
 def broken_motions(folder: Path, sample_joints: np.ndarray, sample_features: np.ndarray) -> dict[str, Path]:

@@ -7,7 +7,6 @@ import mlflow
 import numpy as np
 import pytest
 import torch
-import yaml
 
 from m2d2m.generators.m2d2m import M2D2MGenerator
 from m2d2m.generators.m2d2m_checkpoint import load_m2d2m
@@ -15,26 +14,14 @@ from m2d2m.motion.clip import Motion
 from orchestration.cli import main
 from orchestration.errors import UserError
 from orchestration.generate import PromptPlanner, edit, generate, load_generator
-from orchestration.recipe import train_model
-from orchestration.train import train_vq
-from tests.helpers import TINY_DIFFUSION, TINY_VQ_RUN
 
 PROMPTS = ["a person walks forward", "a person jumps", "a person waves their right hand"]
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory, tiny_data) -> Path:
-    """A project directory holding a tiny VQ-VAE and denoiser run (trained once for the module)."""
-    root = tmp_path_factory.mktemp("generate")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.chdir(root)
-        patch.delenv("MLFLOW_TRACKING_URI", raising=False)
-        vq = {**TINY_VQ_RUN, "data": {**TINY_VQ_RUN["data"], "dir": str(tiny_data)}}
-        (root / "vq.yaml").write_text(yaml.safe_dump(vq), encoding="utf-8")
-        (root / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
-        train_vq(str(root / "vq.yaml"))
-        train_model("m2d2m", str(root / "diffusion.yaml"))
-        yield root
+def trained(trained_project) -> Path:
+    """A project holding a tiny VQ-VAE and denoiser run: this module's copy of conftest's trained store."""
+    return trained_project
 
 
 @pytest.fixture

@@ -124,7 +124,7 @@ def test_a_plugins_shortcut_and_knobs_reach_the_command_line(monkeypatch, capsys
     from orchestration.cli import _sampling_options, build_parser
     from orchestration.registry import load_plugins
 
-    monkeypatch.setenv("M2D2M_MODELS", "tests.fake_model")
+    monkeypatch.setenv("M2D2M_PLUGINS", "tests.fake_model")
     load_plugins()
     parser = build_parser()
     args = parser.parse_args(["generate", "a person walks", "--model", "playback", "--offset", "3", "--option", "x=1"])

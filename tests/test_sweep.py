@@ -16,7 +16,7 @@ import yaml
 from orchestration.cli import main
 from orchestration.errors import UserError
 from orchestration.sweep import SUMMARY_JSON, SUMMARY_MD, summary_plot, sweep, trial_name
-from tests.helpers import latest_evaluation
+from tests.helpers import latest_evaluation, one_line_error
 
 SUMMARY_PNG = summary_plot("ts")
 M2D2M_DEMO = Path(__file__).resolve().parents[1] / "configs" / "m2d2m" / "demo.yaml"
@@ -109,9 +109,7 @@ def test_a_two_trial_sweep_nests_its_trials_under_one_parent_and_resumes(
 def test_bad_sweep_configs_are_one_line_errors(trained_project, tiny_testset, capsys, monkeypatch, change, message):
     monkeypatch.chdir(trained_project)
     (trained_project / "bad.yaml").write_text(yaml.safe_dump(sweep_config(tiny_testset, **change)), encoding="utf-8")
-    assert main(["sweep", "--config", str(trained_project / "bad.yaml")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert message in err and len(err.splitlines()) == 1
+    assert message in one_line_error(["sweep", "--config", str(trained_project / "bad.yaml")], capsys)
 
 
 def test_a_training_sweep_trains_each_trial_then_evaluates_it(trained_project, tiny_testset, monkeypatch):
@@ -174,7 +172,7 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     from tests.fake_model import evaluate_playback, playback_of
 
     monkeypatch.chdir(trained_project)
-    monkeypatch.setenv("M2D2M_MODELS", "tests.fake_model")
+    monkeypatch.setenv("M2D2M_PLUGINS", "tests.fake_model")
     load_plugins()
     assert "playback" in models()
     model_file, _ = playback_of(tiny_testset, trained_project / "playback.npz")
@@ -196,13 +194,6 @@ def test_a_model_registered_from_outside_goes_through_evaluate_and_a_sampling_sw
     assert summary[0]["multi/concat/fid"] != summary[1]["multi/concat/fid"]  # the knob reached the generator
 
 
-def one_line_sweep_error(argv: list[str], capsys) -> str:
-    assert main(["sweep", *argv]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
-    return err
-
-
 @pytest.mark.parametrize(
     "space, message",
     [
@@ -217,7 +208,7 @@ def test_a_training_sweep_key_its_training_config_lacks_is_one_line_before_ray(
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     config = sweep_config(tmp_path / "testset", kind="training", train_config=str(M2D2M_DEMO), space=space)
     (tmp_path / "ablation.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
-    assert message in one_line_sweep_error(["--config", str(tmp_path / "ablation.yaml")], capsys)
+    assert message in one_line_error(["sweep", "--config", str(tmp_path / "ablation.yaml")], capsys)
     assert not (tmp_path / "runs").exists() and not (tmp_path / "mlflow.db").exists()  # no parent run, no Ray
 
 
@@ -232,13 +223,13 @@ def test_a_rerun_whose_config_changed_is_refused_before_ray(tmp_path, capsys, mo
         json.dumps({"experiment_id": "1", "parent_run_id": "0" * 32, "config": config}), encoding="utf-8"
     )
     (tmp_path / "grid.yaml").write_text(yaml.safe_dump({**config, "repeats": 3}), encoding="utf-8")
-    err = one_line_sweep_error(["--config", str(tmp_path / "grid.yaml")], capsys)
+    err = one_line_error(["sweep", "--config", str(tmp_path / "grid.yaml")], capsys)
     assert "(repeats changed)" in err and "--name" in err and "--restart" in err
-    err = one_line_sweep_error(
-        ["--config", str(tmp_path / "grid.yaml"), "--set", "repeats=1", "--set", "space.eta=[0.5]"], capsys
+    err = one_line_error(
+        ["sweep", "--config", str(tmp_path / "grid.yaml"), "--set", "repeats=1", "--set", "space.eta=[0.5]"], capsys
     )
     assert "(space.eta changed)" in err
-    assert "plain folder name" in one_line_sweep_error(
-        ["--config", str(tmp_path / "grid.yaml"), "--name", "../x"], capsys
+    assert "plain folder name" in one_line_error(
+        ["sweep", "--config", str(tmp_path / "grid.yaml"), "--name", "../x"], capsys
     )
     assert sorted(p.name for p in sweep_dir.iterdir()) == ["sweep.json"]

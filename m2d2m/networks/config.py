@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, fields
-from typing import Any, ClassVar, Self
+from typing import Any, Self
 
 
 class ConfigError(ValueError):
@@ -16,13 +16,9 @@ class ConfigError(ValueError):
 class NetworkConfig:
     """Subclasses declare their fields with the paper's defaults and check them in ``__post_init__``."""
 
-    # keys that older model files hold and that no longer shape the network: skipped when read
-    RETIRED: ClassVar[frozenset[str]] = frozenset()
-
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> Self:
         """Build from a config mapping; unknown keys are an error so a typo never goes unnoticed."""
-        values = {key: value for key, value in values.items() if key not in cls.RETIRED}
         unknown = sorted(set(values) - {f.name for f in fields(cls)})
         if unknown:
             raise ConfigError(f"unknown {cls.__name__} keys: {', '.join(unknown)}")

@@ -54,8 +54,6 @@ KeysValues = tuple[torch.Tensor, torch.Tensor]
 class DenoiserConfig(NetworkConfig):
     """Architecture of the denoiser; the defaults are the paper's (12 x 16 heads x 512, FFN 2048)."""
 
-    RETIRED = frozenset({"condition_drop"})  # a training rate, now the run config's top-level text_drop
-
     codebook_size: int = 512
     layers: int = 12
     heads: int = 16

@@ -1,6 +1,6 @@
 """An evaluation's settings: every knob that changes the numbers, resolved to files when a run
-starts and fixed for it (``--resume`` continues with exactly these), and read back from the
-run records of older versions."""
+starts and fixed for it (``--resume`` continues with exactly these), and read back from a run's
+record."""
 
 from __future__ import annotations
 
@@ -52,20 +52,13 @@ class EvalSettings:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> EvalSettings:
-        """Settings as run.json holds them. Runs recorded with one model at the top level (and,
-        before the model registry, the default model's knobs there too) read as one candidate."""
+        """Settings as run.json holds them (:func:`dataclasses.asdict` of them)."""
         values = dict(values)
-        if "candidates" not in values:
-            if "model" not in values:
-                values["model"] = DEFAULT_MODEL
-                knobs = model(DEFAULT_MODEL).load("sampling").names()
-                values["options"] = {key: values.pop(key) for key in knobs if values.get(key) is not None}
-            values["candidates"] = [{key: values.pop(key) for key in ("model", "checkpoint", "methods", "options")}]
         candidates = tuple(
-            Candidate(**{**c, "methods": tuple(c["methods"]), "edits": tuple(c.get("edits", ()))})
+            Candidate(**{**c, "methods": tuple(c["methods"]), "edits": tuple(c["edits"])})
             for c in values.pop("candidates")
         )
-        return cls(candidates=candidates, **{**values, "editing": tuple(values.get("editing", ()))})
+        return cls(candidates=candidates, **{**values, "editing": tuple(values["editing"])})
 
     @property
     def models(self) -> tuple[str, ...]:

@@ -74,13 +74,12 @@ def _edit_methods(settings: EvalSettings) -> str:
 
 def _feet_rows(results: dict[tuple[str, str], list[dict[str, Any]]]) -> dict[str, list[dict[str, float]]]:
     """Each multi-motion row's motions with the feet planted as row ``<row>.planted`` (MLflow takes
-    periods in metric names, not "+"); results written before these were measured have none."""
+    periods in metric names, not "+")."""
     return {
         f"{row}.{variant}": [result[f"metrics_{variant}"] for result in found]
         for (kind, row), found in results.items()
         if kind == "multi"
         for variant in FEET_VARIANTS
-        if all(f"metrics_{variant}" in result for result in found)
     }
 
 

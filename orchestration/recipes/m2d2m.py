@@ -18,7 +18,6 @@ def _sampling(config: dict[str, Any]) -> dict[str, Any]:
 
 
 class M2D2MRecipe(TokenRecipe):
-    renamed: ClassVar[dict[str, str]] = {"denoiser.condition_drop": "text_drop"}
     # a knob the sampling section leaves out samples as the preset says (paper-demo.yaml: guidance)
     optional: ClassVar[frozenset[str]] = frozenset(f"sampling.{knob}" for knob in MODEL_DEFAULTS)
 

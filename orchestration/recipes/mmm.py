@@ -5,14 +5,12 @@ first when its tokens are missing or stale."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
 
 
 class MMMRecipe(TokenRecipe):
-    renamed: ClassVar[dict[str, str]] = {"masking.text_drop": "text_drop"}
-
     def data(self, config: dict[str, Any]) -> TokenTraining:
         return token_training(config, lambda caption: [caption["text"]], max_tokens=config["transformer"]["max_tokens"])
 

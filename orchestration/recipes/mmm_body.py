@@ -6,14 +6,12 @@ an edit needs a motion's lower body, which the module's validation loss already 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 from orchestration.recipes.token_data import BodyTokenRecipe, BodyTokenTraining, body_token_training
 
 
 class BodyMMMRecipe(BodyTokenRecipe):
-    renamed: ClassVar[dict[str, str]] = {"masking.text_drop": "text_drop"}
-
     def data(self, config: dict[str, Any]) -> BodyTokenTraining:
         return body_token_training(
             config, lambda caption: [caption["text"]], max_tokens=config["transformer"]["max_tokens"]

@@ -41,19 +41,18 @@ class Run:
 
 
 def finished_runs(entry: ModelEntry, dataset: str) -> list[Run]:
-    """The model's runs that finished with a model file, newest first (legacy folders included)."""
+    """The model's runs that finished with a model file, newest first."""
     runs: list[Run] = []
-    for stage in (entry.stage, *entry.legacy_stages):
-        folder = stage_dir(dataset, stage)
-        marker = folder / LATEST
-        latest = marker.read_text(encoding="utf-8").strip() if marker.exists() else None
-        for info_file in sorted(folder.glob(f"*/{RUN_FILE}")) if folder.is_dir() else ():
-            info = json.loads(info_file.read_text(encoding="utf-8"))
-            model_file = info_file.parent / entry.model_file
-            if info.get("status") == "finished" and model_file.is_file():
-                name = info_file.parent.name
-                chosen = (info.get("config") or {}).get("sampling") or {}
-                runs.append(Run(name, model_file, name == latest, float(info.get("started", 0.0)), chosen))
+    folder = stage_dir(dataset, entry.stage)
+    marker = folder / LATEST
+    latest = marker.read_text(encoding="utf-8").strip() if marker.exists() else None
+    for info_file in sorted(folder.glob(f"*/{RUN_FILE}")) if folder.is_dir() else ():
+        info = json.loads(info_file.read_text(encoding="utf-8"))
+        model_file = info_file.parent / entry.model_file
+        if info.get("status") == "finished" and model_file.is_file():
+            name = info_file.parent.name
+            chosen = (info.get("config") or {}).get("sampling") or {}
+            runs.append(Run(name, model_file, name == latest, float(info.get("started", 0.0)), chosen))
     runs.sort(key=lambda run: (not run.latest, -run.started))
     return runs
 

@@ -300,7 +300,7 @@ class ClipEditor {
 
   continueRow() {
     this.nextText = editInput('edit-continue-text', { placeholder: 'a person sits down' });
-    this.nextSeconds = editInput('edit-continue-seconds', { type: 'number', placeholder: 'typical' });
+    this.nextSeconds = editInput('edit-continue-seconds', { type: 'number', placeholder: 'auto' });
     const append = editButton('edit-continue', 'Append', 'A new action after the clip’s end, which is kept');
     append.addEventListener('click', () => {
       const text = this.nextText.value.trim();
