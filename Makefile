@@ -77,7 +77,7 @@ demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus: data, models
 	@echo "Compare every run (the sweep's trials are child runs of one parent) in the MLflow UI: make ui"
 	@echo "For TPS against independent sampling with Jerk half-widths of 0.03 (about 20 minutes): make eval-power"
 
-test: $(STAMP)  ## run the test suite (slow end-to-end tests excluded)
+test: $(STAMP)  ## the fast test loop (tests marked slow, or that start Ray or a browser, left to test-all)
 	$(BIN)/pytest -m "not slow"
 
 lint: $(STAMP)  ## check formatting and lint (ruff, pyproject.toml); `.venv/bin/ruff format .` fixes formatting
