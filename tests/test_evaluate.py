@@ -16,7 +16,7 @@ from m2d2m.generators.m2d2m import M2D2MGenerator
 from orchestration.cli import main
 from orchestration.reports import FEET_TITLES, MULTI_COLUMNS, SINGLE_COLUMNS, table_metrics
 from pipelines.testset import build_testset
-from tests.helpers import latest_evaluation
+from tests.helpers import latest_evaluation, one_line_error
 
 METHODS = ("tps", "slerp")
 
@@ -250,16 +250,17 @@ def other_dim_testset(tmp_path_factory) -> Path:
         (["--guo-evaluator", "guo"], "--guo-evaluator needs --glove DIR"),
         (["--resume", "some-run", "--repeats", "3"], "with its own settings; drop --repeats"),
         (["--resume", "no-such-run"], "no eval run 'no-such-run'"),
-        (["--no-multi"], "--no-multi leaves nothing to evaluate: add --single or --edit TASK"),
+        (["--no-multi"], "--no-multi leaves nothing to evaluate: add --single, --edit TASK or --regenerate K"),
         (["--option", "steps=9", "--single"], "steps must lie in 1..T = 8"),
+        (["--regenerate", "0"], "argument --regenerate: must be a positive integer, got 0"),
+        (["--regenerate", "3"], "'s instances have 2 actions"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(trained_project, tiny_testset, other_dim_testset, capsys, arguments, message):
     arguments = [a.replace("{other}", str(other_dim_testset)) for a in arguments]
     given = [] if {"--testset", "--resume"} & set(arguments) else ["--testset", str(tiny_testset)]
-    code = main(["evaluate", "--dataset", "tiny", *given, *arguments])
-    err = capsys.readouterr().err.strip()
-    assert code == 2 and message in err and len(err.splitlines()) == 1, err
+    line = one_line_error(["evaluate", "--dataset", "tiny", *given, *arguments], capsys)
+    assert message in line, line
 
 
 def test_a_missing_evaluator_says_what_to_run(trained_project, tmp_path, monkeypatch, capsys):
