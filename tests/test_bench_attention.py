@@ -31,6 +31,7 @@ def test_the_whole_network_can_be_capped_but_the_attention_call_reaches_the_long
     }
 
 
+@pytest.mark.slow
 def test_times_and_memory_of_both_kinds_at_every_length(tmp_path, capsys):
     out = tmp_path / "attention"
     main(

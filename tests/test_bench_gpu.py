@@ -16,6 +16,7 @@ import bench.gpu  # noqa: E402
 from bench.gpu import BF16_PEAKS, MODELS, machine, main, parse, training_batches  # noqa: E402
 
 
+@pytest.mark.slow
 def test_quick_measures_every_model_and_writes_the_tables(tmp_path, one_torch_thread):
     lightning = logging.getLogger("lightning.pytorch")
     level = lightning.level

@@ -9,6 +9,7 @@ import pytest
 from orchestration.cli import main
 
 
+@pytest.mark.slow
 def test_the_installed_entry_point_ends_a_user_error_in_one_line(tmp_path):
     """The one case run as a real process; the rest call ``main`` in this one (the same code,
     seconds cheaper each)."""

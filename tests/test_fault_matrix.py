@@ -522,6 +522,7 @@ def tree_digest(folder: Path) -> dict[str, str]:
     }
 
 
+@pytest.mark.slow
 def test_a_killed_synthesize_leaves_a_corpus_a_rerun_completes_to_the_clean_one(tmp_path):
     from pipelines.synthetic import generate_corpus
 
@@ -739,6 +740,7 @@ def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
             assert image.n_frames == frames
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "out, pause_after",
     [("clip.gif", None), ("clip.bvh", "numpy.savetxt")],  # a GIF takes seconds to draw, a BVH is written at once

@@ -252,6 +252,7 @@ def test_a_take_whose_rows_do_not_line_up_is_quarantined(tmp_path):
 # ---------------------------------------------------------------------- m2d2m data, end to end
 
 
+@pytest.mark.slow
 def test_data_says_in_one_line_when_a_corpus_does_not_take_an_option(capsys):
     assert main(["data", "--dataset", "synthetic", "--bvh", str(CMU), "--out", "/tmp/never"]) == 2
     assert "--bvh: the synthetic corpus does not take it (it takes none)" in capsys.readouterr().err

@@ -26,6 +26,7 @@ import pytest
 
 from tests.helpers import free_port
 
+pytestmark = pytest.mark.slow  # eight writer processes, and a PostgreSQL server
 ROOT = Path(__file__).resolve().parents[1]
 WRITERS, STEPS = 8, 40
 WRITER = """

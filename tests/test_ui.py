@@ -79,6 +79,7 @@ def serving_sleepers() -> tuple[subprocess.Popen, list[psutil.Process]]:
         time.sleep(0.1)
 
 
+@pytest.mark.slow
 def test_the_ui_serves_the_project_store_and_sigterm_stops_all_of_it(tmp_path, monkeypatch):
     monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
     client = mlflow.MlflowClient(tracking_uri=f"sqlite:///{tmp_path / 'mlflow.db'}")
@@ -144,6 +145,7 @@ def test_a_stop_signal_ends_the_whole_process_tree_it_served(stop):
     assert alive(started) == []
 
 
+@pytest.mark.slow
 def test_a_sigkill_of_the_serving_process_still_ends_the_whole_tree():
     """A SIGKILL runs nothing in the process that served (`kill -9` of `m2d2m ui`): its watcher,
     told by the kernel, stops the tree, so the port is free for the re-run."""
