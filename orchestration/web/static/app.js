@@ -773,7 +773,9 @@ const editing = {
   /** The frame rate of `result`'s model, which a pose's frame is counted at (its run's, asked once). */
   async modelFps(result) {
     const path = `/api/models/${encodeURIComponent(result.model)}/runs/${encodeURIComponent(result.run)}`;
-    state.runFacts[path] ??= api(path).then((response) => response.json());
+    state.runFacts[path] ??= api(path)
+      .then((response) => response.json())
+      .catch((err) => { delete state.runFacts[path]; throw err; }); // asked again next time
     return (await state.runFacts[path]).fps;
   },
 };

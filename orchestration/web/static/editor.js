@@ -219,9 +219,15 @@ class ClipEditor {
   async copyPose() {
     const { result } = this.clip;
     const seconds = this.page.time();
-    const frame = Math.round(seconds * (await this.page.modelFps(result)));
-    const label = `${modelTitle(result.model, result.method)} at ${secondsText(seconds)} s`;
-    this.page.copy({ generation: result.id, frame, label });
+    try {
+      const fps = await this.page.modelFps(result);
+      // the playhead's frame at the model's rate, the clip's last at the end
+      const frame = Math.min(Math.round(seconds * fps), Math.floor(((result.joints.length - 1) * fps) / result.fps));
+      const label = `${modelTitle(result.model, result.method)} at ${secondsText(seconds)} s`;
+      this.page.copy({ generation: result.id, frame, label });
+    } catch (err) {
+      this.say(err.message, true);
+    }
   }
 
   showCopied() {
