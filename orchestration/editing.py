@@ -34,6 +34,7 @@ from m2d2m.generators.edits import (
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.motion.body_parts import PARTS, part_mask
 from m2d2m.motion.clip import Motion
+from m2d2m.motion.representation import features_to_joints
 from orchestration.errors import UserError
 from orchestration.viewing import load_features, read_sidecar
 
@@ -68,6 +69,31 @@ def timeline_of(motion: Motion, generator: MotionGenerator, origin: str) -> Time
     rate, and its actions, whose frames a delivery at another rate changed."""
     firsts = [first for first, _ in motion.ranges]
     return _timeline(np.asarray(motion.features), list(motion.actions), firsts, generator, motion.fps, origin)
+
+
+def motion_of(
+    features: np.ndarray, texts: Sequence[str], seconds: Sequence[float | None], generator: MotionGenerator, origin: str
+) -> Motion:
+    """A motion made elsewhere (its features at the model's rate) as a result of ``generator`` to
+    edit: its actions ``texts``, each ``seconds`` long in order (the last one's None: to the end;
+    fitted to the model's steps), its joints from the features on one rigid skeleton."""
+    lengths = [round(s * generator.fps) if s is not None else None for s in seconds]
+    if None in lengths[:-1] or any(n is not None and n < 1 for n in lengths):
+        raise UserError(f"{origin}: give every action but the last a length of at least one frame")
+    firsts = [0, *np.cumsum(lengths[:-1]).tolist()]
+    if firsts[-1] >= len(features) or sum(n or 0 for n in lengths) > len(features):
+        raise UserError(f"{origin}: its actions' seconds add up to more than its {len(features) / generator.fps:g} s")
+    timeline = _timeline(features, list(texts), firsts, generator, generator.fps, origin)
+    ends = [*timeline.starts[1:], len(timeline.features)]
+    joints = features_to_joints(timeline.features, generator.skeleton)
+    return Motion(
+        timeline.features,
+        np.asarray(joints, dtype=np.float32),
+        generator.fps,
+        generator.skeleton.name,
+        list(timeline.actions),
+        list(zip(timeline.starts, ends)),
+    ).on_rigid_skeleton()
 
 
 def _timeline(

@@ -4,6 +4,7 @@ corpus in HumanML3D's layout (with its captions and, for the synthetic corpus, i
 
 from __future__ import annotations
 
+import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,15 +75,19 @@ def _as_joints(array: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray
     )
 
 
-def load_features(source: str | Path, skeleton: Skeleton) -> np.ndarray:
+def load_features(source: str | Path | bytes, skeleton: Skeleton, origin: str = "") -> np.ndarray:
     """Float32 features (T, D) of ``skeleton`` from a ``.npy`` of features (the ``.features.npy``
     that ``m2d2m generate`` writes, a corpus's ``new_joint_vecs`` clip) or of joints (T, J, 3), which
-    HumanML3D's processing turns into features (one frame fewer): the motion an edit starts from."""
-    path = Path(source)
-    if not path.is_file():
-        raise UserError(f"{path}: no such file; give a .npy of features or joints")
-    array = _load_npy(path)
-    _check_values(array, str(path))
+    HumanML3D's processing turns into features (one frame fewer): the motion an edit starts from.
+    ``source``: the file, or its bytes (an upload, named ``origin`` in errors)."""
+    if isinstance(source, bytes):
+        array = _load_npy(io.BytesIO(source), origin)
+    else:
+        path = Path(source)
+        if not path.is_file():
+            raise UserError(f"{path}: no such file; give a .npy of features or joints")
+        array, origin = _load_npy(path, str(path)), str(path)
+    _check_values(array, origin)
     if array.ndim == 2 and array.shape[1] == skeleton.feature_dim:
         return array.astype(np.float32)
     if array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3) and len(array) >= 2:
@@ -90,24 +95,24 @@ def load_features(source: str | Path, skeleton: Skeleton) -> np.ndarray:
             features = joints_to_features(array, skeleton)
         if not np.isfinite(features).all():
             raise UserError(
-                f"{path}: these joints give no finite features: HumanML3D's processing needs a body whose "
+                f"{origin}: these joints give no finite features: HumanML3D's processing needs a body whose "
                 "hips and shoulders show which way it faces"
             )
         return features
     raise UserError(
-        f"{path}: shape {array.shape} is neither {skeleton.feature_dim}-d features nor joints "
+        f"{origin}: shape {array.shape} is neither {skeleton.feature_dim}-d features nor joints "
         f"(T >= 2, {skeleton.num_joints}, 3) of the model's skeleton {skeleton.name!r}"
     )
 
 
-def _load_npy(path: Path) -> np.ndarray:
+def _load_npy(source: Path | io.BytesIO, origin: str) -> np.ndarray:
     try:
-        loaded = np.load(path, allow_pickle=False)
+        loaded = np.load(source, allow_pickle=False)
     except (OSError, ValueError, EOFError) as error:  # EOFError: an empty file
-        raise UserError(f"{path}: not a readable .npy file ({error or type(error).__name__})") from error
+        raise UserError(f"{origin}: not a readable .npy file ({error or type(error).__name__})") from error
     if not isinstance(loaded, np.ndarray):  # a zip archive: an .npz, or a torch model file
         loaded.close()
-        raise UserError(f"{path}: an archive (.npz, or a model file), not one .npy array of a motion")
+        raise UserError(f"{origin}: an archive (.npz, or a model file), not one .npy array of a motion")
     return loaded
 
 
@@ -152,7 +157,7 @@ def _from_npy(path: Path, skeleton: str | None) -> LoadedMotion:
     """A ``.npy`` of joints or features; its sidecar, when there is one, gives the skeleton (unless
     ``skeleton`` names one), the frame rate, the actions and, for an in-place clip, the root motion
     taken out, put back so that the clip is what was generated."""
-    array = _load_npy(path)
+    array = _load_npy(path, str(path))
     sidecar = read_sidecar(path) if array.ndim == 3 else None
     if sidecar is not None and int(sidecar["num_frames"]) != len(array):
         raise UserError(
@@ -167,7 +172,8 @@ def _from_npy(path: Path, skeleton: str | None) -> LoadedMotion:
     if sidecar is None:
         return LoadedMotion(joints, skel, [], None)
     if "root_motion" in sidecar:
-        track = _load_npy(path.parent / sidecar["root_motion"])
+        track_file = path.parent / sidecar["root_motion"]
+        track = _load_npy(track_file, str(track_file))
         if track.shape != (len(joints), 3):
             raise UserError(f"{path.parent / sidecar['root_motion']}: shape {track.shape}, expected ({len(joints)}, 3)")
         joints = joints + track[:, None, :].astype(np.float32)
@@ -191,7 +197,7 @@ def load_motion(source: str | Path, clip_id: str | None = None, skeleton: str | 
     for folder in ("joints", "new_joint_vecs"):
         clip = path / folder / f"{clip_id}.npy"
         if clip.exists():
-            joints = _as_joints(_load_npy(clip), skel, str(clip))
+            joints = _as_joints(_load_npy(clip, str(clip)), skel, str(clip))
             return LoadedMotion(
                 joints, skel, _segments_of(path, clip_id), _first_caption(path / "texts" / f"{clip_id}.txt")
             )

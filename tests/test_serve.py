@@ -4,6 +4,7 @@ sampled in one batch, a client that leaves cancelling its work, SIGTERM finishin
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import re
@@ -527,3 +528,27 @@ def test_a_generation_is_edited_on_its_timeline(client, trained_project):
         assert refused.status_code == status and message in refused.json()["error"], (body, refused.text)
     unknown = client.post("/api/generations/nowhere/edit", json={"operation": "regenerate", "action": 1})
     assert unknown.status_code == 404
+
+    # a motion made elsewhere (here: the parent's features file) uploaded, then edited like a generation
+    features = (trained_project / "parent.features.npy").read_bytes()
+    actions = [{"text": a["text"], "seconds": 1.2} for a in four[:3]] + [{"text": four[3]["text"]}]
+    answer = client.post("/api/generations", json={"motion": base64.b64encode(features).decode(), "actions": actions})
+    assert answer.status_code == 200, answer.text
+    uploaded = answer.json()
+    assert [a["text"] for a in uploaded["actions"]] == [a["text"] for a in four]
+    assert [(a["first"], a["end"]) for a in uploaded["actions"]] == [(a["first"], a["end"]) for a in parent["actions"]]
+    answer = client.post(f"/api/generations/{uploaded['id']}/edit", json={"operation": "regenerate", "action": 2})
+    assert answer.status_code == 200 and answer.json()["settings"]["edit_parent"] == uploaded["id"], answer.text
+    for body, message in (
+        ({"motion": "not base64!", "actions": actions}, "motion: not base64"),
+        (
+            {"motion": base64.b64encode(b"junk").decode(), "actions": actions},
+            "the uploaded motion: not a readable .npy",
+        ),
+        (
+            {"motion": base64.b64encode(features).decode(), "actions": [{"text": "a person walks", "seconds": 60.0}]},
+            "its actions' seconds add up to more than its",
+        ),
+    ):
+        refused = client.post("/api/generations", json=body)
+        assert refused.status_code == 400 and message in refused.json()["error"], refused.text

@@ -9,6 +9,8 @@ link). ``POST /api/generate`` answers with the generation, or, asked for
 from __future__ import annotations
 
 import asyncio
+import base64
+import binascii
 import importlib.util
 import json
 import logging
@@ -30,17 +32,19 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from m2d2m.motion.clip import Motion
+from m2d2m.motion.delivery import Delivery
 from m2d2m.motion.pose import REST_POSES
-from orchestration.editing import finish_edit
+from orchestration.editing import finish_edit, motion_of
 from orchestration.errors import UserError
 from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner
 from orchestration.runs import stage_dir
+from orchestration.viewing import load_features
 from orchestration.web.catalog import Catalog, NotFound
 from orchestration.web.edits import plan_edit_request
 from orchestration.web.generations import FILES, Generation, Generations
 from orchestration.web.rigs import RIGS_STAGE, Rigs
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
-from orchestration.web.schema import EditRequest, GenerateRequest, Plan, SplitRequest, plan_request
+from orchestration.web.schema import EditRequest, GenerateRequest, Plan, SplitRequest, UploadRequest, plan_request
 
 STATIC = Path(__file__).parent / "static"
 DOCS_FILES = Path(importlib.util.find_spec("fastapi_offline").origin).parent / "static"  # Swagger UI, ReDoc
@@ -123,6 +127,20 @@ class Service:
             return finish_edit(edit, sampled, generator, said, edit_parent=parent.id, **parent_run)
 
         return job, plan, run, finishing
+
+    def upload(self, request: UploadRequest) -> Generation:
+        """A motion made elsewhere, recorded as a generation of the named model and run so that it
+        can be edited (a blocking call)."""
+        run, generator = self.catalog.generator(request.model, request.run)
+        try:
+            raw = base64.b64decode(request.motion, validate=True)
+        except binascii.Error as error:
+            raise UserError(f"motion: not base64 ({error})") from error
+        origin = "the uploaded motion"
+        features = load_features(raw, generator.skeleton, origin)
+        texts, seconds = [a.text for a in request.actions], [a.seconds for a in request.actions]
+        motion = motion_of(features, texts, seconds, generator, origin)
+        return self.generations.record(motion.delivered(Delivery()), texts, request.model, run, 0, "uploaded")
 
     def split(self, request: SplitRequest) -> dict[str, Any]:
         """The action sentences a prompt becomes for a run, their verbs, and what the run does not
@@ -252,6 +270,11 @@ def create_app(settings: ServeSettings) -> FastAPI:
     @api.post("/split", summary="The actions a prompt is split into, to check and fix before generating")
     async def split(body: SplitRequest) -> dict[str, Any]:
         return await run_in_threadpool(service.split, body)
+
+    @api.post("/generations", summary="Upload a motion made elsewhere (features or joints) to edit like a generation")
+    async def upload(body: UploadRequest) -> JSONResponse:
+        generation = await run_in_threadpool(service.upload, body)
+        return JSONResponse(service.generations.describe(generation))
 
     @api.get("/generations/{generation_id}", summary="A generation made by this server")
     def generation(generation_id: str) -> JSONResponse:

@@ -136,6 +136,18 @@ def delivery_of(request: GenerateRequest | EditRequest) -> Delivery:
         raise UserError(str(error)) from error
 
 
+class UploadRequest(BaseModel):
+    """A motion made elsewhere, to edit as a generation of the named model and run: ``motion``, a
+    ``.npy`` file's bytes in base64 (features (T, D) at the model's rate, or joints (T, J, 3)), and
+    its ``actions`` in order, each with its seconds (the last's may be none: to the end)."""
+
+    model_config = ConfigDict(extra="forbid", protected_namespaces=(), strict=True)
+    model: str = Field(DEFAULT_MODEL, max_length=64, description="a model of GET /api/models")
+    run: str = Field(LATEST_RUN, max_length=64, description="one of the model's runs, or latest")
+    motion: str = Field(min_length=1, description="base64 of a .npy of features or joints")
+    actions: list[Action] = Field(min_length=1, max_length=MAX_ACTIONS)
+
+
 class SplitRequest(BaseModel):
     """A sentence to split into action sentences as ``prompt`` of ``POST /api/generate`` would be,
     by the named run's tagger, to see (and fix) them before sampling."""
