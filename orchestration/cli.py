@@ -239,7 +239,8 @@ def _train_model(args: argparse.Namespace) -> None:
 
 
 def _train_evaluator(args: argparse.Namespace) -> None:
-    from orchestration.train import EVALUATOR_FILE, train_evaluator
+    from orchestration.runs import EVALUATOR_FILE
+    from orchestration.train import train_evaluator
 
     run_dir = train_evaluator(args.config, args.set, args.resume)
     print(f"finished {run_dir}; evaluator {run_dir / EVALUATOR_FILE}; its metrics: `make ui`")

@@ -23,6 +23,10 @@ from orchestration.tracking import download_model_file
 RUNS_ROOT = Path("runs")
 RUN_FILE = "run.json"
 LATEST = "latest"
+# the stages that are no model of the registry: their runs' folders and MLflow experiments, and a file they hold
+VQ_STAGE = "vq"
+EVALUATOR_STAGE = "evaluator"
+EVALUATOR_FILE = "evaluator.pt"
 MLFLOW_ID = re.compile(r"^[0-9a-f]{32}$")
 
 

@@ -36,6 +36,9 @@ from m2d2m.precision import fast_bf16
 from orchestration.config import flatten, is_number, load_config
 from orchestration.errors import UserError
 from orchestration.runs import (
+    EVALUATOR_FILE,
+    EVALUATOR_STAGE,
+    VQ_STAGE,
     exclusive,
     find_run,
     mark_latest,
@@ -47,9 +50,6 @@ from orchestration.runs import (
 )
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
 
-VQ_STAGE = "vq"
-EVALUATOR_STAGE = "evaluator"
-EVALUATOR_FILE = "evaluator.pt"
 SNAPSHOTS = "snapshots"  # a run's folder of weights at chosen steps (trainer.snapshots)
 # Trainer settings every training config may leave out: off unless asked for (see fit)
 TRAINING_DEFAULTS = {"trainer": {"ema": 0.0, "snapshots": []}}

@@ -14,9 +14,9 @@ import pytest
 import torch
 from lightning.pytorch.callbacks import RichProgressBar
 
-from m2d2m.generators.m2d2m_checkpoint import M2D2M_FILE
+from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT
 from m2d2m.motion.normalization import Normalizer
-from m2d2m.networks.vqvae import VQ_FILE, MotionVQVAE, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, save_vq
 from tests.helpers import TINY_VQ, one_line_error
 from training.callbacks import StepProgressBar
 
@@ -95,7 +95,7 @@ def spoiled_vq_files(folder: Path, vq: Path, payload: dict) -> dict[str, Path]:
     files["random-bytes"].write_bytes(np.random.default_rng(0).bytes(4096))
     files["empty"].write_bytes(b"")
     torch.save({"weights": torch.zeros(3)}, files["plain-dict"])
-    torch.save({"format": M2D2M_FILE.format, "state_dict": {}}, files["denoiser"])  # an M2D2M model.pt, not a VQ-VAE
+    torch.save({"format": M2D2M_FORMAT.format, "state_dict": {}}, files["denoiser"])  # an M2D2M model.pt, not a VQ-VAE
     torch.save({k: v for k, v in payload.items() if k != "extra"}, files["no-extra"])
     torch.save({**payload, "state_dict": {"encoder.0.weight": torch.zeros(2, 2)}}, files["other-weights"])
     return files
@@ -103,7 +103,7 @@ def spoiled_vq_files(folder: Path, vq: Path, payload: dict) -> dict[str, Path]:
 
 def test_tokenize_with_a_spoiled_vq_file_is_one_line(tmp_path, capsys, vq_payload):
     vq, payload = vq_payload
-    assert payload["format"] == VQ_FILE.format
+    assert payload["format"] == VQ_FORMAT.format
     for name, path in spoiled_vq_files(tmp_path, vq, payload).items():
         err = one_line_error(["tokenize", "--vq", str(path), "--data", str(tmp_path)], capsys)
         assert str(path) in err and ("not a VQ-VAE model file" in err or "not a usable VQ-VAE" in err), name

@@ -13,7 +13,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from m2d2m.generators.m2d2m import M2D2MGenerator
-from m2d2m.generators.m2d2m_checkpoint import M2D2M_FILE
+from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT
 from orchestration.cli import main
 from orchestration.web.app import ServeSettings, create_app
 
@@ -28,8 +28,8 @@ def chosen_run(trained_project):
     first = (folder / "latest").read_text().strip()
     second = folder / "20990101-000000-beef"
     shutil.copytree(folder / first, second)
-    payload = M2D2M_FILE.read(second / "model.pt")
-    M2D2M_FILE.write(second / "model.pt", {**payload, "sampling": CHOSEN})
+    payload = M2D2M_FORMAT.read(second / "model.pt")
+    M2D2M_FORMAT.write(second / "model.pt", {**payload, "sampling": CHOSEN})
     info = json.loads((second / "run.json").read_text())
     info["config"]["sampling"] = CHOSEN
     (second / "run.json").write_text(json.dumps(info))

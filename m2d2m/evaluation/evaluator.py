@@ -42,7 +42,7 @@ from m2d2m.model_files import ModelFileKind
 from m2d2m.networks.config import ConfigError, NetworkConfig
 from m2d2m.text import UNK, LearnedTextEncoder
 
-EVALUATOR_FILE = ModelFileKind("m2d2m-evaluator/1", "an evaluator model file")
+EVALUATOR_FORMAT = ModelFileKind("m2d2m-evaluator/1", "an evaluator model file")
 CONTACT_DIMS = 4  # the foot contacts, dropped from the motion input
 UNIT_LENGTH = 4  # frames per movement latent: two stride-2 convolutions
 
@@ -489,7 +489,7 @@ def contrastive_loss(
 def save_evaluator(path: str | Path, model: TextMotionEvaluator) -> Path:
     """One self-contained torch file (written atomically): sizes, vocabulary, and every weight,
     word vector and statistic — all that computing the metrics needs."""
-    return EVALUATOR_FILE.write(
+    return EVALUATOR_FORMAT.write(
         path,
         {
             "config": model.config.to_dict(),
@@ -501,7 +501,7 @@ def save_evaluator(path: str | Path, model: TextMotionEvaluator) -> Path:
 
 def load_evaluator(path: str | Path, map_location: str | torch.device = "cpu") -> TextMotionEvaluator:
     """Read a file written by :func:`save_evaluator`; the model is in eval mode on ``map_location``."""
-    payload = EVALUATOR_FILE.read(path)
+    payload = EVALUATOR_FORMAT.read(path)
     config = EvaluatorConfig.from_dict(payload["config"])
     state = payload["state_dict"]
     vectors = state["words.weight"] if config.word_features == "glove" else None

@@ -20,11 +20,11 @@ from m2d2m.generators.m2d2m_options import MODEL_DEFAULTS, SAMPLING, M2D2MOption
 from m2d2m.generators.token_model import TokenCodec
 from m2d2m.model_files import LengthPrior, ModelFileKind, network_payload, text_encoder_from_payload, text_payload
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.networks.vqvae import VQ_FILE
+from m2d2m.networks.vqvae import VQ_FORMAT
 from m2d2m.processes.discrete_diffusion import ScheduleConfig, TransitionSchedule
 from m2d2m.text import TextEncoder
 
-M2D2M_FILE = ModelFileKind("m2d2m-denoiser/1", "an M2D2M model file")
+M2D2M_FORMAT = ModelFileKind("m2d2m-denoiser/1", "an M2D2M model file")
 
 
 @dataclass
@@ -55,14 +55,14 @@ def save_m2d2m(
     """Write a model file; ``text`` is the run's config section, ``schedule`` the trained schedule's
     whole config (endpoints included, so a configured ᾱ_T or γ̄_T survives the round trip),
     ``sampling`` the run's sampling defaults (checked by :func:`sampling_defaults`)."""
-    return M2D2M_FILE.write(
+    return M2D2M_FORMAT.write(
         path,
         {
             "denoiser": network_payload(denoiser),
             "text": text_payload(text_encoder, text),
             "schedule": schedule.to_dict(),
             "codebook": codebook.detach().cpu().to(torch.float32),
-            "vq": VQ_FILE.read(vq_file),
+            "vq": VQ_FORMAT.read(vq_file),
             "lengths": lengths.to_payload(),
             "extra": {} if extra is None else extra,
             "sampling": sampling_defaults(sampling or {}, schedule.steps),
@@ -72,7 +72,7 @@ def save_m2d2m(
 
 def load_m2d2m(path: str | Path, device: str | torch.device = "cpu") -> M2D2MCheckpoint:
     """Read a file written by :func:`save_m2d2m`, models in eval mode on ``device``."""
-    payload = M2D2M_FILE.read(path)
+    payload = M2D2M_FORMAT.read(path)
     denoiser = MotionDenoiser(DenoiserConfig.from_dict(payload["denoiser"]["config"]))
     denoiser.load_state_dict(payload["denoiser"]["state_dict"])
     text_encoder = text_encoder_from_payload(payload["text"])

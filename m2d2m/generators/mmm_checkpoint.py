@@ -15,11 +15,11 @@ from m2d2m.generators.token_model import BodyCodec, TokenCodec
 from m2d2m.model_files import LengthPrior, ModelFileKind, network_payload, text_encoder_from_payload, text_payload
 from m2d2m.networks.mmm_body_transformer import BodyMaskedTransformer, BodyTransformerConfig
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig
-from m2d2m.networks.vqvae import VQ_FILE
+from m2d2m.networks.vqvae import VQ_FORMAT
 from m2d2m.text import TextEncoder
 
-MMM_FILE = ModelFileKind("mmm-transformer/1", "an MMM model file")
-BODY_FILE = ModelFileKind("mmm-body/1", "an MMM upper-body model file")
+MMM_FORMAT = ModelFileKind("mmm-transformer/1", "an MMM model file")
+BODY_FORMAT = ModelFileKind("mmm-body/1", "an MMM upper-body model file")
 
 
 @dataclass
@@ -46,7 +46,7 @@ def _payload(
     return {
         "transformer": network_payload(transformer),
         "text": text_payload(text_encoder, text),
-        **{key: VQ_FILE.read(path) for key, path in vq_files.items()},
+        **{key: VQ_FORMAT.read(path) for key, path in vq_files.items()},
         "lengths": lengths.to_payload(),
         "extra": {} if extra is None else extra,
     }
@@ -76,12 +76,12 @@ def save_mmm(
     extra: dict[str, Any] | None = None,
 ) -> Path:
     """Write a model file; ``text`` is the run's config section."""
-    return MMM_FILE.write(path, _payload(transformer, text_encoder, text, {"vq": vq_file}, lengths, extra))
+    return MMM_FORMAT.write(path, _payload(transformer, text_encoder, text, {"vq": vq_file}, lengths, extra))
 
 
 def load_mmm(path: str | Path, device: str | torch.device = "cpu") -> MMMCheckpoint:
     """Read a file written by :func:`save_mmm`, models in eval mode on ``device``."""
-    payload = MMM_FILE.read(path)
+    payload = MMM_FORMAT.read(path)
     state = payload["transformer"]["state_dict"]
     transformer = MaskedMotionTransformer(
         MaskedTransformerConfig.from_dict(payload["transformer"]["config"]), state["codebook"]
@@ -101,12 +101,12 @@ def save_body_mmm(
 ) -> Path:
     """Write an upper-body editor's model file, with both part tokenizers."""
     vq_files = {"upper_vq": upper_vq_file, "lower_vq": lower_vq_file}
-    return BODY_FILE.write(path, _payload(transformer, text_encoder, text, vq_files, lengths, extra))
+    return BODY_FORMAT.write(path, _payload(transformer, text_encoder, text, vq_files, lengths, extra))
 
 
 def load_body_mmm(path: str | Path, device: str | torch.device = "cpu") -> MMMCheckpoint:
     """Read a file written by :func:`save_body_mmm`; its codec is a :class:`BodyCodec`."""
-    payload = BODY_FILE.read(path)
+    payload = BODY_FORMAT.read(path)
     state = payload["transformer"]["state_dict"]
     transformer = BodyMaskedTransformer(
         BodyTransformerConfig.from_dict(payload["transformer"]["config"]), state["codebook"], state["lower_codebook"]

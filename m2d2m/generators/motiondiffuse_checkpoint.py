@@ -19,7 +19,7 @@ from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, Motion
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion
 from m2d2m.text import TextEncoder
 
-MOTIONDIFFUSE_FILE = ModelFileKind("motiondiffuse/1", "a MotionDiffuse model file")
+MOTIONDIFFUSE_FORMAT = ModelFileKind("motiondiffuse/1", "a MotionDiffuse model file")
 
 
 @dataclass
@@ -52,7 +52,7 @@ def save_motiondiffuse(
 ) -> Path:
     """Write a model file; ``text`` and ``diffusion`` are the run's config sections."""
     GaussianDiffusion.from_config(diffusion)  # refuse a schedule the file could not be read back with
-    return MOTIONDIFFUSE_FILE.write(
+    return MOTIONDIFFUSE_FORMAT.write(
         path,
         {
             "network": network_payload(network),
@@ -72,7 +72,7 @@ def save_motiondiffuse(
 
 def load_motiondiffuse(path: str | Path, device: str | torch.device = "cpu") -> MotionDiffuseCheckpoint:
     """Read a file written by :func:`save_motiondiffuse`, models in eval mode on ``device``."""
-    payload = MOTIONDIFFUSE_FILE.read(path)
+    payload = MOTIONDIFFUSE_FORMAT.read(path)
     network = MotionDiffuseTransformer(MotionDiffuseConfig.from_dict(payload["network"]["config"]))
     network.load_state_dict(payload["network"]["state_dict"])
     text_encoder = text_encoder_from_payload(payload["text"])

@@ -37,7 +37,7 @@ from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.smoothing import gaussian_kernel
 from m2d2m.networks.config import ConfigError, NetworkConfig
 
-VQ_FILE = ModelFileKind("m2d2m-vq/1", "a VQ-VAE model file")
+VQ_FORMAT = ModelFileKind("m2d2m-vq/1", "a VQ-VAE model file")
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "silu": nn.SiLU, "gelu": nn.GELU}
 
@@ -427,14 +427,14 @@ def save_vq(
         "skeleton": str(skeleton),
         "extra": {} if extra is None else extra,
     }
-    VQ_FILE.write(path, payload)
+    VQ_FORMAT.write(path, payload)
 
 
 def load_vq(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
     """Read a file written by :func:`save_vq`: the model (eval mode, on ``map_location``), its
     normaliser, and ``{"skeleton", "part", "extra"}`` (``part``: the body part it tokenizes);
     ValueError when the file is not one."""
-    payload = VQ_FILE.read(path, map_location)
+    payload = VQ_FORMAT.read(path, map_location)
     try:
         return vq_from_payload(payload, map_location)
     except ValueError as error:

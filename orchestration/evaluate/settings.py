@@ -15,8 +15,7 @@ from orchestration.evaluate.options import assign_edits, assign_methods, assign_
 from orchestration.generate import resolve_model_file
 from orchestration.registry import DEFAULT_MODEL, model
 from orchestration.reports import GENERATED
-from orchestration.runs import find_run, read_run_info, run_file
-from orchestration.train import EVALUATOR_FILE, EVALUATOR_STAGE
+from orchestration.runs import EVALUATOR_FILE, EVALUATOR_STAGE, find_run, read_run_info, run_file
 
 EVAL_STAGE = "eval"
 
