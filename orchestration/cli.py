@@ -225,7 +225,7 @@ def _data(args: argparse.Namespace) -> None:
 
 
 def _train_vq(args: argparse.Namespace) -> None:
-    from orchestration.train import train_vq
+    from orchestration.recipes.vq import train_vq
 
     run_dir = train_vq(args.config, args.set, args.resume)
     print(f"finished {run_dir}; model file {run_dir / 'vq.pt'}; see its metrics and previews with `make ui`")
@@ -239,23 +239,24 @@ def _train_model(args: argparse.Namespace) -> None:
 
 
 def _train_evaluator(args: argparse.Namespace) -> None:
+    from orchestration.recipes.evaluator import train_evaluator
     from orchestration.runs import EVALUATOR_FILE
-    from orchestration.train import train_evaluator
 
     run_dir = train_evaluator(args.config, args.set, args.resume)
     print(f"finished {run_dir}; evaluator {run_dir / EVALUATOR_FILE}; its metrics: `make ui`")
 
 
 def _tokenize(args: argparse.Namespace) -> None:
-    from orchestration.train import token_set, vq_file
+    from orchestration.runs import vq_file
+    from pipelines.token_sets import token_set
     from pipelines.tokenize import check_tokens, current_tokens, tokenize_dataset
 
     if args.check:
         _report_problems(Path(args.check), check_tokens(args.check), "counts, checksums, schema and codebook")
         return
     vq_path = vq_file(args.vq or "latest", args.dataset)
-    data_dir, out = token_set(vq_path, args.data)
     try:
+        data_dir, out = token_set(vq_path, args.data)
         if current_tokens(data_dir, vq_path, out) is not None:
             print(f"{out}: tokens of this dataset with this VQ-VAE are already there; reusing them")
         manifest = tokenize_dataset(data_dir, vq_path, out, workers=args.workers, ray_address=args.ray_address)

@@ -1,17 +1,22 @@
-"""One training recipe for every registered model: :func:`run_recipe` does what all of them share
-(the run directory and MLflow run, the settings check, seeding, the trainer with its checkpoints,
-DDP and resume, the model file, its snapshots and the run's record); a model's :class:`Recipe`
-says only how its config becomes data, a LightningModule and a model file
-(docs/architecture.md, "How to add a model")."""
+"""One training recipe for every model file the project trains: :func:`run_recipe` does what all of
+them share (the run directory and MLflow run, the settings check, seeding, the trainer with its
+checkpoints, DDP and resume, the model file, its snapshots and the run's record); a
+:class:`Recipe` says only how its config becomes data, a LightningModule and a model file
+(docs/architecture.md, "How to add a model"). The registered generators' recipes are named by
+their :class:`~orchestration.registry.ModelEntry`; the VQ-VAE's and the evaluator's
+(:mod:`orchestration.recipes.vq`, :mod:`orchestration.recipes.evaluator`) by a :class:`Trainable`
+of their own."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
 from m2d2m.layout import relative_to_project
+from m2d2m.model_files import LengthPrior
 from m2d2m.plugins import plugins_for_workers
 from orchestration.errors import UserError
 from orchestration.registry import ModelEntry, load_plugins, model
@@ -34,6 +39,13 @@ class TrainingData:
         """The frames one unit of the model's sequences holds, the length prior's unit: 1 for a
         model on features, a token's frames for a model over tokens."""
         return 1
+
+    @functools.cached_property
+    def lengths(self) -> LengthPrior:
+        """The length prior of the training captions (read once, for the model file and its snapshots)."""
+        from training.data import length_prior
+
+        return length_prior(self.datamodule.urls("train"), self.frames_per_unit)
 
     def records(self) -> dict[str, str]:
         """Where the run's inputs are, for its ``run.json`` and its model file's ``extra``."""
@@ -76,16 +88,40 @@ class Recipe:
         """The LightningModule, built after seeding."""
         raise NotImplementedError
 
+    def stage(self, stage: str, config: dict[str, Any]) -> str:
+        """The stage a run of ``config`` is filed under: the trainable's own, unless the config says
+        otherwise (a part tokenizer's ``vq-upper``)."""
+        return stage
+
     def callbacks(self, run: OpenedRun, data: TrainingData) -> list:
         """The model's own trainer callbacks (sample previews, for instance)."""
         return []
 
-    def save(
-        self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, lengths: Any, extra: dict[str, Any]
-    ) -> Path:
-        """Write the model file at ``path`` from ``module``'s current weights, with the length
-        prior of the training captions and ``extra`` (where the run and its inputs are)."""
+    def artifacts(self, data: TrainingData) -> list[Path]:
+        """Files the run's MLflow record keeps beside the model file and checkpoints."""
+        return []
+
+    def save(self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, extra: dict[str, Any]) -> Path:
+        """Write the model file at ``path`` from ``module``'s current weights, with ``extra`` (where
+        the run and its inputs are)."""
         raise NotImplementedError
+
+
+@dataclass(frozen=True)
+class Trainable:
+    """What :func:`run_recipe` trains: a recipe, the stage its runs are filed under
+    (``runs/<dataset>/<stage>/``, an MLflow experiment), its configs (``configs/<configs>/``) and
+    the model file a finished run holds."""
+
+    stage: str
+    configs: str
+    model_file: str
+    recipe: Recipe
+
+    @classmethod
+    def of_model(cls, entry: ModelEntry) -> Trainable:
+        """A registered model's training."""
+        return cls(entry.stage, entry.configs, entry.model_file, entry.load("recipe"))
 
 
 def caption_vocabulary(
@@ -107,7 +143,7 @@ def caption_vocabulary(
 
 
 def run_recipe(
-    entry: ModelEntry,
+    trainable: Trainable,
     config_name: str = "demo",
     overrides: list[str] | None = None,
     resume: bool | str = False,
@@ -115,18 +151,16 @@ def run_recipe(
     join: Path | None = None,
     ray_train: bool = False,
 ) -> Path:
-    """Train ``entry``'s model with its recipe; returns the run directory (with the model file on
+    """Train with ``trainable``'s recipe; returns the run directory (with the model file on
     success). ``join``: a run another process opened (its config is used, ``config_name`` and
     ``overrides`` are not); ``ray_train``: this process is a Ray Train worker; ``extra_callbacks``
-    join the trainer's (a test's kill switch, for instance)."""
+    join the trainer's (a sweep's reporting callback, a test's kill switch)."""
     import lightning.pytorch as pl
 
-    from training.data import length_prior
-
-    recipe: Recipe = entry.load("recipe")
+    recipe = trainable.recipe
     run = open_run(
-        entry.stage,
-        entry.configs,
+        functools.partial(recipe.stage, trainable.stage),
+        trainable.configs,
         config_name,
         overrides or [],
         resume,
@@ -151,22 +185,27 @@ def run_recipe(
     )
     if not fitted.primary:
         return run.run_dir
-    lengths = length_prior(data.datamodule.urls("train"), data.frames_per_unit)
     extra = {
         "run": run.run_dir.name,
         "mlflow_run_id": fitted.logger.run_id,
         "dataset": config["dataset"],
         "data_dir": relative_to_project(data.data_dir),
         **data.records(),
-        "best_val_loss": float(fitted.checkpoints.best_model_score),
+        f"best_{recipe.monitor.replace('/', '_')}": float(fitted.checkpoints.best_model_score),
     }
-    model_file = run.run_dir / entry.model_file
-    recipe.save(model_file, module, config, data, lengths, extra)
-    export_snapshots(run.run_dir, module, lambda path: recipe.save(path, module, config, data, lengths, extra))
+    model_file = run.run_dir / trainable.model_file
+    recipe.save(model_file, module, config, data, extra)
+    export_snapshots(run.run_dir, module, lambda path: recipe.save(path, module, config, data, extra))
     finish(
         run.run_dir,
         fitted,
-        [model_file, Path(fitted.checkpoints.best_model_path), fitted.last, run.run_dir / "config.yaml"],
+        [
+            model_file,
+            Path(fitted.checkpoints.best_model_path),
+            fitted.last,
+            run.run_dir / "config.yaml",
+            *recipe.artifacts(data),
+        ],
         model=relative_to_project(model_file),
         **data.records(),
     )
@@ -174,6 +213,18 @@ def run_recipe(
 
 
 @records_failure
+def train(
+    trainable: Trainable,
+    config_name: str = "demo",
+    overrides: list[str] | None = None,
+    resume: bool | str = False,
+    extra_callbacks: list | None = None,
+) -> Path:
+    """A training command (``m2d2m train-vq``, ``train-diffusion``, ...): :func:`run_recipe` in
+    this process, the run recorded failed or interrupted when it raises; returns the run directory."""
+    return run_recipe(trainable, config_name, overrides, resume, extra_callbacks)
+
+
 def train_model(
     name: str,
     config_name: str = "demo",
@@ -182,7 +233,7 @@ def train_model(
     extra_callbacks: list | None = None,
 ) -> Path:
     """Train the registered model ``name`` (``m2d2m train-diffusion`` for M2D2M); returns the run directory."""
-    return run_recipe(model(name), config_name, overrides, resume, extra_callbacks)
+    return train(Trainable.of_model(model(name)), config_name, overrides, resume, extra_callbacks)
 
 
 def train_on_workers(
@@ -201,15 +252,14 @@ def train_on_workers(
     from ray.train import RunConfig, ScalingConfig
     from ray.train.torch import TorchTrainer
 
-    entry = model(name)
-    recipe: Recipe = entry.load("recipe")
+    trainable = Trainable.of_model(model(name))
     run_dir = open_run(
-        entry.stage,
-        entry.configs,
+        functools.partial(trainable.recipe.stage, trainable.stage),
+        trainable.configs,
         config_name,
         overrides,
         resume=False,
-        optional=recipe.optional_keys(),
+        optional=trainable.recipe.optional_keys(),
     ).run_dir
     trainer = TorchTrainer(
         _ray_train_worker,
@@ -224,7 +274,7 @@ def train_on_workers(
         scaling_config=ScalingConfig(
             num_workers=workers, use_gpu=use_gpu, resources_per_worker={"CPU": cpus_per_worker}
         ),
-        run_config=RunConfig(name=f"{entry.stage}-{run_dir.name}", storage_path=str(storage.resolve())),
+        run_config=RunConfig(name=f"{trainable.stage}-{run_dir.name}", storage_path=str(storage.resolve())),
     )
     trainer.fit()
     if read_run_info(run_dir).get("status") != "finished":
@@ -236,4 +286,4 @@ def _ray_train_worker(config: dict[str, Any]) -> None:
     """One Ray Train worker: joins the run in the project directory and trains its DDP rank."""
     enter_project(config["project"], config["tracking_uri"], config["cpus"])
     load_plugins(**config["plugins"])
-    run_recipe(model(config["model"]), join=Path(config["run_dir"]), ray_train=True)
+    run_recipe(Trainable.of_model(model(config["model"])), join=Path(config["run_dir"]), ray_train=True)

@@ -16,7 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from m2d2m.atomic import atomic_path
+from m2d2m.layout import VQ_FILE
 from m2d2m.locks import Busy, holding
+from m2d2m.motion.body_parts import FULL
 from orchestration.errors import NotInProject, UserError
 from orchestration.tracking import download_model_file
 
@@ -196,3 +198,25 @@ def run_file(reference: str | Path, dataset: str, stage: str, name: str, made_by
         resume = f"m2d2m {made_by.split()[-1]}" if made_by.startswith("make ") else made_by
         raise UserError(f"{run_dir} has no {name}: the run did not finish (`{resume} --resume` continues it)")
     return run_dir / name
+
+
+def vq_stage(part: str) -> str:
+    """The stage (run folder, MLflow experiment) of a tokenizer of ``part``: ``vq`` for the whole
+    body, ``vq-upper`` / ``vq-lower`` for MMM's part tokenizers, so that each has its own ``latest``
+    and a part tokenizer never becomes the one the whole-body models take."""
+    return VQ_STAGE if part == FULL else f"{VQ_STAGE}-{part}"
+
+
+def vq_file(reference: str | Path, dataset: str, part: str = FULL) -> Path:
+    """A VQ model file from ``latest``, a ``vq.pt`` path, a Lightning checkpoint of a VQ run, or a
+    VQ run directory, name or MLflow run id (the one resolver of every stage that reads a VQ-VAE);
+    ``part`` says whose runs ``latest`` and names are looked up in (:func:`vq_stage`)."""
+    path = Path(reference)
+    if path.suffix == ".ckpt" and path.is_file():
+        reference = path.resolve().parent.parent  # <run>/checkpoints/<name>.ckpt
+    made_by = (
+        "make train-vq"
+        if part == FULL
+        else f"m2d2m train-vq --config mmm-{part}-{'demo' if dataset == 'synthetic' else dataset}"
+    )
+    return run_file(reference, dataset, vq_stage(part), VQ_FILE, made_by)

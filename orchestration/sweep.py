@@ -191,7 +191,11 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
         )
     else:
         recipe = entry.load("recipe")
-        recipe.prepare(recipe.load_config(entry, config["train_config"]))
+        train_config = recipe.load_config(entry, config["train_config"])
+        try:  # a missing or damaged VQ-VAE, or its tokens being made by another command: one line
+            recipe.prepare(train_config)
+        except (FileNotFoundError, ValueError) as error:
+            raise UserError(str(error)) from error
     return {
         "project": str(Path.cwd().resolve()),
         "tracking_uri": tracking_uri(),

@@ -1,11 +1,9 @@
-"""Training runs: a config in, a run directory, an MLflow run and a model file out.
-
-``train_vq`` is ``m2d2m train-vq``: it resolves the config, opens (or, with ``resume``, reopens)
-the run directory and the MLflow run, trains with Lightning, and on success exports ``vq.pt`` —
-the plain model file later stages read — and marks the run as the stage's ``latest``;
-``train_evaluator`` does the same for the evaluator. The generators' models train through one
-recipe (:mod:`orchestration.recipe`) built from the same pieces: :func:`open_run`, :func:`fit`,
-:func:`export_snapshots` and :func:`finish`.
+"""The machinery of a training run: a config in, a run directory, an MLflow run and a model file
+out. :func:`open_run` resolves and checks the config and opens (or, with ``resume``, reopens) the
+run directory; :func:`fit` trains with Lightning; :func:`export_snapshots` and :func:`finish`
+write the model files and mark the run as its stage's ``latest``. Every model file the project
+trains, the VQ-VAE's and the evaluator's included, is made by one recipe built from these pieces
+(:func:`orchestration.recipe.run_recipe`).
 
 Several processes may train one run (DDP). Lightning's own launcher (``trainer.devices: 2``, or
 more GPUs) starts every rank after the first by re-running the command; those processes find the
@@ -30,22 +28,17 @@ from typing import Any
 import torch
 import yaml
 
-from m2d2m.layout import VQ_FILE, recorded_path, relative_to_project
-from m2d2m.motion.body_parts import FULL
+from m2d2m.layout import relative_to_project
 from m2d2m.precision import fast_bf16
 from orchestration.config import flatten, is_number, load_config
 from orchestration.errors import UserError
 from orchestration.runs import (
-    EVALUATOR_FILE,
-    EVALUATOR_STAGE,
-    VQ_STAGE,
     exclusive,
     find_run,
     mark_latest,
     new_run_dir,
     newest_run,
     read_run_info,
-    run_file,
     write_run_info,
 )
 from orchestration.tracking import artifact_location, ensure_experiment, experiment_name, tracking_uri
@@ -167,7 +160,7 @@ class OpenedRun:
 
 
 def open_run(
-    stage: str,
+    stage: str | Callable[[dict[str, Any]], str],
     configs: str,
     config_name: str,
     overrides: list[str],
@@ -177,15 +170,19 @@ def open_run(
     check: Callable[[dict[str, Any]], None] | None = None,
 ) -> OpenedRun:
     """The run of ``stage`` to train, new or resumed, with its config (``configs/<configs>/<config_name>.yaml``
-    with the overrides; the dotted keys ``optional`` a file may leave out). Every check,
+    with the overrides; the dotted keys ``optional`` a file may leave out); ``stage`` may depend on
+    the config (a function of it: a part tokenizer's stage is ``vq-upper``). Every check,
     the model's own ``check`` (ValueError) among them, comes before a new run's directory exists:
     a run that could never start is not left behind for ``--resume`` to pick. A new run's config
     is written before training, so processes that ``join`` it (or find it in :data:`JOIN_RUN`)
     train the same thing."""
     join = join or (Path(os.environ[JOIN_RUN]) if os.environ.get(JOIN_RUN) else None)
     if join is not None:
-        return _recorded(stage, join, read_run_info(join), resume)
+        info = read_run_info(join)
+        return _recorded(info["stage"], join, info, resume)
     config = load_config(configs, config_name, overrides, TRAINING_DEFAULTS, optional)
+    if callable(stage):
+        stage = stage(config)
     _check_settings(config)
     try:
         if check is not None:
@@ -385,181 +382,3 @@ def finish(run_dir: Path, fitted: _Fitted, artifacts: list[Path], **info: Any) -
     final = {name: float(value) for name, value in fitted.trainer.callback_metrics.items() if name.startswith("val/")}
     write_run_info(run_dir, status="finished", final_validation=final, **info)
     mark_latest(run_dir)
-
-
-@records_failure
-def train_vq(
-    config_name: str = "demo",
-    overrides: list[str] | None = None,
-    resume: bool | str = False,
-    extra_callbacks: list | None = None,
-) -> Path:
-    """Train the motion VQ-VAE; returns the run directory (with ``vq.pt`` on success).
-    ``extra_callbacks`` join the trainer's (a sweep's reporting callback, for instance)."""
-    import lightning.pytorch as pl
-
-    from m2d2m.networks.vqvae import save_vq
-    from training.callbacks import ReconstructionPreview
-    from training.data import MotionWindowDataModule
-    from training.vq_module import VQVAEModule
-
-    stage = vq_stage(load_config(VQ_STAGE, config_name, overrides or [], TRAINING_DEFAULTS)["model"].get("part", FULL))
-    run = open_run(stage, VQ_STAGE, config_name, overrides or [], resume)
-    run_dir, config = run.run_dir, run.config
-    data, trainer_cfg = config["data"], config["trainer"]
-    try:
-        datamodule = MotionWindowDataModule(
-            data["dir"],
-            window=data["window"],
-            batch_size=data["batch_size"],
-            num_workers=data["num_workers"],
-            steps_per_epoch=validation_interval(trainer_cfg),
-            seed=config["seed"],
-        )
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    pl.seed_everything(config["seed"], workers=True, verbose=False)
-    module = VQVAEModule(config["model"], config["optim"], config["loss"], datamodule.feature_dim, datamodule.skeleton)
-    module.set_normalizer(datamodule.normalizer)
-    fitted = fit(
-        run,
-        module,
-        datamodule,
-        "val/recon_loss",
-        [ReconstructionPreview(run_dir / "previews", every=trainer_cfg["gif_every"]), *(extra_callbacks or [])],
-    )
-    if not fitted.primary:
-        return run_dir
-    save_vq(
-        run_dir / VQ_FILE,
-        module.model,
-        datamodule.normalizer,
-        datamodule.skeleton,
-        extra={
-            "run": run_dir.name,
-            "mlflow_run_id": fitted.logger.run_id,
-            "dataset": config["dataset"],
-            "data_dir": relative_to_project(data["dir"]),
-            "best_val_recon_loss": float(fitted.checkpoints.best_model_score),
-        },
-    )
-    finish(
-        run_dir,
-        fitted,
-        [
-            run_dir / VQ_FILE,
-            Path(fitted.checkpoints.best_model_path),
-            fitted.last,
-            run_dir / "config.yaml",
-            Path(data["dir"]) / "stats.npz",
-        ],
-        vq=relative_to_project(run_dir / VQ_FILE),
-    )
-    return run_dir
-
-
-def vq_stage(part: str) -> str:
-    """The stage (run folder, MLflow experiment) of a tokenizer of ``part``: ``vq`` for the whole
-    body, ``vq-upper`` / ``vq-lower`` for MMM's part tokenizers, so that each has its own ``latest``
-    and a part tokenizer never becomes the one the whole-body models take."""
-    return VQ_STAGE if part == FULL else f"{VQ_STAGE}-{part}"
-
-
-def vq_file(reference: str | Path, dataset: str, part: str = FULL) -> Path:
-    """A VQ model file from ``latest``, a ``vq.pt`` path, a Lightning checkpoint of a VQ run, or a
-    VQ run directory, name or MLflow run id (the one resolver of every stage that reads a VQ-VAE);
-    ``part`` says whose runs ``latest`` and names are looked up in (:func:`vq_stage`)."""
-    path = Path(reference)
-    if path.suffix == ".ckpt" and path.is_file():
-        reference = path.resolve().parent.parent  # <run>/checkpoints/<name>.ckpt
-    made_by = (
-        "make train-vq"
-        if part == FULL
-        else f"m2d2m train-vq --config mmm-{part}-{'demo' if dataset == 'synthetic' else dataset}"
-    )
-    return run_file(reference, dataset, vq_stage(part), VQ_FILE, made_by)
-
-
-def token_set(vq_path: Path, data_dir: str | Path | None = None) -> tuple[Path, Path]:
-    """The dataset a VQ-VAE encodes (``data_dir``, else the one it was trained on) and the folder
-    of its tokens under that VQ-VAE: ``<data>/tokens/<VQ run>``."""
-    from m2d2m.layout import TOKENS
-    from m2d2m.networks.vqvae import load_vq
-
-    try:  # the whole model, so that a damaged or foreign file is one line here, not a traceback in Ray
-        extra = load_vq(vq_path)[2]["extra"]
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    if not (data_dir or extra.get("data_dir")):
-        raise UserError(f"{vq_path} does not say which dataset it was trained on: pass the dataset directory")
-    data = Path(data_dir) if data_dir else recorded_path(extra["data_dir"], vq_path)
-    return data, data / TOKENS / extra.get("run", vq_path.parent.name)
-
-
-def ensure_tokens(vq_path: Path) -> tuple[Path, Path]:
-    """The VQ-VAE's dataset and its token set under this VQ-VAE (:func:`token_set`), the tokens
-    made first when they are missing or stale (so a sweep's driver can make them once, before
-    parallel trials would race to)."""
-    from m2d2m.locks import Busy
-    from pipelines.tokenize import current_tokens, tokenize_dataset
-
-    data_dir, tokens_dir = token_set(vq_path)
-    if current_tokens(data_dir, vq_path, tokens_dir) is None:
-        print(f"tokenizing {data_dir} with {vq_path} first")
-        try:
-            tokenize_dataset(data_dir, vq_path, tokens_dir)
-        except Busy as error:  # another command is making them: one line, not a traceback
-            raise UserError(str(error)) from None
-    return data_dir, tokens_dir
-
-
-@records_failure
-def train_evaluator(
-    config_name: str = "demo",
-    overrides: list[str] | None = None,
-    resume: bool | str = False,
-    extra_callbacks: list | None = None,
-) -> Path:
-    """Train Guo et al.'s text–motion matching evaluator on the dataset's train split (best
-    checkpoint by validation loss); returns the run directory, with ``evaluator.pt`` on success."""
-    import lightning.pytorch as pl
-
-    from m2d2m.evaluation.evaluator import learned_vocabulary, load_glove, save_evaluator
-    from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
-
-    run = open_run(EVALUATOR_STAGE, EVALUATOR_STAGE, config_name, overrides or [], resume)
-    run_dir, config = run.run_dir, run.config
-    data, trainer_cfg, network = config["data"], config["trainer"], config["model"]
-    try:
-        datamodule = CaptionMotionDataModule(
-            data["dir"],
-            batch_size=data["batch_size"],
-            num_workers=data["num_workers"],
-            steps_per_epoch=validation_interval(trainer_cfg),
-            min_frames=data["min_frames"],
-            max_frames=data["max_frames"],
-            seed=config["seed"],
-            bucket=data.get("bucket", False),  # off: the evaluator pads to 196 frames itself (docs/training.md)
-        )
-        if network["word_features"] == "glove":
-            if not config.get("glove_dir"):
-                raise ValueError("model.word_features: glove needs glove_dir (Guo's glove/ directory)")
-            vocabulary, vectors = load_glove(config["glove_dir"])
-        else:
-            vocabulary, vectors = learned_vocabulary(datamodule.train_captions(), config["min_word_count"]), None
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    pl.seed_everything(config["seed"], workers=True, verbose=False)
-    module = EvaluatorModule(network, config["optim"], config["loss"], datamodule.feature_dim, vocabulary, vectors)
-    module.set_normalizer(datamodule.normalizer)
-    fitted = fit(run, module, datamodule, "val/loss", list(extra_callbacks or []))
-    if not fitted.primary:
-        return run_dir
-    save_evaluator(run_dir / EVALUATOR_FILE, module.model)
-    finish(
-        run_dir,
-        fitted,
-        [run_dir / EVALUATOR_FILE, Path(fitted.checkpoints.best_model_path), run_dir / "config.yaml"],
-        evaluator=relative_to_project(run_dir / EVALUATOR_FILE),
-    )
-    return run_dir

@@ -13,7 +13,8 @@ import yaml
 
 from m2d2m.motion.skeleton import T2M
 from orchestration.recipe import train_model
-from orchestration.train import train_evaluator, train_vq
+from orchestration.recipes.evaluator import train_evaluator
+from orchestration.recipes.vq import train_vq
 from pipelines.features import DataConfig, build_dataset
 from tests.helpers import TINY_DIFFUSION, TINY_EVALUATOR, TINY_VQ_RUN, write_corpus
 

@@ -10,7 +10,7 @@ import pytest
 
 import m2d2m.progress as progress_module
 from m2d2m.progress import ProgressLines, duration, progress
-from orchestration.train import train_vq
+from orchestration.recipes.vq import train_vq
 
 
 class Clock:

@@ -11,8 +11,8 @@ import yaml
 
 from orchestration.errors import UserError
 from orchestration.recipe import train_model
+from orchestration.recipes.vq import train_vq
 from orchestration.runs import latest_run, read_run_info
-from orchestration.train import train_vq
 from tests.helpers import TINY_DIFFUSION
 from tests.test_train_vq import KillAt, RecordStart
 

@@ -10,8 +10,8 @@ import torch
 
 from m2d2m.networks.vqvae import load_vq
 from orchestration.errors import UserError
+from orchestration.recipes.vq import train_vq
 from orchestration.runs import latest_run, read_run_info
-from orchestration.train import train_vq
 
 
 class KillAt(pl.Callback):

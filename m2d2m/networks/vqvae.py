@@ -415,7 +415,7 @@ class MotionVQVAE(nn.Module):
 
 def save_vq(
     path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skeleton: str, extra: dict | None = None
-) -> None:
+) -> Path:
     """Write the model, its normalisation and its skeleton name as one self-contained torch file
     (written atomically), the hand-over from VQ training to tokenizing and the denoiser."""
     payload = {
@@ -427,7 +427,7 @@ def save_vq(
         "skeleton": str(skeleton),
         "extra": {} if extra is None else extra,
     }
-    VQ_FORMAT.write(path, payload)
+    return VQ_FORMAT.write(path, payload)
 
 
 def load_vq(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:

@@ -50,9 +50,7 @@ class M2D2MRecipe(TokenRecipe):
             text_drop=config["text_drop"],
         )
 
-    def save(
-        self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any, extra: dict[str, Any]
-    ) -> Path:
+    def save(self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, extra: dict[str, Any]) -> Path:
         from m2d2m.generators.m2d2m_checkpoint import save_m2d2m
 
         return save_m2d2m(
@@ -63,7 +61,7 @@ class M2D2MRecipe(TokenRecipe):
             module.schedule.config,
             module.codebook,
             data.vq_path,
-            lengths,
+            data.lengths,
             extra,
             _sampling(config),
         )

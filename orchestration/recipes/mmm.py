@@ -27,12 +27,12 @@ class MMMRecipe(TokenRecipe):
             text_drop=config["text_drop"],
         )
 
-    def save(
-        self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, lengths: Any, extra: dict[str, Any]
-    ) -> Path:
+    def save(self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, extra: dict[str, Any]) -> Path:
         from m2d2m.generators.mmm_checkpoint import save_mmm
 
-        return save_mmm(path, module.transformer, module.text_encoder, config["text"], data.vq_path, lengths, extra)
+        return save_mmm(
+            path, module.transformer, module.text_encoder, config["text"], data.vq_path, data.lengths, extra
+        )
 
 
 RECIPE = MMMRecipe()

@@ -32,13 +32,7 @@ class BodyMMMRecipe(BodyTokenRecipe):
         )
 
     def save(
-        self,
-        path: Path,
-        module: Any,
-        config: dict[str, Any],
-        data: BodyTokenTraining,
-        lengths: Any,
-        extra: dict[str, Any],
+        self, path: Path, module: Any, config: dict[str, Any], data: BodyTokenTraining, extra: dict[str, Any]
     ) -> Path:
         from m2d2m.generators.mmm_checkpoint import save_body_mmm
 
@@ -49,7 +43,7 @@ class BodyMMMRecipe(BodyTokenRecipe):
             config["text"],
             data.vq_path,
             data.lower_vq_path,
-            lengths,
+            data.lengths,
             extra,
         )
 

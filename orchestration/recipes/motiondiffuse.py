@@ -63,9 +63,7 @@ class MotionDiffuseRecipe(Recipe):
             )
         ]
 
-    def save(
-        self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, lengths: Any, extra: dict[str, Any]
-    ) -> Path:
+    def save(self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, extra: dict[str, Any]) -> Path:
         from m2d2m.generators.motiondiffuse_checkpoint import save_motiondiffuse
 
         return save_motiondiffuse(
@@ -76,7 +74,7 @@ class MotionDiffuseRecipe(Recipe):
             config["diffusion"],
             data.datamodule.normalizer,
             data.datamodule.skeleton,
-            lengths,
+            data.lengths,
             extra=extra,
         )
 

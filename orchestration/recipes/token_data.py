@@ -14,7 +14,9 @@ import torch
 from m2d2m.layout import relative_to_project
 from m2d2m.motion.body_parts import FULL, LOWER, UPPER
 from orchestration.recipe import Recipe, TrainingData, caption_vocabulary
-from orchestration.train import OpenedRun, ensure_tokens, validation_interval, vq_file
+from orchestration.runs import vq_file
+from orchestration.train import OpenedRun, validation_interval
+from pipelines.token_sets import ensure_tokens
 
 
 class TokenRecipe(Recipe):
@@ -88,7 +90,7 @@ def _tokenizer(reference: str, dataset: str, part: str) -> tuple[Path, Any, Path
             f"{path} tokenizes the {meta['part']} body, not the {part} body"
             + ("; whole-body models need a whole-body VQ-VAE (make train-vq)" if part == FULL else "")
         )
-    return (path, vq, *ensure_tokens(path))
+    return (path, vq, *ensure_tokens(path, meta["extra"]))
 
 
 def _loader_settings(config: dict[str, Any], max_tokens: int | None) -> dict[str, Any]:

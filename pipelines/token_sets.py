@@ -1,0 +1,40 @@
+"""Which token set belongs to a VQ-VAE: the dataset it encodes and the folder of that dataset's
+tokens under it, ``<data>/tokens/<VQ run>`` (docs/data.md), made by :mod:`pipelines.tokenize`
+when missing or stale."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from m2d2m.layout import TOKENS, recorded_path
+
+
+def token_set(
+    vq_path: Path, data_dir: str | Path | None = None, extra: dict[str, Any] | None = None
+) -> tuple[Path, Path]:
+    """The dataset a VQ-VAE encodes (``data_dir``, else the one it was trained on) and the folder
+    of its tokens under that VQ-VAE. ``extra`` is the VQ file's record when the caller has loaded
+    the file already; otherwise the file is read here (FileNotFoundError, or ValueError for a
+    damaged or foreign file, in one line rather than a traceback inside Ray)."""
+    if extra is None:
+        from m2d2m.networks.vqvae import VQ_FORMAT
+
+        extra = VQ_FORMAT.read(vq_path)["extra"]
+    if not (data_dir or extra.get("data_dir")):
+        raise ValueError(f"{vq_path} does not say which dataset it was trained on: pass the dataset directory")
+    data = Path(data_dir) if data_dir else recorded_path(extra["data_dir"], vq_path)
+    return data, data / TOKENS / extra.get("run", vq_path.parent.name)
+
+
+def ensure_tokens(vq_path: Path, extra: dict[str, Any] | None = None) -> tuple[Path, Path]:
+    """:func:`token_set`, the tokens made first when they are missing or stale (so that a sweep's
+    driver makes them once, before parallel trials would race to); another command making them is
+    a :class:`m2d2m.locks.Busy` (a ValueError)."""
+    from pipelines.tokenize import current_tokens, tokenize_dataset
+
+    data_dir, tokens_dir = token_set(vq_path, extra=extra)
+    if current_tokens(data_dir, vq_path, tokens_dir) is None:
+        print(f"tokenizing {data_dir} with {vq_path} first")
+        tokenize_dataset(data_dir, vq_path, tokens_dir)
+    return data_dir, tokens_dir
