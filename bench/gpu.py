@@ -66,7 +66,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
 from m2d2m.motion.normalization import Normalizer
-from m2d2m.networks.vqvae import save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT
 from m2d2m.text import LearnedTextEncoder
 from orchestration.config import load_config
 from orchestration.recipe import TrainingData
@@ -256,8 +256,7 @@ def _vq(tokenizer: str, out: Path, clip: Path) -> tuple[Path, Any]:
 
 def save_vq_file(path: Path, module: Any) -> Path:
     normalizer = Normalizer(np.zeros(FEATURES, dtype=np.float32), np.ones(FEATURES, dtype=np.float32))
-    save_vq(path, module.model, normalizer, "t2m", extra={"run": "bench"})
-    return path
+    return VQ_FORMAT.save(path, **module.model_parts(), normalizer=normalizer, skeleton="t2m", extra={"run": "bench"})
 
 
 def build(name: str, size: str, out: Path, clip: Path) -> Built:
@@ -268,7 +267,6 @@ def build(name: str, size: str, out: Path, clip: Path) -> Built:
         _, module = _vq(config_name, out, clip)
         return Built(config, module, module.model.config.codebook_size, lambda path: save_vq_file(path, module))
     vocabulary = LearnedTextEncoder.build_vocabulary(PROMPTS) if config["text"]["kind"] == "learned" else None
-    prior = LengthPrior({}, median=FRAMES // FRAMES_PER_TOKEN, longest=FRAMES // FRAMES_PER_TOKEN)
     recipe = model(name).load("recipe")
     extra = {"run": "bench", "dataset": "bench"}
     if name == "motiondiffuse":
@@ -276,13 +274,15 @@ def build(name: str, size: str, out: Path, clip: Path) -> Built:
         loader = SimpleNamespace(feature_dim=FEATURES, normalizer=normalizer, skeleton="t2m")
         data = TrainingData(loader, out, vocabulary)
         module = recipe.module(config, data)
-        prior = LengthPrior({}, median=FRAMES, longest=FRAMES)
-        return Built(config, module, 0, lambda path: recipe.save(path, module, config, data, prior, extra))
+        data.lengths = LengthPrior({}, median=FRAMES, longest=FRAMES)  # no shards to read it from
+        return Built(config, module, 0, lambda path: recipe.save(path, module, config, data, extra))
     vq_path, vq = _vq(TOKENIZERS.get((name, size), "demo"), out, clip)
+    prior = LengthPrior({}, median=FRAMES // FRAMES_PER_TOKEN, longest=FRAMES // FRAMES_PER_TOKEN)
     codebook = vq.model.codebook.detach().clone()
     data = TokenTraining(None, out, vocabulary, vq_path, codebook, out)
+    data.lengths = prior  # no shards to read it from
     module = recipe.module(config, data)
-    return Built(config, module, codebook.shape[0], lambda path: recipe.save(path, module, config, data, prior, extra))
+    return Built(config, module, codebook.shape[0], lambda path: recipe.save(path, module, config, data, extra))
 
 
 # ------------------------------------------------------------------------------------------ training

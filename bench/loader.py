@@ -35,7 +35,7 @@ import yaml
 import training
 from m2d2m.layout import STATS, read_manifest
 from m2d2m.motion.normalization import Normalizer
-from m2d2m.networks.vqvae import MotionVQVAE, VQConfig, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig
 from training.data import MotionWindowDataModule, TokenDataModule
 from training.evaluator_module import CaptionMotionDataModule
 
@@ -173,7 +173,8 @@ def untrained_tokens(data: Path, folder: Path, workers: int) -> Path:
     manifest = read_manifest(data)
     torch.manual_seed(0)
     model = MotionVQVAE(VQConfig(feature_dim=int(manifest["feature_dim"]), width=64, depth=1, code_dim=32))
-    save_vq(folder / "vq.pt", model.eval(), Normalizer.load(data / STATS), str(manifest["skeleton"]))
+    normalizer, skeleton = Normalizer.load(data / STATS), str(manifest["skeleton"])
+    VQ_FORMAT.save(folder / "vq.pt", model=model.eval(), normalizer=normalizer, skeleton=skeleton, extra={})
     tokenize_dataset(data, folder / "vq.pt", folder / "tokens", workers=workers)
     return folder / "tokens"
 

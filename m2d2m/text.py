@@ -30,6 +30,8 @@ _WORD = re.compile(r"[a-z]+")
 class TextEncoder(nn.Module):
     """Sentences -> per-token features (N, S, dim) and a validity mask (N, S), True = real token."""
 
+    kind: str  # its name in a ``text`` config section and in model files
+    options: dict[str, Any]  # the arguments it was constructed with, beside a vocabulary: what a model file records
     dim: int
     trainable: bool
     reads_any_word: bool = True  # False: only the words of its vocabulary (the others are <unk>)
@@ -67,10 +69,12 @@ class TextEncoder(nn.Module):
 class CLIPTextEncoder(TextEncoder):
     """The frozen CLIP text tower; ``path`` is a local directory or a model id already in the cache."""
 
+    kind = "clip"
     trainable = False
 
     def __init__(self, path: str = CLIP_DEFAULT, max_length: int = 77) -> None:
         super().__init__()
+        self.options = {"path": path, "max_length": max_length}
         from transformers import CLIPTextModel, CLIPTokenizer
 
         try:
@@ -134,6 +138,7 @@ def _sinusoid(length: int, dim: int, device: torch.device) -> torch.Tensor:
 class LearnedTextEncoder(TextEncoder):
     """Word embedding + sinusoidal positions + a small Transformer encoder, trained with the denoiser."""
 
+    kind = "learned"
     trainable = True
     reads_any_word = False
 
@@ -249,7 +254,7 @@ def encode_actions(encoder: TextEncoder, actions_per_caption: list[list[str]]) -
     return torch.where(joined_mask[..., None], joined, 0.0), joined_mask
 
 
-_KINDS = {"clip": CLIPTextEncoder, "learned": LearnedTextEncoder}
+_KINDS = {encoder.kind: encoder for encoder in (CLIPTextEncoder, LearnedTextEncoder)}
 
 
 def option_names() -> frozenset[str]:

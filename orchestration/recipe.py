@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from m2d2m.layout import relative_to_project
-from m2d2m.model_files import LengthPrior
+from m2d2m.model_files import LengthPrior, ModelFileKind
 from m2d2m.plugins import plugins_for_workers
 from orchestration.errors import UserError
 from orchestration.registry import ModelEntry, load_plugins, model
@@ -51,12 +51,17 @@ class TrainingData:
         """Where the run's inputs are, for its ``run.json`` and its model file's ``extra``."""
         return {"data": relative_to_project(self.data_dir)}
 
+    def model_parts(self) -> dict[str, Any]:
+        """The model file's parts that come from the data (the module gives its networks)."""
+        return {"lengths": self.lengths}
+
 
 class Recipe:
     """What one model's training differs in. Subclasses give :meth:`data`, :meth:`module` and
-    :meth:`save`; the rest have defaults that most models keep."""
+    their model file's ``model_format``; the rest have defaults that most models keep."""
 
     monitor = "val/loss"  # the validation metric whose minimum is the run's best checkpoint
+    model_format: ClassVar[ModelFileKind]  # the kind of file a finished run holds
     optional: ClassVar[frozenset[str]] = frozenset()  # dotted keys a config may leave out (beside text's)
 
     @classmethod
@@ -101,10 +106,14 @@ class Recipe:
         """Files the run's MLflow record keeps beside the model file and checkpoints."""
         return []
 
+    def parts(self, config: dict[str, Any], data: TrainingData) -> dict[str, Any]:
+        """The model file's parts beside the module's networks: the data's, and the config's own."""
+        return data.model_parts()
+
     def save(self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, extra: dict[str, Any]) -> Path:
-        """Write the model file at ``path`` from ``module``'s current weights, with ``extra`` (where
-        the run and its inputs are)."""
-        raise NotImplementedError
+        """Write the model file at ``path``: the module's networks as they are now
+        (``module.model_parts()``), :meth:`parts`, and ``extra`` (where the run and its inputs are)."""
+        return self.model_format.save(path, **module.model_parts(), **self.parts(config, data), extra=extra)
 
 
 @dataclass(frozen=True)

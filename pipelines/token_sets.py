@@ -15,12 +15,12 @@ def token_set(
 ) -> tuple[Path, Path]:
     """The dataset a VQ-VAE encodes (``data_dir``, else the one it was trained on) and the folder
     of its tokens under that VQ-VAE. ``extra`` is the VQ file's record when the caller has loaded
-    the file already; otherwise the file is read here (FileNotFoundError, or ValueError for a
-    damaged or foreign file, in one line rather than a traceback inside Ray)."""
+    the file already; otherwise the whole model is read here, so that a damaged or foreign file is
+    a FileNotFoundError or ValueError in one line rather than a traceback inside Ray."""
     if extra is None:
-        from m2d2m.networks.vqvae import VQ_FORMAT
+        from m2d2m.networks.vqvae import load_vq
 
-        extra = VQ_FORMAT.read(vq_path)["extra"]
+        extra = load_vq(vq_path)[2]["extra"]
     if not (data_dir or extra.get("data_dir")):
         raise ValueError(f"{vq_path} does not say which dataset it was trained on: pass the dataset directory")
     data = Path(data_dir) if data_dir else recorded_path(extra["data_dir"], vq_path)

@@ -13,7 +13,7 @@ import yaml
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.rotations import qnormalize, quat_from_axis_angle
 from m2d2m.motion.skeleton import Skeleton
-from m2d2m.networks.vqvae import MotionVQVAE, VQConfig, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig
 from pipelines.shards import iter_tar_samples
 
 TINY_VQ = VQConfig(width=32, code_dim=16, codebook_size=32, depth=1)
@@ -80,7 +80,7 @@ def random_vq(path, data_dir, seed):
     model.train()
     model(torch.from_numpy(normalizer.normalize(motion))[None])
     model.eval()
-    save_vq(path, model, normalizer, skeleton="t2m")
+    VQ_FORMAT.save(path, model=model, normalizer=normalizer, skeleton="t2m", extra={})
     return model, normalizer
 
 

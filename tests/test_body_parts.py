@@ -12,7 +12,7 @@ from m2d2m.motion.body_parts import FULL, LOWER, PARTS, UPPER, joint_dims, merge
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import KIT, T2M
 from m2d2m.networks.config import ConfigError
-from m2d2m.networks.vqvae import MotionVQVAE, VQConfig, load_vq, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig, load_vq
 from tests.helpers import TINY_VQ_RUN
 from training.vq_module import VQVAEModule
 
@@ -61,7 +61,8 @@ def test_a_part_tokenizer_reads_the_whole_body_and_writes_its_part(tmp_path):
     changed[..., part_dims(T2M, UPPER)] += 5.0
     model.eval()
     assert torch.equal(model.encode(features), model.encode(changed))
-    save_vq(tmp_path / "vq.pt", model, Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)), "t2m")
+    normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
+    VQ_FORMAT.save(tmp_path / "vq.pt", model=model, normalizer=normalizer, skeleton="t2m", extra={})
     _, _, meta = load_vq(tmp_path / "vq.pt")
     assert meta["part"] == LOWER  # the file says which part it tokenizes
     with pytest.raises(ConfigError, match="part must be one of"):

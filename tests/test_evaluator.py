@@ -13,6 +13,7 @@ import torch
 from lightning.pytorch.callbacks import ModelCheckpoint
 
 from m2d2m.evaluation.evaluator import (
+    EVALUATOR_FORMAT,
     POS_INDEX,
     EvaluatorConfig,
     TextMotionEvaluator,
@@ -21,7 +22,6 @@ from m2d2m.evaluation.evaluator import (
     load_evaluator,
     load_glove,
     load_guo_checkpoint,
-    save_evaluator,
 )
 from tests.helpers import CAPTIONS, TINY_EVALUATOR
 from training.evaluator_module import CaptionMotionDataModule, EvaluatorModule
@@ -92,7 +92,7 @@ def test_word_features_follow_guo():
 def test_model_file_round_trip_gives_identical_embeddings(tmp_path):
     model = tiny_evaluator()
     features, lengths = torch.randn(2, 40, D), torch.tensor([40, 32])
-    save_evaluator(tmp_path / "evaluator.pt", model)
+    EVALUATOR_FORMAT.save(tmp_path / "evaluator.pt", model=model)
     loaded = load_evaluator(tmp_path / "evaluator.pt")
     assert loaded.config == model.config and loaded.vocabulary == model.vocabulary
     assert torch.equal(loaded.embed_text(TOKENS), model.embed_text(TOKENS))
@@ -210,7 +210,7 @@ def test_guo_checkpoint_loads_into_the_evaluator(guo_files, tmp_path):
     features, lengths = torch.randn(2, 60, D), torch.tensor([60, 40])
     text, motion = model.embed_text(captions), model.embed_motion(features, lengths)
     assert text.shape == motion.shape == (2, 512)
-    save_evaluator(tmp_path / "guo.pt", model)  # the GloVe table travels in the file
+    EVALUATOR_FORMAT.save(tmp_path / "guo.pt", model=model)  # the GloVe table travels in the file
     loaded = load_evaluator(tmp_path / "guo.pt")
     assert torch.equal(loaded.embed_text(captions), text)
     assert torch.equal(loaded.embed_motion(features, lengths), motion)
@@ -272,7 +272,7 @@ def test_training_runs_end_to_end_on_a_tiny_dataset(tiny_data, tmp_path, one_tor
     assert all(torch.isfinite(metrics[name]) for name in ("train/loss", "val/loss", "val/matching_score"))
     assert 0.0 <= float(metrics["val/top1"]) <= 1.0
     assert checkpoints.best_model_path.endswith("best.ckpt")
-    save_evaluator(tmp_path / "evaluator.pt", module.model)
+    EVALUATOR_FORMAT.save(tmp_path / "evaluator.pt", **module.model_parts())
     loaded = load_evaluator(tmp_path / "evaluator.pt")
     assert torch.equal(loaded.feature_scale, torch.as_tensor(datamodule.normalizer.scale))
 

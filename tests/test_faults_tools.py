@@ -16,7 +16,7 @@ from lightning.pytorch.callbacks import RichProgressBar
 
 from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT
 from m2d2m.motion.normalization import Normalizer
-from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE
 from tests.helpers import TINY_VQ, one_line_error
 from training.callbacks import StepProgressBar
 
@@ -75,11 +75,11 @@ def vq_payload(tmp_path_factory) -> tuple[Path, dict]:
     """A real tiny VQ model file and its contents, to spoil."""
     path = tmp_path_factory.mktemp("vq") / "vq.pt"
     torch.manual_seed(0)
-    save_vq(
+    VQ_FORMAT.save(
         path,
-        MotionVQVAE(TINY_VQ),
-        Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)),
-        "t2m",
+        model=MotionVQVAE(TINY_VQ),
+        normalizer=Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)),
+        skeleton="t2m",
         extra={"data_dir": str(path.parent / "data")},
     )
     return path, torch.load(path, weights_only=True)

@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 
 from m2d2m.generators.m2d2m import M2D2MGenerator
-from m2d2m.generators.m2d2m_checkpoint import load_m2d2m, save_m2d2m
+from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT, load_m2d2m, sampling_defaults
 from m2d2m.generators.m2d2m_options import MULTI_ACTION, SINGLE_ACTION
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
@@ -28,15 +28,13 @@ def test_configured_schedule_endpoints_survive_the_round_trip(tiny_data, tmp_pat
         vocabulary=LearnedTextEncoder.build_vocabulary(["a person walks"]),
     )
     assert (module.schedule.config.alpha_bar_end, module.schedule.config.gamma_bar_end) == (0.2, 0.5)
-    path = save_m2d2m(
+    path = M2D2M_FORMAT.save(
         tmp_path / "model.pt",
-        module.denoiser,
-        module.text_encoder,
-        TINY_DIFFUSION["text"],
-        module.schedule.config,
-        module.codebook,
-        tmp_path / "vq.pt",
-        LengthPrior({}, 5, 10),
+        **module.model_parts(),
+        vq=tmp_path / "vq.pt",
+        lengths=LengthPrior({}, 5, 10),
+        extra={},
+        sampling={},
     )
     loaded = load_m2d2m(path)
     assert loaded.schedule.config == module.schedule.config
@@ -57,16 +55,13 @@ def test_the_model_files_sampling_defaults_reach_every_preset(tiny_data, tmp_pat
     )
 
     def save(sampling):
-        return save_m2d2m(
+        return M2D2M_FORMAT.save(
             tmp_path / "model.pt",
-            module.denoiser,
-            module.text_encoder,
-            TINY_DIFFUSION["text"],
-            module.schedule.config,
-            module.codebook,
-            tmp_path / "vq.pt",
-            LengthPrior({}, 5, 10),
-            sampling=sampling,
+            **module.model_parts(),
+            vq=tmp_path / "vq.pt",
+            lengths=LengthPrior({}, 5, 10),
+            extra={},
+            sampling=sampling_defaults(sampling, module.schedule.config.steps),
         )
 
     generator = M2D2MGenerator.load(save({"steps": 3, "guidance": 1.0}))

@@ -12,7 +12,7 @@ import torch
 
 from m2d2m.generators.mmm import MMMGenerator
 from m2d2m.generators.mmm_body import BodyMMMGenerator, masked_lower
-from m2d2m.generators.mmm_checkpoint import load_body_mmm, save_body_mmm, save_mmm
+from m2d2m.generators.mmm_checkpoint import BODY_FORMAT, MMM_FORMAT, load_body_mmm
 from m2d2m.generators.options import SINGLE
 from m2d2m.generators.protocol import Keep, keep_part
 from m2d2m.model_files import LengthPrior
@@ -21,7 +21,7 @@ from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import T2M
 from m2d2m.networks.mmm_body_transformer import BodyMaskedTransformer, BodyTransformerConfig, body_canvas
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig
-from m2d2m.networks.vqvae import MotionVQVAE, VQConfig, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig
 from m2d2m.text import LearnedTextEncoder
 from training.mmm_body_module import BodyMMMModule
 
@@ -43,21 +43,21 @@ def model_file(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("mmm-body")
     normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
     upper, lower = part_vq(UPPER, K_UPPER, 0), part_vq(LOWER, K_LOWER, 1)
-    save_vq(folder / "upper.pt", upper, normalizer, "t2m")
-    save_vq(folder / "lower.pt", lower, normalizer, "t2m")
+    VQ_FORMAT.save(folder / "upper.pt", model=upper, normalizer=normalizer, skeleton="t2m", extra={})
+    VQ_FORMAT.save(folder / "lower.pt", model=lower, normalizer=normalizer, skeleton="t2m", extra={})
     config = BodyTransformerConfig(
         codebook_size=K_UPPER, code_dim=8, lower_codebook_size=K_LOWER, lower_code_dim=8, text_dim=16, **NETWORK
     )
     transformer = BodyMaskedTransformer(config, upper.codebook, lower.codebook)
     text = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2, dropout=0.0)
-    return save_body_mmm(
+    return BODY_FORMAT.save(
         folder / "model.pt",
-        transformer,
-        text,
-        TEXT,
-        folder / "upper.pt",
-        folder / "lower.pt",
-        LengthPrior({"wave": 6}, 5, 12),
+        transformer=transformer,
+        text=text,
+        upper_vq=folder / "upper.pt",
+        lower_vq=folder / "lower.pt",
+        lengths=LengthPrior({"wave": 6}, 5, 12),
+        extra={},
     )
 
 
@@ -198,13 +198,21 @@ def test_requests_it_cannot_serve_are_refused(generator):
 
 def test_whole_body_models_refuse_to_keep_a_part(tmp_path):
     vq = MotionVQVAE(VQConfig(width=16, code_dim=8, codebook_size=16, depth=1))
-    save_vq(tmp_path / "vq.pt", vq, Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)), "t2m")
+    normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
+    VQ_FORMAT.save(tmp_path / "vq.pt", model=vq, normalizer=normalizer, skeleton="t2m", extra={})
     transformer = MaskedMotionTransformer(
         MaskedTransformerConfig(codebook_size=16, code_dim=8, text_dim=16, **NETWORK), vq.codebook
     )
     text = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2, dropout=0.0)
     whole = MMMGenerator.load(
-        save_mmm(tmp_path / "model.pt", transformer, text, TEXT, tmp_path / "vq.pt", LengthPrior({}, 5, 12))
+        MMM_FORMAT.save(
+            tmp_path / "model.pt",
+            transformer=transformer,
+            text=text,
+            vq=tmp_path / "vq.pt",
+            lengths=LengthPrior({}, 5, 12),
+            extra={},
+        )
     )
     with pytest.raises(ValueError, match="keeps whole frames, not a body part"):
         whole.generate([[SENTENCES[0]]], [[32]], whole.options(SINGLE), [0], keep=[keep_part(source(), T2M, LOWER)])

@@ -10,13 +10,13 @@ import pytest
 import torch
 
 from m2d2m.generators.mmm import MMMGenerator
-from m2d2m.generators.mmm_checkpoint import load_mmm, save_mmm
+from m2d2m.generators.mmm_checkpoint import MMM_FORMAT, load_mmm
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.generators.protocol import Keep
 from m2d2m.model_files import LengthPrior
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas
-from m2d2m.networks.vqvae import MotionVQVAE, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE
 from m2d2m.text import LearnedTextEncoder
 from tests.helpers import TINY_VQ
 
@@ -30,7 +30,8 @@ def model_file(tmp_path_factory) -> Path:
     torch.manual_seed(0)
     vq = MotionVQVAE(TINY_VQ)
     vq.quantizer.codebook.normal_()
-    save_vq(folder / "vq.pt", vq, Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32)), "t2m")
+    normalizer = Normalizer(np.zeros(263, np.float32), np.ones(263, np.float32))
+    VQ_FORMAT.save(folder / "vq.pt", model=vq, normalizer=normalizer, skeleton="t2m", extra={})
     config = MaskedTransformerConfig(
         codebook_size=32,
         code_dim=16,
@@ -45,7 +46,10 @@ def model_file(tmp_path_factory) -> Path:
     )
     transformer = MaskedMotionTransformer(config, vq.codebook)
     text = LearnedTextEncoder(LearnedTextEncoder.build_vocabulary(SENTENCES), dim=16, layers=1, heads=2, dropout=0.0)
-    return save_mmm(folder / "model.pt", transformer, text, TEXT, folder / "vq.pt", LengthPrior({"walk": 6}, 5, 12))
+    lengths = LengthPrior({"walk": 6}, 5, 12)
+    return MMM_FORMAT.save(
+        folder / "model.pt", transformer=transformer, text=text, vq=folder / "vq.pt", lengths=lengths, extra={}
+    )
 
 
 @pytest.fixture(scope="module")

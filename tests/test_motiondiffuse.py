@@ -14,7 +14,7 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from m2d2m.generators.motiondiffuse import MotionDiffuseGenerator
-from m2d2m.generators.motiondiffuse_checkpoint import load_motiondiffuse, save_motiondiffuse
+from m2d2m.generators.motiondiffuse_checkpoint import MOTIONDIFFUSE_FORMAT, load_motiondiffuse
 from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Layout, Term, sample
 from m2d2m.generators.protocol import Keep, keep_part
 from m2d2m.model_files import LengthPrior
@@ -248,15 +248,14 @@ def generator(tmp_path_factory) -> MotionDiffuseGenerator:
     rng = np.random.default_rng(0)
     normalizer = Normalizer(rng.normal(size=D).astype(np.float32), rng.uniform(0.5, 2.0, D).astype(np.float32))
     path = tmp_path_factory.mktemp("motiondiffuse") / "model.pt"
-    save_motiondiffuse(
+    MOTIONDIFFUSE_FORMAT.save(
         path,
-        network,
-        encoder,
-        {"kind": "learned", "dim": 16, "layers": 1, "heads": 2},
-        {"steps": 20, "beta_start": 1e-4, "beta_end": 0.01},
-        normalizer,
-        "t2m",
-        LengthPrior({"walk": 30}, 24, 60),
+        network=network,
+        text=encoder,
+        diffusion={"steps": 20, "beta_start": 1e-4, "beta_end": 0.01},
+        normalizer=normalizer,
+        skeleton="t2m",
+        lengths=LengthPrior({"walk": 30}, 24, 60),
         extra={"data_dir": "/nowhere"},
     )
     return MotionDiffuseGenerator.load(path)

@@ -11,7 +11,7 @@ import torch
 
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.skeleton import T2M
-from m2d2m.networks.vqvae import MotionVQVAE, VQConfig, load_vq, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig, load_vq
 from pipelines.features import DataConfig, build_dataset
 from pipelines.shards import ShardWriter, iter_tar_samples, npy_bytes
 from pipelines.tokenize import check_tokens, tokenize_dataset
@@ -106,7 +106,13 @@ def test_missing_inputs_and_a_mismatched_model_are_clear_errors(tokenized, tmp_p
     with pytest.raises(FileNotFoundError, match="m2d2m data"):
         tokenize_dataset(tmp_path / "no-dataset", root / "vq.pt", tmp_path / "tokens")
     kit_like = MotionVQVAE(VQConfig(feature_dim=251, width=32, code_dim=16, codebook_size=32, depth=1))
-    save_vq(tmp_path / "kit.pt", kit_like, Normalizer(np.zeros(251), np.ones(251)), skeleton="kit")
+    VQ_FORMAT.save(
+        tmp_path / "kit.pt",
+        model=kit_like,
+        normalizer=Normalizer(np.zeros(251), np.ones(251)),
+        skeleton="kit",
+        extra={},
+    )
     with pytest.raises(ValueError, match="251-d features but .* 263-d"):
         tokenize_dataset(data, tmp_path / "kit.pt", tmp_path / "tokens")
     assert not (tmp_path / "tokens" / "manifest.json").exists()

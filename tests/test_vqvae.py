@@ -11,7 +11,7 @@ import torch
 import torch.multiprocessing as mp
 
 from m2d2m.motion.normalization import Normalizer
-from m2d2m.networks.vqvae import EMACodebook, MotionVQVAE, VQConfig, load_vq, save_vq
+from m2d2m.networks.vqvae import VQ_FORMAT, EMACodebook, MotionVQVAE, VQConfig, load_vq
 
 SMALL = VQConfig(feature_dim=12, width=32, depth=2, code_dim=16, codebook_size=32)
 
@@ -226,7 +226,9 @@ def test_save_load_round_trip_and_foreign_files(tmp_path):
     model(torch.randn(4, 32, SMALL.feature_dim))
     model.eval()
     normalizer = Normalizer(np.linspace(-1, 1, 12), np.linspace(0.5, 2, 12), 4.0)
-    save_vq(tmp_path / "vq.pt", model, normalizer, "t2m", extra={"run": "abc", "step": 7})
+    VQ_FORMAT.save(
+        tmp_path / "vq.pt", model=model, normalizer=normalizer, skeleton="t2m", extra={"run": "abc", "step": 7}
+    )
     loaded, loaded_norm, info = load_vq(tmp_path / "vq.pt")
     assert not loaded.training and loaded.config == SMALL
     assert info == {"skeleton": "t2m", "part": "full", "extra": {"run": "abc", "step": 7}}
@@ -245,7 +247,9 @@ def test_save_load_round_trip_and_foreign_files(tmp_path):
             load_vq(tmp_path / name)
     for bad in (np.zeros(3), np.float64(1.0)):
         with pytest.raises(TypeError, match="numpy|ndarray|float64"):
-            save_vq(tmp_path / "bad.pt", model, normalizer, "t2m", extra={"value": bad})
+            VQ_FORMAT.save(
+                tmp_path / "bad.pt", model=model, normalizer=normalizer, skeleton="t2m", extra={"value": bad}
+            )
     assert not (tmp_path / "bad.pt").exists()
 
 

@@ -193,6 +193,10 @@ class EvaluatorModule(FiniteLossGuard):
         config = EvaluatorConfig.from_dict({**model, "feature_dim": feature_dim})
         self.model = TextMotionEvaluator(config, vocabulary, word_vectors)
 
+    def model_parts(self) -> dict[str, Any]:
+        """The network this module gives its model file (``EVALUATOR_FORMAT``, m2d2m/evaluation/evaluator.py)."""
+        return {"model": self.model}
+
     def set_normalizer(self, normalizer: Normalizer) -> None:
         """The dataset's normalisation becomes the evaluator's own, carried in its weights."""
         self.model.set_statistics(normalizer.mean, normalizer.scale)

@@ -87,6 +87,15 @@ class M2D2MModule(FiniteLossGuard):
         self.register_load_state_dict_post_hook(lambda module, keys: module._rebuild_schedule())
 
     # ----------------------------------------------------------------------------------- schedule
+    def model_parts(self) -> dict[str, Any]:
+        """The networks and settings this module gives its model file (m2d2m/generators/m2d2m_checkpoint.py)."""
+        return {
+            "denoiser": self.denoiser,
+            "text": self.text_encoder,
+            "schedule": self.schedule.config.to_dict(),
+            "codebook": self.codebook,
+        }
+
     def _build_schedule(self) -> TransitionSchedule:
         return TransitionSchedule.from_config(self.codebook, self.hparams.diffusion)
 

@@ -67,6 +67,10 @@ class MMMModule(FiniteLossGuard):
             if not 0.0 <= value <= 1.0:
                 raise ConfigError(f"{name} must lie in [0, 1], got {value}")
 
+    def model_parts(self) -> dict[str, Any]:
+        """The networks this module gives its model file (m2d2m/generators/mmm_checkpoint.py)."""
+        return {"transformer": self.transformer, "text": self.text_encoder}
+
     def build_transformer(
         self, settings: dict[str, Any], codebook: torch.Tensor | np.ndarray
     ) -> MaskedMotionTransformer:

@@ -63,6 +63,10 @@ class MotionDiffuseModule(FiniteLossGuard):
         self.register_buffer("feature_mean", torch.zeros(feature_dim))
         self.register_buffer("feature_scale", torch.ones(feature_dim))
 
+    def model_parts(self) -> dict[str, Any]:
+        """The networks this module gives its model file (m2d2m/generators/motiondiffuse_checkpoint.py)."""
+        return {"network": self.network, "text": self.text_encoder}
+
     def set_normalizer(self, normalizer: Normalizer) -> None:
         self.feature_mean.copy_(torch.as_tensor(np.asarray(normalizer.mean), dtype=torch.float32))
         self.feature_scale.copy_(torch.as_tensor(normalizer.scale, dtype=torch.float32))

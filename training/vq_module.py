@@ -48,6 +48,10 @@ class VQVAEModule(FiniteLossGuard):
         self.preview: tuple[np.ndarray, np.ndarray] | None = None
         self._val_codes: list[torch.Tensor] = []
 
+    def model_parts(self) -> dict[str, Any]:
+        """The network this module gives its model file (``VQ_FORMAT``, m2d2m/networks/vqvae.py)."""
+        return {"model": self.model}
+
     def set_normalizer(self, normalizer: Normalizer) -> None:
         self.feature_mean.copy_(torch.as_tensor(np.asarray(normalizer.mean), dtype=torch.float32))
         self.feature_scale.copy_(torch.as_tensor(normalizer.scale, dtype=torch.float32))

@@ -13,7 +13,7 @@ Word vectors are either Guo's GloVe subset (``our_vab``: vectors ``<prefix>_data
 word→row pickle ``<prefix>_idx.pkl``, read from a directory the user gives, never downloaded) or,
 when no GloVe files are at hand, an embedding learned with the evaluator over a vocabulary of the
 training captions. Either way the table, the vocabulary, the sizes and the statistics travel in one
-file (:func:`save_evaluator`), so the metrics of a run can be reproduced from that file alone.
+file (:data:`EVALUATOR_FORMAT`), so the metrics of a run can be reproduced from that file alone.
 :func:`load_guo_checkpoint` turns Guo's published ``finest.tar`` into the same module.
 
 Differences from the reference code, on purpose: batches need no sorting (each GRU packs its batch
@@ -38,11 +38,10 @@ import torch.nn.functional as F
 from torch import nn
 from torch.nn.utils.rnn import pack_padded_sequence
 
-from m2d2m.model_files import ModelFileKind
+from m2d2m.model_files import ModelFileKind, Part, cpu_state
 from m2d2m.networks.config import ConfigError, NetworkConfig
 from m2d2m.text import UNK, LearnedTextEncoder
 
-EVALUATOR_FORMAT = ModelFileKind("m2d2m-evaluator/1", "an evaluator model file")
 CONTACT_DIMS = 4  # the foot contacts, dropped from the motion input
 UNIT_LENGTH = 4  # frames per movement latent: two stride-2 convolutions
 
@@ -486,28 +485,31 @@ def contrastive_loss(
 # Files
 
 
-def save_evaluator(path: str | Path, model: TextMotionEvaluator) -> Path:
-    """One self-contained torch file (written atomically): sizes, vocabulary, and every weight,
-    word vector and statistic — all that computing the metrics needs."""
-    return EVALUATOR_FORMAT.write(
-        path,
-        {
-            "config": model.config.to_dict(),
-            "vocabulary": list(model.vocabulary),
-            "state_dict": {key: value.detach().cpu() for key, value in model.state_dict().items()},
-        },
-    )
+class _EvaluatorNetwork(Part):
+    """The evaluator in its file: sizes, vocabulary, and every weight, word vector and statistic."""
+
+    def dump(self, value: TextMotionEvaluator) -> dict[str, Any]:
+        return {"config": value.config.to_dict(), "vocabulary": list(value.vocabulary), "state_dict": cpu_state(value)}
+
+    def load(self, stored: dict[str, Any], device: str | torch.device) -> TextMotionEvaluator:
+        config = EvaluatorConfig.from_dict(stored["config"])
+        state = stored["state_dict"]
+        model = TextMotionEvaluator(
+            config, stored["vocabulary"], state["words.weight"] if config.word_features == "glove" else None
+        )
+        model.load_state_dict(state)
+        return model.to(device).eval()
+
+
+# one self-contained file, all that computing the metrics needs: ``EVALUATOR_FORMAT.save(path, model=...)``
+EVALUATOR_FORMAT = ModelFileKind(
+    "m2d2m-evaluator/1", "an evaluator model file", {"model": _EvaluatorNetwork()}, inline=frozenset({"model"})
+)
 
 
 def load_evaluator(path: str | Path, map_location: str | torch.device = "cpu") -> TextMotionEvaluator:
-    """Read a file written by :func:`save_evaluator`; the model is in eval mode on ``map_location``."""
-    payload = EVALUATOR_FORMAT.read(path)
-    config = EvaluatorConfig.from_dict(payload["config"])
-    state = payload["state_dict"]
-    vectors = state["words.weight"] if config.word_features == "glove" else None
-    model = TextMotionEvaluator(config, payload["vocabulary"], vectors)
-    model.load_state_dict(state)
-    return model.to(map_location).eval()
+    """The evaluator of an evaluator model file, in eval mode on ``map_location``."""
+    return EVALUATOR_FORMAT.load(path, map_location)["model"]
 
 
 # Guo's module and layer names (``finest.tar`` keys, ``networks/modules.py`` attributes) → ours.

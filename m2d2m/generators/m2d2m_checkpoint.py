@@ -5,7 +5,8 @@ it was trained, a path when it is the frozen CLIP tower), the transition setting
 they are built from, the sampling defaults its config chose (``sampling``: the number of steps, the
 truncation and the guidance scale every preset starts from), the VQ-VAE that decodes tokens (embedded, with its
 normalisation and skeleton), and the corpus's length prior, so ``load_m2d2m(path)`` alone can
-turn text into motion on any machine.
+turn text into motion on any machine. Training writes it with ``M2D2M_FORMAT.save(path, ...)``,
+each part by its name (:class:`m2d2m.model_files.ModelFileKind`).
 """
 
 from __future__ import annotations
@@ -17,14 +18,28 @@ from typing import Any
 import torch
 
 from m2d2m.generators.m2d2m_options import MODEL_DEFAULTS, SAMPLING, M2D2MOptions
-from m2d2m.generators.token_model import TokenCodec
-from m2d2m.model_files import LengthPrior, ModelFileKind, network_payload, text_encoder_from_payload, text_payload
+from m2d2m.generators.token_model import EmbeddedVQ, TokenCodec
+from m2d2m.model_files import PLAIN, Float32, LengthPrior, Lengths, ModelFileKind, Network, Text
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.networks.vqvae import VQ_FORMAT
-from m2d2m.processes.discrete_diffusion import ScheduleConfig, TransitionSchedule
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.text import TextEncoder
 
-M2D2M_FORMAT = ModelFileKind("m2d2m-denoiser/1", "an M2D2M model file")
+# ``schedule``: the trained schedule's whole config (endpoints included, so a configured ᾱ_T or γ̄_T
+# survives the round trip); ``sampling``: the run's sampling defaults (checked by sampling_defaults)
+M2D2M_FORMAT = ModelFileKind(
+    "m2d2m-denoiser/1",
+    "an M2D2M model file",
+    {
+        "denoiser": Network.of(MotionDenoiser, DenoiserConfig),
+        "text": Text(),
+        "schedule": PLAIN,
+        "codebook": Float32(),
+        "vq": EmbeddedVQ(),
+        "lengths": Lengths(),
+        "extra": PLAIN,
+        "sampling": PLAIN,
+    },
+)
 
 
 @dataclass
@@ -37,54 +52,20 @@ class M2D2MCheckpoint:
     codec: TokenCodec
     lengths: LengthPrior
     extra: dict[str, Any]
-    sampling: dict[str, Any]  # M2D2MOptions fields of MODEL_DEFAULTS; empty in files older than them
-
-
-def save_m2d2m(
-    path: str | Path,
-    denoiser: MotionDenoiser,
-    text_encoder: TextEncoder,
-    text: dict[str, Any],
-    schedule: ScheduleConfig,
-    codebook: torch.Tensor,
-    vq_file: str | Path,
-    lengths: LengthPrior,
-    extra: dict[str, Any] | None = None,
-    sampling: dict[str, Any] | None = None,
-) -> Path:
-    """Write a model file; ``text`` is the run's config section, ``schedule`` the trained schedule's
-    whole config (endpoints included, so a configured ᾱ_T or γ̄_T survives the round trip),
-    ``sampling`` the run's sampling defaults (checked by :func:`sampling_defaults`)."""
-    return M2D2M_FORMAT.write(
-        path,
-        {
-            "denoiser": network_payload(denoiser),
-            "text": text_payload(text_encoder, text),
-            "schedule": schedule.to_dict(),
-            "codebook": codebook.detach().cpu().to(torch.float32),
-            "vq": VQ_FORMAT.read(vq_file),
-            "lengths": lengths.to_payload(),
-            "extra": {} if extra is None else extra,
-            "sampling": sampling_defaults(sampling or {}, schedule.steps),
-        },
-    )
+    sampling: dict[str, Any]  # M2D2MOptions fields of MODEL_DEFAULTS
 
 
 def load_m2d2m(path: str | Path, device: str | torch.device = "cpu") -> M2D2MCheckpoint:
-    """Read a file written by :func:`save_m2d2m`, models in eval mode on ``device``."""
-    payload = M2D2M_FORMAT.read(path)
-    denoiser = MotionDenoiser(DenoiserConfig.from_dict(payload["denoiser"]["config"]))
-    denoiser.load_state_dict(payload["denoiser"]["state_dict"])
-    text_encoder = text_encoder_from_payload(payload["text"])
-    schedule = TransitionSchedule.from_config(payload["codebook"].to(device), payload["schedule"])
+    """Read an M2D2M model file, models in eval mode on ``device``."""
+    parts = M2D2M_FORMAT.load(path, device)
     return M2D2MCheckpoint(
-        denoiser.to(device).eval(),
-        text_encoder.to(device).eval(),
-        schedule,
-        TokenCodec.from_payload(payload["vq"], device),
-        LengthPrior(**payload["lengths"]),
-        payload["extra"],
-        payload.get("sampling", {}),
+        parts["denoiser"],
+        parts["text"],
+        TransitionSchedule.from_config(parts["codebook"], parts["schedule"]),
+        parts["vq"],
+        parts["lengths"],
+        parts["extra"],
+        parts["sampling"],
     )
 
 

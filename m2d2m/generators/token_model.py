@@ -13,13 +13,13 @@ import numpy as np
 import torch
 
 from m2d2m.generators.protocol import Keep, MotionGenerator
-from m2d2m.model_files import LengthPrior
+from m2d2m.model_files import LengthPrior, Part
 from m2d2m.motion.body_parts import FULL, LOWER, UPPER, merge
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
-from m2d2m.networks.vqvae import MotionVQVAE, vq_from_payload
+from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, vq_from_payload
 from m2d2m.precision import full_precision
 from m2d2m.text import TextEncoder
 
@@ -107,6 +107,17 @@ class TokenCodec:
             settings,
             tokens.cpu().numpy(),
         )
+
+
+class EmbeddedVQ(Part):
+    """A VQ-VAE model file carried whole inside a token model's file (the codec that decodes its
+    tokens): saved from the VQ file's path, loaded as a :class:`TokenCodec`."""
+
+    def dump(self, value: str | Path) -> dict[str, Any]:
+        return VQ_FORMAT.read(value)
+
+    def load(self, stored: dict[str, Any], device: str | torch.device) -> TokenCodec:
+        return TokenCodec.from_payload(stored, device)
 
 
 @dataclass

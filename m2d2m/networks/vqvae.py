@@ -31,13 +31,11 @@ import torch.distributed as dist
 import torch.nn.functional as F
 from torch import nn
 
-from m2d2m.model_files import ModelFileKind, cpu_state
+from m2d2m.model_files import PLAIN, ModelFileKind, Network, Normalization
 from m2d2m.motion.body_parts import FULL, PARTS, part_dims, skeleton_of_width
 from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.smoothing import gaussian_kernel
 from m2d2m.networks.config import ConfigError, NetworkConfig
-
-VQ_FORMAT = ModelFileKind("m2d2m-vq/1", "a VQ-VAE model file")
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "silu": nn.SiLU, "gelu": nn.GELU}
 
@@ -413,27 +411,21 @@ class MotionVQVAE(nn.Module):
 # Model files
 
 
-def save_vq(
-    path: str | Path, model: MotionVQVAE, normalizer: Normalizer, skeleton: str, extra: dict | None = None
-) -> Path:
-    """Write the model, its normalisation and its skeleton name as one self-contained torch file
-    (written atomically), the hand-over from VQ training to tokenizing and the denoiser."""
-    payload = {
-        "config": model.config.to_dict(),
-        "state_dict": cpu_state(model),
-        "mean": torch.as_tensor(np.asarray(normalizer.mean, dtype=np.float32)),
-        "std": torch.as_tensor(np.asarray(normalizer.std, dtype=np.float32)),
-        "feat_bias": float(normalizer.feat_bias),
-        "skeleton": str(skeleton),
-        "extra": {} if extra is None else extra,
-    }
-    return VQ_FORMAT.write(path, payload)
+# the hand-over from VQ training to tokenizing and the token models: the network, the normalisation
+# of its features and its skeleton's name, in one self-contained file (whose payload the token
+# models' files embed whole)
+VQ_FORMAT = ModelFileKind(
+    "m2d2m-vq/1",
+    "a VQ-VAE model file",
+    {"model": Network.of(MotionVQVAE, VQConfig), "normalizer": Normalization(), "skeleton": PLAIN, "extra": PLAIN},
+    inline=frozenset({"model", "normalizer"}),
+)
 
 
 def load_vq(path: str | Path, map_location: str | torch.device = "cpu") -> tuple[MotionVQVAE, Normalizer, dict]:
-    """Read a file written by :func:`save_vq`: the model (eval mode, on ``map_location``), its
-    normaliser, and ``{"skeleton", "part", "extra"}`` (``part``: the body part it tokenizes);
-    ValueError when the file is not one."""
+    """Read a VQ model file: the model (eval mode, on ``map_location``), its normaliser, and
+    ``{"skeleton", "part", "extra"}`` (``part``: the body part it tokenizes); ValueError when the
+    file is not one."""
     payload = VQ_FORMAT.read(path, map_location)
     try:
         return vq_from_payload(payload, map_location)
@@ -445,14 +437,16 @@ def vq_from_payload(payload: dict, map_location: str | torch.device = "cpu") -> 
     """The model, normaliser and ``{"skeleton", "part", "extra"}`` of a VQ file's contents — also
     used when a model file carries its VQ-VAE inside it."""
     try:
-        model = MotionVQVAE(VQConfig.from_dict(payload["config"]))
-        model.load_state_dict(payload["state_dict"])
-        normalizer = Normalizer(payload["mean"].cpu().numpy(), payload["std"].cpu().numpy(), payload["feat_bias"])
-        meta = {"skeleton": payload["skeleton"], "part": model.config.part, "extra": payload["extra"]}
+        parts = VQ_FORMAT.restore(payload, map_location)
     except (KeyError, TypeError, ValueError, AttributeError, RuntimeError) as error:
         # a file with the format tag whose contents do not fit the model (missing keys, other
         # shapes): the caller gets a ValueError naming what is wrong, like any unreadable file
         raise ValueError(
             f"not a usable VQ-VAE ({type(error).__name__}: {' '.join(str(error).split())[:200]})"
         ) from error
-    return model.to(map_location).eval(), normalizer, meta
+    model = parts["model"]
+    return (
+        model,
+        parts["normalizer"],
+        {"skeleton": parts["skeleton"], "part": model.config.part, "extra": parts["extra"]},
+    )

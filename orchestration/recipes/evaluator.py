@@ -10,6 +10,7 @@ from typing import Any
 
 import torch
 
+from m2d2m.evaluation.evaluator import EVALUATOR_FORMAT
 from orchestration.recipe import Recipe, Trainable, TrainingData, train
 from orchestration.runs import EVALUATOR_FILE, EVALUATOR_STAGE
 from orchestration.train import validation_interval
@@ -23,6 +24,8 @@ class EvaluatorTraining(TrainingData):
 
 
 class EvaluatorRecipe(Recipe):
+    model_format = EVALUATOR_FORMAT
+
     def data(self, config: dict[str, Any]) -> EvaluatorTraining:
         from m2d2m.evaluation.evaluator import learned_vocabulary, load_glove
         from training.evaluator_module import CaptionMotionDataModule
@@ -58,9 +61,8 @@ class EvaluatorRecipe(Recipe):
     def save(
         self, path: Path, module: Any, config: dict[str, Any], data: EvaluatorTraining, extra: dict[str, Any]
     ) -> Path:
-        from m2d2m.evaluation.evaluator import save_evaluator
-
-        return save_evaluator(path, module.model)
+        """The evaluator's file is its network alone: it records no run (``extra``)."""
+        return self.model_format.save(path, **module.model_parts())
 
 
 EVALUATOR_TRAINING = Trainable(EVALUATOR_STAGE, EVALUATOR_STAGE, EVALUATOR_FILE, EvaluatorRecipe())

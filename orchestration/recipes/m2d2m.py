@@ -3,21 +3,20 @@ tokens of a VQ-VAE run, tokenizing first when its tokens are missing or stale.""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, ClassVar
 
+from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT, sampling_defaults
 from m2d2m.generators.m2d2m_options import MODEL_DEFAULTS
 from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
 
 
 def _sampling(config: dict[str, Any]) -> dict[str, Any]:
     """The config's sampling defaults, checked against its diffusion steps (ValueError)."""
-    from m2d2m.generators.m2d2m_checkpoint import sampling_defaults
-
     return sampling_defaults(config.get("sampling") or {}, int(config["diffusion"]["steps"]))
 
 
 class M2D2MRecipe(TokenRecipe):
+    model_format = M2D2M_FORMAT
     # a knob the sampling section leaves out samples as the preset says (paper-demo.yaml: guidance)
     optional: ClassVar[frozenset[str]] = frozenset(f"sampling.{knob}" for knob in MODEL_DEFAULTS)
 
@@ -50,21 +49,8 @@ class M2D2MRecipe(TokenRecipe):
             text_drop=config["text_drop"],
         )
 
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, extra: dict[str, Any]) -> Path:
-        from m2d2m.generators.m2d2m_checkpoint import save_m2d2m
-
-        return save_m2d2m(
-            path,
-            module.denoiser,
-            module.text_encoder,
-            config["text"],
-            module.schedule.config,
-            module.codebook,
-            data.vq_path,
-            data.lengths,
-            extra,
-            _sampling(config),
-        )
+    def parts(self, config: dict[str, Any], data: TokenTraining) -> dict[str, Any]:
+        return {**data.model_parts(), "sampling": _sampling(config)}
 
 
 RECIPE = M2D2MRecipe()

@@ -4,13 +4,15 @@ first when its tokens are missing or stale."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
+from m2d2m.generators.mmm_checkpoint import MMM_FORMAT
 from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
 
 
 class MMMRecipe(TokenRecipe):
+    model_format = MMM_FORMAT
+
     def data(self, config: dict[str, Any]) -> TokenTraining:
         return token_training(config, lambda caption: [caption["text"]], max_tokens=config["transformer"]["max_tokens"])
 
@@ -25,13 +27,6 @@ class MMMRecipe(TokenRecipe):
             codebook=data.codebook,
             vocabulary=data.vocabulary,
             text_drop=config["text_drop"],
-        )
-
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: TokenTraining, extra: dict[str, Any]) -> Path:
-        from m2d2m.generators.mmm_checkpoint import save_mmm
-
-        return save_mmm(
-            path, module.transformer, module.text_encoder, config["text"], data.vq_path, data.lengths, extra
         )
 
 

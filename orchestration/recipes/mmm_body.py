@@ -5,13 +5,15 @@ an edit needs a motion's lower body, which the module's validation loss already 
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
+from m2d2m.generators.mmm_checkpoint import BODY_FORMAT
 from orchestration.recipes.token_data import BodyTokenRecipe, BodyTokenTraining, body_token_training
 
 
 class BodyMMMRecipe(BodyTokenRecipe):
+    model_format = BODY_FORMAT
+
     def data(self, config: dict[str, Any]) -> BodyTokenTraining:
         return body_token_training(
             config, lambda caption: [caption["text"]], max_tokens=config["transformer"]["max_tokens"]
@@ -29,22 +31,6 @@ class BodyMMMRecipe(BodyTokenRecipe):
             lower_codebook=data.lower_codebook,
             vocabulary=data.vocabulary,
             text_drop=config["text_drop"],
-        )
-
-    def save(
-        self, path: Path, module: Any, config: dict[str, Any], data: BodyTokenTraining, extra: dict[str, Any]
-    ) -> Path:
-        from m2d2m.generators.mmm_checkpoint import save_body_mmm
-
-        return save_body_mmm(
-            path,
-            module.transformer,
-            module.text_encoder,
-            config["text"],
-            data.vq_path,
-            data.lower_vq_path,
-            data.lengths,
-            extra,
         )
 
 

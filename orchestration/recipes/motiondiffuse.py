@@ -8,12 +8,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from m2d2m.generators.motiondiffuse_checkpoint import MOTIONDIFFUSE_FORMAT
 from orchestration.recipe import Recipe, TrainingData, caption_vocabulary
 from orchestration.train import OpenedRun, validation_interval
 
 
 class MotionDiffuseRecipe(Recipe):
     """Nothing to prepare before parallel trials: they read the processed dataset as it is."""
+
+    model_format = MOTIONDIFFUSE_FORMAT
 
     def data(self, config: dict[str, Any]) -> TrainingData:
         from training.evaluator_module import CaptionMotionDataModule
@@ -63,20 +66,14 @@ class MotionDiffuseRecipe(Recipe):
             )
         ]
 
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, extra: dict[str, Any]) -> Path:
-        from m2d2m.generators.motiondiffuse_checkpoint import save_motiondiffuse
-
-        return save_motiondiffuse(
-            path,
-            module.network,
-            module.text_encoder,
-            config["text"],
-            config["diffusion"],
-            data.datamodule.normalizer,
-            data.datamodule.skeleton,
-            data.lengths,
-            extra=extra,
-        )
+    def parts(self, config: dict[str, Any], data: TrainingData) -> dict[str, Any]:
+        datamodule = data.datamodule
+        return {
+            **data.model_parts(),
+            "diffusion": config["diffusion"],
+            "normalizer": datamodule.normalizer,
+            "skeleton": datamodule.skeleton,
+        }
 
 
 RECIPE = MotionDiffuseRecipe()

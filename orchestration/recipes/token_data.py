@@ -62,6 +62,10 @@ class TokenTraining(TrainingData):
         """Where the run's tokenizer and tokens are, for its run.json."""
         return {"vq": relative_to_project(self.vq_path), "tokens": relative_to_project(self.tokens_dir)}
 
+    def model_parts(self) -> dict[str, Any]:
+        """The tokenizer travels whole in the model file, to decode its tokens."""
+        return {**super().model_parts(), "vq": self.vq_path}
+
 
 @dataclass
 class BodyTokenTraining(TokenTraining):
@@ -77,6 +81,9 @@ class BodyTokenTraining(TokenTraining):
             "lower_vq": relative_to_project(self.lower_vq_path),
             "lower_tokens": relative_to_project(self.lower_tokens_dir),
         }
+
+    def model_parts(self) -> dict[str, Any]:
+        return {"lengths": self.lengths, "upper_vq": self.vq_path, "lower_vq": self.lower_vq_path}
 
 
 def _tokenizer(reference: str, dataset: str, part: str) -> tuple[Path, Any, Path, Path]:

@@ -10,6 +10,7 @@ from typing import Any
 
 from m2d2m.layout import STATS, VQ_FILE
 from m2d2m.motion.body_parts import FULL
+from m2d2m.networks.vqvae import VQ_FORMAT
 from orchestration.recipe import Recipe, Trainable, TrainingData, train
 from orchestration.runs import VQ_STAGE, vq_stage
 from orchestration.train import OpenedRun, validation_interval
@@ -17,6 +18,7 @@ from orchestration.train import OpenedRun, validation_interval
 
 class VQRecipe(Recipe):
     monitor = "val/recon_loss"
+    model_format = VQ_FORMAT
 
     def stage(self, stage: str, config: dict[str, Any]) -> str:
         return vq_stage(config["model"].get("part", FULL))
@@ -53,10 +55,8 @@ class VQRecipe(Recipe):
     def artifacts(self, data: TrainingData) -> list[Path]:
         return [data.data_dir / STATS]
 
-    def save(self, path: Path, module: Any, config: dict[str, Any], data: TrainingData, extra: dict[str, Any]) -> Path:
-        from m2d2m.networks.vqvae import save_vq
-
-        return save_vq(path, module.model, data.datamodule.normalizer, data.datamodule.skeleton, extra)
+    def parts(self, config: dict[str, Any], data: TrainingData) -> dict[str, Any]:
+        return {"normalizer": data.datamodule.normalizer, "skeleton": data.datamodule.skeleton}
 
 
 VQ_TRAINING = Trainable(VQ_STAGE, VQ_STAGE, VQ_FILE, VQRecipe())
