@@ -232,9 +232,9 @@ def _train_vq(args: argparse.Namespace) -> None:
 
 
 def _train_model(args: argparse.Namespace) -> None:
-    from orchestration.recipe import train_model
+    from orchestration.recipe import train
 
-    run_dir = train_model(args.model, args.config, args.set, args.resume)
+    run_dir = train(args.model, args.config, args.set, args.resume)
     print(f"finished {run_dir}; its checkpoints, metrics and sample GIFs: `make ui`")
 
 

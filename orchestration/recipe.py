@@ -22,7 +22,7 @@ from orchestration.errors import UserError
 from orchestration.registry import ModelEntry, load_plugins, model
 from orchestration.runs import enter_project, read_run_info
 from orchestration.tracking import tracking_uri
-from orchestration.train import OpenedRun, export_snapshots, finish, fit, open_run, records_failure
+from orchestration.train import OpenedRun, export_snapshots, finish, fit, open_run, records_failure, validation_interval
 
 
 @dataclass
@@ -223,26 +223,36 @@ def run_recipe(
 
 @records_failure
 def train(
-    trainable: Trainable,
+    what: Trainable | str,
     config_name: str = "demo",
     overrides: list[str] | None = None,
     resume: bool | str = False,
     extra_callbacks: list | None = None,
 ) -> Path:
-    """A training command (``m2d2m train-vq``, ``train-diffusion``, ...): :func:`run_recipe` in
-    this process, the run recorded failed or interrupted when it raises; returns the run directory."""
+    """A training command (``m2d2m train-vq``, ``train-diffusion``, ...): :func:`run_recipe` of
+    ``what`` (a :class:`Trainable`, or the name of a registered model) in this process, the run
+    recorded failed or interrupted when it raises; returns the run directory."""
+    trainable = Trainable.of_model(model(what)) if isinstance(what, str) else what
     return run_recipe(trainable, config_name, overrides, resume, extra_callbacks)
 
 
-def train_model(
-    name: str,
-    config_name: str = "demo",
-    overrides: list[str] | None = None,
-    resume: bool | str = False,
-    extra_callbacks: list | None = None,
-) -> Path:
-    """Train the registered model ``name`` (``m2d2m train-diffusion`` for M2D2M); returns the run directory."""
-    return train(Trainable.of_model(model(name)), config_name, overrides, resume, extra_callbacks)
+def caption_motion_data(config: dict[str, Any], bucket: bool) -> Any:
+    """The caption/motion pairs of a run's dataset as Guo et al.'s loader draws them (a random
+    caption per clip, its segment, cut to a multiple of 4 frames): the evaluator's data and
+    MotionDiffuse's. ``bucket``: batches of similar lengths unless ``data.bucket`` says otherwise."""
+    from training.evaluator_module import CaptionMotionDataModule
+
+    data = config["data"]
+    return CaptionMotionDataModule(
+        data["dir"],
+        batch_size=data["batch_size"],
+        num_workers=data["num_workers"],
+        steps_per_epoch=validation_interval(config["trainer"]),
+        min_frames=data["min_frames"],
+        max_frames=data["max_frames"],
+        seed=config["seed"],
+        bucket=data.get("bucket", bucket),
+    )
 
 
 def train_on_workers(

@@ -109,7 +109,7 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
     """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
     returns the evaluation's metrics under their MLflow names (``multi/tps/jerk``, ``gt/jerk_concat``, ...)."""
     from orchestration.evaluate import ParentRun, evaluate, new_settings
-    from orchestration.recipe import train_model, train_on_workers
+    from orchestration.recipe import train, train_on_workers
     from orchestration.reports import table_metrics
 
     resources = context["resources"]
@@ -134,7 +134,7 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
                 Path(context["train_storage"]),
             )
         else:
-            run_dir = train_model(name, context["train_config"], overrides)
+            run_dir = train(name, context["train_config"], overrides)
         evaluation["checkpoint"] = str(run_dir / model(name).model_file)
     else:
         evaluation["options"] = params

@@ -12,7 +12,7 @@ import torch
 import yaml
 
 from m2d2m.motion.skeleton import T2M
-from orchestration.recipe import train_model
+from orchestration.recipe import train
 from orchestration.recipes.evaluator import train_evaluator
 from orchestration.recipes.vq import train_vq
 from pipelines.features import DataConfig, build_dataset
@@ -132,7 +132,7 @@ def trained_store(tmp_path_factory, ray_local) -> Path:
         for name, config in configs.items():
             (root / f"{name}.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
         train_vq(str(root / "vq.yaml"))
-        train_model("m2d2m", str(root / "diffusion.yaml"))
+        train("m2d2m", str(root / "diffusion.yaml"))
         train_evaluator(str(root / "evaluator.yaml"))
     torch.set_num_threads(threads)
     return root

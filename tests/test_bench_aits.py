@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from orchestration.recipe import train_model
+from orchestration.recipe import train
 from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `timing` beside them
@@ -24,10 +24,10 @@ def three_models(trained_project) -> Path:
     """The trained project (tiny VQ-VAE and denoiser) with a tiny MMM and a tiny MotionDiffuse (T = 50
     steps) beside its denoiser."""
     (trained_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
-    train_model("mmm", str(trained_project / "mmm.yaml"))
+    train("mmm", str(trained_project / "mmm.yaml"))
     config = {**TINY_MOTIONDIFFUSE, "data": {**TINY_MOTIONDIFFUSE["data"], "dir": str(trained_project / "data")}}
     (trained_project / "motiondiffuse.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
-    train_model("motiondiffuse", str(trained_project / "motiondiffuse.yaml"))
+    train("motiondiffuse", str(trained_project / "motiondiffuse.yaml"))
     return trained_project
 
 

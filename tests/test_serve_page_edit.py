@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from m2d2m.generators.edits import EDIT_MARGIN_SECONDS
-from orchestration.recipe import train_model
+from orchestration.recipe import train
 from orchestration.web.app import ServeSettings
 from tests.browser import NEEDS_CHROMIUM, find_all_css, open_page, wait_for
 from tests.helpers import TINY_MOTIONDIFFUSE
@@ -202,7 +202,7 @@ def test_four_actions_edited_on_the_page_regenerate_pin_retime_continue_fill_and
 def motiondiffuse_run(trained_project) -> Path:
     config = {**TINY_MOTIONDIFFUSE, "data": {**TINY_MOTIONDIFFUSE["data"], "dir": str(trained_project / "data")}}
     (trained_project / "motiondiffuse.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
-    return train_model("motiondiffuse", str(trained_project / "motiondiffuse.yaml"))
+    return train("motiondiffuse", str(trained_project / "motiondiffuse.yaml"))
 
 
 def test_a_wave_laid_over_a_walk_on_a_body_part_lane_and_undone(served_dataset, motiondiffuse_run, browser):

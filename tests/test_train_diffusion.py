@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from orchestration.errors import UserError
-from orchestration.recipe import train_model
+from orchestration.recipe import train
 from orchestration.recipes.vq import train_vq
 from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_DIFFUSION
@@ -20,10 +20,10 @@ from tests.test_train_vq import KillAt, RecordStart
 def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, tiny_data):
     (project / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
     with pytest.raises(UserError, match="run `make train-vq` first"):
-        train_model("m2d2m", str(project / "diffusion.yaml"))
+        train("m2d2m", str(project / "diffusion.yaml"))
     train_vq(str(project / "tiny.yaml"))
 
-    run_dir = train_model("m2d2m", str(project / "diffusion.yaml"))
+    run_dir = train("m2d2m", str(project / "diffusion.yaml"))
     info = read_run_info(run_dir)
     assert info["status"] == "finished" and latest_run("tiny", "m2d2m", "make train-diffusion") == run_dir
     assert (Path(info["tokens"]) / "manifest.json").exists()
@@ -43,7 +43,7 @@ def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, ti
     model_files = {Path(a.path).name for a in mlflow.MlflowClient().list_artifacts(run.info.run_id, "model")}
     assert {"model.pt", "best.ckpt", "last.ckpt", "config.yaml"} <= model_files
 
-    ablation = train_model(
+    ablation = train(
         "m2d2m",
         str(project / "diffusion.yaml"),
         overrides=["diffusion.kind=uniform", "denoiser.positions=action", "trainer.ema=0.5", "trainer.snapshots=[1,3]"],
@@ -63,20 +63,20 @@ def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, ti
     averaged = final["state_dict"]["denoiser.head.bias"]
     assert not torch.equal(averaged, final["current_model_state"]["denoiser.head.bias"])
     with pytest.raises(UserError, match="trainer.snapshots must be a list of steps"):
-        train_model("m2d2m", str(project / "diffusion.yaml"), overrides=["trainer.snapshots=[9]"])
+        train("m2d2m", str(project / "diffusion.yaml"), overrides=["trainer.snapshots=[9]"])
     with pytest.raises(UserError, match=r"trainer.ema must be a decay in \[0, 1\)"):
-        train_model("m2d2m", str(project / "diffusion.yaml"), overrides=["trainer.ema=1.5"])
+        train("m2d2m", str(project / "diffusion.yaml"), overrides=["trainer.ema=1.5"])
 
 
 def test_resume_after_a_kill_continues_at_the_same_step(project):
     (project / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
     train_vq(str(project / "tiny.yaml"))
     with pytest.raises(RuntimeError, match="killed"):
-        train_model("m2d2m", str(project / "diffusion.yaml"), extra_callbacks=[KillAt(step=3)])
+        train("m2d2m", str(project / "diffusion.yaml"), extra_callbacks=[KillAt(step=3)])
     run_dir = next((project / "runs" / "tiny" / "m2d2m").iterdir())
     assert torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)["global_step"] == 2
     started = RecordStart()
-    resumed = train_model("m2d2m", str(project / "diffusion.yaml"), resume=True, extra_callbacks=[started])
+    resumed = train("m2d2m", str(project / "diffusion.yaml"), resume=True, extra_callbacks=[started])
     assert resumed.resolve() == run_dir.resolve() and started.step == 2
     assert read_run_info(run_dir)["status"] == "finished" and (run_dir / "model.pt").exists()
 
@@ -95,7 +95,7 @@ def test_a_nan_loss_stops_the_run_and_keeps_the_last_good_checkpoint(project):
     (project / "diffusion.yaml").write_text(yaml.safe_dump(TINY_DIFFUSION), encoding="utf-8")
     train_vq(str(project / "tiny.yaml"))
     with pytest.raises(UserError, match=r"the training loss is nan at step 3.*last good checkpoint"):
-        train_model("m2d2m", str(project / "diffusion.yaml"), extra_callbacks=[PoisonWeightsAt(step=3)])
+        train("m2d2m", str(project / "diffusion.yaml"), extra_callbacks=[PoisonWeightsAt(step=3)])
     run_dir = next((project / "runs" / "tiny" / "m2d2m").iterdir())
     assert read_run_info(run_dir)["status"] == "failed"
     last = torch.load(run_dir / "checkpoints" / "last.ckpt", map_location="cpu", weights_only=False)

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from orchestration.cli import main
-from orchestration.recipe import train_model
+from orchestration.recipe import train
 from orchestration.reports import FEET_TITLES
 from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_MMM, latest_evaluation
@@ -23,7 +23,7 @@ from tests.helpers import TINY_MMM, latest_evaluation
 def mmm_run(trained_project) -> Path:
     """A tiny MMM trained by `train-mmm`'s code on the trained project's tokens."""
     (trained_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
-    return train_model("mmm", str(trained_project / "mmm.yaml"))
+    return train("mmm", str(trained_project / "mmm.yaml"))
 
 
 def test_mmm_trains_generates_and_is_evaluated_through_the_registry(trained_project, tiny_testset, mmm_run):

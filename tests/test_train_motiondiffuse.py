@@ -16,7 +16,7 @@ import yaml
 from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
-from orchestration.recipe import train_model
+from orchestration.recipe import train
 from orchestration.reports import FEET_TITLES
 from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE, latest_evaluation
@@ -26,7 +26,7 @@ from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE, latest_evaluation
 def motiondiffuse_run(trained_project) -> Path:
     config = {**TINY_MOTIONDIFFUSE, "data": {**TINY_MOTIONDIFFUSE["data"], "dir": str(trained_project / "data")}}
     (trained_project / "motiondiffuse.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
-    return train_model("motiondiffuse", str(trained_project / "motiondiffuse.yaml"))
+    return train("motiondiffuse", str(trained_project / "motiondiffuse.yaml"))
 
 
 def test_motiondiffuse_trains_through_the_registry_and_tracks_the_loss_per_step_bucket(
@@ -139,7 +139,7 @@ def test_bad_body_part_requests_are_one_line_and_exit_2(trained_project, motiond
 
 def test_the_three_models_are_judged_in_one_evaluate_run(trained_project, tiny_testset, motiondiffuse_run):
     (trained_project / "mmm.yaml").write_text(yaml.safe_dump(TINY_MMM), encoding="utf-8")
-    train_model("mmm", str(trained_project / "mmm.yaml"))
+    train("mmm", str(trained_project / "mmm.yaml"))
     assert (
         main(
             [

@@ -4,6 +4,7 @@ caption/motion pairs of the dataset's train split, the best checkpoint by valida
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -11,9 +12,8 @@ from typing import Any
 import torch
 
 from m2d2m.evaluation.evaluator import EVALUATOR_FORMAT
-from orchestration.recipe import Recipe, Trainable, TrainingData, train
+from orchestration.recipe import Recipe, Trainable, TrainingData, caption_motion_data, train
 from orchestration.runs import EVALUATOR_FILE, EVALUATOR_STAGE
-from orchestration.train import validation_interval
 
 
 @dataclass
@@ -28,26 +28,15 @@ class EvaluatorRecipe(Recipe):
 
     def data(self, config: dict[str, Any]) -> EvaluatorTraining:
         from m2d2m.evaluation.evaluator import learned_vocabulary, load_glove
-        from training.evaluator_module import CaptionMotionDataModule
 
-        data = config["data"]
-        datamodule = CaptionMotionDataModule(
-            data["dir"],
-            batch_size=data["batch_size"],
-            num_workers=data["num_workers"],
-            steps_per_epoch=validation_interval(config["trainer"]),
-            min_frames=data["min_frames"],
-            max_frames=data["max_frames"],
-            seed=config["seed"],
-            bucket=data.get("bucket", False),  # off: the evaluator pads to 196 frames itself (docs/training.md)
-        )
+        datamodule = caption_motion_data(config, bucket=False)  # off: it pads to 196 frames itself (docs/training.md)
         if config["model"]["word_features"] == "glove":
             if not config.get("glove_dir"):
                 raise ValueError("model.word_features: glove needs glove_dir (Guo's glove/ directory)")
             vocabulary, vectors = load_glove(config["glove_dir"])
         else:
             vocabulary, vectors = learned_vocabulary(datamodule.train_captions(), config["min_word_count"]), None
-        return EvaluatorTraining(datamodule, Path(data["dir"]), vocabulary, vectors)
+        return EvaluatorTraining(datamodule, Path(config["data"]["dir"]), vocabulary, vectors)
 
     def module(self, config: dict[str, Any], data: EvaluatorTraining) -> Any:
         from training.evaluator_module import EvaluatorModule
@@ -68,11 +57,4 @@ class EvaluatorRecipe(Recipe):
 EVALUATOR_TRAINING = Trainable(EVALUATOR_STAGE, EVALUATOR_STAGE, EVALUATOR_FILE, EvaluatorRecipe())
 
 
-def train_evaluator(
-    config_name: str = "demo",
-    overrides: list[str] | None = None,
-    resume: bool | str = False,
-    extra_callbacks: list | None = None,
-) -> Path:
-    """``m2d2m train-evaluator``: returns the run directory, with ``evaluator.pt`` on success."""
-    return train(EVALUATOR_TRAINING, config_name, overrides, resume, extra_callbacks)
+train_evaluator = functools.partial(train, EVALUATOR_TRAINING)  # ``m2d2m train-evaluator``: the run directory

@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from m2d2m.generators.motiondiffuse_checkpoint import MOTIONDIFFUSE_FORMAT
-from orchestration.recipe import Recipe, TrainingData, caption_vocabulary
-from orchestration.train import OpenedRun, validation_interval
+from orchestration.recipe import Recipe, TrainingData, caption_motion_data, caption_vocabulary
+from orchestration.train import OpenedRun
 
 
 class MotionDiffuseRecipe(Recipe):
@@ -19,22 +19,9 @@ class MotionDiffuseRecipe(Recipe):
     model_format = MOTIONDIFFUSE_FORMAT
 
     def data(self, config: dict[str, Any]) -> TrainingData:
-        from training.evaluator_module import CaptionMotionDataModule
-
-        data = config["data"]
-        datamodule = CaptionMotionDataModule(
-            data["dir"],
-            batch_size=data["batch_size"],
-            num_workers=data["num_workers"],
-            steps_per_epoch=validation_interval(config["trainer"]),
-            min_frames=data["min_frames"],
-            max_frames=data["max_frames"],
-            seed=config["seed"],
-            bucket=data.get("bucket", True),
-        )
-        return TrainingData(
-            datamodule, Path(data["dir"]), caption_vocabulary(config, datamodule, lambda caption: [caption["text"]])
-        )
+        datamodule = caption_motion_data(config, bucket=True)
+        vocabulary = caption_vocabulary(config, datamodule, lambda caption: [caption["text"]])
+        return TrainingData(datamodule, Path(config["data"]["dir"]), vocabulary)
 
     def module(self, config: dict[str, Any], data: TrainingData) -> Any:
         from training.motiondiffuse_module import MotionDiffuseModule

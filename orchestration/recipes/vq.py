@@ -5,6 +5,7 @@ model read. A config's ``model.part`` trains MMM's part tokenizers, filed under 
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -62,11 +63,4 @@ class VQRecipe(Recipe):
 VQ_TRAINING = Trainable(VQ_STAGE, VQ_STAGE, VQ_FILE, VQRecipe())
 
 
-def train_vq(
-    config_name: str = "demo",
-    overrides: list[str] | None = None,
-    resume: bool | str = False,
-    extra_callbacks: list | None = None,
-) -> Path:
-    """``m2d2m train-vq``: returns the run directory, with ``vq.pt`` on success."""
-    return train(VQ_TRAINING, config_name, overrides, resume, extra_callbacks)
+train_vq = functools.partial(train, VQ_TRAINING)  # ``m2d2m train-vq``: the run directory, with vq.pt on success
