@@ -14,12 +14,14 @@ import errno
 import math
 import sys
 import time
+from collections.abc import Sequence
+from dataclasses import fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn, get_args, get_origin, get_type_hints
 
 from orchestration.errors import NotInProject, UserError
 from orchestration.project import is_project, outside_project, require_project
-from orchestration.registry import DEFAULT_MODEL, models
+from orchestration.registry import DEFAULT_MODEL, methods_of_models, models
 
 if TYPE_CHECKING:
     from pipelines.corpora import CorpusLayout
@@ -569,32 +571,20 @@ def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespa
 
 
 def _testset(args: argparse.Namespace) -> None:
-    from orchestration.evaluate import TESTSET_STAGE, make_testset
+    from orchestration.evaluate.testsets import TESTSET_STAGE, make_testset
     from pipelines.testset import describe
 
-    if args.data is None:
-        require_project()
-    data = args.data or f"data/{args.dataset}"
-    summary = make_testset(data, args.dataset, args.n, args.seed, args.mirrors, args.force, args.first, args.split)
+    summary = make_testset(args.data, args.dataset, args.n, args.seed, args.mirrors, args.force, args.first, args.split)
     print(describe(summary))
     print(f"logged to MLflow run {summary['mlflow_run_id']} (experiment {args.dataset}/{TESTSET_STAGE})")
 
 
 def _evaluate(args: argparse.Namespace) -> None:
-    from orchestration.evaluate import EVAL_STAGE, KNOBS, evaluate, new_settings, reopen
+    from orchestration.evaluate.run import evaluate
+    from orchestration.evaluate.settings import EVAL_STAGE, settings_to_run
     from orchestration.reports import TABLE_MD
 
-    options = _sampling_options(args)
-    given = {knob: getattr(args, knob) for knob in KNOBS if getattr(args, knob) is not None}
-    if args.resume:
-        if given or options or args.model is not None:
-            named = [*given, *options] + (["model"] if args.model is not None else [])
-            renamed = {"methods": "method", "editing": "edit"}
-            flags = ", ".join("--" + renamed.get(knob, knob).replace("_", "-") for knob in named)
-            raise UserError(f"--resume continues {args.resume} with its own settings; drop {flags}")
-        run_dir, settings = reopen(args.resume, args.dataset)
-    else:
-        run_dir, settings = None, new_settings(args.dataset, args.model or DEFAULT_MODEL, options=options, **given)
+    run_dir, settings = settings_to_run(args.dataset, _given_request(args), args.resume)
     run_dir, _ = evaluate(settings, args.dataset, run_dir, args.batch_size)
     print((run_dir / TABLE_MD).read_text(encoding="utf-8"))
     print(
@@ -814,11 +804,6 @@ def sampling_help() -> str:
     return "\n".join(lines)
 
 
-def _methods() -> str:
-    """Every model's multi-action methods, as declared: ``m2d2m: tps, independent, ...; mmm: ...``."""
-    return "; ".join(f"{name}: {', '.join(entry.load('sampling').methods)}" for name, entry in models().items())
-
-
 def _add_sampling_knobs(parser: argparse.ArgumentParser) -> None:
     """``--option KEY=VALUE`` for any model's knob, and the flags the models' entries declare as
     shortcuts (M2D2M's ``--ts``, ``--eta``, ``--guidance``, ``--truncation``), each typed and
@@ -864,7 +849,9 @@ def _add_generate(verbs) -> None:
         nargs="+",
         help="duration of each prompt, or one for all (default: the corpus's typical length per verb)",
     )
-    generate.add_argument("--method", help=f"the multi-action method ({_methods()}; default: the model's first)")
+    generate.add_argument(
+        "--method", help=f"the multi-action method ({methods_of_models()}; default: the model's first)"
+    )
     _add_sampling_knobs(generate)
     generate.add_argument("--seed", type=int, default=0)
     _add_model_choice(generate)
@@ -981,74 +968,7 @@ def _add_evaluate(verbs) -> None:
         epilog=sampling_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    evaluate.add_argument(
-        "--model",
-        action="append",
-        metavar="MODEL",
-        help=f"registered models to judge side by side in one table: {', '.join(models())}; "
-        f"repeatable or a comma list (default {DEFAULT_MODEL})",
-    )
-    evaluate.add_argument(
-        "--checkpoint",
-        action="append",
-        metavar="REF",
-        help="the model's file, a run directory or name, or an MLflow run id (default: latest); "
-        "with several models MODEL=REF, once per model",
-    )
-    evaluate.add_argument(
-        "--testset",
-        help="test set directory (default: n4-seed0 of the model's dataset, "
-        "data/<dataset>/testsets/n4-seed0, built if missing)",
-    )
-    evaluate.add_argument(
-        "--evaluator",
-        help="evaluator.pt, or an evaluator run directory, name or MLflow run id "
-        "(default: latest; `make train-evaluator` makes one)",
-    )
-    evaluate.add_argument(
-        "--guo-evaluator",
-        metavar="CKPT_DIR",
-        help="Guo et al.'s published evaluator (text_mot_match/), for published-comparable numbers",
-    )
-    evaluate.add_argument("--glove", metavar="DIR", help="Guo's glove/ directory (with --guo-evaluator)")
-    evaluate.add_argument("--meta", metavar="DIR", help="the evaluator's mean.npy/std.npy (default CKPT_DIR/meta)")
-    evaluate.add_argument(
-        "--method",
-        dest="methods",
-        action="append",
-        metavar="METHOD",
-        help=f"multi-action methods ({_methods()}), each for every model that has it, or "
-        "MODEL:METHOD for one; repeatable or a comma list (default: each model's first)",
-    )
-    _add_sampling_knobs(evaluate)
-    evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
-    evaluate.add_argument(
-        "--multi",
-        action=argparse.BooleanOptionalAction,
-        help="the multi-motion table's generated rows (default on; --no-multi with --single "
-        "judges single actions alone, as a learning curve does)",
-    )
-    evaluate.add_argument(
-        "--single",
-        action=argparse.BooleanOptionalAction,
-        help="also the single-motion table (paper Table 3; the model's single-action preset, for m2d2m s = 4, η = 0.5)",
-    )
-    evaluate.add_argument(
-        "--edit",
-        dest="editing",
-        action="append",
-        metavar="TASK",
-        help="also the editing table (MMM Table 3) for these tasks, each with and without text: "
-        "inbetween (the middle 50 %% given the first and last 25 %%), upper (the upper body "
-        "given the lower; mmm-body); repeatable or a comma list",
-    )
-    evaluate.add_argument(
-        "--regenerate",
-        type=_positive_int,
-        metavar="K",
-        help="also the timeline-editing table: action K of every instance sampled again by an edit that keeps "
-        "the rest, against the whole sequence sampled again (R-Top3, FID, transition FID, Jerk)",
-    )
+    _add_request(evaluate)
     evaluate.add_argument(
         "--batch-size", type=_positive_int, default=64, help="sequences generated at once (default 64)"
     )
@@ -1057,6 +977,52 @@ def _add_evaluate(verbs) -> None:
     )
     evaluate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     evaluate.set_defaults(run=_evaluate)
+
+
+def _add_request(parser: argparse.ArgumentParser) -> None:
+    """An option per field of evaluate's request, in its order, as its Flag declares it
+    (orchestration/evaluate/request.py): a list repeatable, a switch with its --no- form, a number
+    checked as it is read; the field without a flag is the sampling options. An option not given
+    leaves no attribute, so the request keeps its default and --resume knows what was given."""
+    from orchestration.evaluate.request import FLAG, EvalRequest
+
+    kinds = get_type_hints(EvalRequest)
+    for declared in fields(EvalRequest):
+        if FLAG not in declared.metadata:
+            _add_sampling_knobs(parser)
+            continue
+        flag, kind = declared.metadata[FLAG], kinds[declared.name]
+        if kind is bool:
+            reading: dict[str, Any] = {"action": argparse.BooleanOptionalAction}
+        elif get_origin(kind) is Sequence:
+            reading = {"action": "append"}
+        elif int in (kind, *get_args(kind)):
+            reading = {"type": _positive_int if flag.positive else int}
+        else:
+            reading = {}
+        parser.add_argument(
+            flag.name,
+            dest=declared.name,
+            metavar=flag.metavar,
+            default=argparse.SUPPRESS,
+            help=_escaped(flag.text()),
+            **reading,
+        )
+
+
+def _given_request(args: argparse.Namespace) -> dict[str, Any]:
+    """The fields of evaluate's request the command line gave (the sampling options when any is)."""
+    from orchestration.evaluate.request import FLAG, EvalRequest
+
+    given = {}
+    for declared in fields(EvalRequest):
+        if FLAG not in declared.metadata:
+            options = _sampling_options(args)
+            if options:
+                given[declared.name] = options
+        elif hasattr(args, declared.name):
+            given[declared.name] = getattr(args, declared.name)
+    return given
 
 
 def _add_sweep(verbs) -> None:
