@@ -13,18 +13,14 @@ import argparse
 import errno
 import math
 import sys
-import time
 from collections.abc import Sequence
 from dataclasses import fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn, get_args, get_origin, get_type_hints
+from typing import Any, NoReturn, get_args, get_origin, get_type_hints
 
 from orchestration.errors import NotInProject, UserError
 from orchestration.project import is_project, outside_project, require_project
 from orchestration.registry import DEFAULT_MODEL, methods_of_models, models
-
-if TYPE_CHECKING:
-    from pipelines.corpora import CorpusLayout
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -106,35 +102,10 @@ def _body_part(text: str) -> tuple[str, str]:
 
 # ------------------------------------------------------------------------------------ handlers
 def _synthesize(args: argparse.Namespace) -> None:
-    from pipelines.synthetic import FAMILIES, existing_corpus, generate_corpus
+    from orchestration.data import synthesize
 
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        raise UserError(f"{args.out}: a file, not a folder; choose another --out")
     families = args.families.split(",") if args.families else None
-    unknown = sorted(set(families or ()) - set(FAMILIES))
-    if unknown:
-        raise UserError(
-            f"unknown famil{'ies' if len(unknown) > 1 else 'y'} {', '.join(unknown)}; choose from {', '.join(FAMILIES)}"
-        )
-    try:
-        if not args.force and existing_corpus(args.out, args.clips, args.seed, families):
-            print(
-                f"{args.out}: the corpus is already there (seed {args.seed}, {args.clips} clips); --force rebuilds it"
-            )
-            return
-    except ValueError as error:
-        raise UserError(str(error)) from error
-    started = time.perf_counter()
-    summary = generate_corpus(
-        args.out, clips=args.clips, seed=args.seed, families=families, workers=args.workers, progress=True
-    )
-    splits = summary["splits"]
-    print(
-        f"wrote {summary['clips']} clips to {args.out} in {time.perf_counter() - started:.1f} s: "
-        f"{splits['train']}/{splits['val']}/{splits['test']} train/val/test, {summary['captions']} captions "
-        f"({summary['multi_verb_share']:.0%} with several verbs), {summary['hours']:.2f} h of motion, "
-        f"{len(summary['families'])} action families"
-    )
+    print(synthesize(args.out, args.clips, args.seed, families, args.workers, args.force))
 
 
 def _report_problems(directory: Path, problems: list[str], what: str) -> None:
@@ -145,84 +116,34 @@ def _report_problems(directory: Path, problems: list[str], what: str) -> None:
     print(f"{directory}: OK ({what} match the manifest)")
 
 
-# The options of `m2d2m data` that a corpus's layout takes (CorpusLayout.options), and which are paths.
-LAYOUT_OPTIONS = {"bvh": "--bvh", "joint_map": "--joint-map", "units": "--units"}
-
-
-def _layout_options(args: argparse.Namespace, layout: CorpusLayout) -> dict[str, str]:
-    """The layout options given, paths made absolute (Ray tasks may run elsewhere); one line
-    naming the option a corpus does not take."""
-    from m2d2m.motion.joint_map import PRESETS
-
-    given = {name: getattr(args, name) for name in LAYOUT_OPTIONS if getattr(args, name) is not None}
-    for name in given.keys() - set(layout.options):
-        takes = ", ".join(LAYOUT_OPTIONS[o] for o in layout.options) or "none"
-        raise UserError(f"{LAYOUT_OPTIONS[name]}: the {args.dataset} corpus does not take it (it takes {takes})")
-    if "bvh" in given:
-        given["bvh"] = str(Path(given["bvh"]).resolve())
-    if "joint_map" in given and given["joint_map"] not in PRESETS:
-        if not Path(given["joint_map"]).is_file():
-            raise UserError(f"--joint-map: {given['joint_map']} is neither a preset ({', '.join(PRESETS)}) nor a file")
-        given["joint_map"] = str(Path(given["joint_map"]).resolve())
-    return given
-
-
 def _data(args: argparse.Namespace) -> None:
-    from m2d2m.plugins import plugins_for_workers
-    from orchestration.registry import load_plugins
-    from pipelines.corpora import corpus
+    from orchestration.data import LAYOUT_OPTIONS, build, data_config
     from pipelines.dataset import check_dataset
-    from pipelines.features import DataConfig, build_dataset, print_summary, require_replaceable, reusable_dataset
+    from pipelines.features import print_summary
 
     if args.check:
         _report_problems(Path(args.check), check_dataset(Path(args.check)), "counts, checksums and schema")
         return
-    if args.out is None:
-        require_project()  # data/<dataset> is the project's
-    load_plugins()  # a plugin may register the corpus
-    try:
-        layout = corpus(args.dataset).layout.name
-    except ValueError as error:
-        raise UserError(str(error)) from error
-    raw = Path(args.raw or f"data/raw/{args.dataset}")
-    out = Path(args.out or f"data/{args.dataset}")
-    if not raw.exists():
-        if args.dataset != "synthetic":
-            raise UserError(f"{raw}: no such corpus; pass --raw /path/to/{args.dataset} ({layout} layout)")
-        _synthesize(
-            argparse.Namespace(out=str(raw), clips=2000, seed=0, families=None, workers=args.workers, force=False)
-        )
-    layout_options = _layout_options(args, corpus(args.dataset).layout)
-    config = DataConfig(
-        dataset=args.dataset,
-        raw=str(raw),
-        out=str(out),
+    config = data_config(
+        args.dataset,
+        args.raw,
+        args.out,
+        args.workers,
+        {name: getattr(args, name) for name in LAYOUT_OPTIONS},
         samples_per_shard=args.samples_per_shard,
         min_frames=args.min_frames,
         max_frames=args.max_frames,
-        workers=args.workers,
         ray_address=args.ray_address,
-        plugins=plugins_for_workers(),
-        layout_options=layout_options,
     )
-    existing = None if args.force else reusable_dataset(config)
-    if existing is not None:
-        print(f"{out}: already built from {raw} with this config; reusing it (--force rebuilds)")
-        print_summary(existing, out)
+    manifest, built = build(config, args.force, args.replace)
+    if not built:
+        print(f"{config.out}: already built from {config.raw} with this config; reusing it (--force rebuilds)")
+        print_summary(manifest, config.out)
         return
-    try:
-        require_replaceable(config, args.replace)
-        if (out / "manifest.json").exists():
-            print(
-                f"{out}: built with another config; building the new one beside it (the old one stays until "
-                "the new one is complete)"
-            )
-        manifest = build_dataset(config, replace_other=args.replace)
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    print_summary(manifest, out)
+    print_summary(manifest, config.out)
     print(
-        f"wrote {out} ({sum(len(v) for v in manifest['shards'].values())} shards); verify with: m2d2m data --check {out}"
+        f"wrote {config.out} ({sum(len(v) for v in manifest['shards'].values())} shards); "
+        f"verify with: m2d2m data --check {config.out}"
     )
 
 
@@ -398,28 +319,20 @@ def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import edit_part, generate, load_generator
+    from orchestration.generate import check_prompted, edit_part, generate, length_cap, load_generator, variations
     from orchestration.viewing import load_features
 
     if args.part:
         return _generate_parts(args)
     if args.edit is not None and args.keep_body is None:
         return _edit_timeline(args)
-    if not args.prompts:
-        raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
-    if args.keep_body is not None and args.edit is None:
-        raise UserError(
-            "--keep-body PART goes with --edit SOURCE: the motion to edit and the body part of it "
-            "to keep, e.g. --model mmm-body --edit motion.features.npy --keep-body lower"
-        )
-    if args.edit is not None and args.seconds is not None:
-        raise UserError("--seconds does not go with --keep-body: the edited motion is as long as the source")
+    check_prompted(args.prompts, args.seconds, args.edit, args.keep_body)
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    for seed, variation in _variations(args, output):
+    for seed, variation in variations(output, args.seed, args.variations):
         if args.edit is not None:
             motion = edit_part(
                 generator,
@@ -428,7 +341,7 @@ def _generate(args: argparse.Namespace) -> None:
                 args.keep_body,
                 seed=seed,
                 split=not args.no_split,
-                max_seconds=_max_seconds(args),
+                max_seconds=length_cap(args.max_seconds),
                 **options,
             )
         else:
@@ -438,7 +351,7 @@ def _generate(args: argparse.Namespace) -> None:
                 seconds=args.seconds,
                 seed=seed,
                 split=not args.no_split,
-                max_seconds=_max_seconds(args),
+                max_seconds=length_cap(args.max_seconds),
                 **options,
             )
         _report(motion, variation, args.prompts, args)
@@ -448,7 +361,7 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
     from m2d2m.layout import relative_to_project
     from orchestration.editing import plan_edit, pose_at, read_result, sample_edit
-    from orchestration.generate import load_generator
+    from orchestration.generate import load_generator, variations
 
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
@@ -473,23 +386,11 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    for seed, variation in _variations(args, output):
+    for seed, variation in variations(output, args.seed, args.variations):
         motion = sample_edit(generator, edit, seed, f"{relative_to_project(args.edit)}: {said}", **options)
         _report(motion, variation, edit.actions, args)
         if "pin_error_m" in motion.quality:
             print(f"  the pose is met within {motion.quality['pin_error_m'] * 1000:.0f} mm (its farthest joint)")
-
-
-def _variations(args: argparse.Namespace, output: Any) -> list[tuple[int, Any]]:
-    """``--variations N``: the seeds to sample and where each sample goes (in a folder or file
-    named, ``<name>-seed<seed>``; without ``--out`` each in its own run folder)."""
-    from dataclasses import replace
-
-    seeds = [args.seed + k for k in range(args.variations)]
-    if args.variations == 1:
-        return [(args.seed, output)]
-    named = output.directory is not None
-    return [(seed, replace(output, name=f"{output.name}-seed{seed}") if named else output) for seed in seeds]
 
 
 def _planned_output(args: argparse.Namespace) -> Any:
@@ -508,44 +409,16 @@ def _planned_output(args: argparse.Namespace) -> Any:
 def _generate_parts(args: argparse.Namespace) -> None:
     """``generate --part PART=TEXT``: one sentence per body part; a prompt, if given, drives the parts
     not named."""
-    from m2d2m.motion.body_parts import PARTS
-    from orchestration.generate import generate_parts, load_generator
+    from orchestration.generate import generate_parts, length_cap, load_generator, plan_parts
 
-    if args.edit is not None:
-        raise UserError("--part does not go with --edit: body-part control generates the whole motion")
-    if len(args.prompts) > 1 or (args.seconds is not None and len(args.seconds) > 1):
-        raise UserError("with --part give at most one prompt (for the parts not named) and one --seconds")
-    parts = dict(args.part)
-    if len(parts) != len(args.part):
-        raise UserError("name each body part once with --part")
-    unknown = sorted(set(parts) - set(PARTS))
-    if unknown:
-        raise UserError(f"unknown body part {unknown[0]!r}: choose from {', '.join(PARTS)}")
-    missing = [part for part in PARTS if part not in parts]
-    if missing and not args.prompts:
-        raise UserError(f"give a prompt for the parts not named ({', '.join(missing)}), or --part for each of them")
-    parts.update({part: args.prompts[0] for part in missing})
+    parts, seconds = plan_parts(args.part, args.prompts, args.seconds, editing=args.edit is not None)
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     motion = generate_parts(
-        generator,
-        parts,
-        seconds=args.seconds[0] if args.seconds else None,
-        seed=args.seed,
-        max_seconds=_max_seconds(args),
-        **options,
+        generator, parts, seconds=seconds, seed=args.seed, max_seconds=length_cap(args.max_seconds), **options
     )
     _report(motion, output, [f"{part}: {text}" for part, text in parts.items()], args)
-
-
-def _max_seconds(args: argparse.Namespace) -> float | None:
-    """``--max-seconds``: the default cap when not given, none for 0."""
-    from orchestration.generate import DEFAULT_MAX_SECONDS
-
-    if args.max_seconds is not None and not 0 <= args.max_seconds < float("inf"):
-        raise UserError(f"--max-seconds must be a positive number (0 for no cap), got {args.max_seconds:g}")
-    return DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
 
 
 def _add_max_seconds(parser: argparse.ArgumentParser, what: str) -> None:
@@ -627,6 +500,7 @@ def _ui(args: argparse.Namespace) -> None:
 
 
 def _serve(args: argparse.Namespace) -> None:
+    from orchestration.generate import length_cap
     from orchestration.serving import check_port_free
     from orchestration.web.app import ServeSettings
     from orchestration.web.server import serve, server_token
@@ -637,7 +511,7 @@ def _serve(args: argparse.Namespace) -> None:
     settings = ServeSettings(
         dataset=args.dataset,
         token=token,
-        max_seconds=_max_seconds(args),
+        max_seconds=length_cap(args.max_seconds),
         queue=args.queue,
         max_batch=args.max_batch,
         device=args.device,
