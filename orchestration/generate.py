@@ -6,7 +6,8 @@ optional steps a person's prompts need: splitting free text into action sentence
 dataset's tagger (as the corpus was split), giving each action a length (the seconds asked for,
 or the corpus's typical length for its verb) under a cap on the whole, and putting the decoded
 joints on one rigid skeleton so that every file of a generation shows the same body.
-:func:`plan_output` checks where the files go and in which formats before anything is loaded;
+:func:`plan_output` checks where the files go and in which formats before anything is loaded, as
+:func:`check_prompted`, :func:`plan_parts` and :func:`length_cap` check what is asked;
 :func:`save_generation` writes them into a run folder whose ``run.json`` says how it ended. Each
 generation is recorded in MLflow.
 """
