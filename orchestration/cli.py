@@ -13,16 +13,14 @@ import argparse
 import errno
 import math
 import sys
-import time
+from collections.abc import Sequence
+from dataclasses import fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import Any, NoReturn, get_args, get_origin, get_type_hints
 
 from orchestration.errors import NotInProject, UserError
 from orchestration.project import is_project, outside_project, require_project
-from orchestration.registry import DEFAULT_MODEL, models
-
-if TYPE_CHECKING:
-    from pipelines.corpora import CorpusLayout
+from orchestration.registry import DEFAULT_MODEL, methods_of_models, models
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -104,35 +102,10 @@ def _body_part(text: str) -> tuple[str, str]:
 
 # ------------------------------------------------------------------------------------ handlers
 def _synthesize(args: argparse.Namespace) -> None:
-    from pipelines.synthetic import FAMILIES, existing_corpus, generate_corpus
+    from orchestration.data import synthesize
 
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        raise UserError(f"{args.out}: a file, not a folder; choose another --out")
     families = args.families.split(",") if args.families else None
-    unknown = sorted(set(families or ()) - set(FAMILIES))
-    if unknown:
-        raise UserError(
-            f"unknown famil{'ies' if len(unknown) > 1 else 'y'} {', '.join(unknown)}; choose from {', '.join(FAMILIES)}"
-        )
-    try:
-        if not args.force and existing_corpus(args.out, args.clips, args.seed, families):
-            print(
-                f"{args.out}: the corpus is already there (seed {args.seed}, {args.clips} clips); --force rebuilds it"
-            )
-            return
-    except ValueError as error:
-        raise UserError(str(error)) from error
-    started = time.perf_counter()
-    summary = generate_corpus(
-        args.out, clips=args.clips, seed=args.seed, families=families, workers=args.workers, progress=True
-    )
-    splits = summary["splits"]
-    print(
-        f"wrote {summary['clips']} clips to {args.out} in {time.perf_counter() - started:.1f} s: "
-        f"{splits['train']}/{splits['val']}/{splits['test']} train/val/test, {summary['captions']} captions "
-        f"({summary['multi_verb_share']:.0%} with several verbs), {summary['hours']:.2f} h of motion, "
-        f"{len(summary['families'])} action families"
-    )
+    print(synthesize(args.out, args.clips, args.seed, families, args.workers, args.force))
 
 
 def _report_problems(directory: Path, problems: list[str], what: str) -> None:
@@ -143,84 +116,34 @@ def _report_problems(directory: Path, problems: list[str], what: str) -> None:
     print(f"{directory}: OK ({what} match the manifest)")
 
 
-# The options of `m2d2m data` that a corpus's layout takes (CorpusLayout.options), and which are paths.
-LAYOUT_OPTIONS = {"bvh": "--bvh", "joint_map": "--joint-map", "units": "--units"}
-
-
-def _layout_options(args: argparse.Namespace, layout: CorpusLayout) -> dict[str, str]:
-    """The layout options given, paths made absolute (Ray tasks may run elsewhere); one line
-    naming the option a corpus does not take."""
-    from m2d2m.motion.joint_map import PRESETS
-
-    given = {name: getattr(args, name) for name in LAYOUT_OPTIONS if getattr(args, name) is not None}
-    for name in given.keys() - set(layout.options):
-        takes = ", ".join(LAYOUT_OPTIONS[o] for o in layout.options) or "none"
-        raise UserError(f"{LAYOUT_OPTIONS[name]}: the {args.dataset} corpus does not take it (it takes {takes})")
-    if "bvh" in given:
-        given["bvh"] = str(Path(given["bvh"]).resolve())
-    if "joint_map" in given and given["joint_map"] not in PRESETS:
-        if not Path(given["joint_map"]).is_file():
-            raise UserError(f"--joint-map: {given['joint_map']} is neither a preset ({', '.join(PRESETS)}) nor a file")
-        given["joint_map"] = str(Path(given["joint_map"]).resolve())
-    return given
-
-
 def _data(args: argparse.Namespace) -> None:
-    from m2d2m.plugins import plugins_for_workers
-    from orchestration.registry import load_plugins
-    from pipelines.corpora import corpus
+    from orchestration.data import LAYOUT_OPTIONS, build, data_config
     from pipelines.dataset import check_dataset
-    from pipelines.features import DataConfig, build_dataset, print_summary, require_replaceable, reusable_dataset
+    from pipelines.features import print_summary
 
     if args.check:
         _report_problems(Path(args.check), check_dataset(Path(args.check)), "counts, checksums and schema")
         return
-    if args.out is None:
-        require_project()  # data/<dataset> is the project's
-    load_plugins()  # a plugin may register the corpus
-    try:
-        layout = corpus(args.dataset).layout.name
-    except ValueError as error:
-        raise UserError(str(error)) from error
-    raw = Path(args.raw or f"data/raw/{args.dataset}")
-    out = Path(args.out or f"data/{args.dataset}")
-    if not raw.exists():
-        if args.dataset != "synthetic":
-            raise UserError(f"{raw}: no such corpus; pass --raw /path/to/{args.dataset} ({layout} layout)")
-        _synthesize(
-            argparse.Namespace(out=str(raw), clips=2000, seed=0, families=None, workers=args.workers, force=False)
-        )
-    layout_options = _layout_options(args, corpus(args.dataset).layout)
-    config = DataConfig(
-        dataset=args.dataset,
-        raw=str(raw),
-        out=str(out),
+    config = data_config(
+        args.dataset,
+        args.raw,
+        args.out,
+        args.workers,
+        {name: getattr(args, name) for name in LAYOUT_OPTIONS},
         samples_per_shard=args.samples_per_shard,
         min_frames=args.min_frames,
         max_frames=args.max_frames,
-        workers=args.workers,
         ray_address=args.ray_address,
-        plugins=plugins_for_workers(),
-        layout_options=layout_options,
     )
-    existing = None if args.force else reusable_dataset(config)
-    if existing is not None:
-        print(f"{out}: already built from {raw} with this config; reusing it (--force rebuilds)")
-        print_summary(existing, out)
+    manifest, built = build(config, args.force, args.replace)
+    if not built:
+        print(f"{config.out}: already built from {config.raw} with this config; reusing it (--force rebuilds)")
+        print_summary(manifest, config.out)
         return
-    try:
-        require_replaceable(config, args.replace)
-        if (out / "manifest.json").exists():
-            print(
-                f"{out}: built with another config; building the new one beside it (the old one stays until "
-                "the new one is complete)"
-            )
-        manifest = build_dataset(config, replace_other=args.replace)
-    except (FileNotFoundError, ValueError) as error:
-        raise UserError(str(error)) from error
-    print_summary(manifest, out)
+    print_summary(manifest, config.out)
     print(
-        f"wrote {out} ({sum(len(v) for v in manifest['shards'].values())} shards); verify with: m2d2m data --check {out}"
+        f"wrote {config.out} ({sum(len(v) for v in manifest['shards'].values())} shards); "
+        f"verify with: m2d2m data --check {config.out}"
     )
 
 
@@ -397,28 +320,20 @@ def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import edit_part, generate, load_generator
+    from orchestration.generate import check_prompted, edit_part, generate, length_cap, load_generator, variations
     from orchestration.viewing import load_features
 
     if args.part:
         return _generate_parts(args)
     if args.edit is not None and args.keep_body is None:
         return _edit_timeline(args)
-    if not args.prompts:
-        raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
-    if args.keep_body is not None and args.edit is None:
-        raise UserError(
-            "--keep-body PART goes with --edit SOURCE: the motion to edit and the body part of it "
-            "to keep, e.g. --model mmm-body --edit motion.features.npy --keep-body lower"
-        )
-    if args.edit is not None and args.seconds is not None:
-        raise UserError("--seconds does not go with --keep-body: the edited motion is as long as the source")
+    check_prompted(args.prompts, args.seconds, args.edit, args.keep_body)
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    for seed, variation in _variations(args, output):
+    for seed, variation in variations(output, args.seed, args.variations):
         if args.edit is not None:
             motion = edit_part(
                 generator,
@@ -427,7 +342,7 @@ def _generate(args: argparse.Namespace) -> None:
                 args.keep_body,
                 seed=seed,
                 split=not args.no_split,
-                max_seconds=_max_seconds(args),
+                max_seconds=length_cap(args.max_seconds),
                 **options,
             )
         else:
@@ -437,7 +352,7 @@ def _generate(args: argparse.Namespace) -> None:
                 seconds=args.seconds,
                 seed=seed,
                 split=not args.no_split,
-                max_seconds=_max_seconds(args),
+                max_seconds=length_cap(args.max_seconds),
                 **options,
             )
         _report(motion, variation, args.prompts, args)
@@ -447,7 +362,7 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
     from m2d2m.layout import relative_to_project
     from orchestration.editing import plan_edit, pose_at, read_result, sample_edit
-    from orchestration.generate import load_generator
+    from orchestration.generate import load_generator, variations
 
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
@@ -472,23 +387,11 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    for seed, variation in _variations(args, output):
+    for seed, variation in variations(output, args.seed, args.variations):
         motion = sample_edit(generator, edit, seed, f"{relative_to_project(args.edit)}: {said}", **options)
         _report(motion, variation, edit.actions, args)
         if "pin_error_m" in motion.quality:
             print(f"  the pose is met within {motion.quality['pin_error_m'] * 1000:.0f} mm (its farthest joint)")
-
-
-def _variations(args: argparse.Namespace, output: Any) -> list[tuple[int, Any]]:
-    """``--variations N``: the seeds to sample and where each sample goes (in a folder or file
-    named, ``<name>-seed<seed>``; without ``--out`` each in its own run folder)."""
-    from dataclasses import replace
-
-    seeds = [args.seed + k for k in range(args.variations)]
-    if args.variations == 1:
-        return [(args.seed, output)]
-    named = output.directory is not None
-    return [(seed, replace(output, name=f"{output.name}-seed{seed}") if named else output) for seed in seeds]
 
 
 def _planned_output(args: argparse.Namespace) -> Any:
@@ -507,44 +410,16 @@ def _planned_output(args: argparse.Namespace) -> Any:
 def _generate_parts(args: argparse.Namespace) -> None:
     """``generate --part PART=TEXT``: one sentence per body part; a prompt, if given, drives the parts
     not named."""
-    from m2d2m.motion.body_parts import PARTS
-    from orchestration.generate import generate_parts, load_generator
+    from orchestration.generate import generate_parts, length_cap, load_generator, plan_parts
 
-    if args.edit is not None:
-        raise UserError("--part does not go with --edit: body-part control generates the whole motion")
-    if len(args.prompts) > 1 or (args.seconds is not None and len(args.seconds) > 1):
-        raise UserError("with --part give at most one prompt (for the parts not named) and one --seconds")
-    parts = dict(args.part)
-    if len(parts) != len(args.part):
-        raise UserError("name each body part once with --part")
-    unknown = sorted(set(parts) - set(PARTS))
-    if unknown:
-        raise UserError(f"unknown body part {unknown[0]!r}: choose from {', '.join(PARTS)}")
-    missing = [part for part in PARTS if part not in parts]
-    if missing and not args.prompts:
-        raise UserError(f"give a prompt for the parts not named ({', '.join(missing)}), or --part for each of them")
-    parts.update({part: args.prompts[0] for part in missing})
+    parts, seconds = plan_parts(args.part, args.prompts, args.seconds, editing=args.edit is not None)
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     motion = generate_parts(
-        generator,
-        parts,
-        seconds=args.seconds[0] if args.seconds else None,
-        seed=args.seed,
-        max_seconds=_max_seconds(args),
-        **options,
+        generator, parts, seconds=seconds, seed=args.seed, max_seconds=length_cap(args.max_seconds), **options
     )
     _report(motion, output, [f"{part}: {text}" for part, text in parts.items()], args)
-
-
-def _max_seconds(args: argparse.Namespace) -> float | None:
-    """``--max-seconds``: the default cap when not given, none for 0."""
-    from orchestration.generate import DEFAULT_MAX_SECONDS
-
-    if args.max_seconds is not None and not 0 <= args.max_seconds < float("inf"):
-        raise UserError(f"--max-seconds must be a positive number (0 for no cap), got {args.max_seconds:g}")
-    return DEFAULT_MAX_SECONDS if args.max_seconds is None else args.max_seconds or None
 
 
 def _add_max_seconds(parser: argparse.ArgumentParser, what: str) -> None:
@@ -570,32 +445,20 @@ def _report(motion: Any, output: Any, prompts: list[str], args: argparse.Namespa
 
 
 def _testset(args: argparse.Namespace) -> None:
-    from orchestration.evaluate import TESTSET_STAGE, make_testset
+    from orchestration.evaluate.testsets import TESTSET_STAGE, make_testset
     from pipelines.testset import describe
 
-    if args.data is None:
-        require_project()
-    data = args.data or f"data/{args.dataset}"
-    summary = make_testset(data, args.dataset, args.n, args.seed, args.mirrors, args.force, args.first, args.split)
+    summary = make_testset(args.data, args.dataset, args.n, args.seed, args.mirrors, args.force, args.first, args.split)
     print(describe(summary))
     print(f"logged to MLflow run {summary['mlflow_run_id']} (experiment {args.dataset}/{TESTSET_STAGE})")
 
 
 def _evaluate(args: argparse.Namespace) -> None:
-    from orchestration.evaluate import EVAL_STAGE, KNOBS, evaluate, new_settings, reopen
+    from orchestration.evaluate.run import evaluate
+    from orchestration.evaluate.settings import EVAL_STAGE, settings_to_run
     from orchestration.reports import TABLE_MD
 
-    options = _sampling_options(args)
-    given = {knob: getattr(args, knob) for knob in KNOBS if getattr(args, knob) is not None}
-    if args.resume:
-        if given or options or args.model is not None:
-            named = [*given, *options] + (["model"] if args.model is not None else [])
-            renamed = {"methods": "method", "editing": "edit"}
-            flags = ", ".join("--" + renamed.get(knob, knob).replace("_", "-") for knob in named)
-            raise UserError(f"--resume continues {args.resume} with its own settings; drop {flags}")
-        run_dir, settings = reopen(args.resume, args.dataset)
-    else:
-        run_dir, settings = None, new_settings(args.dataset, args.model or DEFAULT_MODEL, options=options, **given)
+    run_dir, settings = settings_to_run(args.dataset, _given_request(args), args.resume)
     run_dir, _ = evaluate(settings, args.dataset, run_dir, args.batch_size)
     print((run_dir / TABLE_MD).read_text(encoding="utf-8"))
     print(
@@ -638,6 +501,7 @@ def _ui(args: argparse.Namespace) -> None:
 
 
 def _serve(args: argparse.Namespace) -> None:
+    from orchestration.generate import length_cap
     from orchestration.serving import check_port_free
     from orchestration.web.app import ServeSettings
     from orchestration.web.server import serve, server_token
@@ -648,7 +512,7 @@ def _serve(args: argparse.Namespace) -> None:
     settings = ServeSettings(
         dataset=args.dataset,
         token=token,
-        max_seconds=_max_seconds(args),
+        max_seconds=length_cap(args.max_seconds),
         queue=args.queue,
         max_batch=args.max_batch,
         device=args.device,
@@ -815,11 +679,6 @@ def sampling_help() -> str:
     return "\n".join(lines)
 
 
-def _methods() -> str:
-    """Every model's multi-action methods, as declared: ``m2d2m: tps, independent, ...; mmm: ...``."""
-    return "; ".join(f"{name}: {', '.join(entry.load('sampling').methods)}" for name, entry in models().items())
-
-
 def _add_sampling_knobs(parser: argparse.ArgumentParser) -> None:
     """``--option KEY=VALUE`` for any model's knob, and the flags the models' entries declare as
     shortcuts (M2D2M's ``--ts``, ``--eta``, ``--guidance``, ``--truncation``), each typed and
@@ -865,7 +724,9 @@ def _add_generate(verbs) -> None:
         nargs="+",
         help="duration of each prompt, or one for all (default: the corpus's typical length per verb)",
     )
-    generate.add_argument("--method", help=f"the multi-action method ({_methods()}; default: the model's first)")
+    generate.add_argument(
+        "--method", help=f"the multi-action method ({methods_of_models()}; default: the model's first)"
+    )
     _add_sampling_knobs(generate)
     generate.add_argument("--seed", type=int, default=0)
     _add_model_choice(generate)
@@ -982,74 +843,7 @@ def _add_evaluate(verbs) -> None:
         epilog=sampling_help(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    evaluate.add_argument(
-        "--model",
-        action="append",
-        metavar="MODEL",
-        help=f"registered models to judge side by side in one table: {', '.join(models())}; "
-        f"repeatable or a comma list (default {DEFAULT_MODEL})",
-    )
-    evaluate.add_argument(
-        "--checkpoint",
-        action="append",
-        metavar="REF",
-        help="the model's file, a run directory or name, or an MLflow run id (default: latest); "
-        "with several models MODEL=REF, once per model",
-    )
-    evaluate.add_argument(
-        "--testset",
-        help="test set directory (default: n4-seed0 of the model's dataset, "
-        "data/<dataset>/testsets/n4-seed0, built if missing)",
-    )
-    evaluate.add_argument(
-        "--evaluator",
-        help="evaluator.pt, or an evaluator run directory, name or MLflow run id "
-        "(default: latest; `make train-evaluator` makes one)",
-    )
-    evaluate.add_argument(
-        "--guo-evaluator",
-        metavar="CKPT_DIR",
-        help="Guo et al.'s published evaluator (text_mot_match/), for published-comparable numbers",
-    )
-    evaluate.add_argument("--glove", metavar="DIR", help="Guo's glove/ directory (with --guo-evaluator)")
-    evaluate.add_argument("--meta", metavar="DIR", help="the evaluator's mean.npy/std.npy (default CKPT_DIR/meta)")
-    evaluate.add_argument(
-        "--method",
-        dest="methods",
-        action="append",
-        metavar="METHOD",
-        help=f"multi-action methods ({_methods()}), each for every model that has it, or "
-        "MODEL:METHOD for one; repeatable or a comma list (default: each model's first)",
-    )
-    _add_sampling_knobs(evaluate)
-    evaluate.add_argument("--repeats", type=int, help="evaluations to average, seeds 0..R-1 (default 10)")
-    evaluate.add_argument(
-        "--multi",
-        action=argparse.BooleanOptionalAction,
-        help="the multi-motion table's generated rows (default on; --no-multi with --single "
-        "judges single actions alone, as a learning curve does)",
-    )
-    evaluate.add_argument(
-        "--single",
-        action=argparse.BooleanOptionalAction,
-        help="also the single-motion table (paper Table 3; the model's single-action preset, for m2d2m s = 4, η = 0.5)",
-    )
-    evaluate.add_argument(
-        "--edit",
-        dest="editing",
-        action="append",
-        metavar="TASK",
-        help="also the editing table (MMM Table 3) for these tasks, each with and without text: "
-        "inbetween (the middle 50 %% given the first and last 25 %%), upper (the upper body "
-        "given the lower; mmm-body); repeatable or a comma list",
-    )
-    evaluate.add_argument(
-        "--regenerate",
-        type=_positive_int,
-        metavar="K",
-        help="also the timeline-editing table: action K of every instance sampled again by an edit that keeps "
-        "the rest, against the whole sequence sampled again (R-Top3, FID, transition FID, Jerk)",
-    )
+    _add_request(evaluate)
     evaluate.add_argument(
         "--batch-size", type=_positive_int, default=64, help="sequences generated at once (default 64)"
     )
@@ -1058,6 +852,52 @@ def _add_evaluate(verbs) -> None:
     )
     evaluate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     evaluate.set_defaults(run=_evaluate)
+
+
+def _add_request(parser: argparse.ArgumentParser) -> None:
+    """An option per field of evaluate's request, in its order, as its Flag declares it
+    (orchestration/evaluate/request.py): a list repeatable, a switch with its --no- form, a number
+    checked as it is read; the field without a flag is the sampling options. An option not given
+    leaves no attribute, so the request keeps its default and --resume knows what was given."""
+    from orchestration.evaluate.request import FLAG, EvalRequest
+
+    kinds = get_type_hints(EvalRequest)
+    for declared in fields(EvalRequest):
+        if FLAG not in declared.metadata:
+            _add_sampling_knobs(parser)
+            continue
+        flag, kind = declared.metadata[FLAG], kinds[declared.name]
+        if kind is bool:
+            reading: dict[str, Any] = {"action": argparse.BooleanOptionalAction}
+        elif get_origin(kind) is Sequence:
+            reading = {"action": "append"}
+        elif int in (kind, *get_args(kind)):
+            reading = {"type": _positive_int if flag.positive else int}
+        else:
+            reading = {}
+        parser.add_argument(
+            flag.name,
+            dest=declared.name,
+            metavar=flag.metavar,
+            default=argparse.SUPPRESS,
+            help=_escaped(flag.text()),
+            **reading,
+        )
+
+
+def _given_request(args: argparse.Namespace) -> dict[str, Any]:
+    """The fields of evaluate's request the command line gave (the sampling options when any is)."""
+    from orchestration.evaluate.request import FLAG, EvalRequest
+
+    given = {}
+    for declared in fields(EvalRequest):
+        if FLAG not in declared.metadata:
+            options = _sampling_options(args)
+            if options:
+                given[declared.name] = options
+        elif hasattr(args, declared.name):
+            given[declared.name] = getattr(args, declared.name)
+    return given
 
 
 def _add_sweep(verbs) -> None:

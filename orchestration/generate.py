@@ -6,7 +6,8 @@ optional steps a person's prompts need: splitting free text into action sentence
 dataset's tagger (as the corpus was split), giving each action a length (the seconds asked for,
 or the corpus's typical length for its verb) under a cap on the whole, and putting the decoded
 joints on one rigid skeleton so that every file of a generation shows the same body.
-:func:`plan_output` checks where the files go and in which formats before anything is loaded;
+:func:`plan_output` checks where the files go and in which formats before anything is loaded, as
+:func:`check_prompted`, :func:`plan_parts` and :func:`length_cap` check what is asked;
 :func:`save_generation` writes them into a run folder whose ``run.json`` says how it ended. Each
 generation is recorded in MLflow.
 """
@@ -21,7 +22,7 @@ import sys
 import threading
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ import torch
 
 from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
 from m2d2m.layout import NLP, recorded_path
+from m2d2m.motion.body_parts import PARTS
 from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
 from m2d2m.motion.delivery import Delivery
 from m2d2m.motion.gltf import BLENDER_PACKAGES
@@ -116,6 +118,18 @@ def plan_output(
             f"fbx is written by Blender's exporter, and no blender is on the PATH: apt-get install {BLENDER_PACKAGES}"
         )
     return Output(directory, name, chosen, delivery)
+
+
+def variations(output: Output, seed: int, count: int) -> list[tuple[int, Output]]:
+    """``--variations N``: the seeds to sample (``seed``, ``seed + 1``, …) and where each sample
+    goes (in a folder or file named, ``<name>-seed<seed>``; without one each in its own run folder)."""
+    if count == 1:
+        return [(seed, output)]
+    named = output.directory is not None
+    return [
+        (variation, replace(output, name=f"{output.name}-seed{variation}") if named else output)
+        for variation in range(seed, seed + count)
+    ]
 
 
 def resolve_model_file(name: str, reference: str | Path, dataset: str) -> Path:
@@ -242,6 +256,13 @@ def share(total: int, typical: list[int]) -> list[int]:
     return [int(n) for n in raw]
 
 
+def length_cap(max_seconds: float | None) -> float | None:
+    """The cap ``--max-seconds`` asks for: :data:`DEFAULT_MAX_SECONDS` when not given, none for 0."""
+    if max_seconds is not None and not 0 <= max_seconds < math.inf:
+        raise UserError(f"--max-seconds must be a positive number (0 for no cap), got {max_seconds:g}")
+    return DEFAULT_MAX_SECONDS if max_seconds is None else max_seconds or None
+
+
 def check_length(frames: Sequence[int], fps: float, max_seconds: float | None, remedy: str | None = None) -> None:
     """A one-line refusal, before sampling, of a generation longer than ``max_seconds`` (None: no
     cap): its time and its GIF grow with its length. ``remedy`` ends the line (default: the
@@ -357,6 +378,45 @@ def edit_part(
         ].on_rigid_skeleton()
     except ValueError as error:
         raise UserError(str(error)) from error
+
+
+def check_prompted(
+    prompts: Sequence[str], seconds: Sequence[float] | None, source: str | None, keep_body: str | None
+) -> None:
+    """`generate`'s request from prompts, checked before a model loads: a new motion, or the
+    ``source`` motion with its ``keep_body`` part kept, which is as long as the source."""
+    if not prompts:
+        raise UserError('give at least one prompt, e.g. m2d2m generate "a person walks forward" "a person jumps"')
+    if keep_body is not None and source is None:
+        raise UserError(
+            "--keep-body PART goes with --edit SOURCE: the motion to edit and the body part of it "
+            "to keep, e.g. --model mmm-body --edit motion.features.npy --keep-body lower"
+        )
+    if source is not None and seconds is not None:
+        raise UserError("--seconds does not go with --keep-body: the edited motion is as long as the source")
+
+
+def plan_parts(
+    named: Sequence[tuple[str, str]], prompts: Sequence[str], seconds: Sequence[float] | None, editing: bool
+) -> tuple[dict[str, str], float | None]:
+    """`generate --part PART=TEXT`'s request, checked before a model loads: each body part's
+    sentence (a part not ``named`` does the one prompt) and the one length in seconds (None: the
+    corpus's typical). Body-part control generates the whole motion, so it edits none."""
+    if editing:
+        raise UserError("--part does not go with --edit: body-part control generates the whole motion")
+    if len(prompts) > 1 or (seconds is not None and len(seconds) > 1):
+        raise UserError("with --part give at most one prompt (for the parts not named) and one --seconds")
+    parts = dict(named)
+    if len(parts) != len(named):
+        raise UserError("name each body part once with --part")
+    unknown = sorted(set(parts) - set(PARTS))
+    if unknown:
+        raise UserError(f"unknown body part {unknown[0]!r}: choose from {', '.join(PARTS)}")
+    missing = [part for part in PARTS if part not in parts]
+    if missing and not prompts:
+        raise UserError(f"give a prompt for the parts not named ({', '.join(missing)}), or --part for each of them")
+    parts.update({part: prompts[0] for part in missing})
+    return parts, seconds[0] if seconds else None
 
 
 def generate_parts(

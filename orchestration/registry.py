@@ -129,6 +129,12 @@ def models() -> dict[str, ModelEntry]:
     return dict(_MODELS)
 
 
+def methods_of_models() -> str:
+    """Every model's multi-action methods, as declared, for the command line's help:
+    ``m2d2m: tps, independent, ...; mmm: ...``."""
+    return "; ".join(f"{name}: {', '.join(entry.load('sampling').methods)}" for name, entry in models().items())
+
+
 def model(name: str) -> ModelEntry:
     """The entry of ``name``, or a one-line error listing the models there are."""
     known = models()

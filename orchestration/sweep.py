@@ -108,7 +108,10 @@ def _check_training_space(config: dict[str, Any]) -> None:
 def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, float]:
     """One trial in the project directory: (train, then) evaluate as a child run of the sweep;
     returns the evaluation's metrics under their MLflow names (``multi/tps/jerk``, ``gt/jerk_concat``, ...)."""
-    from orchestration.evaluate import ParentRun, evaluate, new_settings
+    from orchestration.evaluate.records import ParentRun
+    from orchestration.evaluate.request import EvalRequest
+    from orchestration.evaluate.run import evaluate
+    from orchestration.evaluate.settings import new_settings
     from orchestration.recipe import train, train_on_workers
     from orchestration.reports import table_metrics
 
@@ -135,10 +138,10 @@ def run_trial(params: dict[str, Any], context: dict[str, Any]) -> dict[str, floa
             )
         else:
             run_dir = train(name, context["train_config"], overrides)
-        evaluation["checkpoint"] = str(run_dir / model(name).model_file)
+        evaluation["checkpoints"] = [str(run_dir / model(name).model_file)]
     else:
         evaluation["options"] = params
-    settings = new_settings(context["dataset"], name, **evaluation)
+    settings = new_settings(context["dataset"], EvalRequest(models=[name], **evaluation))
     _, table = evaluate(settings, context["dataset"], parent=parent, progress=False)
     return table_metrics(table)
 
@@ -175,7 +178,8 @@ def _tune_trainable(config: dict[str, Any]) -> None:
 def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -> dict[str, Any]:
     """What every trial needs: the project's absolute path, which a trial enters first, so that the
     files the settings name relative to it are found."""
-    from orchestration.evaluate import new_settings
+    from orchestration.evaluate.request import EvalRequest
+    from orchestration.evaluate.settings import new_settings
 
     dataset, entry = config["dataset"], model(config["model"])
     evaluation = {
@@ -185,9 +189,10 @@ def _context(config: dict[str, Any], parent: tuple[str, str], sweep_dir: Path) -
         "repeats": config["repeats"],
     }
     if config["kind"] == "sampling":
-        resolved = new_settings(dataset, entry.name, checkpoint=config["checkpoint"], **evaluation)
+        checkpoints = [] if config["checkpoint"] is None else [config["checkpoint"]]
+        resolved = new_settings(dataset, EvalRequest(models=[entry.name], checkpoints=checkpoints, **evaluation))
         evaluation.update(
-            checkpoint=resolved.candidates[0].checkpoint, evaluator=resolved.evaluator, testset=resolved.testset
+            checkpoints=[resolved.candidates[0].checkpoint], evaluator=resolved.evaluator, testset=resolved.testset
         )
     else:
         recipe = entry.load("recipe")

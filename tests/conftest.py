@@ -158,6 +158,6 @@ def trained_project(trained_store, tmp_path_factory) -> Iterator[Path]:
 @pytest.fixture(scope="module")
 def tiny_testset(trained_project) -> Path:
     """Two-action instances of the trained project's test split."""
-    from orchestration.evaluate import make_testset
+    from orchestration.evaluate.testsets import make_testset
 
     return Path(make_testset(trained_project / "data", "tiny", n=2, seed=0, mirrors="distinct")["path"])

@@ -161,7 +161,7 @@ def test_runs_are_found_by_name_mlflow_id_and_latest_marker(tmp_path, monkeypatc
 def test_evaluation_settings_round_trip_through_their_record():
     from dataclasses import asdict
 
-    from orchestration.evaluate import Candidate, EvalSettings
+    from orchestration.evaluate.settings import Candidate, EvalSettings
 
     settings = EvalSettings(
         candidates=(Candidate("mmm", "model.pt", ("transition",), {"temperature": 0.5}, ("inbetween",)),),

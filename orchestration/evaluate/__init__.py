@@ -4,30 +4,11 @@ of any registered models on one N-action test set.
 
 The measurements are the library's (:mod:`m2d2m.evaluation.measurements`), the reports
 :mod:`orchestration.reports`'; this package holds what makes them a run, one job a module:
-``testsets`` (building, opening, the reference measurements), ``options`` (the command line's
-per-model methods, knobs and checkpoints), ``settings`` (fixed for the run, read back from older
-records), ``jobs`` (a result file per finished job, so ``--resume`` recomputes nothing that is
-done), ``records`` (the run directory and MLflow runs), ``table`` (the table and figure rebuilt
-from the result files) and ``run`` (:func:`evaluate`).
+``testsets`` (building, opening, the reference measurements), ``request`` (what the command line
+asks, declared once; it loads without torch, so the package imports nothing here and each name is
+imported from its module), ``options`` (the request's per-model methods, knobs and checkpoints
+checked against the models), ``settings`` (fixed for the run, read back from older records),
+``jobs`` (a result file per finished job, so ``--resume`` recomputes nothing that is done),
+``records`` (the run directory and MLflow runs), ``table`` (the table and figure rebuilt from the
+result files) and ``run`` (:func:`orchestration.evaluate.run.evaluate`).
 """
-
-from orchestration.evaluate.options import KNOBS
-from orchestration.evaluate.records import ParentRun
-from orchestration.evaluate.run import evaluate
-from orchestration.evaluate.settings import EVAL_STAGE, Candidate, EvalSettings, new_settings, reopen
-from orchestration.evaluate.testsets import DEFAULT_N, DEFAULT_SEED, TESTSET_STAGE, make_testset
-
-__all__ = [
-    "DEFAULT_N",
-    "DEFAULT_SEED",
-    "EVAL_STAGE",
-    "KNOBS",
-    "TESTSET_STAGE",
-    "Candidate",
-    "EvalSettings",
-    "ParentRun",
-    "evaluate",
-    "make_testset",
-    "new_settings",
-    "reopen",
-]

@@ -12,22 +12,6 @@ from m2d2m.generators.protocol import MotionGenerator
 from orchestration.errors import UserError
 from orchestration.registry import model, models
 
-# the settings given as options of their own (the models and sampling options are given apart)
-KNOBS = (
-    "checkpoint",
-    "testset",
-    "evaluator",
-    "guo_evaluator",
-    "glove",
-    "meta",
-    "methods",
-    "repeats",
-    "single",
-    "editing",
-    "multi",
-    "regenerate",
-)
-
 
 def _given(values: Sequence[str] | str | None) -> list[str]:
     """An option's values as a list: one string, repeated options, or none."""

@@ -1,10 +1,10 @@
-"""An evaluation's settings: every knob that changes the numbers, resolved to files when a run
-starts and fixed for it (``--resume`` continues with exactly these), and read back from a run's
-record."""
+"""An evaluation's settings: every knob that changes the numbers, resolved from an
+:class:`~orchestration.evaluate.request.EvalRequest` to files when a run starts and fixed for it
+(``--resume`` continues with exactly these), and read back from a run's record."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -12,8 +12,9 @@ from typing import Any
 from m2d2m.layout import recorded_path, relative_to_project
 from orchestration.errors import UserError
 from orchestration.evaluate.options import assign_edits, assign_methods, assign_options, parse_checkpoints, split_list
+from orchestration.evaluate.request import EvalRequest, given_flags
 from orchestration.generate import resolve_model_file
-from orchestration.registry import DEFAULT_MODEL, model
+from orchestration.registry import model
 from orchestration.reports import GENERATED
 from orchestration.runs import EVALUATOR_FILE, EVALUATOR_STAGE, find_run, read_run_info, run_file
 
@@ -91,59 +92,44 @@ class EvalSettings:
         ]
 
 
-def new_settings(
-    dataset: str,
-    model_name: str | Sequence[str] = DEFAULT_MODEL,
-    checkpoint: str | Sequence[str] | None = None,
-    testset: str | None = None,
-    evaluator: str | None = None,
-    guo_evaluator: str | None = None,
-    glove: str | None = None,
-    meta: str | None = None,
-    methods: Sequence[str] | None = None,
-    options: dict[str, Any] | None = None,
-    repeats: int = 10,
-    single: bool = False,
-    editing: Sequence[str] | None = None,
-    multi: bool = True,
-    regenerate: int | None = None,
-) -> EvalSettings:
-    """The settings of a new evaluation of one model or several (``model_name``: a name, a
-    comma list or a list; ``checkpoint``: ``REF`` or ``MODEL=REF`` entries, ``latest`` for a
-    model not named), with references resolved to files (so that a later ``latest``
-    cannot change what a resumed run measures). Defaults: each model's first method, its
+def new_settings(dataset: str, request: EvalRequest) -> EvalSettings:
+    """The settings of a new evaluation of the models ``request`` names (``latest`` for a model
+    whose checkpoint it does not name), with references resolved to files (so that a later
+    ``latest`` cannot change what a resumed run measures). Defaults: each model's first method, its
     multi-action preset (the paper's T_s = 0.9·T, η = 0.25, s = 2 for M2D2M), 10 repeats.
     ``regenerate``: also the timeline-editing table, that action of each instance sampled again."""
-    names = split_list(model_name)
+    names = split_list(request.models)
     if not names:
         raise UserError("--model: no model given")
     generators = {name: model(name).load("generator") for name in names}
-    if repeats < 1:
-        raise UserError(f"--repeats must be at least 1, got {repeats}")
-    tasks = tuple(split_list(editing))
-    if not (multi or single or tasks or regenerate):
+    if request.repeats < 1:
+        raise UserError(f"--repeats must be at least 1, got {request.repeats}")
+    tasks = tuple(split_list(request.editing))
+    regenerate = request.regenerate
+    if not (request.multi or request.single or tasks or regenerate):
         raise UserError("--no-multi leaves nothing to evaluate: add --single, --edit TASK or --regenerate K")
     if regenerate is not None and regenerate < 1:
         raise UserError(f"--regenerate counts actions from 1, got {regenerate}")
     chosen_edits = assign_edits(tasks, generators)
-    checkpoints = parse_checkpoints(names, checkpoint)
+    checkpoints = parse_checkpoints(names, request.checkpoints)
     chosen_methods, chosen_options = (
-        assign_methods(methods, generators),
-        assign_options(dict(options or {}), generators),
+        assign_methods(request.methods, generators),
+        assign_options(dict(request.options), generators),
     )
-    if guo_evaluator is not None:
-        if evaluator is not None:
+    glove, meta = request.glove, request.meta
+    if request.guo_evaluator is not None:
+        if request.evaluator is not None:
             raise UserError("give --evaluator or --guo-evaluator, not both")
         if glove is None:
             raise UserError("--guo-evaluator needs --glove DIR (text-to-motion's glove/ directory)")
-        evaluator_path = Path(guo_evaluator)
+        evaluator_path = Path(request.guo_evaluator)
         meta = relative_to_project(meta or evaluator_path / "meta")
         glove = relative_to_project(glove)
     else:
         if glove is not None or meta is not None:
             raise UserError("--glove and --meta go with --guo-evaluator")
         evaluator_path = run_file(
-            evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE, "make train-evaluator"
+            request.evaluator or "latest", dataset, EVALUATOR_STAGE, EVALUATOR_FILE, "make train-evaluator"
         )
     candidates = tuple(
         Candidate(
@@ -157,16 +143,29 @@ def new_settings(
     )
     return EvalSettings(
         candidates=candidates,
-        testset=None if testset is None else relative_to_project(testset),
+        testset=None if request.testset is None else relative_to_project(request.testset),
         evaluator=relative_to_project(evaluator_path),
         glove=glove,
         meta=meta,
-        repeats=int(repeats),
-        single=bool(single),
+        repeats=int(request.repeats),
+        single=bool(request.single),
         editing=tasks,
-        multi=bool(multi),
+        multi=bool(request.multi),
         regenerate=regenerate,
     )
+
+
+def settings_to_run(
+    dataset: str, given: Mapping[str, Any], resume: str | None = None
+) -> tuple[Path | None, EvalSettings]:
+    """What `m2d2m evaluate` runs: the run ``resume`` names with its own settings (an option given
+    beside it is one line: it could not change them), or a new run's settings from the fields of an
+    :class:`EvalRequest` given (``given``: only those), without a run directory yet."""
+    if not resume:
+        return None, new_settings(dataset, EvalRequest(**given))
+    if given:
+        raise UserError(f"--resume continues {resume} with its own settings; drop {', '.join(given_flags(given))}")
+    return reopen(resume, dataset)
 
 
 def reopen(reference: str, dataset: str) -> tuple[Path, EvalSettings]:

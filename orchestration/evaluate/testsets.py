@@ -13,6 +13,7 @@ from m2d2m.evaluation.measurements import Reference
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.layout import MANIFEST, recorded_path
 from orchestration.errors import UserError
+from orchestration.project import require_project
 from orchestration.tracking import experiment_name, log_batch, tracked_run
 from pipelines.testset import (
     INSTANCES,
@@ -32,7 +33,7 @@ DEFAULT_N, DEFAULT_SEED = 4, 0  # the paper's N = 4; the test set `evaluate` bui
 
 
 def make_testset(
-    data_dir: str | Path,
+    data_dir: str | Path | None,
     dataset: str,
     n: int = DEFAULT_N,
     seed: int = DEFAULT_SEED,
@@ -43,7 +44,11 @@ def make_testset(
 ) -> dict[str, Any]:
     """Build (or reuse) the N-action test set of a processed dataset and record it in MLflow
     (experiment ``<dataset>/testset``: its parameters, pool and instance counts, and its files,
-    so an evaluation can name exactly what it ran on). Returns the summary with ``mlflow_run_id``."""
+    so an evaluation can name exactly what it ran on). Returns the summary with ``mlflow_run_id``.
+    ``data_dir`` None: the project's ``data/<dataset>``."""
+    if data_dir is None:
+        require_project()
+        data_dir = f"data/{dataset}"
     try:
         summary = build_testset(data_dir, n=n, seed=seed, mirrors=mirrors, force=force, limit=limit, split=split)
     except (FileNotFoundError, FileExistsError, ValueError) as error:
