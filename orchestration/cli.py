@@ -147,26 +147,20 @@ def _data(args: argparse.Namespace) -> None:
     )
 
 
-def _train_vq(args: argparse.Namespace) -> None:
-    from orchestration.recipes.vq import train_vq
+def _train(args: argparse.Namespace) -> None:
+    """Every training verb: ``args.trains`` is a registered model's name, ``vq`` or ``evaluator``."""
+    from orchestration.recipe import Trainable, train
+    from orchestration.registry import model
+    from orchestration.runs import EVALUATOR_STAGE, VQ_STAGE
 
-    run_dir = train_vq(args.config, args.set, args.resume)
-    print(f"finished {run_dir}; model file {run_dir / 'vq.pt'}; see its metrics and previews with `make ui`")
-
-
-def _train_model(args: argparse.Namespace) -> None:
-    from orchestration.recipe import train
-
-    run_dir = train(args.model, args.config, args.set, args.resume)
-    print(f"finished {run_dir}; its checkpoints, metrics and sample GIFs: `make ui`")
-
-
-def _train_evaluator(args: argparse.Namespace) -> None:
-    from orchestration.recipes.evaluator import train_evaluator
-    from orchestration.runs import EVALUATOR_FILE
-
-    run_dir = train_evaluator(args.config, args.set, args.resume)
-    print(f"finished {run_dir}; evaluator {run_dir / EVALUATOR_FILE}; its metrics: `make ui`")
+    if args.trains == VQ_STAGE:
+        from orchestration.recipes.vq import VQ_TRAINING as trainable
+    elif args.trains == EVALUATOR_STAGE:
+        from orchestration.recipes.evaluator import EVALUATOR_TRAINING as trainable
+    else:
+        trainable = Trainable.of_model(model(args.trains))
+    run_dir = train(trainable, args.config, args.set, args.resume)
+    print(f"finished {run_dir}; model file {run_dir / trainable.model_file}; its metrics and previews: `make ui`")
 
 
 def _tokenize(args: argparse.Namespace) -> None:
@@ -575,8 +569,11 @@ def _add_data(verbs) -> None:
     data.set_defaults(run=_data)
 
 
-def _add_training_verb(verbs, name: str, configs: str, description: str, example: str, run, **defaults) -> None:
-    """The options every training stage takes: a config, overrides, and resuming."""
+def _add_training_verb(
+    verbs, name: str, configs: str, description: str, example: str, trains: str | None = None
+) -> None:
+    """The options every training stage takes: a config, overrides, and resuming; ``trains``: the
+    registered model it trains (else the stage of its ``configs``, ``vq`` or ``evaluator``)."""
     parser = verbs.add_parser(name, help=description)
     parser.add_argument("--config", default="demo", help=f"configs/{configs}/<name>.yaml or a path (default demo)")
     parser.add_argument(
@@ -595,22 +592,16 @@ def _add_training_verb(verbs, name: str, configs: str, description: str, example
         help="continue the newest unfinished run of this config's dataset, or RUN (its directory, "
         "name or MLflow run id)",
     )
-    parser.set_defaults(run=run, **defaults)
+    parser.set_defaults(run=_train, trains=trains or configs)
 
 
 def _add_training_verbs(verbs) -> None:
     _add_training_verb(
-        verbs, "train-vq", "vq", "train the motion VQ-VAE (Lightning, tracked in MLflow)", "optim.lr=1e-4", _train_vq
+        verbs, "train-vq", "vq", "train the motion VQ-VAE (Lightning, tracked in MLflow)", "optim.lr=1e-4"
     )
     for entry in models().values():
         _add_training_verb(
-            verbs,
-            entry.train_verb,
-            entry.configs,
-            f"train {entry.summary}",
-            "optim.lr=1e-4",
-            _train_model,
-            model=entry.name,
+            verbs, entry.train_verb, entry.configs, f"train {entry.summary}", "optim.lr=1e-4", trains=entry.name
         )
     _add_training_verb(
         verbs,
@@ -618,7 +609,6 @@ def _add_training_verbs(verbs) -> None:
         "evaluator",
         "train the text-motion evaluator of Guo et al. for the paper's metrics",
         "optim.lr=1e-4",
-        _train_evaluator,
     )
 
 
