@@ -10,9 +10,9 @@ import torch
 
 from m2d2m.generators.m2d2m_compiled import CompiledDenoise, bucket, compiles
 from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import FREE, TokenRequest, TokenSampler, categorical, length_groups, truncate
+from m2d2m.generators.m2d2m_sampling import FREE, TokenRequest, TokenSampler, length_groups, truncate
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.processes.discrete_diffusion import TransitionSchedule, categorical
 from m2d2m.text import LearnedTextEncoder
 
 CODES, STEPS = 12, 10
@@ -235,7 +235,6 @@ def test_reusing_the_condition_changes_no_token(sampler, method, guidance):
 def test_all_steps_is_the_one_step_reverse_process_draw_for_draw(sampler):
     """steps = T takes every one-step posterior with the request's own uniforms: a loop written
     here from the paper's reverse step (eq. 4) gives the same tokens."""
-    from m2d2m.generators.m2d2m_sampling import categorical
     from m2d2m.networks.m2d2m_denoiser import guided_logits
     from m2d2m.text import encode_actions
 
