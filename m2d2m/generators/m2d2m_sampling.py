@@ -263,14 +263,14 @@ class PhaseModel:
     ) -> None:
         self.denoiser, self.phase, self.options, self.denoise = denoiser, phase, options, denoise
         self.text, self.text_mask = self._text(text_encoder, compiled)
-        self.passes = self._passes(compiled, reuse_condition)
+        self.groups = self._groups(compiled, reuse_condition)
 
     def __call__(self, z: Tensor, t: int) -> Tensor:
         phase = self.phase
         batch = phase.batch(z, fill=self.denoiser.mask_id)
         codes = self.denoiser.config.codebook_size
         x0 = torch.zeros(len(phase.rows), phase.width, codes, dtype=torch.float64, device=z.device)
-        for group in self.passes:
+        for group in self.groups:
             x0[group.real, : group.width] = self._x0(batch, group, t)
         return phase.tokens(x0)
 
@@ -297,34 +297,34 @@ class PhaseModel:
         null_text, null_mask = self.denoiser.nullify(text, text_mask, every)
         return self.denoiser.condition(torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
 
-    def _passes(self, compiled: bool, reuse_condition: bool) -> list[_Pass]:
+    def _groups(self, compiled: bool, reuse_condition: bool) -> list[_Group]:
         """The forward passes of a step, one per length group of the phase, with what they keep
         over the phase; compiled, each is padded to a bucket of rows and of tokens."""
         phase, options = self.phase, self.options
         condition = self._condition(self.text, self.text_mask) if reuse_condition else None
-        repeats = _repeats(options)
-        passes = []
+        passes = _passes(options)
+        groups = []
         for members in phase.groups:
             width = phase.rows[members[0]].length
             size, padded = (bucket(len(members)), bucket(width, smallest=8)) if compiled else (len(members), width)
             index = torch.tensor(members + members[:1] * (size - len(members))).to(
                 phase.cells.device, non_blocking=True
             )
-            passes.append(
-                _Pass(
+            groups.append(
+                _Group(
                     index,
                     len(members),
                     width,
                     padded,
-                    F.pad(phase.valid[index, :width], (0, padded - width)).repeat(repeats, 1),
-                    F.pad(phase.offsets[index, :width], (0, 0, 0, padded - width)).repeat(repeats, 1, 1),
+                    F.pad(phase.valid[index, :width], (0, padded - width)).repeat(passes, 1),
+                    F.pad(phase.offsets[index, :width], (0, 0, 0, padded - width)).repeat(passes, 1, 1),
                     None if condition is None else condition.rows(_guided_rows(index, len(phase.rows), options)),
                 )
             )
-        return passes
+        return groups
 
-    def _x0(self, batch: Tensor, group: _Pass, t: int) -> Tensor:
-        """Guided, truncated p(z0 | z_t) (rows, width, K) in float64 of a pass's real rows: one
+    def _x0(self, batch: Tensor, group: _Group, t: int) -> Tensor:
+        """Guided, truncated p(z0 | z_t) (rows, width, K) in float64 of a group's real rows: one
         forward pass of the conditional and null rows together (``group.condition`` holds both
         when guided)."""
         options = self.options
@@ -335,9 +335,9 @@ class PhaseModel:
         if condition is None:
             condition = self._condition(self.text[group.index], self.text_mask[group.index])
         steps = torch.full((1,), t, dtype=torch.long, device=batch.device)  # one t for every row: embedded once
-        logits = self.denoise(tokens.repeat(_repeats(options), 1), group.valid, steps, condition, group.offsets)
+        logits = self.denoise(tokens.repeat(_passes(options), 1), group.valid, steps, condition, group.offsets)
         cond = logits[: group.rows, : group.width]
-        if _repeats(options) == 2:  # the null rows follow the pass's (padded) rows
+        if _passes(options) == 2:  # the null rows follow the group's (padded) rows
             start = group.index.shape[0]
             logits = guided_logits(cond, logits[start : start + group.rows, : group.width], options.guidance)
         else:
@@ -345,19 +345,19 @@ class PhaseModel:
         return truncate(logits.double().exp(), options.truncation)
 
 
-def _repeats(options: M2D2MOptions) -> int:
+def _passes(options: M2D2MOptions) -> int:
     """Rows per row in a forward pass: the conditional one, and its null one when guided."""
     return 1 if options.guidance == 0.0 else 2
 
 
 def _guided_rows(index: Tensor, rows: int, options: M2D2MOptions) -> Tensor:
-    """The rows of a pass in a condition built by :meth:`PhaseModel._condition`: the pass's
+    """The rows of a group in a condition built by :meth:`PhaseModel._condition`: the group's
     conditional rows, then (when guided) their null rows ``rows`` further on."""
     return index if options.guidance == 0.0 else torch.cat([index, index + rows])
 
 
 @dataclass(frozen=True)
-class _Pass:
+class _Group:
     """Rows of a phase that one forward pass denoises, and what stays the same over a phase's
     steps: their validity mask, action offsets and text condition (None: recomputed every step),
     already repeated for the null rows when guided and padded to the pass's shape."""
@@ -366,8 +366,8 @@ class _Pass:
     rows: int  # how many of them are real
     width: int  # the longest real row's length
     padded: int  # the pass's width: ``width``, or its bucket when compiled
-    valid: Tensor  # (repeats·size, padded)
-    offsets: Tensor  # (repeats·size, padded, 2)
+    valid: Tensor  # (passes·size, padded)
+    offsets: Tensor  # (passes·size, padded, 2)
     condition: Condition | None
 
     @property

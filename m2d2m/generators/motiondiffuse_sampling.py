@@ -18,6 +18,9 @@ sequence, whose noise estimates are combined at every denoising step.
 - **Editing** (``keep``): the kept entries of x_{t−1} are replaced by q(x_{t−1} | x_0) of the kept
   motion at every step, and by the kept motion itself at the end (replacement inpainting).
 
+A step of :func:`sample` is the model's estimate, ε̄ of the terms (eqs. 10–11), then the
+process's step (ancestral or DDIM), then, when editing, the replacement.
+
 Each request draws its noise from its own generator seeded with its seed, on the CPU, so its result
 does not depend on the other requests in the batch nor on the device. A step reads nothing back on
 the host (tests/test_host_syncs_models.py): the layout is checked on the host before the first
