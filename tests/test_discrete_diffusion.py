@@ -12,7 +12,7 @@ import math
 import pytest
 import torch
 
-from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.processes.discrete_diffusion import TransitionSchedule, categorical
 from m2d2m.processes.discrete_diffusion_loss import TimestepSampler, diffusion_loss
 
 K = 6
@@ -337,6 +337,42 @@ def test_one_step_jumps_are_the_one_step_posterior(dynamic):
         assert torch.equal(dynamic.span_matrix(t, t - 1), dynamic.step_matrix(t))
     with pytest.raises(ValueError, match="0 <= s < t"):
         dynamic.span_matrix(3, 3)
+
+
+@pytest.mark.parametrize("t,s", [(5, 4), (4, 1), (2, 0), (1, 0)])
+def test_step_draws_from_the_brute_force_posterior(codebook, dynamic, marginals, t, s):
+    """step(z_t, x0, t, s, u) is the inverse-CDF draw with u of Σ_k q(z_s | z_t, z0 = k)·x0[k]
+    (eq. 4; q by Bayes' rule on path sums) for every state z_t; at s = 0 no position keeps the
+    mask: one with no posterior mass (here an all-zero x0 row) takes its most probable code."""
+    span = span_by_paths(ref_step(codebook, "dynamic", "l2_rank", "linear", ETA), t, s)
+    gen = torch.Generator().manual_seed(10 * t + s)
+    z_t = torch.arange(K + 1)
+    x0 = torch.softmax(3.0 * torch.randn(K + 1, K, generator=gen, dtype=torch.float64), dim=-1)
+    x0[0] = 0.0
+    uniforms = torch.rand(K + 1, generator=gen, dtype=torch.float64)
+    z_s = dynamic.step(z_t, x0, t, s, uniforms)
+    for n in range(K + 1):
+        mixture = [0.0] * (K + 1)
+        for z0 in range(K):
+            joint = [marginals[z0][s][j] * span[n][j] for j in range(K + 1)]
+            if sum(joint) > 0:
+                mixture = [m + float(x0[n, z0]) * p / sum(joint) for m, p in zip(mixture, joint)]
+        threshold = float(uniforms[n]) * sum(mixture)
+        drawn = min(sum(1 for c in itertools.accumulate(mixture) if c <= threshold), K)
+        if s == 0 and drawn == K:
+            drawn = int(x0[n].argmax())
+        assert int(z_s[n]) == drawn, n
+    assert s > 0 or int(z_s.max()) < K
+
+
+def test_categorical_follows_probabilities_and_skips_zeros():
+    probs = torch.tensor([0.0, 0.2, 0.0, 0.8], dtype=torch.float64).expand(200_000, 4)
+    draws = categorical(probs, torch.rand(200_000, generator=torch.Generator().manual_seed(0), dtype=torch.float64))
+    counts = torch.bincount(draws, minlength=4).double() / 200_000
+    assert counts[0] == 0 and counts[2] == 0
+    assert abs(counts[1] - 0.2) < 0.005
+    edges = categorical(probs[:3], torch.tensor([0.0, 0.2, 0.999999], dtype=torch.float64))
+    assert edges.tolist() == [1, 3, 3]
 
 
 def test_q_sample_frequencies_match_marginals(dynamic):

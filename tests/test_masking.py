@@ -7,7 +7,14 @@ import math
 import pytest
 import torch
 
-from m2d2m.processes.masking import decay, dynamic_iterations, least_confident, masked_counts, training_mask
+from m2d2m.processes.masking import (
+    decay,
+    dynamic_iterations,
+    least_confident,
+    masked_counts,
+    training_mask,
+    unmask,
+)
 
 
 def test_decay_functions_of_the_supplement():
@@ -68,3 +75,15 @@ def test_least_confident_positions_among_the_candidates():
     assert torch.equal(
         least_confident(confidence, candidates, torch.tensor([5, 0])), candidates & torch.tensor([[True], [False]])
     )
+
+
+def test_an_unmasking_step_decides_all_but_the_least_sure_and_keeps_decided_tokens():
+    """Row 0 keeps one of its three masked positions masked, the one whose draw the model gave the
+    least probability; row 1 decides both; decided tokens (3; 2, 1) never change."""
+    mask = 9
+    tokens = torch.tensor([[mask, 3, mask, mask], [mask, mask, 2, 1]])
+    drawn = torch.tensor([[0, 5, 1, 2], [4, 4, 0, 0]])
+    sureness = torch.tensor([[3.0, 9.0, 1.0, 2.0], [1.0, 2.0, 0.0, 0.0]])
+    logits = torch.zeros(2, 4, 6).scatter(-1, drawn[..., None], sureness[..., None])
+    stepped = unmask(tokens, drawn, logits, torch.tensor([1, 0]), mask)
+    assert stepped.tolist() == [[0, 3, mask, 2], [4, 4, 2, 1]]

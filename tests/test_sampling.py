@@ -10,9 +10,9 @@ import torch
 
 from m2d2m.generators.m2d2m_compiled import CompiledDenoise, bucket, compiles
 from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import FREE, TokenRequest, TokenSampler, categorical, length_groups, truncate
+from m2d2m.generators.m2d2m_sampling import FREE, RowLayout, TokenRequest, TokenSampler, length_groups, truncate
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
-from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.processes.discrete_diffusion import TransitionSchedule, categorical
 from m2d2m.text import LearnedTextEncoder
 
 CODES, STEPS = 12, 10
@@ -92,6 +92,60 @@ def test_length_groups_cover_every_row_once_with_bounded_padding():
     assert groups == [[0, 5, 6], [3, 2], [7, 8], [4, 1]]  # 49 49 37 | 30 23 | 20 15 | 12 11
     assert length_groups([5, 5, 5]) == [[0, 1, 2]] and length_groups([]) == []
     assert all(lengths[i] >= 0.75 * lengths[g[0]] for g in groups for i in g)
+
+
+CPU = torch.device("cpu")
+
+
+def test_row_layout_holds_both_phases_the_kept_tokens_and_the_length_groups():
+    """TPS's joint rows (one per request, its sentences concatenated) then one row per action, both
+    over the requests' streams one after another; the kept tokens stay through a step."""
+    given = torch.full((11,), FREE)
+    given[:2] = torch.tensor([4, 5])
+    requests = [TokenRequest([WALK, JUMP], [5, 6], seed=1, given=given), TokenRequest([SIT], [3], seed=2)]
+    layout = RowLayout.of(requests, M2D2MOptions(method="tps", ts=6), STEPS, CPU)
+    joint, independent = layout.phases
+    assert joint.jumps == [(10, 9), (9, 8), (8, 7), (7, 6)] and independent.jumps[-1] == (1, 0)
+    assert [(r.request, r.condition, r.actions) for r in joint.rows] == [(0, WALK + JUMP, [5, 6]), (1, SIT, [3])]
+    assert [(r.request, r.stream, r.condition) for r in independent.rows] == [
+        (0, slice(0, 5), WALK),
+        (0, slice(5, 11), JUMP),
+        (1, slice(0, 3), SIT),
+    ]
+    assert layout.sizes == [11, 3] and joint.groups == [[0], [1]] and independent.groups == [[1, 0], [2]]
+    z = torch.arange(14)
+    batch = independent.batch(z, fill=-1)
+    assert batch.tolist() == [[0, 1, 2, 3, 4, -1], [5, 6, 7, 8, 9, 10], [11, 12, 13, -1, -1, -1]]
+    assert torch.equal(independent.tokens(batch), z) and torch.equal(joint.tokens(joint.batch(z, fill=-1)), z)
+    assert layout.settle(torch.full((14,), 9)).tolist() == [4, 5] + [9] * 12
+    assert [[x.tolist() for x in actions] for actions in layout.split(z)] == [
+        [[0, 1, 2, 3, 4], list(range(5, 11))],
+        [[11, 12, 13]],
+    ]
+    assert [
+        len(p.jumps) for p in RowLayout.of(requests, M2D2MOptions(method="independent", steps=4), STEPS, CPU).phases
+    ] == [4]
+
+
+def test_row_layout_shares_tokens_between_neighbours_under_handshake():
+    """Every later action's row starts with a copy of the previous action's last H tokens: a step
+    blends their x0 probabilities with the ramp and copies the earlier draws; the copies are
+    dropped from the result."""
+    layout = RowLayout.of(
+        [TokenRequest([WALK, JUMP, SIT], [4, 3, 5])], M2D2MOptions(method="handshake", handshake=2), STEPS, CPU
+    )
+    (phase,) = layout.phases
+    assert layout.sizes == [16] and [r.stream for r in phase.rows] == [slice(0, 4), slice(4, 9), slice(9, 16)]
+    z = layout.settle(torch.arange(16))
+    assert z.tolist() == [0, 1, 2, 3, 2, 3, 6, 7, 8, 7, 8, 11, 12, 13, 14, 15]
+    assert [x.tolist() for x in layout.split(z)[0]] == [[0, 1, 2, 3], [6, 7, 8], [11, 12, 13, 14, 15]]
+    x0 = torch.rand(16, CODES, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    blended = layout.blend(x0.clone())
+    for earlier, later, ramp in ((2, 4, 0.0), (3, 5, 0.5), (7, 9, 0.0), (8, 10, 0.5)):
+        mixed = (1 - ramp) * x0[earlier] + ramp * x0[later]
+        assert torch.equal(blended[earlier], mixed) and torch.equal(blended[later], mixed)
+    untouched = [0, 1, 6, 11, 12, 13, 14, 15]
+    assert torch.equal(blended[untouched], x0[untouched])
 
 
 def test_batched_sampling_matches_one_by_one(sampler):
@@ -179,16 +233,6 @@ def test_truncate_keeps_the_top_mass():
     assert truncate(probs, 1.0) is probs
 
 
-def test_categorical_follows_probabilities_and_skips_zeros():
-    probs = torch.tensor([0.0, 0.2, 0.0, 0.8], dtype=torch.float64).expand(200_000, 4)
-    draws = categorical(probs, torch.rand(200_000, generator=torch.Generator().manual_seed(0), dtype=torch.float64))
-    counts = torch.bincount(draws, minlength=4).double() / 200_000
-    assert counts[0] == 0 and counts[2] == 0
-    assert abs(counts[1] - 0.2) < 0.005
-    edges = categorical(probs[:3], torch.tensor([0.0, 0.2, 0.999999], dtype=torch.float64))
-    assert edges.tolist() == [1, 3, 3]
-
-
 def test_an_empty_sentence_samples_under_the_null_condition(sampler, monkeypatch):
     """Editing "without text" asks with ""; the denoiser must then see its learned null condition,
     exactly what classifier-free training drops a caption to, for that row and no other."""
@@ -235,7 +279,6 @@ def test_reusing_the_condition_changes_no_token(sampler, method, guidance):
 def test_all_steps_is_the_one_step_reverse_process_draw_for_draw(sampler):
     """steps = T takes every one-step posterior with the request's own uniforms: a loop written
     here from the paper's reverse step (eq. 4) gives the same tokens."""
-    from m2d2m.generators.m2d2m_sampling import categorical
     from m2d2m.networks.m2d2m_denoiser import guided_logits
     from m2d2m.text import encode_actions
 

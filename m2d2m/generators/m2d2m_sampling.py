@@ -1,10 +1,12 @@
-"""Token samplers of M2D2M: single actions, Two-Phase Sampling (paper Algorithm 1), the paper's
-multi-motion baselines on the same model, and editing by fixed tokens.
+"""Token samplers of M2D2M: single actions, Two-Phase Sampling (M2D2M (Chi et al., 2024),
+Algorithm 1), the paper's multi-motion baselines on the same model, and editing by fixed tokens.
 
-Every sampler runs the same reverse step — guided x0 probabilities (classifier-free guidance s,
-VQ-Diffusion's truncation r), the posterior p(z_{t−1} | z_t) of the transition schedule, one
-categorical draw per position — over a batch of *rows*. What differs is how a request's actions
-are laid out as rows:
+The loop (:meth:`TokenSampler.sample`) is Algorithm 1's, written the way diffusers writes one: the
+model's prediction, then the schedule's step. At every jump from t to s the denoiser gives
+p_θ(z̃_0 | z_t, y) (classifier-free guidance s, eq. 9; VQ-Diffusion's truncation r) and
+:meth:`TransitionSchedule.step` draws z_s from the posterior it implies (eq. 4). What differs
+between the methods is only how a request's actions are laid out as *rows* of a batch, which one
+object holds (:class:`RowLayout`):
 
 - ``tps``: for t = T … T_s+1 one row per request, its actions concatenated and its conditions
   concatenated (joint phase); for t = T_s … 1 one row per action (independent phase).
@@ -17,10 +19,12 @@ are laid out as rows:
 - ``slerp``: one row per action, every action after the first shortened by the transition window;
   the motion-level gap filling is :func:`m2d2m.motion.joining.bridge` (TEACH's SLERP baseline).
 
-Randomness is per request: each request has its own generator and draws, at every step, one
-uniform per position of its actions in order, whatever the rows look like. Hence a request's
-result does not depend on what else is in the batch, and ``tps`` with T_s = T reproduces
-``independent`` draw for draw.
+The sampler's state is every request's token *stream* (its actions in order; under handshake each
+later action preceded by its copy of the shared tokens), one after another; the rows of either
+phase hold the streams in order, each token once. Randomness is per request: each request has its
+own generator and draws, at every step, one uniform per token of its stream, whatever the rows
+look like. Hence a request's result does not depend on what else is in the batch, and ``tps``
+with T_s = T reproduces ``independent`` draw for draw.
 
 Rows of very different lengths are not padded to the longest: the denoiser runs once per group of
 rows of similar length (:func:`length_groups`), which on test sets of 10- to 50-token actions halves
@@ -41,7 +45,7 @@ approximates that jump by a one-step posterior at s), on a grid that keeps T_s o
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from itertools import accumulate
 
 import torch
@@ -79,27 +83,6 @@ class TokenRequest:
             raise ValueError(f"every action needs at least one token, got lengths {self.lengths}")
         if self.given is not None and tuple(self.given.shape) != (sum(self.lengths),):
             raise ValueError(f"given must hold {sum(self.lengths)} tokens, got shape {tuple(self.given.shape)}")
-
-
-@dataclass
-class _Row:
-    """A row of the batch: which request, which of its stream positions, which condition, and the
-    lengths of the actions it holds in order (their offsets are the denoiser's ``action`` positions)."""
-
-    request: int
-    stream: slice  # positions in the request's per-step uniform stream
-    condition: list[str]
-    actions: list[int]
-
-
-@dataclass
-class _Layout:
-    rows: list[_Row]
-    overlap: int = 0  # tokens each later action's row shares with the row before (handshake)
-    length: int = field(init=False)
-
-    def __post_init__(self) -> None:
-        self.length = max(row.stream.stop - row.stream.start for row in self.rows)
 
 
 def switch_step(ts: int | None, steps: int) -> int:
@@ -160,17 +143,6 @@ def length_groups(lengths: list[int], spread: float = 0.75) -> list[list[int]]:
     return groups
 
 
-def categorical(probs: Tensor, uniforms: Tensor) -> Tensor:
-    """Inverse-CDF draw over the last dimension with given uniforms in [0, 1).
-
-    Counting the states whose CDF stays at or below u·total never picks a zero-probability state;
-    a row with no mass at all gets the last state (the mask), which the caller treats as undecided.
-    """
-    cdf = probs.cumsum(dim=-1)
-    chosen = (cdf <= uniforms.unsqueeze(-1).to(cdf.dtype) * cdf[..., -1:]).sum(dim=-1)
-    return chosen.clamp_max(probs.shape[-1] - 1)
-
-
 class TokenSampler:
     """Reverse diffusion over motion tokens for a denoiser, its text encoder and its schedule.
 
@@ -198,26 +170,6 @@ class TokenSampler:
     def device(self) -> torch.device:
         return next(self.denoiser.parameters()).device
 
-    def _schedule(self, eta: float | None) -> TransitionSchedule:
-        """The schedule at ``eta`` on the model's device, built once per η (with the jumps it has
-        taken cached in it); a ``uniform`` schedule has no η to change."""
-        schedule = self.schedule
-        if eta is not None and schedule.config.kind == "dynamic" and float(eta) != schedule.config.eta:
-            if float(eta) not in self._at_eta:
-                self._at_eta[float(eta)] = schedule.with_eta(eta)
-            schedule = self._at_eta[float(eta)]
-        return schedule.to(self.device) if schedule.device != self.device else schedule
-
-    def _forward(self, options: M2D2MOptions) -> tuple[Callable[..., Tensor], bool]:
-        """The denoiser's forward pass the options ask for, and whether it is compiled (then the
-        passes are padded to buckets)."""
-        if not compiles(options.compile, self.device):
-            return self.denoiser.denoise, False
-        if self._compiled is None or self._compiled.denoiser is not self.denoiser:
-            self._compiled = CompiledDenoise(self.denoiser)
-        return self._compiled, self._compiled.compiled
-
-    # ------------------------------------------------------------------------------------- public
     @torch.no_grad()
     def sample(
         self,
@@ -241,159 +193,149 @@ class TokenSampler:
         self.denoiser.eval()
         self.text_encoder.eval()
         try:
-            return self._run(requests, options, schedule, progress)
+            return self._reverse(requests, options, schedule, progress)
         finally:
             self.denoiser.train(was_training)
             self.text_encoder.train(was_training)
 
-    # ----------------------------------------------------------------------------------- internals
-    def _run(
+    def _reverse(
         self,
         requests: list[TokenRequest],
         options: M2D2MOptions,
         schedule: TransitionSchedule,
         progress: Callable[[int], None] | None,
     ) -> list[list[Tensor]]:
-        device = self.device
-        generators = [torch.Generator(device=device).manual_seed(int(r.seed)) for r in requests]
-        overlap = options.handshake if options.method == "handshake" else 0
-        sizes = [sum(r.lengths) + overlap * (len(r.lengths) - 1) for r in requests]
-        # z_T, laid out as each request's stream (for handshake, the shared tokens appear twice)
-        prior = [schedule.sample_prior((n,), generator=g) for n, g in zip(sizes, generators)]
-        given = [_given_stream(r, overlap, device) for r in requests]
-        state = [torch.where(g >= 0, g, z) for g, z in zip(given, prior)]
-        if overlap:
-            state = [_copy_shared(z, _extended_lengths(r.lengths, overlap), overlap) for z, r in zip(state, requests)]
-        stream, kept = torch.cat(state), torch.cat(given)  # every request's stream, one after another
+        """Algorithm 1 on a batch of requests; the numbers are its lines."""
+        layout = RowLayout.of(requests, options, schedule.steps, self.device)
+        generators = [torch.Generator(device=self.device).manual_seed(int(r.seed)) for r in requests]
+        z = layout.settle(layout.prior(schedule, generators))  # 1: z_T ~ p(z_T), kept tokens in place
+        for phase in layout.phases:  # 3: the joint rows, then 6–7: one row per action
+            model = self._model(phase, options)  # 2: y, the rows' text, encoded once per phase
+            for t, s in phase.jumps:
+                x0 = layout.blend(model(z, t))  # p_θ(z̃_0 | z_t, y), guided (eq. 9)
+                z = layout.settle(schedule.step(z, x0, t, s, layout.uniforms(generators)))  # 4, 8
+                if progress is not None:
+                    progress(s)
+        return layout.split(z)  # 11: each action's z_0
 
-        joint_until = switch_step(options.ts, schedule.steps) if options.method == "tps" else schedule.steps
-        joint, independent = timesteps(schedule.steps, options.steps, joint_until)
-        for jumps, layout in ((joint, _joint_layout(requests)), (independent, _action_layout(requests, overlap))):
-            if jumps:
-                stream = self._denoise(layout, stream, kept, generators, sizes, jumps, schedule, options, progress)
-        return [_split_actions(z, r.lengths, overlap) for z, r in zip(stream.split(sizes), requests)]
+    def _schedule(self, eta: float | None) -> TransitionSchedule:
+        """The schedule at ``eta`` on the model's device, built once per η (with the jumps it has
+        taken cached in it); a ``uniform`` schedule has no η to change."""
+        schedule = self.schedule
+        if eta is not None and schedule.config.kind == "dynamic" and float(eta) != schedule.config.eta:
+            if float(eta) not in self._at_eta:
+                self._at_eta[float(eta)] = schedule.with_eta(eta)
+            schedule = self._at_eta[float(eta)]
+        return schedule.to(self.device) if schedule.device != self.device else schedule
 
-    def _denoise(
-        self,
-        layout: _Layout,
-        stream: Tensor,
-        given: Tensor,
-        generators: list[torch.Generator],
-        sizes: list[int],
-        jumps: list[tuple[int, int]],
-        schedule: TransitionSchedule,
-        options: M2D2MOptions,
-        progress: Callable[[int], None] | None,
-    ) -> Tensor:
-        """Take the reverse ``jumps`` (t, s) on the rows of ``layout``. ``stream`` and ``given`` hold
-        every request's stream, one after another (``sizes`` long each); returns the stream after
-        the last jump.
-
-        Where the rows' real positions are, which rows share a forward pass and which tokens
-        neighbours share is laid out once, as index tensors; a step gathers and scatters through
-        them, so nothing in the loop makes the host wait for the device."""
-        device, mask, codes = self.device, schedule.mask_index, schedule.num_codes
+    def _model(self, phase: Phase, options: M2D2MOptions) -> PhaseModel:
+        """The denoiser over ``phase``'s rows."""
         denoise, compiled = self._forward(options)
-        rows, width = len(layout.rows), layout.length
-        positions = _Positions.of(layout, sizes, device)
-        shared = _Shared.of(layout, device)
-        text, text_mask = self._text(layout, compiled)
-        groups = self._groups(layout, text, text_mask, options, compiled)
-        fixed = given[positions.streams]
-        z = positions.scatter(stream[positions.streams], rows, width, mask)
-        for t, s in jumps:
-            x0 = torch.zeros(rows, width, codes, dtype=torch.float64, device=device)
-            for group in groups:
-                x0[group.real, : group.width] = self._x0(z, group, t, text, text_mask, options, denoise)
-            if shared is not None:
-                shared.blend(x0)
-            x0 = x0.view(-1, codes)[positions.cells]
-            probs = schedule.posterior_probs(z.view(-1)[positions.cells], x0, t, s, validate=False)
-            uniforms = torch.cat(
-                [torch.rand(n, generator=g, dtype=torch.float64, device=device) for n, g in zip(sizes, generators)]
-            )
-            drawn = categorical(probs, uniforms[positions.streams])
-            if s == 0:  # no mask may survive the last step: a dead position takes the most likely code
-                drawn = torch.where(drawn == mask, x0.argmax(dim=-1), drawn)
-            z = positions.scatter(torch.where(fixed >= 0, fixed, drawn), rows, width, mask)
-            if shared is not None:
-                shared.copy(z)
-            if progress is not None:
-                progress(s)
-        return stream.index_put((positions.streams,), z.view(-1)[positions.cells])
+        return PhaseModel(self.denoiser, self.text_encoder, phase, options, denoise, compiled, self.reuse_condition)
 
-    def _text(self, layout: _Layout, compiled: bool) -> tuple[Tensor, Tensor]:
+    def _forward(self, options: M2D2MOptions) -> tuple[Callable[..., Tensor], bool]:
+        """The denoiser's forward pass the options ask for, and whether it is compiled (then the
+        passes are padded to buckets)."""
+        if not compiles(options.compile, self.device):
+            return self.denoiser.denoise, False
+        if self._compiled is None or self._compiled.denoiser is not self.denoiser:
+            self._compiled = CompiledDenoise(self.denoiser)
+        return self._compiled, self._compiled.compiled
+
+
+class PhaseModel:
+    """``model(z_t, t)`` of the loop for one phase: p_θ(z̃_0 | z_t, y) (N, K) in float64 for every
+    token of the streams, guided (eq. 9) and truncated.
+
+    Each step runs one forward pass per length group of the phase's rows, the conditional and the
+    null rows of guidance together. What stays the same over the phase's steps is prepared here
+    once: the rows' text, and each pass's rows, validity mask, action offsets and text condition."""
+
+    def __init__(
+        self,
+        denoiser: MotionDenoiser,
+        text_encoder: TextEncoder,
+        phase: Phase,
+        options: M2D2MOptions,
+        denoise: Callable[..., Tensor],
+        compiled: bool,
+        reuse_condition: bool,
+    ) -> None:
+        self.denoiser, self.phase, self.options, self.denoise = denoiser, phase, options, denoise
+        self.text, self.text_mask = self._text(text_encoder, compiled)
+        self.groups = self._groups(compiled, reuse_condition)
+
+    def __call__(self, z: Tensor, t: int) -> Tensor:
+        phase = self.phase
+        batch = phase.batch(z, fill=self.denoiser.mask_id)
+        codes = self.denoiser.config.codebook_size
+        x0 = torch.zeros(len(phase.rows), phase.width, codes, dtype=torch.float64, device=z.device)
+        for group in self.groups:
+            x0[group.real, : group.width] = self._x0(batch, group, t)
+        return phase.tokens(x0)
+
+    def _text(self, text_encoder: TextEncoder, compiled: bool) -> tuple[Tensor, Tensor]:
         """The rows' text features and mask; a row whose sentences are all empty asks for no text
         and gets the null condition of classifier-free guidance. Compiled, the text is padded to a
         bucket of tokens (masked keys: nothing changes at the real ones)."""
-        text, text_mask = encode_actions(self.text_encoder, [row.condition for row in layout.rows])
-        unconditional = [not any(s.strip() for s in row.condition) for row in layout.rows]
+        rows = self.phase.rows
+        text, text_mask = encode_actions(text_encoder, [row.condition for row in rows])
+        unconditional = [not any(s.strip() for s in row.condition) for row in rows]
         if any(unconditional):
-            rows = torch.tensor(unconditional).to(text.device, non_blocking=True)
-            text, text_mask = self.denoiser.nullify(text, text_mask, rows)
+            nulled = torch.tensor(unconditional).to(text.device, non_blocking=True)
+            text, text_mask = self.denoiser.nullify(text, text_mask, nulled)
         if compiled:
             extra = bucket(text.shape[1], smallest=8) - text.shape[1]
             text, text_mask = F.pad(text, (0, 0, 0, extra)), F.pad(text_mask, (0, extra))
         return text, text_mask
 
-    def _condition(self, text: Tensor, text_mask: Tensor, options: M2D2MOptions) -> Condition:
+    def _condition(self, text: Tensor, text_mask: Tensor) -> Condition:
         """The denoiser's condition of the rows, followed, when guided, by as many null rows."""
-        if options.guidance == 0.0:
+        if self.options.guidance == 0.0:
             return self.denoiser.condition(text, text_mask)
         every = torch.ones(text.shape[0], dtype=torch.bool, device=text.device)
         null_text, null_mask = self.denoiser.nullify(text, text_mask, every)
         return self.denoiser.condition(torch.cat([text, null_text]), torch.cat([text_mask, null_mask]))
 
-    def _groups(
-        self, layout: _Layout, text: Tensor, text_mask: Tensor, options: M2D2MOptions, compiled: bool
-    ) -> list[_Group]:
-        """The forward passes of a step (:func:`length_groups`) with what they keep over the phase;
-        compiled, each is padded to a bucket of rows and of tokens."""
-        device = self.device
-        lengths = [row.stream.stop - row.stream.start for row in layout.rows]
-        valid = (torch.arange(layout.length)[None, :] < torch.tensor(lengths)[:, None]).to(device, non_blocking=True)
-        offsets = action_offsets([row.actions for row in layout.rows], layout.length, device)
-        condition = self._condition(text, text_mask, options) if self.reuse_condition else None
+    def _groups(self, compiled: bool, reuse_condition: bool) -> list[_Group]:
+        """The forward passes of a step, one per length group of the phase, with what they keep
+        over the phase; compiled, each is padded to a bucket of rows and of tokens."""
+        phase, options = self.phase, self.options
+        condition = self._condition(self.text, self.text_mask) if reuse_condition else None
         passes = _passes(options)
         groups = []
-        for members in length_groups(lengths):
-            width = lengths[members[0]]
+        for members in phase.groups:
+            width = phase.rows[members[0]].length
             size, padded = (bucket(len(members)), bucket(width, smallest=8)) if compiled else (len(members), width)
-            index = torch.tensor(members + members[:1] * (size - len(members))).to(device, non_blocking=True)
+            index = torch.tensor(members + members[:1] * (size - len(members))).to(
+                phase.cells.device, non_blocking=True
+            )
             groups.append(
                 _Group(
                     index,
                     len(members),
                     width,
                     padded,
-                    F.pad(valid[index, :width], (0, padded - width)).repeat(passes, 1),
-                    F.pad(offsets[index, :width], (0, 0, 0, padded - width)).repeat(passes, 1, 1),
-                    None if condition is None else condition.rows(_guided_rows(index, len(layout.rows), options)),
+                    F.pad(phase.valid[index, :width], (0, padded - width)).repeat(passes, 1),
+                    F.pad(phase.offsets[index, :width], (0, 0, 0, padded - width)).repeat(passes, 1, 1),
+                    None if condition is None else condition.rows(_guided_rows(index, len(phase.rows), options)),
                 )
             )
         return groups
 
-    def _x0(
-        self,
-        z: Tensor,
-        group: _Group,
-        t: int,
-        text: Tensor,
-        text_mask: Tensor,
-        options: M2D2MOptions,
-        denoise: Callable[..., Tensor],
-    ) -> Tensor:
+    def _x0(self, batch: Tensor, group: _Group, t: int) -> Tensor:
         """Guided, truncated p(z0 | z_t) (rows, width, K) in float64 of a group's real rows: one
         forward pass of the conditional and null rows together (``group.condition`` holds both
         when guided)."""
-        tokens = z[group.index, : group.width]
+        options = self.options
+        tokens = batch[group.index, : group.width]
         if group.padded > group.width:
             tokens = F.pad(tokens, (0, group.padded - group.width), value=self.denoiser.mask_id)
         condition = group.condition
         if condition is None:
-            condition = self._condition(text[group.index], text_mask[group.index], options)
-        steps = torch.full((1,), t, dtype=torch.long, device=z.device)  # one t for every row: embedded once
-        logits = denoise(tokens.repeat(_passes(options), 1), group.valid, steps, condition, group.offsets)
+            condition = self._condition(self.text[group.index], self.text_mask[group.index])
+        steps = torch.full((1,), t, dtype=torch.long, device=batch.device)  # one t for every row: embedded once
+        logits = self.denoise(tokens.repeat(_passes(options), 1), group.valid, steps, condition, group.offsets)
         cond = logits[: group.rows, : group.width]
         if _passes(options) == 2:  # the null rows follow the group's (padded) rows
             start = group.index.shape[0]
@@ -409,14 +351,14 @@ def _passes(options: M2D2MOptions) -> int:
 
 
 def _guided_rows(index: Tensor, rows: int, options: M2D2MOptions) -> Tensor:
-    """The rows of a group in a condition built by :meth:`TokenSampler._condition`: the group's
+    """The rows of a group in a condition built by :meth:`PhaseModel._condition`: the group's
     conditional rows, then (when guided) their null rows ``rows`` further on."""
     return index if options.guidance == 0.0 else torch.cat([index, index + rows])
 
 
 @dataclass(frozen=True)
 class _Group:
-    """Rows of a layout that one forward pass denoises, and what stays the same over a phase's
+    """Rows of a phase that one forward pass denoises, and what stays the same over a phase's
     steps: their validity mask, action offsets and text condition (None: recomputed every step),
     already repeated for the null rows when guided and padded to the pass's shape."""
 
@@ -433,59 +375,159 @@ class _Group:
         return self.index[: self.rows]
 
 
+# ------------------------------------------------------------------------------------ the layout
 @dataclass(frozen=True)
-class _Positions:
-    """A layout's real positions as index tensors on the device, built once per phase from the
-    rows' lengths (host integers): a step gathers and scatters through them, where a boolean mask
-    would make the host read the data (a device sync) at every step."""
+class Row:
+    """A row of a phase's batch: which request, which of its stream's tokens, which condition, and
+    the lengths of the actions it holds in order (their offsets are the denoiser's ``action``
+    positions)."""
 
-    cells: Tensor  # (N,) flat positions in the (rows, width) batch, row by row
-    streams: Tensor  # (N,) the same positions in the requests' streams, one after another
+    request: int
+    stream: slice
+    condition: list[str]
+    actions: list[int]
+
+    @property
+    def length(self) -> int:
+        return self.stream.stop - self.stream.start
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One phase of Algorithm 1: its reverse jumps (t, s) and the rows it lays the streams out as,
+    a batch (rows, width) padded to the longest row. Where the tokens sit in the batch is an index
+    tensor built once from the rows' lengths (host integers): a step gathers and scatters through
+    it, where a boolean mask would make the host read the data (a device sync) at every step."""
+
+    jumps: list[tuple[int, int]]
+    rows: list[Row]
+    cells: Tensor  # (N,) each stream token's flat position in the batch, the streams in order
+    valid: Tensor  # (rows, width) bool: the real positions
+    offsets: Tensor  # (rows, width, 2): each position's distance from its action's ends
 
     @classmethod
-    def of(cls, layout: _Layout, sizes: list[int], device: torch.device) -> _Positions:
-        starts = [0, *accumulate(sizes)]
-        cells: list[int] = []
-        streams: list[int] = []
-        for i, row in enumerate(layout.rows):
-            n = row.stream.stop - row.stream.start
-            cells.extend(range(i * layout.length, i * layout.length + n))
-            begin = starts[row.request] + row.stream.start
-            streams.extend(range(begin, begin + n))
+    def of(cls, jumps: list[tuple[int, int]], rows: list[Row], device: torch.device) -> Phase:
+        """The phase of ``rows``, which must hold the streams in order, each token once."""
+        lengths = [row.length for row in rows]
+        width = max(lengths)
+        cells = [i * width + k for i, n in enumerate(lengths) for k in range(n)]
+        valid = torch.arange(width)[None, :] < torch.tensor(lengths)[:, None]
         return cls(
-            torch.tensor(cells).to(device, non_blocking=True), torch.tensor(streams).to(device, non_blocking=True)
+            jumps,
+            rows,
+            torch.tensor(cells).to(device, non_blocking=True),
+            valid.to(device, non_blocking=True),
+            action_offsets([row.actions for row in rows], width, device),
         )
 
-    def scatter(self, values: Tensor, rows: int, width: int, fill: int) -> Tensor:
-        """(rows, width) holding ``values`` (N,) at the real positions and ``fill`` elsewhere."""
-        batch = torch.full((rows * width,), fill, dtype=values.dtype, device=values.device)
-        return batch.index_put_((self.cells,), values).view(rows, width)
+    @property
+    def width(self) -> int:
+        return self.valid.shape[1]
+
+    @property
+    def groups(self) -> list[list[int]]:
+        """The rows of each forward pass: rows of similar length (:func:`length_groups`)."""
+        return length_groups([row.length for row in self.rows])
+
+    def batch(self, z: Tensor, fill: int) -> Tensor:
+        """The streams' tokens ``z`` (N,) as the batch (rows, width), ``fill`` past each row's end."""
+        batch = torch.full((len(self.rows) * self.width,), fill, dtype=z.dtype, device=z.device)
+        return batch.index_put_((self.cells,), z).view(len(self.rows), self.width)
+
+    def tokens(self, batch: Tensor) -> Tensor:
+        """A batch's values (rows, width, ...) at the streams' tokens, in stream order (N, ...)."""
+        return batch.flatten(0, 1)[self.cells]
+
+
+@dataclass(frozen=True)
+class RowLayout:
+    """Where every token of a batch of requests is, through all of Algorithm 1: the requests'
+    streams one after another (``sizes`` tokens each), the tokens kept in them (:data:`FREE`
+    where sampled), the tokens neighbouring actions share under handshake, and the phases, each
+    with its jumps and its rows (TPS's joint rows then one row per action; one phase for the
+    other methods). Built on the host from the requests, sent to the device once."""
+
+    lengths: list[list[int]]  # each request's actions' lengths
+    sizes: list[int]  # each request's stream length
+    overlap: int  # tokens each later action's row shares with the row before (handshake)
+    kept: Tensor  # (N,)
+    phases: list[Phase]
+    shared: _Shared | None
+
+    @classmethod
+    def of(cls, requests: list[TokenRequest], options: M2D2MOptions, steps: int, device: torch.device) -> RowLayout:
+        """The layout of ``requests`` under ``options`` for a schedule of ``steps`` steps."""
+        overlap = options.handshake if options.method == "handshake" else 0
+        joint_until = switch_step(options.ts, steps) if options.method == "tps" else steps
+        joint, independent = timesteps(steps, options.steps, joint_until)
+        phases = [
+            Phase.of(jumps, rows, device)
+            for jumps, rows in ((joint, _joint_rows(requests)), (independent, _action_rows(requests, overlap)))
+            if jumps
+        ]
+        return cls(
+            [list(r.lengths) for r in requests],
+            [sum(r.lengths) + overlap * (len(r.lengths) - 1) for r in requests],
+            overlap,
+            torch.cat([_kept_stream(r, overlap) for r in requests]).to(device, non_blocking=True),
+            phases,
+            _Shared.of(requests, overlap, device),
+        )
+
+    def prior(self, schedule: TransitionSchedule, generators: list[torch.Generator]) -> Tensor:
+        """z_T of every stream, each drawn with its request's generator."""
+        return torch.cat([schedule.sample_prior((n,), generator=g) for n, g in zip(self.sizes, generators)])
+
+    def uniforms(self, generators: list[torch.Generator]) -> Tensor:
+        """One uniform per token of every stream, each request's from its own generator."""
+        device = self.kept.device
+        return torch.cat(
+            [torch.rand(n, generator=g, dtype=torch.float64, device=device) for n, g in zip(self.sizes, generators)]
+        )
+
+    def blend(self, x0: Tensor) -> Tensor:
+        """``x0`` (N, K) with the shared tokens' probabilities blended (handshake; in place)."""
+        if self.shared is not None:
+            self.shared.blend(x0)
+        return x0
+
+    def settle(self, z: Tensor) -> Tensor:
+        """Drawn tokens ``z`` (N,) with the kept tokens in place and the shared tokens copied."""
+        z = torch.where(self.kept >= 0, self.kept, z)
+        if self.shared is not None:
+            self.shared.copy(z)
+        return z
+
+    def split(self, z: Tensor) -> list[list[Tensor]]:
+        """Each request's tokens, one tensor per action, the shared copies dropped."""
+        return [
+            _split_actions(stream, lengths, self.overlap) for stream, lengths in zip(z.split(self.sizes), self.lengths)
+        ]
 
 
 @dataclass(frozen=True)
 class _Shared:
-    """The tokens neighbouring actions share under handshake: the last H positions of each earlier
-    row and the first H of the next, as (pairs, H) row and column indices, and the blend's ramp
-    a = 0, 1/H, …, (H−1)/H. Pairs never overlap (every action is at least H tokens long), so all
-    are blended and copied at once."""
+    """The tokens neighbouring actions share under handshake: the last H tokens of each earlier
+    action's row and the first H of the next, adjacent in the stream, as (pairs, H) positions, and
+    the blend's ramp a = 0, 1/H, …, (H−1)/H. Pairs never overlap (every action is at least H
+    tokens long), so all are blended and copied at once."""
 
-    earlier: tuple[Tensor, Tensor]
-    later: tuple[Tensor, Tensor]
+    earlier: Tensor
+    later: Tensor
     ramp: Tensor  # (H, 1)
 
     @classmethod
-    def of(cls, layout: _Layout, device: torch.device) -> _Shared | None:
-        pairs = _row_pairs(layout)
-        overlap = layout.overlap
-        if not overlap or not pairs:
+    def of(cls, requests: list[TokenRequest], overlap: int, device: torch.device) -> _Shared | None:
+        starts, offset = [], 0
+        for request in requests:
+            rows = _extended_lengths(request.lengths, overlap)
+            starts.extend(offset + start for start in list(accumulate(rows))[:-1])
+            offset += sum(rows)
+        if not overlap or not starts:
             return None
-        columns = torch.arange(overlap)
-        earlier_rows = torch.tensor([[earlier] for earlier, _, _ in pairs])
-        earlier_columns = torch.tensor([[end - overlap] for _, _, end in pairs]) + columns
-        later_rows = torch.tensor([[later] for _, later, _ in pairs])
-        index = [x.to(device, non_blocking=True) for x in (earlier_rows, earlier_columns, later_rows, columns[None])]
+        later = (torch.tensor(starts)[:, None] + torch.arange(overlap)).to(device, non_blocking=True)
         ramp = (torch.arange(overlap, dtype=torch.float64, device=device) / overlap)[:, None]
-        return cls((index[0], index[1]), (index[2], index[3]), ramp)
+        return cls(later - overlap, later, ramp)
 
     def blend(self, x0: Tensor) -> None:
         """Both neighbours get (1 − a)·earlier + a·later on the shared tokens (in place)."""
@@ -498,15 +540,12 @@ class _Shared:
         z[self.later] = z[self.earlier]
 
 
-# --------------------------------------------------------------------------------------- layouts
-def _joint_layout(requests: list[TokenRequest]) -> _Layout:
+def _joint_rows(requests: list[TokenRequest]) -> list[Row]:
     """One row per request: its whole stream, its actions' sentences concatenated in order."""
-    return _Layout(
-        [
-            _Row(i, slice(0, sum(r.lengths)), [s for sentences in r.actions for s in sentences], list(r.lengths))
-            for i, r in enumerate(requests)
-        ]
-    )
+    return [
+        Row(i, slice(0, sum(r.lengths)), [s for sentences in r.actions for s in sentences], list(r.lengths))
+        for i, r in enumerate(requests)
+    ]
 
 
 def _extended_lengths(lengths: list[int], overlap: int) -> list[int]:
@@ -514,18 +553,18 @@ def _extended_lengths(lengths: list[int], overlap: int) -> list[int]:
     return [n + (overlap if i else 0) for i, n in enumerate(lengths)]
 
 
-def _action_layout(requests: list[TokenRequest], overlap: int) -> _Layout:
+def _action_rows(requests: list[TokenRequest], overlap: int) -> list[Row]:
     """One row per action of every request, in order, each with its own sentences."""
     rows = []
     for i, r in enumerate(requests):
         start = 0
         for sentences, n in zip(r.actions, _extended_lengths(r.lengths, overlap)):
-            rows.append(_Row(i, slice(start, start + n), sentences, [n]))
+            rows.append(Row(i, slice(start, start + n), sentences, [n]))
             start += n
-    return _Layout(rows, overlap)
+    return rows
 
 
-def _given_stream(request: TokenRequest, overlap: int, device: torch.device) -> Tensor:
+def _kept_stream(request: TokenRequest, overlap: int) -> Tensor:
     """``given`` laid out as the request's stream (shared tokens repeated under handshake)."""
     total = sum(request.lengths)
     given = torch.full((total,), FREE, dtype=torch.long) if request.given is None else request.given.long().cpu()
@@ -537,28 +576,7 @@ def _given_stream(request: TokenRequest, overlap: int, device: torch.device) -> 
             pieces.append(given[start : start + n])
             start += n
         given = torch.cat(pieces)
-    return given.to(device, non_blocking=True)
-
-
-def _copy_shared(stream: Tensor, lengths: list[int], overlap: int) -> Tensor:
-    """A stream whose shared copies (the start of every later action's row) repeat the end of the
-    action before."""
-    stream = stream.clone()
-    start = 0
-    for i, n in enumerate(lengths):
-        if i:
-            stream[start : start + overlap] = stream[start - overlap : start]
-        start += n
-    return stream
-
-
-def _row_pairs(layout: _Layout) -> list[tuple[int, int, int]]:
-    """(earlier row, later row, earlier row's length) for neighbouring actions of one request."""
-    return [
-        (i - 1, i, layout.rows[i - 1].stream.stop - layout.rows[i - 1].stream.start)
-        for i in range(1, len(layout.rows))
-        if layout.rows[i - 1].request == layout.rows[i].request
-    ]
+    return given
 
 
 def _split_actions(stream: Tensor, lengths: list[int], overlap: int) -> list[Tensor]:

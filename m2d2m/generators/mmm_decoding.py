@@ -2,12 +2,12 @@
 §F–H), over any predictor of token logits.
 
 Each sequence starts as a canvas of [MASK] wherever it is free (kept tokens — editing — are
-given and never change). An iteration predicts every masked position at once, draws a token for
-each (temperature, then top-k and top-p filtering: supplement §H), and masks again the
-n_M(t) drawn tokens the model was least sure of (the model's own probability of the drawn token,
-before temperature and filtering, so that top-k = 1 still ranks positions), with
-n_M(t) from :func:`m2d2m.processes.masking.masked_counts` over the sequence's own T_dyn
-iterations and its free positions. Tokens once decided stay decided, as in MaskGIT.
+given and never change). An iteration is the model's prediction, a draw for every position
+(temperature, then top-k and top-p filtering: supplement §H) and the masking process's step
+(:func:`m2d2m.processes.masking.unmask`): the masked positions take their draws but the n_M(t)
+the model was least sure of, with n_M(t) from :func:`m2d2m.processes.masking.masked_counts` over
+the sequence's own T_dyn iterations and its free positions. Tokens once decided stay decided, as
+in MaskGIT.
 
 Randomness is per sequence: each has its own generator and draws one uniform per position per
 iteration, so a sequence's result does not depend on the rest of the batch.
@@ -25,7 +25,8 @@ from torch import Tensor
 
 from m2d2m.generators.mmm_options import DecodingOptions
 from m2d2m.generators.token_model import FREE
-from m2d2m.processes.masking import dynamic_iterations, least_confident, masked_counts
+from m2d2m.processes.discrete_diffusion import categorical
+from m2d2m.processes.masking import dynamic_iterations, masked_counts, unmask
 
 Predictor = Callable[[Tensor], Tensor]  # (B, L) tokens with [MASK] → (B, L, K) logits
 
@@ -83,16 +84,13 @@ def decode(
         return tokens
     counts = schedule_table(free_counts, longest, options).to(device, non_blocking=True)
     generators = [torch.Generator(device=device).manual_seed(int(seed)) for seed in seeds]
-    for iteration in range(counts.shape[1]):
-        masked = tokens == mask_id
+    for still_masked in counts.unbind(dim=1):  # n_M(t) of each row
         logits = predict(tokens)
-        probs = filtered_probabilities(logits, options)
-        uniforms = torch.stack(
-            [torch.rand(given.shape[1], generator=g, dtype=torch.float64, device=device) for g in generators]
-        )
-        cdf = probs.cumsum(dim=-1)
-        drawn = (cdf <= uniforms[..., None] * cdf[..., -1:]).sum(dim=-1).clamp_max(probs.shape[-1] - 1)
-        confidence = torch.softmax(logits.double(), dim=-1).gather(-1, drawn[..., None])[..., 0]
-        again = least_confident(confidence, masked, counts[:, iteration])
-        tokens = torch.where(masked & ~again, drawn, tokens)
+        drawn = categorical(filtered_probabilities(logits, options), _uniforms(generators, given.shape[1], device))
+        tokens = unmask(tokens, drawn, logits, still_masked, mask_id)
     return tokens
+
+
+def _uniforms(generators: list[torch.Generator], width: int, device: torch.device) -> Tensor:
+    """(B, width) uniforms, row b's from its own generator, so no row depends on the batch."""
+    return torch.stack([torch.rand(width, generator=g, dtype=torch.float64, device=device) for g in generators])

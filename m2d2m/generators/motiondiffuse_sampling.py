@@ -18,6 +18,9 @@ sequence, whose noise estimates are combined at every denoising step.
 - **Editing** (``keep``): the kept entries of x_{t−1} are replaced by q(x_{t−1} | x_0) of the kept
   motion at every step, and by the kept motion itself at the end (replacement inpainting).
 
+A step of :func:`sample` is the model's estimate, ε̄ of the terms (eqs. 10–11), then the
+process's step (ancestral or DDIM), then, when editing, the replacement.
+
 Each request draws its noise from its own generator seeded with its seed, on the CPU, so its result
 does not depend on the other requests in the batch nor on the device. A step reads nothing back on
 the host (tests/test_host_syncs_models.py): the layout is checked on the host before the first
@@ -193,6 +196,93 @@ def _to_device(host: torch.Tensor, device: torch.device) -> torch.Tensor:
     return host.pin_memory().to(device, non_blocking=True)
 
 
+class _Noise:
+    """Gaussian noise (B, F, D) for every request, each drawn from its own generator on the CPU
+    (zeros for a request without one), so that no request depends on the batch or the device."""
+
+    def __init__(
+        self,
+        requests: Sequence[FeatureRequest],
+        generators: Sequence[torch.Generator | None],
+        layout: Layout,
+        device: torch.device,
+    ) -> None:
+        self.requests, self.generators, self.layout, self.device = requests, generators, layout, device
+
+    def draw(self) -> torch.Tensor:
+        dim = self.layout.feature_dim
+        rows = [
+            torch.zeros(r.frames, dim) if g is None else torch.randn(r.frames, dim, generator=g)
+            for r, g in zip(self.requests, self.generators)
+        ]
+        return _to_device(_pad(rows, self.layout.frames), self.device)
+
+
+class _Replacement:
+    """Editing by replacement: after every step the kept entries of x_{t−1} become a draw of
+    q(x_{t−1} | x_0) of the kept motion, and the kept motion itself after the last. Its noise comes
+    from a second stream per request, drawn only by requests that keep something."""
+
+    def __init__(
+        self, requests: Sequence[FeatureRequest], layout: Layout, process: GaussianDiffusion, device: torch.device
+    ) -> None:
+        dim = layout.feature_dim
+        kept = [torch.zeros(r.frames, dim) if r.keep is None else r.keep for r in requests]
+        masks = [torch.zeros(r.frames, dim, dtype=torch.bool) if r.keep is None else r.keep_mask for r in requests]
+        self.keep = _to_device(_pad(kept, layout.frames), device)
+        self.mask = _to_device(_pad(masks, layout.frames).bool(), device)
+        self.process = process
+        generators = [None if r.keep is None else torch.Generator().manual_seed(_keep_seed(r.seed)) for r in requests]
+        self.noise = _Noise(requests, generators, layout, device)
+
+    def __call__(self, x: torch.Tensor, t: torch.Tensor, index: int) -> torch.Tensor:
+        """x_{t−1} (the step ``index``'s result) with the kept entries replaced."""
+        known = self.keep if index == 0 else self.process.q_sample(self.keep, t - 1, self.noise.draw())
+        return torch.where(self.mask, known, x)
+
+
+def _keep_seed(seed: int) -> int:
+    """The seed of a request's second stream, the kept motion's noise."""
+    return int(np.random.SeedSequence([int(seed), 1]).generate_state(1)[0])
+
+
+class _CombinedNoise:
+    """``model(x_t, t)`` of the loop: ε̄, every term's noise estimate combined on its frames and
+    dimensions (eqs. 10, 11), plus the correction λ·∇_{x_t} Σ_{i≠j} ‖ε_i − ε_j‖. A network that
+    predicts x_0 has each term's estimate turned into the ε it implies first, so the combination
+    and the correction work on ε as the paper's do."""
+
+    def __init__(
+        self,
+        network: MotionDiffuseTransformer,
+        text: EncodedText,
+        layout: Layout,
+        process: GaussianDiffusion,
+        correction: float,
+        prediction: str,
+    ) -> None:
+        self.network, self.text, self.layout, self.process = network, text, layout, process
+        self.correction, self.prediction = correction, prediction
+        self.guided = correction > 0 and layout.pair_count > 0
+
+    def __call__(self, x: torch.Tensor, index: int) -> torch.Tensor:
+        layout, guided, device = self.layout, self.guided, x.device
+        network_t = self.process.network_steps(
+            torch.full((len(layout.sentences),), index, dtype=torch.long, device=device)
+        )
+        with torch.enable_grad() if guided else torch.no_grad():
+            x_in = x.detach().requires_grad_(guided)
+            eps = layout.estimate(self.network, x_in, network_t, self.text)
+            if self.prediction == "x0":
+                term_t = torch.full((len(eps),), index, dtype=torch.long, device=device)
+                eps = self.process.predict_eps(layout.terms_of(x_in), term_t, eps) * layout.valid[:, :, None]
+            combined = layout.combine(eps)
+            if guided:
+                (gradient,) = torch.autograd.grad(layout.disagreement(eps), x_in)
+                combined = combined + self.correction * gradient
+        return combined.detach()
+
+
 def sample(
     network: MotionDiffuseTransformer,
     text: EncodedText,
@@ -205,56 +295,20 @@ def sample(
 ) -> list[torch.Tensor]:
     """Each request's normalised motion (frames, D), denoised from N(0, I) through every step of
     ``process`` with ``step`` (ancestral or DDIM); ``text`` holds one encoded sentence per term, in
-    the order of the requests and their terms; ``correction`` is λ. A network that predicts x_0
-    (``prediction``) has each term's estimate turned into the ε it implies first, so the
-    combination and the correction work on ε as the paper's do."""
+    the order of the requests and their terms; ``correction`` is λ; ``prediction`` what the
+    network predicts (ε or x_0)."""
     device = text.sentence.device
-    feature_dim = network.config.feature_dim
-    layout = Layout(requests, feature_dim, network.config.max_frames, device)
-    generators = [torch.Generator().manual_seed(int(request.seed)) for request in requests]
-    # the kept motion's noise comes from a second stream, drawn only by requests that keep something
-    keep_generators = [
-        None
-        if r.keep is None
-        else torch.Generator().manual_seed(int(np.random.SeedSequence([int(r.seed), 1]).generate_state(1)[0]))
-        for r in requests
-    ]
-
-    def noise(streams: Sequence[torch.Generator | None]) -> torch.Tensor:
-        rows = [
-            torch.zeros(r.frames, feature_dim) if g is None else torch.randn(r.frames, feature_dim, generator=g)
-            for r, g in zip(requests, streams)
-        ]
-        return _to_device(_pad(rows, layout.frames), device)
-
-    keep = keep_mask = None
-    if any(r.keep is not None for r in requests):
-        kept = [torch.zeros(r.frames, feature_dim) if r.keep is None else r.keep for r in requests]
-        masks = [
-            torch.zeros(r.frames, feature_dim, dtype=torch.bool) if r.keep is None else r.keep_mask for r in requests
-        ]
-        keep = _to_device(_pad(kept, layout.frames), device)
-        keep_mask = _to_device(_pad(masks, layout.frames).bool(), device)
-    guided = correction > 0 and layout.pair_count > 0
-    x = noise(generators)
+    layout = Layout(requests, network.config.feature_dim, network.config.max_frames, device)
+    noise = _Noise(requests, [torch.Generator().manual_seed(int(r.seed)) for r in requests], layout, device)
+    model = _CombinedNoise(network, text, layout, process, correction, prediction)
+    replace = _Replacement(requests, layout, process, device) if any(r.keep is not None for r in requests) else None
+    x = noise.draw()  # x_T ~ N(0, I)
     total = process.num_steps
     for index in reversed(range(total)):
         t = torch.full((layout.batch,), index, dtype=torch.long, device=device)
-        network_t = process.network_steps(torch.full((len(layout.sentences),), index, dtype=torch.long, device=device))
-        with torch.enable_grad() if guided else torch.no_grad():
-            x_in = x.detach().requires_grad_(guided)
-            eps = layout.estimate(network, x_in, network_t, text)
-            if prediction == "x0":
-                term_t = torch.full((len(eps),), index, dtype=torch.long, device=device)
-                eps = process.predict_eps(layout.terms_of(x_in), term_t, eps) * layout.valid[:, :, None]
-            combined = layout.combine(eps)
-            if guided:
-                (gradient,) = torch.autograd.grad(layout.disagreement(eps), x_in)
-                combined = combined + correction * gradient
-        x = step(x, t, combined.detach(), noise(generators))
-        if keep is not None:
-            known = keep if index == 0 else process.q_sample(keep, t - 1, noise(keep_generators))
-            x = torch.where(keep_mask, known, x)
+        x = step(x, t, model(x, index), noise.draw())  # x_{t−1} ~ p_θ(x_{t−1} | x_t) with ε̄ (eq. 5)
+        if replace is not None:
+            x = replace(x, t, index)
         if progress is not None and (index % max(1, total // 100) == 0):
             progress((total - index) / total)
     return [x[b, : request.frames].detach() for b, request in enumerate(requests)]

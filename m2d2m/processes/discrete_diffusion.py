@@ -179,7 +179,8 @@ def transition_matrices(scalars: dict[str, Tensor], block: Tensor) -> tuple[Tens
 
 
 class TransitionSchedule:
-    """The forward process q of M2D2M: cached Q_t, Q̄_t, sampling of z_t and the posterior p(z_{t−1} | z_t).
+    """The forward process q of M2D2M: cached Q_t, Q̄_t, sampling of z_t, the posterior p(z_{t−1} | z_t)
+    and the reverse step a sampler takes with it (:meth:`step`).
 
     Build with :meth:`build`; matrices live on the codebook's device (``.to`` moves them) and are
     indexed ``Q[i, j] = q(z_t = i | z_{t−1} = j)``.
@@ -364,11 +365,8 @@ class TransitionSchedule:
         z0 = self._codes(z0, self.num_codes - 1, "z0", validate)
         tt = self._timesteps(t, z0.shape, low=0, validate=validate)
         probs = self._cumulative[tt.reshape(-1), :, z0.reshape(-1)]  # (N, K+1): column z0 of Q̄_t
-        cdf = probs.cumsum(dim=1)
-        u = torch.rand(cdf.shape[0], 1, generator=generator, dtype=torch.float64, device=self.device)
-        # counting cdf <= u·total never picks a zero-probability state and never exceeds K
-        sample = (cdf <= u * cdf[:, -1:]).sum(dim=1)
-        return sample.reshape(z0.shape)
+        u = torch.rand(probs.shape[0], generator=generator, dtype=torch.float64, device=self.device)
+        return categorical(probs, u).reshape(z0.shape)
 
     def sample_prior(self, shape: tuple[int, ...], generator: torch.Generator | None = None) -> Tensor:
         """z_T for sampling: the mask with probability γ̄_T, otherwise a uniformly random code."""
@@ -416,6 +414,21 @@ class TransitionSchedule:
         earlier = self._cumulative[t_group - 1, :, :num_codes]  # (G, K+1, K): Q̄_{t−1}
         return (rows * torch.bmm(weights, earlier.transpose(1, 2))).reshape(*z.shape, num_codes + 1)
 
+    def step(self, z_t: Tensor, x0_probs: Tensor, t: int, s: int, uniforms: Tensor) -> Tensor:
+        """z_s drawn for z_t: the reverse jump p_θ(z_s | z_t) = Σ_k q(z_s | z_t, z0 = k)·p_θ(z0 = k | z_t)
+        of M2D2M (Chi et al., 2024), eq. 4 (:meth:`posterior_probs`, exact for any jump s < t), drawn
+        by :func:`categorical` with one uniform per position. No mask survives the last jump (s = 0):
+        a position that draws it takes its most probable code.
+
+        ``x0_probs`` (..., K) is the denoiser's p_θ(z0 | z_t, y), after guidance and truncation. The
+        tokens are not range-checked, which would read them on the host every step: a sampler's
+        are valid by construction."""
+        probs = self.posterior_probs(z_t, x0_probs, t, s, validate=False)
+        z_s = categorical(probs, uniforms)
+        if s == 0:
+            z_s = torch.where(z_s == self.mask_index, x0_probs.argmax(dim=-1), z_s)
+        return z_s
+
     def true_posterior(self, z_t: Tensor, z0: Tensor, t: int | Tensor, validate: bool = True) -> Tensor:
         """q(z_{t−1} | z_t, z0) for known codes z0, float64 (..., K+1): :meth:`posterior_probs` at a
         one-hot x0, Q_t[z_t, j]·Q̄_{t−1}[j, z0] / Q̄_t[z_t, z0], by gathers alone (the target of the
@@ -440,6 +453,18 @@ class TransitionSchedule:
         self._timesteps(tt, tt.shape, low=1, validate=validate)
         t_group = torch.broadcast_to(tt.reshape(shape[:lead]), z.shape[:lead]).reshape(-1)
         return t_group, z.reshape(t_group.shape[0], math.prod(z.shape[lead:]))
+
+
+def categorical(probs: Tensor, uniforms: Tensor) -> Tensor:
+    """Inverse-CDF draw over the last dimension with given uniforms in [0, 1), so that a caller
+    decides whose random stream each draw takes.
+
+    Counting the states whose CDF stays at or below u·total never picks a zero-probability state;
+    a row with no mass at all gets the last state (the mask), which a sampler treats as undecided.
+    """
+    cdf = probs.cumsum(dim=-1)
+    chosen = (cdf <= uniforms.unsqueeze(-1).to(cdf.dtype) * cdf[..., -1:]).sum(dim=-1)
+    return chosen.clamp_max(probs.shape[-1] - 1)
 
 
 def _x0_ratios(probs: Tensor | float, reach: Tensor) -> Tensor:

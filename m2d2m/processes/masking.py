@@ -102,3 +102,15 @@ def least_confident(confidence: Tensor, candidates: Tensor, counts: Tensor) -> T
     score = confidence.double().masked_fill(~candidates, math.inf)
     rank = score.argsort(dim=1, stable=True).argsort(dim=1)
     return (rank < counts[:, None]) & candidates
+
+
+def unmask(tokens: Tensor, drawn: Tensor, logits: Tensor, still_masked: Tensor, mask_id: int) -> Tensor:
+    """One iteration of parallel decoding (MMM §3.2, after MaskGIT): the masked positions of
+    ``tokens`` (B, L) take their ``drawn`` tokens, but the ``still_masked[b]`` of row b the model
+    was least sure of stay masked. The model's sureness is its own probability of the drawn token
+    (``logits``, before the temperature and filtering the draw used, so that top-k = 1 still ranks
+    positions). Decided tokens never change."""
+    masked = tokens == mask_id
+    confidence = torch.softmax(logits.double(), dim=-1).gather(-1, drawn[..., None])[..., 0]
+    again = least_confident(confidence, masked, still_masked)
+    return torch.where(masked & ~again, drawn, tokens)
