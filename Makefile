@@ -1,11 +1,38 @@
 # m2d2m: every verb bootstraps its own virtual environment, so a fresh clone needs only make and
-# Python 3.11. Stages chain without arguments (each takes the newest output of the one before).
+# Python 3.11 to 3.14. Stages chain without arguments (each takes the newest output of the one before).
 
-PYTHON ?= python3.11
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 M2D2M  := $(BIN)/m2d2m
+
+# The interpreter .venv is made with: Python 3.11 to 3.14, pyproject.toml's requires-python (README, "Python
+# versions"). Left out, PYTHON is the first of PYTHONS that runs, is one of those versions and has venv and
+# ensurepip (Debian, Ubuntu: python3.x-venv), looked for only when .venv is to be made; 3.11 comes first, the
+# version tested longest. `make PYTHON=python3.13 ...` (a name on PATH or a path) names one: a .venv of another
+# Python version is then made again with it. Without PYTHON an existing .venv is kept, whatever its Python.
+PYTHONS  := python3.11 python3.12 python3.13 python3.14 python3
+PY_PROBE := import sys, venv, ensurepip; v = sys.version_info[:2]; print(*v, sep=".") if (3, 11) <= v < (3, 15) else exit(1)
+py_version = $(shell $(1) -c '$(PY_PROBE)' 2>/dev/null)
+ifeq ($(filter command line environment,$(origin PYTHON)),)
+PYTHON = $(eval PYTHON := $(shell for p in $(PYTHONS); do $$p -c '$(PY_PROBE)' >/dev/null 2>&1 && { echo $$p; break; }; done))$(PYTHON)
+else
+PYTHON_VERSION := $(call py_version,$(PYTHON))
+ifeq ($(PYTHON_VERSION),)
+PYTHON_BAD := $(subst ",',$(shell $(PYTHON) -V 2>&1 | head -n 1))
+PYTHON_BAD := $(or $(PYTHON_BAD),it says nothing)
+else ifneq ($(wildcard $(BIN)/python),)
+VENV_VERSION := $(call py_version,$(BIN)/python)
+ifneq ($(VENV_VERSION),$(PYTHON_VERSION))
+VENV_OTHER_PYTHON := 1
+endif
+endif
+endif
+# PYTHON names this project's interpreter, not that of a make which a verb's commands run (a test's make -n)
+unexport PYTHON
+MAKEOVERRIDES := $(filter-out PYTHON=%,$(MAKEOVERRIDES))
+NO_PYTHON := echo "make: no Python 3.11-3.14 with venv found (tried $(PYTHONS)); install one (Debian, Ubuntu: \
+	python3.x-venv) or name it: make PYTHON=/path/to/python3.x ..." >&2; exit 2
 
 DATASET ?= synthetic
 SET     ?=
@@ -36,19 +63,29 @@ ifneq ($(VENV_OWNER),$(CURDIR))
 VENV_ELSEWHERE := 1
 endif
 
+VENV_REMAKE := $(or $(VENV_ELSEWHERE),$(VENV_OTHER_PYTHON),$(PYTHON_BAD))
+
 # torch first, pinned, so that nothing resolves a CUDA build of several GB.
-$(STAMP): pyproject.toml $(if $(VENV_ELSEWHERE),rebuild-venv)
+$(STAMP): pyproject.toml $(if $(VENV_REMAKE),rebuild-venv)
+ifdef PYTHON_BAD
+	@echo "make: PYTHON=$(PYTHON) is not a Python 3.11-3.14 with venv and ensurepip (Debian, Ubuntu: python3.x-venv): $(PYTHON_BAD)" >&2; exit 2
+endif
 ifdef VENV_ELSEWHERE
 	@test ! -e $(BIN) || echo "$(VENV) belongs to $(or $(VENV_OWNER),another folder), not $(CURDIR): making it again"
-	$(PYTHON) -m venv --clear $(VENV)
+endif
+ifdef VENV_OTHER_PYTHON
+	@echo "$(VENV) runs $(if $(VENV_VERSION),Python $(VENV_VERSION),no Python that works), not $(PYTHON_VERSION) (PYTHON=$(PYTHON)): making it again"
+endif
+ifdef VENV_REMAKE
+	$(if $(PYTHON),$(PYTHON) -m venv --clear $(VENV),@$(NO_PYTHON))
 else
-	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@test -x $(BIN)/python || { $(if $(PYTHON),$(PYTHON) -m venv $(VENV),$(NO_PYTHON)); }
 endif
 	$(BIN)/pip install --quiet --disable-pip-version-check torch==2.13.0
 	$(BIN)/pip install --quiet --disable-pip-version-check -e ".[test]"
 	@echo '$(CURDIR)' > $@
 
-rebuild-venv:  # a prerequisite that is never up to date: .venv belongs to another folder
+rebuild-venv:  # a prerequisite that is never up to date: .venv belongs to another folder or Python
 
 setup: $(STAMP)  ## create .venv with the project and its test tools
 
