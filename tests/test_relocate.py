@@ -9,6 +9,7 @@ import os
 import shutil
 import sqlite3
 import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -183,3 +184,44 @@ def test_make_makes_a_venv_of_another_folder_again(tmp_path):
         venv_python.write_text(f"#!/bin/sh\necho {owner}\n", encoding="utf-8")  # where its m2d2m is
         venv_python.chmod(0o755)
         assert ("venv --clear" in make_plan(project, None)) == remade
+
+
+def fake_python(path: Path, version: str, usable: bool = True) -> Path:
+    """A stand-in for Python ``version`` (``3.12``) that the Makefile's probe finds usable or, like
+    a Python outside 3.11-3.14, not (the probe exits 1; ``-V`` still says what it is)."""
+    probe = f"echo {version}" if usable else "exit 1"
+    path.write_text(f'#!/bin/sh\nif [ "$1" = -V ]; then echo Python {version}; else {probe}; fi\n', encoding="utf-8")
+    path.chmod(0o755)
+    return path
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs GNU make")
+def test_make_takes_the_python_it_is_named_and_refuses_one_it_cannot_use(tmp_path):
+    """README, "Python versions": ``make PYTHON=...`` makes .venv with that interpreter, again when
+    .venv runs another version; a Python outside 3.11-3.14 is one line (then make's own) and exit 2,
+    with nothing made."""
+    project = tmp_path / "copy"
+    (project / ".venv" / "bin").mkdir(parents=True)
+    for name in ("Makefile", "pyproject.toml"):
+        shutil.copy(REPOSITORY / name, project / name)
+    (project / ".venv" / ".installed").write_text(f"{project}\n", encoding="utf-8")
+    os.utime(project / "pyproject.toml", (0, 0))
+    this = f"{sys.version_info.major}.{sys.version_info.minor}"
+    other = "3.12" if this != "3.12" else "3.13"
+
+    def plan(python: str) -> str:
+        return subprocess.run(
+            ["make", "-n", "setup", f"PYTHON={python}"], cwd=project, capture_output=True, text=True, check=True
+        ).stdout
+
+    fake_python(project / ".venv" / "bin" / "python", this)
+    assert "venv --clear" not in plan(sys.executable)  # .venv already runs this version: kept
+    fake_python(project / ".venv" / "bin" / "python", other)
+    assert f"{sys.executable} -m venv --clear .venv" in plan(sys.executable)  # made again with the one named
+
+    old = fake_python(tmp_path / "python3.10", "3.10.12", usable=False)
+    refused = subprocess.run(["make", "setup", f"PYTHON={old}"], cwd=project, capture_output=True, text=True)
+    message, *made = refused.stderr.strip().splitlines()
+    assert refused.returncode == 2 and all(line.startswith("make: ***") for line in made), refused.stderr
+    assert f"PYTHON={old} is not a Python 3.11-3.14" in message and "Python 3.10.12" in message
+    assert sorted(p.name for p in (project / ".venv").iterdir()) == [".installed", "bin"]  # nothing made
