@@ -132,6 +132,10 @@ class Trainable:
         """A registered model's training."""
         return cls(entry.stage, entry.configs, entry.model_file, entry.load("recipe"))
 
+    def stage_of(self, config: dict[str, Any]) -> str:
+        """The stage a run of ``config`` is filed under (:meth:`Recipe.stage`)."""
+        return self.recipe.stage(self.stage, config)
+
 
 def caption_vocabulary(
     config: dict[str, Any], datamodule: Any, sentences: Callable[[dict[str, Any]], Iterable[str]]
@@ -168,7 +172,7 @@ def run_recipe(
 
     recipe = trainable.recipe
     run = open_run(
-        functools.partial(recipe.stage, trainable.stage),
+        trainable.stage_of,
         trainable.configs,
         config_name,
         overrides or [],
@@ -273,7 +277,7 @@ def train_on_workers(
 
     trainable = Trainable.of_model(model(name))
     run_dir = open_run(
-        functools.partial(trainable.recipe.stage, trainable.stage),
+        trainable.stage_of,
         trainable.configs,
         config_name,
         overrides,

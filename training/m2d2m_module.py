@@ -86,7 +86,6 @@ class M2D2MModule(FiniteLossGuard):
         # a loaded checkpoint brings its own codebook: rebuild the schedule from it
         self.register_load_state_dict_post_hook(lambda module, keys: module._rebuild_schedule())
 
-    # ----------------------------------------------------------------------------------- schedule
     def model_parts(self) -> dict[str, Any]:
         """The networks and settings this module gives its model file (m2d2m/generators/m2d2m_checkpoint.py)."""
         return {
@@ -96,6 +95,7 @@ class M2D2MModule(FiniteLossGuard):
             "codebook": self.codebook,
         }
 
+    # ----------------------------------------------------------------------------------- schedule
     def _build_schedule(self) -> TransitionSchedule:
         return TransitionSchedule.from_config(self.codebook, self.hparams.diffusion)
 
