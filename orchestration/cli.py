@@ -555,7 +555,9 @@ def _add_data(verbs) -> None:
         "--replace", action="store_true", help="replace an --out built from another raw corpus (or holding no dataset)"
     )
     data.add_argument("--check", metavar="DIR", help="verify a processed dataset against its manifest and exit")
-    mocap = data.add_argument_group("motion capture (the bvh and humanml3d-public corpora; docs/data.md)")
+    mocap = data.add_argument_group(
+        "motion capture (the bvh, humanml3d-public, bandai-namco and cmu-kitml corpora; docs/data.md)"
+    )
     mocap.add_argument("--bvh", metavar="DIR", help="humanml3d-public: a folder of CMU's BVH files")
     mocap.add_argument(
         "--joint-map",
@@ -566,6 +568,8 @@ def _add_data(verbs) -> None:
         "--units",
         help="bvh: m, cm, mm, inch, cmu or metres per unit (default: the unit the rig stands a person's height in)",
     )
+    mocap.add_argument("--subset", help="bandai-namco: dataset-1, dataset-2 or both (default both)")
+    mocap.add_argument("--annotations", metavar="FILE", help="cmu-kitml: KIT-ML's annotations.json (Mathux/TMR)")
     data.set_defaults(run=_data)
 
 

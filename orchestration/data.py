@@ -25,7 +25,13 @@ from pipelines.synthetic import FAMILIES, existing_corpus, generate_corpus
 SYNTHETIC_CLIPS, SYNTHETIC_SEED = 2000, 0  # `m2d2m synthesize`'s defaults, and the corpus `m2d2m data` makes
 
 # The options of `m2d2m data` that a corpus's layout takes (CorpusLayout.options), by their flags.
-LAYOUT_OPTIONS = {"bvh": "--bvh", "joint_map": "--joint-map", "units": "--units"}
+LAYOUT_OPTIONS = {
+    "bvh": "--bvh",
+    "joint_map": "--joint-map",
+    "units": "--units",
+    "subset": "--subset",
+    "annotations": "--annotations",
+}
 
 
 def synthesize(
@@ -97,8 +103,9 @@ def _layout_options(dataset: str, layout: CorpusLayout, given: Mapping[str, str 
     for name in chosen.keys() - set(layout.options):
         takes = ", ".join(LAYOUT_OPTIONS[o] for o in layout.options) or "none"
         raise UserError(f"{LAYOUT_OPTIONS[name]}: the {dataset} corpus does not take it (it takes {takes})")
-    if "bvh" in chosen:
-        chosen["bvh"] = str(Path(chosen["bvh"]).resolve())
+    for path_option in ("bvh", "annotations"):
+        if path_option in chosen:
+            chosen[path_option] = str(Path(chosen[path_option]).resolve())
     if "joint_map" in chosen and chosen["joint_map"] not in PRESETS:
         if not Path(chosen["joint_map"]).is_file():
             raise UserError(f"--joint-map: {chosen['joint_map']} is neither a preset ({', '.join(PRESETS)}) nor a file")

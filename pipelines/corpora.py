@@ -15,8 +15,8 @@ from __future__ import annotations
 import importlib
 import math
 import zipfile
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -167,7 +167,9 @@ class CorpusLayout:
     ``word/POS``, start and end seconds) raise :class:`Rejected` for an input that cannot become a
     sample. ``tagged_captions``: whether the captions come with their tags; where they do not,
     their tokens are ``None`` and the pipeline tags them. ``ships_mirrors(rows)``: whether the
-    corpus lists its own mirrors, so the pipeline makes none."""
+    corpus lists its own mirrors, so the pipeline makes none. ``about``: what a user of the
+    shards must know of the corpus (``licence``, ``attribution``, how ``splits`` are made...),
+    recorded in the manifest under ``corpus``; ``m2d2m data`` prints its licence."""
 
     name: str
     list_rows: Callable[..., list[dict[str, Any]]]
@@ -176,6 +178,7 @@ class CorpusLayout:
     ships_mirrors: Callable[[list[dict[str, Any]]], bool] = never_mirrored
     options: tuple[str, ...] = ()
     tagged_captions: bool = True
+    about: Mapping[str, str] = field(default_factory=dict)
 
 
 HUMANML3D_LAYOUT = CorpusLayout("humanml3d", list_corpus, load_motion, load_captions, corpus_ships_mirrors)

@@ -525,6 +525,7 @@ def _build(config: DataConfig) -> dict[str, Any]:
         },
         "quarantine_reasons": dict(Counter(f"{q['stage']}: {reason_kind(q['reason'])}" for q in quarantine)),
         "shards": shards,
+        "corpus": dict(config.corpus.layout.about),
         "config": config.recorded(),
         "code_version": code_version(),
     }
@@ -537,3 +538,6 @@ def print_summary(manifest: dict[str, Any], out: str | Path) -> None:
     quarantine = [json.loads(line) for line in quarantine_path.read_text(encoding="utf-8").splitlines()]
     print(stage_counts(manifest))
     print(summary_table(manifest, quarantine))
+    for key in ("licence", "attribution"):
+        if key in manifest.get("corpus", {}):
+            print(f"{key}: {manifest['corpus'][key]}")
