@@ -20,6 +20,7 @@ from m2d2m.evaluation.metrics import (
     multimodality,
     peak_jerk_and_auj,
     r_precision,
+    student_t_quantile,
     transition_windows,
 )
 
@@ -267,12 +268,32 @@ def test_transition_windows_centre_on_boundaries_and_clip_to_the_sequence():
 # ------------------------------------------------------------------------------- reporting
 
 
-def test_mean_confidence_interval_uses_1_96_std_over_root_n():
+def test_mean_confidence_interval_is_students_t_over_the_repeats():
+    """[1, 2, 3, 4]: s = √(5/3) (ddof 1), t(0.975, 3) = 3.182446 (any t table), so the half-width
+    is 3.182446 · 1.290994 / 2 = 2.054260, against Guo's 1.96 · 1.118034 / 2 = 1.095673."""
     mean, half = mean_confidence_interval([1.0, 2.0, 3.0, 4.0])
-    assert mean == 2.5 and half == pytest.approx(1.96 * np.sqrt(1.25) / 2)
+    assert mean == 2.5 and half == pytest.approx(2.054260, abs=1e-6)
     means, halves = mean_confidence_interval(np.array([[0.7, 0.8], [0.9, 0.8]]))
     np.testing.assert_allclose(means, [0.8, 0.8])
-    np.testing.assert_allclose(halves, [1.96 * 0.1 / np.sqrt(2), 0.0], atol=1e-15)
+    np.testing.assert_allclose(halves, [12.706205 * np.std([0.7, 0.9], ddof=1) / np.sqrt(2), 0.0], atol=1e-6)
+    mean, half = mean_confidence_interval([3.0])
+    assert mean == 3.0 and np.isnan(half)
+
+
+@pytest.mark.parametrize(
+    "dof, quantile",  # two-sided 95 %: Student's table (t at 0.975)
+    [(1, 12.706205), (2, 4.302653), (3, 3.182446), (4, 2.776445), (9, 2.262157), (30, 2.042272), (120, 1.979930)],
+)
+def test_the_t_quantile_matches_students_table(dof, quantile):
+    assert student_t_quantile(0.95, dof) == pytest.approx(quantile, abs=1e-6)
+
+
+def test_the_t_quantile_matches_scipy_at_every_confidence_and_dof():
+    stats = pytest.importorskip("scipy.stats")
+    for dof in (1, 2, 5, 17, 60, 500):
+        for confidence in (0.5, 0.8, 0.9, 0.95, 0.99):
+            expected = stats.t.ppf(0.5 + confidence / 2, dof)
+            assert student_t_quantile(confidence, dof) == pytest.approx(expected, rel=1e-9)
 
 
 # ------------------------------------------------------------------------------- bad inputs
@@ -300,6 +321,7 @@ def test_mean_confidence_interval_uses_1_96_std_over_root_n():
         (lambda: jerk(np.zeros((50, 2, 3)), 20.0, [1], window=4), "at least 4"),
         (lambda: jerk(np.zeros((50, 2, 3)), 0.0, [25]), "fps"),
         (lambda: mean_confidence_interval([]), "at least one replication"),
+        (lambda: student_t_quantile(0.95, 0), "dof >= 1"),
     ],
 )
 def test_bad_inputs_raise_a_clear_value_error(call, message):
