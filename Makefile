@@ -48,7 +48,7 @@ DEMO    ?= runs/demo
 .DEFAULT_GOAL := help
 .PHONY: help setup models demo test test-all lint bench bench-gpu corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
         train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
-        reproduce learning-curves ui serve clean rebuild-venv
+        reproduce learning-curves ui serve clean rebuild-venv demo-real
 
 help:  ## list the verbs
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -191,8 +191,8 @@ SERVE_ARGS ?=
 serve: $(STAMP)  ## the page and HTTP API at http://127.0.0.1:8000 (after make demo; SERVE_ARGS="--port 8080 --host 0.0.0.0 --token ...")
 	$(M2D2M) serve --dataset $(DATASET) $(SERVE_ARGS)
 
-models: $(STAMP)  ## what each trained model knows: its actions, lengths, words, methods and sampling defaults
-	$(M2D2M) models --dataset $(DATASET)
+models: $(STAMP)  ## what each trained model knows (every dataset's, or DATASET=...): its actions, lengths, words, methods and sampling defaults
+	$(M2D2M) models $(if $(filter command line environment,$(origin DATASET)),--dataset $(DATASET))
 
 ui: $(STAMP)  ## the MLflow UI on the project's tracking store (UI_PORT=5000)
 	$(M2D2M) ui --port $(UI_PORT)
@@ -238,6 +238,29 @@ compare: $(STAMP)  ## M2D2M, MMM and MotionDiffuse trained (what is missing) and
 	$(M2D2M) testset --dataset synthetic --n 4 --seed 0
 	$(M2D2M) evaluate --dataset synthetic --model m2d2m,mmm,motiondiffuse --method $(COMPARE_METHODS) --single \
 		--repeats $(COMPARE_REPEATS) --option motiondiffuse.steps=$(COMPARE_MD_STEPS) $(COMPARE_ARGS)
+
+# Real motion: the Bandai Namco Research Motion Dataset (CC BY-NC 4.0, non-commercial), cloned beside this
+# project, built into data/bandai-namco and learned by every model at the demo's sizes (configs/*/bandai-namco.yaml),
+# then the seed systems judged in one evaluate run on its 4-action test set (docs/reproduction.md, "On real motion").
+REAL_RAW     ?= ../Bandai-Namco-Research-Motiondataset
+REAL_REPEATS ?= 5
+REAL_PROMPTS := "a person walks forward" "a person bows" "a person waves the right hand" "a person runs forward"
+demo-real: $(STAMP)  ## the whole flow on real motion capture: the Bandai Namco corpus (REAL_RAW=its clone, default beside this folder), the four models, their table
+	@test -d "$(REAL_RAW)" || { echo "make demo-real: no Bandai Namco clone at $(REAL_RAW); git clone \
+	https://github.com/BandaiNamcoResearchInc/Bandai-Namco-Research-Motiondataset $(REAL_RAW) (or REAL_RAW=its path)" >&2; exit 2; }
+	$(M2D2M) data --dataset bandai-namco --raw $(REAL_RAW)
+	$(M2D2M) train-vq --config bandai-namco
+	$(M2D2M) tokenize --dataset bandai-namco
+	$(M2D2M) train-diffusion --config bandai-namco
+	$(M2D2M) train-mmm --config bandai-namco
+	$(M2D2M) train-motiondiffuse --config bandai-namco
+	$(M2D2M) train-evaluator --config bandai-namco
+	$(M2D2M) testset --dataset bandai-namco --n 4 --seed 0
+	$(M2D2M) evaluate --dataset bandai-namco --model m2d2m,mmm,motiondiffuse --method $(COMPARE_METHODS) --single \
+		--repeats $(REAL_REPEATS) --option motiondiffuse.steps=$(COMPARE_MD_STEPS)
+	$(M2D2M) generate $(REAL_PROMPTS) --dataset bandai-namco --out $(DEMO)-real --name four-actions
+	@echo "Look at $(DEMO)-real/four-actions.gif; the table is in runs/bandai-namco/eval/<run>/table.md."
+	@echo "Type your own actions on the real-motion models: make serve DATASET=bandai-namco"
 
 SWEEP_CONFIG ?= demo
 RAY_ADDRESS_ARG ?=

@@ -918,7 +918,7 @@ def _add_models(verbs) -> None:
     listing = verbs.add_parser(
         "models", help="what each trained model knows: its actions, lengths, words, methods and defaults"
     )
-    listing.add_argument("--dataset", default="synthetic", help="whose runs to describe (default synthetic)")
+    listing.add_argument("--dataset", help="whose runs to describe (default: every dataset with a trained model)")
     listing.set_defaults(run=_models)
 
 

@@ -1,4 +1,4 @@
-"""``m2d2m models``: what each trained model of a dataset can be asked for, before anyone asks —
+"""``m2d2m models``: what each trained model of a dataset (or of every dataset) can be asked for, before anyone asks —
 the actions it was shown, how long an action may be, the words it reads, its methods and the
 defaults a generation with nothing set samples with (issue 38: the demo model's 18 actions and
 0.2–10 s per action were shown nowhere until an error)."""
@@ -12,11 +12,38 @@ from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.layout import relative_to_project
 from orchestration.errors import NotInProject
 from orchestration.registry import models
+from orchestration.runs import RUNS_ROOT
 from orchestration.web.catalog import finished_runs, load_run
 
 
-def summary_lines(dataset: str) -> list[str]:
-    """The summary of every registered model with a finished run of ``dataset``: its latest run's."""
+def trained_datasets() -> list[str]:
+    """The datasets (folders of ``runs/``) holding a finished run of a registered model, by name."""
+    if not RUNS_ROOT.is_dir():
+        return []
+    return sorted(
+        folder.name
+        for folder in RUNS_ROOT.iterdir()
+        if folder.is_dir() and any(finished_runs(entry, folder.name) for entry in models().values())
+    )
+
+
+def summary_lines(dataset: str | None = None) -> list[str]:
+    """The summary of every registered model with a finished run of ``dataset``: its latest run's;
+    of every dataset's, under a line naming the dataset and how to serve it, when none is named
+    (a real-motion model beside the demo's is then found without knowing its dataset's name)."""
+    if dataset is not None:
+        return _dataset_lines(dataset)
+    datasets = trained_datasets()
+    if not datasets:
+        raise NotInProject("no model has finished training; run `make demo` (or `make train-diffusion`) first")
+    lines: list[str] = []
+    for name in datasets:
+        lines += [f"dataset {name} (serve it: m2d2m serve --dataset {name})"]
+        lines += [f"  {line}" for line in _dataset_lines(name)]
+    return lines
+
+
+def _dataset_lines(dataset: str) -> list[str]:
     lines: list[str] = []
     for entry in models().values():
         runs = finished_runs(entry, dataset)

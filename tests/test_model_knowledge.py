@@ -74,6 +74,15 @@ def test_models_and_the_run_details_list_the_actions_and_lengths_it_knows(client
     assert "each action 0.2–4.8 s, at 20 frames per second; it reads only the words of its training captions" in printed
 
 
+def test_models_without_a_dataset_lists_every_trained_dataset(chosen_run, capsys):
+    """A real-motion model beside the demo's is found without knowing its dataset's name."""
+    assert main(["models"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert "dataset tiny (serve it: m2d2m serve --dataset tiny)" in printed
+    assert any(line.startswith("  m2d2m: ") for line in printed)
+    assert f"    run {chosen_run.name}, 1 older ({chosen_run.relative_to(chosen_run.parents[3])}/model.pt)" in printed
+
+
 def test_models_outside_a_trained_dataset_is_one_line(chosen_run, capsys):
     assert main(["models", "--dataset", "nothing-here"]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
