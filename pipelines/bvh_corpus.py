@@ -30,6 +30,7 @@ from m2d2m.layout import relative_to_project
 from m2d2m.motion.bvh_reader import BvhError, read_bvh, resample
 from m2d2m.motion.joint_map import JointMap, joint_map_for
 from m2d2m.motion.skeleton import T2M, Skeleton
+from m2d2m.motion.up_axis import stance
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, Rejected, register_corpus
 
 CAPTIONS = "captions.csv"
@@ -43,14 +44,17 @@ def take_joints(
     units: str | None = None,
     fps: float | None = None,
 ) -> tuple[np.ndarray, JointMap]:
-    """A BVH take as ``skeleton``'s joints (T, J, 3) in metres at the skeleton's frame rate, and
-    the joint map that made them; ``fps`` is the rate the take was captured at where its Frame
-    Time says otherwise. :class:`Rejected` says why a take cannot be read."""
+    """A BVH take as ``skeleton``'s joints (T, J, 3) in metres, standing along +Y (turned so where
+    its motion stands along another axis: :func:`~m2d2m.motion.up_axis.stance`), at the
+    skeleton's frame rate, and the joint map that made them; ``fps`` is the rate the take was
+    captured at where its Frame Time says otherwise. :class:`Rejected` says why a take cannot be read."""
     try:
         clip = read_bvh(path)
         mapping = joint_map_for(clip, joint_map)
-        scale = mapping.metres_per_unit(clip, units, skeleton)
-        joints = resample(mapping.joints(clip, skeleton) * scale, fps or clip.fps, skeleton.fps)
+        mapped = mapping.joints(clip, skeleton)
+        standing = stance(mapped, skeleton)
+        scale = mapping.metres_per_unit(clip, units, skeleton, standing)
+        joints = resample(standing.upright(mapped) * scale, fps or clip.fps, skeleton.fps)
     except (BvhError, ValueError) as error:  # a YAML map that is not one is a ValueError
         raise Rejected("read", str(error).removeprefix(f"{path}: ")) from error  # the row names the file
     return joints.astype(np.float32), mapping

@@ -30,6 +30,7 @@ from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU, HUMANML3D_FRAMES
 from tests.test_data_pipeline import read_split
 from tests.test_joint_map import motionbuilder_release
+from tests.test_up_axis import z_up_bvh
 
 PUBLIC = Path(__file__).parent / "fixtures" / "humanml3d-public"
 BOUNDS = FrameBounds(40, 200)
@@ -74,11 +75,10 @@ def test_the_unit_is_found_from_the_rigs_height():
     assert PRESETS["cmu"].metres_per_unit(in_centimetres, "0.5") == 0.5
 
 
-def stands(tall: float, up: str = "y"):
-    """CMU's 131_01 rig standing ``tall`` units high, along +Y or (swapping axes) +Z."""
+def stands(tall: float):
+    """CMU's 131_01 rig standing ``tall`` units high."""
     clip = read_bvh(CMU / "131_01.bvh")
-    clip = replace(clip, offsets=clip.offsets * tall / np.linalg.norm(PRESETS["cmu"].stature(clip)))
-    return clip if up == "y" else replace(clip, offsets=clip.offsets[:, [0, 2, 1]])
+    return replace(clip, offsets=clip.offsets * tall / np.linalg.norm(PRESETS["cmu"].stature(clip)))
 
 
 @pytest.mark.parametrize(
@@ -87,12 +87,21 @@ def stands(tall: float, up: str = "y"):
         (stands(7.0), None, "cannot tell the unit: the rig stands 7 units tall; give --units"),
         (stands(1.7), "furlong", "unknown unit 'furlong'"),
         (stands(1.7), "-1", "metres per unit must be positive"),
-        (stands(1.7, up="z"), None, "the rig does not stand along \\+Y in its rest pose"),
     ],
 )
 def test_a_unit_that_cannot_be_told_is_one_line(clip, units, message):
     with pytest.raises(ValueError, match=message):
         PRESETS["cmu"].metres_per_unit(clip, units)
+
+
+def test_a_take_standing_along_z_reads_as_the_y_up_one(tmp_path):
+    """A rig standing along +Z was refused ("does not stand along +Y in its rest pose"); its
+    motion now says where up is (m2d2m/motion/up_axis.py): 131_01 written Z-up reads as 131_01,
+    found in CMU's unit as that is."""
+    (tmp_path / "131_01.bvh").write_text(z_up_bvh((CMU / "131_01.bvh").read_text(encoding="utf-8")), encoding="utf-8")
+    z_up, mapping = take_joints(tmp_path / "131_01.bvh")
+    assert mapping is PRESETS["cmu"] and mapping.standing(read_bvh(tmp_path / "131_01.bvh")).axis == "+Z"
+    np.testing.assert_allclose(z_up, take_joints(CMU / "131_01.bvh")[0], atol=1e-5)  # the file's six decimals
 
 
 def test_a_take_without_a_split_goes_where_its_name_hashes_and_stays_there():
@@ -119,7 +128,7 @@ WIDTH = len((CMU / "131_01.bvh").read_text(encoding="utf-8").split("Frame Time:"
             "robot.bvh",
             "HIERARCHY\nROOT Base\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n End Site\n {\n"
             "  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 1\nFrame Time: 0.05\n0 0 0\n",
-            "no joint map preset (cmu, cmu-motionbuilder, mixamo, smpl) fits a BVH with joints Base",
+            "no joint map preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco) fits a BVH with joints Base",
         ),
         ("empty.bvh", f"{HIERARCHY}MOTION\nFrames: 0\nFrame Time: 0.008333\n", "no frames"),
         (
@@ -258,7 +267,7 @@ def test_data_says_in_one_line_when_a_corpus_does_not_take_an_option(capsys):
     assert "--bvh: the synthetic corpus does not take it (it takes none)" in capsys.readouterr().err
     assert main(["data", "--dataset", "bvh", "--raw", str(CMU), "--joint-map", "nope.yaml", "--out", "/tmp/x"]) == 2
     assert (
-        "--joint-map: nope.yaml is neither a preset (cmu, cmu-motionbuilder, mixamo, smpl) nor a file"
+        "--joint-map: nope.yaml is neither a preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco) nor a file"
         in capsys.readouterr().err
     )
 

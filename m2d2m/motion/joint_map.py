@@ -9,7 +9,8 @@ midpoint of CMU's upper back and thorax, and its collars the midpoints of the cl
 features made from them are not HumanML3D's, and their scores must not be set beside published
 ones). Two more presets serve retargeting onto a character (:mod:`m2d2m.motion.retarget`):
 Mixamo's rigs (``mixamorig:Hips``, ``mixamorig:LeftUpLeg``…, each of ours one of theirs) and
-SMPL's 24 joints, whose first 22 are T2M's under the same names. A user's own rig is a YAML map:
+SMPL's 24 joints, whose first 22 are T2M's under the same names. ``bandai-namco`` reads the
+Bandai Namco Research Motion Dataset's 22-joint rig (:func:`_bandai_namco`). A user's own rig is a YAML map:
 ``our joint: their joint`` or ``our joint: [theirs, …]`` for a midpoint, every joint of the
 layout named once.
 """
@@ -24,6 +25,7 @@ import yaml
 
 from m2d2m.motion.bvh_reader import BvhClip, BvhError, BvhHeader
 from m2d2m.motion.skeleton import T2M, Skeleton
+from m2d2m.motion.up_axis import Stance, stance
 
 # Metres per unit of the units BVH files come in; "cmu" is CMU's cgspeed conversions' 1/0.45 inch.
 UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "cmu": 0.0254 / 0.45}
@@ -57,12 +59,20 @@ class JointMap:
         return all(name in clip.names for theirs in self.sources.values() for name in theirs)
 
     def joints(self, clip: BvhClip, skeleton: Skeleton = T2M) -> np.ndarray:
-        """``clip``'s motion as ``skeleton``'s joints (T, J, 3), in the clip's lengths, its rest
-        frames left out; BvhError names the joints the map reads that the file lacks, or says
-        that no frame of motion is left."""
+        """``clip``'s motion as ``skeleton``'s joints (T, J, 3), in the clip's lengths and axes, its
+        rest frames left out; BvhError names the joints the map reads that the file lacks, or says
+        that no frame of motion is left. :func:`~m2d2m.motion.up_axis.stance` says which way is up."""
         if len(clip.values) <= self.rest_frames:
             raise BvhError(f"joint map {self.name}: the file holds its rest pose and no motion after it")
         return self._mapped(clip.positions()[self.rest_frames :], clip, skeleton)
+
+    def standing(self, clip: BvhClip, skeleton: Skeleton = T2M) -> Stance:
+        """How ``clip``'s motion stands (:func:`~m2d2m.motion.up_axis.stance`; its rest frames left
+        out, unless it holds nothing else: a rig file's one frame), in the clip's lengths."""
+        positions = clip.positions()
+        if len(positions) > self.rest_frames:
+            positions = positions[self.rest_frames :]
+        return stance(self._mapped(positions, clip, skeleton), skeleton)
 
     def _mapped(self, positions: np.ndarray, clip: BvhClip, skeleton: Skeleton) -> np.ndarray:
         lacking = sorted({name for theirs in self.sources.values() for name in theirs} - set(clip.names))
@@ -83,14 +93,15 @@ class JointMap:
         feet = rest[list(skeleton.feet_left + skeleton.feet_right)].mean(axis=0)
         return rest[skeleton.head_joint] - feet
 
-    def metres_per_unit(self, clip: BvhClip, units: str | None = None, skeleton: Skeleton = T2M) -> float:
+    def metres_per_unit(
+        self, clip: BvhClip, units: str | None = None, skeleton: Skeleton = T2M, standing: Stance | None = None
+    ) -> float:
         """Metres per unit of ``clip``'s lengths: ``units`` named (a key of :data:`UNITS` or a
-        number), or else the one unit in which the rig's rest pose stands a person's height
-        (:data:`STANDING_METRES`); ValueError in one line when it cannot be told, or when the rig
-        does not stand along +Y (m2d2m reads Y-up BVH, as CMU's, Blender's and Mixamo's are)."""
-        stature = self.stature(clip, skeleton)
-        if np.argmax(np.abs(stature)) != 1 or stature[1] <= 0:
-            raise ValueError("the rig does not stand along +Y in its rest pose; m2d2m reads Y-up BVH")
+        number), or else the one unit in which the rig stands a person's height
+        (:data:`STANDING_METRES`): its rest pose's height where that pose stands along the
+        motion's up axis (CMU's T-pose), else its motion's (Bandai Namco's rest pose lies along
+        its bones' X axes); ValueError in one line when it cannot be told. ``standing``: the
+        clip's :meth:`standing`, when the caller has it already."""
         if units is not None:
             if units in UNITS:
                 return UNITS[units]
@@ -101,12 +112,15 @@ class JointMap:
             if not value > 0:
                 raise ValueError(f"metres per unit must be positive, got {units}")
             return value
-        tall = float(np.linalg.norm(stature))
+        standing = standing or self.standing(clip, skeleton)
+        rest = standing.upright(self.stature(clip, skeleton))
+        if np.argmax(np.abs(rest)) == 1 and rest[1] > 0:
+            tall, what = float(np.linalg.norm(rest)), "the rig stands"
+        else:
+            tall, what = standing.height, "the rig's motion stands (head over feet)"
         fitting = [name for name, scale in UNITS.items() if STANDING_METRES[0] <= tall * scale <= STANDING_METRES[1]]
         if len(fitting) != 1:
-            raise ValueError(
-                f"cannot tell the unit: the rig stands {tall:.4g} units tall; give --units ({', '.join(UNITS)})"
-            )
+            raise ValueError(f"cannot tell the unit: {what} {tall:.4g} units tall; give --units ({', '.join(UNITS)})")
         return UNITS[fitting[0]]
 
     @classmethod
@@ -190,6 +204,40 @@ def _mixamo() -> JointMap:
     return JointMap("mixamo", {ours: (f"mixamorig:{theirs}",) for ours, theirs in sources.items()}).check()
 
 
+def _bandai_namco() -> JointMap:
+    """The Bandai Namco Research Motion Dataset's rig (github.com/BandaiNamcoResearchInc/
+    Bandai-Namco-Research-Motiondataset; ``joint_Root`` on the floor, ``Hips``, ``Spine``,
+    ``Chest``, ``Neck``, ``Head``, ``Shoulder_L``, ``UpperArm_L``, ``LowerArm_L``, ``Hand_L``,
+    ``UpperLeg_L``, ``LowerLeg_L``, ``Foot_L``, ``Toes_L`` and the same ``_R``). Its trunk has
+    two joints where SMPL's has three, so, measured as fractions of the height from the hip
+    joints to the neck (Bandai's rest offsets; SMPL's from HumanML3D's sample clip 012314):
+    ``spine1`` is ``Spine`` (0.41; SMPL 0.36), ``spine2`` the midpoint of ``Spine`` and ``Chest``
+    (0.52; 0.58) and ``spine3`` ``Chest`` (0.62; 0.65), where the arms branch off as from SMPL's
+    spine3. Each collar is the midpoint of ``Shoulder`` (the clavicle's inner end, 5 cm off the
+    midline) and ``UpperArm`` (the shoulder joint, 10 cm), as CMU's map makes it: 7.6 cm off the
+    midline, where SMPL's collars lie 7.2 cm off it in 012314."""
+    sources: dict[str, tuple[str, ...]] = {
+        "pelvis": ("Hips",),
+        "spine1": ("Spine",),
+        "spine2": ("Spine", "Chest"),
+        "spine3": ("Chest",),
+        "neck": ("Neck",),
+        "head": ("Head",),
+    }
+    for side, suffix in (("left", "_L"), ("right", "_R")):
+        sources |= {
+            f"{side}_hip": (f"UpperLeg{suffix}",),
+            f"{side}_knee": (f"LowerLeg{suffix}",),
+            f"{side}_ankle": (f"Foot{suffix}",),
+            f"{side}_foot": (f"Toes{suffix}",),
+            f"{side}_collar": (f"Shoulder{suffix}", f"UpperArm{suffix}"),
+            f"{side}_shoulder": (f"UpperArm{suffix}",),
+            f"{side}_elbow": (f"LowerArm{suffix}",),
+            f"{side}_wrist": (f"Hand{suffix}",),
+        }
+    return JointMap("bandai-namco", sources).check()
+
+
 PRESETS: dict[str, JointMap] = {
     "cmu": _cmu(
         "Hip", "Knee", "Ankle", "Toe", "Chest", "Chest2", "Neck", "Collar", "Shoulder", "Elbow", "Wrist", "cmu", 0
@@ -211,6 +259,7 @@ PRESETS: dict[str, JointMap] = {
     ),
     "mixamo": _mixamo(),
     "smpl": JointMap("smpl", {name: (name,) for name in T2M.joint_names}).check(),
+    "bandai-namco": _bandai_namco(),
 }
 
 

@@ -149,6 +149,18 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
     return RigMotion(rig, root, local)
 
 
+def rig_metres_per_unit(
+    clip: BvhClip, joint_map: JointMap, units: str | None = None, skeleton: Skeleton = T2M
+) -> float:
+    """Metres per unit of a rig's lengths (:meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`),
+    or ValueError for a rig that does not stand along +Y (:func:`~m2d2m.motion.up_axis.stance` of
+    its frames): a rig is retargeted onto as it stands, so it must stand as ours does."""
+    standing = joint_map.standing(clip, skeleton)
+    if standing.axis != "+Y":
+        raise ValueError(f"the rig stands along {standing.axis}, not +Y; export it Y-up to retarget onto it")
+    return joint_map.metres_per_unit(clip, units, skeleton, standing)
+
+
 def read_rig(path: str | Path) -> BvhClip:
     """The rig in the file at ``path``: a glTF character (``.glb``, ``.gltf``) or else a BVH."""
     return read_gltf_rig(path) if Path(path).suffix.lower() in GLTF_SUFFIXES else read_bvh(path)
@@ -169,7 +181,7 @@ def retarget_to_bvh(
     :meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`), so it drops onto the character."""
     clip = read_rig(rig_file)
     mapping = joint_map_for(clip, joint_map)
-    scale = mapping.metres_per_unit(clip, units, skeleton)
+    scale = rig_metres_per_unit(clip, mapping, units, skeleton)
     rig = Rig.from_bvh(clip)
     in_metres = replace(rig, offsets=rig.offsets * scale)
     motion = retarget(joints, in_metres, mapping, skeleton)

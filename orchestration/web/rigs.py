@@ -16,7 +16,7 @@ import numpy as np
 from m2d2m.atomic import atomic_path
 from m2d2m.motion.bvh_reader import BvhError
 from m2d2m.motion.joint_map import PRESETS, joint_map_for
-from m2d2m.motion.retarget import Rig, read_rig, retarget
+from m2d2m.motion.retarget import Rig, read_rig, retarget, rig_metres_per_unit
 from m2d2m.motion.skeleton import T2M
 from orchestration.errors import UserError
 from orchestration.web.catalog import NotFound
@@ -85,7 +85,7 @@ def _checked(path: Path, joint_map: str | None) -> tuple[str, int]:
     try:
         clip = read_rig(path)
         mapping = joint_map_for(clip, joint_map)
-        scale = mapping.metres_per_unit(clip)
+        scale = rig_metres_per_unit(clip, mapping)
         rig = Rig.from_bvh(clip)
         rest = T2M.forward_kinematics(np.zeros((1, T2M.num_joints, 4)) + [1.0, 0, 0, 0], np.array([[0.0, 0.9, 0.0]]))
         retarget(rest, Rig(rig.names, rig.parents, rig.offsets * scale, rig.end_sites), mapping)
