@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from m2d2m.layout import relative_to_project
-from m2d2m.motion.bvh_reader import BvhError, read_bvh, resample
+from m2d2m.motion.bvh_reader import BvhError, instants, read_bvh, resample, whole_step
 from m2d2m.motion.joint_map import JointMap, joint_map_for
 from m2d2m.motion.skeleton import T2M, Skeleton
 from m2d2m.motion.up_axis import stance
@@ -46,15 +46,21 @@ def take_joints(
 ) -> tuple[np.ndarray, JointMap]:
     """A BVH take as ``skeleton``'s joints (T, J, 3) in metres, standing along +Y (turned so where
     its motion stands along another axis: :func:`~m2d2m.motion.up_axis.stance`), at the
-    skeleton's frame rate, and the joint map that made them; ``fps`` is the rate the take was
-    captured at where its Frame Time says otherwise. :class:`Rejected` says why a take cannot be read."""
+    skeleton's frame rate: every n-th frame of a take at n times that rate (HumanML3D's rule),
+    else read at the rate's instants with rotations slerped, so that bones keep their lengths.
+    Returns them and the joint map that made them; ``fps`` is the rate the take was captured at
+    where its Frame Time says otherwise. :class:`Rejected` says why a take cannot be read."""
     try:
         clip = read_bvh(path)
         mapping = joint_map_for(clip, joint_map)
-        mapped = mapping.joints(clip, skeleton)
+        rate = fps or clip.fps
+        step = whole_step(rate, skeleton.fps)
+        at = None if step else instants(len(clip.values) - mapping.rest_frames, rate, skeleton.fps)
+        mapped = mapping.joints(clip, skeleton, at)
         standing = stance(mapped, skeleton)
         scale = mapping.metres_per_unit(clip, units, skeleton, standing)
-        joints = resample(standing.upright(mapped) * scale, fps or clip.fps, skeleton.fps)
+        joints = standing.upright(mapped) * scale
+        joints = resample(joints, rate, skeleton.fps) if step else joints
     except (BvhError, ValueError) as error:  # a YAML map that is not one is a ValueError
         raise Rejected("read", str(error).removeprefix(f"{path}: ")) from error  # the row names the file
     return joints.astype(np.float32), mapping

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.rotations import euler_to_matrix
+from m2d2m.motion.rotations import euler_to_matrix, matrix_to_quat, qslerp, quat_to_matrix
 
 POSITIONS = ("Xposition", "Yposition", "Zposition")
 ROTATIONS = ("Xrotation", "Yrotation", "Zrotation")
@@ -59,11 +59,18 @@ class BvhClip:
             rest[joint] = self.offsets[joint] + (rest[parent] if parent >= 0 else 0.0)
         return rest
 
-    def positions(self) -> np.ndarray:
-        """World positions (T, J, 3) of every joint in every frame, by forward kinematics."""
+    def positions(self, at: np.ndarray | None = None) -> np.ndarray:
+        """World positions (T, J, 3) of every joint in every frame, by forward kinematics; or, with
+        ``at`` (fractional frame indices), at those instants: each joint's rotation slerped and its
+        translation interpolated linearly between the frames around each, so that every bone keeps
+        its length (interpolating the joints' positions would shorten a bone that turns)."""
         frames, count = len(self.values), len(self.names)
-        world_rotation = np.empty((frames, count, 3, 3))
-        world_position = np.empty((frames, count, 3))
+        if at is not None:
+            at = np.clip(np.asarray(at, dtype=np.float64), 0.0, frames - 1)
+            before = np.minimum(np.floor(at).astype(np.int64), max(frames - 2, 0))
+            after, weight = np.minimum(before + 1, frames - 1), at - before
+        world_rotation = np.empty((frames if at is None else len(at), count, 3, 3))
+        world_position = np.empty(world_rotation.shape[:-1])
         column = 0
         for joint, channels in enumerate(self.channels):
             block = self.values[:, column : column + len(channels)]
@@ -77,6 +84,10 @@ class BvhClip:
             for i, name in enumerate(channels):
                 if name in POSITIONS:
                     translation[:, POSITIONS.index(name)] = block[:, i]
+            if at is not None:
+                quaternions = matrix_to_quat(rotation)
+                rotation = quat_to_matrix(qslerp(quaternions[before], quaternions[after], weight))
+                translation = translation[before] + weight[:, None] * (translation[after] - translation[before])
             parent = self.parents[joint]
             if parent < 0:
                 world_rotation[:, joint], world_position[:, joint] = rotation, translation
@@ -224,15 +235,29 @@ def _frames(motion: str, width: int, path: Path) -> tuple[np.ndarray, float]:
     return values, frame_time
 
 
+def whole_step(fps: float, target_fps: float) -> int | None:
+    """n when ``fps`` is n times ``target_fps`` (a Frame Time printed as .0083333 still is), else None."""
+    ratio = fps / target_fps
+    return int(round(ratio)) if abs(ratio - round(ratio)) < 1e-3 and round(ratio) >= 1 else None
+
+
+def instants(frames: int, fps: float, target_fps: float) -> np.ndarray:
+    """Where the instants ``k / target_fps`` within a clip of ``frames`` frames at ``fps`` fall,
+    in (fractional) frames of the clip, the last one kept when it falls within a thousandth of a
+    frame past the end (a Frame Time printed as 0.0333333 makes a 30-fps clip that much short)."""
+    ratio = fps / target_fps
+    return np.minimum(np.arange(math.floor((frames - 1) / ratio + 1e-3) + 1) * ratio, frames - 1)
+
+
 def resample(positions: np.ndarray, fps: float, target_fps: float) -> np.ndarray:
     """Positions (T, ...) at ``fps`` taken to ``target_fps``: every n-th frame where ``fps`` is n
     times the target (HumanML3D's rule: ``pose_seq[::down_sample]``, so ceil(T / n) frames),
-    else linear interpolation at the target's instants within the clip."""
-    ratio = fps / target_fps
-    if abs(ratio - round(ratio)) < 1e-3 and round(ratio) >= 1:  # a Frame Time printed as .0083333
-        return positions[:: int(round(ratio))]
-    times = np.arange(0.0, (len(positions) - 1) / fps + 1e-9, 1.0 / target_fps)
-    source = times * fps
+    else linear interpolation at the target's instants within the clip (a BVH's joints keep
+    their bones' lengths when read at those instants instead: :meth:`BvhClip.positions`)."""
+    step = whole_step(fps, target_fps)
+    if step is not None:
+        return positions[::step]
+    source = instants(len(positions), fps, target_fps)
     below = np.floor(source).astype(int).clip(0, len(positions) - 1)
     above = np.minimum(below + 1, len(positions) - 1)
     weight = (source - below).reshape(-1, *([1] * (positions.ndim - 1)))

@@ -58,12 +58,16 @@ class JointMap:
         """Whether every joint this map reads is in ``clip``."""
         return all(name in clip.names for theirs in self.sources.values() for name in theirs)
 
-    def joints(self, clip: BvhClip, skeleton: Skeleton = T2M) -> np.ndarray:
+    def joints(self, clip: BvhClip, skeleton: Skeleton = T2M, at: np.ndarray | None = None) -> np.ndarray:
         """``clip``'s motion as ``skeleton``'s joints (T, J, 3), in the clip's lengths and axes, its
-        rest frames left out; BvhError names the joints the map reads that the file lacks, or says
-        that no frame of motion is left. :func:`~m2d2m.motion.up_axis.stance` says which way is up."""
+        rest frames left out, in every frame or at the fractional frames ``at`` of the motion
+        (:meth:`~m2d2m.motion.bvh_reader.BvhClip.positions`); BvhError names the joints the map
+        reads that the file lacks, or says that no frame of motion is left.
+        :func:`~m2d2m.motion.up_axis.stance` says which way is up."""
         if len(clip.values) <= self.rest_frames:
             raise BvhError(f"joint map {self.name}: the file holds its rest pose and no motion after it")
+        if at is not None:
+            return self._mapped(clip.positions(np.asarray(at) + self.rest_frames), clip, skeleton)
         return self._mapped(clip.positions()[self.rest_frames :], clip, skeleton)
 
     def standing(self, clip: BvhClip, skeleton: Skeleton = T2M) -> Stance:
