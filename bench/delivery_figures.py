@@ -7,8 +7,10 @@ its features for the contact channels. Each figure shows one option against the 
 (feet planted), made by ``deliver`` itself where its output says enough, else by the function it
 runs:
 
-* ``delivery-feet.png``: the foot fix (``--no-foot-fix`` turns it off): a toe's horizontal speed
-  and height, as generated and planted, its contact runs shaded, GMD's skating thresholds drawn;
+* ``delivery-feet.png``: the foot fix (``--no-foot-fix`` turns it off) on the clip with its planted
+  feet made to slide as a generated clip's do (:func:`bench.foot_fix.slide_feet`: the real clip's
+  own feet do not, and the fix leaves them be): a toe's horizontal speed and height, sliding and
+  planted, its contact runs shaded, GMD's skating thresholds drawn;
 * ``delivery-fps.png``: ``--fps 30`` and ``--fps 60``: a wrist's height at the three rates;
 * ``delivery-root.png``: ``--root in-place``: the pelvis's and toes' paths seen from above;
 * ``delivery-loop.png``: ``--loop``: a wrist's height over two cycles, cut without a fade and
@@ -34,12 +36,24 @@ import numpy as np
 
 from m2d2m.motion.bvh_reader import read_bvh
 from m2d2m.motion.delivery import Delivered, Delivery, deliver
-from m2d2m.motion.feet import SKATING_HEIGHT_M, SKATING_SPEED_M_S, contact_runs, foot_contacts, step_speeds
+from m2d2m.motion.feet import (
+    SKATING_HEIGHT_M,
+    SKATING_SPEED_M_S,
+    contact_runs,
+    foot_contacts,
+    skating_ratio,
+    step_speeds,
+)
 from m2d2m.motion.joint_map import joint_map_for
 from m2d2m.motion.retarget import Rig, retarget
 from m2d2m.motion.retime import make_loop
 from m2d2m.motion.rigid import on_rigid_skeleton
 from m2d2m.motion.skeleton import T2M
+
+try:
+    from bench.foot_fix import slide_feet
+except ModuleNotFoundError:  # run as `python bench/delivery_figures.py`: this folder is on the path
+    from foot_fix import slide_feet
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -51,6 +65,7 @@ CLIP_ID = "012314"
 CMU_RIG = ROOT / "tests" / "fixtures" / "cmu-bvh" / "131_01.bvh"
 CMU_METRES_PER_UNIT = 0.056444  # cgspeed's conversions: 1/0.45 inch a unit (tests/fixtures/cmu-bvh/README.md)
 SIZE_INCHES, DPI = (9.0, 5.0), 100  # 900 × 500 px
+SLIDE_M_S, SLIDE_M = 0.6, 0.15  # how the feet figure's clip slides: speed and distance a stance
 FEET_SCALE = (1.6, 12.0)  # m/s and cm: the feet figure's scales, over GMD's thresholds; a swing goes off them
 TOE = T2M.feet_right[1]  # the right toe: the foot that skates in clip 012314 (GMD measures the toes)
 TOE_CONTACT = 3  # its column in foot_contacts' (left ankle, left toe, right ankle, right toe)
@@ -78,6 +93,12 @@ class Clip:
     def planted(self) -> np.ndarray:
         """The joints the default delivery gives (the feet planted), float32 as the files hold them."""
         return self.delivered().joints
+
+    @cached_property
+    def sliding(self) -> Clip:
+        """The clip with each planted stretch of its feet made to slide 15 cm at 0.6 m/s, as a
+        generated clip's feet slide (its features, and so its contact channels, kept)."""
+        return Clip(slide_feet(self.raw, SLIDE_M_S, SLIDE_M).astype(np.float32), self.features, self.fps)
 
     def seconds(self, frames: int, start: float = 0.0) -> np.ndarray:
         """The instants of ``frames`` frames at the clip's rate, from frame ``start`` on."""
@@ -112,16 +133,23 @@ def shade_runs(axes: Axes, flags: np.ndarray, fps: float, label: str) -> None:
 
 
 def feet_figure(clip: Clip) -> tuple[Figure, dict[str, float]]:
-    """How fast the toe slides while it touches the ground, before and after the fix."""
-    contacts = foot_contacts(clip.raw, T2M, clip.fps, clip.features)[:, TOE_CONTACT]
+    """How fast the toe slides while it touches the ground, before and after the fix, on the clip
+    made to slide; and how far the fix moves the real clip (not at all)."""
+    sliding = clip.sliding
+    contacts = foot_contacts(sliding.raw, T2M, clip.fps, clip.features)[:, TOE_CONTACT]
     steps = len(clip.raw) - 1
     in_contact = contacts[:-1] & contacts[1:]
-    quality = clip.delivered().quality
-    numbers = {"skating_before": quality["skating_before_fix"], "skating_after": quality["skating"]}
+    quality = sliding.delivered().quality
+    numbers = {
+        "skating_before": quality["skating_before_fix"],
+        "skating_after": quality["skating"],
+        "skating_clean": skating_ratio(clip.raw, T2M, clip.fps),
+        "real_clip_moved_m": float(np.abs(clip.planted - clip.raw).max()),
+    }
     figure, (speed_axes, height_axes) = new_figure(rows=2, sharex=True)
     for joints, colour, label, key in (
-        (clip.raw, RAW, "as generated", "before"),
-        (clip.planted, OURS, "feet planted", "after"),
+        (sliding.raw, RAW, "sliding", "before"),
+        (sliding.planted, OURS, "feet planted", "after"),
     ):
         toe = joints[:, TOE]
         speed = step_speeds(toe, clip.fps)
@@ -129,19 +157,18 @@ def feet_figure(clip: Clip) -> tuple[Figure, dict[str, float]]:
         speed_axes.plot(clip.seconds(steps, 0.5), speed, color=colour, label=label)
         height_axes.plot(clip.seconds(len(toe)), toe[:, 1] * 100.0, color=colour, label=label)
     for axes in (speed_axes, height_axes):
-        shade_runs(axes, contacts, clip.fps, "contact (the model's channel)")
-    threshold = "GMD's skating: faster than 0.5 m/s below 5 cm"
+        shade_runs(axes, contacts, clip.fps, "contact")
+    threshold = "GMD's skating: > 0.5 m/s below 5 cm"
     speed_axes.axhline(SKATING_SPEED_M_S, color="k", linestyle="--", linewidth=1, label=threshold)
     height_axes.axhline(SKATING_HEIGHT_M * 100.0, color="k", linestyle="--", linewidth=1)
     speed_axes.set(ylabel="horizontal speed (m/s)", ylim=(0, FEET_SCALE[0]))
     height_axes.set(ylabel="height (cm)", xlabel="time (s)", ylim=(-0.5, FEET_SCALE[1]), xlim=(0, steps / clip.fps))
     figure.legend(*speed_axes.get_legend_handles_labels(), fontsize="small", ncols=4, loc="outside lower center")
     speed_axes.set_title(
-        f"Right toe of HumanML3D clip {CLIP_ID} (its swings run off the scales)\n"
-        f"GMD's skating ratio {numbers['skating_before']:.1%} → {numbers['skating_after']:.1%} "
-        f"({round(numbers['skating_before'] * steps)} → {round(numbers['skating_after'] * steps)} of {steps} steps); "
-        "in contact "
-        f"it slides {numbers['toe_speed_in_contact_before_m_s']:.2f} → {numbers['toe_speed_in_contact_after_m_s']:.2f} m/s"
+        f"Right toe of clip {CLIP_ID}, each stance made to slide {SLIDE_M * 100:.0f} cm at {SLIDE_M_S} m/s\n"
+        f"skating {numbers['skating_before']:.1%} → {numbers['skating_after']:.1%} "
+        f"(clean: {numbers['skating_clean']:.1%}); in contact "
+        f"{numbers['toe_speed_in_contact_before_m_s']:.2f} → {numbers['toe_speed_in_contact_after_m_s']:.2f} m/s"
     )
     return figure, numbers
 

@@ -230,6 +230,7 @@ def _export(args: argparse.Namespace) -> None:
             [(first, end) for first, end, _ in segments],
         ),
         output.delivery,
+        recorded=True,  # a file's motion: its feet are fixed only on --foot-fix
     )
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
@@ -245,8 +246,8 @@ EXPORTED = (".npy", ".bvh", ".glb", ".fbx")
 
 
 def _delivery(args: argparse.Namespace) -> Any:
-    """The delivery the command line asks for (``--fps``, ``--root``, ``--loop``,
-    ``--no-foot-fix``, ``--rest``, ``--rig``, ``--joint-map``), checked in one line before anything runs."""
+    """The delivery the command line asks for (``--fps``, ``--root``, ``--loop``, ``--foot-fix``
+    or ``--no-foot-fix``, ``--rest``, ``--rig``, ``--joint-map``), checked in one line before anything runs."""
     from m2d2m.motion.delivery import Delivery
 
     try:
@@ -254,7 +255,7 @@ def _delivery(args: argparse.Namespace) -> Any:
             fps=args.fps,
             root=args.root,
             loop=args.loop,
-            plant_feet=not args.no_foot_fix,
+            plant_feet=args.foot_fix,  # None: Delivery.plants_feet's rule for what is delivered
             rest_pose=args.rest,
             rig=None if args.rig is None else str(Path(args.rig).resolve()),
             joint_map=args.joint_map,
@@ -263,11 +264,11 @@ def _delivery(args: argparse.Namespace) -> Any:
         raise UserError(str(error)) from error
 
 
-def _delivered(motion: Any, delivery: Any) -> Any:
-    """``motion`` delivered as asked; a clip the delivery cannot take (a loop of a clip shorter
-    than its cross-fade) is one line."""
+def _delivered(motion: Any, delivery: Any, recorded: bool = False) -> Any:
+    """``motion`` delivered as asked (``recorded``: a file's motion, not a generation); a clip the
+    delivery cannot take (a loop of a clip shorter than its cross-fade) is one line."""
     try:
-        return motion.delivered(delivery)
+        return motion.delivered(delivery, recorded)
     except ValueError as error:
         raise UserError(str(error)) from error
 
@@ -979,12 +980,13 @@ def _add_viewers(verbs) -> None:
         type=_positive_float,
         help="the source's frames per second (default: its sidecar's, else the skeleton's)",
     )
-    _add_delivery(export)
+    _add_delivery(export, recorded=True)
 
 
-def _add_delivery(parser: argparse.ArgumentParser) -> None:
+def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> None:
     """How a clip is delivered (docs/generation.md, "Delivering a clip"): one set of options for
-    `m2d2m generate` and `m2d2m export`, as the API's fields and the page's menu."""
+    `m2d2m generate` and `m2d2m export` (``recorded``: its motion is a file's, whose feet are left
+    as they are unless asked), as the API's fields and the page's menu."""
     from m2d2m.motion.pose import REST_POSES
     from m2d2m.motion.retime import ROOT_MODES
 
@@ -1001,8 +1003,21 @@ def _add_delivery(parser: argparse.ArgumentParser) -> None:
         help="keep the root's path, take it out (in-place: the GLB and the npy keep it as a track), or ground the clip",
     )
     group.add_argument("--loop", action="store_true", help="one seamless cycle: the end blended into the start")
-    group.add_argument(
-        "--no-foot-fix", action="store_true", help="keep the feet as generated (default: planted where they touch down)"
+    feet = group.add_mutually_exclusive_group()
+    feet.add_argument(
+        "--foot-fix",
+        dest="foot_fix",
+        action="store_const",
+        const=True,
+        help="keep the feet from sliding where they touch down"
+        + (" (default: the motion exactly as the file has it)" if recorded else " (the default)"),
+    )
+    feet.add_argument(
+        "--no-foot-fix",
+        dest="foot_fix",
+        action="store_const",
+        const=False,
+        help="keep the feet as " + ("the file has them (the default)" if recorded else "generated"),
     )
     group.add_argument(
         "--rest",

@@ -1,7 +1,9 @@
 """A clip delivered as an animator asks (issue 40): the order of the edits and what each leaves
 (feet planted, the frame rate, a loop, the root motion), one line for a bad request, and every
 option through `m2d2m export` and `m2d2m generate` into files that read back as asked: a GLB at
-30 fps in place, a BVH on CMU's rig, N variations with their seeds."""
+30 fps in place, a BVH on CMU's rig, N variations with their seeds. The foot fix's rule: a
+recorded motion is exported exactly unless `--foot-fix` asks, a generated one is fixed unless
+`--no-foot-fix` asks."""
 
 from __future__ import annotations
 
@@ -13,15 +15,17 @@ import numpy as np
 import pygltflib
 import pytest
 
+from bench.foot_fix import slide_feet
 from m2d2m.motion.bvh_reader import read_bvh
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.delivery import Delivery, deliver
-from m2d2m.motion.feet import skating_ratio
+from m2d2m.motion.feet import fix_feet, skating_ratio
 from m2d2m.motion.rigid import on_rigid_skeleton
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU
+from tests.test_export import bvh_forward_kinematics, in_skeleton_order, parse_bvh
 from tests.test_generate_outputs import PROMPTS, QUICK
 
 SAMPLE = HUMANML3D_SAMPLE
@@ -36,17 +40,90 @@ def clip() -> tuple[np.ndarray, np.ndarray]:
     return joints, features
 
 
-def test_the_default_plants_the_feet_and_changes_nothing_else(clip):
-    joints, features = clip
-    done = deliver(joints, 20.0, T2M, RANGES, Delivery(), features)
+@pytest.fixture(scope="module")
+def sliding(clip) -> np.ndarray:
+    """The sample clip with its planted feet made to slide (bench/foot_fix.py), as a generated
+    clip's feet do: what the foot fix is for."""
+    return slide_feet(clip[0], 0.6, 0.15).astype(np.float32)
+
+
+def test_a_generated_clip_has_its_feet_fixed_and_nothing_else_changed(clip, sliding):
+    _, features = clip
+    done = deliver(sliding, 20.0, T2M, RANGES, Delivery(), features)
     assert done.fps == 20.0 and done.ranges == RANGES and done.root_track is None
-    assert done.quality["skating"] <= done.quality["skating_before_fix"]
+    assert done.quality["skating"] < done.quality["skating_before_fix"] / 1.5
     assert done.quality["skating"] == pytest.approx(skating_ratio(done.joints, T2M, 20.0), abs=1e-6)
     legs = [4, 5, 7, 8, 10, 11]  # knees, ankles, feet: the joints the fix may move
     others = [j for j in range(22) if j not in legs]
-    np.testing.assert_allclose(done.joints[:, others], joints[:, others], atol=1e-6)
-    raw = deliver(joints, 20.0, T2M, RANGES, Delivery(plant_feet=False), features)
-    np.testing.assert_allclose(raw.joints, joints, atol=1e-6)
+    np.testing.assert_array_equal(done.joints[:, others], sliding[:, others])
+    np.testing.assert_allclose(done.joints, fix_feet(sliding, T2M, 20.0, features), atol=1e-6)
+    raw = deliver(sliding, 20.0, T2M, RANGES, Delivery(plant_feet=False), features)
+    np.testing.assert_array_equal(raw.joints, sliding)
+
+
+def test_a_recorded_clip_is_delivered_exactly_unless_the_fix_is_asked_for(sliding):
+    """The rule lives in Delivery.plants_feet: as asked, else generated yes, recorded no."""
+    assert Delivery().plants_feet(recorded=False) and not Delivery().plants_feet(recorded=True)
+    assert Delivery(plant_feet=True).plants_feet(recorded=True)
+    assert not Delivery(plant_feet=False).plants_feet(recorded=False)
+    exact = deliver(sliding, 20.0, T2M, RANGES, Delivery(), recorded=True)
+    np.testing.assert_array_equal(exact.joints, sliding)
+    assert "skating" not in exact.quality
+    asked = deliver(sliding, 20.0, T2M, RANGES, Delivery(plant_feet=True), recorded=True)
+    np.testing.assert_allclose(asked.joints, fix_feet(sliding, T2M, 20.0), atol=1e-6)
+    assert asked.quality["skating"] < asked.quality["skating_before_fix"]
+    motion = Motion(np.zeros((170, 0), np.float32), sliding, 20.0, "t2m", ["a walk"], [(0, 170)])
+    assert motion.delivered(Delivery(), recorded=True).settings["delivery"]["plant_feet"] is False
+    assert motion.delivered(Delivery()).settings["delivery"]["plant_feet"] is True
+
+
+def test_export_writes_a_recorded_motion_exactly_and_fixes_its_feet_on_request(sliding, tmp_path, capsys):
+    """`m2d2m export clip.npy --out x.npy`: the file's joints bit for bit; a BVH reproduces them
+    within its printed precision (six decimals); `--foot-fix` writes the fixed feet, and asking
+    for both is one line."""
+    source = np.load(SAMPLE / "new_joints" / "012314.npy")  # HumanML3D's own file, float32
+    np.save(tmp_path / "real.npy", source)
+    np.save(tmp_path / "sliding.npy", sliding)
+    for name in ("real", "sliding"):
+        for flags, suffix in (([], ""), (["--no-foot-fix"], ".kept")):
+            out = tmp_path / f"{name}{suffix}.out.npy"
+            assert main(["export", str(tmp_path / f"{name}.npy"), "--out", str(out), *flags]) == 0
+            np.testing.assert_array_equal(np.load(out), np.load(tmp_path / f"{name}.npy"))
+    assert main(["export", str(tmp_path / "real.npy"), "--out", str(tmp_path / "real.bvh")]) == 0
+    bvh = parse_bvh(tmp_path / "real.bvh")
+    positions = bvh_forward_kinematics(bvh)[0][:, in_skeleton_order(bvh, T2M)]
+    assert np.abs(positions - source).max() < 1e-4  # 1e-6 of text, through 22 joints
+    assert main(["export", str(tmp_path / "sliding.npy"), "--out", str(tmp_path / "fixed.npy"), "--foot-fix"]) == 0
+    fixed = np.load(tmp_path / "fixed.npy")
+    np.testing.assert_allclose(fixed, fix_feet(sliding, T2M, 20.0), atol=1e-6)
+    assert skating_ratio(fixed, T2M, 20.0) < skating_ratio(sliding, T2M, 20.0) / 1.5
+    assert main(["export", str(tmp_path / "sliding.npy"), "--out", str(tmp_path / "fixed.bvh"), "--foot-fix"]) == 0
+    bvh = parse_bvh(tmp_path / "fixed.bvh")
+    assert np.abs(bvh_forward_kinematics(bvh)[0][:, in_skeleton_order(bvh, T2M)] - fixed).max() < 1e-4
+    capsys.readouterr()
+    argv = ["export", str(tmp_path / "real.npy"), "--out", str(tmp_path / "x.npy"), "--foot-fix", "--no-foot-fix"]
+    with pytest.raises(SystemExit):
+        main(argv)
+    assert "not allowed with argument" in capsys.readouterr().err
+
+
+def test_generate_fixes_the_feet_unless_asked_not_to(clip, sliding, tmp_path, monkeypatch):
+    """`m2d2m generate`: a generated clip's feet are fixed by default, by its features' contacts,
+    and left as generated with --no-foot-fix (the sampler replaced by the sliding clip)."""
+    import orchestration.generate
+
+    _, features = clip
+    made = Motion(features, sliding, 20.0, "t2m", ["a person walks"], [(0, 170)], {"method": "given"})
+    made = made.on_rigid_skeleton()
+    monkeypatch.setattr(orchestration.generate, "load_generator", lambda *args, **kwargs: None)
+    monkeypatch.setattr(orchestration.generate, "generate", lambda *args, **kwargs: made)
+    argv = ["generate", "a person walks", "--formats", "npy", "--no-track", "--out"]
+    assert main([*argv, str(tmp_path / "fixed")]) == 0
+    assert main([*argv, str(tmp_path / "raw"), "--no-foot-fix"]) == 0
+    fixed, raw = (np.load(tmp_path / name / "motion.npy") for name in ("fixed", "raw"))
+    np.testing.assert_array_equal(raw, made.joints)
+    np.testing.assert_allclose(fixed, fix_feet(made.joints, T2M, 20.0, features), atol=1e-6)
+    assert skating_ratio(fixed, T2M, 20.0) < skating_ratio(raw, T2M, 20.0) / 1.5
 
 
 def test_frame_rate_loop_and_root_follow_each_other_with_the_actions(clip):

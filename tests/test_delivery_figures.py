@@ -23,8 +23,9 @@ def test_every_delivery_figure_is_drawn_with_its_numbers(tmp_path: Path, capsys:
             colours = image.convert("RGB").getcolors(maxcolors=1 << 20)
             assert len(colours) > 16, f"{name} is nearly one colour"  # lines, text and shading, anti-aliased
     feet, fps, root, loop, rig = (results[name] for name in FIGURES)
-    assert feet["skating_after"] <= feet["skating_before"]
-    assert feet["toe_speed_in_contact_after_m_s"] < feet["toe_speed_in_contact_before_m_s"]
+    assert feet["skating_after"] <= 1.5 * feet["skating_clean"] < feet["skating_before"]  # the slide fixed
+    assert feet["toe_speed_in_contact_after_m_s"] < 0.6 * feet["toe_speed_in_contact_before_m_s"]
+    assert feet["real_clip_moved_m"] < 1e-6  # the real clip's own feet left where they are (float32)
     assert (fps["frames_30"], fps["frames_60"]) == (254, 508)
     assert max(fps["shared_error_30_m"], fps["shared_error_60_m"]) < 1e-6  # float32 joints
     assert root["in_place_drift_m"] == 0.0 and root["restored_m"] < 1e-6

@@ -57,7 +57,7 @@ from m2d2m.generators.edits import Timeline, apply_edit, margin_frames, regenera
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.generators.protocol import Keep, MotionGenerator, keep_part
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.feet import foot_contacts, plant_feet
+from m2d2m.motion.feet import fix_feet
 from m2d2m.motion.joining import slerp_join
 from m2d2m.motion.representation import features_to_joints, joints_to_features
 from m2d2m.motion.rigid import bone_length_spread
@@ -605,7 +605,8 @@ class Evaluation:
 
 def with_planted_feet(motion: Motion, skeleton: Any) -> Motion:
     """``motion`` with its feet planted where the model's own contact channels say they touch
-    down, as a delivery plants them (:func:`m2d2m.motion.feet.plant_feet`), and its features
+    down, checked against its joints, as a delivery plants them (one function for both:
+    :func:`m2d2m.motion.feet.fix_feet`), and its features
     changed by exactly what the fix changed: the model's features plus the difference between
     the features of the planted joints and those of the generated joints, both derived alike.
 
@@ -613,8 +614,7 @@ def with_planted_feet(motion: Motion, skeleton: Any) -> Motion:
     features to joints and back as well as the fix, and on the demo's models the round trip
     alone moved FID from 0.3–1.5 to 2.6–20 (docs/evaluation.md, "Feet that stay planted"). The
     contact channels stay the model's: the fix moves feet, not where they touch."""
-    contacts = foot_contacts(motion.joints, skeleton, motion.fps, motion.features)
-    planted = plant_feet(motion.joints, skeleton, motion.fps, contacts)
+    planted = fix_feet(motion.joints, skeleton, motion.fps, motion.features)
     change = joints_to_features(planted, skeleton) - joints_to_features(motion.joints, skeleton)
     features = motion.features + np.concatenate([change, change[-1:]])
     features[:, -4:] = motion.features[:, -4:]

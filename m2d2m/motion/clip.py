@@ -90,11 +90,12 @@ class Motion:
             },
         )
 
-    def delivered(self, delivery: Delivery) -> Motion:
+    def delivered(self, delivery: Delivery, recorded: bool = False) -> Motion:
         """This motion as ``delivery`` asks for it (feet planted, frame rate, loop, root motion:
-        :func:`m2d2m.motion.delivery.deliver`), the delivery recorded in ``settings`` and its
-        figures in ``quality``. The features stay the model's own, at its rate: what an edit reads."""
-        done = deliver(self.joints, self.fps, self.skeleton, self.ranges, delivery, self.features)
+        :func:`m2d2m.motion.delivery.deliver`; ``recorded``: captured, not generated, so its feet
+        are left as they are unless asked), the delivery recorded in ``settings`` and its figures
+        in ``quality``. The features stay the model's own, at its rate: what an edit reads."""
+        done = deliver(self.joints, self.fps, self.skeleton, self.ranges, delivery, self.features, recorded)
         return replace(
             self,
             joints=done.joints,
@@ -104,7 +105,11 @@ class Motion:
             # a rig as run records name files: relative to the project, so a moved project reads alike
             settings={
                 **self.settings,
-                "delivery": {**asdict(delivery), "rig": delivery.rig and relative_to_project(delivery.rig)},
+                "delivery": {
+                    **asdict(delivery),
+                    "plant_feet": delivery.plants_feet(recorded),
+                    "rig": delivery.rig and relative_to_project(delivery.rig),
+                },
             },
             quality={**self.quality, **done.quality},
             root_track=done.root_track,

@@ -2,7 +2,8 @@
 "Delivering a clip"): feet planted, a frame rate, a loop, root motion, the rig a BVH is on.
 
 The edits run in one order, each on the one before's output: feet first, at the model's rate and
-with the model's own contact channels (:mod:`m2d2m.motion.feet`); then the frame rate (by slerp,
+with the model's own contact channels (:mod:`m2d2m.motion.feet`), when asked or by default for
+generated motion (:meth:`Delivery.plants_feet`: recorded motion comes out as it came in); then the frame rate (by slerp,
 :mod:`m2d2m.motion.retime`), so that a loop's period is a whole number of frames at the asked rate;
 then the loop; then the root (an in-place clip of a loop is an in-place loop). Action ranges
 follow every step. ``m2d2m generate``, ``m2d2m export``, the HTTP API and the page all take a
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.feet import foot_contacts, plant_feet, skating_ratio
+from m2d2m.motion.feet import fix_feet, skating_ratio
 from m2d2m.motion.pose import REST_POSES
 from m2d2m.motion.retime import ROOT_MODES, check_fps, make_loop, resample, resample_ranges, root_motion
 from m2d2m.motion.skeleton import Skeleton
@@ -25,8 +26,8 @@ from m2d2m.motion.skeleton import Skeleton
 @dataclass(frozen=True)
 class Delivery:
     """``fps``: the files' frame rate (None: the model's); ``root``: ``keep``, ``in-place`` or
-    ``ground``; ``loop``: one seamless cycle; ``plant_feet``: the contact-preserving foot fix (on
-    by default, as every tool animators use does it); ``rest_pose``: a BVH's or GLB's bind pose;
+    ``ground``; ``loop``: one seamless cycle; ``plant_feet``: the foot fix, or None for the
+    rule of :meth:`plants_feet` (on for generated motion, off for recorded motion); ``rest_pose``: a BVH's or GLB's bind pose;
     ``rig``: a BVH or glTF character whose skeleton the BVH is written on, through ``joint_map`` (a preset or a
     YAML file; default: the preset the rig's joints fit). ValueError in one line for a value no
     clip can take."""
@@ -34,7 +35,7 @@ class Delivery:
     fps: float | None = None
     root: str = "keep"
     loop: bool = False
-    plant_feet: bool = True
+    plant_feet: bool | None = None
     rest_pose: str = "skeleton"
     rig: str | None = None
     joint_map: str | None = None
@@ -50,6 +51,13 @@ class Delivery:
             raise ValueError(f"rig {self.rig}: no such file (a BVH or GLB)")
         if self.joint_map is not None and self.rig is None:
             raise ValueError("a joint map goes with a rig: give the rig too")
+
+    def plants_feet(self, recorded: bool) -> bool:
+        """Whether the feet are fixed, the one rule for the CLI, the API and the page: as asked,
+        else yes for generated motion, whose feet slide, and no for recorded motion (a capture, a
+        corpus clip, a user's file), which is delivered exactly as it came (docs/generation.md,
+        "Delivering a clip")."""
+        return not recorded if self.plant_feet is None else self.plant_feet
 
 
 @dataclass(frozen=True)
@@ -72,16 +80,16 @@ def deliver(
     ranges: list[tuple[int, int]],
     delivery: Delivery,
     features: np.ndarray | None = None,
+    recorded: bool = False,
 ) -> Delivered:
     """``joints`` (T, J, 3) at ``fps`` with the actions' frame ``ranges``, edited as ``delivery``
-    asks; ``features`` (T, D), the model's own, give the foot contacts when they match the joints."""
+    asks; ``features`` (T, D), the model's own, give the foot contacts when they match the joints;
+    ``recorded``: the clip was captured, not generated (:meth:`Delivery.plants_feet`)."""
     quality: dict[str, float] = {}
     kept = list(range(len(ranges)))
-    if delivery.plant_feet:
-        matching = features is not None and features.shape == (len(joints), skeleton.feature_dim)
-        contacts = foot_contacts(joints, skeleton, fps, features if matching else None)
+    if delivery.plants_feet(recorded):
         quality["skating_before_fix"] = skating_ratio(joints, skeleton, fps)
-        joints = plant_feet(joints, skeleton, fps, contacts)
+        joints = fix_feet(joints, skeleton, fps, features)
         quality["skating"] = skating_ratio(joints, skeleton, fps)
     if delivery.fps is not None and delivery.fps != fps:
         target = float(delivery.fps)

@@ -1,15 +1,17 @@
-"""Feet that stay planted: where a clip's feet touch the ground, a fix that keeps them still there,
-and a measure of how much they slide (docs/evaluation.md, "Feet that stay planted").
+"""Feet that stay planted: where a clip's feet touch the ground, a fix that keeps them from
+sliding there, and a measure of how much they slide (docs/evaluation.md, "Feet that stay planted").
 
-- :func:`foot_contacts`: HumanML3D's contact flags, from the clip's own 263/251-d features when it
-  has them, else from its joints with HumanML3D's rule (EricGuo5513/HumanML3D
-  ``motion_representation.py``, ``foot_detect`` with ``feet_thre = 0.002``: a foot joint touches
-  when its squared displacement to the next frame is below the threshold; the height test that
-  ``foot_detect`` also defines is commented out there, so contacts are velocity only).
-- :func:`plant_feet`: each contact run of an ankle or toe held still over the ground (at the
-  run's mean horizontal position), and held on while the foot has not yet left the ground, low
-  and slower than a swing (:func:`hold_while_grounded`), the leg solved with analytic two-bone
-  IK (:func:`two_bone_ik`), blended in and out at the run's edges.
+- :func:`foot_contacts`: where each foot joint touches the ground. What the clip says (a model's
+  own contact channels, else HumanML3D's rule on the joints: EricGuo5513/HumanML3D
+  ``motion_representation.py``, ``foot_detect`` with ``feet_thre = 0.002``, velocity only) is
+  checked against the joints: a joint above the ground, or faster than a foot that touches it,
+  is not in contact whatever was said; one on the ground and still is, whatever was said.
+- :func:`plant_feet`: what a foot slides in each contact (:func:`slide_path`: the least any point
+  of its sole moves, so a pivot is no slide), less what a real foot creeps, held within a few
+  centimetres of where the foot stands (:func:`pinning`); the whole foot moved by that one
+  horizontal offset and the leg solved with analytic two-bone IK (:func:`two_bone_ik`). Recorded
+  motion comes out within a centimetre (docs/evaluation.md has the measurements).
+- :func:`fix_feet`: the two as a delivery and the evaluation's planted rows run them.
 - :func:`skating_ratio`: GMD's foot skating ratio (Karunratanakul et al., "Guided Motion Diffusion
   for Controllable Human Motion Synthesis", ICCV 2023, §6.1 "Evaluation metrics";
   korrawe/guided-motion-diffusion ``data_loaders/humanml/utils/metrics.py``,
@@ -23,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from m2d2m.motion.representation import foot_contacts as stepwise_contacts
-from m2d2m.motion.rotations import dot, normalize, qbetween, qrot
+from m2d2m.motion.rotations import dot, normalize
 from m2d2m.motion.skeleton import Skeleton
 
 # GMD §6.1: "the proportion of frames in which either foot skids more than a certain distance
@@ -33,21 +35,43 @@ from m2d2m.motion.skeleton import Skeleton
 SKATING_HEIGHT_M = 0.05
 SKATING_SPEED_M_S = 0.5
 SKATING_WINDOW = 5
+
+# What touches the ground (foot_contacts). A foot joint touches only within GMD's 5 cm of the
+# lowest that joint (either foot's) gets in the clip, a capture's own floor, and within LIFT_M of
+# its own lowest over LOCAL_SECONDS either side: a real foot that steps lifts its toe 2-4 cm off
+# where it stood, slowly enough for HumanML3D's rule (clip 012314 shuffles such steps at
+# 0.3-0.9 m/s), and a contact spanning the step made the fix drag it.
+LIFT_M = 0.015
+LOCAL_SECONDS = 0.5
+# ... and slower than HumanML3D's contact speed (0.002 m² a frame at 20 fps) on both steps around
+# the frame: a foot that slides is, a swing (2.8-5 m/s in clip 012314) is not, however low.
+CONTACT_SPEED_M_S = float(np.sqrt(0.002) * 20.0)
+STILL_SPEED_M_S = 0.25  # a joint on the ground this slow touches it, whatever its channel says
+HOLD_SECONDS = 0.2  # a contact is held on this long at most while its joint could still touch
+
+# How a foot is kept from sliding (plant_feet). Real feet are not still in contact: they settle,
+# creep and swivel; the fix leaves the slide slower than FREE_SPEED_M_S and, in a run of
+# SETTLE_SECONDS or longer, SLIDE_TOLERANCE_M either way of where the foot stands (less in a
+# shorter run, where a real foot has no time to stray: a running stance is 3-4 frames).
+FREE_SPEED_M_S = 0.15
+SLIDE_TOLERANCE_M = 0.02
+SETTLE_SECONDS = 0.5
+TOES = 0.4  # the toes' tip beyond the ball (the T2M toe joint), a share of the heel–ball length
 BLEND_SECONDS = 0.2  # how long a correction takes to fade in before a contact and out after it
-HOLD_SECONDS = 0.2  # how long a contact is held on at most while its foot's toe is still near the ground
-# ... and moving slower than this: a foot faster is swinging, not on the ground, however low (the
-# sample clip's low swings run at 2.8-4.5 m/s; a walking foot's swing averages about twice the
-# walking speed of 1.2-1.4 m/s). Holding such a foot drags it after the body (its leg cannot reach).
-HOLD_SPEED_M_S = 2.0
 _EPS = 1e-9
 
 
 def foot_contacts(joints: np.ndarray, skeleton: Skeleton, fps: float, features: np.ndarray | None = None) -> np.ndarray:
     """(T, 4) contact flags of the feature layout's order (left ankle, left toe, right ankle, right
-    toe): the features' own contact channels when given (a model's output rounded at 0.5), else
-    HumanML3D's rule on the joints. A flag is about the step to the next frame, so the last frame
-    repeats the one before it. The rule's threshold holds at the corpus's frame rate; at another
-    ``fps`` the same speed is the threshold (displacements are rescaled to the corpus's rate)."""
+    toe).
+
+    What the clip says comes from the features' own contact channels when given (a model's output
+    rounded at 0.5), else from HumanML3D's rule on the joints (a displacement to the next frame
+    under its threshold, the threshold's speed at any ``fps``; the last frame repeats the one
+    before it). The joints then decide: a joint off the ground (:func:`on_ground`) or faster than
+    :data:`CONTACT_SPEED_M_S` on either step around the frame does not touch; one on the ground
+    and slower than :data:`STILL_SPEED_M_S` does. Each run is held on for up to
+    :data:`HOLD_SECONDS` while its joint could still touch (:func:`hold_while_grounded`)."""
     joints = skeleton.check_joints(joints)
     if features is not None:
         features = np.asarray(features)
@@ -56,11 +80,34 @@ def foot_contacts(joints: np.ndarray, skeleton: Skeleton, fps: float, features: 
                 f"expected features of shape ({len(joints)}, {skeleton.feature_dim}) for {len(joints)} frames, "
                 f"got {features.shape}"
             )
-        return features[:, -4:] > 0.5
     if len(joints) < 2:
         return np.zeros((len(joints), 4), dtype=bool)
-    flags = stepwise_contacts(joints * (fps / skeleton.fps), skeleton) > 0.5
-    return np.concatenate([flags, flags[-1:]])
+    if features is not None:
+        said = features[:, -4:] > 0.5
+    else:
+        flags = stepwise_contacts(joints * (fps / skeleton.fps), skeleton) > 0.5
+        said = np.concatenate([flags, flags[-1:]])
+    feet = joints[:, list(skeleton.feet_left + skeleton.feet_right)] * skeleton.metres_per_unit
+    low = on_ground(feet, fps)
+    speed = _speeds(feet, fps)
+    possible = low & (speed < CONTACT_SPEED_M_S)
+    seeds = (said & possible) | (low & (speed < STILL_SPEED_M_S))
+    hold = int(round(HOLD_SECONDS * fps))
+    return np.stack([hold_while_grounded(seeds[:, k], possible[:, k], hold) for k in range(4)], axis=1)
+
+
+def on_ground(feet: np.ndarray, fps: float) -> np.ndarray:
+    """(T, 4) whether each joint of ``feet`` (T, 4, 3), metres, in :func:`foot_contacts`' order,
+    is low enough to touch the ground: within :data:`SKATING_HEIGHT_M` of the lowest height that
+    joint, on either foot, has in the clip, and within :data:`LIFT_M` of its own lowest over
+    :data:`LOCAL_SECONDS` either side. The floor is the clip's own (a capture need not stand at
+    y = 0); the local lowest tells a foot that stands from one that has lifted to step."""
+    height = feet[..., 1]
+    lowest = np.minimum(height[:, [0, 1]].min(axis=0), height[:, [2, 3]].min(axis=0))[[0, 1, 0, 1]]
+    reach = max(1, int(round(LOCAL_SECONDS * fps)))
+    padded = np.pad(height, [(reach, reach), (0, 0)], mode="edge")
+    local = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1, axis=0).min(axis=-1)
+    return (height - lowest < SKATING_HEIGHT_M) & (height - local < LIFT_M)
 
 
 def two_bone_ik(
@@ -131,35 +178,66 @@ def hold_while_grounded(flags: np.ndarray, grounded: np.ndarray, limit: int) -> 
     return held
 
 
-def planting(positions: np.ndarray, flags: np.ndarray, blend_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """Where one joint should move: per frame a horizontal offset (T, 3) and how planted the joint
-    is (T,), in [0, 1].
+def slide_path(positions: np.ndarray, contacts: np.ndarray, free: float = 0.0, toes: float = TOES) -> np.ndarray:
+    """(T, 3) how far a foot has slid over the ground, from ``positions`` (T, 2, 3) of its contact
+    joints (ankle, toe) and their ``contacts`` (T, 2); ``free``: how far a step may creep
+    unheeded (the skeleton's units a frame).
 
-    Within a contact run the joint goes to the run's mean position over the ground, so it stops
-    sliding; its height stays the clip's (a heel still rises, a foot still sets down, and no frame
-    is pulled under GMD's 5 cm that was not there). The offset a run needs at its first and last
-    frames fades over ``blend_frames`` frames before and after it (smoothstep); between two near
-    runs their fading offsets are averaged by weight, so no frame moves further than either asks.
-    """
-    ground = positions * np.array([1.0, 0.0, 1.0])
-    offset_sum = np.zeros_like(ground)
-    weight_sum = np.zeros(len(ground))
+    A foot can hold the ground at its heel (the ankle joint), its ball (the toe joint) or the tip
+    of its toes, ``toes`` of the ankle–ball length ahead of the ball over the ground. In a step in
+    which a joint touches at both ends, its points may hold (the heel; the ball and the tip), and
+    the foot slides by the shortest step any of them takes, less ``free``; in other steps it does
+    not slide. Why: a foot that pivots keeps one point still, the heel (a turn, a heel strike),
+    the ball (a heel rolling up) or the tip (a dancer's swivel), however far its joints sweep; a
+    sliding foot moves every point. The tip lies along the foot's heading at a fixed length, so
+    a heel rising about the ball moves it as the ball, not back."""
+    flat = positions * np.array([1.0, 0.0, 1.0])
+    bone = positions[:, 1] - positions[:, 0]
+    ahead = toes * np.sqrt(dot(bone, bone))[:, None] * normalize(flat[:, 1] - flat[:, 0])
+    points = np.stack([flat[:, 0], flat[:, 1], flat[:, 1] + ahead], axis=1)
+    step = np.diff(points, axis=0)  # (T − 1, 3, 3): the heel's, the ball's and the tip's
+    touching = contacts[:-1] & contacts[1:]  # (T − 1, 2)
+    holding = touching[:, [0, 1, 1]]
+    length = np.where(holding, np.sqrt(dot(step, step)), np.inf)
+    slid = np.take_along_axis(step, np.argmin(length, axis=1)[:, None, None], axis=1)[:, 0]
+    slid[~holding.any(axis=1)] = 0.0
+    slid *= np.maximum(0.0, 1.0 - free / np.maximum(np.sqrt(dot(slid, slid)), _EPS))[:, None]
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(slid, axis=0)])
+
+
+def pinning(slid: np.ndarray, flags: np.ndarray, blend_frames: int, tolerance: float, settle_frames: int) -> np.ndarray:
+    """(T, 3) the horizontal offset that keeps a foot from sliding, from how far it has slid
+    (:func:`slide_path`) and where it touches the ground (``flags``, T).
+
+    Within a contact run the foot is kept within a tolerance of where it stands in the run, the
+    median of its slide there: a frame nearer is left where it is, a farther one is brought in to
+    that distance. The tolerance is ``tolerance`` (the skeleton's units) in a run of
+    ``settle_frames`` steps or more, proportionally less in a shorter one. Why not hold the foot at
+    one point: a real foot is never that still, and moving every frame of a real run to its mean
+    position moved a real knee 17 cm. The offset a run needs at its first and last frames fades
+    over ``blend_frames`` frames before and after it (smoothstep), when the foot is in the air;
+    between two near runs their fading offsets are averaged by weight, so no frame moves further
+    than either asks."""
+    offset_sum = np.zeros_like(slid)
+    weight_sum = np.zeros(len(slid))
     ramp = _smoothstep(1.0 - np.arange(1, blend_frames + 1) / (blend_frames + 1))
     runs = contact_runs(flags)
-    locks = [ground[first:end].mean(axis=0) for first, end in runs]
-    for (first, end), lock in zip(runs, locks):
+    needed = []
+    for first, end in runs:
+        stray = slid[first:end] - np.median(slid[first:end], axis=0)
+        distance = np.sqrt(dot(stray, stray))
+        allowed = tolerance * min(1.0, (end - first - 1) / max(settle_frames, 1))
+        needed.append((np.minimum(1.0, allowed / np.maximum(distance, _EPS)) - 1.0)[:, None] * stray)
         before = np.arange(first - 1, first - blend_frames - 1, -1)
         after = np.arange(end, end + blend_frames)
-        for frames, edge in ((before, first), (after, end - 1)):
-            kept = (frames >= 0) & (frames < len(ground))
-            offset_sum[frames[kept]] += ramp[kept, None] * (lock - ground[edge])
-            weight_sum[frames[kept]] += ramp[kept]
+        for frames, edge in ((before, needed[-1][0]), (after, needed[-1][-1])):
+            valid = (frames >= 0) & (frames < len(slid))
+            offset_sum[frames[valid]] += ramp[valid, None] * edge
+            weight_sum[frames[valid]] += ramp[valid]
     offset = offset_sum / np.maximum(weight_sum, 1.0)[:, None]
-    weight = np.minimum(weight_sum, 1.0)
-    for (first, end), lock in zip(runs, locks):
-        offset[first:end] = lock - ground[first:end]
-        weight[first:end] = 1.0
-    return offset, weight
+    for (first, end), inside in zip(runs, needed):
+        offset[first:end] = inside
+    return offset
 
 
 def leg_of(skeleton: Skeleton, pair: tuple[int, int]) -> tuple[int, ...]:
@@ -177,54 +255,54 @@ def plant_feet(
     fps: float,
     contacts: np.ndarray | None = None,
     blend: float = BLEND_SECONDS,
-    hold: float = HOLD_SECONDS,
-    ground: float = SKATING_HEIGHT_M,
-    hold_speed: float = HOLD_SPEED_M_S,
+    tolerance: float = SLIDE_TOLERANCE_M,
+    free: float = FREE_SPEED_M_S,
 ) -> np.ndarray:
-    """The clip (T, J, 3) with each contact's foot joint kept from sliding and the legs solved to
-    reach.
+    """The clip (T, J, 3) with each foot kept from sliding where it touches the ground, and the
+    legs solved to reach.
 
-    ``contacts`` (T, 4) in :func:`foot_contacts`'s order (computed from the joints when not
-    given); ``blend`` seconds of fading at a run's edges; a foot's contacts are held on for up to
-    ``hold`` seconds while its toe stays below ``ground`` metres (GMD's height of a foot near the
-    ground) and slower than ``hold_speed`` m/s (:data:`HOLD_SPEED_M_S`) by
-    :func:`hold_while_grounded`. Per foot, the two contact joints (ankle,
-    toe) get their targets from :func:`planting`; the segment between them keeps its length,
-    anchored between the two targets by how planted each is (all on the ankle when only the heel
-    is planted, all on the toe when only the toe is); the rest of the foot turns rigidly with it;
-    :func:`two_bone_ik` brings the ankle there from the unmoved hip. Only the knee and the joints
-    below it change, and only in frames that a contact or its blend reaches: every bone keeps its
-    length in every frame, the rest of the body is the input's, bit for bit.
-    """
+    ``contacts`` (T, 4) in :func:`foot_contacts`' order (from the joints when not given); per foot,
+    its slide (:func:`slide_path`, less ``free`` m/s) is held within ``tolerance`` metres of where
+    it stands in each contact run (:func:`pinning`, ``blend`` seconds of fading at a run's edges).
+    The whole foot moves by that one horizontal offset, so a heel rolling up about the ball keeps
+    rolling and the height stays the clip's; :func:`two_bone_ik` brings the ankle there from the
+    unmoved hip. A frame whose foot needs no offset is the input's, bit for bit; in the others
+    only the knee and the joints below it change, every bone keeping its length."""
     joints = skeleton.check_joints(joints)
     contacts = foot_contacts(joints, skeleton, fps) if contacts is None else np.asarray(contacts, dtype=bool)
     if contacts.shape != (len(joints), 4):
         raise ValueError(f"expected contacts of shape ({len(joints)}, 4), got {contacts.shape}")
-    blend_frames, hold_frames = int(round(blend * fps)), int(round(hold * fps))
+    metres = skeleton.metres_per_unit
+    blend_frames, settle_frames = int(round(blend * fps)), int(round(SETTLE_SECONDS * fps))
     planted = joints.copy()
     for side, pair in enumerate((skeleton.feet_left, skeleton.feet_right)):
         chain = leg_of(skeleton, pair)
         hip, knee, ankle, foot = chain[1], chain[2], chain[3], list(chain[3:])
-        heel, toe = joints[:, pair[0]], joints[:, pair[1]]
-        grounded = (toe[:, 1] * skeleton.metres_per_unit < ground) & (_speeds(toe, skeleton, fps) < hold_speed)
-        heel_flags, toe_flags = (hold_while_grounded(contacts[:, 2 * side + k], grounded, hold_frames) for k in (0, 1))
-        heel_offset, heel_weight = planting(heel, heel_flags, blend_frames)
-        toe_offset, toe_weight = planting(toe, toe_flags, blend_frames)
-        moved = heel_weight + toe_weight > 0
-        if not moved.any():
+        touching = contacts[:, 2 * side : 2 * side + 2]
+        slid = slide_path(joints[:, list(pair)], touching, free / fps / metres)
+        offset = pinning(slid, touching.any(axis=1), blend_frames, tolerance / metres, settle_frames)
+        moved = np.flatnonzero(np.abs(offset).max(axis=1) > 0)
+        if not len(moved):
             continue
-        legs, heel_at, toe_at = joints[moved], heel[moved], toe[moved]
-        heel_goal, toe_goal = heel_at + heel_offset[moved], toe_at + toe_offset[moved]
-        length = np.sqrt(dot(toe_at - heel_at, toe_at - heel_at))[:, None]
-        along = normalize(toe_goal - heel_goal)
-        anchor = (toe_weight[moved] / (heel_weight[moved] + toe_weight[moved]))[:, None]
-        new_heel = (1.0 - anchor) * heel_goal + anchor * toe_goal - anchor * length * along
-        turn = qbetween(toe_at - heel_at, along)[:, None]
-        new_foot = new_heel[:, None] + qrot(turn, legs[:, foot] - heel_at[:, None])
-        new_knee, new_ankle = two_bone_ik(legs[:, hip], legs[:, knee], legs[:, ankle], new_foot[:, 0], pole=along)
-        planted[np.flatnonzero(moved)[:, None], foot] = new_foot + (new_ankle - new_foot[:, 0])[:, None]
+        legs = joints[moved]
+        new_knee, new_ankle = two_bone_ik(
+            legs[:, hip],
+            legs[:, knee],
+            legs[:, ankle],
+            legs[:, ankle] + offset[moved],
+            pole=legs[:, pair[1]] - legs[:, pair[0]],
+        )
+        planted[moved[:, None], foot] = legs[:, foot] + (new_ankle - legs[:, ankle])[:, None]
         planted[moved, knee] = new_knee
     return planted
+
+
+def fix_feet(joints: np.ndarray, skeleton: Skeleton, fps: float, features: np.ndarray | None = None) -> np.ndarray:
+    """:func:`plant_feet` with the contacts :func:`foot_contacts` finds, the features' channels
+    heard when they are a clip's own (one row a frame of ``skeleton``'s width; a motion known only
+    by its joints has none): the one fix that a delivery and the evaluation's planted rows run."""
+    own = features is not None and np.shape(features) == (len(joints), skeleton.feature_dim)
+    return plant_feet(joints, skeleton, fps, foot_contacts(joints, skeleton, fps, features if own else None))
 
 
 def step_speeds(positions: np.ndarray, fps: float) -> np.ndarray:
@@ -234,9 +312,10 @@ def step_speeds(positions: np.ndarray, fps: float) -> np.ndarray:
     return np.sqrt(dot(step, step)) * fps
 
 
-def _speeds(positions: np.ndarray, skeleton: Skeleton, fps: float) -> np.ndarray:
-    """(T,) each frame's horizontal speed in m/s, the faster of the steps into and out of it."""
-    speed = step_speeds(positions * skeleton.metres_per_unit, fps)
+def _speeds(positions: np.ndarray, fps: float) -> np.ndarray:
+    """(T, ...) each frame's horizontal speed, the faster of the steps into and out of it, for
+    ``positions`` (T, ..., 3) in metres: m/s."""
+    speed = step_speeds(positions, fps)
     return np.maximum(np.concatenate([speed[:1], speed]), np.concatenate([speed, speed[-1:]]))
 
 

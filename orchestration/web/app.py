@@ -140,7 +140,9 @@ class Service:
         features = load_features(raw, generator.skeleton, origin)
         texts, seconds = [a.text for a in request.actions], [a.seconds for a in request.actions]
         motion = motion_of(features, texts, seconds, generator, origin)
-        return self.generations.record(motion.delivered(Delivery()), texts, request.model, run, 0, "uploaded")
+        # recorded motion: delivered exactly as it came (Delivery.plants_feet), so it edits what was sent
+        delivered = motion.delivered(Delivery(), recorded=True)
+        return self.generations.record(delivered, texts, request.model, run, 0, "uploaded")
 
     def split(self, request: SplitRequest) -> dict[str, Any]:
         """The action sentences a prompt becomes for a run, their verbs, and what the run does not

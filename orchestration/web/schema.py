@@ -68,7 +68,10 @@ class Sampled(BaseModel):
     fps: float | None = Field(None, allow_inf_nan=False, description="the files' frame rate; none: the model's")
     root: str = Field("keep", max_length=16, description="keep, in-place (the root's path taken out) or ground")
     loop: bool = Field(False, description="one seamless cycle, the end blended into the start")
-    plant_feet: bool = Field(True, description="feet planted where they touch down (false: as generated)")
+    plant_feet: bool | None = Field(
+        None,
+        description="feet kept from sliding where they touch down (none: yes, a generated clip's rule; false: as generated)",
+    )
 
 
 class GenerateRequest(Sampled):
