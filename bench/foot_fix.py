@@ -19,14 +19,18 @@ whose moved foot is off the ground (:func:`off_ground`), the frames moved more t
 a sliding clip how far its fixed feet are from the clean clip's where those stand on the ground
 (p95 over such frames of a foot's farther joint, ankle or toe, mm).
 
-    python bench/foot_fix.py [--bandai DIR] [--bandai-map YAML] [--synthetic 40] [--slide 0.6]
+    python bench/foot_fix.py [--bandai DIR [--pool]] [--bandai-map MAP] [--synthetic 40] [--slide 0.6]
+                             [--slide-distance 0.15] [--jitter 0.005 0.01]
 
-prints the command and the table (markdown). Deterministic; about a minute on two cores.
+prints the command and the table (markdown); ``--jitter`` adds a second table, what putting a
+shaking clip on one rigid skeleton (as a generation is delivered) does to its skating
+(:func:`rigid_versus_decoded`). Deterministic; a few seconds on two cores (61 Bandai takes: 15).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 from collections.abc import Iterator, Sequence
@@ -220,8 +224,8 @@ def slide_feet(
     return result
 
 
-def real_clips(bandai: Path | None, bandai_map: str | None) -> Iterator[Clip]:
-    """HumanML3D's clip (by its joints, then with its features' contacts), CMU's and Bandai's takes."""
+def real_clips() -> Iterator[Clip]:
+    """HumanML3D's clip (by its joints, then with its features' contacts) and CMU's takes."""
     from pipelines.bvh_corpus import take_joints
 
     joints = np.load(SAMPLE / "new_joints" / "012314.npy").astype(np.float64)
@@ -230,22 +234,58 @@ def real_clips(bandai: Path | None, bandai_map: str | None) -> Iterator[Clip]:
     yield Clip("HumanML3D 012314, its contact channels", joints, features)
     for path in sorted(CMU.glob("131_0*.bvh")):
         yield Clip(f"CMU {path.stem}", on_floor(take_joints(path, units="cmu")[0].astype(np.float64)))
-    if bandai is not None:
-        for path in sorted(bandai.glob("**/*.bvh")):
-            take = take_joints(path, joint_map=bandai_map)[0].astype(np.float64)
-            yield Clip(f"Bandai {path.stem.removeprefix('dataset-2_')}", on_floor(take))
+
+
+def bandai_clips(folder: Path, joint_map: str | None) -> list[Clip]:
+    """Every BVH take under ``folder`` (the dataset's layout, or a flat folder of its files)."""
+    from pipelines.bvh_corpus import take_joints
+
+    return [
+        Clip(
+            f"Bandai {path.stem.split('_', 1)[-1]}",
+            on_floor(take_joints(path, joint_map=joint_map)[0].astype(np.float64)),
+        )
+        for path in sorted(folder.glob("**/*.bvh"))
+    ]
 
 
 def synthetic_clips(count: int) -> list[Clip]:
+    """The first ``count`` clips of the synthetic corpus of seed 0."""
     from pipelines.synthetic import make_clip
 
-    return [Clip("synthetic", make_clip(index, seed=0).joints.astype(np.float64)) for index in range(count)]
+    return [Clip("synthetic corpus", make_clip(index, seed=0).joints.astype(np.float64)) for index in range(count)]
 
 
 def sliding(clip: Clip, speed: float, distance: float) -> Clip:
     """``clip`` made to skate (:func:`slide_feet`); a clip with features keeps its channels."""
     slid = slide_feet(clip.joints, speed, distance)
     return Clip(f"{clip.name}, sliding", slid, clip.features, clip.joints)
+
+
+def rigid_versus_decoded(noise: Sequence[float], seed: int = 0) -> str:
+    """A table: clip 012314 with independent Gaussian noise of each standard deviation (metres)
+    on every joint but the root in every frame, as a model's decoded joints shake, measured as
+    decoded (what the evaluation measures and plants) and on one rigid skeleton (what a
+    generation is delivered on): the bone-length spread, the skating of each, and after the fix."""
+    from m2d2m.motion.feet import fix_feet
+    from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
+
+    joints = np.load(SAMPLE / "new_joints" / "012314.npy").astype(np.float64)
+    features = np.load(SAMPLE / "new_joint_vecs" / "012314.npy")
+    rng = np.random.default_rng(seed)
+    lines = [
+        "| noise mm | bone spread mm | skating decoded | rigid | fixed decoded | fixed rigid |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for sigma in noise:
+        decoded = joints.copy()
+        decoded[:, 1:] += rng.normal(0.0, sigma, decoded[:, 1:].shape)
+        rigid = on_rigid_skeleton(decoded, T2M)
+        values = [skating_ratio(clip, T2M, FPS) for clip in (decoded, rigid)]
+        values += [skating_ratio(fix_feet(clip, T2M, FPS, features), T2M, FPS) for clip in (decoded, rigid)]
+        spread = bone_length_spread(decoded, T2M)["mean"]
+        lines.append(f"| {sigma * 1000:g} | {spread:.1f} | " + " | ".join(f"{v:.3f}" for v in values) + " |")
+    return "\n".join(lines)
 
 
 def table(rows: Sequence[Row]) -> str:
@@ -257,25 +297,41 @@ def main(argv: Sequence[str] | None = None) -> list[Row]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--bandai", type=Path, help="a folder of Bandai Namco BVH takes (default: the fixtures')")
     parser.add_argument("--bandai-map", help="the joint map that reads them (default: the preset that fits)")
+    parser.add_argument("--pool", action="store_true", help="one row for all Bandai takes (and one sliding)")
+    parser.add_argument(
+        "--jitter",
+        type=float,
+        nargs="*",
+        metavar="M",
+        help="also clip 012314 shaken by noise of these standard deviations (m), decoded and on one rigid skeleton",
+    )
     parser.add_argument("--synthetic", type=int, default=40, help="synthetic corpus clips, one row (default 40)")
     parser.add_argument("--slide", type=float, default=0.6, help="the sliding clips' speed, m/s (default 0.6)")
     parser.add_argument(
         "--slide-distance", type=float, default=0.15, help="how far each stance slides at most, m (default 0.15)"
     )
     args = parser.parse_args(argv)
-    bandai = args.bandai or (BANDAI if BANDAI.is_dir() else None)
-    clips = list(real_clips(bandai, args.bandai_map))
-    rows = [measure([clip]) for clip in clips]
-    synthetic = synthetic_clips(args.synthetic) if args.synthetic else []
-    if synthetic:
-        rows.append(measure(synthetic, f"synthetic corpus, {len(synthetic)} clips"))
-    rows += [measure([sliding(clip, args.slide, args.slide_distance)]) for clip in clips]
-    if synthetic:
-        slid = [sliding(clip, args.slide, args.slide_distance) for clip in synthetic]
-        rows.append(measure(slid, f"synthetic corpus, {len(synthetic)} clips, sliding"))
+    folder = args.bandai or (BANDAI if BANDAI.is_dir() else None)
+    bandai = bandai_clips(folder, args.bandai_map) if folder is not None else []
+    groups = [[clip] for clip in real_clips()]  # each measured on its own row, or pooled
+    groups += [bandai] if args.pool and bandai else [[clip] for clip in bandai]
+    if args.synthetic:
+        groups.append(synthetic_clips(args.synthetic))
+
+    def name(group: list[Clip], suffix: str = "") -> str:
+        kind = os.path.commonprefix([clip.name for clip in group]).strip()
+        return f"{group[0].name}{suffix}" if len(group) == 1 else f"{kind}, {len(group)} clips{suffix}"
+
+    rows = [measure(group, name(group)) for group in groups]
+    for group in groups:
+        slid = [sliding(clip, args.slide, args.slide_distance) for clip in group]
+        rows.append(measure(slid, name(group, ", sliding")))
     shown = " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
     print(f"python bench/foot_fix.py {shown}".rstrip())
     print(table(rows))
+    if args.jitter:
+        print()
+        print(rigid_versus_decoded(args.jitter))
     return rows
 
 
