@@ -8,7 +8,8 @@ captions at (pipelines/language.py). A take gets all three, each with a phrasing
 which phrasing a hash of the take's name picks, so the captions are the same on every build.
 What a label does not say was measured from the joints, over every take of the content
 (docs/data.md, "The Bandai Namco corpus"): ``bye`` waves the right hand only, ``byebye`` both
-hands together; ``guide`` holds the right hand out in front at chest height; ``respond`` raises
+hands together (in a few takes the hand barely moves, the rig ending at the wrist, so one wording
+says only that it is raised); ``guide`` holds the right hand out in front at chest height; ``respond`` raises
 the left hand above the shoulder; ``call`` is a deep bow (55°); ``walk-left`` and ``walk-right``
 walk about 30° off the way the body faces, without turning; ``kick`` kicks the right leg up to
 1 m; ``slash`` keeps the wrists together, as round a sword's grip; ``chimpira`` (Japanese for a
@@ -72,18 +73,18 @@ CONTENTS: dict[str, tuple[tuple[str, str, str], frozenset[str]]] = {
     "bye": (
         (
             "a person waves goodbye with the right hand{style}",
-            "someone waves the right hand goodbye{style}",
+            "someone raises the right hand in a goodbye wave{style}",
             "a person waves bye with the right hand{style}",
         ),
-        frozenset({"wave"}),
+        frozenset({"wave", "raise"}),
     ),
     "byebye": (
         (
             "a person waves goodbye with both hands{style}",
-            "someone waves both hands goodbye{style}",
+            "someone raises both hands in a goodbye wave{style}",
             "a person waves bye with both hands{style}",
         ),
-        frozenset({"wave"}),
+        frozenset({"wave", "raise"}),
     ),
     "guide": (
         (
