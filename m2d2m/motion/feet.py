@@ -6,11 +6,12 @@ sliding there, and a measure of how much they slide (docs/evaluation.md, "Feet t
   ``motion_representation.py``, ``foot_detect`` with ``feet_thre = 0.002``, velocity only) is
   checked against the joints: a joint above the ground, or faster than a foot that touches it,
   is not in contact whatever was said; one on the ground and still is, whatever was said.
-- :func:`plant_feet`: what a foot slides in each contact (:func:`slide_path`: the least any point
-  of its sole moves, so a pivot is no slide), less what a real foot creeps, held within a few
-  centimetres of where the foot stands (:func:`pinning`); the whole foot moved by that one
-  horizontal offset and the leg solved with analytic two-bone IK (:func:`two_bone_ik`). Recorded
-  motion comes out within a centimetre (docs/evaluation.md has the measurements).
+- :func:`plant_feet`: what a foot slides in each contact (:func:`slide_path`: the shortest step
+  of its touching heel, ball or toe tip, so a pivot is no slide), less what a real foot creeps,
+  held within a few centimetres of where the foot stands (:func:`pinning`); the whole foot moved
+  by that one horizontal offset and the leg solved with analytic two-bone IK
+  (:func:`two_bone_ik`). Recorded motion comes out within a centimetre (docs/evaluation.md has
+  the measurements).
 - :func:`fix_feet`: the two as a delivery and the evaluation's planted rows run them.
 - :func:`skating_ratio`: GMD's foot skating ratio (Karunratanakul et al., "Guided Motion Diffusion
   for Controllable Human Motion Synthesis", ICCV 2023, §6.1 "Evaluation metrics";
@@ -38,7 +39,7 @@ SKATING_WINDOW = 5
 
 # What touches the ground (foot_contacts). A foot joint touches only within GMD's 5 cm of the
 # lowest that joint (either foot's) gets in the clip, a capture's own floor, and within LIFT_M of
-# its own lowest over LOCAL_SECONDS either side: a real foot that steps lifts its toe 2-4 cm off
+# its own lowest over LOCAL_SECONDS either side: a real foot that steps lifts its toe 1.5-4 cm off
 # where it stood, slowly enough for HumanML3D's rule (clip 012314 shuffles such steps at
 # 0.3-0.9 m/s), and a contact spanning the step made the fix drag it.
 LIFT_M = 0.015
