@@ -3,15 +3,16 @@ real motion, which it must leave alone, and to motion that skates, which it must
 (docs/evaluation.md, "Feet that stay planted").
 
 Real motion: HumanML3D's clip 012314 (by its joints, as ``m2d2m export --foot-fix`` reads a file,
-and with its feature's contact channels, as a generated clip comes), CMU's takes 131_01–03
-(tests/fixtures/cmu-bvh), Bandai Namco's takes (``--bandai``: the fixtures' folder when it exists,
-or any folder of the dataset's BVH files; ``--bandai-map``: a joint map for them while no preset
-reads them) and ``--synthetic`` clips of the synthetic corpus, pooled in one row. Recorded takes
-are put on the floor first, lowest foot joint at y = 0, as HumanML3D's processing puts its clips,
-so that GMD's 5 cm means the same on every row.
+and with its features' contact channels, as a generated clip comes), CMU's takes 131_01–03
+(tests/fixtures/cmu-bvh), Bandai Namco's takes (tests/fixtures/bandai-namco, or ``--bandai``: any
+folder of the dataset's BVH files, ``--pool`` for one row of them all; ``--bandai-map``: the joint
+map, by default the preset that fits) and ``--synthetic`` clips of the synthetic corpus, pooled in
+one row. Recorded takes are put on the floor first, lowest foot joint at y = 0, as HumanML3D's
+processing puts its clips, so that GMD's 5 cm means the same on every row.
 
-Motion that skates: each real clip with its planted feet made to slide (:func:`slide_feet`) at
-``--slide`` m/s, forwards and back about where they stand, the legs solved to follow.
+Motion that skates: each of those clips with its planted feet made to slide (:func:`slide_feet`)
+``--slide-distance`` metres at ``--slide`` m/s, forwards about where they stand and back in the
+air, the legs solved to follow.
 
 Columns: GMD's skating ratio before and after the fix (and of the clean clip, for a sliding one),
 each frame's largest joint displacement by the fix (p50, p95, max, mm), the largest in a frame
