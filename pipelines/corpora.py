@@ -197,7 +197,12 @@ class Corpus:
 
 _CORPORA: dict[str, Corpus] = {}
 # Layouts of this package that live in modules of their own and register when imported.
-_BUILT_IN_MODULES = ("pipelines.bvh_corpus", "pipelines.humanml3d_public", "pipelines.bandai_namco")
+_BUILT_IN_MODULES = (
+    "pipelines.bvh_corpus",
+    "pipelines.humanml3d_public",
+    "pipelines.bandai_namco",
+    "pipelines.cmu_kitml",
+)
 
 
 def register_corpus(corpus: Corpus) -> Corpus:
