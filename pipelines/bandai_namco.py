@@ -17,10 +17,10 @@ KIT-ML's, because a third of dataset-2's raise-up takes last 1.2–2 s (HumanML3
 471 complete takes; 24 drops 24, of 0.6–1.2 s). Leading and trailing stillness beyond one second
 (no joint faster than 0.15 m/s) is left out: dataset-1's dance opens with 8.8 s of standing.
 A take longer than the upper bound (36 of them: walks, dataset-1's dance, repeated kicks, sword
-slashes, a long wave; all periodic, so each stretch shows what the labels say) is cut into the
+slashes, two waves goodbye; all repeat a cycle, so each stretch shows what the labels say) is cut into the
 fewest consecutive pieces of equal length within it, each a motion with the take's captions and
 the take's split. Every take that cannot be read is one quarantine line: a JSON without its BVH
-(dataset-1's ``dance-long`` in the public clone), a BVH without its JSON, a label index out of
+(as dataset-1's ``dance-long`` where a clone lacks its BVH), a BVH without its JSON, a label index out of
 range or without captions, a JSON that says otherwise than its file name.
 """
 
@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from m2d2m.layout import relative_to_project
-from m2d2m.motion.bvh_reader import BvhError, read_bvh_header, resample
+from m2d2m.motion.bvh_reader import BvhError, instants, read_bvh_header
 from m2d2m.motion.skeleton import T2M, Skeleton
 from pipelines.bandai_namco_captions import captions_for
 from pipelines.bvh_corpus import stable_split, take_joints
@@ -150,7 +150,7 @@ def pieces(frames: int, maximum: int = FRAME_BOUNDS[1]) -> list[tuple[int, int]]
 def _take_rows(take: str, row: dict[str, Any], header_frames: int, fps: float) -> list[dict[str, Any]]:
     """The rows of a readable take: itself, or its pieces when it may be longer than the bounds
     (then its motion is read now, to know its length once trimmed)."""
-    if len(resample(np.zeros((header_frames, 1)), fps, T2M.fps)) <= FRAME_BOUNDS[1]:
+    if len(instants(header_frames, fps, T2M.fps)) <= FRAME_BOUNDS[1]:  # the frames take_joints gives
         return [row]
     try:
         span = moving_span(_joints(row), T2M.fps)
