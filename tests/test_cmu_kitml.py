@@ -243,8 +243,8 @@ def quarantined(row: dict) -> dict:
         ("02248", "no BVH: no 128_01.bvh under tests/fixtures/cmu-kitml (KIT-ML's CMU/128/128_01_poses)"),
         (
             "99001",
-            "does not line up: 198 frames in KIT-ML's 2.5 s is 79.2 fps, more than a frame from 120 or 60 "
-            "(at 120 fps 1.65 s, at 60 fps 3.3 s)",
+            "does not line up: 198 frames in KIT-ML's 2.5 s is 79.2 fps, more than a frame from 120 or 60 fps "
+            "(at 120 fps they last 1.65 s, at 60 fps they last 3.3 s)",
         ),
     ],
 )
