@@ -2,12 +2,13 @@
 with KIT-ML's captions").
 
 The KIT Motion-Language Dataset (Plappert, Mandery and Asfour 2016, "The KIT Motion-Language
-Dataset", Big Data 4(4), doi:10.1089/big.2016.0028) captions 3,911 motions, 790 of them CMU's
-takes. ``--annotations`` is its ``annotations.json`` as github.com/Mathux/TMR ships it
-(``datasets/annotations/kitml/``: ids → ``{path, duration, annotations: [{text, start, end}]}``),
-with KIT-ML's split files in ``splits/`` beside it; ``--raw`` a clone of
-github.com/una-dinosauria/cmu-mocap (cgspeed's MotionBuilder-friendly BVH, a take found by its
-name ``<subject>_<take>.bvh`` in any subfolder) or any folder of CMU's BVH.
+Dataset", Big Data 4(4), doi:10.1089/big.2016.0028) captions motions of KIT's whole-body
+database; 790 of the 2,883 that github.com/Mathux/TMR's copy keeps are CMU's takes.
+``--annotations`` is that copy's ``annotations.json`` (``datasets/annotations/kitml/``: ids →
+``{path, duration, annotations: [{text, start, end}]}``), KIT-ML's split files in ``splits/``
+beside it. ``--raw`` is a clone of github.com/una-dinosauria/cmu-mocap (cgspeed's
+MotionBuilder-friendly BVH, a take found by its name ``<subject>_<take>.bvh`` in any subfolder)
+or any folder of CMU's BVH.
 
 Each CMU take is read by :func:`pipelines.bvh_corpus.take_joints` in CMU's units, its T-pose
 frame left out by the joint map, at the rate it was captured: the files all say 120 fps, yet some
@@ -18,7 +19,8 @@ its numbers. Every entry of the file is a sample or a quarantine line: KIT's own
 quarantined, one line each, and a mirror entry ``M<id>`` follows its original (the pipeline
 makes ``M<id>`` from a sample; a quarantined original's line stands for both). CMU's own
 one-line description of a take (``cmu-mocap-index-text.txt`` in the clone) becomes a second
-caption where it describes the motion (:func:`cmu_description`).
+caption where it describes the motion (:func:`cmu_description`). A take outside HumanML3D's
+frame bounds is quarantined by them, not cut: KIT-ML's caption tells the whole take.
 """
 
 from __future__ import annotations
