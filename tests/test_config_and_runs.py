@@ -137,7 +137,7 @@ def test_resume_passes_over_a_run_that_failed_before_training_began(tmp_path, mo
 
 
 def test_unknown_config_lists_the_available_ones():
-    with pytest.raises(UserError, match="available: demo, humanml3d, kit"):
+    with pytest.raises(UserError, match="available: bandai-namco, demo, humanml3d, kit"):
         load_config("vq", "nope")
 
 
