@@ -84,9 +84,13 @@ def draw(dataset: str, out: Path) -> list[str]:
     found = [(panel, run) for panel, run in found if run is not None]
     if not found:
         raise SystemExit(f"runs/{dataset}: no trained model; train one first (make demo-real for bandai-namco)")
-    figure, axes = plt.subplots(1, len(found), figsize=(4.2 * len(found), 3.4), squeeze=False)
+    columns = min(3, len(found))
+    rows = -(-len(found) // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(4.6 * columns, 3.4 * rows), squeeze=False)
+    for axis in axes.flat[len(found) :]:
+        axis.set_visible(False)
     lines = []
-    for axis, (panel, (name, run_id)) in zip(axes[0], found):
+    for axis, (panel, (name, run_id)) in zip(axes.flat, found):
         said = []
         for metric in panel.losses:
             steps, values = history(mlflow_client, run_id, metric)
