@@ -497,7 +497,7 @@ def _ui(args: argparse.Namespace) -> None:
 
 def _serve(args: argparse.Namespace) -> None:
     from orchestration.generate import length_cap
-    from orchestration.model_summary import trained_datasets
+    from orchestration.model_summary import also_trained
     from orchestration.serving import check_port_free
     from orchestration.web.app import ServeSettings
     from orchestration.web.server import serve, server_token
@@ -520,10 +520,9 @@ def _serve(args: argparse.Namespace) -> None:
         f"m2d2m on http://{host}:{args.port}/ (the API's documentation: /docs); Ctrl-C or SIGTERM stops it",
         flush=True,
     )
-    others = [name for name in trained_datasets() if name != args.dataset]
+    others = also_trained(args.dataset)
     if others:
-        serving = ", ".join(f"{name} (--dataset {name})" for name in others)
-        print(f"serving the models of dataset {args.dataset}; models of {serving} are trained too", flush=True)
+        print(others, flush=True)
     serve(settings, args.host, args.port)
     print("stopped: the requests in flight were answered")
 

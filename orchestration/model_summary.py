@@ -27,6 +27,16 @@ def trained_datasets() -> list[str]:
     )
 
 
+def also_trained(dataset: str) -> str | None:
+    """The line `m2d2m serve --dataset <dataset>` says about the other datasets' trained models
+    (the real-motion ones beside the demo's), or None when there are none."""
+    others = [name for name in trained_datasets() if name != dataset]
+    if not others:
+        return None
+    serving = ", ".join(f"{name} (--dataset {name})" for name in others)
+    return f"serving the models of dataset {dataset}; models of {serving} are trained too"
+
+
 def summary_lines(dataset: str | None = None) -> list[str]:
     """The summary of every registered model with a finished run of ``dataset``: its latest run's;
     of every dataset's, under a line naming the dataset and how to serve it, when none is named

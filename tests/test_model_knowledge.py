@@ -15,6 +15,7 @@ from fastapi.testclient import TestClient
 from m2d2m.generators.m2d2m import M2D2MGenerator
 from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT
 from orchestration.cli import main
+from orchestration.model_summary import also_trained
 from orchestration.web.app import ServeSettings, create_app
 
 CHOSEN = {"steps": 3, "guidance": 1.5}  # what the second run's config chose for every preset
@@ -81,6 +82,14 @@ def test_models_without_a_dataset_lists_every_trained_dataset(chosen_run, capsys
     assert "dataset tiny (serve it: m2d2m serve --dataset tiny)" in printed
     assert any(line.startswith("  m2d2m: ") for line in printed)
     assert f"    run {chosen_run.name}, 1 older ({chosen_run.relative_to(chosen_run.parents[3])}/model.pt)" in printed
+
+
+def test_serving_one_dataset_names_the_others_with_trained_models(chosen_run):
+    assert (
+        also_trained("synthetic")
+        == "serving the models of dataset synthetic; models of tiny (--dataset tiny) are trained too"
+    )
+    assert also_trained("tiny") is None
 
 
 def test_models_outside_a_trained_dataset_is_one_line(chosen_run, capsys):
