@@ -54,7 +54,10 @@ def test_the_installed_entry_point_ends_a_user_error_in_one_line(tmp_path):
         (["train-vq", "--config", "nope"], "no config 'nope' for vq; available: bandai-namco, demo, humanml3d, kit"),
         (["train-vq", "--set", "model.widht=3"], "no key 'widht' in model"),
         (["train-vq", "--set", "optim.lr"], "expected key.sub=value"),
-        (["train-diffusion", "--config", "nope"], "no config 'nope' for m2d2m; available: bandai-namco, demo, humanml3d, kit"),
+        (
+            ["train-diffusion", "--config", "nope"],
+            "no config 'nope' for m2d2m; available: bandai-namco, demo, humanml3d, kit",
+        ),
         (["train-diffusion", "--set", "diffusion.knid=uniform"], "no key 'knid' in diffusion"),
         (["tokenize", "--vq", "nope", "--dataset", "zzz"], "no vq run 'nope' for dataset 'zzz'"),
         (["tokenize", "--check", "{tmp}"], "problem(s) against its manifest"),
