@@ -94,6 +94,12 @@ DEMO_PROMPTS := "a person walks forward" "a person jumps" "a person waves their 
 # 4 minutes; Jerk half-widths about 0.05). `make eval-power` sizes the comparison for 0.03 (docs/evaluation.md, Power).
 DEMO_REPEATS ?= 2
 demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus: data, models, evaluation, a clip, a sweep
+ifeq ($(DATASET),bandai-namco)
+	$(MAKE) --no-print-directory demo-real $(if $(filter command line environment,$(origin RAW)),REAL_RAW=$(RAW))
+else ifneq ($(DATASET),synthetic)
+	@echo "make demo: the flow of the embedded corpus or, with DATASET=bandai-namco, of real motion (make demo-real);" \
+	"DATASET=$(DATASET) has none: make data, train-vq, train-diffusion ... with DATASET=$(DATASET) (docs/data.md)" >&2; exit 2
+else
 	$(M2D2M) synthesize --out data/raw/synthetic --clips $(CLIPS) --seed $(SEED)
 	$(M2D2M) render data/raw/synthetic --id 000000 --out $(DEMO)/000000.gif
 	$(M2D2M) export data/raw/synthetic --id 000000 --out $(DEMO)/000000.bvh
@@ -113,6 +119,7 @@ demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus: data, models
 	@echo "Type your own actions and compare methods side by side on a page: make serve (http://127.0.0.1:8000)"
 	@echo "Compare every run (the sweep's trials are child runs of one parent) in the MLflow UI: make ui"
 	@echo "For TPS against independent sampling with Jerk half-widths of 0.03 (about 20 minutes): make eval-power"
+endif
 
 test: $(STAMP)  ## the fast test loop (tests marked slow, or that start Ray or a browser, left to test-all)
 	$(BIN)/pytest -m "not slow"

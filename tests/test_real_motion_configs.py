@@ -4,6 +4,9 @@ embedded default's (docs/reproduction.md, "On real motion")."""
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -36,3 +39,33 @@ def test_the_makefile_trains_every_stage_from_its_real_motion_config():
         assert f"$(M2D2M) {verb} --config bandai-namco" in recipe
     assert "--dataset bandai-namco --raw $(REAL_RAW)" in recipe
     assert yaml.safe_load((ROOT / "configs/vq/bandai-namco.yaml").read_text(encoding="utf-8"))["data"]["window"] == 32
+
+
+@pytest.fixture
+def makefile_project(tmp_path: Path) -> Path:
+    """The Makefile in a folder whose .venv is made and up to date, so that a verb runs its recipe."""
+    for name in ("Makefile", "pyproject.toml"):
+        shutil.copy(ROOT / name, tmp_path / name)
+    (tmp_path / ".venv").mkdir()
+    (tmp_path / ".venv" / ".installed").write_text(f"{tmp_path}\n", encoding="utf-8")
+    os.utime(tmp_path / "pyproject.toml", (0, 0))
+    return tmp_path
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs GNU make")
+def test_make_demo_on_the_bandai_namco_corpus_is_demo_real_and_on_another_one_line(makefile_project):
+    """`make demo DATASET=bandai-namco RAW=<clone>` (the issue's words) runs demo-real on that clone;
+    another DATASET is refused in one line instead of running the synthetic flow unasked."""
+    plan = subprocess.run(
+        ["make", "-n", "demo", "DATASET=bandai-namco", "RAW=../clone"],
+        cwd=makefile_project,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert "m2d2m data --dataset bandai-namco --raw ../clone" in plan and "synthesize" not in plan
+    refused = subprocess.run(["make", "demo", "DATASET=kit"], cwd=makefile_project, capture_output=True, text=True)
+    assert refused.returncode == 2
+    assert refused.stderr.splitlines()[0].startswith(
+        "make demo: the flow of the embedded corpus or, with DATASET=bandai"
+    )
