@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.bvh_reader import BvhClip, read_bvh
+from m2d2m.motion.bvh_reader import BvhClip, read_bvh, rest_positions
 from m2d2m.motion.export import write_bvh
 from m2d2m.motion.gltf_rig import GLTF_SUFFIXES, read_gltf_rig
 from m2d2m.motion.joint_map import JointMap, joint_map_for
@@ -54,10 +54,7 @@ class Rig:
 
     def rest_positions(self) -> np.ndarray:
         """(J, 3) every joint where the rest pose puts it (each rotation zero)."""
-        rest = np.zeros((len(self.names), 3))
-        for joint, parent in enumerate(self.parents):
-            rest[joint] = self.offsets[joint] + (rest[parent] if parent >= 0 else 0.0)
-        return rest
+        return rest_positions(self.parents, self.offsets)
 
 
 @dataclass(frozen=True)
@@ -84,26 +81,44 @@ class RigMotion:
 
 
 def _ours_of(rig: Rig, joint_map: JointMap, skeleton: Skeleton) -> dict[int, int]:
-    """The rig's joints that stand for one of ours (a map's midpoints stand for none), → ours."""
+    """The rig's joints that stand for one of ours (a map's means and points fixed to a joint
+    stand for none), → ours."""
     mapped = {}
     for ours, theirs in joint_map.sources.items():
-        if len(theirs) == 1 and theirs[0] in rig.names:
+        if len(theirs) == 1 and theirs[0] in rig.names and ours not in joint_map.offsets:
             mapped[rig.names.index(theirs[0])] = skeleton.joint_names.index(ours)
     return mapped
 
 
-def _aims(rig: Rig, mapped: dict[int, int]) -> list[list[int]]:
-    """For each joint, the first mapped joint below each of its children (depth first)."""
+def _aims(
+    rig: Rig, joint_map: JointMap, mapped: dict[int, int], skeleton: Skeleton
+) -> list[list[tuple[np.ndarray, int]]]:
+    """For each joint, what it aims at, as (its rest vector to the target, our joint the target
+    stands for): the first mapped joint below each of its children (depth first), and the points
+    the map fixes to it (a toe ahead of an ankle: the ankle turns so that it points where our
+    toe does)."""
     kids_of = children(rig.parents)
+    rest = rig.rest_positions()
 
     def first_mapped(joint: int) -> int | None:
         if joint in mapped:
             return joint
         return next((found for kid in kids_of[joint] if (found := first_mapped(kid)) is not None), None)
 
-    return [
-        [found for kid in kids_of[joint] if (found := first_mapped(kid)) is not None] for joint in range(len(kids_of))
+    aims = [
+        [
+            (rest[found] - rest[joint], mapped[found])
+            for kid in kids_of[joint]
+            if (found := first_mapped(kid)) is not None
+        ]
+        for joint in range(len(kids_of))
     ]
+    for ours, offset in joint_map.offsets.items():
+        if joint_map.sources[ours][0] in rig.names:
+            aims[rig.names.index(joint_map.sources[ours][0])].append(
+                (np.asarray(offset), skeleton.joint_names.index(ours))
+            )
+    return aims
 
 
 def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skeleton = T2M) -> RigMotion:
@@ -126,23 +141,21 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
     world = np.empty((frames, len(rig.names), 3, 3))
     local = np.empty_like(world)
     identity = np.broadcast_to(np.eye(3), (frames, 3, 3))
-    for joint, targets in enumerate(_aims(rig, mapped)):
+    for joint, aims in enumerate(_aims(rig, joint_map, mapped, skeleton)):
         parent = rig.parents[joint]
         parent_world = identity if parent < 0 else world[:, parent]
         anchor[joint] = mapped.get(joint, anchor[parent] if parent >= 0 else 0)
-        wanted = (
-            np.stack([joints[:, mapped[t]] - joints[:, anchor[joint]] for t in targets], axis=1) if targets else None
-        )
-        if wanted is None:
+        if not aims:
             local[:, joint] = np.eye(3)
-        elif len(targets) == 1:
-            in_parent = np.einsum("tji,tj->ti", parent_world, wanted[:, 0])
-            local[:, joint] = quat_to_matrix(qbetween(rest[targets[0]] - rest[joint], in_parent))
+        elif len(aims) == 1:
+            vector, target = aims[0]
+            in_parent = np.einsum("tji,tj->ti", parent_world, joints[:, target] - joints[:, anchor[joint]])
+            local[:, joint] = quat_to_matrix(qbetween(vector, in_parent))
         else:
+            wanted = np.stack([joints[:, target] - joints[:, anchor[joint]] for _, target in aims], axis=1)
             directions = wanted / np.linalg.norm(wanted, axis=-1, keepdims=True)
-            vectors = rest[targets] - rest[joint]
-            fitted = best_fit_rotation(vectors / np.linalg.norm(vectors, axis=-1, keepdims=True), directions)
-            local[:, joint] = np.swapaxes(parent_world, -1, -2) @ fitted
+            vectors = np.stack([vector / np.linalg.norm(vector) for vector, _ in aims])
+            local[:, joint] = np.swapaxes(parent_world, -1, -2) @ best_fit_rotation(vectors, directions)
         world[:, joint] = parent_world @ local[:, joint]
     root_index = int(np.flatnonzero(rig.parents < 0)[0])
     root = joints[:, anchor[root_index]] * scale + (rest[root_index] - rest[theirs[anchor[root_index]]])
