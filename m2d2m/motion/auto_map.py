@@ -151,11 +151,13 @@ class _Tree:
 
 @dataclass(frozen=True)
 class _Ends:
-    """The ankles and the wrists of a rig, by side, and its head."""
+    """The ankles and the wrists of a rig, by side, its head, and what told the sides apart
+    where names did not ("" where they did)."""
 
     ankles: dict[str, int]
     wrists: dict[str, int]
     head: int
+    sides_by: str = ""
 
 
 def auto_map(rig: Rig) -> dict[str, Found]:
@@ -174,8 +176,8 @@ def auto_map(rig: Rig) -> dict[str, Found]:
     found = {"pelvis": _found(tree, pelvis, {"pelvis"}, None, "where the legs and the spine part")}
     found |= _trunk(tree, pelvis, chest, trunk)
     for side in SIDES:
-        found |= _leg(tree, side, pelvis, ends.ankles[side])
-        found |= _arm(tree, side, chest, ends.wrists[side])
+        found |= _leg(tree, side, pelvis, ends)
+        found |= _arm(tree, side, chest, ends)
     if missing_required(found):
         found |= {f"{side}_foot": Found((), MISSING, "no leg to put it on") for side in SIDES}
     else:
@@ -220,8 +222,8 @@ def _ends(tree: _Tree) -> _Ends | str:
             return shape
         pairs = {part: pairs[part] or shape[part] for part in pairs}
         head = head if head is not None else shape["head"][0]
-    ankles, wrists = (_sided(tree, pairs[part], head) for part in ("foot", "hand"))
-    return _Ends(ankles, wrists, head)
+    (ankles, feet_by), (wrists, hands_by) = (_sided(tree, pairs[part], head) for part in ("foot", "hand"))
+    return _Ends(ankles, wrists, head, feet_by or hands_by)
 
 
 def _named_pair(tree: _Tree, part: str) -> list[int] | None:
@@ -234,14 +236,16 @@ def _named_pair(tree: _Tree, part: str) -> list[int] | None:
     return pair[:2] if len(pair) >= 2 else None
 
 
-def _sided(tree: _Tree, pair: list[int], head: int) -> dict[str, int]:
-    """``pair`` by side: as their names say, one side by the other's name, or by the rest pose."""
+def _sided(tree: _Tree, pair: list[int], head: int) -> tuple[dict[str, int], str]:
+    """``pair`` by side, and what told them apart where their names do not both: the other's
+    name, or the rest pose."""
     sides = [tree.said[joint].side for joint in pair]
     if sides[0] is None and sides[1] is not None:
         pair, sides = pair[::-1], sides[::-1]
     if sides[0] is not None and sides[1] != sides[0]:
-        return {sides[0]: pair[0], next(side for side in SIDES if side != sides[0]): pair[1]}
-    return dict(zip(SIDES, _left_first(tree, pair, head)))
+        other = next(side for side in SIDES if side != sides[0])
+        return {sides[0]: pair[0], other: pair[1]}, "" if sides[1] else "the other side's name"
+    return dict(zip(SIDES, _left_first(tree, pair, head))), "the rest pose"
 
 
 def _by_topology(tree: _Tree) -> dict[str, list[int]] | str:
@@ -370,21 +374,23 @@ _ARM = (
 )
 
 
-def _leg(tree: _Tree, side: str, pelvis: int, ankle: int) -> dict[str, Found]:
-    """A leg's hip and knee above its ``ankle``, and the ankle."""
+def _leg(tree: _Tree, side: str, pelvis: int, ends: _Ends) -> dict[str, Found]:
+    """A leg's hip and knee above its ankle, and the ankle."""
+    ankle = ends.ankles[side]
     line = [
         j
         for j in tree.path(pelvis, ankle)[:-1]
         if not (tree.on_parent(j) or tree.said[j].skipped or tree.said[j].part in ("pelvis", "spine"))
     ]
-    return _limb(tree, side, line, _LEG, ankle, "ankle", {"foot"})
+    return _limb(tree, side, line, _LEG, ankle, "ankle", {"foot"}, ends.sides_by)
 
 
-def _arm(tree: _Tree, side: str, chest: int, wrist: int) -> dict[str, Found]:
-    """An arm's collar, shoulder and elbow above its ``wrist``, and the wrist: the collar is the
+def _arm(tree: _Tree, side: str, chest: int, ends: _Ends) -> dict[str, Found]:
+    """An arm's collar, shoulder and elbow above its wrist, and the wrist: the collar is the
     clavicle where it stands off the chest, else halfway from it (or the chest) to the shoulder."""
+    wrist = ends.wrists[side]
     line = [j for j in tree.path(chest, wrist)[:-1] if not tree.said[j].skipped]
-    found = _limb(tree, side, line, _ARM, wrist, "wrist", {"hand"})
+    found = _limb(tree, side, line, _ARM, wrist, "wrist", {"hand"}, ends.sides_by)
     collar, shoulder = found.get(f"{side}_collar"), found[f"{side}_shoulder"]
     if shoulder.how == MISSING:
         found[f"{side}_collar"] = Found((), MISSING, "no shoulder")
@@ -407,12 +413,15 @@ def _limb(
     end: int,
     end_role: str,
     end_parts: set[str],
+    sides_by: str,
 ) -> dict[str, Found]:
     """A limb's joints of ours: its ``end`` and ``roles`` along ``line`` (from the trunk down to
     just above the end), each role the first joint named for it above the one placed before,
-    else the joint just above that one; missing where the line runs out (a collar may)."""
-    guess = "its place along the limb"
-    found = {f"{side}_{end_role}": _found(tree, end, end_parts, side, "the end of the limb")}
+    else the joint just above that one; missing where the line runs out (a collar may).
+    ``sides_by``: what told the limbs' sides apart, where names did not."""
+    sided = f"; its side by {sides_by}" if sides_by else ""
+    guess = "its place along the limb" + sided
+    found = {f"{side}_{end_role}": _found(tree, end, end_parts, side, "the end of the limb" + sided)}
     above = len(line)
     for role, parts, naming in roles:
         named = next((i for i in range(above) if tree.said[line[i]].part in naming), None)

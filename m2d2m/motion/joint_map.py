@@ -335,32 +335,27 @@ class RigMapping:
         """The map, or a BvhError in one line saying what the rig lacks."""
         if self.missing:
             why = self.found[self.missing[0]].why
+            which = "none of ours" if len(self.missing) == len(self.found) else ", ".join(self.missing) + " not"
             raise BvhError(
-                f"cannot map the rig's joints onto ours: {why} ({', '.join(self.missing)} not found); "
-                "give a YAML map of our joint → yours (`m2d2m rig FILE --out map.yaml` writes one to correct)"
+                f"cannot map the rig's joints onto ours: {why} ({which} found); give a YAML map of our joint → "
+                "yours (`m2d2m rig FILE --out map.yaml` writes one to correct)"
             )
         sources = {joint: found.theirs for joint, found in self.found.items()}
         offsets = {joint: found.offset for joint, found in self.found.items() if found.offset is not None}
         return JointMap(self.name, sources, self.rest_frames, offsets).check()
 
     def lines(self) -> list[str]:
-        """One line per joint of ours (its joints of the rig, how they were found and why), and
-        one saying whether the rig can take our motion."""
+        """One line per joint of ours: its joints of the rig, how they were found and why."""
         theirs = {
             joint: (" + ".join(found.theirs) or "-")
             + ("" if found.offset is None else f" + ({', '.join(f'{v:g}' for v in found.offset)}) turning with it")
             for joint, found in self.found.items()
         }
         ours_width, theirs_width = max(map(len, theirs)), max(map(len, theirs.values()))
-        lines = [
+        return [
             f"{joint:<{ours_width}}  {theirs[joint]:<{theirs_width}}  {found.how}{': ' + found.why if found.why else ''}"
             for joint, found in self.found.items()
         ]
-        if self.missing:
-            lines.append(f"can receive motion: no, {', '.join(self.missing)} not found")
-        else:
-            lines.append(f"can receive motion: yes (joint map {self.name})")
-        return lines
 
     def yaml(self, rig: str) -> str:
         """The mapping as a YAML map to correct and give back (``--joint-map``), each line

@@ -4,7 +4,8 @@ lengths and rest pose, move as ours does (issue 40 §2; docs/generation.md, "On 
 The rig comes from a BVH file (its hierarchy and OFFSETs; its first frame is not used) or a
 skinned glTF/GLB character (:mod:`m2d2m.motion.gltf_rig`: its skin's joints as they stand), and a
 :class:`~m2d2m.motion.joint_map.JointMap` naming which of its joints stand for ours (the presets
-of CMU's two cgspeed releases, Mixamo's ``mixamorig:`` names and SMPL's, or a user's YAML). Each
+of CMU's two cgspeed releases, Mixamo's ``mixamorig:`` names, SMPL's, Bandai Namco's, the map found
+from the rig's names and hierarchy, or a user's YAML: :mod:`m2d2m.motion.joint_map`). Each
 of its joints is turned, root first, so that the mapped joints below it point where ours point:
 
 * a joint with one mapped joint below it (through any unmapped ones) gets the swing that turns
@@ -13,11 +14,16 @@ of its joints is turned, root first, so that the mapped joints below it point wh
 * a joint with several (a pelvis: both hips and the spine) gets the best-fit (Kabsch) rotation of
   its rest vectors onto our directions;
 * a joint with none (fingers, an end bone) keeps its rest rotation relative to its parent, so a
-  hand continues its forearm rather than spinning (momask-codes#42's complaint).
+  hand continues its forearm rather than spinning (momask-codes#42's complaint);
+* a point the map fixes to a joint (our foot ahead of the ankle of a rig without toes:
+  :mod:`m2d2m.motion.auto_map`) is aimed as a mapped joint below it would be, so the foot
+  points where our toe does.
 
 The direction of an unmapped joint's aim is taken from its nearest mapped ancestor in our clip,
 which is exact where the rig puts that joint on its ancestor (CMU's ``LHipJoint``, ``lowerback``,
-``LeftCollar`` have zero OFFSETs). Bone lengths are the rig's, so the root's path is scaled by the
+``LeftCollar`` have zero OFFSETs). An unmapped joint between a joint that aims exactly at one
+target and that target (a twist bone inside a limb, Daz's ``lShldrTwist``; a second neck joint)
+keeps its rest rotation: its parent's turn already points the target where ours points. Bone lengths are the rig's, so the root's path is scaled by the
 ratio of the rig's leg length to ours: feet cover the ground a leg of that length covers, instead
 of sliding.
 """
@@ -137,6 +143,7 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
     scale = rig_leg / our_leg
 
     anchor = np.empty(len(rig.names), dtype=np.int64)  # each joint's nearest mapped ancestor-or-self, as ours
+    aimed = np.full(len(rig.names), -1)  # the one joint of ours each joint's turn points exactly, if one
     frames = len(joints)
     world = np.empty((frames, len(rig.names), 3, 3))
     local = np.empty_like(world)
@@ -145,11 +152,12 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
         parent = rig.parents[joint]
         parent_world = identity if parent < 0 else world[:, parent]
         anchor[joint] = mapped.get(joint, anchor[parent] if parent >= 0 else 0)
-        if not aims:
-            local[:, joint] = np.eye(3)
+        if not aims or (joint not in mapped and parent >= 0 and [aimed[parent]] == [t for _, t in aims]):
+            local[:, joint] = np.eye(3)  # nothing to aim, or its parent's turn already points its one target
+            aimed[joint] = aimed[parent] if aims else -1
         elif len(aims) == 1:
-            vector, target = aims[0]
-            in_parent = np.einsum("tji,tj->ti", parent_world, joints[:, target] - joints[:, anchor[joint]])
+            vector, aimed[joint] = aims[0]
+            in_parent = np.einsum("tji,tj->ti", parent_world, joints[:, aimed[joint]] - joints[:, anchor[joint]])
             local[:, joint] = quat_to_matrix(qbetween(vector, in_parent))
         else:
             wanted = np.stack([joints[:, target] - joints[:, anchor[joint]] for _, target in aims], axis=1)
@@ -172,6 +180,17 @@ def rig_metres_per_unit(
     if standing.axis != "+Y":
         raise ValueError(f"the rig stands along {standing.axis}, not +Y; export it Y-up to retarget onto it")
     return joint_map.metres_per_unit(clip, units, skeleton, standing)
+
+
+def check_rig(clip: BvhClip, joint_map: JointMap, skeleton: Skeleton = T2M) -> float:
+    """The rig's metres per unit (:func:`rig_metres_per_unit`), having put our rest pose on it
+    once: ValueError in one line where our motion cannot go onto it."""
+    scale = rig_metres_per_unit(clip, joint_map, skeleton=skeleton)
+    rig = Rig.from_bvh(clip)
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.num_joints, 1))
+    rest = skeleton.forward_kinematics(identity, np.array([[0.0, 0.9 / skeleton.metres_per_unit, 0.0]]))
+    retarget(rest, replace(rig, offsets=rig.offsets * scale), joint_map, skeleton)
+    return scale
 
 
 def read_rig(path: str | Path) -> BvhClip:
