@@ -2,20 +2,22 @@
 joints' names and its hierarchy, for a rig no preset of :mod:`m2d2m.motion.joint_map` fits
 (docs/generation.md, "On your own rig").
 
-The approach follows two public designs. Unreal Engine's IK Rig auto-characterization matches a
-skeleton's names against templates and checks the chains it finds (docs.unrealengine.com, "Auto
-Characterization"); Unity's Humanoid avatar splits bones into required ones (hips, upper and
-lower legs, feet, spine, head, upper and lower arms, hands) and optional ones (toes, neck,
-shoulders, extra spine bones; docs.unity3d.com, "Humanoid Avatars"). Here:
+The approach follows two public designs. Unreal Engine's IK Rig auto-characterization compares a
+skeleton's names and hierarchy with templates of known rigs and adapts the chains it finds
+(dev.epicgames.com, the IKRigEditor API's ``FAutoCharacterizer``); Unity's Humanoid avatar sorts
+bones into required ones (hips, upper and lower legs, feet, spine, head, upper and lower arms,
+hands) and optional ones (toes, neck, shoulders, chest, upper chest; docs.unity3d.com,
+``HumanBodyBones`` and the Manual's "Humanoid Avatars"). Here:
 
 1. **The ends.** Each joint's name is read (:mod:`m2d2m.motion.bone_names`); the feet, the hands
-   and the head are the shallowest joints named so, each side's by its name. Where names do not
-   give all five, the hierarchy does: the pelvis is the first joint with three long branches
-   (two legs and a spine), the chest the first joint up that spine with three (two arms and a
-   neck); a leg's ankle is its third joint, an arm's wrist the joint where it branches into
-   fingers. Where names do not tell left from right, the rest pose does: the character's left is
-   up × forward, forward being where its toes point, else glTF's +Z for a Y-up rig and Blender's
-   −Y for a Z-up one (:func:`~m2d2m.motion.up_axis.facing`).
+   and the head are the shallowest joints named so, each side's by its name; a head no name
+   gives is the end of the longest branch above the chest that leads to no hand (Rigify's
+   ``spine.006``). Where names do not give the feet and hands, the hierarchy does: the pelvis is
+   the first joint with three long branches (two legs and a spine), the chest the first joint up
+   that spine with three (two arms and a neck); a leg's ankle is its third joint, an arm's wrist
+   the joint where it branches into fingers. Where names do not tell left from right, the rest
+   pose does: the character's left is up × forward, forward being where its toes point, else
+   glTF's +Z for a Y-up rig and Blender's −Y for a Z-up one (:func:`~m2d2m.motion.up_axis.facing`).
 2. **The chains.** The pelvis is the joint where the legs and the head's path part (a joint named
    pelvis or hips above it, as 3ds Max Biped's ``Bip01 Pelvis`` above ``Bip01 Spine``, where the
    thighs hang); the chest is where the two arms part. Along each chain, joints named as a
@@ -23,15 +25,19 @@ shoulders, extra spine bones; docs.unity3d.com, "Humanoid Avatars"). Here:
    tip are passed over, and so is a joint that sits on its parent (CMU's ``LHipJoint``). Within
    a chain, a joint named for the part is taken first; otherwise the joint's place tells, counted
    back from the chain's end: the knee is the joint before the ankle, the hip the one before
-   that; the elbow, the shoulder and the clavicle likewise before the wrist.
+   that; the elbow, the shoulder and the clavicle likewise before the wrist. The spine runs from
+   the pelvis to the first joint named neck, or else to the chest.
 3. **Optional joints**, made from the others where the rig lacks them (a JointMap's mean of
    several of its joints, a joint repeated to weigh it, or a point fixed to one:
-   :class:`~m2d2m.motion.joint_map.JointMap`): one or two spine joints spread as CMU's and
-   Bandai Namco's presets spread them, none interpolated between the pelvis and the neck; no
-   neck, the midpoint of the chest and the head; a clavicle on the chest (CMU's) or none, the
-   collar halfway from it to the shoulder; no toe, a point ahead of the ankle, along the foot's
-   End Site where a BVH gives one, at HumanML3D's proportions (its sample clip 012314: the ball
-   of the foot 0.143 m from the ankle, 17 % of the thigh and shin, 20° below the horizontal).
+   :class:`~m2d2m.motion.joint_map.JointMap`). Three spine joints are spine1..3; more, the top
+   two and the one :data:`SPINE1_AT` of the way up; two, as CMU's and Bandai Namco's presets
+   take them, spine2 their midpoint; one is spine3, spine1 and spine2 1/2 and 2/3 of the way to
+   it from the pelvis; none, all three between the pelvis and the neck. No neck: the midpoint of
+   the chest and the head. A clavicle that stands off the chest is our collar; one on the chest
+   (CMU's) or none, the collar is halfway from it (or the chest) to the shoulder. No toe: a point
+   fixed to the ankle, along the foot's End Site where a BVH gives one pointing forward, at
+   HumanML3D's proportions (its sample clip 012314: the ball of the foot 0.143 m from the ankle,
+   17 % of the thigh and shin, 20° below the horizontal).
 
 Each of our joints comes back :class:`Found`, matched by name, guessed (by the hierarchy or the
 rest pose), derived (from other joints) or missing, with why.
@@ -76,13 +82,13 @@ class Found:
     offset: tuple[float, float, float] | None = None
 
 
-Rig = BvhClip | BvhHeader  # anything with names, parents, offsets, End Sites and a rest pose
+Hierarchy = BvhClip | BvhHeader  # anything with names, parents, offsets, End Sites and a rest pose
 
 
 class _Tree:
     """A rig's hierarchy with what its names say, and the lengths its rest pose gives."""
 
-    def __init__(self, rig: Rig) -> None:
+    def __init__(self, rig: Hierarchy) -> None:
         self.names = rig.names
         self.parents = np.asarray(rig.parents)
         self.said: list[BoneName] = [read_name(name) for name in rig.names]
@@ -160,7 +166,7 @@ class _Ends:
     sides_by: str = ""
 
 
-def auto_map(rig: Rig) -> dict[str, Found]:
+def auto_map(rig: Hierarchy) -> dict[str, Found]:
     """Each of T2M's joints (in its order) as found on ``rig``: a BVH clip or header, or a glTF
     rig read as a clip (:func:`~m2d2m.motion.gltf_rig.read_gltf_rig`)."""
     tree = _Tree(rig)

@@ -8,7 +8,7 @@ the last colon dropped (Mixamo's ``mixamorig:``, ``mixamorig1:``). The side is a
 ``.L``/``.R``, Biped's `` L `` and Daz's ``l``/``r`` prefixes. The part is read from the other
 words run together (``upleg``, ``forearm``, ``toebase``) against patterns tried in order, in the
 spirit of Unreal's IK Rig auto-characterization, which matches a skeleton's names against known
-templates (docs.unrealengine.com, "Auto Characterization"). Names only suggest: which joint of a
+templates (dev.epicgames.com, the IKRigEditor API's ``FAutoCharacterizer``). Names only suggest: which joint of a
 chain is which is decided by the chain (:mod:`m2d2m.motion.auto_map`), so an ambiguous word such
 as "shoulder" (Mixamo's clavicle, CMU's upper arm) is its own part.
 """
