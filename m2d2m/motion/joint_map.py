@@ -178,13 +178,6 @@ class JointMap:
             sources[str(ours)] = (theirs,) if isinstance(theirs, str) else tuple(map(str, theirs))
         return cls(str(path), sources, offsets=offsets).check(skeleton, complete=False)
 
-    def entry(self, joint: str) -> str | list[str] | dict:
-        """Our ``joint``'s source as a YAML map writes it (:meth:`from_yaml` reads it back)."""
-        theirs = self.sources[joint]
-        if joint in self.offsets:
-            return {"joint": theirs[0], "offset": list(self.offsets[joint])}
-        return theirs[0] if len(theirs) == 1 else list(theirs)
-
 
 def _is_vector(value: object) -> bool:
     return isinstance(value, list) and len(value) == 3 and all(isinstance(v, (int, float)) for v in value)
@@ -371,8 +364,12 @@ class RigMapping:
             if found.how == MISSING:
                 lines.append(f"# {joint}:{note}")
                 continue
-            entry = JointMap("", {joint: found.theirs}, offsets={joint: found.offset} if found.offset else {})
-            value = yaml.safe_dump({joint: entry.entry(joint)}, default_flow_style=True, width=10**6).strip()
+            entry: str | list | dict = list(found.theirs)  # each written as JointMap.from_yaml reads it back
+            if found.offset is not None:
+                entry = {"joint": found.theirs[0], "offset": list(found.offset)}
+            elif len(found.theirs) == 1:
+                entry = found.theirs[0]
+            value = yaml.safe_dump({joint: entry}, default_flow_style=True, width=10**6).strip()
             lines.append(value[1:-1] + note)  # the one-key flow mapping's braces taken off: one line per joint
         return "\n".join(header + lines) + "\n"
 
