@@ -32,7 +32,7 @@ FINGERS = ("thumb", "index", "middle", "ring", "pinky")
 
 
 @dataclass
-class Rig:
+class RigBuilder:
     """A rig being built: joints (name, parent, world rest position), parents listed first."""
 
     names: list[str] = field(default_factory=list)
@@ -101,8 +101,8 @@ class Convention:
     foot_site: bool = False  # the foot's End Site points to the toes (a rig without toe joints)
     expected: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
-    def rig(self) -> Rig:
-        rig = Rig()
+    def rig(self) -> RigBuilder:
+        rig = RigBuilder()
         top = rig.add(self.root, None, (0, 0, 0)) if self.root else None
         pelvis = rig.add(self.pelvis, top, (0, PELVIS_AT, 0))
         trunk = [pelvis]
@@ -126,7 +126,7 @@ class Convention:
                 rig.add(f"ik_hand_{side}", "ik_hand_gun", np.multiply(LEFT["hand"], (sign, 1, 1)))
         return rig
 
-    def _side(self, rig: Rig, sign: int, words: dict[str, str]) -> None:
+    def _side(self, rig: RigBuilder, sign: int, words: dict[str, str]) -> None:
         def at(slot: str) -> np.ndarray:
             return np.multiply(LEFT[slot], (sign, 1, 1))
 

@@ -25,9 +25,11 @@ from m2d2m.motion.retarget import Rig, read_rig, retarget, retarget_to_bvh
 from m2d2m.motion.rigid import on_rigid_skeleton
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
+from pipelines.bvh_corpus import take_joints
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.rigs import CONVENTIONS, Convention
 from tests.test_bvh_reader import CMU, CMU_METRES
+from tests.test_export import axis_rotation
 from tests.test_joint_map import motionbuilder_release
 from tests.test_up_axis import z_up_bvh
 
@@ -173,6 +175,18 @@ def test_a_rig_without_names_maps_by_its_hierarchy_and_rest_pose_z_up_too(tmp_pa
     )
     x, y, z = found["left_foot"].offset
     assert y < -2 * abs(x) and z < 0  # forward (−Y) and down (−Z)
+
+
+def test_a_z_up_take_on_an_auto_mapped_rig_reads_as_its_y_up_twin(tmp_path):
+    """A corpus take (`m2d2m data --dataset bvh`) on a rig no preset fits, written Z-up: the
+    automatic map and the up axis read from its motion give the joints of the Y-up take."""
+    rig = BY_NAME["daz (Genesis, Poser)"].rig()
+    degrees = 15.0 * np.sin(np.linspace(0.0, 3.0, 12))[:, None] * (np.arange(len(rig.names)) > 0)  # the root upright
+    y_up = rig.write(tmp_path / "y-up.bvh", scale=100.0, frames=axis_rotation("X", degrees))  # every joint bends
+    (tmp_path / "z-up.bvh").write_text(z_up_bvh(y_up.read_text()), encoding="utf-8")
+    upright, mapping = take_joints(tmp_path / "z-up.bvh")
+    assert mapping.name == "auto" and mapping.standing(read_bvh(tmp_path / "z-up.bvh")).axis == "+Z"
+    np.testing.assert_allclose(upright, take_joints(y_up)[0], atol=1e-5)
 
 
 def test_helpers_twist_bones_and_props_are_never_mapped():
