@@ -184,14 +184,14 @@ def auto_map(rig: Hierarchy) -> dict[str, Found]:
     for side in SIDES:
         found |= _leg(tree, side, pelvis, ends)
         found |= _arm(tree, side, chest, ends)
-    if missing_required(found):
+    if _missing_required(found):
         found |= {f"{side}_foot": Found((), MISSING, "no leg to put it on") for side in SIDES}
     else:
         found |= {f"{side}_foot": _toe(tree, found, side, ends.ankles[side]) for side in SIDES}
     return {joint: found[joint] for joint in T2M.joint_names}
 
 
-def missing_required(found: dict[str, Found]) -> list[str]:
+def _missing_required(found: dict[str, Found]) -> list[str]:
     """The joints of ours a rig must have to take our motion (Unity's required bones, less the
     spine) that ``found`` lacks."""
     return [joint for joint in REQUIRED if joint not in found or found[joint].how == MISSING]
@@ -457,7 +457,7 @@ def _toe(tree: _Tree, found: dict[str, Found], side: str, ankle: int) -> Found:
 def _ahead(tree: _Tree, found: dict[str, Found], side: str, ankle: int) -> Found:
     """Our foot on a rig without toes: a point fixed to the ankle, :data:`FOOT_LENGTH` of the leg
     ahead of it, along its End Site where that points forward, else forward and
-    :data:`FOOT_DROP` down; forward is left × up of the rest pose."""
+    :data:`FOOT_DROP` down; forward is left × up of the rest pose (where the hips are apart)."""
 
     def at(ours: str) -> np.ndarray:
         return tree.rest[[tree.names.index(name) for name in found[ours].theirs]].mean(axis=0)
@@ -465,7 +465,7 @@ def _ahead(tree: _Tree, found: dict[str, Found], side: str, ankle: int) -> Found
     up = at("head") - at("pelvis")
     up /= np.linalg.norm(up)
     forward = np.cross(at("left_hip") - at("right_hip"), up)
-    forward /= np.linalg.norm(forward)
+    forward = forward / np.linalg.norm(forward) if np.linalg.norm(forward) > tree.tolerance else facing(axis_of(up))
     hip, knee = at(f"{side}_hip"), at(f"{side}_knee")
     leg = np.linalg.norm(knee - hip) + np.linalg.norm(tree.rest[ankle] - knee)
     site = tree.end_sites.get(ankle)
