@@ -241,6 +241,34 @@ def _export(args: argparse.Namespace) -> None:
     _delivery_notes({output.formats[0]: written}, motion, output.delivery)
 
 
+def _rig(args: argparse.Namespace) -> None:
+    from m2d2m.motion.bvh_reader import BvhError
+    from m2d2m.motion.joint_map import rig_mapping
+    from m2d2m.motion.retarget import check_rig, read_rig
+
+    rig = Path(args.file)
+    if not rig.is_file():
+        raise UserError(f"{rig}: no such file (a BVH, or a GLB or glTF character with a skin)")
+    try:
+        clip = read_rig(rig)
+        mapping = rig_mapping(clip, args.joint_map)
+    except (BvhError, ValueError) as error:  # a file that is no rig, a YAML that is no map
+        raise UserError(str(error)) from error
+    print(f"{rig}: {len(clip.names)} joints; joint map {mapping.name}")
+    print("\n".join(mapping.lines()))
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(mapping.yaml(rig.name), encoding="utf-8")
+        print(f"wrote {out}: correct it and give it back with --joint-map {out}")
+    try:
+        scale = check_rig(clip, mapping.joint_map())
+    except (BvhError, ValueError) as error:  # joints not found, or a rig our motion cannot go onto
+        print("can receive motion: no")
+        raise UserError(str(error)) from error
+    print(f"can receive motion: yes ({scale:g} m a unit)")
+
+
 # What `m2d2m export` writes, by suffix (GIF and MP4 are `m2d2m render`'s).
 EXPORTED = (".npy", ".bvh", ".glb", ".fbx")
 
@@ -567,7 +595,8 @@ def _add_data(verbs) -> None:
     mocap.add_argument(
         "--joint-map",
         metavar="MAP",
-        help="cmu, cmu-motionbuilder, or a YAML file: our joint → yours (default: the preset the file's joints fit)",
+        help="a preset (cmu, cmu-motionbuilder, bandai-namco…), auto, or a YAML of our joint → yours, all or some "
+        "(default: the preset the file's joints fit, else auto; `m2d2m rig FILE` shows what it finds)",
     )
     mocap.add_argument(
         "--units",
@@ -982,6 +1011,21 @@ def _add_viewers(verbs) -> None:
     _add_delivery(export, recorded=True)
 
 
+def _add_rig(verbs) -> None:
+    rig = verbs.add_parser(
+        "rig", help="which joints of a character's rig take ours: matched by name, guessed, derived or missing"
+    )
+    rig.add_argument("file", metavar="FILE", help="the rig: a BVH (its hierarchy and OFFSETs) or a skinned GLB/glTF")
+    rig.add_argument(
+        "--joint-map",
+        metavar="MAP",
+        help="cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco, auto, or a YAML correcting some or all joints "
+        "(default: the preset the rig's joints fit, else auto)",
+    )
+    rig.add_argument("--out", metavar="YAML", help="also write the mapping as a YAML joint map to correct")
+    rig.set_defaults(run=_rig)
+
+
 def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> None:
     """How a clip is delivered (docs/generation.md, "Delivering a clip"): one set of options for
     `m2d2m generate` and `m2d2m export` (``recorded``: its motion is a file's, whose feet are left
@@ -1029,7 +1073,10 @@ def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> No
         "--rig", metavar="FILE", help="write the BVH on this rig: a BVH (its hierarchy and OFFSETs) or a skinned GLB"
     )
     group.add_argument(
-        "--joint-map", metavar="MAP", help="the rig's joints for ours: cmu, cmu-motionbuilder, mixamo, smpl or a YAML"
+        "--joint-map",
+        metavar="MAP",
+        help="the rig's joints for ours: a preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco), auto, or a "
+        "YAML (`m2d2m rig FILE --out map.yaml` writes one); default: the preset the rig fits, else auto",
     )
 
 
@@ -1049,6 +1096,7 @@ def build_parser() -> argparse.ArgumentParser:
         _add_ui,
         _add_serve,
         _add_viewers,
+        _add_rig,
     ):
         add(verbs)
     return parser

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from m2d2m.layout import MANIFEST
-from m2d2m.motion.joint_map import PRESETS
+from m2d2m.motion.joint_map import AUTO, PRESETS
 from m2d2m.plugins import plugins_for_workers
 from orchestration.errors import UserError
 from orchestration.project import require_project
@@ -106,9 +106,11 @@ def _layout_options(dataset: str, layout: CorpusLayout, given: Mapping[str, str 
     for path_option in ("bvh", "annotations"):
         if path_option in chosen:
             chosen[path_option] = str(Path(chosen[path_option]).resolve())
-    if "joint_map" in chosen and chosen["joint_map"] not in PRESETS:
+    if "joint_map" in chosen and chosen["joint_map"] not in (*PRESETS, AUTO):
         if not Path(chosen["joint_map"]).is_file():
-            raise UserError(f"--joint-map: {chosen['joint_map']} is neither a preset ({', '.join(PRESETS)}) nor a file")
+            raise UserError(
+                f"--joint-map: {chosen['joint_map']} is neither a preset ({', '.join(PRESETS)}), {AUTO}, nor a file"
+            )
         chosen["joint_map"] = str(Path(chosen["joint_map"]).resolve())
     return chosen
 

@@ -128,7 +128,7 @@ WIDTH = len((CMU / "131_01.bvh").read_text(encoding="utf-8").split("Frame Time:"
             "robot.bvh",
             "HIERARCHY\nROOT Base\n{\n OFFSET 0 0 0\n CHANNELS 3 Xrotation Yrotation Zrotation\n End Site\n {\n"
             "  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 1\nFrame Time: 0.05\n0 0 0\n",
-            "no joint map preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco) fits a BVH with joints Base",
+            "cannot map the rig's joints onto ours: no joint where two legs and a spine part",
         ),
         ("empty.bvh", f"{HIERARCHY}MOTION\nFrames: 0\nFrame Time: 0.008333\n", "no frames"),
         (
@@ -267,7 +267,7 @@ def test_data_says_in_one_line_when_a_corpus_does_not_take_an_option(capsys):
     assert "--bvh: the synthetic corpus does not take it (it takes none)" in capsys.readouterr().err
     assert main(["data", "--dataset", "bvh", "--raw", str(CMU), "--joint-map", "nope.yaml", "--out", "/tmp/x"]) == 2
     assert (
-        "--joint-map: nope.yaml is neither a preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco) nor a file"
+        "--joint-map: nope.yaml is neither a preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco), auto, nor a file"
         in capsys.readouterr().err
     )
 

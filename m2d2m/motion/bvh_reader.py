@@ -54,16 +54,19 @@ class BvhClip:
     def rest_positions(self) -> np.ndarray:
         """(J, 3) every joint's position in the rest pose: each rotation zero, each joint at its
         OFFSET from its parent."""
-        rest = np.zeros((len(self.names), 3))
-        for joint, parent in enumerate(self.parents):
-            rest[joint] = self.offsets[joint] + (rest[parent] if parent >= 0 else 0.0)
-        return rest
+        return rest_positions(self.parents, self.offsets)
 
     def positions(self, at: np.ndarray | None = None) -> np.ndarray:
         """World positions (T, J, 3) of every joint in every frame, by forward kinematics; or, with
         ``at`` (fractional frame indices), at those instants: each joint's rotation slerped and its
         translation interpolated linearly between the frames around each, so that every bone keeps
         its length (interpolating the joints' positions would shorten a bone that turns)."""
+        return self.pose(at)[1]
+
+    def pose(self, at: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Every joint's world rotation (T, J, 3, 3), turning its rest frame into the frame's, and
+        world position (T, J, 3), as :meth:`positions` makes them: the rotations carry a point
+        fixed to a joint (a toe ahead of a rig's ankle: :mod:`m2d2m.motion.joint_map`)."""
         frames, count = len(self.values), len(self.names)
         if at is not None:
             at = np.clip(np.asarray(at, dtype=np.float64), 0.0, frames - 1)
@@ -96,7 +99,16 @@ class BvhClip:
                 world_position[:, joint] = world_position[:, parent] + np.einsum(
                     "tij,tj->ti", world_rotation[:, parent], translation
                 )
-        return world_position
+        return world_rotation, world_position
+
+
+def rest_positions(parents: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(J, 3) the joints of a hierarchy (``parents`` first) where their ``offsets`` put them, each
+    rotation zero: a rig's rest pose."""
+    rest = np.zeros((len(parents), 3))
+    for joint, parent in enumerate(parents):
+        rest[joint] = offsets[joint] + (rest[parent] if parent >= 0 else 0.0)
+    return rest
 
 
 def read_bvh(path: str | Path, metres_per_unit: float = 1.0) -> BvhClip:
@@ -127,34 +139,57 @@ def read_bvh(path: str | Path, metres_per_unit: float = 1.0) -> BvhClip:
 
 @dataclass(frozen=True)
 class BvhHeader:
-    """What a BVH file says before its frames: its joints' names, its frame count and frame time."""
+    """What a BVH file says before its frames: its hierarchy (joints' names, parents, OFFSETs and
+    End Sites, as :class:`BvhClip` holds them, in the file's units), its frame count and frame
+    time."""
 
     names: tuple[str, ...]
+    parents: np.ndarray
+    offsets: np.ndarray
+    end_sites: dict[int, np.ndarray]
     frames: int
     frame_time: float
+
+    def rest_positions(self) -> np.ndarray:
+        """(J, 3) every joint where the rest pose puts it (:func:`rest_positions`)."""
+        return rest_positions(self.parents, self.offsets)
 
 
 def read_bvh_header(path: str | Path) -> BvhHeader:
     """The header of the BVH file at ``path``, read up to its ``Frame Time:`` line only: listing a
-    corpus of thousands of takes needs their lengths, not their frames."""
+    corpus of thousands of takes needs their lengths (and joint maps their hierarchies), not their
+    frames."""
     path = Path(path)
-    names: list[str] = []
-    frames = None
+    hierarchy: list[str] = []  # the words before MOTION
+    frames = frame_time = None
     try:
         with path.open(encoding="utf-8", errors="replace") as handle:
             for line in handle:
                 words = line.split()
-                if words[:1] in (["ROOT"], ["JOINT"]) and len(words) > 1:
-                    names.append(words[1])
-                elif words[:1] == ["Frames:"]:
+                if words[:1] == ["Frames:"]:
                     frames = int(words[1])
                 elif line.lstrip().startswith("Frame Time:") and frames is not None:
-                    return BvhHeader(tuple(names), frames, float(line.split(":")[1]))
+                    frame_time = float(line.split(":")[1])
+                    break
+                elif frames is None and words[:1] != ["MOTION"]:
+                    hierarchy.extend(words)
     except OSError as error:
         raise BvhError(f"{path}: cannot be read ({error.strerror})") from error
     except (IndexError, ValueError) as error:
         raise BvhError(f"{path}: a malformed MOTION section (Frames:, Frame Time:, then the frames)") from error
-    raise BvhError(f"{path}: not a BVH file (no Frames: and Frame Time: lines)")
+    if frame_time is None:
+        raise BvhError(f"{path}: not a BVH file (no Frames: and Frame Time: lines)")
+    if hierarchy[:1] != ["HIERARCHY"]:
+        raise BvhError(f"{path}: not a BVH file (it must start with HIERARCHY and have a MOTION section)")
+    names, parents, offsets, end_sites, _ = _hierarchy(hierarchy[1:], path)
+    return BvhHeader(
+        tuple(names),
+        np.asarray(parents, dtype=np.int64),
+        np.asarray(offsets, dtype=np.float64),
+        {joint: np.asarray(offset) for joint, offset in end_sites.items()},
+        frames,
+        frame_time,
+    )
 
 
 def _hierarchy(tokens: list[str], path: Path):

@@ -4,7 +4,8 @@ lengths and rest pose, move as ours does (issue 40 §2; docs/generation.md, "On 
 The rig comes from a BVH file (its hierarchy and OFFSETs; its first frame is not used) or a
 skinned glTF/GLB character (:mod:`m2d2m.motion.gltf_rig`: its skin's joints as they stand), and a
 :class:`~m2d2m.motion.joint_map.JointMap` naming which of its joints stand for ours (the presets
-of CMU's two cgspeed releases, Mixamo's ``mixamorig:`` names and SMPL's, or a user's YAML). Each
+of CMU's two cgspeed releases, Mixamo's ``mixamorig:`` names, SMPL's, Bandai Namco's, the map found
+from the rig's names and hierarchy, or a user's YAML: :mod:`m2d2m.motion.joint_map`). Each
 of its joints is turned, root first, so that the mapped joints below it point where ours point:
 
 * a joint with one mapped joint below it (through any unmapped ones) gets the swing that turns
@@ -13,11 +14,16 @@ of its joints is turned, root first, so that the mapped joints below it point wh
 * a joint with several (a pelvis: both hips and the spine) gets the best-fit (Kabsch) rotation of
   its rest vectors onto our directions;
 * a joint with none (fingers, an end bone) keeps its rest rotation relative to its parent, so a
-  hand continues its forearm rather than spinning (momask-codes#42's complaint).
+  hand continues its forearm rather than spinning (momask-codes#42's complaint);
+* a point the map fixes to a joint (our foot ahead of the ankle of a rig without toes:
+  :mod:`m2d2m.motion.auto_map`) is aimed as a mapped joint below it would be, so the foot
+  points where our toe does.
 
 The direction of an unmapped joint's aim is taken from its nearest mapped ancestor in our clip,
 which is exact where the rig puts that joint on its ancestor (CMU's ``LHipJoint``, ``lowerback``,
-``LeftCollar`` have zero OFFSETs). Bone lengths are the rig's, so the root's path is scaled by the
+``LeftCollar`` have zero OFFSETs). An unmapped joint between a joint that aims exactly at one
+target and that target (a twist bone inside a limb, Daz's ``lShldrTwist``; a second neck joint)
+keeps its rest rotation: its parent's turn already points the target where ours points. Bone lengths are the rig's, so the root's path is scaled by the
 ratio of the rig's leg length to ours: feet cover the ground a leg of that length covers, instead
 of sliding.
 """
@@ -29,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.bvh_reader import BvhClip, read_bvh
+from m2d2m.motion.bvh_reader import BvhClip, read_bvh, rest_positions
 from m2d2m.motion.export import write_bvh
 from m2d2m.motion.gltf_rig import GLTF_SUFFIXES, read_gltf_rig
 from m2d2m.motion.joint_map import JointMap, joint_map_for
@@ -54,10 +60,7 @@ class Rig:
 
     def rest_positions(self) -> np.ndarray:
         """(J, 3) every joint where the rest pose puts it (each rotation zero)."""
-        rest = np.zeros((len(self.names), 3))
-        for joint, parent in enumerate(self.parents):
-            rest[joint] = self.offsets[joint] + (rest[parent] if parent >= 0 else 0.0)
-        return rest
+        return rest_positions(self.parents, self.offsets)
 
 
 @dataclass(frozen=True)
@@ -84,26 +87,44 @@ class RigMotion:
 
 
 def _ours_of(rig: Rig, joint_map: JointMap, skeleton: Skeleton) -> dict[int, int]:
-    """The rig's joints that stand for one of ours (a map's midpoints stand for none), → ours."""
+    """The rig's joints that stand for one of ours (a map's means and points fixed to a joint
+    stand for none), → ours."""
     mapped = {}
     for ours, theirs in joint_map.sources.items():
-        if len(theirs) == 1 and theirs[0] in rig.names:
+        if len(theirs) == 1 and theirs[0] in rig.names and ours not in joint_map.offsets:
             mapped[rig.names.index(theirs[0])] = skeleton.joint_names.index(ours)
     return mapped
 
 
-def _aims(rig: Rig, mapped: dict[int, int]) -> list[list[int]]:
-    """For each joint, the first mapped joint below each of its children (depth first)."""
+def _aims(
+    rig: Rig, joint_map: JointMap, mapped: dict[int, int], skeleton: Skeleton
+) -> list[list[tuple[np.ndarray, int]]]:
+    """For each joint, what it aims at, as (its rest vector to the target, our joint the target
+    stands for): the first mapped joint below each of its children (depth first), and the points
+    the map fixes to it (a toe ahead of an ankle: the ankle turns so that it points where our
+    toe does)."""
     kids_of = children(rig.parents)
+    rest = rig.rest_positions()
 
     def first_mapped(joint: int) -> int | None:
         if joint in mapped:
             return joint
         return next((found for kid in kids_of[joint] if (found := first_mapped(kid)) is not None), None)
 
-    return [
-        [found for kid in kids_of[joint] if (found := first_mapped(kid)) is not None] for joint in range(len(kids_of))
+    aims = [
+        [
+            (rest[found] - rest[joint], mapped[found])
+            for kid in kids_of[joint]
+            if (found := first_mapped(kid)) is not None
+        ]
+        for joint in range(len(kids_of))
     ]
+    for ours, offset in joint_map.offsets.items():
+        if joint_map.sources[ours][0] in rig.names:
+            aims[rig.names.index(joint_map.sources[ours][0])].append(
+                (np.asarray(offset), skeleton.joint_names.index(ours))
+            )
+    return aims
 
 
 def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skeleton = T2M) -> RigMotion:
@@ -122,27 +143,27 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
     scale = rig_leg / our_leg
 
     anchor = np.empty(len(rig.names), dtype=np.int64)  # each joint's nearest mapped ancestor-or-self, as ours
+    aimed = np.full(len(rig.names), -1)  # the one joint of ours each joint's turn points exactly, if one
     frames = len(joints)
     world = np.empty((frames, len(rig.names), 3, 3))
     local = np.empty_like(world)
     identity = np.broadcast_to(np.eye(3), (frames, 3, 3))
-    for joint, targets in enumerate(_aims(rig, mapped)):
+    for joint, aims in enumerate(_aims(rig, joint_map, mapped, skeleton)):
         parent = rig.parents[joint]
         parent_world = identity if parent < 0 else world[:, parent]
         anchor[joint] = mapped.get(joint, anchor[parent] if parent >= 0 else 0)
-        wanted = (
-            np.stack([joints[:, mapped[t]] - joints[:, anchor[joint]] for t in targets], axis=1) if targets else None
-        )
-        if wanted is None:
-            local[:, joint] = np.eye(3)
-        elif len(targets) == 1:
-            in_parent = np.einsum("tji,tj->ti", parent_world, wanted[:, 0])
-            local[:, joint] = quat_to_matrix(qbetween(rest[targets[0]] - rest[joint], in_parent))
+        if not aims or (joint not in mapped and parent >= 0 and [aimed[parent]] == [t for _, t in aims]):
+            local[:, joint] = np.eye(3)  # nothing to aim, or its parent's turn already points its one target
+            aimed[joint] = aimed[parent] if aims else -1
+        elif len(aims) == 1:
+            vector, aimed[joint] = aims[0]
+            in_parent = np.einsum("tji,tj->ti", parent_world, joints[:, aimed[joint]] - joints[:, anchor[joint]])
+            local[:, joint] = quat_to_matrix(qbetween(vector, in_parent))
         else:
+            wanted = np.stack([joints[:, target] - joints[:, anchor[joint]] for _, target in aims], axis=1)
             directions = wanted / np.linalg.norm(wanted, axis=-1, keepdims=True)
-            vectors = rest[targets] - rest[joint]
-            fitted = best_fit_rotation(vectors / np.linalg.norm(vectors, axis=-1, keepdims=True), directions)
-            local[:, joint] = np.swapaxes(parent_world, -1, -2) @ fitted
+            vectors = np.stack([vector / np.linalg.norm(vector) for vector, _ in aims])
+            local[:, joint] = np.swapaxes(parent_world, -1, -2) @ best_fit_rotation(vectors, directions)
         world[:, joint] = parent_world @ local[:, joint]
     root_index = int(np.flatnonzero(rig.parents < 0)[0])
     root = joints[:, anchor[root_index]] * scale + (rest[root_index] - rest[theirs[anchor[root_index]]])
@@ -159,6 +180,17 @@ def rig_metres_per_unit(
     if standing.axis != "+Y":
         raise ValueError(f"the rig stands along {standing.axis}, not +Y; export it Y-up to retarget onto it")
     return joint_map.metres_per_unit(clip, units, skeleton, standing)
+
+
+def check_rig(clip: BvhClip, joint_map: JointMap, skeleton: Skeleton = T2M) -> float:
+    """The rig's metres per unit (:func:`rig_metres_per_unit`), having put our rest pose on it
+    once: ValueError in one line where our motion cannot go onto it."""
+    scale = rig_metres_per_unit(clip, joint_map, skeleton=skeleton)
+    rig = Rig.from_bvh(clip)
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.num_joints, 1))
+    rest = skeleton.forward_kinematics(identity, np.array([[0.0, 0.9 / skeleton.metres_per_unit, 0.0]]))
+    retarget(rest, replace(rig, offsets=rig.offsets * scale), joint_map, skeleton)
+    return scale
 
 
 def read_rig(path: str | Path) -> BvhClip:

@@ -64,7 +64,20 @@ def stance(joints: np.ndarray, skeleton: Skeleton = T2M) -> Stance:
             "cannot tell which way is up: the head is over the feet along no one axis "
             f"(median head − feet {np.array2string(median, precision=3)}); m2d2m reads motion standing along an axis"
         )
-    axis = ("+" if median[index] > 0 else "-") + "XYZ"[index]
+    axis = axis_of(median)
     rotation = _TO_Y_UP[axis]
     height = float(np.percentile((over @ rotation.T)[:, 1], TALL_PERCENTILE))
     return Stance(axis, rotation, height)
+
+
+def axis_of(vector: np.ndarray) -> str:
+    """The signed world axis (``+Y``, ``-Z``…) that holds most of ``vector``."""
+    index = int(np.argmax(np.abs(vector)))
+    return ("+" if vector[index] > 0 else "-") + "XYZ"[index]
+
+
+def facing(axis: str) -> np.ndarray:
+    """The way a character standing along ``axis`` faces when nothing else tells: the direction
+    the turn onto +Y takes to +Z, our forward and glTF's (§3.4), which makes Blender's −Y the
+    forward of a Z-up rig."""
+    return _TO_Y_UP[axis].T @ np.array([0.0, 0.0, 1.0])
