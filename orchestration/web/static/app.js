@@ -815,10 +815,12 @@ async function uploadRig() {
 }
 
 /** The server's rig of the file through the joint map ('': detected): the file's bytes are sent once,
- *  then named by their id, so another naming of a character of tens of MB does not send it again. */
+ *  then named by their id, so another naming of a character of tens of MB, or the same file chosen
+ *  again (its name, size and time alike), does not send it again. */
 async function sendRig(file, map) {
   const path = map ? withQuery('/api/rigs', 'joint_map', map) : '/api/rigs';
-  if (state.rigFile?.file === file) {
+  const sent = state.rigFile?.file;
+  if (sent && ['name', 'size', 'lastModified'].every((key) => sent[key] === file[key])) {
     try {
       return await (await api(withQuery(path, 'file', state.rigFile.id), { method: 'POST' })).json();
     } catch (err) {
