@@ -20,9 +20,11 @@ import m2d2m.motion.retarget as retarget_module
 from m2d2m.motion.bvh_reader import read_bvh
 from m2d2m.motion.joint_map import PRESETS
 from m2d2m.motion.retarget import read_rig, retarget_to_bvh
+from orchestration.cli import main
+from orchestration.web import server
 from orchestration.web.app import ServeSettings, create_app
 from orchestration.web.limits import MAX_BODY_BYTES
-from tests.helpers import XBOT, xbot_with_a_mesh
+from tests.helpers import XBOT, free_port, xbot_with_a_mesh
 from tests.live_server import live_server
 
 ACTIONS = [{"text": "a person walks forward", "seconds": 1.6}, {"text": "a person jumps", "seconds": 1.2}]
@@ -138,6 +140,16 @@ def test_a_body_over_its_limit_is_refused_as_soon_as_it_passes_it(tmp_path, monk
     assert post(app, "/api/generate", endless(1000)) == (413, small, MAX_BODY_BYTES // 1000 + 1)
     maps = {"error": "a request body to /api/joint-maps may hold at most 1 MiB"}
     assert post(app, "/api/joint-maps", endless()) == (413, maps, 2)
+
+
+def test_the_rig_limit_is_the_servers_option(tmp_path, monkeypatch):
+    """`m2d2m serve --max-rig-mb 8` serves with an 8-MiB limit on a rig's file."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs").mkdir()  # a project
+    served = []
+    monkeypatch.setattr(server, "serve", lambda settings, host, port: served.append(settings))
+    assert main(["serve", "--dataset", "tiny", "--port", str(free_port()), "--max-rig-mb", "8"]) == 0
+    assert [settings.max_rig_bytes for settings in served] == [8 << 20]
 
 
 def test_a_real_server_answers_413_without_waiting_for_the_body(tmp_path, monkeypatch):

@@ -51,6 +51,11 @@ STATIC = Path(__file__).parent / "static"
 DOCS_FILES = Path(importlib.util.find_spec("fastapi_offline").origin).parent / "static"  # Swagger UI, ReDoc
 NDJSON = "application/x-ndjson"
 RIGS = "/rigs"  # under /api: the one path that takes files of tens of MB
+# bodies that are no JSON, as the OpenAPI page offers them (a file to choose, a text to type)
+FILE_BODY = {
+    "requestBody": {"content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}
+}
+YAML_BODY = {"requestBody": {"content": {"application/yaml": {"schema": {"type": "string"}}}}}
 log = logging.getLogger("m2d2m.serve")
 
 
@@ -309,6 +314,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
         RIGS,
         summary="Upload a character's rig (the bytes of a BVH, or of a skinned GLB, streamed; or file=<id> of one "
         "sent before, under another joint_map) to download generations on it: GET a generation's motion.bvh?rig=<id>",
+        openapi_extra=FILE_BODY,
     )
     async def add_rig(request: Request, joint_map: str | None = None, file: str | None = None) -> dict[str, Any]:
         if file is None:
@@ -324,6 +330,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
         "/joint-maps",
         summary="Upload a joint map of your own (the text of a YAML file, our joint: yours, as m2d2m generate "
         "--joint-map reads) to name as a rig's joint_map",
+        openapi_extra=YAML_BODY,
     )
     async def add_joint_map(request: Request) -> dict[str, Any]:
         mapping = await run_in_threadpool(service.rigs.add_map, await request.body())
