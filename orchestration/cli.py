@@ -542,6 +542,7 @@ def _serve(args: argparse.Namespace) -> None:
         device=args.device,
         track=not args.no_track,
         mlflow_ui=args.mlflow_ui,
+        max_rig_bytes=args.max_rig_mb << 20,
     )
     host = f"[{args.host}]" if ":" in args.host else args.host
     print(
@@ -979,6 +980,9 @@ def _add_serve(verbs) -> None:
         "--max-batch", type=_positive_int, default=16, help="sequences sampled in one call at most (default 16)"
     )
     serve.add_argument("--device", default="cpu", help="cpu (default) or cuda")
+    serve.add_argument(
+        "--max-rig-mb", type=_positive_int, default=64, help="the largest character's file one may upload (default 64)"
+    )
     serve.add_argument("--mlflow-ui", help="the MLflow UI's address for links to runs (default: make ui's)")
     serve.add_argument("--no-track", action="store_true", help="do not log the generations to MLflow")
     serve.set_defaults(run=_serve)

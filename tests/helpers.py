@@ -272,3 +272,48 @@ def one_line_error(argv: list[str], capture) -> str:
     lines = [line for line in err.splitlines() if line.strip()]
     assert status == 2 and len(lines) == 1 and "Traceback" not in err, (status, err)
     return lines[0]
+
+
+XBOT = Path(__file__).parent / "fixtures" / "mixamo" / "xbot-skeleton.glb"
+
+
+def xbot_with_a_mesh(path: Path, megabytes: float = 3.0) -> Path:
+    """Mixamo's X Bot (tests/fixtures/mixamo) with a skinned mesh of ``megabytes``, as a character
+    comes from Mixamo or Blender rather than the fixture's bare skeleton: a valid GLB (glTF 2.0
+    §3.7.3: a mesh node naming the skin, its vertices' POSITION, JOINTS_0 and WEIGHTS_0 in the
+    binary chunk), its vertices scattered over the body's height, each bound to the hips."""
+    import pygltflib as gl
+
+    gltf = gl.GLTF2().load(str(XBOT))
+    count = int(megabytes * 2**20) // (12 + 4 + 16)  # a vertex's position, joints and weights
+    rng = np.random.default_rng(0)
+    positions = (rng.uniform([-40, -10, 0], [40, 10, 180], (count, 3))).astype(np.float32)  # the Armature's cm, Z up
+    joints = np.zeros((count, 4), np.uint8)
+    weights = np.tile(np.array([1, 0, 0, 0], np.float32), (count, 1))
+    blob = positions.tobytes() + joints.tobytes() + weights.tobytes()
+    views, start = [], 0
+    for array in (positions, joints, weights):
+        views.append(gl.BufferView(buffer=0, byteOffset=start, byteLength=array.nbytes, target=gl.ARRAY_BUFFER))
+        start += array.nbytes
+    gltf.bufferViews = views
+    gltf.accessors = [
+        gl.Accessor(
+            bufferView=0,
+            componentType=gl.FLOAT,
+            count=count,
+            type=gl.VEC3,
+            min=positions.min(axis=0).tolist(),
+            max=positions.max(axis=0).tolist(),
+        ),
+        gl.Accessor(bufferView=1, componentType=gl.UNSIGNED_BYTE, count=count, type=gl.VEC4),
+        gl.Accessor(bufferView=2, componentType=gl.FLOAT, count=count, type=gl.VEC4),
+    ]
+    gltf.buffers = [gl.Buffer(byteLength=len(blob))]
+    attributes = gl.Attributes(POSITION=0, JOINTS_0=1, WEIGHTS_0=2)
+    gltf.meshes = [gl.Mesh(name="body", primitives=[gl.Primitive(attributes=attributes, mode=gl.POINTS)])]
+    armature = next(i for i, node in enumerate(gltf.nodes) if node.name == "Armature")
+    gltf.nodes.append(gl.Node(name="body", mesh=0, skin=0))
+    gltf.nodes[armature].children = [*gltf.nodes[armature].children, len(gltf.nodes) - 1]
+    gltf.set_binary_blob(blob)
+    gltf.save_binary(str(path))
+    return path

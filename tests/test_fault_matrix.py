@@ -331,6 +331,7 @@ BAD_ARGUMENTS: list[list[str]] = [
             ["--max-seconds", "-1"],
             ["--queue", "0"],
             ["--max-batch", "0"],
+            ["--max-rig-mb", "0"],
         )
     ],
     ["train-mmm", "--config", "{root}/mmm.yaml", "--set", "vq={tmp}/joints.npy"],

@@ -5,7 +5,8 @@ and what a newcomer's pass found (issue 38, items 7, 8, 12 and 13): the knobs na
 with their help in view, only the chosen method's, limits shown where the user types, titles in
 words, whole action labels and sentences, a head and the body's sides, one scale for compared
 players, the model's notices, and the BVH's rest pose; and the delivery menu (issue 40, §5): a
-30-fps in-place GLB, a BVH on CMU's rig uploaded from the page, and variations with their seeds.
+30-fps in-place GLB, a BVH on CMU's rig uploaded from the page, a 3-MB character read through a
+joint map of one's own and sent once (issue 52 §3), and variations with their seeds.
 
 `.ci/run` installs Chromium when it runs as root with apt, so CI always runs this test; elsewhere
 it is skipped with a one-line reason. ``M2D2M_SCREENSHOT=<file.png>`` keeps a picture of the page;
@@ -24,10 +25,13 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+import yaml
 
 from m2d2m.generators.m2d2m_options import SAMPLING
+from m2d2m.motion.joint_map import PRESETS
 from orchestration.web.app import ServeSettings
 from tests.browser import NEEDS_CHROMIUM, find_all_css, open_page, wait_for
+from tests.helpers import xbot_with_a_mesh
 from tests.live_server import live_server
 from tests.test_export import parse_bvh
 
@@ -377,6 +381,19 @@ def glb_json(path: Path) -> dict:
     return json.loads(data[20 : 20 + length])
 
 
+def count_rig_files_sent(app) -> list[int]:
+    """A list the server adds to each time a rig's bytes reach it (not a file named by its id)."""
+    rigs, sent = app.state.service.rigs, []
+    receive = rigs.receive
+
+    async def counted(chunks):
+        sent.append(1)
+        return await receive(chunks)
+
+    rigs.receive = counted
+    return sent
+
+
 def download(browser, link, pattern: str) -> Path:
     """Click a download link and wait for the file it gives (Chromium names it once it is whole)."""
     before = set(browser.downloads.glob(pattern))
@@ -384,14 +401,20 @@ def download(browser, link, pattern: str) -> Path:
     return wait_for(lambda: next(iter(set(browser.downloads.glob(pattern)) - before), None), 60, pattern)
 
 
-def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_variations(served_dataset, browser):
+def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_variations(
+    served_dataset, browser, tmp_path
+):
     """Issue 40, §5: the page's download menu takes `m2d2m generate`'s options (frame rate, root,
-    loop, foot fix, variations) and a rig uploaded from the page, and downloads what they make."""
+    loop, foot fix, variations) and a rig uploaded from the page, and downloads what they make;
+    issue 52 §3: a character of MBs, read through a joint map of one's own, sent once."""
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import Select
 
     find = browser.find_element
-    with live_server(ServeSettings(dataset=served_dataset, track=False)) as (base, _):
+    inputs = tmp_path / "inputs"  # beside the downloads, not among them
+    inputs.mkdir()
+    with live_server(ServeSettings(dataset=served_dataset, track=False, max_rig_bytes=8 << 20)) as (base, app):
+        sent = count_rig_files_sent(app)
         open_page(browser, base)
         fps = Select(find(By.ID, "fps"))
         assert fps.first_selected_option.text == "The model's (20 fps)"
@@ -431,6 +454,38 @@ def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_var
         assert on_rig.names == rig.names and "LeftHip" in on_rig.names
         assert len(on_rig.motion) == frames and abs(on_rig.frame_time - 1 / 30) < 1e-6
 
+        # a character of 3 MB (three times the body limit of other requests): Mixamo's names detected
+        character = xbot_with_a_mesh(inputs / "xbot.glb", megabytes=3)
+        rig_file.send_keys(str(character))
+        wait_for(lambda: "65 joints" in status.text, 30, "the character's upload")
+        assert status.text == "Rig: 65 joints, mixamo map." and len(sent) == 3  # the refused file, CMU's, this
+        # over this server's 8 MiB: refused on the page, before a byte is sent
+        rig_file.send_keys(str(xbot_with_a_mesh(inputs / "xbot-9.glb", megabytes=9)))
+        wait_for(lambda: "failed" in status.get_attribute("class"), 30, "the refusal of a file over the limit")
+        assert status.text == "xbot-9.glb is 9.0 MiB, over the 8.0 MiB this server takes." and len(sent) == 3
+        assert not links["bvh-rig"].is_displayed()
+        # the character chosen again, then a map of one's own (a bad one's sentence, then a good
+        # one): the character is named by its id, not sent again
+        rig_file.send_keys(str(character))
+        wait_for(lambda: "65 joints" in status.text, 30, "the character chosen again")
+        Select(find(By.ID, "rig-map")).select_by_value("yaml")
+        map_file = find(By.ID, "rig-map-file")
+        assert map_file.is_displayed() and status.text == "Choose your joint map, a YAML file, below."
+        own = {ours: list(theirs) for ours, theirs in PRESETS["mixamo"].sources.items()}
+        (inputs / "no-head.yaml").write_text(yaml.safe_dump({k: v for k, v in own.items() if k != "head"}))
+        map_file.send_keys(str(inputs / "no-head.yaml"))
+        wait_for(lambda: "failed" in status.get_attribute("class"), 30, "the refusal of a map without a head")
+        assert status.text == "the joint map: it leaves out head" and not links["bvh-rig"].is_displayed()
+        (inputs / "xbot-map.yaml").write_text(
+            yaml.safe_dump({**own, "spine2": ["mixamorig:Spine1", "mixamorig:Spine2"]})
+        )
+        map_file.send_keys(str(inputs / "xbot-map.yaml"))
+        wait_for(lambda: "your map" in status.text, 30, "the rig through the map")
+        assert status.text == "Rig: 65 joints, your map (xbot-map.yaml)." and len(sent) == 3
+        assert links["bvh-rig"].is_displayed()
+        on_character = parse_bvh(download(browser, links["bvh-rig"], "*.bvh"))
+        assert on_character.names[0] == "mixamorig:Hips" and len(on_character.motion) == frames
+
         # two variations: the lane's request twice, seeds 0 and 1, side by side, each with the rig's BVH
         variations = find(By.ID, "variations")
         variations.clear()
@@ -440,6 +495,10 @@ def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_var
         metas = [p.find_element(By.CSS_SELECTOR, ".player-meta").text for p in players]
         assert [meta.split(" · ")[1] for meta in metas] == ["seed 0", "seed 1"], metas
         assert all(p.find_element(By.CSS_SELECTOR, "a[data-format='bvh-rig']").is_displayed() for p in players)
-        # the one SEVERE entry allowed: the console's note of the refused upload (400)
-        errors = [e for e in browser.get_log("browser") if e["level"] == "SEVERE" and "/api/rigs" not in e["message"]]
+        # the SEVERE entries allowed: the console's notes of the refused uploads (400)
+        errors = [
+            e
+            for e in browser.get_log("browser")
+            if e["level"] == "SEVERE" and not any(path in e["message"] for path in ("/api/rigs", "/api/joint-maps"))
+        ]
         assert not errors, errors

@@ -198,6 +198,48 @@ def read_rig(path: str | Path) -> BvhClip:
     return read_gltf_rig(path) if Path(path).suffix.lower() in GLTF_SUFFIXES else read_bvh(path)
 
 
+@dataclass(frozen=True)
+class Target:
+    """A rig read and checked once, ready to take any number of motions: its skeleton in its own
+    units, the joint map its joints take and its metres per unit (a server keeps one per uploaded
+    character, so a character's file is not read again for every clip put on it)."""
+
+    rig: Rig
+    joint_map: JointMap
+    metres_per_unit: float
+
+    def retargeted(self, joints: np.ndarray, skeleton: Skeleton = T2M) -> RigMotion:
+        """Our joints (T, J, 3) as this rig's animation, in metres (:func:`retarget`)."""
+        in_metres = replace(self.rig, offsets=self.rig.offsets * self.metres_per_unit)
+        return retarget(joints, in_metres, self.joint_map, skeleton)
+
+    def write_bvh(
+        self, path: str | Path, joints: np.ndarray, fps: float | None = None, skeleton: Skeleton = T2M
+    ) -> Path:
+        """Our joints as a BVH on this rig, in the rig's own units, so it drops onto the character."""
+        motion = self.retargeted(joints, skeleton)
+        rig = self.rig
+        fps = float(skeleton.fps if fps is None else fps)
+        root = motion.root / self.metres_per_unit
+        return write_bvh(path, rig.names, rig.parents, rig.offsets, root, motion.local, fps, rig.end_sites)
+
+
+def read_target(
+    rig_file: str | Path,
+    joint_map: str | Path | JointMap | None = None,
+    units: str | None = None,
+    skeleton: Skeleton = T2M,
+) -> Target:
+    """The rig of ``rig_file`` (:func:`read_rig`: a BVH or a glTF character) through ``joint_map``
+    (a map, a preset's name, a YAML file, or by default the preset its joints fit), in ``units``
+    (by default the one it stands a person's height in:
+    :meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`); BvhError or ValueError in one line
+    for a rig our motions cannot go onto."""
+    clip = read_rig(rig_file)
+    mapping = joint_map if isinstance(joint_map, JointMap) else joint_map_for(clip, joint_map)
+    return Target(Rig.from_bvh(clip), mapping, rig_metres_per_unit(clip, mapping, units, skeleton))
+
+
 def retarget_to_bvh(
     path: str | Path,
     joints: np.ndarray,
@@ -207,15 +249,6 @@ def retarget_to_bvh(
     skeleton: Skeleton = T2M,
     units: str | None = None,
 ) -> Path:
-    """Our joints as a BVH on the rig of ``rig_file`` (:func:`read_rig`: a BVH or a glTF character), through
-    ``joint_map`` (a preset's name, a YAML file, or by default the preset its joints fit), written
-    in the rig's own units (``units``, or by default the one it stands a person's height in:
-    :meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`), so it drops onto the character."""
-    clip = read_rig(rig_file)
-    mapping = joint_map_for(clip, joint_map)
-    scale = rig_metres_per_unit(clip, mapping, units, skeleton)
-    rig = Rig.from_bvh(clip)
-    in_metres = replace(rig, offsets=rig.offsets * scale)
-    motion = retarget(joints, in_metres, mapping, skeleton)
-    fps = float(skeleton.fps if fps is None else fps)
-    return write_bvh(path, rig.names, rig.parents, rig.offsets, motion.root / scale, motion.local, fps, rig.end_sites)
+    """Our joints as a BVH on the rig of ``rig_file`` through ``joint_map``, in ``units``
+    (:func:`read_target`), written in the rig's own units so it drops onto the character."""
+    return read_target(rig_file, joint_map, units, skeleton).write_bvh(path, joints, fps, skeleton)

@@ -42,6 +42,7 @@ from orchestration.viewing import load_features
 from orchestration.web.catalog import Catalog, NotFound
 from orchestration.web.edits import plan_edit_request
 from orchestration.web.generations import FILES, Generation, Generations
+from orchestration.web.limits import BoundedBody
 from orchestration.web.rigs import RIGS_STAGE, Rigs
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
 from orchestration.web.schema import EditRequest, GenerateRequest, Plan, SplitRequest, UploadRequest, plan_request
@@ -49,7 +50,12 @@ from orchestration.web.schema import EditRequest, GenerateRequest, Plan, SplitRe
 STATIC = Path(__file__).parent / "static"
 DOCS_FILES = Path(importlib.util.find_spec("fastapi_offline").origin).parent / "static"  # Swagger UI, ReDoc
 NDJSON = "application/x-ndjson"
-MAX_BODY_BYTES = 1 << 20  # far above any request a person or a tool sends
+RIGS = "/rigs"  # under /api: the one path that takes files of tens of MB
+# bodies that are no JSON, as the OpenAPI page offers them (a file to choose, a text to type)
+FILE_BODY = {
+    "requestBody": {"content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}
+}
+YAML_BODY = {"requestBody": {"content": {"application/yaml": {"schema": {"type": "string"}}}}}
 log = logging.getLogger("m2d2m.serve")
 
 
@@ -66,6 +72,7 @@ class ServeSettings:
     device: str = "cpu"
     track: bool = True
     mlflow_ui: str | None = None
+    max_rig_bytes: int = 64 << 20  # a character with its meshes and textures is tens of MB
 
 
 class ApiError(Exception):
@@ -228,7 +235,12 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
     @api.get("/models", summary="The models with a finished run: their runs, methods and knobs")
     def list_models() -> dict[str, Any]:
-        return {"dataset": settings.dataset, "max_seconds": settings.max_seconds, "models": service.catalog.describe()}
+        return {
+            "dataset": settings.dataset,
+            "max_seconds": settings.max_seconds,
+            "max_rig_bytes": settings.max_rig_bytes,
+            "models": service.catalog.describe(),
+        }
 
     @api.get("/models/{model}/runs/{run}", summary="A run's own sampling defaults and action lengths (loads it)")
     async def run_details(model: str, run: str) -> dict[str, Any]:
@@ -299,13 +311,30 @@ def create_app(settings: ServeSettings) -> FastAPI:
         return FileResponse(path, filename=f"{generation_id}-{path.name}")
 
     @api.post(
-        "/rigs",
-        summary="Upload a character's rig (the bytes of a BVH, or of a skinned GLB) to download "
-        "generations on it: GET a generation's motion.bvh?rig=<id>",
+        RIGS,
+        summary="Upload a character's rig (the bytes of a BVH, or of a skinned GLB, streamed; or file=<id> of one "
+        "sent before, under another joint_map) to download generations on it: GET a generation's motion.bvh?rig=<id>",
+        openapi_extra=FILE_BODY,
     )
-    async def add_rig(request: Request, joint_map: str | None = None) -> dict[str, Any]:
-        rig = await run_in_threadpool(service.rigs.add, await request.body(), joint_map)
-        return {"id": rig.id, "joints": rig.joints, "joint_map": rig.joint_map}
+    async def add_rig(request: Request, joint_map: str | None = None, file: str | None = None) -> dict[str, Any]:
+        if file is None:
+            file = await service.rigs.receive(request.stream())
+        else:
+            async for chunk in request.stream():
+                if chunk:
+                    raise UserError("give the rig's bytes or file=<id> of a rig sent before, not both")
+        rig = await run_in_threadpool(service.rigs.add, file, joint_map)
+        return {"id": rig.id, "file": rig.file, "joints": rig.joints, "joint_map": rig.joint_map}
+
+    @api.post(
+        "/joint-maps",
+        summary="Upload a joint map of your own (the text of a YAML file, our joint: yours, as m2d2m generate "
+        "--joint-map reads) to name as a rig's joint_map",
+        openapi_extra=YAML_BODY,
+    )
+    async def add_joint_map(request: Request) -> dict[str, Any]:
+        mapping = await run_in_threadpool(service.rigs.add_map, await request.body())
+        return {"id": mapping.name, "map": {ours: list(theirs) for ours, theirs in mapping.sources.items()}}
 
     app.include_router(api)
     app.mount("/static", StaticFiles(directory=STATIC), name="static")
@@ -315,7 +344,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
         return FileResponse(STATIC / "index.html")
 
     _answer_errors_in_one_sentence(app)
-    app.add_middleware(BoundedBody)
+    app.add_middleware(BoundedBody, limits={api.prefix + RIGS: settings.max_rig_bytes})
     return app
 
 
@@ -422,20 +451,3 @@ def _answer_errors_in_one_sentence(app: FastAPI) -> None:
     async def unexpected(request: Request, error: Exception) -> JSONResponse:
         log.exception("unexpected error on %s", request.url.path)
         return answer(500, f"the server failed ({type(error).__name__}); its log says more")
-
-
-class BoundedBody:
-    """A 413 for a body over :data:`MAX_BODY_BYTES` by its Content-Length. Plain ASGI rather than
-    ``@app.middleware``: Starlette's BaseHTTPMiddleware wraps ``receive`` so that a handler no
-    longer hears its client disconnect."""
-
-    def __init__(self, app: Any) -> None:
-        self.app = app
-
-    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
-        length = dict(scope.get("headers", ())).get(b"content-length") if scope["type"] == "http" else None
-        if length is not None and (not length.isdigit() or int(length) > MAX_BODY_BYTES):
-            answer = JSONResponse({"error": f"a request body may hold at most {MAX_BODY_BYTES} bytes"}, 413)
-            await answer(scope, receive, send)
-            return
-        await self.app(scope, receive, send)

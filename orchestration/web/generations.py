@@ -126,8 +126,8 @@ class Generations:
         self, generation_id: str, name: str, rest_pose: str = REST_POSES[0], rig: UploadedRig | None = None
     ) -> Path:
         """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, a BVH on
-        another bind pose (``rest_pose``) or on an uploaded ``rig``, is made on first request (a
-        blocking call) and logged to the generation's MLflow run."""
+        another bind pose (``rest_pose``) or on an uploaded ``rig`` (read once, when it was
+        uploaded), is made on first request (a blocking call) and logged to the generation's MLflow run."""
         generation = self.get(generation_id)
         if name not in FILES:
             raise NotFound(f"no file {name!r}; a generation has {', '.join(FILES)}")
@@ -136,31 +136,34 @@ class Generations:
         kind = FILES[name]
         if rig is not None and kind != "bvh":
             raise UserError(f"a rig goes with the BVH, not {name}")
-        delivery = replace(
-            generation.delivery,
-            rest_pose=rest_pose,
-            rig=None if rig is None else str(rig.path),
-            joint_map=None if rig is None else rig.joint_map,
-        )
+        delivery = replace(generation.delivery, rest_pose=rest_pose)
         variant = f"rig-{rig.id}" if rig is not None else rest_pose if kind == "bvh" else REST_POSES[0]
         stem = STEM if variant == REST_POSES[0] else f"{STEM}.{variant}"
         path = generation.directory / (name if stem == STEM else f"{stem}.{kind}")
         if kind not in WRITTEN or stem != STEM:  # not written with the motion: made on first request
             with generation.drawing:
                 if not path.exists():
-                    self._make(generation, kind, stem, delivery, variant)
+                    self._make(generation, kind, stem, delivery, variant, rig)
         if not path.is_file():
             raise NotFound(f"generation {generation_id} has no {name} any more (its run folder was changed)")
         return path
 
-    def _make(self, generation: Generation, kind: str, stem: str, delivery: Delivery, variant: str) -> None:
-        """Write a file of the generation after the fact, name it in its run's record and log it to
-        its MLflow run."""
+    def _make(
+        self, generation: Generation, kind: str, stem: str, delivery: Delivery, variant: str, rig: UploadedRig | None
+    ) -> None:
+        """Write a file of the generation after the fact (on ``rig``, the BVH), name it in its run's
+        record and log it to its MLflow run."""
         from orchestration.generate import plan_output
 
         plan_output(None, stem, [kind])  # MP4 and FBX need their tools: a one-line error when there are none
+        motion = generation.motion
         try:
-            (path,) = generation.motion.save(generation.directory, stem, (kind,), delivery=delivery).values()
+            if rig is not None:
+                path = rig.target.write_bvh(
+                    generation.directory / f"{stem}.bvh", motion.joints, motion.fps, motion.skeleton
+                )
+            else:
+                (path,) = motion.save(generation.directory, stem, (kind,), delivery=delivery).values()
         except (OSError, RuntimeError, ValueError) as error:  # Blender failed, or a rig it cannot take
             raise UserError(str(error)) from error
         record = kind if stem == STEM else f"{kind}_{variant}"

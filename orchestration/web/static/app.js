@@ -4,7 +4,9 @@
 const $ = (selector, root = document) => root.querySelector(selector);
 const $$ = (selector, root = document) => [...root.querySelectorAll(selector)];
 
-const state = { token: null, catalog: null, clock: new Clock(), rig: null, clips: [], editors: [], runFacts: {} };
+const state = {
+  token: null, catalog: null, clock: new Clock(), rig: null, rigFile: null, clips: [], editors: [], runFacts: {},
+};
 window.m2d2m = state; // for poking at from the browser console
 
 // ---- token and API --------------------------------------------------------------
@@ -32,7 +34,7 @@ async function api(path, options = {}) {
     throw new Error('The server could not be reached.');
   }
   if (response.status === 401) $('#token-box').hidden = false;
-  if (!response.ok) throw new Error(await errorSentence(response));
+  if (!response.ok) throw Object.assign(new Error(await errorSentence(response)), { status: response.status });
   return response;
 }
 
@@ -780,24 +782,59 @@ const editing = {
   },
 };
 
-// ---- the user's rig: uploaded once, every result's BVH then to be had on it -----------
+// ---- the user's rig: sent once, every result's BVH then to be had on it ---------------
 
-/** Send the chosen BVH (and its joint naming, unless detected) to the server, which keeps it and
- *  says how many joints it has and which naming it read them by. */
+/** Send the chosen BVH or GLB (and its joint naming: a preset, your YAML map, or detected) to the
+ *  server, which keeps it and says how many joints it has and which naming it read them by. */
 async function uploadRig() {
   const file = $('#rig-file').files[0];
-  const map = $('#rig-map').value;
-  setRig(null, file ? `Reading ${file.name}…` : '');
-  if (!file) return;
+  const choice = $('#rig-map').value;
+  const mapFile = choice === 'yaml' ? $('#rig-map-file').files[0] : undefined;
+  $('#rig-map-knob').hidden = choice !== 'yaml';
   // a later choice has the last word, whichever answer comes first
-  const unchanged = () => $('#rig-file').files[0] === file && $('#rig-map').value === map;
-  try {
-    const request = { method: 'POST', headers: { 'Content-Type': 'application/octet-stream' }, body: file };
-    const rig = await (await api(map ? withQuery('/api/rigs', 'joint_map', map) : '/api/rigs', request)).json();
-    if (unchanged()) setRig(rig, `Rig: ${rig.joints} joints, ${rig.joint_map} map.`);
-  } catch (err) {
-    if (unchanged()) setRig(null, err.message, true);
+  const unchanged = () => $('#rig-file').files[0] === file && $('#rig-map').value === choice
+    && (choice !== 'yaml' || $('#rig-map-file').files[0] === mapFile);
+  const limit = state.catalog?.max_rig_bytes;
+  if (!file) {
+    setRig(null, '');
+  } else if (limit && file.size > limit) { // refused here rather than after sending it all
+    setRig(null, `${file.name} is ${mebibytes(file.size)}, over the ${mebibytes(limit)} this server takes.`, true);
+  } else if (choice === 'yaml' && !mapFile) {
+    setRig(null, 'Choose your joint map, a YAML file, below.');
+  } else {
+    setRig(null, `Reading ${file.name}…`);
+    try {
+      const sent = mapFile && await (await api('/api/joint-maps', { method: 'POST', body: mapFile })).json();
+      const rig = await sendRig(file, sent ? sent.id : choice);
+      const naming = mapFile ? `your map (${mapFile.name})` : `${rig.joint_map} map`;
+      if (unchanged()) setRig(rig, `Rig: ${rig.joints} joints, ${naming}.`);
+    } catch (err) {
+      if (unchanged()) setRig(null, err.message, true);
+    }
   }
+}
+
+/** The server's rig of the file through the joint map ('': detected): the file's bytes are sent once,
+ *  then named by their id, so another naming of a character of tens of MB, or the same file chosen
+ *  again (its name, size and time alike), does not send it again. */
+async function sendRig(file, map) {
+  const path = map ? withQuery('/api/rigs', 'joint_map', map) : '/api/rigs';
+  const sent = state.rigFile?.file;
+  if (sent && ['name', 'size', 'lastModified'].every((key) => sent[key] === file[key])) {
+    try {
+      return await (await api(withQuery(path, 'file', state.rigFile.id), { method: 'POST' })).json();
+    } catch (err) {
+      if (err.status !== 404) throw err; // 404: the server no longer has it (it restarted): sent again
+    }
+  }
+  const request = { method: 'POST', headers: { 'Content-Type': 'application/octet-stream' }, body: file };
+  const rig = await (await api(path, request)).json();
+  state.rigFile = { file, id: rig.file };
+  return rig;
+}
+
+function mebibytes(bytes) {
+  return `${(bytes / 2 ** 20).toFixed(1)} MiB`;
 }
 
 /** The rig of the results' "BVH on your rig" links (null: none), and what the server said of it. */
@@ -882,6 +919,7 @@ function start() {
   $('#compare').addEventListener('click', addCompareLane);
   $('#rig-file').addEventListener('change', uploadRig);
   $('#rig-map').addEventListener('change', uploadRig);
+  $('#rig-map-file').addEventListener('change', uploadRig);
   $('#form').addEventListener('submit', (e) => { e.preventDefault(); generate(); });
   $('#token-retry').addEventListener('click', retryWithToken);
   bindTransport();
