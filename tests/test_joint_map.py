@@ -90,14 +90,27 @@ def test_a_users_yaml_map_reads_their_rig(tmp_path):
         ({**{n: n for n in T2M.joint_names}, "tail": "Tail"}, "t2m has no joint tail"),
         ({**{n: n for n in T2M.joint_names}, "head": []}, "no joint of the rig given for head"),
         (["pelvis"], "a joint map is a mapping"),
+        (
+            {**{n: n for n in T2M.joint_names}, "head": ["Head", ["Neck"]]},
+            "head: a list of their joints holds names only",
+        ),
     ],
-    ids=["incomplete", "unknown joint", "empty", "a list"],
+    ids=["incomplete", "unknown joint", "empty", "a list", "a nested list"],
 )
 def test_a_bad_map_is_one_sentence(tmp_path, mapping, message):
     (tmp_path / "map.yaml").write_text(yaml.safe_dump(mapping), encoding="utf-8")
     with pytest.raises(ValueError, match=message) as error:
         JointMap.from_yaml(tmp_path / "map.yaml").check()  # a map that names some joints corrects the automatic one
     assert "\n" not in str(error.value)
+
+
+def test_a_few_lines_of_yaml_aliases_are_refused_before_they_expand(tmp_path):
+    """A billion-laughs map (each list ten of the one before) is refused as it is read."""
+    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, 9)]
+    (tmp_path / "map.yaml").write_text("\n".join([*lines, "head: *a8"]) + "\n", encoding="utf-8")
+    with pytest.raises(ValueError, match="a list of their joints holds names only"):
+        JointMap.from_yaml(tmp_path / "map.yaml")
 
 
 def test_a_bvh_without_a_mapped_joint_names_it(tmp_path):

@@ -179,11 +179,10 @@ def test_a_joint_map_of_ones_own_reads_a_rig_and_a_bad_one_is_one_line(bare_clie
     assert rig.status_code == 200, rig.text
     assert rig.json()["joint_map"] == sent.json()["id"] and rig.json()["joints"] == 65
     assert bare_client.post("/api/joint-maps", content=yaml.safe_dump(own)).json() == sent.json()
-    missing = {ours: theirs for ours, theirs in own.items() if ours != "head"}
     strange = {**own, "tail": "mixamorig:Hips"}
     for content, message in (
-        (yaml.safe_dump(missing), "the joint map: it leaves out head"),
         (yaml.safe_dump(strange), "the joint map: t2m has no joint tail"),
+        (yaml.safe_dump({**own, "head": ["Head", ["Neck"]]}), "the joint map: head: a list of their joints holds"),
         ("pelvis: [Hips\nhead: Head", "the joint map: not a readable YAML joint map (while parsing a flow sequence"),
         ("- Hips\n- Head", "the joint map: a joint map is a mapping of our joint → their joint or a list of theirs"),
         ("", "the joint map: a joint map is a mapping"),
@@ -201,8 +200,23 @@ def test_a_joint_map_of_ones_own_reads_a_rig_and_a_bad_one_is_one_line(bare_clie
     )
     path = bare_client.post("/api/rigs", params={"joint_map": "/etc/passwd"}, content=XBOT.read_bytes())
     assert path.status_code == 400 and path.json()["error"].startswith(
-        "joint_map must be one of cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco or the id of a map"
+        "joint_map must be one of cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco, auto or the id of a map"
     )
+
+
+def test_a_map_naming_some_joints_corrects_the_automatic_one_and_auto_can_be_asked(bare_client):
+    """As `--joint-map` on the command line: a YAML naming only some of our joints corrects the
+    map found from the rig's names and hierarchy (docs/generation.md, "On your own rig"), and
+    ``joint_map=auto`` asks for that map where a preset would fit."""
+    found = bare_client.post("/api/rigs", params={"joint_map": "auto"}, content=XBOT.read_bytes())
+    assert found.status_code == 200, found.text
+    assert found.json()["joint_map"] == "auto" and found.json()["joints"] == 65
+    correction = {"spine2": ["mixamorig:Spine1", "mixamorig:Spine2"]}
+    sent = bare_client.post("/api/joint-maps", content=yaml.safe_dump(correction)).json()
+    assert sent["map"] == correction
+    rig = bare_client.post("/api/rigs", params={"file": found.json()["file"], "joint_map": sent["id"]})
+    assert rig.status_code == 200, rig.text
+    assert rig.json()["joint_map"] == f"{sent['id']} over auto"
 
 
 def test_a_clip_comes_back_on_the_character_as_the_command_line_puts_it(trained_project, character, reads):

@@ -175,7 +175,11 @@ class JointMap:
                         f"{path}: {ours}: a point fixed to a joint is {{joint: theirs, offset: [x, y, z]}}"
                     )
                 theirs, offsets[str(ours)] = joint, tuple(float(v) for v in offset)
-            sources[str(ours)] = (theirs,) if isinstance(theirs, str) else tuple(map(str, theirs))
+            if isinstance(theirs, list) and not all(isinstance(name, str) for name in theirs):
+                # names only: a nested list is no joint, and YAML aliases nested in lists would
+                # make one a few lines long expand to gigabytes when written out as names
+                raise ValueError(f"{path}: {ours}: a list of their joints holds names only")
+            sources[str(ours)] = (theirs,) if isinstance(theirs, str) else tuple(theirs)
         return cls(str(path), sources, offsets=offsets).check(skeleton, complete=False)
 
 
@@ -385,14 +389,15 @@ def _as_found(joint_map: JointMap, how: str, why: str) -> dict[str, Found]:
     return found
 
 
-def rig_mapping(clip: BvhClip | BvhHeader, given: str | Path | None = None) -> RigMapping:
-    """How ``clip``'s joints map onto ours: through ``given`` (a preset's name, ``auto``, or a YAML
-    file, which may correct only some joints of the automatic map), or else the preset whose
+def rig_mapping(clip: BvhClip | BvhHeader, given: str | Path | JointMap | None = None) -> RigMapping:
+    """How ``clip``'s joints map onto ours: through ``given`` (a preset's name, ``auto``, or a
+    user's map, a YAML file or one read already, which may correct only some joints of the
+    automatic map), or else the preset whose
     joints the clip has, or else the automatic map (:func:`~m2d2m.motion.auto_map.auto_map`)."""
     preset = _preset(clip, given)
     if preset is not None:
         return RigMapping(preset.name, _as_found(preset, NAME, f"preset {preset.name}"), preset.rest_frames)
-    user = None if given is None or str(given) == AUTO else JointMap.from_yaml(given)
+    user = given if isinstance(given, JointMap) else None if given in (None, AUTO) else JointMap.from_yaml(given)
     complete = user is not None and all(joint in user.sources for joint in T2M.joint_names)
     found = {} if complete else auto_map(clip)
     if user is not None:
@@ -404,17 +409,21 @@ def rig_mapping(clip: BvhClip | BvhHeader, given: str | Path | None = None) -> R
     return RigMapping(name, {joint: found[joint] for joint in T2M.joint_names})
 
 
-def joint_map_for(clip: BvhClip | BvhHeader, given: str | Path | None = None) -> JointMap:
-    """The map ``given`` (a preset's name, ``auto``, or a YAML file, complete or correcting the
+def joint_map_for(clip: BvhClip | BvhHeader, given: str | Path | JointMap | None = None) -> JointMap:
+    """The map ``given`` (a preset's name, ``auto``, or a user's map, complete or correcting the
     automatic map), or the preset whose joints ``clip`` has, or the one found from its names and
     hierarchy (:func:`rig_mapping`); BvhError in one line when its legs, spine, head or arms
     cannot be found."""
+    if isinstance(given, JointMap) and all(joint in given.sources for joint in T2M.joint_names):
+        return given  # complete already: nothing of the automatic map to add
     preset = _preset(clip, given)
     return preset if preset is not None else rig_mapping(clip, given).joint_map()
 
 
-def _preset(clip: BvhClip | BvhHeader, given: str | Path | None) -> JointMap | None:
+def _preset(clip: BvhClip | BvhHeader, given: str | Path | JointMap | None) -> JointMap | None:
     """The preset ``given`` names, or where none is given the first whose joints ``clip`` has."""
+    if isinstance(given, JointMap):
+        return None
     if given is not None:
         return PRESETS.get(str(given))
     return next((preset for preset in PRESETS.values() if preset.fits(clip)), None)

@@ -186,11 +186,7 @@ def check_rig(clip: BvhClip, joint_map: JointMap, skeleton: Skeleton = T2M) -> f
     """The rig's metres per unit (:func:`rig_metres_per_unit`), having put our rest pose on it
     once: ValueError in one line where our motion cannot go onto it."""
     scale = rig_metres_per_unit(clip, joint_map, skeleton=skeleton)
-    rig = Rig.from_bvh(clip)
-    identity = np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.num_joints, 1))
-    rest = skeleton.forward_kinematics(identity, np.array([[0.0, 0.9 / skeleton.metres_per_unit, 0.0]]))
-    retarget(rest, replace(rig, offsets=rig.offsets * scale), joint_map, skeleton)
-    return scale
+    return Target(Rig.from_bvh(clip), joint_map, scale).checked(skeleton).metres_per_unit
 
 
 def read_rig(path: str | Path) -> BvhClip:
@@ -207,6 +203,13 @@ class Target:
     rig: Rig
     joint_map: JointMap
     metres_per_unit: float
+
+    def checked(self, skeleton: Skeleton = T2M) -> Target:
+        """This target, having put our rest pose on it once: ValueError in one line where our
+        motion cannot go onto it (a map whose joints do not chain as ours do)."""
+        identity = np.tile([1.0, 0.0, 0.0, 0.0], (1, skeleton.num_joints, 1))
+        self.retargeted(skeleton.forward_kinematics(identity, np.array([[0.0, 0.9 / skeleton.metres_per_unit, 0.0]])))
+        return self
 
     def retargeted(self, joints: np.ndarray, skeleton: Skeleton = T2M) -> RigMotion:
         """Our joints (T, J, 3) as this rig's animation, in metres (:func:`retarget`)."""
@@ -231,13 +234,15 @@ def read_target(
     skeleton: Skeleton = T2M,
 ) -> Target:
     """The rig of ``rig_file`` (:func:`read_rig`: a BVH or a glTF character) through ``joint_map``
-    (a map, a preset's name, a YAML file, or by default the preset its joints fit), in ``units``
+    (:func:`~m2d2m.motion.joint_map.joint_map_for`: a map, complete or correcting the automatic
+    one, a preset's name, ``auto``, a YAML file, or by default the preset its joints fit, else
+    the automatic map), in ``units``
     (by default the one it stands a person's height in:
     :meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`); BvhError or ValueError in one line
-    for a rig our motions cannot go onto."""
+    for a rig our motions cannot go onto (checked with our rest pose: :meth:`Target.checked`)."""
     clip = read_rig(rig_file)
-    mapping = joint_map if isinstance(joint_map, JointMap) else joint_map_for(clip, joint_map)
-    return Target(Rig.from_bvh(clip), mapping, rig_metres_per_unit(clip, mapping, units, skeleton))
+    mapping = joint_map_for(clip, joint_map)
+    return Target(Rig.from_bvh(clip), mapping, rig_metres_per_unit(clip, mapping, units, skeleton)).checked(skeleton)
 
 
 def retarget_to_bvh(

@@ -21,13 +21,11 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import IO, Any
 
-import numpy as np
 from starlette.concurrency import run_in_threadpool
 
 from m2d2m.motion.bvh_reader import BvhError
-from m2d2m.motion.joint_map import PRESETS, JointMap
+from m2d2m.motion.joint_map import AUTO, PRESETS, JointMap
 from m2d2m.motion.retarget import Target, read_target
-from m2d2m.motion.skeleton import T2M
 from orchestration.errors import UserError
 from orchestration.web.catalog import NotFound
 
@@ -106,7 +104,7 @@ class Rigs:
 
     def add(self, file_id: str, joint_map: str | None = None) -> UploadedRig:
         """The rig of an uploaded file through ``joint_map`` (a preset's name, an uploaded map's
-        id, or None: the preset its joints fit), checked once and kept; a UserError in one
+        id, ``auto``, or None: the preset its joints fit, else ``auto``), checked once and kept; a UserError in one
         sentence when our motions cannot go onto it."""
         with self._lock:
             path = self._files.get(file_id)
@@ -129,17 +127,18 @@ class Rigs:
                 raise NotFound(f"no rig {rig_id!r} on this server; upload it with POST /api/rigs")
             return self._kept[rig_id]
 
-    def _joint_map(self, name: str | None) -> JointMap | None:
-        """The map a request names: a preset, or one uploaded here (never a path on the server)."""
-        if name is None:
-            return None
+    def _joint_map(self, name: str | None) -> JointMap | str | None:
+        """The map a request names: a preset, ``auto`` (found from the rig's names and hierarchy,
+        :mod:`m2d2m.motion.auto_map`) or one uploaded here (never a path on the server)."""
+        if name is None or name == AUTO:
+            return name
         if name in PRESETS:
             return PRESETS[name]
         with self._lock:
             if name in self._maps:
                 return self._maps[name]
         raise UserError(
-            f"joint_map must be one of {', '.join(PRESETS)} or the id of a map sent to POST /api/joint-maps, "
+            f"joint_map must be one of {', '.join([*PRESETS, AUTO])} or the id of a map sent to POST /api/joint-maps, "
             f"got {name!r}"
         )
 
@@ -149,13 +148,10 @@ def _append(out: IO[bytes], digest: Any, chunk: bytes) -> None:
     digest.update(chunk)
 
 
-def _checked(path: Path, joint_map: JointMap | None) -> Target:
-    """The rig in ``path`` through ``joint_map``, having retargeted our rest pose onto it once; a
-    UserError saying why not."""
+def _checked(path: Path, joint_map: JointMap | str | None) -> Target:
+    """The rig in ``path`` through ``joint_map``, checked by :func:`~m2d2m.motion.retarget.read_target`;
+    a UserError saying why not."""
     try:
-        target = read_target(path, joint_map)
-        rest = T2M.forward_kinematics(np.zeros((1, T2M.num_joints, 4)) + [1.0, 0, 0, 0], np.array([[0.0, 0.9, 0.0]]))
-        target.retargeted(rest)
+        return read_target(path, joint_map)
     except (BvhError, ValueError) as error:
         raise UserError(f"the rig cannot take our motions: {str(error).removeprefix(f'{path}: ')}") from error
-    return target
