@@ -186,8 +186,8 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
 
 def ankle_lift(rest: np.ndarray, ankle: int, rig_leg: float, scale: float, skeleton: Skeleton = T2M) -> float:
     """How much higher than our scaled ankles the rig's ankles stand on its floor, in metres: its
-    rest pose's ankle height where that pose stands on y = 0 (every foot joint at most
-    :data:`FLOOR_REACH` of its leg above it and none below: a character as a DCC tool exports it),
+    rest pose's ankle height where that pose stands on y = 0 (its ankle at most
+    :data:`FLOOR_REACH` of its leg above it and not below: a character as a DCC tool exports it),
     else none (a BVH's rest pose hangs from its root at the origin, and says nothing of a floor)."""
     height = float(rest[ankle, 1])
     if not -FLOOR_TOLERANCE_M <= height <= FLOOR_REACH * rig_leg:
