@@ -25,7 +25,8 @@ which is exact where the rig puts that joint on its ancestor (CMU's ``LHipJoint`
 target and that target (a twist bone inside a limb, Daz's ``lShldrTwist``; a second neck joint)
 keeps its rest rotation: its parent's turn already points the target where ours points. Bone lengths are the rig's, so the root's path is scaled by the
 ratio of the rig's leg length to ours: feet cover the ground a leg of that length covers, instead
-of sliding.
+of sliding. The root goes where it puts the rig's hips where ours are, lifted once for the clip so
+that its ankles stand on its own floor (:func:`ankle_lift`; docs/generation.md, "How well it lands").
 """
 
 from __future__ import annotations
@@ -42,6 +43,12 @@ from m2d2m.motion.joint_map import JointMap, joint_map_for
 from m2d2m.motion.rigid import best_fit_rotation, children
 from m2d2m.motion.rotations import qbetween, quat_to_matrix
 from m2d2m.motion.skeleton import T2M, Skeleton
+
+# Where our feet stand: HumanML3D puts each clip's floor at its lowest joint, and in clip 012314's
+# stance frames (m2d2m.motion.feet.foot_contacts) its ankles stand 5.5 cm above it (median).
+OUR_ANKLE_ON_FLOOR_M = 0.055
+FLOOR_REACH = 0.2  # a rig's ankle this share of its leg above y = 0 or less stands on that floor
+FLOOR_TOLERANCE_M = 0.01
 
 
 @dataclass(frozen=True)
@@ -134,7 +141,8 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
     mapped = _ours_of(rig, joint_map, skeleton)
     theirs = {ours: joint for joint, ours in mapped.items()}
     legs = [skeleton.joint_names.index(name) for name in ("left_hip", "left_knee", "left_ankle")]
-    missing = [skeleton.joint_names[j] for j in [0, *legs] if j not in theirs]
+    hips = [legs[0], skeleton.joint_names.index("right_hip")]
+    missing = [skeleton.joint_names[j] for j in [0, *legs, hips[1]] if j not in theirs]
     if missing:
         raise ValueError(f"joint map {joint_map.name} names no joint of the rig for our {', '.join(missing)}")
     rest = rig.rest_positions()
@@ -152,9 +160,13 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
         parent = rig.parents[joint]
         parent_world = identity if parent < 0 else world[:, parent]
         anchor[joint] = mapped.get(joint, anchor[parent] if parent >= 0 else 0)
-        if not aims or (joint not in mapped and parent >= 0 and [aimed[parent]] == [t for _, t in aims]):
+        targets = [target for _, target in aims]
+        if not aims or (joint not in mapped and parent >= 0 and [aimed[parent]] == targets):
             local[:, joint] = np.eye(3)  # nothing to aim, or its parent's turn already points its one target
             aimed[joint] = aimed[parent] if aims else -1
+        elif joint not in mapped and targets == [anchor[joint]]:
+            local[:, joint] = np.eye(3)  # a root above the pelvis (Unreal's on the floor): ours has no bone to it
+            aimed[joint] = -1
         elif len(aims) == 1:
             vector, aimed[joint] = aims[0]
             in_parent = np.einsum("tji,tj->ti", parent_world, joints[:, aimed[joint]] - joints[:, anchor[joint]])
@@ -165,9 +177,22 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
             vectors = np.stack([vector / np.linalg.norm(vector) for vector, _ in aims])
             local[:, joint] = np.swapaxes(parent_world, -1, -2) @ best_fit_rotation(vectors, directions)
         world[:, joint] = parent_world @ local[:, joint]
-    root_index = int(np.flatnonzero(rig.parents < 0)[0])
-    root = joints[:, anchor[root_index]] * scale + (rest[root_index] - rest[theirs[anchor[root_index]]])
-    return RigMotion(rig, root, local)
+    # The root goes where it puts the rig's hips (not its root, which sits above them on one rig
+    # and below on another) where ours are, scaled, and lifted by what keeps its feet on its floor.
+    their_hips = RigMotion(rig, np.zeros((frames, 3)), local).positions()[:, [theirs[j] for j in hips]].mean(axis=1)
+    lift = np.array([0.0, ankle_lift(rest, theirs[legs[2]], rig_leg, scale, skeleton), 0.0])
+    return RigMotion(rig, joints[:, hips].mean(axis=1) * scale + lift - their_hips, local)
+
+
+def ankle_lift(rest: np.ndarray, ankle: int, rig_leg: float, scale: float, skeleton: Skeleton = T2M) -> float:
+    """How much higher than our scaled ankles the rig's ankles stand on its floor, in metres: its
+    rest pose's ankle height where that pose stands on y = 0 (its ankle at most
+    :data:`FLOOR_REACH` of its leg above it and not below: a character as a DCC tool exports it),
+    else none (a BVH's rest pose hangs from its root at the origin, and says nothing of a floor)."""
+    height = float(rest[ankle, 1])
+    if not -FLOOR_TOLERANCE_M <= height <= FLOOR_REACH * rig_leg:
+        return 0.0
+    return height - scale * OUR_ANKLE_ON_FLOOR_M / skeleton.metres_per_unit
 
 
 def rig_metres_per_unit(
