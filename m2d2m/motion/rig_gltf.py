@@ -5,7 +5,7 @@ your own rig"). The Khronos glTF 2.0 specification is cited as "§".
 * A rig that came as a glTF character (:mod:`m2d2m.motion.gltf_rig`) gets its own file back, its
   nodes, meshes, skins, materials and animations as they were, with the clip's animations added
   as :func:`m2d2m.motion.gltf.save_glb` names them (``"clip"``, then one per action), keying its
-  joint nodes: the user gets their character moving. With ``M`` a node's rest transform in the
+  joint nodes: the user gets their character moving (its own animations come first). With ``M`` a node's rest transform in the
   scene and ``D_j(t)`` the rigid motion carrying joint ``j`` from its rest place to its place at
   ``t`` (its world rotation about its rest position, then moved there), joint ``j``'s node takes
   ``M_parent⁻¹ · D_a(t)⁻¹ · D_j(t) · M_j`` from its parent node, ``a`` the nearest joint above it
