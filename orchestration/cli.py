@@ -310,7 +310,7 @@ def _delivery_notes(files: dict[str, Path], motion: Any, delivery: Any) -> None:
         kept = [
             place
             for kind, place in (("glb", "the GLB's 'root motion' animation"), ("npy", "root_motion.npy beside the npy"))
-            if kind in files
+            if kind in files and not (kind == "glb" and delivery.rig is not None)  # a GLB on a rig has no such track
         ]
         where = (
             f"kept in {' and '.join(kept)}" if kept else "not kept: BVH, FBX and the animations have no place for it"
@@ -992,7 +992,7 @@ def _add_viewers(verbs) -> None:
     render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
     export = verbs.add_parser(
         "export",
-        help="write a motion as BVH (for Blender, game engines; on your rig with --rig), GLB, FBX or npy + json",
+        help="write a motion as BVH (for Blender, game engines), GLB, FBX (on your rig with --rig) or npy + json",
     )
     for parser, run in ((render, _render), (export, _export)):
         parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
@@ -1074,7 +1074,10 @@ def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> No
         "tpose (arms out, head up: what retargeting tools expect); the motion is the same",
     )
     group.add_argument(
-        "--rig", metavar="FILE", help="write the BVH on this rig: a BVH (its hierarchy and OFFSETs) or a skinned GLB"
+        "--rig",
+        metavar="FILE",
+        help="write the BVH, GLB and FBX on this rig: a BVH (its hierarchy and OFFSETs) or a skinned GLB "
+        "(whose GLB and FBX are the character itself, animated)",
     )
     group.add_argument(
         "--joint-map",

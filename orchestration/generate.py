@@ -32,7 +32,7 @@ import torch
 from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
 from m2d2m.layout import NLP, recorded_path
 from m2d2m.motion.body_parts import PARTS
-from m2d2m.motion.clip import ANIMATIONS, FORMATS, Motion
+from m2d2m.motion.clip import ANIMATIONS, FORMATS, RIG_FORMATS, Motion
 from m2d2m.motion.delivery import Delivery
 from m2d2m.motion.gltf import BLENDER_PACKAGES
 from m2d2m.motion.render import can_write_mp4
@@ -111,8 +111,11 @@ def plan_output(
             "mp4 needs ffmpeg, and none is here (on PATH or from imageio-ffmpeg): "
             "pip install imageio-ffmpeg, or choose gif"
         )
-    if delivery.rig is not None and "bvh" not in chosen:
-        raise UserError("--rig goes with a BVH, the format written on a rig: add bvh to --formats, or --out x.bvh")
+    if delivery.rig is not None and not set(chosen) & set(RIG_FORMATS):
+        raise UserError(
+            "--rig goes with a BVH, GLB or FBX, the formats written on a rig: add one to --formats, "
+            "or --out x.bvh, x.glb or x.fbx"
+        )
     if "fbx" in chosen and shutil.which("blender") is None:
         raise UserError(
             f"fbx is written by Blender's exporter, and no blender is on the PATH: apt-get install {BLENDER_PACKAGES}"

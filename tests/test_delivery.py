@@ -250,5 +250,5 @@ def test_a_delivery_the_clip_cannot_take_is_one_line(clip, tmp_path, capsys):
     np.save(tmp_path / "short.npy", joints[:12])
     assert main(["export", str(tmp_path / "short.npy"), "--out", str(tmp_path / "x.glb"), "--loop"]) == 2
     assert "a loop needs at least 15 frames (0.75 s), got 12" in capsys.readouterr().err
-    assert main(["generate", "a person walks", "--out", str(tmp_path / "x.glb"), "--rig", str(CMU / "131_01.bvh")]) == 2
-    assert "--rig goes with a BVH, the format written on a rig" in capsys.readouterr().err
+    assert main(["generate", "a person walks", "--out", str(tmp_path / "x.gif"), "--rig", str(CMU / "131_01.bvh")]) == 2
+    assert "--rig goes with a BVH, GLB or FBX, the formats written on a rig" in capsys.readouterr().err

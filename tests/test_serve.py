@@ -20,6 +20,7 @@ from pathlib import Path
 import httpx
 import numpy as np
 import psutil
+import pygltflib
 import pytest
 from fastapi.testclient import TestClient
 
@@ -249,6 +250,11 @@ def test_a_generation_downloads_on_an_uploaded_rig(client, trained_project):
     answer = client.get(result["files"]["bvh"], params={"rig": character.json()["id"]})
     (trained_project / "on-glb.bvh").write_bytes(answer.content)
     assert read_bvh(trained_project / "on-glb.bvh").names == on_rig.names
+    glb = client.get(result["files"]["glb"], params={"rig": character.json()["id"]})
+    assert glb.status_code == 200, glb.text
+    (trained_project / "on-glb.glb").write_bytes(glb.content)
+    names = [node.name for node in pygltflib.GLTF2.load(str(trained_project / "on-glb.glb")).nodes]
+    assert names[0] == "Armature" and set(on_rig.names) <= set(names)  # the character's file itself
 
 
 LONG = "a person " + "walks " * 1700

@@ -17,11 +17,13 @@ from m2d2m.motion.delivery import Delivery, deliver
 from m2d2m.motion.export import save_bvh, save_motion_npy
 from m2d2m.motion.gltf import save_fbx, save_glb
 from m2d2m.motion.render import render_motion
-from m2d2m.motion.retarget import retarget_to_bvh
+from m2d2m.motion.retarget import Target, read_target
+from m2d2m.motion.rig_gltf import save_rig_fbx, save_rig_glb
 from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 
 FORMATS = ("npy", "bvh", "glb", "fbx", "gif", "mp4")
+RIG_FORMATS = ("bvh", "glb", "fbx")  # the formats written on a rig (docs/generation.md, "On your own rig")
 ANIMATIONS = ("gif", "mp4")
 
 
@@ -128,12 +130,15 @@ class Motion:
         all; returns format → path. The GIF/MP4 shows each action's text over its frames;
         ``progress(t)`` is called after each frame of an animation is drawn. The joints are
         written as they are (:meth:`delivered` edits them); ``delivery`` says the BVH's and GLB's
-        bind pose and the rig a BVH goes on, and an in-place clip's root track goes into the
-        GLB (its "root motion" animation) and beside the ``.npy`` (``<name>.root_motion.npy``)."""
+        bind pose and the rig the BVH, GLB and FBX go on (read once for all three), and an in-place
+        clip's root track goes into our GLB (its "root motion" animation) and beside the ``.npy``
+        (``<name>.root_motion.npy``)."""
         unknown = sorted(set(formats) - set(FORMATS))
         if unknown:
             raise ValueError(f"unknown formats {unknown}: choose from {', '.join(FORMATS)}")
         directory = Path(directory)
+        on_rig = delivery.rig is not None and any(kind in RIG_FORMATS for kind in formats)
+        target = read_target(delivery.rig, delivery.joint_map, skeleton=self.skeleton) if on_rig else None
         written: dict[str, Path] = {}
         for kind in formats:
             path = directory / f"{name}.{kind}"
@@ -144,10 +149,8 @@ class Motion:
                 if self.features.size:  # a motion known only by its joints (m2d2m export) has none
                     with atomic_path(directory / f"{name}.features.npy") as partial:
                         np.save(partial, self.features.astype(np.float32))
-            elif kind == "bvh" and delivery.rig is not None:
-                written[kind] = retarget_to_bvh(
-                    path, self.joints, delivery.rig, delivery.joint_map, self.fps, self.skeleton
-                )
+            elif kind in RIG_FORMATS and target is not None:
+                written[kind] = self.save_on_rig(path, kind, target)
             elif kind == "bvh":
                 written[kind] = save_bvh(path, self.joints, self.skeleton, self.fps, rest_pose=delivery.rest_pose)
             elif kind in ("glb", "fbx"):
@@ -157,6 +160,13 @@ class Motion:
                     self.joints, path, self.skeleton, self.fps, self.segments, size=size, progress=progress
                 )
         return written
+
+    def save_on_rig(self, path: Path, kind: str, target: Target) -> Path:
+        """The BVH, GLB or FBX (``kind``) of this motion on ``target``'s rig, at ``path``."""
+        if kind == "bvh":
+            return target.write_bvh(path, self.joints, self.fps, self.skeleton)
+        save = save_rig_fbx if kind == "fbx" else save_rig_glb
+        return save(path, target, self.joints, self.fps, self.segments, self.skeleton)
 
     def _save_gltf(self, path: Path, kind: str, rest_pose: str) -> Path:
         """A GLB (with the root track, if any, as its own animation over the clip's path) or FBX."""

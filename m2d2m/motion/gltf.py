@@ -18,7 +18,7 @@ import re
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from fractions import Fraction
 from pathlib import Path
 
@@ -81,7 +81,7 @@ def save_glb(
     """
     joints = skeleton.check_joints(joints)
     fps = float(skeleton.fps if fps is None else fps)
-    segments = _checked_segments(segments, len(joints))
+    segments = checked_segments(segments, len(joints))
     pose = pose_of(joints, skeleton, rest_pose=rest_pose)
     metres = skeleton.metres_per_unit
     path_keys = pose.root * metres
@@ -91,35 +91,70 @@ def save_glb(
             raise ValueError(f"root_track must have shape {path_keys.shape}, got {root_track.shape}")
         path_keys = root_track * metres
 
-    gltf = gl.GLTF2(asset=gl.Asset(generator=f"m2d2m with pygltflib {gl.__version__}"))
-    blob = _Blob(gltf)
+    gltf = new_gltf()
+    blob = Blob(gltf)
     root = topological_order(skeleton)[0]
     offsets = pose.offsets * metres
-    _add_joint_nodes(gltf, skeleton, offsets, path_keys[0])
+    translations = offsets.copy()
+    translations[root] = path_keys[0]
+    add_joint_nodes(gltf, skeleton.joint_names, skeleton.parents, translations)
     rest = _rest_positions(skeleton, offsets, path_keys[0])
-    body = _add_body(gltf, blob, skeleton, rest)
+    body = add_body(gltf, blob, skeleton.parents, skeleton.bones, rest, skeleton.head_joint, skeleton.name)
 
-    keys = _Keys(blob, (np.arange(len(joints)) / fps).astype(np.float32))
-    rotations = _continuous(_xyzw(pose.local))
-    rig = [keys.add(root, gl.TRANSLATION, path_keys)]
-    rig += [keys.add(joint, gl.ROTATION, rotations[:, joint]) for joint in range(skeleton.num_joints)]
-    gltf.animations.append(keys.animation(CLIP_ANIMATION, rig, 0, len(joints)))
-    gltf.animations += [keys.animation(text, rig, start, end) for start, end, text in segments]
+    keys = animate(gltf, blob, fps, segments, {root: path_keys}, dict(enumerate(np.moveaxis(pose.local, 1, 0))))
     if root_track is not None:
         motion = keys.add(root, gl.TRANSLATION, pose.root * metres)
         gltf.animations.append(keys.animation(ROOT_MOTION_ANIMATION, [motion], 0, len(joints)))
+    gltf.scenes = [
+        gl.Scene(name="m2d2m", nodes=[root, body], extras=clip_extras(skeleton.name, fps, len(joints), segments))
+    ]
+    gltf.scene = 0
+    return write_glb(gltf, blob, path)
 
-    # what the glTF itself cannot say: the clip's rate and its actions (the animations after "clip")
-    extras = {
-        "skeleton": skeleton.name,
+
+def new_gltf() -> gl.GLTF2:
+    """An empty glTF naming its writer."""
+    return gl.GLTF2(asset=gl.Asset(generator=f"m2d2m with pygltflib {gl.__version__}"))
+
+
+def animate(
+    gltf: gl.GLTF2,
+    blob: Blob,
+    fps: float,
+    segments: Sequence[tuple[int, int, str]],
+    translations: dict[int, np.ndarray],
+    rotations: dict[int, np.ndarray],
+) -> _Keys:
+    """Key nodes' translations (node → (T, 3)) and rotations (node → (T, 3, 3) matrices) at
+    ``frame / fps`` seconds, and add the animations :func:`save_glb` describes: ``"clip"``, then one
+    per checked segment; returns the keys, for more animations over the same tracks."""
+    frames = len(next(iter(translations.values())))
+    keys = _Keys(blob, (np.arange(frames) / fps).astype(np.float32))
+    tracks = [keys.add(node, gl.TRANSLATION, track) for node, track in translations.items()]
+    tracks += [keys.add(node, gl.ROTATION, _continuous(_xyzw(track))) for node, track in rotations.items()]
+    gltf.animations.append(keys.animation(CLIP_ANIMATION, tracks, 0, frames))
+    gltf.animations += [keys.animation(text, tracks, start, end) for start, end, text in segments]
+    return keys
+
+
+def clip_extras(skeleton: str, fps: float, frames: int, segments: Sequence[tuple[int, int, str]]) -> dict:
+    """What the glTF itself cannot say, for a scene's ``extras``: the clip's rate and its actions
+    (the animations after "clip")."""
+    return {
+        "skeleton": skeleton,
         "fps": fps,
-        "num_frames": len(joints),
+        "num_frames": frames,
         "actions": [{"text": text, "start_frame": start, "end_frame": end} for start, end, text in segments],
         "end_frame": "exclusive",
     }
-    gltf.scenes = [gl.Scene(name="m2d2m", nodes=[root, body], extras=extras)]
-    gltf.scene = 0
-    gltf.buffers = [gl.Buffer(byteLength=len(blob.data))]
+
+
+def write_glb(gltf: gl.GLTF2, blob: Blob, path: str | Path) -> Path:
+    """Write ``gltf`` with ``blob`` as its one binary buffer (§4.4.3.2), whole or not at all."""
+    if gltf.buffers:
+        gltf.buffers[0].byteLength = len(blob.data)
+    else:
+        gltf.buffers = [gl.Buffer(byteLength=len(blob.data))]
     gltf.set_binary_blob(bytes(blob.data))
     path = Path(path)
     with atomic_path(path) as partial:
@@ -141,17 +176,23 @@ def save_fbx(
     Autodesk's tools and game engines accept), and return its path. Every animation becomes a
     take. Raises ``FileNotFoundError`` when ``blender`` is not on the PATH and ``RuntimeError``
     with Blender's last line of errors when it fails."""
+    fps = float(skeleton.fps if fps is None else fps)
+    return fbx_of_glb(path, fps, lambda glb: save_glb(glb, joints, skeleton, fps, segments, rest_pose), timeout_s)
+
+
+def fbx_of_glb(path: str | Path, fps: float, write: Callable[[Path], Path], timeout_s: float = 300.0) -> Path:
+    """Write FBX at ``path`` from the GLB that ``write`` puts at the path it is given (a temporary
+    one), by Blender's glTF importer and FBX exporter at ``fps``; the errors of :func:`save_fbx`."""
     blender = shutil.which("blender")
     if blender is None:
         raise FileNotFoundError(f"FBX export needs Blender on the PATH: apt-get install {BLENDER_PACKAGES}")
-    fps = float(skeleton.fps if fps is None else fps)
     # Blender's glTF importer turns seconds into frames with the scene's integer frame rate only
     # (io_scene_gltf2/blender/imp/gltf2_blender_animation_node.py): a rate a whole multiple of the
     # clip's puts every key on a frame (12.5 fps: 25, every other frame)
     scene_fps = Fraction(fps).limit_denominator(100).numerator
     path = Path(path)
     with tempfile.TemporaryDirectory(prefix="m2d2m-fbx-") as folder, atomic_path(path) as partial:
-        glb = save_glb(Path(folder) / "clip.glb", joints, skeleton, fps, segments, rest_pose)
+        glb = write(Path(folder) / "clip.glb")
         command = [blender, "--background", "--factory-startup", "--python-exit-code", "1"]
         command += ["--python-expr", _BLENDER_GLB_TO_FBX, "--", str(glb), str(partial), str(scene_fps)]
         result = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s, check=False)
@@ -182,7 +223,7 @@ bpy.ops.export_scene.fbx(filepath=fbx, add_leaf_bones=False, bake_anim=True, bak
 """
 
 
-class _Blob:
+class Blob:
     """The GLB's one binary buffer as it fills: every array gets its own buffer view, 4-byte
     aligned (§3.6.2.4), and accessors read whole arrays or runs of their rows."""
 
@@ -224,7 +265,7 @@ class _Keys:
     a buffer view each, and every animation (§3.11) reads a run of frames of them, so one per
     action costs accessors, not a copy of the clip."""
 
-    def __init__(self, blob: _Blob, times: np.ndarray) -> None:
+    def __init__(self, blob: Blob, times: np.ndarray) -> None:
         self.blob, self.times = blob, times
         self.times_view = blob.view(times)
         self.tracks: list[tuple[int, str, np.ndarray, int]] = []
@@ -251,7 +292,7 @@ class _Keys:
         return animation
 
 
-def _checked_segments(segments: Sequence[tuple[int, int, str]], n_frames: int) -> list[tuple[int, int, str]]:
+def checked_segments(segments: Sequence[tuple[int, int, str]], n_frames: int) -> list[tuple[int, int, str]]:
     checked = [(int(start), int(end), str(text)) for start, end, text in segments]
     for start, end, _ in checked:
         if not 0 <= start < end <= n_frames:
@@ -259,14 +300,12 @@ def _checked_segments(segments: Sequence[tuple[int, int, str]], n_frames: int) -
     return checked
 
 
-def _add_joint_nodes(gltf: gl.GLTF2, skeleton: Skeleton, offsets: np.ndarray, root_position: np.ndarray) -> None:
-    """Node ``j`` is joint ``j``: its children, and its rest offset as its translation (the
+def add_joint_nodes(gltf: gl.GLTF2, names: Sequence[str], parents: np.ndarray, translations: np.ndarray) -> None:
+    """Node ``j`` is joint ``j``: its children, and ``translations[j]`` (its rest offset; the
     root's: where it is in the first frame). No rotation: identity, the bind pose."""
-    for joint, name in enumerate(skeleton.joint_names):
-        parent = skeleton.parents[joint]
-        translation = root_position if parent < 0 else offsets[joint]
-        kids = np.flatnonzero(skeleton.parents == joint).tolist()
-        gltf.nodes.append(gl.Node(name=name, translation=translation.tolist(), children=kids))
+    for joint, name in enumerate(names):
+        kids = np.flatnonzero(parents == joint).tolist()
+        gltf.nodes.append(gl.Node(name=name, translation=translations[joint].tolist(), children=kids))
 
 
 def _rest_positions(skeleton: Skeleton, offsets: np.ndarray, root_position: np.ndarray) -> np.ndarray:
@@ -278,23 +317,27 @@ def _rest_positions(skeleton: Skeleton, offsets: np.ndarray, root_position: np.n
     return rest
 
 
-def _add_body(gltf: gl.GLTF2, blob: _Blob, skeleton: Skeleton, rest: np.ndarray) -> int:
-    """The skin (its joints are the joint nodes, §3.7.3) and a body mesh bound to it: a box along
-    every bone, moved by the bone's parent joint whose rotation turns it, and a cube on the head.
+def add_body(
+    gltf: gl.GLTF2, blob: Blob, parents: np.ndarray, bones: Sequence[int], rest: np.ndarray, head: int | None, name: str
+) -> int:
+    """A new glTF's skin ``name`` (its joints are the joint nodes 0..J-1 of a skeleton of ``parents``
+    standing at ``rest`` (J, 3), §3.7.3) and a body mesh bound to it: a box along every bone, moved
+    by the bone's parent joint whose rotation turns it (one a joint of ``bones``, in their order), and
+    a cube on the ``head`` joint, if any.
     Each vertex has one joint of weight 1. The mesh's node is a root node without a transform,
     as its transform would be ignored anyway (§3.7.3.2); returns that node's index."""
     boxes, owners = [], []
-    for bone in skeleton.bones:
-        parent = skeleton.parents[bone]
+    for bone in bones:
+        parent = parents[bone]
         length = float(np.linalg.norm(rest[bone] - rest[parent]))
         if length > 1e-6:
             half = float(np.clip(_HALF_WIDTH * length, _THINNEST, _THICKEST))
             boxes.append(_box(rest[parent], rest[bone], half, _TAPER * half))
             owners.append(parent)
-    head = rest[skeleton.head_joint]
-    up = np.array([0.0, _HEAD_HALF_SIZE, 0.0])
-    boxes.append(_box(head - up, head + up, _HEAD_HALF_SIZE, _HEAD_HALF_SIZE))
-    owners.append(skeleton.head_joint)
+    if head is not None:
+        up = np.array([0.0, _HEAD_HALF_SIZE, 0.0])
+        boxes.append(_box(rest[head] - up, rest[head] + up, _HEAD_HALF_SIZE, _HEAD_HALF_SIZE))
+        owners.append(head)
 
     positions = np.concatenate(boxes).astype(np.float32)
     corners = len(boxes[0])
@@ -318,9 +361,9 @@ def _add_body(gltf: gl.GLTF2, blob: _Blob, skeleton: Skeleton, rest: np.ndarray)
     # the bind pose has no rotations, so each inverse bind matrix (§3.7.3.1) is a translation by
     # minus the joint's rest position; matrices are stored column by column (§3.6.2.4), so the
     # array is indexed [joint, column, row] and column 3 is the translation
-    inverse_bind = np.tile(np.eye(4, dtype=np.float32), (skeleton.num_joints, 1, 1))
+    inverse_bind = np.tile(np.eye(4, dtype=np.float32), (len(parents), 1, 1))
     inverse_bind[:, 3, :3] = -rest
-    skin = gl.Skin(name=skeleton.name, skeleton=topological_order(skeleton)[0], joints=list(range(skeleton.num_joints)))
+    skin = gl.Skin(name=name, skeleton=int(np.flatnonzero(parents < 0)[0]), joints=list(range(len(parents))))
     skin.inverseBindMatrices = blob.array(inverse_bind)
     gltf.skins.append(skin)
     gltf.nodes.append(gl.Node(name="body", mesh=0, skin=0))

@@ -25,7 +25,7 @@ from m2d2m.motion.rotations import quat_to_matrix
 GLTF_SUFFIXES = (".glb", ".gltf")
 
 
-def _local_matrix(node: gl.Node) -> np.ndarray:
+def local_matrix(node: gl.Node) -> np.ndarray:
     """The node's 4×4 transform from its parent's frame (§3.5.3: ``matrix``, column-major, or T·R·S)."""
     if node.matrix is not None:
         return np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T
@@ -37,29 +37,51 @@ def _local_matrix(node: gl.Node) -> np.ndarray:
     return matrix
 
 
+def node_parents(gltf: gl.GLTF2) -> dict[int, int]:
+    """Each node that is a child → its parent node (§3.5.2: a node has at most one)."""
+    return {child: index for index, node in enumerate(gltf.nodes) for child in node.children or []}
+
+
+def rest_world(gltf: gl.GLTF2) -> np.ndarray:
+    """(N, 4, 4) every node's transform in the scene's frame as the nodes stand, no animation applied."""
+    parent_node = node_parents(gltf)
+    world: dict[int, np.ndarray] = {}
+
+    def world_of(index: int) -> np.ndarray:
+        if index not in world:
+            above = parent_node.get(index)
+            world[index] = (np.eye(4) if above is None else world_of(above)) @ local_matrix(gltf.nodes[index])
+        return world[index]
+
+    return np.array([world_of(index) for index in range(len(gltf.nodes))]).reshape(-1, 4, 4)
+
+
+def joint_name(gltf: gl.GLTF2, node: int) -> str:
+    """A joint node's name as a rig's joint: its own, else ``joint<index>``."""
+    return gltf.nodes[node].name or f"joint{node}"
+
+
+def load_gltf(path: str | Path) -> gl.GLTF2:
+    """The glTF file at ``path``; a BvhError in one line when it is not one."""
+    try:
+        return gl.GLTF2().load(str(path))
+    except Exception as error:  # pygltflib raises what its JSON and binary readers raise
+        raise BvhError(f"{path}: not a glTF file ({type(error).__name__}: {error})") from error
+
+
 def read_gltf_rig(path: str | Path) -> BvhClip:
     """The skeleton of the first skin in the glTF file at ``path``, as a one-frame BVH clip in its
     rest pose; a BvhError in one line when the file is not glTF or has no skinned skeleton."""
     path = Path(path)
-    try:
-        gltf = gl.GLTF2().load(str(path))
-    except Exception as error:  # pygltflib raises what its JSON and binary readers raise
-        raise BvhError(f"{path}: not a glTF file ({type(error).__name__}: {error})") from error
+    gltf = load_gltf(path)
     if gltf is None or not gltf.skins:
         raise BvhError(f"{path}: no skin, so no skeleton to retarget to; export the character with its armature")
     nodes = gltf.nodes
     joints = list(dict.fromkeys(gltf.skins[0].joints))
     if any(not 0 <= j < len(nodes) for j in joints):
         raise BvhError(f"{path}: its skin names a node the file does not have")
-    parent_node = {child: index for index, node in enumerate(nodes) for child in node.children or []}
-    world: dict[int, np.ndarray] = {}
-
-    def world_of(index: int) -> np.ndarray:
-        if index not in world:
-            above = parent_node.get(index)
-            world[index] = (np.eye(4) if above is None else world_of(above)) @ _local_matrix(nodes[index])
-        return world[index]
-
+    parent_node = node_parents(gltf)
+    world = rest_world(gltf)
     joint_set = set(joints)
 
     def joint_parent(index: int) -> int | None:
@@ -79,11 +101,11 @@ def read_gltf_rig(path: str | Path) -> BvhClip:
         joint = pending.pop()
         order.append(joint)
         pending.extend(reversed(kids[joint]))
-    position = {j: world_of(j)[:3, 3] for j in order}
+    position = {j: world[j][:3, 3] for j in order}
     index_of = {node: i for i, node in enumerate(order)}
     parents = np.array([-1] + [index_of[joint_parent(j)] for j in order[1:]])
     offsets = np.array([position[j] - (position[order[p]] if p >= 0 else 0.0) for j, p in zip(order, parents)])
-    names = tuple(nodes[j].name or f"joint{j}" for j in order)
+    names = tuple(joint_name(gltf, j) for j in order)
     if len(set(names)) != len(names):
         raise BvhError(f"{path}: two joints share a name; a joint map reads joints by name")
     channels = (("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation"),) + (

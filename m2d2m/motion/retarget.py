@@ -81,6 +81,11 @@ class RigMotion:
 
     def positions(self) -> np.ndarray:
         """(T, J, 3) every joint's world position, by forward kinematics."""
+        return self.pose()[1]
+
+    def pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every joint's world rotation (T, J, 3, 3), from the rest pose's frame, and world
+        position (T, J, 3), by forward kinematics."""
         frames, count = self.local.shape[:2]
         world = np.empty_like(self.local)
         positions = np.empty((frames, count, 3))
@@ -90,7 +95,7 @@ class RigMotion:
             else:
                 world[:, joint] = world[:, parent] @ self.local[:, joint]
                 positions[:, joint] = positions[:, parent] + world[:, parent] @ self.rig.offsets[joint]
-        return positions
+        return world, positions
 
 
 def _ours_of(rig: Rig, joint_map: JointMap, skeleton: Skeleton) -> dict[int, int]:
@@ -223,11 +228,13 @@ def read_rig(path: str | Path) -> BvhClip:
 class Target:
     """A rig read and checked once, ready to take any number of motions: its skeleton in its own
     units, the joint map its joints take and its metres per unit (a server keeps one per uploaded
-    character, so a character's file is not read again for every clip put on it)."""
+    character, so a character's file is not read again for every clip put on it); ``character``:
+    the glTF file the rig came from, whose meshes a GLB on the rig keeps (:mod:`m2d2m.motion.rig_gltf`)."""
 
     rig: Rig
     joint_map: JointMap
     metres_per_unit: float
+    character: Path | None = None
 
     def checked(self, skeleton: Skeleton = T2M) -> Target:
         """This target, having put our rest pose on it once: ValueError in one line where our
@@ -267,7 +274,9 @@ def read_target(
     for a rig our motions cannot go onto (checked with our rest pose: :meth:`Target.checked`)."""
     clip = read_rig(rig_file)
     mapping = joint_map_for(clip, joint_map)
-    return Target(Rig.from_bvh(clip), mapping, rig_metres_per_unit(clip, mapping, units, skeleton)).checked(skeleton)
+    character = Path(rig_file) if Path(rig_file).suffix.lower() in GLTF_SUFFIXES else None
+    scale = rig_metres_per_unit(clip, mapping, units, skeleton)
+    return Target(Rig.from_bvh(clip), mapping, scale, character).checked(skeleton)
 
 
 def retarget_to_bvh(

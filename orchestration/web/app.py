@@ -313,7 +313,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
     @api.post(
         RIGS,
         summary="Upload a character's rig (the bytes of a BVH, or of a skinned GLB, streamed; or file=<id> of one "
-        "sent before, under another joint_map) to download generations on it: GET a generation's motion.bvh?rig=<id>",
+        "sent before, under another joint_map) to download generations on it: GET a generation's motion.bvh?rig=<id> (or motion.glb, motion.fbx)",
         openapi_extra=FILE_BODY,
     )
     async def add_rig(request: Request, joint_map: str | None = None, file: str | None = None) -> dict[str, Any]:

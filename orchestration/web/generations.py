@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.motion.clip import Motion
+from m2d2m.motion.clip import RIG_FORMATS, Motion
 from m2d2m.motion.delivery import Delivery
 from m2d2m.motion.pose import REST_POSES
 from orchestration.errors import UserError
@@ -126,7 +126,7 @@ class Generations:
         self, generation_id: str, name: str, rest_pose: str = REST_POSES[0], rig: UploadedRig | None = None
     ) -> Path:
         """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, a BVH on
-        another bind pose (``rest_pose``) or on an uploaded ``rig`` (read once, when it was
+        another bind pose (``rest_pose``) or a BVH, GLB or FBX on an uploaded ``rig`` (read once, when it was
         uploaded), is made on first request (a blocking call) and logged to the generation's MLflow run."""
         generation = self.get(generation_id)
         if name not in FILES:
@@ -134,8 +134,8 @@ class Generations:
         if rest_pose not in REST_POSES:
             raise UserError(f"rest must be one of {', '.join(REST_POSES)}, got {rest_pose!r}")
         kind = FILES[name]
-        if rig is not None and kind != "bvh":
-            raise UserError(f"a rig goes with the BVH, not {name}")
+        if rig is not None and kind not in RIG_FORMATS:
+            raise UserError(f"a rig goes with the BVH, GLB or FBX, not {name}")
         delivery = replace(generation.delivery, rest_pose=rest_pose)
         variant = f"rig-{rig.id}" if rig is not None else rest_pose if kind == "bvh" else REST_POSES[0]
         stem = STEM if variant == REST_POSES[0] else f"{STEM}.{variant}"
@@ -151,7 +151,7 @@ class Generations:
     def _make(
         self, generation: Generation, kind: str, stem: str, delivery: Delivery, variant: str, rig: UploadedRig | None
     ) -> None:
-        """Write a file of the generation after the fact (on ``rig``, the BVH), name it in its run's
+        """Write a file of the generation after the fact (on ``rig``: a BVH, GLB or FBX), name it in its run's
         record and log it to its MLflow run."""
         from orchestration.generate import plan_output
 
@@ -159,9 +159,7 @@ class Generations:
         motion = generation.motion
         try:
             if rig is not None:
-                path = rig.target.write_bvh(
-                    generation.directory / f"{stem}.bvh", motion.joints, motion.fps, motion.skeleton
-                )
+                path = motion.save_on_rig(generation.directory / f"{stem}.{kind}", kind, rig.target)
             else:
                 (path,) = motion.save(generation.directory, stem, (kind,), delivery=delivery).values()
         except (OSError, RuntimeError, ValueError) as error:  # Blender failed, or a rig it cannot take
