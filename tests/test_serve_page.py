@@ -24,6 +24,7 @@ import time
 import urllib.request
 from pathlib import Path
 
+import pygltflib as gl
 import pytest
 import yaml
 
@@ -427,7 +428,7 @@ def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_var
         assert player.find_element(By.CSS_SELECTOR, ".player-meta").text.endswith("at 30 fps")
         links = {a.get_attribute("data-format"): a for a in player.find_elements(By.CSS_SELECTOR, ".downloads a")}
         shown = {kind for kind, link in links.items() if link.is_displayed()}
-        assert {"npy", "bvh", "glb", "gif", "mp4"} <= shown and "bvh-rig" not in shown
+        assert {"npy", "bvh", "glb", "gif", "mp4"} <= shown and not {"bvh-rig", "glb-rig"} & shown
         assert ("fbx" in shown) == bool(shutil.which("blender"))
 
         # the GLB: its whole-clip animation keyed at 30 fps up to the delivered clip's last frame
@@ -472,19 +473,23 @@ def test_the_delivery_menu_gives_a_30_fps_in_place_glb_a_bvh_on_cmus_rig_and_var
         map_file = find(By.ID, "rig-map-file")
         assert map_file.is_displayed() and status.text == "Choose your joint map, a YAML file, below."
         own = {ours: list(theirs) for ours, theirs in PRESETS["mixamo"].sources.items()}
-        (inputs / "no-head.yaml").write_text(yaml.safe_dump({k: v for k, v in own.items() if k != "head"}))
-        map_file.send_keys(str(inputs / "no-head.yaml"))
-        wait_for(lambda: "failed" in status.get_attribute("class"), 30, "the refusal of a map without a head")
-        assert status.text == "the joint map: it leaves out head" and not links["bvh-rig"].is_displayed()
-        (inputs / "xbot-map.yaml").write_text(
-            yaml.safe_dump({**own, "spine2": ["mixamorig:Spine1", "mixamorig:Spine2"]})
-        )
+        (inputs / "nested.yaml").write_text(yaml.safe_dump({**own, "head": [["mixamorig:Head"]]}))
+        map_file.send_keys(str(inputs / "nested.yaml"))
+        wait_for(lambda: "failed" in status.get_attribute("class"), 30, "the refusal of a map that names no joint")
+        assert status.text == "the joint map: head: a list of their joints holds names only"
+        assert not links["bvh-rig"].is_displayed()
+        # a map naming one joint corrects the automatic map there
+        (inputs / "xbot-map.yaml").write_text(yaml.safe_dump({"spine2": ["mixamorig:Spine1", "mixamorig:Spine2"]}))
         map_file.send_keys(str(inputs / "xbot-map.yaml"))
         wait_for(lambda: "your map" in status.text, 30, "the rig through the map")
         assert status.text == "Rig: 65 joints, your map (xbot-map.yaml)." and len(sent) == 3
         assert links["bvh-rig"].is_displayed()
         on_character = parse_bvh(download(browser, links["bvh-rig"], "*.bvh"))
         assert on_character.names[0] == "mixamorig:Hips" and len(on_character.motion) == frames
+        assert links["glb-rig"].is_displayed() and links["glb-rig"].text == "GLB on your rig"
+        character_glb = gl.GLTF2().load_binary(str(download(browser, links["glb-rig"], "*.glb")))
+        assert "mixamorig:Hips" in {node.name for node in character_glb.nodes}  # the character's own file
+        assert len(character_glb.meshes) == len(gl.GLTF2().load_binary(str(character)).meshes) > 0
 
         # two variations: the lane's request twice, seeds 0 and 1, side by side, each with the rig's BVH
         variations = find(By.ID, "variations")

@@ -620,6 +620,9 @@ function showNotices(results) {
 
 // ---- results ----------------------------------------------------------------------------
 
+/** The files a result has on an uploaded rig too (the server's motion.<format>?rig=<id>). */
+const RIG_FORMATS = ['bvh', 'glb', 'fbx'];
+
 function downloadLinks(result) {
   const box = document.createElement('div');
   box.className = 'downloads';
@@ -631,18 +634,20 @@ function downloadLinks(result) {
     link.textContent = format.toUpperCase();
     box.append(link);
   }
+  const onRig = RIG_FORMATS.map((format) => $(`a[data-format="${format}"]`, box)).filter(Boolean);
+  box.append(...onRig.map(rigLink));
   const bvh = $('a[data-format="bvh"]', box);
-  if (bvh) box.append(rigLink(bvh), restPoseChoice(bvh), bvhNote(result.fps));
+  if (bvh) box.append(restPoseChoice(bvh), bvhNote(result.fps));
   return box;
 }
 
-/** "BVH on your rig": the result's BVH on the uploaded rig's skeleton, there while a rig is. */
-function rigLink(bvh) {
+/** "BVH on your rig" (GLB, FBX): the result's file on the uploaded rig's skeleton, there while a rig is. */
+function rigLink(file) {
   const link = document.createElement('a');
-  link.dataset.format = 'bvh-rig';
-  link.dataset.base = bvh.href; // the plain BVH's: the rig has its own rest pose
+  link.dataset.format = `${file.dataset.format}-rig`;
+  link.dataset.base = file.href; // the plain file's: the rig has its own rest pose
   link.download = '';
-  link.textContent = 'BVH on your rig';
+  link.textContent = `${file.dataset.format.toUpperCase()} on your rig`;
   showRigLink(link);
   return link;
 }
@@ -844,7 +849,7 @@ function setRig(rig, message, failed = false) {
   status.textContent = message;
   status.hidden = !message;
   status.classList.toggle('failed', failed);
-  $$('#players a[data-format="bvh-rig"]').forEach(showRigLink);
+  $$('#players a[data-format$="-rig"]').forEach(showRigLink);
 }
 
 // ---- transport: one for all players ---------------------------------------------------
