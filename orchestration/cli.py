@@ -1015,6 +1015,14 @@ def _add_viewers(verbs) -> None:
     _add_delivery(export, recorded=True)
 
 
+# the presets are m2d2m.motion.joint_map.PRESETS, named here so that --help imports no model code
+JOINT_MAP_HELP = (
+    "the rig's joints for ours: a preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco), auto, or a YAML "
+    "correcting some or all joints (`m2d2m rig FILE --out map.yaml` writes one); default: the preset the rig's "
+    "joints fit, else auto"
+)
+
+
 def _add_rig(verbs) -> None:
     rig = verbs.add_parser(
         "rig", help="which joints of a character's rig take ours: matched by name, guessed, derived or missing"
@@ -1023,8 +1031,7 @@ def _add_rig(verbs) -> None:
     rig.add_argument(
         "--joint-map",
         metavar="MAP",
-        help="cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco, auto, or a YAML correcting some or all joints "
-        "(default: the preset the rig's joints fit, else auto)",
+        help=JOINT_MAP_HELP,
     )
     rig.add_argument("--out", metavar="YAML", help="also write the mapping as a YAML joint map to correct")
     rig.set_defaults(run=_rig)
@@ -1082,8 +1089,7 @@ def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> No
     group.add_argument(
         "--joint-map",
         metavar="MAP",
-        help="the rig's joints for ours: a preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco), auto, or a "
-        "YAML (`m2d2m rig FILE --out map.yaml` writes one); default: the preset the rig fits, else auto",
+        help=JOINT_MAP_HELP,
     )
 
 

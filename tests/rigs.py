@@ -189,6 +189,35 @@ class Convention:
         return ours
 
 
+# Mixamo's limbs, which Rokoko's and Perception Neuron's exports name alike
+MIXAMO_LIMBS = {
+    "clavicle": "{Side}Shoulder",
+    "upperarm": "{Side}Arm",
+    "forearm": "{Side}ForeArm",
+    "hand": "{Side}Hand",
+    "thigh": "{Side}UpLeg",
+    "shin": "{Side}Leg",
+    "foot": "{Side}Foot",
+    "toe": "{Side}ToeBase",
+}
+# Unreal's Mannequins' limbs, UE4's and UE5's alike
+UNREAL_LIMBS = {
+    "clavicle": "clavicle_{s}",
+    "upperarm": "upperarm_{s}",
+    "forearm": "lowerarm_{s}",
+    "hand": "hand_{s}",
+    "thigh": "thigh_{s}",
+    "shin": "calf_{s}",
+    "foot": "foot_{s}",
+    "toe": "ball_{s}",
+}
+
+
+def without(limbs: dict[str, str], *slots: str) -> dict[str, str]:
+    """``limbs`` less the joints a rig lacks."""
+    return {slot: name for slot, name in limbs.items() if slot not in slots}
+
+
 def _mixamo(prefix: str, name: str) -> Convention:
     return Convention(
         name,
@@ -196,17 +225,7 @@ def _mixamo(prefix: str, name: str) -> Convention:
         tuple(f"{prefix}{s}" for s in ("Spine", "Spine1", "Spine2")),
         (f"{prefix}Neck",),
         f"{prefix}Head",
-        {
-            "clavicle": prefix + "{Side}Shoulder",
-            "upperarm": prefix + "{Side}Arm",
-            "forearm": prefix + "{Side}ForeArm",
-            "hand": prefix + "{Side}Hand",
-            "thigh": prefix + "{Side}UpLeg",
-            "shin": prefix + "{Side}Leg",
-            "foot": prefix + "{Side}Foot",
-            "toe": prefix + "{Side}ToeBase",
-            "toe_end": prefix + "{Side}Toe_End",
-        },
+        {slot: prefix + pattern for slot, pattern in (MIXAMO_LIMBS | {"toe_end": "{Side}Toe_End"}).items()},
         head_end=f"{prefix}HeadTop_End",
         finger=prefix + "{Side}Hand{Finger}{k}",
     )
@@ -261,15 +280,7 @@ CONVENTIONS = [
         ("Spine", "Spine1", "Spine2", "Spine3"),
         ("Neck",),
         "Head",
-        {
-            "clavicle": "{Side}Shoulder",
-            "upperarm": "{Side}Arm",
-            "forearm": "{Side}ForeArm",
-            "hand": "{Side}Hand",
-            "thigh": "{Side}UpLeg",
-            "shin": "{Side}Leg",
-            "foot": "{Side}Foot",
-        },
+        without(MIXAMO_LIMBS, "toe"),
         finger="{Side}Hand{Finger}{k}",
         foot_site=True,
         expected={"spine1": ("Spine1",), "spine2": ("Spine2",), "spine3": ("Spine3",)},
@@ -280,16 +291,7 @@ CONVENTIONS = [
         ("spine_01", "spine_02", "spine_03"),
         ("neck_01",),
         "head",
-        {
-            "clavicle": "clavicle_{s}",
-            "upperarm": "upperarm_{s}",
-            "forearm": "lowerarm_{s}",
-            "hand": "hand_{s}",
-            "thigh": "thigh_{s}",
-            "shin": "calf_{s}",
-            "foot": "foot_{s}",
-            "toe": "ball_{s}",
-        },
+        UNREAL_LIMBS,
         root="root",
         finger="{finger}_0{k}_{s}",
         twist_leaves=("upperarm", "forearm", "thigh", "shin"),
@@ -301,16 +303,7 @@ CONVENTIONS = [
         ("spine_01", "spine_02", "spine_03", "spine_04", "spine_05"),
         ("neck_01", "neck_02"),
         "head",
-        {
-            "clavicle": "clavicle_{s}",
-            "upperarm": "upperarm_{s}",
-            "forearm": "lowerarm_{s}",
-            "hand": "hand_{s}",
-            "thigh": "thigh_{s}",
-            "shin": "calf_{s}",
-            "foot": "foot_{s}",
-            "toe": "ball_{s}",
-        },
+        UNREAL_LIMBS,
         root="root",
         finger="{finger}_0{k}_{s}",
         twist_leaves=("upperarm", "thigh"),
