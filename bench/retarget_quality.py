@@ -7,8 +7,10 @@ Columns: the rig's leg (hip to ankle, m); where its feet stand in our clip's sta
 (:func:`m2d2m.motion.feet.foot_contacts`), against where they stand in its own rest pose on its
 floor (ankles, then toes: median and largest gap, cm); how fast its feet slide then, against
 ours scaled by the legs' ratio (mean horizontal speed, cm/s); the largest angle between a mapped
-bone from a joint with one mapped child and ours (degrees); its hips' height over its leg, against
-ours.
+bone from a joint with one mapped child and ours (degrees), feet and head aside where they turn
+from the rig's rest as ours turn from where ours stand (on a character standing at rest:
+:func:`m2d2m.motion.retarget.stands_at_rest`), so the next column is how far their angle from ours
+strays from the one their rests make (degrees); its hips' height over its leg, against ours.
 
     python bench/retarget_quality.py
 
@@ -29,7 +31,7 @@ sys.path.insert(0, str(ROOT))  # tests/rigs.py's conventions, run as a script
 from m2d2m.motion.bvh_reader import read_bvh  # noqa: E402
 from m2d2m.motion.feet import foot_contacts  # noqa: E402
 from m2d2m.motion.joint_map import JointMap, joint_map_for  # noqa: E402
-from m2d2m.motion.retarget import OUR_ANKLE_ON_FLOOR_M, Rig, ankle_lift, read_rig, retarget  # noqa: E402
+from m2d2m.motion.retarget import OUR_ANKLE_ON_FLOOR_M, OUR_REST_AIMS, Rig, ankle_lift, read_rig, retarget  # noqa: E402
 from m2d2m.motion.rigid import on_rigid_skeleton  # noqa: E402
 from m2d2m.motion.skeleton import T2M  # noqa: E402
 from tests.rigs import CONVENTIONS  # noqa: E402
@@ -52,6 +54,7 @@ class Landing:
     slide: float
     our_slide: float
     bone_max: float
+    from_rest_max: float | None  # None where feet and head point as ours (a rig not standing at rest)
     hips: float
     our_hips: float
 
@@ -67,7 +70,8 @@ def _leg(points: np.ndarray, pairs) -> float:
 
 def landing(ours: np.ndarray, rig: Rig, joint_map: JointMap, fps: float = 20.0) -> Landing:
     """Our joints ``ours`` (T, 22, 3, metres) on ``rig`` (metres) through ``joint_map``, measured."""
-    moved = retarget(ours, rig, joint_map).positions()
+    motion = retarget(ours, rig, joint_map)
+    moved = motion.positions()
     theirs = {
         T2M.joint_names.index(o): rig.names.index(t[0])
         for o, t in joint_map.sources.items()
@@ -93,14 +97,25 @@ def landing(ours: np.ndarray, rig: Rig, joint_map: JointMap, fps: float = 20.0) 
     spread = {
         k: (float(np.median(np.concatenate(g))), float(np.abs(np.concatenate(g)).max())) for k, g in gaps.items() if g
     }
+    rested = {  # the bones that turned from the rig's rest → where ours stand
+        (T2M.joint_names.index(a), T2M.joint_names.index(b)): d
+        for (a, b), d in OUR_REST_AIMS.items()
+        if T2M.joint_names.index(b) in motion.from_rest
+    }
     pairs = [
         (theirs[int(T2M.parents[c])], theirs[c], int(T2M.parents[c]), c)
         for c in range(1, 22)
         if c in theirs and int(T2M.parents[c]) in theirs and np.count_nonzero(T2M.parents == T2M.parents[c]) == 1
     ]
-    a = np.stack([moved[:, b] - moved[:, p] for p, b, _, _ in pairs], axis=1)
-    b = np.stack([ours[:, c] - ours[:, p] for _, _, p, c in pairs], axis=1)
-    cosine = np.sum(a * b, -1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
+    aimed = [pair for pair in pairs if pair[2:] not in rested]
+    a = np.stack([moved[:, b] - moved[:, p] for p, b, _, _ in aimed], axis=1)
+    b = np.stack([ours[:, c] - ours[:, p] for _, _, p, c in aimed], axis=1)
+    # Feet and head turn from the rig's rest as ours from our rest: they keep their rest's angle from ours
+    from_rest = [
+        _angle(moved[:, b] - moved[:, p], ours[:, c] - ours[:, q]) - _angle(rest[b] - rest[p], np.array(rested[q, c]))
+        for p, b, q, c in pairs
+        if (q, c) in rested
+    ]
     hips = moved[:, [theirs[1], theirs[2]], 1].mean(axis=1)
     return Landing(
         leg=rig_leg,
@@ -108,10 +123,17 @@ def landing(ours: np.ndarray, rig: Rig, joint_map: JointMap, fps: float = 20.0) 
         toes=spread.get(1),
         slide=float(np.concatenate(slides).mean()) * 100,
         our_slide=float(np.concatenate(our_slides).mean()) * 100,
-        bone_max=float(np.degrees(np.arccos(np.clip(cosine, -1, 1))).max()),
+        bone_max=float(_angle(a, b).max()),
+        from_rest_max=float(np.abs(from_rest).max()) if from_rest else None,
         hips=float(hips.mean()) / rig_leg,
         our_hips=float(ours[:, [1, 2], 1].mean()) / _leg(ours, LEGS),
     )
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Degrees between vectors a and b (..., 3)."""
+    cosine = np.sum(a * b, -1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
+    return np.degrees(np.arccos(np.clip(cosine, -1, 1)))
 
 
 def rigs() -> list[tuple[str, Rig, JointMap]]:
@@ -131,16 +153,17 @@ def main() -> None:
     print("    python bench/retarget_quality.py\n")
     print(
         "| rig | leg (m) | ankles in stance vs rest: median, max (cm) | toes, the same | slide (cm/s), ours scaled "
-        "| bone angle max (°) | hips / leg, ours |"
+        "| bone angle max (°) | feet, head: from rest's angle, max (°) | hips / leg, ours |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     ours = our_clip()
     for name, rig, joint_map in rigs():
         row = landing(ours, rig, joint_map)
         toes = "no toes" if row.toes is None else f"{row.toes[0]:+.1f}, {row.toes[1]:.1f}"
+        from_rest = "aimed as ours" if row.from_rest_max is None else f"{row.from_rest_max:.1e}"
         print(
             f"| {name} | {row.leg:.2f} | {row.ankles[0]:+.1f}, {row.ankles[1]:.1f} | {toes} "
-            f"| {row.slide:.1f}, {row.our_slide:.1f} | {row.bone_max:.1e} | {row.hips:.3f}, {row.our_hips:.3f} |"
+            f"| {row.slide:.1f}, {row.our_slide:.1f} | {row.bone_max:.1e} | {from_rest} | {row.hips:.3f}, {row.our_hips:.3f} |"
         )
 
 

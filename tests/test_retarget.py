@@ -47,7 +47,9 @@ def single_sources(joint_map: JointMap, rig: Rig) -> dict[int, int]:
 
 def test_a_cmu_take_retargeted_onto_its_own_rig_is_the_take(take):
     positions, ours, rig = take
-    moved = retarget(ours, rig, PRESETS["cmu"]).positions()
+    motion = retarget(ours, rig, PRESETS["cmu"])
+    assert motion.from_rest == frozenset()  # a rest pose hanging from its root: every bone aimed as ours
+    moved = motion.positions()
     mapped = sorted(single_sources(PRESETS["cmu"], rig))
     assert np.abs(moved[:, mapped] - positions[:, mapped]).max() < 1e-6
 
@@ -225,8 +227,9 @@ def test_humanml3ds_clip_on_mixamos_x_bot_points_every_mapped_bone_as_ours(tmp_p
     preset fits it, it stands 1.82 m tall in metres; on it, every mapped bone of HumanML3D's clip
     from a joint with one mapped child points where ours points, and those from the pelvis and the
     chest (several children, a best fit of the rig's own shape: hips set wider and lower than ours)
-    keep one angle from ours all clip long, 16° at most; each hand continues its forearm, and its
-    BVH reads back."""
+    keep one angle from ours all clip long, 16° at most, as do its feet and head (it stands at rest
+    as a person stands, so they turn from its rest as ours from ours); each hand continues its
+    forearm, and its BVH reads back."""
     rig_file = Path(__file__).parent / "fixtures" / "mixamo" / "xbot-skeleton.glb"
     clip = read_rig(rig_file)
     assert len(clip.names) == 65 and joint_map_for(clip).name == "mixamo"
@@ -234,12 +237,15 @@ def test_humanml3ds_clip_on_mixamos_x_bot_points_every_mapped_bone_as_ours(tmp_p
     assert clip.rest_positions()[:, 1].max() == pytest.approx(1.82, abs=0.01)
     ours = on_rigid_skeleton(np.load(SAMPLE), T2M)
     rig = Rig.from_bvh(clip)
-    moved = retarget(ours, rig, PRESETS["mixamo"]).positions()
+    motion = retarget(ours, rig, PRESETS["mixamo"])
+    moved = motion.positions()
     pairs = mapped_bones(PRESETS["mixamo"], rig)
     angles = bone_angles(moved, ours, pairs)
     branching = np.array([np.count_nonzero(T2M.parents == parent) > 1 for _, _, parent, _ in pairs])
     assert len(pairs) == 21 and branching.sum() == 6  # pelvis: hips and spine; chest: neck and collars
-    assert angles[:, ~branching].max() < 1e-4
+    from_rest = np.array([child in motion.from_rest for _, _, _, child in pairs])
+    assert sorted(motion.from_rest) == [T2M.joint_names.index(n) for n in ("left_foot", "right_foot", "head")]
+    assert angles[:, ~branching & ~from_rest].max() < 1e-4 and np.ptp(angles[:, from_rest], axis=0).max() < 1e-4
     assert angles[:, branching].max() < 16.0 and np.ptp(angles[:, branching], axis=0).max() < 1e-4
     for side in ("Left", "Right"):
         hand, finger, forearm = (rig.names.index(f"mixamorig:{side}{n}") for n in ("Hand", "HandMiddle1", "ForeArm"))

@@ -16,8 +16,17 @@ of its joints is turned, root first, so that the mapped joints below it point wh
 * a joint with none (fingers, an end bone) keeps its rest rotation relative to its parent, so a
   hand continues its forearm rather than spinning (momask-codes#42's complaint);
 * a point the map fixes to a joint (our foot ahead of the ankle of a rig without toes:
-  :mod:`m2d2m.motion.auto_map`) is aimed as a mapped joint below it would be, so the foot
-  points where our toe does.
+  :mod:`m2d2m.motion.auto_map`) is aimed as a mapped joint below it would be;
+* on a character whose rest pose stands on its floor as a person stands (its toes on the floor,
+  its head up: :func:`stands_at_rest`), the foot (ankle → toe) and the head (neck → head) turn
+  from its rest as ours turn from where ours stand (:data:`OUR_REST_AIMS`), not onto our
+  direction: where a rig puts these joints is its design (Mixamo's X Bot's toe lies 39° below its
+  ankle, ours 18° in stance; its head joint 10° ahead of upright from its neck, HumanML3D's 62°),
+  so a foot flat in our stance is flat on its floor and a head looking ahead looks ahead. Each
+  keeps the angle from our bone that its rest makes with ours. A rest pose hanging from its root
+  (a BVH's) or with feet held level above the floor (our own skeleton's) says nothing of how the
+  character stands, and its feet and head point where ours point, as limbs and spine always do:
+  their rest directions are a pose (T or A: arms out or down), which our motion replaces.
 
 The direction of an unmapped joint's aim is taken from its nearest mapped ancestor in our clip,
 which is exact where the rig puts that joint on its ancestor (CMU's ``LHipJoint``, ``lowerback``,
@@ -49,6 +58,17 @@ from m2d2m.motion.skeleton import T2M, Skeleton
 OUR_ANKLE_ON_FLOOR_M = 0.055
 FLOOR_REACH = 0.2  # a rig's ankle this share of its leg above y = 0 or less stands on that floor
 FLOOR_TOLERANCE_M = 0.01
+# Where our foot and head point when standing, facing +Z: the ball of the foot 18° below the
+# ankle's horizontal (clip 012314's stance frames, median), the head joint 62° ahead of upright
+# from the neck (HumanML3D's Mean.npy pose, where the neck stands within 2° of upright; 012314's
+# median too). Each (our parent, our child) → that bone's unit direction.
+_FOOT, _HEAD = np.radians(18.0), np.radians(62.0)
+HEAD_UP_DEGREES = 45.0  # a rest bone to the head this near upright holds the head up
+OUR_REST_AIMS = {
+    ("left_ankle", "left_foot"): (0.0, -np.sin(_FOOT), np.cos(_FOOT)),
+    ("right_ankle", "right_foot"): (0.0, -np.sin(_FOOT), np.cos(_FOOT)),
+    ("neck", "head"): (0.0, np.cos(_HEAD), np.sin(_HEAD)),
+}
 
 
 @dataclass(frozen=True)
@@ -73,11 +93,13 @@ class Rig:
 @dataclass(frozen=True)
 class RigMotion:
     """A rig's animation: its root's positions (T, 3) and every joint's rotation relative to its
-    parent (T, J, 3, 3)."""
+    parent (T, J, 3, 3); ``from_rest``: our joints at the end of the bones that turned from the
+    rig's rest rather than onto ours (a foot, a head: :func:`stands_at_rest`)."""
 
     rig: Rig
     root: np.ndarray
     local: np.ndarray
+    from_rest: frozenset[int] = frozenset()
 
     def positions(self) -> np.ndarray:
         """(T, J, 3) every joint's world position, by forward kinematics."""
@@ -157,6 +179,13 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
 
     anchor = np.empty(len(rig.names), dtype=np.int64)  # each joint's nearest mapped ancestor-or-self, as ours
     aimed = np.full(len(rig.names), -1)  # the one joint of ours each joint's turn points exactly, if one
+    on_floor = stands_on_floor(rest, theirs[legs[2]], rig_leg)
+    rest_aims = {
+        (skeleton.joint_names.index(a), skeleton.joint_names.index(b)): np.array(direction)
+        for (a, b), direction in OUR_REST_AIMS.items()
+        if on_floor and {a, b} <= set(skeleton.joint_names)
+    }
+    from_rest = set()
     frames = len(joints)
     world = np.empty((frames, len(rig.names), 3, 3))
     local = np.empty_like(world)
@@ -175,7 +204,12 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
         elif len(aims) == 1:
             vector, aimed[joint] = aims[0]
             in_parent = np.einsum("tji,tj->ti", parent_world, joints[:, aimed[joint]] - joints[:, anchor[joint]])
-            local[:, joint] = quat_to_matrix(qbetween(vector, in_parent))
+            start = rest_aims.get((anchor[joint], aimed[joint]))
+            if start is None or not stands_at_rest(rest[joint], vector, start):
+                start = vector  # onto our direction
+            else:
+                from_rest.add(int(aimed[joint]))  # a foot, a head: our turn from where ours stand
+            local[:, joint] = quat_to_matrix(qbetween(start, in_parent))
         else:
             wanted = np.stack([joints[:, target] - joints[:, anchor[joint]] for _, target in aims], axis=1)
             directions = wanted / np.linalg.norm(wanted, axis=-1, keepdims=True)
@@ -186,18 +220,33 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
     # and below on another) where ours are, scaled, and lifted by what keeps its feet on its floor.
     their_hips = RigMotion(rig, np.zeros((frames, 3)), local).positions()[:, [theirs[j] for j in hips]].mean(axis=1)
     lift = np.array([0.0, ankle_lift(rest, theirs[legs[2]], rig_leg, scale, skeleton), 0.0])
-    return RigMotion(rig, joints[:, hips].mean(axis=1) * scale + lift - their_hips, local)
+    return RigMotion(rig, joints[:, hips].mean(axis=1) * scale + lift - their_hips, local, frozenset(from_rest))
+
+
+def stands_on_floor(rest: np.ndarray, ankle: int, rig_leg: float) -> bool:
+    """Whether a rig's rest pose (J, 3) stands on y = 0: its ``ankle`` at most :data:`FLOOR_REACH`
+    of its leg above it and not below, as a DCC tool exports a character (a BVH's rest pose hangs
+    from its root at the origin, and says nothing of a floor)."""
+    return -FLOOR_TOLERANCE_M <= float(rest[ankle, 1]) <= FLOOR_REACH * rig_leg
+
+
+def stands_at_rest(at: np.ndarray, vector: np.ndarray, ours: np.ndarray) -> bool:
+    """Whether a rest bone ``vector`` from a joint ``at`` (rest position, of a rig standing on its
+    floor) rests as the bone whose standing direction ours is (:data:`OUR_REST_AIMS`): a foot
+    (ours points down) with its toe on the floor, lower than half the ankle's height (our own
+    skeleton's level feet are not); a head (ours points up) within :data:`HEAD_UP_DEGREES` of
+    upright (ours, straight ahead, is not)."""
+    if ours[1] < 0:
+        return float(at[1] + vector[1]) <= float(at[1]) / 2
+    return float(vector[1]) >= np.cos(np.radians(HEAD_UP_DEGREES)) * float(np.linalg.norm(vector))
 
 
 def ankle_lift(rest: np.ndarray, ankle: int, rig_leg: float, scale: float, skeleton: Skeleton = T2M) -> float:
     """How much higher than our scaled ankles the rig's ankles stand on its floor, in metres: its
-    rest pose's ankle height where that pose stands on y = 0 (its ankle at most
-    :data:`FLOOR_REACH` of its leg above it and not below: a character as a DCC tool exports it),
-    else none (a BVH's rest pose hangs from its root at the origin, and says nothing of a floor)."""
-    height = float(rest[ankle, 1])
-    if not -FLOOR_TOLERANCE_M <= height <= FLOOR_REACH * rig_leg:
+    rest pose's ankle height where that pose stands on y = 0 (:func:`stands_on_floor`), else none."""
+    if not stands_on_floor(rest, ankle, rig_leg):
         return 0.0
-    return height - scale * OUR_ANKLE_ON_FLOOR_M / skeleton.metres_per_unit
+    return float(rest[ankle, 1]) - scale * OUR_ANKLE_ON_FLOOR_M / skeleton.metres_per_unit
 
 
 def rig_metres_per_unit(
