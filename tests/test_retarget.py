@@ -316,3 +316,18 @@ def test_a_z_up_rig_is_turned_to_take_our_motion_and_written_back_in_its_own_axe
         posed_world(g, animation(g, CLIP_ANIMATION))[..., :3, 3] for g in map(pygltflib.GLTF2.load, map(str, glbs))
     ]
     np.testing.assert_allclose(posed[1], posed[0], atol=1e-6)
+
+
+def test_a_rig_with_its_bones_in_position_channels_takes_our_motion_as_its_twin(tmp_path):
+    """A game studio's export: position channels on every joint, the bones in its OFFSETs too or
+    only in the channels (OFFSETs zero): read with its bones either way, it is mapped and takes
+    our motion as the rig written with OFFSETs only does."""
+    ours = on_rigid_skeleton(np.load(SAMPLE)[::4], T2M)
+    studio = next(convention for convention in CONVENTIONS if convention.name.startswith("game studio")).rig()
+    plain = studio.write(tmp_path / "plain.bvh", scale=100.0)
+    expected = read_bvh(retarget_to_bvh(tmp_path / "on-plain.bvh", ours, plain)).positions()
+    for offsets in (True, False):
+        rig_file = studio.write_translated(tmp_path / f"translated-{offsets}.bvh", offsets=offsets)
+        np.testing.assert_allclose(read_bvh(rig_file).rest_positions(), read_bvh(plain).rest_positions(), atol=1e-4)
+        moved = read_bvh(retarget_to_bvh(tmp_path / f"on-{offsets}.bvh", ours, rig_file)).positions()
+        np.testing.assert_allclose(moved, expected, atol=1e-4)
