@@ -176,8 +176,9 @@ def extend_with(
 
 
 def pin_pose(generator: MotionGenerator, timeline: Timeline, pose: np.ndarray, seconds: float) -> tuple[Edit, int]:
-    """``pose`` (one frame's features) pinned at ``seconds``: the edit and the frame it lands on."""
-    frame = _frame_at(generator, seconds)
+    """``pose`` (one frame's features) pinned at ``seconds``: the edit and the frame it lands on
+    (the nearest; the model is given the pose on its step grid, and the result meets it there)."""
+    frame = int(round(seconds * generator.fps))
     try:
         return hold_pose(timeline, pose, frame, generator.frame_step, margin_frames(generator)), frame
     except ValueError as error:
