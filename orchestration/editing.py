@@ -6,7 +6,8 @@ A result's timeline is its ``.features.npy`` (the model's own features, at its f
 the actions of its ``.json`` sidecar (their frames converted from the sidecar's rate, which a
 ``--fps`` delivery changed). A model that works in steps (the token models' 4 frames) gets whole
 steps: an action whose length is not one loses its last frames (said in a warning), the margins
-and a pinned pose are whole steps.
+are whole steps, and a pinned pose is given to the model on the step that holds its frame (the
+result meets it at the frame itself).
 """
 
 from __future__ import annotations
