@@ -201,7 +201,7 @@ def test_a_clip_is_delivered_as_asked_and_comes_as_a_glb(client, trained_project
     """Issue 40: the frame rate, the root, the loop and the feet, as `m2d2m generate` takes them."""
     result = generate(client, seed=3, fps=30.0, root="in-place", loop=False, plant_feet=True)
     joints = np.array(result["joints"])
-    assert result["fps"] == 30.0 and len(joints) == 83  # 2.8 s of actions: 56 frames at 20 fps, 83 at 30
+    assert result["fps"] == 30.0 and len(joints) == 84  # 2.8 s of actions: 56 frames at 20 fps, 84 at 30
     assert np.abs(joints[:, 0, [0, 2]]).max() < 1e-5  # in place
     glb = client.get(result["files"]["glb"])
     assert glb.status_code == 200 and glb.content[:4] == b"glTF"
