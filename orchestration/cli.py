@@ -385,7 +385,7 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
     from m2d2m.layout import relative_to_project
     from orchestration.editing import plan_edit, pose_at, read_result, sample_edit
-    from orchestration.generate import load_generator, variations
+    from orchestration.generate import check_length, length_cap, load_generator, variations
 
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
@@ -406,6 +406,7 @@ def _edit_timeline(args: argparse.Namespace) -> None:
         layer=args.layer,
         span=args.span,
     )
+    check_length(edit.frames, generator.fps, length_cap(args.max_seconds))  # the cap of a new generation
     print(f"{args.edit}: {said}")
     options = _sampling_options(args)
     if args.method is not None:
