@@ -179,10 +179,12 @@ def test_export_writes_a_glb_at_30_fps_in_place_and_a_bvh_on_cmus_rig(clip, tmp_
         )
         == 0
     )
+    said = capsys.readouterr().out
+    assert "joints.npy: read at 20 fps (the t2m skeleton's; --source-fps for another)" in said
     gltf, keys = glb_clip(tmp_path / "clip.glb")
     assert keys["frames"] == 255 and keys["end"] == pytest.approx(254 / 30)  # 170 frames at 20 fps: 8.5 s
     assert "root motion" in [a.name for a in gltf.animations]
-    assert "root motion: taken out of the clip" in capsys.readouterr().out
+    assert "root motion: taken out of the clip" in said
     rig = CMU / "131_01.bvh"
     argv = ["export", str(tmp_path / "joints.npy"), "--out", str(tmp_path / "on-cmu.bvh"), "--rig", str(rig)]
     assert main([*argv, "--joint-map", "cmu"]) == 0
@@ -213,6 +215,7 @@ def test_export_reads_what_an_npys_sidecar_says(clip, tmp_path, capsys):
     motion = Motion(features, joints, 20.0, "t2m", actions, RANGES).delivered(Delivery(fps=30.0, root="in-place"))
     motion.save(tmp_path, "m", ("npy",))
     assert main(["export", str(tmp_path / "m.npy"), "--out", str(tmp_path / "again.npy"), "--no-foot-fix"]) == 0
+    assert f"{tmp_path / 'm.npy'}: read at 30 fps (its sidecar's)" in capsys.readouterr().out
     again = json.loads((tmp_path / "again.json").read_text(encoding="utf-8"))
     assert again["fps"] == 30.0 and [s["text"] for s in again["segments"]] == actions
     assert "root_motion" not in again  # kept: the clip's own path is back in its joints
