@@ -47,11 +47,15 @@ EDIT_METHODS = {"mmm": "independent"}
 def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
     """The timeline of a result on disk (its ``.npy`` or ``.features.npy``; the features beside the
     joints when there are, else features made from the joints), its actions from its sidecar;
-    a file without one is one action. Fitted to the model's steps."""
+    a file without one is one action. Fitted to the model's steps. Joints are at their sidecar's
+    rate (a ``--fps`` delivery), resampled to the model's; features are always the model's."""
     path = Path(path)
     features_file = path if path.name.endswith(".features.npy") else path.with_name(path.stem + ".features.npy")
-    features = load_features(features_file if features_file.is_file() else path, generator.skeleton)
     sidecar = read_sidecar(path)
+    if features_file.is_file():
+        features = load_features(features_file, generator.skeleton)
+    else:
+        features = load_features(path, generator.skeleton, fps=None if sidecar is None else float(sidecar["fps"]))
     if sidecar is None or not sidecar["segments"]:
         return _fitted(Timeline(features, [""], [0]), generator.frame_step, str(path))
     segments = sidecar["segments"]

@@ -188,6 +188,23 @@ def test_a_pose_is_counted_at_the_rate_its_clip_was_delivered_at(client):
     assert refusal(past) == f"generation {at_30['id']} has frames 0 to 83 at its 30 fps, not 84"
 
 
+def test_the_command_line_edits_a_delivered_npy_at_its_own_rate(client, trained_project, capsys):
+    """`generate --edit motion.npy` of a clip delivered at 30 fps, without its features beside it:
+    its joints were read as 20-fps ones (2.8 s became 4 s, its actions from the sidecar at 30 fps
+    in the wrong places); read at the sidecar's rate it stays 2.8 s (2.6 s in whole 4-frame steps)."""
+    at_30 = client.post("/api/generate", json={"actions": ACTIONS, "options": QUICK, "fps": 30.0}).json()
+    source = trained_project / "delivered-at-30"
+    source.mkdir()
+    for name in ("motion.npy", "motion.json"):
+        (source / name).write_bytes((Path("runs/tiny/generate") / at_30["id"] / name).read_bytes())
+    out = trained_project / "edited-at-30"
+    argv = ["generate", "--edit", str(source / "motion.npy"), "--regenerate", "1", "--out", str(out)]
+    assert main([*argv, "--dataset", "tiny", "--no-track", "--ts", "4", "--formats", "npy"]) == 0, capsys.readouterr()
+    edited = json.loads((out / "motion.json").read_text(encoding="utf-8"))
+    assert edited["fps"] == 20.0 and edited["num_frames"] == 52
+    assert [s["start_frame"] for s in edited["segments"]] == [0, 32]
+
+
 def test_a_delivered_frame_is_the_model_frame_of_the_same_instant():
     class TwentyFps:
         fps = 20.0
