@@ -302,7 +302,10 @@ def create_app(settings: ServeSettings) -> FastAPI:
     async def split(body: SplitRequest) -> dict[str, Any]:
         return await run_in_threadpool(service.split, body)
 
-    @api.post("/generations", summary="Upload a motion made elsewhere (features or joints) to edit like a generation")
+    @api.post(
+        "/generations",
+        summary="Upload a motion made elsewhere (features or joints, at its fps) to edit like a generation",
+    )
     async def upload(body: UploadRequest) -> JSONResponse:
         return JSONResponse(await run_in_threadpool(service.upload, body))
 
