@@ -228,7 +228,8 @@ def _export(args: argparse.Namespace) -> None:
         raise UserError(f"{out}: export writes {', '.join(EXPORTED)} (the suffix is the format)")
     output = plan_output(out, "motion", None, _delivery(args))
     shown = load_motion(args.source, args.id, args.skeleton)
-    fps = args.source_fps or shown.fps or shown.skeleton.fps
+    fps, said = _source_rate(args.source_fps, shown)
+    print(f"{args.source}: read at {fps:g} fps ({said})")
     segments = shown.segments or [(0, len(shown.joints), shown.caption or "")]
     motion = _delivered(
         Motion(
@@ -249,6 +250,17 @@ def _export(args: argparse.Namespace) -> None:
         raise UserError(str(error)) from error
     print(f"wrote {written}")
     _delivery_notes({output.formats[0]: written}, motion, output.delivery)
+
+
+def _source_rate(given: float | None, shown: Any) -> tuple[float, str]:
+    """The rate a motion to export was made at, and where it comes from: ``--source-fps``, else
+    its sidecar's, else its skeleton's (assumed, and said, so a clip is never played at a rate
+    no one chose without a word)."""
+    if given:
+        return given, "--source-fps"
+    if shown.fps:
+        return shown.fps, "its sidecar's"
+    return shown.skeleton.fps, f"the {shown.skeleton.name} skeleton's; --source-fps for another"
 
 
 def _rig(args: argparse.Namespace) -> None:
@@ -399,7 +411,7 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
     from m2d2m.layout import relative_to_project
     from orchestration.editing import plan_edit, pose_at, read_result, sample_edit
-    from orchestration.generate import load_generator, variations
+    from orchestration.generate import check_length, length_cap, load_generator, variations
 
     output = _planned_output(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
@@ -420,6 +432,7 @@ def _edit_timeline(args: argparse.Namespace) -> None:
         layer=args.layer,
         span=args.span,
     )
+    check_length(edit.frames, generator.fps, length_cap(args.max_seconds))  # the cap of a new generation
     print(f"{args.edit}: {said}")
     options = _sampling_options(args)
     if args.method is not None:

@@ -37,6 +37,7 @@ from m2d2m.motion.body_parts import PARTS, part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from orchestration.errors import UserError
+from orchestration.generate import action_frames, check_seconds
 from orchestration.viewing import load_features, read_sidecar
 
 # a model whose multi-action method decodes actions together cannot keep frames across them
@@ -47,11 +48,15 @@ EDIT_METHODS = {"mmm": "independent"}
 def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
     """The timeline of a result on disk (its ``.npy`` or ``.features.npy``; the features beside the
     joints when there are, else features made from the joints), its actions from its sidecar;
-    a file without one is one action. Fitted to the model's steps."""
+    a file without one is one action. Fitted to the model's steps. Joints are at their sidecar's
+    rate (a ``--fps`` delivery), resampled to the model's; features are always the model's."""
     path = Path(path)
     features_file = path if path.name.endswith(".features.npy") else path.with_name(path.stem + ".features.npy")
-    features = load_features(features_file if features_file.is_file() else path, generator.skeleton)
     sidecar = read_sidecar(path)
+    if features_file.is_file():
+        features = load_features(features_file, generator.skeleton)
+    else:
+        features = load_features(path, generator.skeleton, fps=None if sidecar is None else float(sidecar["fps"]))
     if sidecar is None or not sidecar["segments"]:
         return _fitted(Timeline(features, [""], [0]), generator.frame_step, str(path))
     segments = sidecar["segments"]
@@ -78,6 +83,9 @@ def motion_of(
     """A motion made elsewhere (its features at the model's rate) as a result of ``generator`` to
     edit: its actions ``texts``, each ``seconds`` long in order (the last one's None: to the end;
     fitted to the model's steps), its joints from the features on one rigid skeleton."""
+    for text, length in zip(texts, seconds):
+        if length is not None:
+            check_seconds(generator, length, repr(text))
     lengths = [round(s * generator.fps) if s is not None else None for s in seconds]
     if None in lengths[:-1] or any(n is not None and n < 1 for n in lengths):
         raise UserError(f"{origin}: give every action but the last a length of at least one frame")
@@ -129,23 +137,23 @@ def _fitted(timeline: Timeline, step: int, origin: str) -> Timeline:
     return Timeline(np.concatenate(pieces), timeline.actions, [int(s) for s in np.cumsum([0, *kept[:-1]])])
 
 
-def _frames(generator: MotionGenerator, seconds: float, what: str) -> int:
-    if not seconds > 0:
-        raise UserError(f"{what} must be a positive number of seconds, got {seconds:g}")
-    return generator.round_frames(round(seconds * generator.fps))
-
-
-def _frame_at(generator: MotionGenerator, seconds: float) -> int:
-    """The frame at ``seconds``, on the model's step grid (a token's first frame)."""
-    step = generator.frame_step
-    return int(round(seconds * generator.fps)) // step * step
+def _frame_at(generator: MotionGenerator, timeline: Timeline, seconds: float, what: str, on_grid: bool = True) -> int:
+    """The frame at ``seconds`` of ``timeline``: on the model's step grid (a token's first frame),
+    or (not ``on_grid``) the nearest; a time outside the motion is one line (1e308 s is no frame
+    at all)."""
+    length = len(timeline.features) / generator.fps
+    if not 0 <= seconds <= length:
+        raise UserError(f"{what} at {seconds:g} s lies outside the motion's {length:g} s")
+    frame = min(int(round(seconds * generator.fps)), len(timeline.features) - 1)
+    step = 1 if not on_grid else generator.frame_step
+    return frame // step * step
 
 
 def redo_action(
     generator: MotionGenerator, timeline: Timeline, action: int, text: str | None = None, seconds: float | None = None
 ) -> Edit:
     """Action ``action`` (counted from 1) sampled again, under ``text`` and ``seconds`` when given."""
-    frames = None if seconds is None else _frames(generator, seconds, "--seconds")
+    frames = None if seconds is None else action_frames(generator, seconds, f"action {action}")
     try:
         return regenerate_action(timeline, action - 1, margin_frames(generator), text, frames)
     except (IndexError, ValueError) as error:
@@ -155,7 +163,7 @@ def redo_action(
 def fill(generator: MotionGenerator, first: Timeline, second: Timeline, seconds: float, text: str = "") -> Edit:
     """``seconds`` of new motion doing ``text`` between ``first`` and ``second``."""
     try:
-        return fill_between(first, second, _frames(generator, seconds, "the gap"), margin_frames(generator), text)
+        return fill_between(first, second, action_frames(generator, seconds, "the gap"), margin_frames(generator), text)
     except ValueError as error:
         raise UserError(str(error)) from error
 
@@ -167,8 +175,8 @@ def extend_with(
     if len(texts) != len(seconds):
         raise UserError(f"give one length per new action: {len(texts)} action(s), {len(seconds)} length(s)")
     frames = [
-        generator.round_frames(generator.typical_frames(None)) if s is None else _frames(generator, s, "--seconds")
-        for s in seconds
+        generator.round_frames(generator.typical_frames(None)) if s is None else action_frames(generator, s, repr(text))
+        for text, s in zip(texts, seconds)
     ]
     try:
         return continue_after(timeline, list(texts), frames, margin_frames(generator))
@@ -179,7 +187,7 @@ def extend_with(
 def pin_pose(generator: MotionGenerator, timeline: Timeline, pose: np.ndarray, seconds: float) -> tuple[Edit, int]:
     """``pose`` (one frame's features) pinned at ``seconds``: the edit and the frame it lands on
     (the nearest; the model is given the pose on its step grid, and the result meets it there)."""
-    frame = int(round(seconds * generator.fps))
+    frame = _frame_at(generator, timeline, seconds, "a pose pinned", on_grid=False)
     try:
         return hold_pose(timeline, pose, frame, generator.frame_step, margin_frames(generator)), frame
     except ValueError as error:
@@ -219,7 +227,7 @@ def lay_part(generator: MotionGenerator, timeline: Timeline, part: str, text: st
     keep whole frames and refuse when sampling."""
     if part not in PARTS:
         raise UserError(f"unknown body part {part!r}: choose from {', '.join(PARTS)}")
-    first, end = (_frame_at(generator, seconds) for seconds in span)
+    first, end = (_frame_at(generator, timeline, seconds, f"the {part} body's span") for seconds in span)
     try:
         return layer_part(timeline, (first, end), part_mask(generator.skeleton, part), text, margin_frames(generator))
     except ValueError as error:

@@ -169,11 +169,6 @@ class PromptPlanner:
         self._tagger = None
         self._verbs: dict[str, str | None] = {}  # each action sentence split out so far → its verb
 
-    def seconds_range(self) -> tuple[float, float]:
-        """The shortest and longest action the model supports: one step of its granularity, and
-        the longest clip it was trained on."""
-        return self.generator.frame_step / self.generator.fps, self.generator.longest_frames / self.generator.fps
-
     def split(self, prompt: str) -> tuple[list[str], list[str | None]]:
         """Action sentences and their verbs, split as the corpus's captions were."""
         from pipelines.language import decompose, load_tagger
@@ -232,7 +227,6 @@ class PromptPlanner:
             require_words(prompt)
         if seconds is not None and len(seconds) not in (1, len(prompts)):
             raise UserError(f"give one duration per prompt ({len(prompts)}) or one for all, not {len(seconds)}")
-        lo, hi = self.seconds_range()
         step = self.generator.frame_step
         actions: list[str] = []
         frames: list[int] = []
@@ -241,14 +235,34 @@ class PromptPlanner:
             typical = [self.generator.typical_frames(verb) // step for verb in verbs]
             if seconds is not None:
                 wanted = float(seconds[0] if len(seconds) == 1 else seconds[index])
-                if not lo <= wanted <= hi * len(parts):
-                    raise UserError(
-                        f"{wanted:g} s for {prompt!r} is outside what this model supports ({lo:g}–{hi:g} s per action)"
-                    )
+                check_seconds(self.generator, wanted, repr(prompt), actions=len(parts))
                 typical = share(max(len(parts), round(wanted * self.generator.fps / step)), typical)
             actions.extend(parts)
             frames.extend(n * step for n in typical)
         return actions, frames
+
+
+def seconds_range(generator: MotionGenerator) -> tuple[float, float]:
+    """The shortest and longest action the model supports: one step of its granularity, and
+    the longest clip it was trained on."""
+    return generator.frame_step / generator.fps, generator.longest_frames / generator.fps
+
+
+def check_seconds(generator: MotionGenerator, seconds: float, what: str, actions: int = 1) -> None:
+    """The one refusal of a length no action of this model can have, for every way of asking
+    (a prompt's ``--seconds``, an action of the API, an edit's new or re-timed action, a gap, an
+    uploaded motion's action): ``what`` names it; a prompt split into ``actions`` may last as
+    long as that many. Checked before the seconds become frames, so no length reaches arithmetic
+    (a NaN, or 1e308 s, which is no number of frames)."""
+    lo, hi = seconds_range(generator)
+    if not lo <= seconds <= hi * actions:  # NaN fails too
+        raise UserError(f"{seconds:g} s for {what} is outside what this model supports ({lo:g}–{hi:g} s per action)")
+
+
+def action_frames(generator: MotionGenerator, seconds: float, what: str) -> int:
+    """An action of ``seconds`` (:func:`check_seconds`) in the model's frames, whole steps."""
+    check_seconds(generator, seconds, what)
+    return generator.round_frames(round(seconds * generator.fps))
 
 
 def share(total: int, typical: list[int]) -> list[int]:
@@ -439,10 +453,7 @@ def generate_parts(
     if seconds is None:
         frames = generator.typical_frames(None)
     else:
-        lo, hi = PromptPlanner(generator).seconds_range()
-        if not lo <= seconds <= hi:
-            raise UserError(f"{seconds:g} s is outside what this model supports ({lo:g}–{hi:g} s)")
-        frames = generator.round_frames(round(seconds * generator.fps))
+        frames = action_frames(generator, seconds, "the body parts' motion")
     check_length([frames], generator.fps, max_seconds)
     try:
         settings = generator.options(**options)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from m2d2m.motion.representation import features_to_joints, joints_to_features
+from m2d2m.motion.retime import check_fps, resample
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from orchestration.errors import UserError
 
@@ -39,6 +40,10 @@ def _check_values(array: np.ndarray, origin: str) -> None:
 
 # a body whose legs are this many times (or this fraction of) the skeleton's own is in other units
 SCALE_LIMITS = (0.2, 5.0)
+# no feature of a body reaches this many metres (positions, and velocities a frame; rotations'
+# 6-d entries stay within ±1, contacts 0 or 1; HumanML3D's clip 012314 within ±1.95): a larger
+# one is another kind of array, or another unit
+FEATURE_LIMIT_M = 100.0
 
 
 def _check_body(joints: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray:
@@ -75,11 +80,16 @@ def _as_joints(array: np.ndarray, skeleton: Skeleton, origin: str) -> np.ndarray
     )
 
 
-def load_features(source: str | Path | bytes, skeleton: Skeleton, origin: str = "") -> np.ndarray:
-    """Float32 features (T, D) of ``skeleton`` from a ``.npy`` of features (the ``.features.npy``
-    that ``m2d2m generate`` writes, a corpus's ``new_joint_vecs`` clip) or of joints (T, J, 3), which
-    HumanML3D's processing turns into features (one frame fewer): the motion an edit starts from.
-    ``source``: the file, or its bytes (an upload, named ``origin`` in errors)."""
+def load_features(
+    source: str | Path | bytes, skeleton: Skeleton, origin: str = "", fps: float | None = None
+) -> np.ndarray:
+    """Float32 features (T, D) of ``skeleton``, at its frame rate, from a ``.npy`` of features (the
+    ``.features.npy`` that ``m2d2m generate`` writes, a corpus's ``new_joint_vecs`` clip) or of
+    joints (T, J, 3), which HumanML3D's processing turns into features (one frame fewer): the
+    motion an edit starts from. ``source``: the file, or its bytes (an upload, named ``origin`` in
+    errors); ``fps``: the rate it was made at (None: the skeleton's), resampled to the skeleton's.
+    What is no body (no frames, values that are no numbers, bones of no length, a body of another
+    size, features no body has) is one line before any arithmetic is done on it."""
     if isinstance(source, bytes):
         array = _load_npy(io.BytesIO(source), origin)
     else:
@@ -88,21 +98,40 @@ def load_features(source: str | Path | bytes, skeleton: Skeleton, origin: str = 
             raise UserError(f"{path}: no such file; give a .npy of features or joints")
         array, origin = _load_npy(path, str(path)), str(path)
     _check_values(array, origin)
+    try:
+        rate = skeleton.fps if fps is None else check_fps(fps)
+    except ValueError as error:
+        raise UserError(f"{origin}: {error}") from error
     if array.ndim == 2 and array.shape[1] == skeleton.feature_dim:
-        return array.astype(np.float32)
-    if array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3) and len(array) >= 2:
-        with np.errstate(invalid="ignore", divide="ignore"):  # said below, once, in words
-            features = joints_to_features(array, skeleton)
-        if not np.isfinite(features).all():
+        features = array.astype(np.float32)
+        largest, limit = float(np.abs(features).max()), FEATURE_LIMIT_M / skeleton.metres_per_unit
+        if largest > limit:
             raise UserError(
-                f"{origin}: these joints give no finite features: HumanML3D's processing needs a body whose "
-                "hips and shoulders show which way it faces"
+                f"{origin}: holds a feature of {largest:.3g}, which no body's features reach (they stay within "
+                f"±{limit:g}, {FEATURE_LIMIT_M:g} m): not features of a motion"
             )
-        return features
-    raise UserError(
-        f"{origin}: shape {array.shape} is neither {skeleton.feature_dim}-d features nor joints "
-        f"(T >= 2, {skeleton.num_joints}, 3) of the model's skeleton {skeleton.name!r}"
-    )
+        joints = _check_body(features_to_joints(features, skeleton), skeleton, origin)
+        if rate == skeleton.fps:
+            return features
+    elif array.ndim == 3 and array.shape[1:] == (skeleton.num_joints, 3):
+        joints = _check_body(array.astype(np.float32), skeleton, origin)
+    else:
+        raise UserError(
+            f"{origin}: shape {array.shape} is neither {skeleton.feature_dim}-d features nor joints "
+            f"(T >= 2, {skeleton.num_joints}, 3) of the model's skeleton {skeleton.name!r}"
+        )
+    if rate != skeleton.fps:
+        joints = resample(joints, skeleton, rate, skeleton.fps)
+    if len(joints) < 2:  # velocities need two frames
+        raise UserError(f"{origin}: {len(joints)} frame at {skeleton.fps:g} fps; a motion needs at least two")
+    with np.errstate(invalid="ignore", divide="ignore"):  # said below, once, in words
+        features = joints_to_features(joints, skeleton)
+    if not np.isfinite(features).all():
+        raise UserError(
+            f"{origin}: these joints give no finite features: HumanML3D's processing needs a body whose "
+            "hips and shoulders show which way it faces"
+        )
+    return features
 
 
 def _load_npy(source: Path | io.BytesIO, origin: str) -> np.ndarray:

@@ -180,10 +180,12 @@ def test_export_writes_a_glb_at_30_fps_in_place_and_a_bvh_on_cmus_rig(clip, tmp_
         )
         == 0
     )
+    said = capsys.readouterr().out
+    assert "joints.npy: read at 20 fps (the t2m skeleton's; --source-fps for another)" in said
     gltf, keys = glb_clip(tmp_path / "clip.glb")
-    assert keys["frames"] == 254 and keys["end"] == pytest.approx(253 / 30)  # 170 frames at 20 fps
+    assert keys["frames"] == 255 and keys["end"] == pytest.approx(254 / 30)  # 170 frames at 20 fps: 8.5 s
     assert "root motion" in [a.name for a in gltf.animations]
-    assert "root motion: taken out of the clip" in capsys.readouterr().out
+    assert "root motion: taken out of the clip" in said
     rig = CMU / "131_01.bvh"
     argv = ["export", str(tmp_path / "joints.npy"), "--out", str(tmp_path / "on-cmu.bvh"), "--rig", str(rig)]
     assert main([*argv, "--joint-map", "cmu"]) == 0
@@ -214,6 +216,7 @@ def test_export_reads_what_an_npys_sidecar_says(clip, tmp_path, capsys):
     motion = Motion(features, joints, 20.0, "t2m", actions, RANGES).delivered(Delivery(fps=30.0, root="in-place"))
     motion.save(tmp_path, "m", ("npy",))
     assert main(["export", str(tmp_path / "m.npy"), "--out", str(tmp_path / "again.npy"), "--no-foot-fix"]) == 0
+    assert f"{tmp_path / 'm.npy'}: read at 30 fps (its sidecar's)" in capsys.readouterr().out
     again = json.loads((tmp_path / "again.json").read_text(encoding="utf-8"))
     assert again["fps"] == 30.0 and [s["text"] for s in again["segments"]] == actions
     assert "root_motion" not in again  # kept: the clip's own path is back in its joints
@@ -222,10 +225,10 @@ def test_export_reads_what_an_npys_sidecar_says(clip, tmp_path, capsys):
     assert main(argv) == 0
     _, keys = glb_clip(tmp_path / "again.glb")
     assert keys["frames"] == len(motion.joints) and keys["end"] == pytest.approx((len(motion.joints) - 1) / 30)
-    np.save(tmp_path / "m.npy", joints)  # 170 frames now, the sidecar's 254
+    np.save(tmp_path / "m.npy", joints)  # 170 frames now, the sidecar's 255
     capsys.readouterr()
     assert main(["export", str(tmp_path / "m.npy"), "--out", str(tmp_path / "x.bvh")]) == 2
-    assert "m.json: states 254 frames, m.npy has 170; it belongs to another file" in capsys.readouterr().err
+    assert "m.json: states 255 frames, m.npy has 170; it belongs to another file" in capsys.readouterr().err
 
 
 @pytest.mark.slow
@@ -234,7 +237,7 @@ def test_generate_writes_the_issues_clip_and_variations_with_their_seeds(trained
     out = tmp_path / "clip.glb"
     assert main(["generate", *PROMPTS, *QUICK, "--out", str(out), "--fps", "30", "--root", "in-place"]) == 0
     _, keys = glb_clip(out)
-    assert keys["end"] == pytest.approx(70 / 30, abs=1e-6)  # two 1.2-s actions: 48 frames at 20 fps, 71 at 30
+    assert keys["end"] == pytest.approx(71 / 30, abs=1e-6)  # two 1.2-s actions: 48 frames at 20 fps, 72 at 30
     folder = tmp_path / "picks"
     assert (
         main(

@@ -70,5 +70,5 @@ def test_the_model_files_sampling_defaults_reach_every_preset(tiny_data, tmp_pat
     assert M2D2MGenerator.load(save({})).preset(SINGLE) == SINGLE_ACTION
     with pytest.raises(ValueError, match="sampling.eta: a model's sampling defaults are steps, truncation, guidance"):
         save({"eta": 0.3})
-    with pytest.raises(ValueError, match="option guidance must be >= 0"):
+    with pytest.raises(ValueError, match=r"option guidance must be \[0, 20\]"):
         save({"guidance": -1.0})

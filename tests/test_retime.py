@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from m2d2m.motion.pose import pose_of
 from m2d2m.motion.retime import (
+    frame_count,
     make_loop,
     resample,
     resample_pose,
@@ -51,12 +52,17 @@ def test_a_rigid_clip_comes_back_exactly_and_the_same_rate_changes_nothing():
     assert np.abs(resample(joints, T2M, 20, 20) - joints).max() < 1e-9
 
 
-@pytest.mark.parametrize("target, frames", [(24, 203), (25, 212), (30, 254), (60, 508), (10, 85), (29.97, 254)])
-def test_every_target_instant_within_the_clip_is_a_frame(real_clip, target, frames):
-    """Frames at k / target for every k with k / target <= (T - 1) / 20: 169 / 20 = 8.45 s."""
-    assert len(resample(real_clip, T2M, 20, target)) == frames
-    assert (frames - 1) / target <= (len(real_clip) - 1) / 20 < frames / target
-    np.testing.assert_allclose(source_positions(len(real_clip), 20, target), np.arange(frames) * 20 / target)
+@pytest.mark.parametrize("target, frames", [(24, 204), (25, 213), (30, 255), (60, 510), (10, 85), (29.97, 255)])
+def test_a_clip_keeps_its_length_in_seconds_at_every_rate(real_clip, target, frames):
+    """Issue 53 §6: T seconds at F fps are T·F frames, as an animation tool counts them (10 s at 30
+    fps: 300 frames, not 299). The 170 frames at 20 fps last 8.5 s; at each rate the clip has the
+    frames of 8.5 s (rounded, half up), frame k at k / target, and the instants after the last
+    source frame (8.45 s) hold it."""
+    assert len(resample(real_clip, T2M, 20, target)) == frames == frame_count(len(real_clip), 20, target)
+    assert abs(frames / target - len(real_clip) / 20) <= 0.5 / target
+    expected = np.minimum(np.arange(frames) * 20 / target, len(real_clip) - 1)
+    np.testing.assert_allclose(source_positions(len(real_clip), 20, target), expected)
+    assert frame_count(200, 20, 30) == 300 and frame_count(200, 20, 60) == 600 and frame_count(300, 30, 20) == 200
 
 
 def test_halfway_rotations_are_the_geodesic_midpoints_scipy_slerps():
@@ -67,12 +73,12 @@ def test_halfway_rotations_are_the_geodesic_midpoints_scipy_slerps():
     for joint in range(T2M.num_joints):
         keys = Rotation.from_matrix(pose.local[:, joint])
         reference = Slerp(times, keys)(times[:-1] + 0.5).as_matrix()
-        np.testing.assert_allclose(halves.local[1::2, joint], reference, atol=1e-9)
-        middle = Rotation.from_matrix(halves.local[1::2, joint])
+        np.testing.assert_allclose(halves.local[1:-1:2, joint], reference, atol=1e-9)
+        middle = Rotation.from_matrix(halves.local[1:-1:2, joint])
         to_middle = (keys[:-1].inv() * middle).magnitude()
         np.testing.assert_allclose(to_middle, (middle.inv() * keys[1:]).magnitude(), atol=1e-9)
         np.testing.assert_allclose(2 * to_middle, (keys[:-1].inv() * keys[1:]).magnitude(), atol=1e-9)
-    np.testing.assert_allclose(halves.root[1::2], (pose.root[:-1] + pose.root[1:]) / 2, atol=1e-12)
+    np.testing.assert_allclose(halves.root[1:-1:2], (pose.root[:-1] + pose.root[1:]) / 2, atol=1e-12)
 
 
 def test_quaternions_of_matrices_agree_with_scipy_also_at_half_turns():

@@ -38,6 +38,7 @@ class M2D2MOptions:
         "transition, eq. 7 (0: any code alike; default: as trained)",
         label="Far-code noise weight",
         minimum=0,
+        maximum=100,  # trained with 0.5; from tens on every replacement goes to the farthest code
     )
     guidance: float = knob(
         2.0,
@@ -45,6 +46,7 @@ class M2D2MOptions:
         "paper's eq. 9 (0: the text-conditioned prediction alone)",
         label="Text guidance",
         minimum=0,
+        maximum=20,  # the paper's 2 and 4; from tens on the guided logits pick one code each
     )
     truncation: float = knob(
         1.0,

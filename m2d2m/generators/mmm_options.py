@@ -26,6 +26,7 @@ class DecodingOptions:
         "decoding iterations for the longest motion, fewer for shorter ones (T of T_dyn)",
         label="Decoding iterations",
         minimum=1,
+        maximum=1000,  # the paper's 10; one a token at most decides anything, and a billion would never end
     )
     schedule: str = knob(
         "cosine",
@@ -34,7 +35,11 @@ class DecodingOptions:
         choices=SCHEDULES,
     )
     temperature: float = knob(
-        1.0, "softmax temperature of each draw: higher is more varied", label="Temperature", above=0
+        1.0,
+        "softmax temperature of each draw: higher is more varied",
+        label="Temperature",
+        above=0,
+        maximum=100,  # the logits divided by it: far above 1, every code alike
     )
     top_k: int | None = knob(
         None, "draw among the k most probable codes (default: all)", label="Keep the k likeliest codes", minimum=1

@@ -54,6 +54,7 @@ class MotionDiffuseOptions:
         label="Overlap correction",
         methods=("time-varied",),
         minimum=0,
+        maximum=10,  # λ of eq. 10–11, 0.01 in the paper: a pull a thousand times as strong is no motion's
     )
     # body-part control only (`m2d2m generate --part`): no multi-action method reads it
     lambda_part: float = knob(
@@ -62,6 +63,7 @@ class MotionDiffuseOptions:
         label="Body-part correction",
         methods=(),
         minimum=0,
+        maximum=10,  # λ of eq. 10–11, 0.01 in the paper: a pull a thousand times as strong is no motion's
     )
 
 

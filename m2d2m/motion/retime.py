@@ -37,19 +37,31 @@ def check_fps(fps: float, name: str = "fps") -> float:
     return float(fps)
 
 
+def frame_count(frames: int, fps: float, target_fps: float) -> int:
+    """How many frames a clip of ``frames`` frames at ``fps`` has at ``target_fps``: the same
+    length of time. A clip of T seconds at F frames per second has T·F frames, frame k at k / F
+    seconds and standing until the next (as the models count an action's frames, and as an
+    animation tool counts a clip's: 10 s at 30 fps is frames 1 to 300), so ``frames / fps``
+    seconds are ``frames · target_fps / fps`` frames, rounded to the nearest (half up); at least one."""
+    ratio = check_fps(target_fps, "target_fps") / check_fps(fps)
+    return max(1, math.floor(frames * ratio + 0.5 + _SNAP))
+
+
 def source_positions(frames: int, fps: float, target_fps: float) -> np.ndarray:
-    """Where the instants ``k / target_fps`` fall in a clip of ``frames`` frames at ``fps``, in
-    (fractional) source frames: every instant of the clip's span ``[0, (frames − 1) / fps]``."""
+    """Where the instants ``k / target_fps`` of the :func:`frame_count` frames at ``target_fps``
+    fall in a clip of ``frames`` frames at ``fps``, in (fractional) source frames. The instants
+    after the last source frame (less than one source frame's time: the last frame stands until
+    the clip ends) are that frame."""
     ratio = check_fps(fps) / check_fps(target_fps, "target_fps")
-    count = math.floor((frames - 1) / ratio + _SNAP) + 1
-    positions = np.arange(count) * ratio
+    positions = np.minimum(np.arange(frame_count(frames, fps, target_fps)) * ratio, frames - 1)
     nearest = np.round(positions)
     return np.where(np.abs(positions - nearest) < _SNAP, nearest, positions)
 
 
 def resample_pose(pose: Pose, fps: float, target_fps: float) -> Pose:
     """``pose`` at ``target_fps``: each joint's rotation slerped and the root interpolated linearly
-    between the two source frames around every new instant (no frame dropped or repeated)."""
+    between the two source frames around every new instant (no frame dropped; the last one held
+    until the clip ends, :func:`source_positions`)."""
     frames = len(pose.root)
     positions = source_positions(frames, fps, target_fps)
     before = np.minimum(np.floor(positions).astype(np.int64), max(frames - 2, 0))

@@ -45,7 +45,15 @@ from orchestration.web.generations import FILES, Generation, Generations
 from orchestration.web.limits import BoundedBody
 from orchestration.web.rigs import RIGS_STAGE, Rigs
 from orchestration.web.sampler import Cancelled, Job, QueueFull, Sampler
-from orchestration.web.schema import EditRequest, GenerateRequest, Plan, SplitRequest, UploadRequest, plan_request
+from orchestration.web.schema import (
+    EditRequest,
+    GenerateRequest,
+    Plan,
+    SplitRequest,
+    UploadRequest,
+    plan_request,
+    within_cap,
+)
 
 STATIC = Path(__file__).parent / "static"
 DOCS_FILES = Path(importlib.util.find_spec("fastapi_offline").origin).parent / "static"  # Swagger UI, ReDoc
@@ -125,7 +133,7 @@ class Service:
         """An edit of a generation by the model and run that made it: its job, its plan, the run,
         and how its sample is finished (the kept frames pasted back, the parent recorded)."""
         run, generator = self.catalog.generator(parent.model, parent.run)
-        edit, said, plan = plan_edit_request(request, parent, self.generations, generator)
+        edit, said, plan = plan_edit_request(request, parent, self.generations, generator, self.settings.max_seconds)
         key = (parent.model, run, plan.options)
         job = Job(generator, key, plan.options, plan.actions, plan.frames, request.seed, edit.keep)
         parent_run = {"edit_parent_run": parent.mlflow_run_id} if parent.mlflow_run_id else {}
@@ -135,21 +143,30 @@ class Service:
 
         return job, plan, run, finishing
 
-    def upload(self, request: UploadRequest) -> Generation:
+    def upload(self, request: UploadRequest) -> dict[str, Any]:
         """A motion made elsewhere, recorded as a generation of the named model and run so that it
-        can be edited (a blocking call)."""
+        can be edited, within the limits of a generation (a blocking call): the API's answer, with
+        the rate the motion was read at (``source_fps``)."""
         run, generator = self.catalog.generator(request.model, request.run)
         try:
             raw = base64.b64decode(request.motion, validate=True)
         except binascii.Error as error:
             raise UserError(f"motion: not base64 ({error})") from error
         origin = "the uploaded motion"
-        features = load_features(raw, generator.skeleton, origin)
+        features = load_features(raw, generator.skeleton, origin, request.fps)
+        within_cap([len(features)], generator, self.settings.max_seconds)
         texts, seconds = [a.text for a in request.actions], [a.seconds for a in request.actions]
         motion = motion_of(features, texts, seconds, generator, origin)
         # recorded motion: delivered exactly as it came (Delivery.plants_feet), so it edits what was sent
         delivered = motion.delivered(Delivery(), recorded=True)
-        return self.generations.record(delivered, texts, request.model, run, 0, "uploaded")
+        generation = self.generations.record(delivered, texts, request.model, run, 0, "uploaded")
+        source_fps = generator.fps if request.fps is None else request.fps
+        assumed = (
+            [f"the motion was read at {source_fps:g} fps, the model's rate: give fps if it was made at another"]
+            if request.fps is None
+            else []
+        )
+        return {**self.generations.describe(generation), "source_fps": source_fps, "notices": assumed}
 
     def split(self, request: SplitRequest) -> dict[str, Any]:
         """The action sentences a prompt becomes for a run, their verbs, and what the run does not
@@ -285,10 +302,12 @@ def create_app(settings: ServeSettings) -> FastAPI:
     async def split(body: SplitRequest) -> dict[str, Any]:
         return await run_in_threadpool(service.split, body)
 
-    @api.post("/generations", summary="Upload a motion made elsewhere (features or joints) to edit like a generation")
+    @api.post(
+        "/generations",
+        summary="Upload a motion made elsewhere (features or joints, at its fps) to edit like a generation",
+    )
     async def upload(body: UploadRequest) -> JSONResponse:
-        generation = await run_in_threadpool(service.upload, body)
-        return JSONResponse(service.generations.describe(generation))
+        return JSONResponse(await run_in_threadpool(service.upload, body))
 
     @api.get("/generations/{generation_id}", summary="A generation made by this server")
     def generation(generation_id: str) -> JSONResponse:

@@ -9,7 +9,7 @@ from m2d2m.generators.protocol import MotionGenerator
 from orchestration.editing import edit_options, plan_edit, pose_at, timeline_of
 from orchestration.errors import UserError
 from orchestration.web.generations import Generation, Generations
-from orchestration.web.schema import EditRequest, Plan, delivery_of
+from orchestration.web.schema import EditRequest, Plan, delivery_of, within_cap
 
 # the fields each operation takes; any other one set is refused, not ignored
 FIELDS = {
@@ -22,11 +22,27 @@ FIELDS = {
 OPERATION_FIELDS = set().union(*FIELDS.values())
 
 
+def model_frame(generation: Generation, frame: int, generator: MotionGenerator) -> int:
+    """Frame ``frame`` of a generation as it was delivered (at its ``fps``, the index of its
+    answer's joints) as a frame of its features, at the model's rate: the same instant."""
+    motion = generation.motion
+    if not 0 <= frame < len(motion.joints):
+        raise UserError(
+            f"generation {generation.id} has frames 0 to {len(motion.joints) - 1} at its {motion.fps:g} fps, not {frame}"
+        )
+    return min(round(frame * generator.fps / motion.fps), len(motion.features) - 1)
+
+
 def plan_edit_request(
-    request: EditRequest, parent: Generation, generations: Generations, generator: MotionGenerator
+    request: EditRequest,
+    parent: Generation,
+    generations: Generations,
+    generator: MotionGenerator,
+    max_seconds: float | None,
 ) -> tuple[Edit, str, Plan]:
     """The edit ``request`` asks of ``parent`` (by ``generator``, the model and run that made it),
-    what it does in a line, and its plan: a UserError in one sentence for one it cannot be."""
+    what it does in a line, and its plan: a UserError in one sentence for one it cannot be, with
+    the limits of ``POST /api/generate`` (``max_seconds``: the server's cap on the edited clip)."""
     given = {name for name in OPERATION_FIELDS if getattr(request, name) is not None}
     stray = sorted(given - FIELDS[request.operation])
     if stray:
@@ -59,7 +75,8 @@ def plan_edit_request(
     pose = None
     if request.pose is not None:
         source = generations.get(request.pose.generation)
-        pose = pose_at(timeline(source), request.pose.frame, f"generation {source.id}")
+        frame = model_frame(source, request.pose.frame, generator)
+        pose = pose_at(timeline(source), frame, f"generation {source.id}")
     edit, said = plan_edit(
         generator,
         timeline(parent),
@@ -73,6 +90,7 @@ def plan_edit_request(
         layer=layer,
         span=None if request.span is None else (request.span[0], request.span[1]),
     )
+    within_cap(edit.frames, generator, max_seconds)
     try:
         options = generator.options(**edit_options(generator, edit, request.options))
     except ValueError as error:

@@ -1,20 +1,23 @@
-"""What a client may send to ``POST /api/generate``, and how it becomes one sequence to sample.
+"""What a client may send to the routes that sample (``POST /api/generate``, an edit, an upload to
+edit), and how a request becomes one sequence to sample.
 
 The bounds here are the ones no model changes (lengths of texts and lists, the seed's range);
 everything that depends on the model — its methods and knobs, the seconds an action may last, the
-length cap — is checked by the same code as `m2d2m generate` (:class:`~orchestration.generate.PromptPlanner`,
-:func:`~orchestration.generate.check_length`, the model's declared knobs), so the page, the API
-and the command line accept and refuse the same requests.
+length cap — is checked by the same code as `m2d2m generate` (:func:`~orchestration.generate.check_seconds`
+wherever seconds become frames, :func:`within_cap` on every route, the model's declared knobs), so
+the page, the API and the command line accept and refuse the same requests in the same sentences.
 """
 
 from __future__ import annotations
 
 import unicodedata
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StrictStr, field_validator, model_validator
 
+from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.motion.delivery import Delivery
 from orchestration.errors import UserError
 from orchestration.generate import PromptPlanner, check_length
@@ -98,11 +101,12 @@ class GenerateRequest(Sampled):
 
 
 class PoseReference(BaseModel):
-    """A frame of a generation this server made, at its model's frame rate."""
+    """A frame of a generation this server made, counted as its answer's joints are: at the rate
+    it was delivered at (its ``fps``)."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
     generation: str = Field(max_length=64, description="a generation's id")
-    frame: int = Field(ge=0, description="its frame, at the model's rate")
+    frame: int = Field(ge=0, description="its frame, at the generation's own fps (its joints' index)")
 
 
 class EditRequest(Sampled):
@@ -141,13 +145,18 @@ def delivery_of(request: GenerateRequest | EditRequest) -> Delivery:
 
 class UploadRequest(BaseModel):
     """A motion made elsewhere, to edit as a generation of the named model and run: ``motion``, a
-    ``.npy`` file's bytes in base64 (features (T, D) at the model's rate, or joints (T, J, 3)), and
-    its ``actions`` in order, each with its seconds (the last's may be none: to the end)."""
+    ``.npy`` file's bytes in base64 (features (T, D) or joints (T, J, 3)) made at ``fps`` frames a
+    second (none: the model's; another rate is resampled to the model's, and the answer's
+    ``source_fps`` says which rate was read), and its ``actions`` in order, each with its seconds
+    (the last's may be none: to the end)."""
 
     model_config = ConfigDict(extra="forbid", protected_namespaces=(), strict=True)
     model: str = Field(DEFAULT_MODEL, max_length=64, description="a model of GET /api/models")
     run: str = Field(LATEST_RUN, max_length=64, description="one of the model's runs, or latest")
     motion: str = Field(min_length=1, description="base64 of a .npy of features or joints")
+    fps: float | None = Field(
+        None, allow_inf_nan=False, description="the motion's frame rate; none: the model's (the answer says which)"
+    )
     actions: list[Action] = Field(min_length=1, max_length=MAX_ACTIONS)
 
 
@@ -175,6 +184,13 @@ class Plan:
     delivery: Delivery  # how the clip is delivered
 
 
+def within_cap(frames: Sequence[int], generator: MotionGenerator, max_seconds: float | None) -> None:
+    """The server's cap on a clip, the same for every route that samples one or keeps one to
+    sample from (generate, edit, upload), in the same sentence; each action's own range is checked
+    where its seconds become frames (:func:`~orchestration.generate.check_seconds`)."""
+    check_length(frames, generator.fps, max_seconds, API_LENGTH_REMEDY)
+
+
 def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: float | None) -> Plan:
     """The request as `m2d2m generate` would sample it: a list of actions as prompts given with
     ``--no-split`` (each its own seconds or the typical length), a prompt split by its verbs; a
@@ -192,7 +208,7 @@ def plan_request(request: GenerateRequest, planner: PromptPlanner, max_seconds: 
             prompts.append(action.text)
             actions += texts
             frames += lengths
-    check_length(frames, generator.fps, max_seconds, API_LENGTH_REMEDY)
+    within_cap(frames, generator, max_seconds)
     changes = dict(request.options)
     if request.method is not None:
         changes["method"] = request.method

@@ -5,7 +5,7 @@ const $ = (selector, root = document) => root.querySelector(selector);
 const $$ = (selector, root = document) => [...root.querySelectorAll(selector)];
 
 const state = {
-  token: null, catalog: null, clock: new Clock(), rig: null, rigFile: null, clips: [], editors: [], runFacts: {},
+  token: null, catalog: null, clock: new Clock(), rig: null, rigFile: null, clips: [], editors: [],
 };
 window.m2d2m = state; // for poking at from the browser console
 
@@ -776,14 +776,6 @@ const editing = {
     const edited = await sample(`/api/generations/${encodeURIComponent(result.id)}/edit`, body, onProgress);
     edited.sampling = result.sampling;
     return edited;
-  },
-  /** The frame rate of `result`'s model, which a pose's frame is counted at (its run's, asked once). */
-  async modelFps(result) {
-    const path = `/api/models/${encodeURIComponent(result.model)}/runs/${encodeURIComponent(result.run)}`;
-    state.runFacts[path] ??= api(path)
-      .then((response) => response.json())
-      .catch((err) => { delete state.runFacts[path]; throw err; }); // asked again next time
-    return (await state.runFacts[path]).fps;
   },
 };
 

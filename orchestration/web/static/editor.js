@@ -60,8 +60,7 @@ function editRow(title, ...children) {
  * The edit panel of one clip, under its player. `page` gives what the page shares: `clips()` (all
  * clips, for filling the gap to another), `send(clip, request, onProgress)` (samples an edit: the new
  * result), `show()` (draws the clips again), `time()` (the playhead, seconds), `copied` and
- * `copy(pose)` (the pose copied from a clip: {generation, frame, label}) and `modelFps(result)`
- * (the rate its features are at).
+ * `copy(pose)` (the pose copied from a clip: {generation, frame, label}).
  */
 class ClipEditor {
   constructor(root, clip, player, page) {
@@ -216,18 +215,13 @@ class ClipEditor {
     return editRow('Pose', copy, this.pin, this.copiedLabel);
   }
 
-  async copyPose() {
+  copyPose() {
     const { result } = this.clip;
     const seconds = this.page.time();
-    try {
-      const fps = await this.page.modelFps(result);
-      // the playhead's frame at the model's rate, the clip's last at the end
-      const frame = Math.min(Math.round(seconds * fps), Math.floor(((result.joints.length - 1) * fps) / result.fps));
-      const label = `${modelTitle(result.model, result.method)} at ${secondsText(seconds)} s`;
-      this.page.copy({ generation: result.id, frame, label });
-    } catch (err) {
-      this.say(err.message, true);
-    }
+    // the playhead's frame as the clip was delivered (the API counts a pose's frame at its fps), the last at the end
+    const frame = Math.min(Math.round(seconds * result.fps), result.joints.length - 1);
+    const label = `${modelTitle(result.model, result.method)} at ${secondsText(seconds)} s`;
+    this.page.copy({ generation: result.id, frame, label });
   }
 
   showCopied() {
