@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import gc
 import math
 import sys
 from collections.abc import Sequence
@@ -1160,6 +1161,17 @@ def _unwritable(error: OSError) -> str:
         where = where.parent
     advice = "free some space" if error.errno in (errno.ENOSPC, errno.EDQUOT) else "check its permissions"
     return f"{where}: {error.strerror.lower()}; {advice}, or choose another place"
+
+
+def command() -> int:
+    """The ``m2d2m`` console script: :func:`main`, then every object the process holds frozen out
+    of the garbage collector (:func:`gc.freeze`), so that the interpreter's last collections at
+    exit do not walk torch's, Lightning's and MLflow's object graphs: that took 3 to 10 s after a
+    training verb's last line on 2 CPU cores, for a process that is ending (BENCHMARKS.md, "From
+    the last line to the exit"). Exit handlers (Ray's shutdown, MLflow's) still run."""
+    code = main()
+    gc.freeze()
+    return code
 
 
 def main(argv: list[str] | None = None) -> int:

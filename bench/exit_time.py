@@ -1,0 +1,63 @@
+"""How long each training verb takes from its last line (``finished …``) to its exit, in a
+project that has the demo's data (after `make data`; issue 54 §2: no verb more than 3 s). Each
+verb trains ``--steps`` steps of its demo config with one validation, run as a user runs it (the
+``m2d2m`` console script in this checkout's .venv); the first, `train-vq`, also makes the VQ-VAE
+the others' tokens come from, and `--retokenize` removes the tokens first so that
+`train-diffusion` tokenizes (with Ray) before training.
+
+    python bench/exit_time.py [--project .] [--steps 4] [--retokenize] [--verbs train-vq …]
+
+Prints Markdown for BENCHMARKS.md: the run's total seconds and the seconds from its last line to
+its exit, per verb.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+VERBS = ("train-vq", "train-diffusion", "train-mmm", "train-motiondiffuse", "train-evaluator")
+
+
+def timed(command: list[str], cwd: Path) -> tuple[float, float | None, int]:
+    """``command``'s total seconds, the seconds from its ``finished`` line to its exit (None
+    when it printed none) and its exit code."""
+    start = time.monotonic()
+    finished = None
+    with subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as process:
+        assert process.stdout is not None
+        for line in process.stdout:
+            if line.startswith("finished ") and finished is None:
+                finished = time.monotonic()
+    end = time.monotonic()
+    return end - start, None if finished is None else end - finished, process.returncode
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--project", type=Path, default=Path.cwd())
+    parser.add_argument("--steps", type=int, default=4)
+    parser.add_argument("--retokenize", action="store_true")
+    parser.add_argument("--verbs", nargs="+", default=list(VERBS), choices=VERBS)
+    args = parser.parse_args()
+    m2d2m = str(ROOT / ".venv" / "bin" / "m2d2m")
+    steps = [f"--set=trainer.max_steps={args.steps}", f"--set=trainer.val_every_steps={args.steps}"]
+    print(f"    python bench/exit_time.py --steps {args.steps}{' --retokenize' if args.retokenize else ''}\n")
+    print("| verb | total (s) | last line → exit (s) |\n|---|---|---|")
+    for verb in args.verbs:
+        if verb == "train-diffusion" and args.retokenize:
+            for tokens in args.project.glob("data/*/tokens"):
+                shutil.rmtree(tokens)
+        total, after, code = timed([m2d2m, verb, "--config", "demo", *steps], args.project)
+        if code != 0:
+            sys.exit(f"{verb} exited {code}")
+        print(f"| `m2d2m {verb}` | {total:.1f} | {'-' if after is None else f'{after:.2f}'} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
