@@ -17,7 +17,7 @@ from m2d2m.generators.edits import EDIT_MARGIN_SECONDS
 from orchestration.recipe import train
 from orchestration.web.app import ServeSettings
 from tests.browser import NEEDS_CHROMIUM, find_all_css, open_page, wait_for
-from tests.helpers import TINY_MOTIONDIFFUSE
+from tests.helpers import TINY_MOTIONDIFFUSE, on_the_floor_as
 from tests.live_server import live_server
 
 pytestmark = [NEEDS_CHROMIUM, pytest.mark.slow]
@@ -72,19 +72,6 @@ def edited(browser, clip: int, edits: int) -> dict:
 
 def editor(browser, clip: int = 0):
     return find_all_css(browser, "#players .player")[clip].find_element("css selector", ".editor")
-
-
-def on_the_floor_as(reference: np.ndarray, joints: np.ndarray) -> np.ndarray:
-    """``joints`` (T, J, 3) turned about the vertical and moved on the floor onto ``reference``'s
-    place (least squares): the actions after an edit continue from where the new motion ends."""
-    ours, theirs = joints[..., [0, 2]].reshape(-1, 2), reference[..., [0, 2]].reshape(-1, 2)
-    u, _, vt = np.linalg.svd((ours - ours.mean(0)).T @ (theirs - theirs.mean(0)))
-    turn = u @ vt
-    if np.linalg.det(turn) < 0:
-        turn = u @ np.diag([1.0, -1.0]) @ vt
-    placed = joints.copy()
-    placed[..., [0, 2]] = (joints[..., [0, 2]] - ours.mean(0)) @ turn + theirs.mean(0)
-    return placed
 
 
 def kept_outside(before: dict, after: dict, action: int) -> np.ndarray:
