@@ -41,6 +41,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, 0 or more, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer, 0 or more, got {text}")
+    return value
+
+
 def _pose_reference(value: str) -> tuple[str, int]:
     """POSE@FRAME: a result's .npy and one of its frames (at the model's rate)."""
     path, at, frame = value.rpartition("@")
@@ -244,7 +254,7 @@ def _export(args: argparse.Namespace) -> None:
 def _rig(args: argparse.Namespace) -> None:
     from m2d2m.motion.bvh_reader import BvhError
     from m2d2m.motion.joint_map import rig_mapping
-    from m2d2m.motion.retarget import check_rig, read_rig
+    from m2d2m.motion.retarget import read_rig, target_of
 
     rig = Path(args.file)
     if not rig.is_file():
@@ -262,11 +272,14 @@ def _rig(args: argparse.Namespace) -> None:
         out.write_text(mapping.yaml(rig.name), encoding="utf-8")
         print(f"wrote {out}: correct it and give it back with --joint-map {out}")
     try:
-        scale = check_rig(clip, mapping.joint_map())
+        target = target_of(clip, mapping.joint_map(), rest_frame=args.rest_frame)
     except (BvhError, ValueError) as error:  # joints not found, or a rig our motion cannot go onto
         print("can receive motion: no")
         raise UserError(str(error)) from error
-    print(f"can receive motion: yes ({scale:g} m a unit)")
+    bind = target.bind
+    posed = "its rest pose" if bind.frame is None else f"frame {bind.frame} of its file"
+    turned = ", turned to stand Y-up (written back in its own axes)" if bind.turned else ""
+    print(f"can receive motion: yes ({target.metres_per_unit:g} m a unit; aimed from {posed}{turned})")
 
 
 # What `m2d2m export` writes, by suffix (GIF and MP4 are `m2d2m render`'s).
@@ -287,6 +300,7 @@ def _delivery(args: argparse.Namespace) -> Any:
             rest_pose=args.rest,
             rig=None if args.rig is None else str(Path(args.rig).resolve()),
             joint_map=args.joint_map,
+            rest_frame=args.rest_frame,
         )
     except ValueError as error:
         raise UserError(str(error)) from error
@@ -1023,6 +1037,12 @@ JOINT_MAP_HELP = (
 )
 
 
+REST_FRAME_HELP = (
+    "the frame of the rig's BVH (0 the first) whose pose motions are aimed from, instead of its rest pose "
+    "(default: the rest pose where it stands as the file's motion does, else frame 0)"
+)
+
+
 def _add_rig(verbs) -> None:
     rig = verbs.add_parser(
         "rig", help="which joints of a character's rig take ours: matched by name, guessed, derived or missing"
@@ -1033,6 +1053,7 @@ def _add_rig(verbs) -> None:
         metavar="MAP",
         help=JOINT_MAP_HELP,
     )
+    rig.add_argument("--rest-frame", metavar="N", type=_non_negative_int, help=REST_FRAME_HELP)
     rig.add_argument("--out", metavar="YAML", help="also write the mapping as a YAML joint map to correct")
     rig.set_defaults(run=_rig)
 
@@ -1091,6 +1112,7 @@ def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> No
         metavar="MAP",
         help=JOINT_MAP_HELP,
     )
+    group.add_argument("--rest-frame", metavar="N", type=_non_negative_int, help=REST_FRAME_HELP)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -7,7 +7,8 @@ loop's, the cycle's own) and the actions of its ``.json`` sidecar (their frames 
 sidecar's rate, which a ``--fps`` delivery changed), with its joints as delivered when they are at
 the model's rate (the kept frames of an edit keep them, feet and all). A model that works in steps
 (the token models' 4 frames) gets whole steps: an action whose length is not one loses its last
-frames (said in a warning), the margins and a pinned pose are whole steps. A loop keeps every
+frames (said in a warning), the margins are whole steps, and a pinned pose is given to the model
+on the step that holds its frame (the result meets it at the frame itself). A loop keeps every
 frame: its regenerated actions and pinned poses are sampled round the loop, in whole steps of the
 request (:mod:`m2d2m.generators.edits`); to fill or continue one is to make a clip of it, fitted.
 """
@@ -212,8 +213,9 @@ def extend_with(
 
 
 def pin_pose(generator: MotionGenerator, timeline: Timeline, pose: np.ndarray, seconds: float) -> tuple[Edit, int]:
-    """``pose`` (one frame's features) pinned at ``seconds``: the edit and the frame it lands on."""
-    frame = _frame_at(generator, seconds)
+    """``pose`` (one frame's features) pinned at ``seconds``: the edit and the frame it lands on
+    (the nearest; the model is given the pose on its step grid, and the result meets it there)."""
+    frame = int(round(seconds * generator.fps))
     try:
         return hold_pose(timeline, pose, frame, generator.frame_step, margin_frames(generator)), frame
     except ValueError as error:

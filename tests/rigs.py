@@ -67,6 +67,38 @@ class RigBuilder:
             tuple(self.names), np.asarray(self.parents), self.offsets, dict(self.end_sites), channels, values, 1 / 30
         )
 
+    def write_translated(self, path: Path, scale: float = 100.0, offsets: bool = True) -> Path:
+        """The rig in its rest pose as a BVH with position channels on every joint, its bones also
+        in its OFFSETs or (``offsets`` False) only in the channels, as some exporters write them."""
+        lengths = self.offsets * scale
+        kids = [[k for k, parent in enumerate(self.parents) if parent == joint] for joint in range(len(self.names))]
+        lines, values = ["HIERARCHY"], []
+
+        def emit(joint: int, indent: str) -> None:
+            offset = lengths[joint] if offsets or self.parents[joint] < 0 else np.zeros(3)
+            kind = "ROOT" if self.parents[joint] < 0 else "JOINT"
+            lines.extend([f"{indent}{kind} {self.names[joint]}", indent + "{"])
+            lines.append(f"{indent}  OFFSET {' '.join(f'{v:.6f}' for v in offset)}")
+            lines.append(f"{indent}  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation")
+            values.extend([*lengths[joint], 0.0, 0.0, 0.0])
+            if not kids[joint]:
+                lines.extend(
+                    [
+                        f"{indent}  End Site",
+                        indent + "  {",
+                        f"{indent}    OFFSET 0 {scale * 0.05:.6f} 0",
+                        indent + "  }",
+                    ]
+                )
+            for kid in kids[joint]:
+                emit(kid, indent + "  ")
+            lines.append(indent + "}")
+
+        emit(0, "")
+        frame = " ".join(f"{v:.6f}" for v in values)
+        path.write_text("\n".join([*lines, "MOTION", "Frames: 2", "Frame Time: 0.033333", frame, frame]) + "\n")
+        return path
+
     def write(self, path: Path, scale: float = 1.0, frames: np.ndarray | None = None) -> Path:
         """The rig as a BVH file, its lengths × ``scale`` (100: centimetres), in its rest pose or
         moved by ``frames`` (T, J, 3, 3) of local rotations."""

@@ -313,7 +313,7 @@ def test_the_rig_command_prints_the_mapping_and_its_yaml_reads_back_as_the_same_
     assert "derived: no toe: ahead of the ankle, along its End Site" in rows["left_foot"]
     assert lines[-2:] == [
         f"wrote {tmp_path / 'map.yaml'}: correct it and give it back with --joint-map {tmp_path / 'map.yaml'}",
-        "can receive motion: yes (0.01 m a unit)",
+        "can receive motion: yes (0.01 m a unit; aimed from its rest pose)",
     ]
     written = yaml.safe_load((tmp_path / "map.yaml").read_text())
     assert written["left_foot"]["joint"] == "LeftFoot" and len(written) == 22
@@ -328,12 +328,17 @@ def test_the_rig_command_prints_the_mapping_and_its_yaml_reads_back_as_the_same_
 def test_the_rig_command_says_in_one_line_why_a_rig_cannot_take_motion(tmp_path, capsys):
     y_up = BY_NAME["unity (Mecanim)"].rig().write(tmp_path / "y-up.bvh")
     (tmp_path / "z-up.bvh").write_text(z_up_bvh(y_up.read_text()), encoding="utf-8")
-    assert main(["rig", str(tmp_path / "z-up.bvh")]) == 2
+    assert main(["rig", str(tmp_path / "z-up.bvh"), "--rest-frame", "1"]) == 2
     captured = capsys.readouterr()
     assert captured.out.splitlines()[-1] == "can receive motion: no"
     assert captured.err.splitlines() == [
-        "m2d2m rig: error: the rig stands along +Z, not +Y; export it Y-up to retarget onto it"
+        "m2d2m rig: error: rest frame 1: the rig's file has 1 frame(s), numbered 0 to 0"
     ]
+    assert main(["rig", str(tmp_path / "z-up.bvh")]) == 0  # a Z-up rig is turned, not refused
+    assert capsys.readouterr().out.splitlines()[-1] == (
+        "can receive motion: yes (1 m a unit; aimed from its rest pose, turned to stand Y-up "
+        "(written back in its own axes))"
+    )
     armless = replace(
         MINIMAL, side={slot: name for slot, name in MINIMAL.side.items() if slot in ("thigh", "shin", "foot")}
     )

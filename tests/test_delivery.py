@@ -167,7 +167,8 @@ def test_a_loops_features_are_its_cycles_frames_and_a_cycle_stays_one(clip):
         ({"root": "floating"}, "root must be one of keep, in-place, ground"),
         ({"rest_pose": "apose"}, "rest pose must be one of skeleton, tpose"),
         ({"rig": "/nowhere/rig.bvh"}, "rig /nowhere/rig.bvh: no such file (a BVH or GLB)"),
-        ({"joint_map": "cmu"}, "a joint map goes with a rig"),
+        ({"joint_map": "cmu"}, "a joint map and a rest frame go with a rig"),
+        ({"rest_frame": 3}, "a joint map and a rest frame go with a rig"),
     ],
 )
 def test_a_delivery_no_clip_can_take_is_one_line(options, message):

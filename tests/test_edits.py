@@ -19,6 +19,7 @@ from m2d2m.generators.edits import (
     fill_between,
     hold_pose,
     layer_part,
+    meet_pin,
     pin_error,
     regenerate_action,
 )
@@ -62,8 +63,8 @@ def test_regenerating_an_action_frees_it_and_its_margins_and_keeps_the_rest():
         (lambda t: regenerate_action(t, 0, 4, frames=0), "an action needs at least one frame"),
         (lambda t: regenerate_action(t, 1, 40), "the edit keeps nothing of the source"),
         (
-            lambda t: hold_pose(t, np.zeros(D), 27, 4, 2),
-            "a pose pinned at frame 27 lies outside the motion's 28 frames",
+            lambda t: hold_pose(t, np.zeros(D), 28, 4, 2),
+            "a pose pinned at frame 28 lies outside the motion's 28 frames",
         ),
         (lambda t: hold_pose(t, np.zeros(5), 4, 4, 2), f"a pose of {D} features, got shape (5,)"),
         (lambda t: continue_after(t, ["x"], [0], 4), "give each new action a length of at least one frame"),
@@ -92,6 +93,9 @@ def test_a_pinned_pose_is_kept_but_not_pasted():
     np.testing.assert_array_equal(np.flatnonzero(~edit.keep.frames), [*range(8, 12), *range(16, 20)])
     np.testing.assert_array_equal(edit.keep.features[12:16], np.repeat(pose[None], 4, axis=0))
     np.testing.assert_array_equal(np.flatnonzero(~edit.paste), range(8, 20))
+    off_the_grid = hold_pose(source, pose, frame=14, step=4, margin=4)  # kept on the token holding it
+    assert off_the_grid.pin[0] == 14
+    np.testing.assert_array_equal(np.flatnonzero(~off_the_grid.keep.frames), [*range(8, 12), *range(16, 20)])
 
 
 def test_a_pins_error_is_its_farthest_joint_around_the_root():
@@ -244,8 +248,11 @@ def test_a_loop_retimed_keeps_its_other_actions_and_a_pin_round_its_seam():
     kept = pinned.result_origin >= 0
     np.testing.assert_array_equal(done.features[kept], loop.features[kept])
     assert not (kept & ~round_the_loop(37, 32, 36, 4)).any() and kept[round_the_loop(37, 32, 36, 7)].all()
-    with pytest.raises(ValueError, match=re.escape("a pose pinned at frame 36 lies outside the motion's 37 frames")):
-        hold_pose(loop, pose, frame=36, step=4, margin=4)
+    late = hold_pose(loop, pose, frame=35, step=4, margin=4)  # the model is given frames 33-36; met at 35
+    shape = slice(3, 4 + 21 * 3 + 21 * 6)  # root height, joints around the root, rotations
+    np.testing.assert_allclose(apply_edit(late, sampled_for(late), T2M).features[35, shape], pose[shape], atol=1e-5)
+    with pytest.raises(ValueError, match=re.escape("a pose pinned at frame 37 lies outside the motion's 37 frames")):
+        hold_pose(loop, pose, frame=37, step=4, margin=4)
     with pytest.raises(ValueError, match="a loop of 37 frames is too short to sample 14 of them again"):
         regenerate_action(loop, 2, margin=8, step=4)
 
@@ -356,3 +363,59 @@ def test_a_body_part_laid_over_a_span_splits_the_actions_it_cuts_and_keeps_the_o
     np.testing.assert_array_equal(edit.paste, entries)
     with pytest.raises(ValueError, match="a span of frames 20 to 40 outside the motion's 28 frames"):
         layer_part(timeline([8, 12, 8]), (20, 40), upper, "wave", margin=2)
+
+
+def pose_distance(ours: np.ndarray, theirs: np.ndarray) -> float:
+    """The largest distance (metres) between two poses' joints (J, 3), each around its root and
+    turned about the vertical to face as the other does (the yaw of least squares)."""
+    a, b = (pose - pose[0] * np.array([1.0, 0.0, 1.0]) for pose in (ours, theirs))
+    yaw = np.arctan2(np.sum(a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]), np.sum(a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]))
+    c, s = np.cos(yaw), np.sin(yaw)
+    turned = np.stack([c * a[:, 0] + s * a[:, 2], a[:, 1], -s * a[:, 0] + c * a[:, 2]], axis=-1)
+    return float(np.linalg.norm(turned - b, axis=-1).max())
+
+
+def test_meeting_a_pin_bends_only_the_sampled_frames_around_it():
+    rng = np.random.default_rng(0)
+    features = rng.normal(size=(40, 263)).astype(np.float32)
+    pasted = np.ones(40, dtype=bool)
+    pasted[10:30] = False
+    pose = rng.normal(size=263).astype(np.float32)
+    bent = meet_pin(features, pasted, 18, pose, T2M)
+    assert pin_error(features, pose, 18, T2M) > 1.0 and pin_error(bent, pose, 18, T2M) < 1e-5
+    np.testing.assert_array_equal(bent[pasted], features[pasted])  # the source's frames, bit for bit
+    np.testing.assert_array_equal(bent[:, :3], features[:, :3])  # the root's path is the model's
+    change = np.abs(bent - features)[:, 4:67].max(axis=1)
+    assert np.all(np.diff(change[10:19]) > 0) and np.all(np.diff(change[18:30]) < 0)  # easing in and out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seconds", ["2.0", "2.1"], ids=["on-a-step", "half-a-step-off"])
+def test_a_pinned_pose_is_met_within_a_centimetre(trained_project, tmp_path, capsys, seconds):
+    """Frame 40's own pose pinned back at 2.0 s (frame 40), and half a token's step later: the
+    result's joints at that frame stand within 1 cm of the pose (they missed by 8 and 42 cm)."""
+    raw = [*MODEL, "--no-foot-fix"]
+    assert (
+        main(
+            [
+                "generate",
+                "a person walks forward",
+                "a person waves",
+                "--seconds",
+                "2.4",
+                *raw,
+                "--out",
+                str(tmp_path / "a"),
+            ]
+        )
+        == 0
+    )
+    source = tmp_path / "a" / "motion.npy"
+    edit = ["generate", "--edit", str(source), "--pin", f"{source}@40", "--at", seconds, *raw, "--out"]
+    assert main([*edit, str(tmp_path / "pinned")]) == 0
+    frame = round(float(seconds) * 20)
+    assert f"pinned at frame {frame}" in capsys.readouterr().out
+    pose, pinned = np.load(source)[40], np.load(tmp_path / "pinned" / "motion.npy")[frame]
+    quality = json.loads((tmp_path / "pinned" / "motion.json").read_text(encoding="utf-8"))["quality"]
+    print(f"pin at {seconds} s: {pose_distance(pinned, pose) * 100:.2f} cm; pin_error_m {quality['pin_error_m']:.4f}")
+    assert pose_distance(pinned, pose) < 0.01 and quality["pin_error_m"] < 0.01

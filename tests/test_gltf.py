@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -290,9 +291,12 @@ json.dump({"heads": heads, "actions": actions}, open(out, "w"))
 """
 
 
-def blender_heads(source: Path, n_frames: int) -> tuple[np.ndarray, dict[str, list[float]]]:
-    """T2M's joints (T, 22, 3) where Blender puts the bones of ``source``, back in glTF's Y-up
-    axes (Blender is Z-up: its importers map glTF's (x, y, z) to (x, −z, y)), and its actions."""
+def blender_heads(
+    source: Path, n_frames: int, names: Sequence[str] = T2M.joint_names
+) -> tuple[np.ndarray, dict[str, list[float]]]:
+    """The joints ``names`` (T, J, 3; T2M's by default) where Blender puts the bones of ``source``,
+    back in glTF's Y-up axes (Blender is Z-up: its importers map glTF's (x, y, z) to (x, −z, y)),
+    and its actions."""
     out = source.with_suffix(".json")
     command = [BLENDER, "--background", "--factory-startup", "--python-exit-code", "1", "--python-expr"]
     result = subprocess.run(
@@ -304,7 +308,7 @@ def blender_heads(source: Path, n_frames: int) -> tuple[np.ndarray, dict[str, li
     )
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
     read = json.loads(out.read_text())
-    z_up = np.array([[frame[name] for name in T2M.joint_names] for frame in read["heads"]])
+    z_up = np.array([[frame[name] for name in names] for frame in read["heads"]])
     return np.stack([z_up[..., 0], z_up[..., 2], -z_up[..., 1]], axis=-1), read["actions"]
 
 

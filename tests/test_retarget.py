@@ -17,14 +17,19 @@ import pygltflib
 import pytest
 
 from m2d2m.motion.bvh_reader import BvhError, read_bvh
-from m2d2m.motion.gltf import save_glb
+from m2d2m.motion.gltf import CLIP_ANIMATION, save_glb
 from m2d2m.motion.joint_map import PRESETS, JointMap, joint_map_for
-from m2d2m.motion.retarget import Rig, read_rig, retarget, retarget_to_bvh
+from m2d2m.motion.retarget import Bind, Rig, Target, read_rig, read_target, retarget, retarget_to_bvh
+from m2d2m.motion.rig_gltf import save_rig_glb
 from m2d2m.motion.rigid import on_rigid_skeleton
 from m2d2m.motion.rotations import quat_to_matrix
 from m2d2m.motion.skeleton import T2M
 from tests.conftest import HUMANML3D_SAMPLE
+from tests.rigs import CONVENTIONS
 from tests.test_bvh_reader import CMU, CMU_METRES
+from tests.test_gltf import animation
+from tests.test_rig_gltf import posed_world
+from tests.test_up_axis import z_up_bvh
 
 SAMPLE = HUMANML3D_SAMPLE / "new_joints" / "012314.npy"
 
@@ -253,3 +258,76 @@ def test_humanml3ds_clip_on_mixamos_x_bot_points_every_mapped_bone_as_ours(tmp_p
     written = read_bvh(retarget_to_bvh(tmp_path / "on-xbot.bvh", ours, rig_file))
     assert written.names == clip.names
     assert np.abs(written.positions() - moved).max() < 1e-4
+
+
+BANDAI_WALK = (
+    Path(__file__).parent
+    / "fixtures/bandai-namco/dataset/Bandai-Namco-Research-Motiondataset-1/data/dataset-1_walk_normal_001.bvh"
+)
+BANDAI_LIMBS = ("UpperLeg_L", "LowerLeg_L", "UpperArm_L", "LowerArm_L", "UpperLeg_R", "LowerLeg_R", "UpperArm_R")
+
+
+def twist_from_capture(target: Target, path: Path) -> np.ndarray:
+    """Degrees between each limb's world rotation in the capture at ``path`` and on ``target``
+    when the capture's own joints are retargeted back onto its rig: what the rotations add to
+    the joints' positions, each limb's twist about itself."""
+    clip = read_bvh(path, target.metres_per_unit)
+    captured, _ = clip.pose()
+    moved, _ = target.retargeted(PRESETS["bandai-namco"].joints(clip)).pose()
+    limbs = [clip.names.index(name) for name in BANDAI_LIMBS]
+    turn = np.swapaxes(moved[:, limbs], -1, -2) @ captured[:, limbs]
+    return np.degrees(np.arccos(np.clip((np.trace(turn, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
+
+
+def test_a_rig_whose_rest_pose_lies_is_aimed_from_a_frame_of_its_file_and_keeps_its_limbs_twist():
+    """Bandai Namco's rest pose lies along its bones' X axes: aimed from it, a limb's swing from a
+    line leaves its twist anywhere (the capture's own walk retargeted back onto its rig: limbs a
+    median 125° from the capture's rotations); aimed from its file's first frame (the default) or
+    another (``rest_frame``), 5°."""
+    target = read_target(BANDAI_WALK)
+    assert target.bind.frame == 0 and not target.bind.turned
+    from_frame = np.median(twist_from_capture(target, BANDAI_WALK))
+    from_rest_pose = np.median(twist_from_capture(replace(target, bind=Bind()), BANDAI_WALK))
+    later = read_target(BANDAI_WALK, rest_frame=40)
+    assert later.bind.frame == 40
+    print(f"limbs from the capture's, median: {from_rest_pose:.1f}° from the rest pose, {from_frame:.1f}° from frame 0")
+    assert from_rest_pose > 45.0 and from_frame < 10.0 and np.median(twist_from_capture(later, BANDAI_WALK)) < 10.0
+    frames = len(read_bvh(BANDAI_WALK).values)
+    with pytest.raises(ValueError, match=rf"rest frame {frames}: the rig's file has {frames} frame\(s\)"):
+        read_target(BANDAI_WALK, rest_frame=frames)
+    cmu = read_target(CMU / "131_01.bvh").bind  # a rest pose that stands is the bind pose
+    assert cmu.frame is None and cmu.rotations is None and not cmu.turned
+
+
+def test_a_z_up_rig_is_turned_to_take_our_motion_and_written_back_in_its_own_axes(tmp_path):
+    """A rig exported Z-up (its rest pose and motion along +Z) takes our motion as its Y-up twin
+    does, the BVH in its own axes (each joint where the twin's stands, turned +90° about X); its
+    GLB stands along glTF's +Y as the twin's does."""
+    ours = on_rigid_skeleton(np.load(SAMPLE)[::4], T2M)
+    y_up = CONVENTIONS[0].rig().write(tmp_path / "y-up.bvh")
+    z_up = tmp_path / "z-up.bvh"
+    z_up.write_text(z_up_bvh(y_up.read_text()), encoding="utf-8")
+    assert read_target(z_up).bind.turned and not read_target(y_up).bind.turned
+    on_y = read_bvh(retarget_to_bvh(tmp_path / "on-y.bvh", ours, y_up)).positions()
+    on_z = read_bvh(retarget_to_bvh(tmp_path / "on-z.bvh", ours, z_up)).positions()
+    np.testing.assert_allclose(on_z, np.stack([on_y[..., 0], -on_y[..., 2], on_y[..., 1]], axis=-1), atol=1e-6)
+    glbs = [save_rig_glb(tmp_path / f"{rig.stem}.glb", read_target(rig), ours, 20.0) for rig in (y_up, z_up)]
+    posed = [
+        posed_world(g, animation(g, CLIP_ANIMATION))[..., :3, 3] for g in map(pygltflib.GLTF2.load, map(str, glbs))
+    ]
+    np.testing.assert_allclose(posed[1], posed[0], atol=1e-6)
+
+
+def test_a_rig_with_its_bones_in_position_channels_takes_our_motion_as_its_twin(tmp_path):
+    """A game studio's export: position channels on every joint, the bones in its OFFSETs too or
+    only in the channels (OFFSETs zero): read with its bones either way, it is mapped and takes
+    our motion as the rig written with OFFSETs only does."""
+    ours = on_rigid_skeleton(np.load(SAMPLE)[::4], T2M)
+    studio = next(convention for convention in CONVENTIONS if convention.name.startswith("game studio")).rig()
+    plain = studio.write(tmp_path / "plain.bvh", scale=100.0)
+    expected = read_bvh(retarget_to_bvh(tmp_path / "on-plain.bvh", ours, plain)).positions()
+    for offsets in (True, False):
+        rig_file = studio.write_translated(tmp_path / f"translated-{offsets}.bvh", offsets=offsets)
+        np.testing.assert_allclose(read_bvh(rig_file).rest_positions(), read_bvh(plain).rest_positions(), atol=1e-4)
+        moved = read_bvh(retarget_to_bvh(tmp_path / f"on-{offsets}.bvh", ours, rig_file)).positions()
+        np.testing.assert_allclose(moved, expected, atol=1e-4)

@@ -17,9 +17,10 @@ from m2d2m.motion.retarget import OUR_REST_AIMS, Rig, read_rig, retarget
 from m2d2m.motion.skeleton import T2M
 
 RIGS = rigs()
-# A known gap, measured in the bench's table: Biped's thighs hang from its spine joint, whose one
-# bone is aimed at the hips' midpoint.
-BONES_OFF = {"3ds max biped"}
+# A known gap, measured in the bench's table: Biped hangs its thighs from its first spine joint,
+# which points where our spine1 → spine2 points, so its hip line follows our spine's bend (8.8°
+# from ours, median) and its ankles stray further in stance than on the other rigs.
+HIPS_ON_THE_SPINE = {"3ds max biped"}
 
 
 @pytest.fixture(scope="module")
@@ -30,20 +31,20 @@ def ours():
 @pytest.mark.parametrize(("name", "rig", "joint_map"), RIGS, ids=[name for name, _, _ in RIGS])
 def test_our_walk_lands_on_the_rig(name, rig, joint_map, ours):
     row = landing(ours, rig, joint_map)
-    assert abs(row.ankles[0]) < 1.0 and row.ankles[1] < 3.0  # cm from where its rest pose stands them
+    ankles_max = 3.5 if name in HIPS_ON_THE_SPINE else 3.0  # cm: ours stray 1.8 in stance, 2.4 scaled to the rigs
+    assert abs(row.ankles[0]) < 1.0 and row.ankles[1] < ankles_max  # cm from where its rest pose stands them
     if row.toes is not None:  # cm; ours stray 3.4 in stance, more on a longer, steeper foot (X Bot's)
         assert abs(row.toes[0]) < 2.0 and row.toes[1] < 6.0
     assert row.slide < 1.2 * row.our_slide + 1.0  # cm/s in stance
-    if name not in BONES_OFF:
-        assert row.bone_max < 1e-3 and (row.from_rest_max or 0.0) < 1e-3  # None: aimed as ours (CMU's)
+    assert row.bone_max < 1e-3 and (row.from_rest_max or 0.0) < 1e-3  # None: aimed as ours (CMU's)
     assert row.hips == pytest.approx(row.our_hips, abs=0.05)
 
 
-@pytest.mark.parametrize("name", sorted(BONES_OFF))
+@pytest.mark.parametrize("name", sorted(HIPS_ON_THE_SPINE))
 def test_the_known_gaps_are_still_there(name, ours):
     """Each known gap is measured, so that whoever closes it moves its rig into the test above."""
     _, rig, joint_map = next(found for found in RIGS if found[0] == name)
-    assert landing(ours, rig, joint_map).bone_max > 1.0
+    assert landing(ours, rig, joint_map).ankles[1] > 3.0
 
 
 def _lean(bones: np.ndarray, forward: np.ndarray) -> np.ndarray:

@@ -24,7 +24,14 @@ from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU
-from tests.test_gltf import accessor_data, animation, gltf_validator, needs_blender, xyzw_to_matrix  # noqa: F401
+from tests.test_gltf import (  # noqa: F401
+    accessor_data,
+    animation,
+    blender_heads,
+    gltf_validator,
+    needs_blender,
+    xyzw_to_matrix,
+)
 
 XBOT = Path(__file__).parent / "fixtures" / "mixamo" / "xbot-skeleton.glb"
 RIGS = [CMU / "131_01.bvh", XBOT]
@@ -132,8 +139,16 @@ def test_the_khronos_validator_finds_no_error_in_the_glb_on_a_rig(tmp_path, gltf
 @needs_blender
 @pytest.mark.parametrize("rig_file", RIGS, ids=["cmu-bvh", "xbot-glb"])
 def test_blender_makes_fbx_of_the_glb_on_a_rig(tmp_path, ours, rig_file):
-    path = save_rig_fbx(tmp_path / "on-rig.fbx", read_target(rig_file), ours, 20.0, SEGMENTS)
+    """Read back by Blender's FBX importer, the FBX on a rig puts every bone of the rig where the
+    BVH on the same rig puts its joint (in metres)."""
+    target = read_target(rig_file)
+    path = save_rig_fbx(tmp_path / "on-rig.fbx", target, ours, 20.0, SEGMENTS)
     assert path.read_bytes().startswith(b"Kaydara FBX Binary")
+    bvh = read_bvh(retarget_to_bvh(tmp_path / "on-rig.bvh", ours, rig_file, fps=20.0))
+    heads, _ = blender_heads(path, len(ours), bvh.names)
+    error = np.abs(heads - bvh.positions() * target.metres_per_unit).max()
+    print(f"{rig_file.name}: FBX on the rig through Blender, largest bone head error {error * 1000:.3f} mm")
+    assert error < 1e-3
 
 
 def test_fbx_on_a_rig_without_blender_names_the_package(tmp_path, ours, monkeypatch):

@@ -237,28 +237,29 @@ def continue_after(timeline: Timeline, actions: Sequence[str], frames: Sequence[
 
 
 def hold_pose(timeline: Timeline, pose: np.ndarray, frame: int, step: int, margin: int) -> Edit:
-    """The motion passing through ``pose`` (one frame's features, D) at ``frame``: the ``step``
-    frames from there (one token of a token model) are the pose, kept; ``margin`` frames on
-    each side are sampled again (round a loop, in one); the rest is the source. Only the source's
-    frames are pasted back: how close the result comes to the pose is the model's
-    (:func:`pin_error`, in the result's ``quality``)."""
+    """The motion passing through ``pose`` (one frame's features, D) at ``frame``: the model is
+    given the pose on the ``step`` frames of the grid that hold it (one token of a token model;
+    round a loop, the ``step`` frames from it), kept, ``margin`` frames on each side sampled again,
+    the rest the source. The source's frames are pasted back and the model's frames around the
+    pin bent to meet the pose at ``frame`` itself, on the grid or not (:func:`meet_pin`); what is
+    left of the distance is in the result's ``quality`` (:func:`pin_error`)."""
     count = len(timeline.features)
-    if not 0 <= frame <= count - step:
-        raise ValueError(
-            f"a pose pinned at frame {frame} lies outside the motion's {count} frames (0 to {count - step})"
-        )
+    if not 0 <= frame < count:
+        raise ValueError(f"a pose pinned at frame {frame} lies outside the motion's {count} frames")
     if pose.shape != timeline.features.shape[1:]:
         raise ValueError(f"a pose of {timeline.features.shape[1]} features, got shape {pose.shape}")
-    held = np.repeat(pose[None], step, axis=0)
     if timeline.loop:
+        first = min(frame, count - step)
+        held = np.repeat(pose[None], step, axis=0)
         return _round_the_loop(
-            timeline, (frame, frame + step), held, margin, step, list(timeline.actions), timeline.frames, pinned=True
+            timeline, (first, first + step), held, margin, step, list(timeline.actions), timeline.frames, frame - first
         )
+    block = (frame // step * step, min(count, frame // step * step + step))
     features = timeline.features.copy()
-    features[frame : frame + step] = held
-    pasted = _free(count, (frame, frame + step), margin)
+    features[block[0] : block[1]] = pose
+    pasted = _free(count, block, margin)
     kept = pasted.copy()
-    kept[frame : frame + step] = True
+    kept[block[0] : block[1]] = True
     return Edit(
         list(timeline.actions),
         list(timeline.frames),
@@ -299,10 +300,11 @@ def _round_the_loop(
     step: int,
     actions: list[str],
     frames: list[int],
-    pinned: bool = False,
+    pinned: int | None = None,
 ) -> Edit:
     """The loop ``timeline`` with its frames ``span`` replaced by ``middle`` (placeholders of new
-    frames; with ``pinned``, a pose the model keeps and nothing pastes) and sampled with
+    frames; with ``pinned``, a pose the model keeps and nothing pastes, met at that frame of it)
+    and sampled with
     ``margin`` frames on each side; the result one cycle of ``actions`` in ``frames``.
 
     The result, written from the span's end round to its start and then the middle (the
@@ -335,7 +337,7 @@ def _round_the_loop(
     free = np.zeros(total, dtype=bool)
     free[before : before + sampled] = True
     kept = ~free
-    if pinned:
+    if pinned is not None:
         kept[before + margin : before + margin + len(middle)] = True
     owner = np.repeat(np.arange(len(frames)), frames)[np.argsort(ring_of_result)][order]  # each request frame's action
     cuts = np.unique(np.round((np.flatnonzero(np.diff(owner)) + 1) / step).astype(int) * step)
@@ -355,7 +357,7 @@ def _round_the_loop(
         ~free,
         (timeline,),
         np.where(free, -1, origin),
-        (before + margin, middle[0]) if pinned else None,
+        None if pinned is None else (before + margin + pinned, middle[0]),
         Cycle(list(actions), list(frames), (ring_of_result - start) % length),
     )
 
@@ -372,6 +374,7 @@ def apply_edit(edit: Edit, sampled: Motion, skeleton: Skeleton) -> Motion:
     features[edit.paste] = edit.keep.features[edit.paste]
     quality = dict(sampled.quality)
     if edit.pin is not None:
+        features = meet_pin(features, edit.paste, *edit.pin, skeleton)
         quality["pin_error_m"] = pin_error(features, edit.pin[1], edit.pin[0], skeleton)
     actions, frames, tokens = edit.actions, edit.frames, sampled.tokens
     if edit.cycle is not None:
@@ -388,6 +391,25 @@ def apply_edit(edit: Edit, sampled: Motion, skeleton: Skeleton) -> Motion:
         tokens=tokens,
         loop=edit.cycle is not None,
     )
+
+
+def meet_pin(features: np.ndarray, pasted: np.ndarray, frame: int, pose: np.ndarray, skeleton: Skeleton) -> np.ndarray:
+    """``features`` (F, D) bent so that frame ``frame`` is ``pose`` (D,) exactly in its height,
+    its joints around the root (RIC) and its rotations, the model's motion elsewhere: what the
+    model's frame misses by is added to the sampled frames around it, all of it at the frame and
+    easing to none (a half cosine) at the pasted frames on either side, which stay the source's
+    bit for bit. The root's path and the velocities stay the model's, so the pose is met where the
+    model walked to, facing where it faces (as :func:`pin_error` measures)."""
+    count = 3 * (skeleton.num_joints - 1)
+    shape = slice(3, 4 + count + 2 * count)  # root height, RIC positions, 6D rotations
+    first = frame - int(np.argmax(pasted[frame::-1])) if pasted[: frame + 1].any() else -1
+    end = frame + int(np.argmax(pasted[frame:])) if pasted[frame:].any() else len(features)
+    ramp_in = (np.arange(first + 1, frame + 1) - first) / (frame - first)
+    ramp_out = (end - np.arange(frame + 1, end)) / (end - frame)
+    weight = 0.5 - 0.5 * np.cos(np.pi * np.concatenate([ramp_in, ramp_out]))
+    bent = features.copy()
+    bent[first + 1 : end, shape] += weight[:, None] * (pose[shape] - features[frame, shape])
+    return bent
 
 
 def body_of(edit: Edit, skeleton: Skeleton) -> dict[int, np.ndarray]:

@@ -124,17 +124,34 @@ def read_bvh(path: str | Path, metres_per_unit: float = 1.0) -> BvhClip:
         raise BvhError(f"{path}: not a BVH file (it must start with HIERARCHY and have a MOTION section)")
     names, parents, offsets, end_sites, channels = _hierarchy(head.split()[1:], path)
     values, frame_time = _frames(motion, sum(len(c) for c in channels), path)
+    offsets = _bones_from_positions(np.asarray(offsets, dtype=np.float64), channels, values)
     scale = np.ones(values.shape[1])
     scale[[i for i, name in enumerate(n for c in channels for n in c) if name in POSITIONS]] = metres_per_unit
     return BvhClip(
         tuple(names),
         np.asarray(parents, dtype=np.int64),
-        np.asarray(offsets, dtype=np.float64) * metres_per_unit,
+        offsets * metres_per_unit,
         {joint: np.asarray(offset) * metres_per_unit for joint, offset in end_sites.items()},
         tuple(tuple(c) for c in channels),
         values * scale,
         frame_time,
     )
+
+
+def _bones_from_positions(offsets: np.ndarray, channels: list[list[str]], values: np.ndarray) -> np.ndarray:
+    """``offsets`` (J, 3), but where a joint below the root has a zero OFFSET and position channels
+    (some exporters write every bone as a translation), its first frame's translation: the pose
+    reads the channels either way, and the rest pose (joint maps, units, retargeting) then has
+    its bones instead of a rig collapsed onto its root."""
+    offsets = offsets.copy()
+    column = 0
+    for joint, names in enumerate(channels):
+        if joint > 0 and len(values) and not offsets[joint].any():
+            for i, name in enumerate(names):
+                if name in POSITIONS:
+                    offsets[joint, POSITIONS.index(name)] = values[0, column + i]
+        column += len(names)
+    return offsets
 
 
 @dataclass(frozen=True)

@@ -165,7 +165,11 @@ class Motion:
             raise ValueError(f"unknown formats {unknown}: choose from {', '.join(FORMATS)}")
         directory = Path(directory)
         on_rig = delivery.rig is not None and any(kind in RIG_FORMATS for kind in formats)
-        target = read_target(delivery.rig, delivery.joint_map, skeleton=self.skeleton) if on_rig else None
+        target = (
+            read_target(delivery.rig, delivery.joint_map, skeleton=self.skeleton, rest_frame=delivery.rest_frame)
+            if on_rig
+            else None
+        )
         written: dict[str, Path] = {}
         for kind in formats:
             path = directory / f"{name}.{kind}"

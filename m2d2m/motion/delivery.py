@@ -37,8 +37,9 @@ class Delivery:
     ``ground``; ``loop``: one seamless cycle; ``plant_feet``: the foot fix, or None for the
     rule of :meth:`plants_feet` (on for generated motion, off for recorded motion); ``rest_pose``: a BVH's or GLB's bind pose;
     ``rig``: a BVH or glTF character whose skeleton the BVH is written on, through ``joint_map`` (a preset or a
-    YAML file; default: the preset the rig's joints fit). ValueError in one line for a value no
-    clip can take."""
+    YAML file; default: the preset the rig's joints fit), aimed from frame ``rest_frame`` of its file
+    (:func:`~m2d2m.motion.retarget.rig_bind`; default: its rest pose where that stands, else frame 0).
+    ValueError in one line for a value no clip can take."""
 
     fps: float | None = None
     root: str = "keep"
@@ -47,6 +48,7 @@ class Delivery:
     rest_pose: str = "skeleton"
     rig: str | None = None
     joint_map: str | None = None
+    rest_frame: int | None = None
 
     def __post_init__(self) -> None:
         if self.fps is not None:
@@ -57,8 +59,10 @@ class Delivery:
             raise ValueError(f"rest pose must be one of {', '.join(REST_POSES)}, got {self.rest_pose!r}")
         if self.rig is not None and not Path(self.rig).is_file():
             raise ValueError(f"rig {self.rig}: no such file (a BVH or GLB)")
-        if self.joint_map is not None and self.rig is None:
-            raise ValueError("a joint map goes with a rig: give the rig too")
+        if (self.joint_map is not None or self.rest_frame is not None) and self.rig is None:
+            raise ValueError("a joint map and a rest frame go with a rig: give the rig too")
+        if self.rest_frame is not None and self.rest_frame < 0:
+            raise ValueError(f"a rest frame is a frame of the rig's file, 0 or more, got {self.rest_frame}")
 
     def plants_feet(self, recorded: bool) -> bool:
         """Whether the feet are fixed, the one rule for the CLI, the API and the page: as asked,

@@ -125,6 +125,13 @@ class JointMap:
         feet = rest[list(skeleton.feet_left + skeleton.feet_right)].mean(axis=0)
         return rest[skeleton.head_joint] - feet
 
+    def rest_stands(self, clip: BvhClip, standing: Stance, skeleton: Skeleton = T2M) -> bool:
+        """Whether ``clip``'s rest pose stands along the up axis its motion stands along
+        (``standing``): head over feet (CMU's T-pose does; Bandai Namco's, along its bones' X
+        axes, does not)."""
+        rest = standing.upright(self.stature(clip, skeleton))
+        return bool(np.argmax(np.abs(rest)) == 1 and rest[1] > 0)
+
     def metres_per_unit(
         self, clip: BvhClip, units: str | None = None, skeleton: Skeleton = T2M, standing: Stance | None = None
     ) -> float:
@@ -145,9 +152,8 @@ class JointMap:
                 raise ValueError(f"metres per unit must be positive, got {units}")
             return value
         standing = standing or self.standing(clip, skeleton)
-        rest = standing.upright(self.stature(clip, skeleton))
-        if np.argmax(np.abs(rest)) == 1 and rest[1] > 0:
-            tall, what = float(np.linalg.norm(rest)), "the rig stands"
+        if self.rest_stands(clip, standing, skeleton):
+            tall, what = float(np.linalg.norm(self.stature(clip, skeleton))), "the rig stands"
         else:
             tall, what = standing.height, "the rig's motion stands (head over feet)"
         fitting = [name for name, scale in UNITS.items() if STANDING_METRES[0] <= tall * scale <= STANDING_METRES[1]]

@@ -12,7 +12,10 @@ of its joints is turned, root first, so that the mapped joints below it point wh
   its rest vector to that joint onto our bone's direction, measured in its parent's frame (no
   twist, as :mod:`m2d2m.motion.pose` does for our own rig);
 * a joint with several (a pelvis: both hips and the spine) gets the best-fit (Kabsch) rotation of
-  its rest vectors onto our directions;
+  its rest vectors onto our directions, unless only one of them continues our chain from the
+  joint it stands for (3ds Max Biped's first spine joint: our spine2, beside the thighs, which
+  ours hangs from the pelvis): that one is pointed exactly and the others set the twist about it
+  (:func:`_twisted`);
 * a joint with none (fingers, an end bone) keeps its rest rotation relative to its parent, so a
   hand continues its forearm rather than spinning (momask-codes#42's complaint);
 * a point the map fixes to a joint (our foot ahead of the ankle of a rig without toes:
@@ -40,7 +43,7 @@ that its ankles stand on its own floor (:func:`ankle_lift`; docs/generation.md, 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -50,8 +53,9 @@ from m2d2m.motion.export import write_bvh
 from m2d2m.motion.gltf_rig import GLTF_SUFFIXES, read_gltf_rig
 from m2d2m.motion.joint_map import JointMap, joint_map_for
 from m2d2m.motion.rigid import best_fit_rotation, children
-from m2d2m.motion.rotations import qbetween, quat_to_matrix
+from m2d2m.motion.rotations import qbetween, quat_from_axis_angle, quat_to_matrix
 from m2d2m.motion.skeleton import T2M, Skeleton
+from m2d2m.motion.up_axis import Stance
 
 # Where our feet stand: HumanML3D puts each clip's floor at its lowest joint, and in clip 012314's
 # stance frames (m2d2m.motion.feet.foot_contacts) its ankles stand 5.5 cm above it (median).
@@ -89,6 +93,45 @@ class Rig:
         """(J, 3) every joint where the rest pose puts it (each rotation zero)."""
         return rest_positions(self.parents, self.offsets)
 
+    def bound(self, bind: Bind) -> Rig:
+        """This rig with ``bind``'s pose as its rest pose, turned to stand along +Y: the rig
+        retargeting aims (:func:`retarget`); :meth:`RigMotion.unbound` takes its motion back."""
+        turn, world = bind.turn, bind.world(len(self.names))
+        above = world[np.maximum(self.parents, 0)]
+        above[self.parents < 0] = np.eye(3)
+        offsets = np.einsum("ij,njk,nk->ni", turn, above, self.offsets)
+        root = np.flatnonzero(self.parents < 0)
+        if bind.root is not None:
+            offsets[root] = turn @ bind.root
+        sites = {joint: turn @ world[joint] @ site for joint, site in self.end_sites.items()}
+        return replace(self, offsets=offsets, end_sites=sites)
+
+
+@dataclass(frozen=True)
+class Bind:
+    """How a rig's file stands against the pose retargeting aims from (:meth:`Rig.bound`):
+    ``turn`` (3, 3), the proper rotation taking its up axis onto +Y (a Z-up capture's:
+    :func:`~m2d2m.motion.up_axis.stance`); ``rotations`` (J, 3, 3), each joint's world rotation in
+    its bind pose, a frame of its file (None: every rotation zero, the file's rest pose); ``root``
+    (3,), where that frame puts the root, in the file's units."""
+
+    turn: np.ndarray = field(default_factory=lambda: np.eye(3))
+    rotations: np.ndarray | None = None
+    root: np.ndarray | None = None
+    frame: int | None = None  # the file's frame the bind pose is, for messages
+
+    @property
+    def turned(self) -> bool:
+        """Whether the file stands along another axis than +Y."""
+        return not np.allclose(self.turn, np.eye(3))
+
+    def world(self, count: int) -> np.ndarray:
+        """(J, 3, 3) each joint's world rotation in the bind pose."""
+        return np.tile(np.eye(3), (count, 1, 1)) if self.rotations is None else self.rotations
+
+    def scaled(self, metres_per_unit: float) -> Bind:
+        return self if self.root is None else replace(self, root=self.root * metres_per_unit)
+
 
 @dataclass(frozen=True)
 class RigMotion:
@@ -104,6 +147,16 @@ class RigMotion:
     def positions(self) -> np.ndarray:
         """(T, J, 3) every joint's world position, by forward kinematics."""
         return self.pose()[1]
+
+    def unbound(self, rig: Rig, bind: Bind) -> RigMotion:
+        """This motion of ``rig.bound(bind)`` as ``rig``'s own (its file's axes and rest pose):
+        each local rotation L' becomes B_parent⁻¹ R⁻¹ L' R B_joint (R the bind's turn, B its
+        world rotations), the root's path R⁻¹ p, so that every joint stands where it stood."""
+        turn, world = bind.turn, bind.world(len(rig.names))
+        above = world[np.maximum(rig.parents, 0)]
+        above[rig.parents < 0] = np.eye(3)
+        local = np.swapaxes(above, -1, -2) @ turn.T @ self.local @ turn @ world
+        return RigMotion(rig, self.root @ turn, local, self.from_rest)
 
     def pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Every joint's world rotation (T, J, 3, 3), from the rest pose's frame, and world
@@ -201,8 +254,9 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
         elif joint not in mapped and targets == [anchor[joint]]:
             local[:, joint] = np.eye(3)  # a root above the pelvis (Unreal's on the floor): ours has no bone to it
             aimed[joint] = -1
-        elif len(aims) == 1:
-            vector, aimed[joint] = aims[0]
+        elif len(aims) == 1 or len(primary := _continuing(aims, int(anchor[joint]), skeleton)) == 1:
+            k = 0 if len(aims) == 1 else primary[0]
+            vector, aimed[joint] = aims[k]
             in_parent = np.einsum("tji,tj->ti", parent_world, joints[:, aimed[joint]] - joints[:, anchor[joint]])
             start = rest_aims.get((anchor[joint], aimed[joint]))
             if start is None or not stands_at_rest(rest[joint], vector, start):
@@ -210,6 +264,10 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
             else:
                 from_rest.add(int(aimed[joint]))  # a foot, a head: our turn from where ours stand
             local[:, joint] = quat_to_matrix(qbetween(start, in_parent))
+            others = [aim for i, aim in enumerate(aims) if i != k]
+            if others:  # joints ours hangs elsewhere (Biped's thighs on its spine): they set the twist
+                turned = _twisted(parent_world @ local[:, joint], others, joints, anchor[joint], aimed[joint])
+                local[:, joint] = np.swapaxes(parent_world, -1, -2) @ turned
         else:
             wanted = np.stack([joints[:, target] - joints[:, anchor[joint]] for _, target in aims], axis=1)
             directions = wanted / np.linalg.norm(wanted, axis=-1, keepdims=True)
@@ -221,6 +279,33 @@ def retarget(joints: np.ndarray, rig: Rig, joint_map: JointMap, skeleton: Skelet
     their_hips = RigMotion(rig, np.zeros((frames, 3)), local).positions()[:, [theirs[j] for j in hips]].mean(axis=1)
     lift = np.array([0.0, ankle_lift(rest, theirs[legs[2]], rig_leg, scale, skeleton), 0.0])
     return RigMotion(rig, joints[:, hips].mean(axis=1) * scale + lift - their_hips, local, frozenset(from_rest))
+
+
+def _continuing(aims: list[tuple[np.ndarray, int]], anchor: int, skeleton: Skeleton) -> list[int]:
+    """Which of a joint's ``aims`` are at our ``anchor``'s own children: the bones ours continues
+    from it (a spine joint's next spine joint, where Biped also hangs the thighs from it)."""
+    return [k for k, (_, target) in enumerate(aims) if skeleton.parents[target] == anchor]
+
+
+def _twisted(
+    world: np.ndarray, others: list[tuple[np.ndarray, int]], joints: np.ndarray, anchor: int, aimed: int
+) -> np.ndarray:
+    """``world`` (T, 3, 3), which points a joint's bone to our joint ``aimed`` exactly, turned
+    about that bone so that its ``others`` (rest vector, our target) point as near as they can to
+    where ours point from ``anchor``: the twist of least squares, angle atan2(Σ a·(u×w), Σ u·w)
+    over each other's rest vector u and our direction w, both projected across the bone's axis a
+    (an aim constraint with its up vectors, as a DCC tool's)."""
+    axis = joints[:, aimed] - joints[:, anchor]
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    sine = cosine = np.zeros(len(world))
+    for vector, target in others:
+        turned = world @ (vector / np.linalg.norm(vector))
+        wanted = joints[:, target] - joints[:, anchor]
+        wanted /= np.linalg.norm(wanted, axis=-1, keepdims=True)
+        across = [v - np.sum(v * axis, axis=-1, keepdims=True) * axis for v in (turned, wanted)]
+        sine = sine + np.sum(axis * np.cross(*across), axis=-1)
+        cosine = cosine + np.sum(across[0] * across[1], axis=-1)
+    return quat_to_matrix(quat_from_axis_angle(axis, np.arctan2(sine, cosine))) @ world
 
 
 def stands_on_floor(rest: np.ndarray, ankle: int, rig_leg: float) -> bool:
@@ -249,23 +334,43 @@ def ankle_lift(rest: np.ndarray, ankle: int, rig_leg: float, scale: float, skele
     return float(rest[ankle, 1]) - scale * OUR_ANKLE_ON_FLOOR_M / skeleton.metres_per_unit
 
 
-def rig_metres_per_unit(
-    clip: BvhClip, joint_map: JointMap, units: str | None = None, skeleton: Skeleton = T2M
-) -> float:
-    """Metres per unit of a rig's lengths (:meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`),
-    or ValueError for a rig that does not stand along +Y (:func:`~m2d2m.motion.up_axis.stance` of
-    its frames): a rig is retargeted onto as it stands, so it must stand as ours does."""
+def rig_bind(
+    clip: BvhClip, joint_map: JointMap, standing: Stance, rest_frame: int | None = None, skeleton: Skeleton = T2M
+) -> Bind:
+    """The pose ``clip``'s rig is retargeted from (:class:`Bind`), turned by ``standing`` (how its
+    motion stands: :meth:`~m2d2m.motion.joint_map.JointMap.standing`) to stand along +Y: its rest
+    pose where that stands as its motion does (CMU's T-pose), else frame ``rest_frame`` of its
+    file (by default the first: Bandai Namco's rest pose lies along its bones' X axes, and a
+    bone's turn from a line is no pose to keep the twist of); ValueError in one line for a frame
+    the file lacks."""
+    if rest_frame is None and joint_map.rest_stands(clip, standing, skeleton):
+        return Bind(standing.rotation)
+    frame = 0 if rest_frame is None else rest_frame
+    if not 0 <= frame < len(clip.values):
+        raise ValueError(
+            f"rest frame {frame}: the rig's file has {len(clip.values)} frame(s), numbered 0 to {len(clip.values) - 1}"
+        )
+    rotations, positions = clip.pose(np.array([float(frame)]))
+    root = int(np.flatnonzero(clip.parents < 0)[0])
+    return Bind(standing.rotation, rotations[0], positions[0, root], frame)
+
+
+def target_of(
+    clip: BvhClip,
+    joint_map: JointMap,
+    units: str | None = None,
+    skeleton: Skeleton = T2M,
+    rest_frame: int | None = None,
+    character: Path | None = None,
+) -> Target:
+    """``clip``'s rig through ``joint_map`` as a :class:`Target`, in ``units`` (by default the one
+    it stands a person's height in: :meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`),
+    from its :func:`rig_bind`; ValueError in one line where our motion cannot go onto it (checked
+    with our rest pose: :meth:`Target.checked`)."""
     standing = joint_map.standing(clip, skeleton)
-    if standing.axis != "+Y":
-        raise ValueError(f"the rig stands along {standing.axis}, not +Y; export it Y-up to retarget onto it")
-    return joint_map.metres_per_unit(clip, units, skeleton, standing)
-
-
-def check_rig(clip: BvhClip, joint_map: JointMap, skeleton: Skeleton = T2M) -> float:
-    """The rig's metres per unit (:func:`rig_metres_per_unit`), having put our rest pose on it
-    once: ValueError in one line where our motion cannot go onto it."""
-    scale = rig_metres_per_unit(clip, joint_map, skeleton=skeleton)
-    return Target(Rig.from_bvh(clip), joint_map, scale).checked(skeleton).metres_per_unit
+    scale = joint_map.metres_per_unit(clip, units, skeleton, standing)
+    bind = rig_bind(clip, joint_map, standing, rest_frame, skeleton)
+    return Target(Rig.from_bvh(clip), joint_map, scale, character, bind).checked(skeleton)
 
 
 def read_rig(path: str | Path) -> BvhClip:
@@ -278,12 +383,14 @@ class Target:
     """A rig read and checked once, ready to take any number of motions: its skeleton in its own
     units, the joint map its joints take and its metres per unit (a server keeps one per uploaded
     character, so a character's file is not read again for every clip put on it); ``character``:
-    the glTF file the rig came from, whose meshes a GLB on the rig keeps (:mod:`m2d2m.motion.rig_gltf`)."""
+    the glTF file the rig came from, whose meshes a GLB on the rig keeps (:mod:`m2d2m.motion.rig_gltf`);
+    ``bind``: the pose its motions are aimed from, turned to stand along +Y (:func:`rig_bind`)."""
 
     rig: Rig
     joint_map: JointMap
     metres_per_unit: float
     character: Path | None = None
+    bind: Bind = field(default_factory=Bind)
 
     def checked(self, skeleton: Skeleton = T2M) -> Target:
         """This target, having put our rest pose on it once: ValueError in one line where our
@@ -293,9 +400,11 @@ class Target:
         return self
 
     def retargeted(self, joints: np.ndarray, skeleton: Skeleton = T2M) -> RigMotion:
-        """Our joints (T, J, 3) as this rig's animation, in metres (:func:`retarget`)."""
+        """Our joints (T, J, 3) as this rig's animation in its file's axes and rest pose, in metres
+        (:func:`retarget` onto the rig as its :attr:`bind` stands it)."""
         in_metres = replace(self.rig, offsets=self.rig.offsets * self.metres_per_unit)
-        return retarget(joints, in_metres, self.joint_map, skeleton)
+        bind = self.bind.scaled(self.metres_per_unit)
+        return retarget(joints, in_metres.bound(bind), self.joint_map, skeleton).unbound(in_metres, bind)
 
     def write_bvh(
         self, path: str | Path, joints: np.ndarray, fps: float | None = None, skeleton: Skeleton = T2M
@@ -313,19 +422,17 @@ def read_target(
     joint_map: str | Path | JointMap | None = None,
     units: str | None = None,
     skeleton: Skeleton = T2M,
+    rest_frame: int | None = None,
 ) -> Target:
     """The rig of ``rig_file`` (:func:`read_rig`: a BVH or a glTF character) through ``joint_map``
     (:func:`~m2d2m.motion.joint_map.joint_map_for`: a map, complete or correcting the automatic
     one, a preset's name, ``auto``, a YAML file, or by default the preset its joints fit, else
-    the automatic map), in ``units``
-    (by default the one it stands a person's height in:
-    :meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`); BvhError or ValueError in one line
-    for a rig our motions cannot go onto (checked with our rest pose: :meth:`Target.checked`)."""
+    the automatic map), in ``units``, from its rest pose or frame ``rest_frame`` (:func:`target_of`);
+    BvhError or ValueError in one line for a rig our motions cannot go onto."""
     clip = read_rig(rig_file)
     mapping = joint_map_for(clip, joint_map)
     character = Path(rig_file) if Path(rig_file).suffix.lower() in GLTF_SUFFIXES else None
-    scale = rig_metres_per_unit(clip, mapping, units, skeleton)
-    return Target(Rig.from_bvh(clip), mapping, scale, character).checked(skeleton)
+    return target_of(clip, mapping, units, skeleton, rest_frame, character)
 
 
 def retarget_to_bvh(

@@ -20,6 +20,7 @@ your own rig"). The Khronos glTF 2.0 specification is cited as "§".
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -88,11 +89,17 @@ def save_rig_fbx(
 
 
 def _skeleton_of(target: Target, motion: RigMotion, skeleton: Skeleton) -> tuple[gl.GLTF2, Blob, Tracks]:
-    """A new glTF of the rig's joints in metres with a body skinned to them, and their keys."""
-    rig = motion.rig  # in metres
+    """A new glTF of the rig's joints in metres with a body skinned to them, and their keys; a
+    rig standing along another axis than +Y (a Z-up BVH) turned to stand along glTF's +Y (§3.4):
+    its offsets and root path turned by R, each local rotation L made R L R⁻¹."""
+    rig, root_path, local = motion.rig, motion.root, motion.local  # in metres
+    if target.bind.turned:
+        turn = target.bind.turn
+        rig = replace(rig, offsets=rig.offsets @ turn.T)
+        root_path, local = root_path @ turn.T, turn @ local @ turn.T
     root = int(np.flatnonzero(rig.parents < 0)[0])
     translations = rig.offsets.copy()
-    translations[root] = motion.root[0]
+    translations[root] = root_path[0]
     gltf = new_gltf()
     blob = Blob(gltf)
     add_joint_nodes(gltf, rig.names, rig.parents, translations)
@@ -102,7 +109,7 @@ def _skeleton_of(target: Target, motion: RigMotion, skeleton: Skeleton) -> tuple
     body = add_body(gltf, blob, rig.parents, bones, rest_positions(rig.parents, translations), head_joint, "rig")
     gltf.scenes = [gl.Scene(name="m2d2m", nodes=[root, body])]
     gltf.scene = 0
-    return gltf, blob, ({root: motion.root}, dict(enumerate(np.moveaxis(motion.local, 1, 0))))
+    return gltf, blob, ({root: root_path}, dict(enumerate(np.moveaxis(local, 1, 0))))
 
 
 def _character_of(target: Target, motion: RigMotion) -> tuple[gl.GLTF2, Blob, Tracks]:
