@@ -23,8 +23,8 @@ from tests.live_server import live_server
 pytestmark = [NEEDS_CHROMIUM, pytest.mark.slow]
 FOUR = [("a person walks forward", "1.6"), ("a person jumps", "1.2"), ("a person waves", "1.6"), ("a person sits", "2")]
 # kept frames' joints move by no more than this: the features are kept bit for bit
-# (tests/test_serve.py), the joints too without the foot fix (which re-plants a contact run
-# crossing an edit's margin: docs/generation.md, "Editing a result"), and the API rounds them to 10 µm
+# (tests/test_serve.py), the joints are the source's as delivered, feet planted and all (the foot
+# fix leaves an edit's kept frames: docs/generation.md, "Editing a result"), and the API rounds them to 10 µm
 KEPT_JOINTS_M = 2e-5
 
 
@@ -95,8 +95,7 @@ def test_four_actions_edited_on_the_page_regenerate_pin_retime_continue_fill_and
     from selenium.webdriver.support.ui import Select
 
     with live_server(ServeSettings(dataset=served_dataset, track=False)) as (base, _):
-        open_page(browser, base)
-        browser.find_element(By.ID, "plant-feet").click()  # the feet as the model made them
+        open_page(browser, base)  # the feet planted, as every generated clip's are
         set_actions(browser, FOUR)
         browser.find_element(By.ID, "generate").click()
         wait_for(lambda: find_all_css(browser, "#players .player .editor"), what="the player and its editor")

@@ -26,7 +26,7 @@ models) so that no token holds both kept and free frames.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -52,7 +52,7 @@ class Timeline:
     actions: list[str]
     starts: list[int]
     loop: bool = False
-    joints: np.ndarray | None = field(default=None, compare=False)
+    joints: np.ndarray | None = None
 
     @property
     def frames(self) -> list[int]:
@@ -304,8 +304,8 @@ def _round_the_loop(
 ) -> Edit:
     """The loop ``timeline`` with its frames ``span`` replaced by ``middle`` (placeholders of new
     frames; with ``pinned``, a pose the model keeps and nothing pastes, met at that frame of it)
-    and sampled with
-    ``margin`` frames on each side; the result one cycle of ``actions`` in ``frames``.
+    and sampled with ``margin`` frames on each side; the result one cycle of ``actions`` in
+    ``frames``.
 
     The result, written from the span's end round to its start and then the middle (the
     ``ring``), is asked for starting part-way round: half the kept frames before the sampled
@@ -328,8 +328,8 @@ def _round_the_loop(
         )
     start = (kept_count - margin - before) % length
     order = (start + np.arange(total)) % length  # request frame → ring frame
-    result = np.arange(length)  # result frame → ring frame
-    ring_of_result = np.where(
+    result = np.arange(length)
+    ring_of_result = np.where(  # result frame → ring frame: before the span, the middle, after it
         result < first,
         kept_count - first + result,
         np.where(result < first + len(middle), kept_count + result - first, result - first - len(middle)),
