@@ -133,7 +133,7 @@ def _timeline(
         joints = None
     timeline = Timeline(features, actions or [""], starts, loop, joints)
     if min(timeline.frames) < 1:
-        raise UserError(f"{origin}: its actions overlap at the model's {generator.fps:g} fps")
+        raise UserError(f"{origin}: an action is shorter than a frame at the model's {generator.fps:g} fps")
     return timeline if loop else _fitted(timeline, generator.frame_step, origin)
 
 

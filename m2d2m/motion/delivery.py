@@ -6,7 +6,8 @@ with the model's own contact channels (:mod:`m2d2m.motion.feet`), when asked or 
 generated motion (:meth:`Delivery.plants_feet`: recorded motion comes out as it came in); then the frame rate (by slerp,
 :mod:`m2d2m.motion.retime`), so that a loop's period is a whole number of frames at the asked rate;
 then the loop; then the root (an in-place clip of a loop is an in-place loop). Action ranges
-follow every step. ``m2d2m generate``, ``m2d2m export``, the HTTP API and the page all take a
+follow every step (and a loop's features its cycle: :meth:`~m2d2m.motion.clip.Motion.delivered`); a
+clip that is one cycle already (an edit of a loop) is delivered as the loop it is. ``m2d2m generate``, ``m2d2m export``, the HTTP API and the page all take a
 :class:`Delivery`, so the four deliver the same clip.
 """
 
