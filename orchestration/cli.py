@@ -343,7 +343,7 @@ def _delivery_notes(files: dict[str, Path], motion: Any, delivery: Any) -> None:
             f"kept in {' and '.join(kept)}" if kept else "not kept: BVH, FBX and the animations have no place for it"
         )
         print(f"root motion: taken out of the clip (in place); {where}")
-    if delivery.loop:
+    if motion.loop:
         print(f"loop: one cycle of {motion.seconds:.2f} s, travelling {motion.quality['loop_travel_m']:.2f} m a cycle")
 
 
@@ -440,7 +440,7 @@ def _edit_timeline(args: argparse.Namespace) -> None:
         options["method"] = args.method
     for seed, variation in variations(output, args.seed, args.variations):
         motion = sample_edit(generator, edit, seed, f"{relative_to_project(args.edit)}: {said}", **options)
-        _report(motion, variation, edit.actions, args)
+        _report(motion, variation, edit.result_actions, args)
         if "pin_error_m" in motion.quality:
             print(f"  the pose is met within {motion.quality['pin_error_m'] * 1000:.0f} mm (its farthest joint)")
 

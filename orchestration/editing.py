@@ -2,12 +2,15 @@
 docs/generation.md, "Editing a result"): a result read back from the files ``m2d2m generate``
 wrote, each operation of :mod:`m2d2m.generators.edits` sized for a model, and the edit sampled.
 
-A result's timeline is its ``.features.npy`` (the model's own features, at its frame rate) and
-the actions of its ``.json`` sidecar (their frames converted from the sidecar's rate, which a
-``--fps`` delivery changed). A model that works in steps (the token models' 4 frames) gets whole
-steps: an action whose length is not one loses its last frames (said in a warning), the margins
-are whole steps, and a pinned pose is given to the model on the step that holds its frame (the
-result meets it at the frame itself).
+A result's timeline is its ``.features.npy`` (the model's own features, at its frame rate; a
+loop's, the cycle's own) and the actions of its ``.json`` sidecar (their frames converted from the
+sidecar's rate, which a ``--fps`` delivery changed), with its joints as delivered when they are at
+the model's rate (the kept frames of an edit keep them, feet and all). A model that works in steps
+(the token models' 4 frames) gets whole steps: an action whose length is not one loses its last
+frames (said in a warning), the margins are whole steps, and a pinned pose is given to the model
+on the step that holds its frame (the result meets it at the frame itself). A loop keeps every
+frame: its regenerated actions and pinned poses are sampled round the loop, in whole steps of the
+request (:mod:`m2d2m.generators.edits`); to fill or continue one is to make a clip of it, fitted.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from m2d2m.generators.edits import (
     continue_after,
     fill_between,
     hold_pose,
+    kept_frames,
     layer_part,
     margin_frames,
     regenerate_action,
@@ -47,11 +51,13 @@ EDIT_METHODS = {"mmm": "independent"}
 
 def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
     """The timeline of a result on disk (its ``.npy`` or ``.features.npy``; the features beside the
-    joints when there are, else features made from the joints), its actions from its sidecar;
-    a file without one is one action. Fitted to the model's steps. Joints are at their sidecar's
-    rate (a ``--fps`` delivery), resampled to the model's; features are always the model's."""
+    joints when there are, else features made from the joints), its actions and whether it is a
+    loop from its sidecar; a file without one is one action. Fitted to the model's steps. Joints
+    are at their sidecar's rate (a ``--fps`` delivery), resampled to the model's; features are
+    always the model's."""
     path = Path(path)
-    features_file = path if path.name.endswith(".features.npy") else path.with_name(path.stem + ".features.npy")
+    is_features = path.name.endswith(".features.npy")
+    features_file = path if is_features else path.with_name(path.stem + ".features.npy")
     sidecar = read_sidecar(path)
     if features_file.is_file():
         features = load_features(features_file, generator.skeleton)
@@ -59,6 +65,12 @@ def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
         features = load_features(path, generator.skeleton, fps=None if sidecar is None else float(sidecar["fps"]))
     if sidecar is None or not sidecar["segments"]:
         return _fitted(Timeline(features, [""], [0]), generator.frame_step, str(path))
+    joints_file = path.with_name(path.name.removesuffix(".features.npy") + ".npy") if is_features else path
+    joints = None
+    if joints_file.is_file() and float(sidecar["fps"]) == generator.fps:
+        joints = np.load(joints_file, allow_pickle=False)
+        if "root_motion" in sidecar:  # an in-place clip: its path added back, where the features have it
+            joints = joints + np.load(joints_file.with_name(sidecar["root_motion"]), allow_pickle=False)[:, None]
     segments = sidecar["segments"]
     return _timeline(
         features,
@@ -67,6 +79,8 @@ def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
         generator,
         float(sidecar["fps"]),
         str(path),
+        bool(sidecar.get("loop", False)),
+        joints,
     )
 
 
@@ -74,7 +88,11 @@ def timeline_of(motion: Motion, generator: MotionGenerator, origin: str) -> Time
     """The timeline of a result in memory (a served generation): its features, at the model's
     rate, and its actions, whose frames a delivery at another rate changed."""
     firsts = [first for first, _ in motion.ranges]
-    return _timeline(np.asarray(motion.features), list(motion.actions), firsts, generator, motion.fps, origin)
+    joints = None
+    if motion.fps == generator.fps:
+        joints = motion.joints if motion.root_track is None else motion.joints + motion.root_track[:, None]
+    features = np.asarray(motion.features)
+    return _timeline(features, list(motion.actions), firsts, generator, motion.fps, origin, motion.loop, joints)
 
 
 def motion_of(
@@ -112,29 +130,48 @@ def _timeline(
     generator: MotionGenerator,
     fps: float,
     origin: str,
+    loop: bool = False,
+    joints: np.ndarray | None = None,
 ) -> Timeline:
     """Features at the model's rate with actions starting at ``firsts`` frames of ``fps`` (the
-    first action from frame 0), fitted to the model's steps."""
+    first action from frame 0), fitted to the model's steps unless a ``loop``; ``joints``: as
+    delivered, kept when they are the features' frames."""
     scale = generator.fps / fps
     starts = [0, *(round(first * scale) for first in firsts[1:])]
-    return _fitted(Timeline(features, actions or [""], starts), generator.frame_step, origin)
+    if joints is not None and np.shape(joints) != (len(features), generator.skeleton.num_joints, 3):
+        joints = None
+    timeline = Timeline(features, actions or [""], starts, loop, joints)
+    if min(timeline.frames) < 1:
+        raise UserError(f"{origin}: an action is shorter than a frame at the model's {generator.fps:g} fps")
+    return timeline if loop else _fitted(timeline, generator.frame_step, origin)
 
 
 def _fitted(timeline: Timeline, step: int, origin: str) -> Timeline:
     """``timeline`` with each action cut to whole steps of ``step`` frames (a warning says how many
-    frames went); an action shorter than a step is one line."""
+    frames went); an action shorter than a step is one line. A loop so cut is a clip."""
     kept = [n // step * step for n in timeline.frames]
     if min(kept) == 0:
         raise UserError(f"{origin}: an action is shorter than the model's step of {step} frames")
     if kept == timeline.frames:
-        return timeline
-    pieces = [timeline.features[s : s + n] for s, n in zip(timeline.starts, kept)]
+        return replace(timeline, loop=False)
+    frames = np.concatenate([np.arange(s, s + n) for s, n in zip(timeline.starts, kept)])
     print(
         f"warning: {origin}: {sum(timeline.frames) - sum(kept)} frame(s) cut so that each action is whole "
         f"steps of {step} frames",
         file=sys.stderr,
     )
-    return Timeline(np.concatenate(pieces), timeline.actions, [int(s) for s in np.cumsum([0, *kept[:-1]])])
+    return Timeline(
+        timeline.features[frames],
+        timeline.actions,
+        [int(s) for s in np.cumsum([0, *kept[:-1]])],
+        joints=None if timeline.joints is None else timeline.joints[frames],
+    )
+
+
+def as_clip(timeline: Timeline, generator: MotionGenerator) -> Timeline:
+    """A loop as a clip (its frames in order, fitted to the model's steps), for the edits that do
+    not keep it one cycle: filling between it and another, continuing it, a body part over a span."""
+    return _fitted(timeline, generator.frame_step, f"the loop of {len(timeline.features)} frames")
 
 
 def _frame_at(generator: MotionGenerator, timeline: Timeline, seconds: float, what: str, on_grid: bool = True) -> int:
@@ -155,7 +192,7 @@ def redo_action(
     """Action ``action`` (counted from 1) sampled again, under ``text`` and ``seconds`` when given."""
     frames = None if seconds is None else action_frames(generator, seconds, f"action {action}")
     try:
-        return regenerate_action(timeline, action - 1, margin_frames(generator), text, frames)
+        return regenerate_action(timeline, action - 1, margin_frames(generator), text, frames, generator.frame_step)
     except (IndexError, ValueError) as error:
         raise UserError(str(error)) from error
 
@@ -204,11 +241,14 @@ def edit_options(generator: MotionGenerator, edit: Edit, options: dict[str, Any]
 
 def finish_edit(edit: Edit, sampled: Motion, generator: MotionGenerator, said: str, **recorded: Any) -> Motion:
     """The model's sample of ``edit`` with the kept frames pasted back, on one rigid skeleton, its
-    settings recording the edit (``said``: what it does; ``recorded``: more, such as its parent)."""
+    settings recording the edit (``said``: what it does; ``recorded``: more, such as its parent),
+    its kept frames' joints their sources' as delivered, which its delivery's foot fix keeps."""
     motion = apply_edit(edit, sampled, generator.skeleton)
-    edited = ~edit.paste.reshape(len(edit.paste), -1).all(axis=1)  # a frame with any entry sampled
+    edited = edit.result_origin < 0  # a frame with any entry sampled
     settings = {**motion.settings, "edit": said, "edited_frames": int(edited.sum()), **recorded}
-    return replace(motion, settings=settings).on_rigid_skeleton(body_of(edit, generator.skeleton))
+    body = body_of(edit, generator.skeleton)
+    motion = replace(motion, settings=settings).on_rigid_skeleton(body)
+    return replace(motion, kept_frames=kept_frames(edit, motion, body))
 
 
 def sample_edit(generator: MotionGenerator, edit: Edit, seed: int = 0, said: str = "", **options: Any) -> Motion:
@@ -283,7 +323,7 @@ def plan_edit(
             raise UserError("filling takes at most one text (what happens in the gap) and one length (the gap's)")
         gap = seconds[0] if seconds else 1.0
         return fill(
-            generator, timeline, fill_to, gap, prompts[0] if prompts else ""
+            generator, as_clip(timeline, generator), as_clip(fill_to, generator), gap, prompts[0] if prompts else ""
         ), f"{gap:g} s filled between two results"
     if pose is not None:
         if at is None or prompts or seconds:
@@ -294,12 +334,12 @@ def plan_edit(
         if span is None or prompts or seconds:
             raise UserError("laying a body part's action takes the span it lasts (--span; the API's span) alone")
         return lay_part(
-            generator, timeline, *layer, span
+            generator, as_clip(timeline, generator), *layer, span
         ), f"{layer[0]} body doing {layer[1]!r} from {span[0]:g} to {span[1]:g} s"
     if not prompts:
         raise UserError("continuing takes the new actions' texts (prompts)")
     lengths = seconds * len(prompts) if len(seconds) == 1 else seconds or [None] * len(prompts)
-    return extend_with(generator, timeline, prompts, lengths), f"{len(prompts)} action(s) added"
+    return extend_with(generator, as_clip(timeline, generator), prompts, lengths), f"{len(prompts)} action(s) added"
 
 
 OPERATIONS = ("regenerate", "fill_to", "pose", "extend", "layer")

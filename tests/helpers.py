@@ -258,6 +258,19 @@ def latest_evaluation(project: Path) -> Path:
     return stage / (stage / "latest").read_text(encoding="utf-8").strip()
 
 
+def on_the_floor_as(reference: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """``joints`` (T, J, 3) turned about the vertical and moved on the floor onto ``reference``'s
+    place (least squares): the actions after an edit continue from where the new motion ends."""
+    ours, theirs = joints[..., [0, 2]].reshape(-1, 2), reference[..., [0, 2]].reshape(-1, 2)
+    u, _, vt = np.linalg.svd((ours - ours.mean(0)).T @ (theirs - theirs.mean(0)))
+    turn = u @ vt
+    if np.linalg.det(turn) < 0:
+        turn = u @ np.diag([1.0, -1.0]) @ vt
+    placed = joints.copy()
+    placed[..., [0, 2]] = (joints[..., [0, 2]] - ours.mean(0)) @ turn + theirs.mean(0)
+    return placed
+
+
 def one_line_error(argv: list[str], capture) -> str:
     """Run the command line on ``argv`` (``capture``: pytest's capsys or capfd): it must fail with
     status 2 and one line on stderr, no traceback, argparse's refusals included; that line."""

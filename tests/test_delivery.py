@@ -20,6 +20,7 @@ from m2d2m.motion.bvh_reader import read_bvh
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.delivery import Delivery, deliver
 from m2d2m.motion.feet import fix_feet, skating_ratio
+from m2d2m.motion.retime import frame_count
 from m2d2m.motion.rigid import on_rigid_skeleton
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
@@ -136,6 +137,28 @@ def test_frame_rate_loop_and_root_follow_each_other_with_the_actions(clip):
     np.testing.assert_allclose(done.joints[:, 0, [0, 2]], 0.0, atol=1e-6)  # in place
     assert done.root_track is not None and done.root_track.shape == (len(done.joints), 3)
     assert "loop_travel_m" in done.quality
+
+
+def test_a_loops_features_are_its_cycles_frames_and_a_cycle_stays_one(clip):
+    """Issue 53 §1: a looped motion's features hold the cycle's frames, as its joints do (before,
+    the model's 170 frames stood beside a loop of 85), the frames it plays unfaded the model's
+    own; a motion already one cycle (an edit of a loop) is delivered as that loop, whole, at
+    another rate too: L frames at 20 fps are 1.5 L at 30 (resampled through the next cycle's
+    first frame; without it, the cycle's last interval was lost)."""
+    joints, features = clip
+    motion = Motion(features, joints, 20.0, T2M.name, ["walk", "turn"], RANGES)
+    looped = motion.delivered(Delivery(loop=True))
+    window, cut = deliver(joints, 20.0, T2M, RANGES, Delivery(loop=True), features).loop_span
+    assert looped.loop and len(looped.features) == len(looped.joints) == cut - window
+    np.testing.assert_array_equal(looped.features[: cut - 2 * window], features[window : cut - window])
+    # its last frame faded into the frame before its first: the seam runs on, in the features too
+    seam = np.abs(looped.features[-1] - features[window - 1]).max()
+    assert seam < 0.01 * np.abs(features[cut - 1] - features[window - 1]).max()
+    again = looped.delivered(Delivery(fps=30.0))
+    cycle = frame_count(len(looped.joints), 20.0, 30.0)  # 1.5 L, half up (docs/generation.md)
+    assert again.loop and again.settings["delivery"]["loop"] and len(again.joints) == cycle
+    assert again.ranges[-1][1] == cycle and again.quality["loop_travel_m"] > 0
+    assert len(looped.delivered(Delivery(loop=True)).joints) == len(looped.joints)  # not cut again
 
 
 @pytest.mark.parametrize(

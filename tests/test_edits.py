@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -27,6 +28,7 @@ from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
+from tests.helpers import on_the_floor_as
 
 D = T2M.feature_dim
 MODEL = ["--dataset", "tiny", "--ts", "4", "--no-track", "--formats", "npy"]  # the trained demo model, quickly
@@ -194,6 +196,161 @@ def test_every_operation_from_the_command_line(trained_project, tmp_path, capsys
     ):
         assert main([*argv, *extra, "--out", str(tmp_path / "bad")]) == 2
         assert message in capsys.readouterr().err
+
+
+def sampled_for(edit, seed: int = 0) -> Motion:
+    """What a model might sample for ``edit``: random features on its request's timeline."""
+    features = np.random.default_rng(seed).normal(scale=0.1, size=edit.keep.features.shape).astype(np.float32)
+    starts = np.cumsum([0, *edit.frames])
+    ranges = list(zip(starts[:-1].tolist(), starts[1:].tolist()))
+    return Motion(features, features_to_joints(features, T2M), 20.0, T2M.name, list(edit.actions), ranges)
+
+
+def round_the_loop(count: int, first: int, end: int, margin: int) -> np.ndarray:
+    """(count,) True outside frames ``first`` to ``end`` widened by ``margin`` each way round a loop."""
+    kept = np.ones(count, dtype=bool)
+    kept[np.arange(first - margin, end + margin) % count] = False
+    return kept
+
+
+@pytest.mark.parametrize("index", [0, 1, 2])
+def test_an_action_of_a_loop_is_sampled_again_round_the_loop_and_the_loop_keeps_its_frames(index):
+    """Issue 53 §1: a loop of actions 13, 10 and 14 frames long (no whole steps of 4) with action
+    ``index`` sampled again: the request is whole steps, starts part-way round so that the action
+    has the loop's frames on both sides (the first's margin reaches back over the seam), and the
+    result read off it is one cycle again, every action as long as it was, every frame outside
+    the action and its margins the source's."""
+    loop = replace(timeline([13, 10, 14]), loop=True)
+    first, end = loop.span(index)
+    edit = regenerate_action(loop, index, margin=4, text="kick", step=4)
+    assert all(n % 4 == 0 for n in edit.frames) and sum(edit.frames) == 40
+    assert "kick" in edit.actions and edit.result_actions == [*"abc"[:index], "kick", *"abc"[index + 1 :]]
+    done = apply_edit(edit, sampled_for(edit), T2M)
+    assert done.loop and done.ranges == [(0, 13), (13, 23), (23, 37)] and done.actions == edit.result_actions
+    kept = edit.result_origin >= 0
+    np.testing.assert_array_equal(edit.result_origin[kept], np.arange(37)[kept])
+    np.testing.assert_array_equal(done.features[kept], loop.features[kept])
+    # sampled: the action and its margins, widened to whole steps (by 3 frames at most)
+    assert not (kept & ~round_the_loop(37, first, end, 4)).any() and kept[round_the_loop(37, first, end, 7)].all()
+    assert not np.isin(done.features[first:end], loop.features).all(axis=1).any()
+
+
+def test_a_loop_retimed_keeps_its_other_actions_and_a_pin_round_its_seam():
+    loop = replace(timeline([13, 10, 14]), loop=True)
+    longer = apply_edit(edit := regenerate_action(loop, 1, margin=4, frames=16, step=4), sampled_for(edit), T2M)
+    assert longer.ranges == [(0, 13), (13, 29), (29, 43)]
+    np.testing.assert_array_equal(longer.features[33:39], loop.features[27:33])
+    pose = np.full(D, 9.0, dtype=np.float32)
+    pinned = hold_pose(loop, pose, frame=32, step=4, margin=4)  # its margin runs over the seam into frame 3
+    np.testing.assert_array_equal(pinned.keep.features[pinned.pin[0] : pinned.pin[0] + 4], np.repeat(pose[None], 4, 0))
+    done = apply_edit(pinned, sampled_for(pinned), T2M)
+    assert len(done.features) == 37 and done.ranges == [(0, 13), (13, 23), (23, 37)]
+    kept = pinned.result_origin >= 0
+    np.testing.assert_array_equal(done.features[kept], loop.features[kept])
+    assert not (kept & ~round_the_loop(37, 32, 36, 4)).any() and kept[round_the_loop(37, 32, 36, 7)].all()
+    late = hold_pose(loop, pose, frame=35, step=4, margin=4)  # the model is given frames 33-36; met at 35
+    shape = slice(3, 4 + 21 * 3 + 21 * 6)  # root height, joints around the root, rotations
+    np.testing.assert_allclose(apply_edit(late, sampled_for(late), T2M).features[35, shape], pose[shape], atol=1e-5)
+    with pytest.raises(ValueError, match=re.escape("a pose pinned at frame 37 lies outside the motion's 37 frames")):
+        hold_pose(loop, pose, frame=37, step=4, margin=4)
+    with pytest.raises(ValueError, match="a loop of 37 frames is too short to sample 14 of them again"):
+        regenerate_action(loop, 2, margin=8, step=4)
+
+
+def segments_of(directory) -> list[tuple[int, int, str]]:
+    sidecar = json.loads((directory / "motion.json").read_text(encoding="utf-8"))
+    return [(s["start_frame"], s["end_frame"], s["text"]) for s in sidecar["segments"]]
+
+
+@pytest.mark.slow
+def test_a_looped_result_is_edited_on_the_timeline_it_shows(trained_project, tmp_path, capsys):
+    """Issue 53 §1 on the command line: a loop's features are the frames its joints and timeline
+    show (before: the model's 120 beside a loop's fewer, and an edit read the loop's action frames
+    off the model's); action 2 regenerated samples that action again round the loop and gives a
+    loop as long, every other action as long and, outside the action and its margins (0.4 s and
+    up to a token), the same frames, features and joints; a pin past the loop's end is one line."""
+    three = ["a person walks forward", "a person jumps", "a person waves"]
+    loop = tmp_path / "loop"
+    assert (
+        main(["generate", *three, "--no-split", "--seconds", "3", "3", "3", "--loop", *MODEL, "--out", str(loop)]) == 0
+    )
+    joints, features = np.load(loop / "motion.npy"), np.load(loop / "motion.features.npy")
+    assert len(features) == len(joints) and json.loads((loop / "motion.json").read_text())["loop"] is True
+    before = segments_of(loop)
+    assert len(before) >= 2 and before[-1][1] == len(joints)
+    redo = tmp_path / "redo"
+    assert (
+        main(
+            [
+                "generate",
+                "--edit",
+                str(loop / "motion.npy"),
+                "--regenerate",
+                "2",
+                "a person kicks",
+                *MODEL,
+                "--out",
+                str(redo),
+            ]
+        )
+        == 0
+    )
+    assert f"loop: one cycle of {len(joints) / 20:.2f} s" in capsys.readouterr().out
+    after = segments_of(redo)
+    assert [(a, b) for a, b, _ in after] == [(a, b) for a, b, _ in before] and after[1][2] == "a person kicks"
+    edited_joints, edited_features = np.load(redo / "motion.npy"), np.load(redo / "motion.features.npy")
+    assert len(edited_joints) == len(edited_features) == len(joints)
+    first, end = before[1][:2]
+    kept = np.ones(len(joints), dtype=bool)
+    kept[np.arange(first - 8 - 3, end + 8 + 3) % len(joints)] = False  # the margins, widened to whole tokens
+    np.testing.assert_array_equal(edited_features[kept], features[kept])
+    assert not np.array_equal(edited_features[first:end], features[first:end])
+    for run in np.split(np.flatnonzero(kept), np.flatnonzero(np.diff(np.flatnonzero(kept)) > 1) + 1):
+        # each stretch of kept frames as delivered, feet too, where the new frames leave it
+        assert np.abs(on_the_floor_as(joints[run], edited_joints[run]) - joints[run]).max() < 1e-4
+    past = ["generate", "--edit", str(loop / "motion.npy"), "--pin", f"{loop / 'motion.npy'}@4", "--at", "9", *MODEL]
+    assert main([*past, "--out", str(tmp_path / "bad")]) == 2
+    assert f"a pose pinned at 9 s lies outside the motion's {len(joints) / 20:g} s" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_foot_fix_of_an_edit_leaves_the_other_actions_as_delivered(trained_project, tmp_path):
+    """Issue 53 §7: action 2 of three regenerated, with the foot fix (a delivery's default):
+    actions 1 and 3, outside the margins, are the source's as delivered, feet and all (action 3
+    where the new action leaves it, turned and moved on the floor); before, the fix planted the
+    whole result again and moved kept feet (0.5 mm with this tiny model, 27 to 40 mm with the
+    demo's)."""
+    three = ["a person walks forward", "a person jumps", "a person walks back"]
+    source, edited = tmp_path / "three", tmp_path / "redo"
+    assert (
+        main(
+            ["generate", *three, "--no-split", "--seconds", "3", "3", "3", "--seed", "1", *MODEL, "--out", str(source)]
+        )
+        == 0
+    )
+    assert (
+        main(
+            [
+                "generate",
+                "--edit",
+                str(source / "motion.npy"),
+                "--regenerate",
+                "2",
+                "a person kicks",
+                *MODEL,
+                "--out",
+                str(edited),
+            ]
+        )
+        == 0
+    )
+    (_, (first, end, _), _), ((_, _, _), (_, new_end, _), _) = segments_of(source), segments_of(edited)
+    before, after = np.load(source / "motion.npy"), np.load(edited / "motion.npy")
+    reach = 8 + 4  # the margin, and a token's widening
+    head = slice(0, first - reach)
+    assert np.abs(after[head] - before[head]).max() < 1e-4
+    tail_before, tail_after = before[end + reach :], after[new_end + reach :]
+    assert np.abs(on_the_floor_as(tail_before, tail_after) - tail_before).max() < 1e-4
 
 
 def test_a_body_part_laid_over_a_span_splits_the_actions_it_cuts_and_keeps_the_other_part():

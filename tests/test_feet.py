@@ -18,6 +18,7 @@ from m2d2m.motion.clip import Motion
 from m2d2m.motion.feet import (
     FREE_SPEED_M_S,
     SLIDE_TOLERANCE_M,
+    KeptFrames,
     contact_runs,
     fix_feet,
     foot_contacts,
@@ -165,6 +166,28 @@ def test_planting_stops_the_slide_and_moves_nothing_but_the_legs():
             travel = np.abs(planted[end - 1, toe, 2] - planted[first, toe, 2])
             assert travel <= 2 * SLIDE_TOLERANCE_M + FREE_SPEED_M_S * seconds + 1e-9
             assert np.abs(sliding[end - 1, toe, 2] - sliding[first, toe, 2]) == pytest.approx(0.6 * seconds)
+
+
+def test_kept_frames_come_out_as_given_and_a_run_crossing_into_them_holds_their_lock():
+    """Issue 53 §7: an edit's result, its frames from 26 on new (stance feet sliding at 0.3 m/s
+    where the source's slid at 0.6), its kept frames the source's as delivered: planted again
+    whole, the left stance that crosses frame 26 moves the kept frames by 3.75 mm; told which
+    frames are kept, the fix leaves them bit for bit and holds the new frames of that stance
+    within the tolerance and a real foot's creep of where the kept frames stand."""
+    source = walk(0.6)
+    delivered = plant_feet(source, T2M, FPS)
+    edited = source.copy()
+    edited[26:] = walk(0.3)[26:]
+    kept = np.arange(len(edited)) < 26
+    assert np.abs(plant_feet(edited, T2M, FPS)[kept] - delivered[kept]).max() > 3e-3
+
+    fixed = plant_feet(edited, T2M, FPS, kept=KeptFrames(kept, delivered))
+
+    np.testing.assert_array_equal(fixed[kept], delivered[kept])
+    drift = np.abs(fixed[26:32, 10, 2] - fixed[25, 10, 2])  # the left toe, to the stance's end (frame 31)
+    assert (drift <= SLIDE_TOLERANCE_M + FREE_SPEED_M_S * np.arange(1, 7) / FPS + 1e-9).all()
+    assert np.abs(edited[31, 10, 2] - edited[25, 10, 2]) > SLIDE_TOLERANCE_M + 6 * FREE_SPEED_M_S / FPS
+    np.testing.assert_allclose(T2M.bone_lengths_of(fixed), T2M.bone_lengths_of(edited), atol=1e-12)
 
 
 def test_planting_a_clip_without_contacts_changes_nothing():

@@ -564,3 +564,47 @@ def test_a_generation_is_edited_on_its_timeline(client, trained_project):
     ):
         refused = client.post("/api/generations", json=body)
         assert refused.status_code == 400 and message in refused.json()["error"], refused.text
+
+
+def test_a_looped_generation_is_edited_on_the_timeline_it_shows(client, trained_project):
+    """Issue 53 §1 through the API: a loop's features file holds its cycle's frames, as its joints
+    do; action 2 regenerated gives a loop as long, each action as long, the other frames' features
+    the loop's outside the action's margins; a pose copied from frame F of the loop is that frame's
+    (pinned at F, the result meets it there); a pin past the loop's end is a 400 sentence."""
+    three = [{"text": text, "seconds": 3.0} for text in ("a person walks", "a person jumps", "a person waves")]
+    loop = generate(client, actions=three, seed=2, loop=True)
+
+    def is_loop(generation: dict) -> bool:
+        return client.get(generation["files"]["json"]).json().get("loop", False)
+
+    def features(generation: dict) -> np.ndarray:
+        path = trained_project / f"{generation['id']}.features.npy"
+        path.write_bytes(client.get(generation["files"]["features"]).content)
+        return np.load(path)
+
+    looped = features(loop)
+    count = len(loop["joints"])
+    assert len(looped) == count and loop["actions"][-1]["end"] == count and is_loop(loop)
+    edit_url = f"/api/generations/{loop['id']}/edit"
+    answer = client.post(edit_url, json={"operation": "regenerate", "action": 2, "options": {"ts": 4}})
+    assert answer.status_code == 200, answer.text
+    redone = answer.json()
+    assert len(redone["joints"]) == count and is_loop(redone)
+    assert [(a["first"], a["end"]) for a in redone["actions"]] == [(a["first"], a["end"]) for a in loop["actions"]]
+    first, end = loop["actions"][1]["first"], loop["actions"][1]["end"]
+    kept = np.ones(count, dtype=bool)
+    kept[np.arange(first - 11, end + 11) % count] = False  # 0.4 s each side, widened to whole tokens
+    np.testing.assert_array_equal(features(redone)[kept], looped[kept])
+    frame = count - 10
+    pin = {
+        "operation": "pin",
+        "pose": {"generation": loop["id"], "frame": frame},
+        "at": frame / 20,
+        "options": {"ts": 4},
+    }
+    answer = client.post(edit_url, json=pin)
+    assert answer.status_code == 200, answer.text
+    shape = slice(3, 4 + 21 * 9)  # root height, joints around the root, rotations
+    np.testing.assert_allclose(features(answer.json())[frame, shape], looped[frame, shape], atol=1e-5)
+    refused = client.post(edit_url, json={**pin, "at": count / 20 + 1})
+    assert refused.status_code == 400 and f"outside the motion's {count} frames" in refused.json()["error"]

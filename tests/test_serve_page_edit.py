@@ -17,14 +17,14 @@ from m2d2m.generators.edits import EDIT_MARGIN_SECONDS
 from orchestration.recipe import train
 from orchestration.web.app import ServeSettings
 from tests.browser import NEEDS_CHROMIUM, find_all_css, open_page, wait_for
-from tests.helpers import TINY_MOTIONDIFFUSE
+from tests.helpers import TINY_MOTIONDIFFUSE, on_the_floor_as
 from tests.live_server import live_server
 
 pytestmark = [NEEDS_CHROMIUM, pytest.mark.slow]
 FOUR = [("a person walks forward", "1.6"), ("a person jumps", "1.2"), ("a person waves", "1.6"), ("a person sits", "2")]
 # kept frames' joints move by no more than this: the features are kept bit for bit
-# (tests/test_serve.py), the joints too without the foot fix (which re-plants a contact run
-# crossing an edit's margin: docs/generation.md, "Editing a result"), and the API rounds them to 10 µm
+# (tests/test_serve.py), the joints are the source's as delivered, feet planted and all (the foot
+# fix leaves an edit's kept frames: docs/generation.md, "Editing a result"), and the API rounds them to 10 µm
 KEPT_JOINTS_M = 2e-5
 
 
@@ -74,19 +74,6 @@ def editor(browser, clip: int = 0):
     return find_all_css(browser, "#players .player")[clip].find_element("css selector", ".editor")
 
 
-def on_the_floor_as(reference: np.ndarray, joints: np.ndarray) -> np.ndarray:
-    """``joints`` (T, J, 3) turned about the vertical and moved on the floor onto ``reference``'s
-    place (least squares): the actions after an edit continue from where the new motion ends."""
-    ours, theirs = joints[..., [0, 2]].reshape(-1, 2), reference[..., [0, 2]].reshape(-1, 2)
-    u, _, vt = np.linalg.svd((ours - ours.mean(0)).T @ (theirs - theirs.mean(0)))
-    turn = u @ vt
-    if np.linalg.det(turn) < 0:
-        turn = u @ np.diag([1.0, -1.0]) @ vt
-    placed = joints.copy()
-    placed[..., [0, 2]] = (joints[..., [0, 2]] - ours.mean(0)) @ turn + theirs.mean(0)
-    return placed
-
-
 def kept_outside(before: dict, after: dict, action: int) -> np.ndarray:
     """How far each joint of ``before`` outside action ``action`` and its margins is from where
     ``after`` has it, in metres: the frames before it as they are, those after it (matched from
@@ -108,8 +95,7 @@ def test_four_actions_edited_on_the_page_regenerate_pin_retime_continue_fill_and
     from selenium.webdriver.support.ui import Select
 
     with live_server(ServeSettings(dataset=served_dataset, track=False)) as (base, _):
-        open_page(browser, base)
-        browser.find_element(By.ID, "plant-feet").click()  # the feet as the model made them
+        open_page(browser, base)  # the feet planted, as every generated clip's are
         set_actions(browser, FOUR)
         browser.find_element(By.ID, "generate").click()
         wait_for(lambda: find_all_css(browser, "#players .player .editor"), what="the player and its editor")

@@ -15,9 +15,11 @@ from m2d2m.atomic import atomic_path
 from m2d2m.layout import relative_to_project
 from m2d2m.motion.delivery import Delivery, deliver
 from m2d2m.motion.export import save_bvh, save_motion_npy
+from m2d2m.motion.feet import KeptFrames
 from m2d2m.motion.gltf import save_fbx, save_glb
 from m2d2m.motion.render import render_motion
 from m2d2m.motion.retarget import Target, read_target
+from m2d2m.motion.retime import loop_features
 from m2d2m.motion.rig_gltf import save_rig_fbx, save_rig_glb
 from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
@@ -34,7 +36,9 @@ class Motion:
     ``ranges[i]`` = (first, end) frames of ``actions[i]`` (end exclusive). Frames between two
     ranges belong to no action: a baseline's transition window. ``settings`` records how it was
     made (method, seed, ...), ``quality`` figures of the joints (``bone_length_std_mm_mean`` and
-    ``_max``: the spread of bone lengths before :meth:`on_rigid_skeleton`)."""
+    ``_max``: the spread of bone lengths before :meth:`on_rigid_skeleton`). ``loop``: one cycle
+    of a loop, its last frame running on into its first; ``kept_frames``: an edit's frames that
+    its delivery's foot fix leaves as they are (its source's, as delivered)."""
 
     features: np.ndarray
     joints: np.ndarray
@@ -46,6 +50,8 @@ class Motion:
     tokens: np.ndarray | None = None  # the generated motion tokens, in order, when it was generated
     quality: dict[str, float] = field(default_factory=dict)
     root_track: np.ndarray | None = None  # (F, 3) the root motion an in-place delivery took out
+    loop: bool = False
+    kept_frames: KeptFrames | None = None
 
     def __post_init__(self) -> None:
         if len(self.actions) != len(self.ranges):
@@ -96,10 +102,28 @@ class Motion:
         """This motion as ``delivery`` asks for it (feet planted, frame rate, loop, root motion:
         :func:`m2d2m.motion.delivery.deliver`; ``recorded``: captured, not generated, so its feet
         are left as they are unless asked), the delivery recorded in ``settings`` and its figures
-        in ``quality``. The features stay the model's own, at its rate: what an edit reads."""
-        done = deliver(self.joints, self.fps, self.skeleton, self.ranges, delivery, self.features, recorded)
+        in ``quality``. The features stay the model's own, at its rate, what an edit reads; a
+        loop's are the cycle's (:func:`~m2d2m.motion.retime.loop_features`), so that they and the
+        joints hold the same frames. A motion that is one cycle already (an edit of a loop) is
+        delivered as the loop it is."""
+        done = deliver(
+            self.joints,
+            self.fps,
+            self.skeleton,
+            self.ranges,
+            delivery,
+            self.features,
+            recorded,
+            self.kept_frames,
+            self.loop,
+        )
+        features = self.features
+        if done.loop_span is not None and len(features) == len(self.joints):  # features frame for frame
+            features = loop_features(features, tuple(round(f * self.fps / done.fps) for f in done.loop_span))
+        loop = self.loop or delivery.loop
         return replace(
             self,
+            features=features,
             joints=done.joints,
             fps=done.fps,
             actions=[self.actions[i] for i in done.kept],
@@ -109,12 +133,15 @@ class Motion:
                 **self.settings,
                 "delivery": {
                     **asdict(delivery),
+                    "loop": loop,
                     "plant_feet": delivery.plants_feet(recorded),
                     "rig": delivery.rig and relative_to_project(delivery.rig),
                 },
             },
             quality={**self.quality, **done.quality},
             root_track=done.root_track,
+            loop=loop,
+            kept_frames=None,
         )
 
     def save(
@@ -148,7 +175,7 @@ class Motion:
             path = directory / f"{name}.{kind}"
             if kind == "npy":
                 written[kind] = save_motion_npy(
-                    path, self.joints, self.fps, self.skeleton, self.segments, self.quality, self.root_track
+                    path, self.joints, self.fps, self.skeleton, self.segments, self.quality, self.root_track, self.loop
                 )
                 if self.features.size:  # a motion known only by its joints (m2d2m export) has none
                     with atomic_path(directory / f"{name}.features.npy") as partial:
@@ -202,6 +229,7 @@ def save_motions(path: str | Path, motions: Sequence[Motion]) -> Path:
                 "ranges": [list(r) for r in motion.ranges],
                 "settings": motion.settings,
                 "quality": motion.quality,
+                "loop": motion.loop,
             }
         )
     arrays["described"] = np.array(json.dumps(described, default=str))
@@ -225,6 +253,7 @@ def load_motions(path: str | Path) -> list[Motion]:
                 stored[f"tokens{index}"] if f"tokens{index}" in stored else None,
                 info["quality"],
                 stored[f"root_track{index}"] if f"root_track{index}" in stored else None,
+                info.get("loop", False),
             )
             for index, info in enumerate(json.loads(str(stored["described"])))
         ]

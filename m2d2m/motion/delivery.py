@@ -6,7 +6,8 @@ with the model's own contact channels (:mod:`m2d2m.motion.feet`), when asked or 
 generated motion (:meth:`Delivery.plants_feet`: recorded motion comes out as it came in); then the frame rate (by slerp,
 :mod:`m2d2m.motion.retime`), so that a loop's period is a whole number of frames at the asked rate;
 then the loop; then the root (an in-place clip of a loop is an in-place loop). Action ranges
-follow every step. ``m2d2m generate``, ``m2d2m export``, the HTTP API and the page all take a
+follow every step (and a loop's features its cycle: :meth:`~m2d2m.motion.clip.Motion.delivered`); a
+clip that is one cycle already (an edit of a loop) is delivered as the loop it is. ``m2d2m generate``, ``m2d2m export``, the HTTP API and the page all take a
 :class:`Delivery`, so the four deliver the same clip.
 """
 
@@ -17,9 +18,18 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.feet import fix_feet, skating_ratio
+from m2d2m.motion.feet import KeptFrames, fix_feet, skating_ratio
 from m2d2m.motion.pose import REST_POSES
-from m2d2m.motion.retime import ROOT_MODES, check_fps, make_loop, resample, resample_ranges, root_motion
+from m2d2m.motion.retime import (
+    ROOT_MODES,
+    check_fps,
+    cycle_travel,
+    frame_count,
+    make_loop,
+    resample,
+    resample_ranges,
+    root_motion,
+)
 from m2d2m.motion.skeleton import Skeleton
 
 
@@ -67,7 +77,9 @@ class Delivery:
 @dataclass(frozen=True)
 class Delivered:
     """A clip as delivered: its ``joints`` at ``fps``, the ``ranges`` of the actions ``kept`` (a
-    loop may cut some), the ``root_track`` an in-place clip took out, and ``quality`` figures."""
+    loop may cut some), the ``root_track`` an in-place clip took out, ``quality`` figures, and
+    the ``loop_span`` (first, end) of the frames at ``fps`` a loop was made from
+    (:class:`~m2d2m.motion.retime.Loop`), None when none was made."""
 
     joints: np.ndarray
     fps: float
@@ -75,6 +87,7 @@ class Delivered:
     kept: list[int]
     root_track: np.ndarray | None
     quality: dict[str, float] = field(default_factory=dict)
+    loop_span: tuple[int, int] | None = None
 
 
 def deliver(
@@ -85,28 +98,39 @@ def deliver(
     delivery: Delivery,
     features: np.ndarray | None = None,
     recorded: bool = False,
+    kept_frames: KeptFrames | None = None,
+    cycle: bool = False,
 ) -> Delivered:
     """``joints`` (T, J, 3) at ``fps`` with the actions' frame ``ranges``, edited as ``delivery``
     asks; ``features`` (T, D), the model's own, give the foot contacts when they match the joints;
-    ``recorded``: the clip was captured, not generated (:meth:`Delivery.plants_feet`)."""
+    ``recorded``: the clip was captured, not generated (:meth:`Delivery.plants_feet`);
+    ``kept_frames``: frames the foot fix leaves as they are (an edit's kept frames); ``cycle``:
+    the clip is one cycle of a loop already (an edit of a loop), which a loop keeps whole."""
     quality: dict[str, float] = {}
     kept = list(range(len(ranges)))
     if delivery.plants_feet(recorded):
         quality["skating_before_fix"] = skating_ratio(joints, skeleton, fps)
-        joints = fix_feet(joints, skeleton, fps, features)
+        joints = fix_feet(joints, skeleton, fps, features, kept_frames)
         quality["skating"] = skating_ratio(joints, skeleton, fps)
     if delivery.fps is not None and delivery.fps != fps:
         target = float(delivery.fps)
-        joints = resample(joints, skeleton, fps, target)
+        if cycle:  # through the next cycle's first frame, so that the cycle keeps its period
+            ahead = np.concatenate([joints, joints[:1] + cycle_travel(joints)])
+            joints = resample(ahead, skeleton, fps, target)[: frame_count(len(joints), fps, target)]
+        else:
+            joints = resample(joints, skeleton, fps, target)
         ranges = resample_ranges(ranges, fps, target, len(joints))
         fps = target
-    if delivery.loop:
+    span = None
+    if cycle:
+        quality["loop_travel_m"] = float(np.linalg.norm(cycle_travel(joints)))
+    elif delivery.loop:
         loop = make_loop(joints, fps, skeleton)
-        first, end = loop.span
+        span = first, end = loop.span
         looped = [(max(a, first) - first, min(b, end) - first) for a, b in ranges]
         kept = [i for i, (a, b) in zip(kept, looped) if a < b]
         ranges = [(a, b) for a, b in looped if a < b]
         joints = loop.joints
         quality["loop_travel_m"] = float(np.linalg.norm(loop.travel))
     joints, track = root_motion(joints, delivery.root)
-    return Delivered(joints.astype(np.float32), fps, ranges, kept, track, quality)
+    return Delivered(joints.astype(np.float32), fps, ranges, kept, track, quality, span)

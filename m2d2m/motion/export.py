@@ -99,12 +99,14 @@ def save_motion_npy(
     segments: Sequence[tuple[int, int, str]] | None = None,
     quality: dict[str, float] | None = None,
     root_track: np.ndarray | None = None,
+    loop: bool = False,
 ) -> Path:
     """Write ``<name>.npy`` (float32, T × J × 3) and a ``<name>.json`` sidecar beside it stating
     joint names and order, units, axes, fps, the ``(start, end, text)`` segments (``end``
-    exclusive) and, when given, ``quality`` figures of how the joints were made and the root
+    exclusive) and, when given, ``quality`` figures of how the joints were made, the root
     motion an in-place clip took out (``<name>.root_motion.npy``, T × 3: add it to every joint
-    for the clip's own path); return the ``.npy`` path."""
+    for the clip's own path) and ``"loop": true`` for one cycle of a loop (its last frame runs on
+    into its first); return the ``.npy`` path."""
     joints = skeleton.check_joints(joints).astype(np.float32)
     fps = float(skeleton.fps if fps is None else fps)
     n_frames = len(joints)
@@ -135,6 +137,7 @@ def save_motion_npy(
         "segments_end": "exclusive",
         **({"quality": dict(quality)} if quality else {}),
         **({"root_motion": track.name} if track is not None else {}),
+        **({"loop": True} if loop else {}),
     }
     with atomic_path(npy.with_suffix(".json")) as partial:
         partial.write_text(json.dumps(sidecar, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")

@@ -23,6 +23,8 @@ Everything is NumPy, vectorised over frames; positions are in the skeleton's uni
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from m2d2m.motion.representation import foot_contacts as stepwise_contacts
@@ -223,7 +225,15 @@ def slide_path(positions: np.ndarray, contacts: np.ndarray, free: float = 0.0, t
     return np.concatenate([np.zeros((1, 3)), np.cumsum(slid, axis=0)])
 
 
-def pinning(slid: np.ndarray, flags: np.ndarray, blend_frames: int, tolerance: float, settle_frames: int) -> np.ndarray:
+def pinning(
+    slid: np.ndarray,
+    flags: np.ndarray,
+    blend_frames: int,
+    tolerance: float,
+    settle_frames: int,
+    held: np.ndarray | None = None,
+    held_offset: np.ndarray | None = None,
+) -> np.ndarray:
     """(T, 3) the horizontal offset that keeps a foot from sliding, from how far it has slid
     (:func:`slide_path`) and where it touches the ground (``flags``, T).
 
@@ -235,27 +245,76 @@ def pinning(slid: np.ndarray, flags: np.ndarray, blend_frames: int, tolerance: f
     position moved a real knee 17 cm. The offset a run needs at its first and last frames fades
     over ``blend_frames`` frames before and after it (smoothstep), when the foot is in the air;
     between two near runs their fading offsets are averaged by weight, so no frame moves further
-    than either asks."""
+    than either asks.
+
+    ``held`` (T,) frames keep ``held_offset`` (T, 3) whatever the rest asks (an edit's kept frames,
+    planted as its source delivered them: :class:`KeptFrames`). A run that crosses into them is
+    held within the tolerance of where the foot stands on its held frames at the crossing (the
+    lock position the source gave it), not of its own median, which the new frames would move; a
+    held stretch's offset fades into the free frames beside it as a run's does."""
+    count = len(slid)
+    held = np.zeros(count, dtype=bool) if held is None else np.asarray(held, dtype=bool)
+    held_offset = np.zeros_like(slid) if held_offset is None else held_offset
     offset_sum = np.zeros_like(slid)
-    weight_sum = np.zeros(len(slid))
+    weight_sum = np.zeros(count)
     ramp = _smoothstep(1.0 - np.arange(1, blend_frames + 1) / (blend_frames + 1))
-    runs = contact_runs(flags)
+
+    def fade(edge: np.ndarray, frames: np.ndarray) -> None:
+        """``edge`` faded over ``frames`` (nearest first), up to the first held frame or the clip's end."""
+        inside = frames[(frames >= 0) & (frames < count)]
+        inside = inside[np.cumprod(~held[inside]).astype(bool)]
+        offset_sum[inside] += ramp[: len(inside), None] * edge
+        weight_sum[inside] += ramp[: len(inside)]
+
+    runs = contact_runs(flags & ~held)
     needed = []
     for first, end in runs:
-        stray = slid[first:end] - np.median(slid[first:end], axis=0)
+        whole_first, whole_end = _run_around(flags, first, end)
+        before, after = first - 1, end  # a held frame of the same run on either side: the lock position
+        anchors = [
+            (frame, slid[frame] + held_offset[frame])
+            for frame in (before, after)
+            if whole_first <= frame < whole_end and held[frame]
+        ]
+        if anchors:
+            share = (np.arange(first, end) - before)[:, None] / (end - before)
+            start, stop = anchors[0][1], anchors[-1][1]
+            stray = slid[first:end] - (start + share * (stop - start))
+        else:
+            stray = slid[first:end] - np.median(slid[first:end], axis=0)
         distance = np.sqrt(dot(stray, stray))
-        allowed = tolerance * min(1.0, (end - first - 1) / max(settle_frames, 1))
+        allowed = tolerance * min(1.0, (whole_end - whole_first - 1) / max(settle_frames, 1))
         needed.append((np.minimum(1.0, allowed / np.maximum(distance, _EPS)) - 1.0)[:, None] * stray)
-        before = np.arange(first - 1, first - blend_frames - 1, -1)
-        after = np.arange(end, end + blend_frames)
-        for frames, edge in ((before, needed[-1][0]), (after, needed[-1][-1])):
-            valid = (frames >= 0) & (frames < len(slid))
-            offset_sum[frames[valid]] += ramp[valid, None] * edge
-            weight_sum[frames[valid]] += ramp[valid]
+        fade(needed[-1][0], np.arange(first - 1, first - blend_frames - 1, -1))
+        fade(needed[-1][-1], np.arange(end, end + blend_frames))
+    for first, end in contact_runs(held):
+        fade(held_offset[first], np.arange(first - 1, first - blend_frames - 1, -1))
+        fade(held_offset[end - 1], np.arange(end, end + blend_frames))
     offset = offset_sum / np.maximum(weight_sum, 1.0)[:, None]
     for (first, end), inside in zip(runs, needed):
         offset[first:end] = inside
+    offset[held] = held_offset[held]
     return offset
+
+
+def _run_around(flags: np.ndarray, first: int, end: int) -> tuple[int, int]:
+    """The whole run of True in ``flags`` that holds frames ``first`` to ``end``."""
+    while first > 0 and flags[first - 1]:
+        first -= 1
+    while end < len(flags) and flags[end]:
+        end += 1
+    return first, end
+
+
+@dataclass(frozen=True)
+class KeptFrames:
+    """Frames a foot fix leaves as they are: ``frames`` (T,) True where the clip's ``joints``
+    (T, J, 3; read only there) are final. An edit's kept frames, as its source delivered them
+    (``orchestration/editing.py``): fixed again with the new frames around them, a contact run
+    crossing an edit's margin moved them by up to 4 cm (issue 53)."""
+
+    frames: np.ndarray
+    joints: np.ndarray
 
 
 def leg_of(skeleton: Skeleton, pair: tuple[int, int]) -> tuple[int, ...]:
@@ -275,6 +334,7 @@ def plant_feet(
     blend: float = BLEND_SECONDS,
     tolerance: float = SLIDE_TOLERANCE_M,
     free: float = FREE_SPEED_M_S,
+    kept: KeptFrames | None = None,
 ) -> np.ndarray:
     """The clip (T, J, 3) with each foot kept from sliding where it touches the ground, and the
     legs solved to reach.
@@ -285,21 +345,27 @@ def plant_feet(
     The whole foot moves by that one horizontal offset, so a heel rolling up about the ball keeps
     rolling and the height stays the clip's; :func:`two_bone_ik` brings the ankle there from the
     unmoved hip. A frame whose foot needs no offset is the input's, bit for bit; in the others
-    only the knee and the joints below it change, every bone keeping its length."""
+    only the knee and the joints below it change, every bone keeping its length. ``kept`` frames
+    come out as its joints give them; their feet's offsets from ours hold the contact runs that
+    cross into them (:func:`pinning`)."""
     joints = skeleton.check_joints(joints)
     contacts = foot_contacts(joints, skeleton, fps) if contacts is None else np.asarray(contacts, dtype=bool)
     if contacts.shape != (len(joints), 4):
         raise ValueError(f"expected contacts of shape ({len(joints)}, 4), got {contacts.shape}")
     metres = skeleton.metres_per_unit
     blend_frames, settle_frames = int(round(blend * fps)), int(round(SETTLE_SECONDS * fps))
+    held = np.zeros(len(joints), dtype=bool) if kept is None else np.asarray(kept.frames, dtype=bool)
     planted = joints.copy()
     for side, pair in enumerate((skeleton.feet_left, skeleton.feet_right)):
         chain = leg_of(skeleton, pair)
         hip, knee, ankle, foot = chain[1], chain[2], chain[3], list(chain[3:])
         touching = contacts[:, 2 * side : 2 * side + 2]
         slid = slide_path(joints[:, list(pair)], touching, free / fps / metres)
-        offset = pinning(slid, touching.any(axis=1), blend_frames, tolerance / metres, settle_frames)
-        moved = np.flatnonzero(np.abs(offset).max(axis=1) > 0)
+        held_offset = np.zeros_like(slid)
+        if kept is not None:
+            held_offset[held] = (kept.joints[held, ankle] - joints[held, ankle]) * np.array([1.0, 0.0, 1.0])
+        offset = pinning(slid, touching.any(axis=1), blend_frames, tolerance / metres, settle_frames, held, held_offset)
+        moved = np.flatnonzero((np.abs(offset).max(axis=1) > 0) & ~held)
         if not len(moved):
             continue
         legs = joints[moved]
@@ -312,15 +378,25 @@ def plant_feet(
         )
         planted[moved[:, None], foot] = legs[:, foot] + (new_ankle - legs[:, ankle])[:, None]
         planted[moved, knee] = new_knee
+    if kept is not None:
+        planted[held] = kept.joints[held]
     return planted
 
 
-def fix_feet(joints: np.ndarray, skeleton: Skeleton, fps: float, features: np.ndarray | None = None) -> np.ndarray:
+def fix_feet(
+    joints: np.ndarray,
+    skeleton: Skeleton,
+    fps: float,
+    features: np.ndarray | None = None,
+    kept: KeptFrames | None = None,
+) -> np.ndarray:
     """:func:`plant_feet` with the contacts :func:`foot_contacts` finds, the features' channels
     heard when they are a clip's own (one row a frame of ``skeleton``'s width; a motion known only
-    by its joints has none): the one fix that a delivery and the evaluation's planted rows run."""
+    by its joints has none), ``kept`` frames left as given: the one fix that a delivery and the
+    evaluation's planted rows run."""
     own = features is not None and np.shape(features) == (len(joints), skeleton.feature_dim)
-    return plant_feet(joints, skeleton, fps, foot_contacts(joints, skeleton, fps, features if own else None))
+    contacts = foot_contacts(joints, skeleton, fps, features if own else None)
+    return plant_feet(joints, skeleton, fps, contacts, kept=kept)
 
 
 def step_speeds(positions: np.ndarray, fps: float) -> np.ndarray:

@@ -169,6 +169,27 @@ def make_loop(joints: np.ndarray, fps: float, skeleton: Skeleton) -> Loop:
     return Loop(cycle.joints(), travel, (window, cut))
 
 
+def loop_features(features: np.ndarray, span: tuple[int, int]) -> np.ndarray:
+    """The features (L, D) of the cycle :func:`make_loop` cuts from ``span`` = (``W``, ``c``) of a
+    clip's features (T, D): frames ``W`` to ``c − W − 1`` as they are, then frames ``c − W`` to
+    ``c − 1`` cross-faded into frames 0 to ``W − 1`` with the same weights. HumanML3D's features
+    are the body's own, turned to its heading and placed about its root, so the fade needs no
+    travel. Why: a looped result's features and joints are the same frames, so that an edit, a
+    pin and a copied pose address the frames the user sees (issue 53)."""
+    window, cut = span
+    weight = smootherstep(np.arange(1, window + 1) / (window + 1))[:, None]
+    tail = features[cut - window : cut]
+    faded = tail + weight * (features[:window] - tail)
+    return np.concatenate([features[window : cut - window], faded]).astype(features.dtype)
+
+
+def cycle_travel(joints: np.ndarray) -> np.ndarray:
+    """(3,) how far a cycle's root moves horizontally from its first frame to the next cycle's,
+    for joints (L, J, 3) already one cycle (an edit of a loop): its last step carried on once."""
+    root = np.asarray(joints, dtype=np.float64)[:, 0]
+    return (2.0 * root[-1] - root[-2] - root[0]) * _HORIZONTAL
+
+
 def smootherstep(x: np.ndarray) -> np.ndarray:
     """``6x⁵ − 15x⁴ + 10x³`` on [0, 1]: 0 to 1 with zero first and second derivatives at both ends."""
     return x * x * x * (x * (6.0 * x - 15.0) + 10.0)

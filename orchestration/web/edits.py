@@ -98,5 +98,5 @@ def plan_edit_request(
     return (
         edit,
         f"generation {parent.id}: {said}",
-        Plan(edit.actions, edit.frames, options, edit.actions, [], delivery_of(request)),
+        Plan(edit.actions, edit.frames, options, edit.result_actions, [], delivery_of(request)),
     )
