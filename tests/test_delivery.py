@@ -189,7 +189,7 @@ def test_export_writes_a_glb_at_30_fps_in_place_and_a_bvh_on_cmus_rig(clip, tmp_
     written = read_bvh(tmp_path / "on-cmu.bvh")
     assert written.names == read_bvh(rig).names and len(written.values) == 170
     assert "rest pose the rig's own (131_01.bvh)" in capsys.readouterr().out
-    assert main([*argv, "--joint-map", "mixamo"]) == 2
+    assert main([*argv, "--joint-map", "mixamo", "--overwrite"]) == 2
     assert "joint map mixamo reads mixamorig:Head, mixamorig:Hips" in capsys.readouterr().err
 
 

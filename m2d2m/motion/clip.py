@@ -27,6 +27,14 @@ RIG_FORMATS = ("bvh", "glb", "fbx")  # the formats written on a rig (docs/genera
 ANIMATIONS = ("gif", "mp4")
 
 
+def file_names(name: str, kind: str) -> tuple[str, ...]:
+    """Every file :meth:`Motion.save` may write for format ``kind`` under the stem ``name``: a
+    ``.npy`` brings its JSON sidecar, the model's features and an in-place clip's root track."""
+    if kind == "npy":
+        return (f"{name}.npy", f"{name}.json", f"{name}.features.npy", f"{name}.root_motion.npy")
+    return (f"{name}.{kind}",)
+
+
 @dataclass
 class Motion:
     """``features`` (F, D) HumanML3D features (denormalised; (F, 0) for a motion known only by its
