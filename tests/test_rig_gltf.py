@@ -24,7 +24,14 @@ from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU
-from tests.test_gltf import accessor_data, animation, gltf_validator, needs_blender, xyzw_to_matrix  # noqa: F401
+from tests.test_gltf import (  # noqa: F401
+    accessor_data,
+    animation,
+    fbx_takes,
+    gltf_validator,
+    needs_blender,
+    xyzw_to_matrix,
+)
 
 XBOT = Path(__file__).parent / "fixtures" / "mixamo" / "xbot-skeleton.glb"
 RIGS = [CMU / "131_01.bvh", XBOT]
@@ -134,6 +141,7 @@ def test_the_khronos_validator_finds_no_error_in_the_glb_on_a_rig(tmp_path, gltf
 def test_blender_makes_fbx_of_the_glb_on_a_rig(tmp_path, ours, rig_file):
     path = save_rig_fbx(tmp_path / "on-rig.fbx", read_target(rig_file), ours, 20.0, SEGMENTS)
     assert path.read_bytes().startswith(b"Kaydara FBX Binary")
+    assert fbx_takes(path) == [CLIP_ANIMATION, *(text for _, _, text in SEGMENTS)]
 
 
 def test_fbx_on_a_rig_without_blender_names_the_package(tmp_path, ours, monkeypatch):

@@ -212,6 +212,12 @@ def _last_error(output: str) -> str:
 # its FBX exporter (Blender manual: Import-Export > glTF 2.0, FBX); no leaf bones: the joints are the
 # bones. Flat shading is what a mesh without normals gets anyway (§3.7.2.1), and it keeps Debian 12's
 # Blender 3.4 off its importer's "smooth" path, which uses np.bool, gone from NumPy 1.24 (Debian's).
+# The importer stashes each animation as a muted NLA track of its name, each new track first, holding
+# one strip of the action "<animation>_<object>". The exporter's "all actions" takes would come in
+# the actions' alphabetical order (a 2-s "a person jumps" before the whole clip, which engines then
+# open on), each named "<object>|<action>" ("t2m|clip_t2m": the object's name twice); its NLA-strip
+# takes come in the tracks' order, each named by its strip. So the tracks are laid again in the
+# file's order, unmuted, each strip named as its animation: "clip" first, and each name once.
 _BLENDER_GLB_TO_FBX = """
 import sys, bpy
 glb, fbx, fps = sys.argv[sys.argv.index("--") + 1:]
@@ -219,7 +225,23 @@ bpy.ops.wm.read_factory_settings(use_empty=True)
 scene = bpy.context.scene
 scene.render.fps, scene.render.fps_base, scene.frame_start = int(fps), 1.0, 0
 bpy.ops.import_scene.gltf(filepath=glb, import_shading="FLAT")
-bpy.ops.export_scene.fbx(filepath=fbx, add_leaf_bones=False, bake_anim=True, bake_anim_simplify_factor=0.0)
+for obj in bpy.data.objects:
+    data = obj.animation_data
+    if data is None:
+        continue
+    data.action = None
+    stashed = [(t.name, t.strips[0].action, t.strips[0].frame_start) for t in reversed(data.nla_tracks)]
+    for track in list(data.nla_tracks):
+        data.nla_tracks.remove(track)
+    track = None
+    for name, action, start in stashed:
+        track = data.nla_tracks.new(prev=track)
+        track.name = name
+        track.strips.new(name, int(start), action).name = name
+bpy.ops.export_scene.fbx(
+    filepath=fbx, add_leaf_bones=False, bake_anim=True, bake_anim_use_all_actions=False,
+    bake_anim_use_nla_strips=True, bake_anim_simplify_factor=0.0,
+)
 """
 
 
