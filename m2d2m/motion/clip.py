@@ -42,7 +42,9 @@ class Motion:
     ``ranges[i]`` = (first, end) frames of ``actions[i]`` (end exclusive). Frames between two
     ranges belong to no action: a baseline's transition window. ``settings`` records how it was
     made (method, seed, ...), ``quality`` figures of the joints (``bone_length_std_mm_mean`` and
-    ``_max``: the spread of bone lengths before :meth:`on_rigid_skeleton`)."""
+    ``_max``: the spread of bone lengths before :meth:`on_rigid_skeleton`). A loop's
+    ``loop_travel`` (3,) is how far its path moves in a cycle: its last frame runs on into its
+    first moved by it (an in-place clip's ``root_track`` carries the path)."""
 
     features: np.ndarray
     joints: np.ndarray
@@ -54,6 +56,7 @@ class Motion:
     tokens: np.ndarray | None = None  # the generated motion tokens, in order, when it was generated
     quality: dict[str, float] = field(default_factory=dict)
     root_track: np.ndarray | None = None  # (F, 3) the root motion an in-place delivery took out
+    loop_travel: np.ndarray | None = None  # (3,) a loop's travel in a cycle; None: not a loop
 
     def __post_init__(self) -> None:
         if len(self.actions) != len(self.ranges):
@@ -123,6 +126,7 @@ class Motion:
             },
             quality={**self.quality, **done.quality},
             root_track=done.root_track,
+            loop_travel=done.loop_travel,
         )
 
     def save(
@@ -174,16 +178,33 @@ class Motion:
         if kind == "bvh":
             return target.write_bvh(path, self.joints, self.fps, self.skeleton)
         save = save_rig_fbx if kind == "fbx" else save_rig_glb
-        return save(path, target, self.joints, self.fps, self.segments, self.skeleton)
+        joints, _, closing = self._keyed()
+        return save(path, target, joints, self.fps, self.segments, self.skeleton, closing_key=closing)
 
     def _save_gltf(self, path: Path, kind: str, rest_pose: str) -> Path:
         """A GLB (with the root track, if any, as its own animation over the clip's path) or FBX."""
+        joints, track, closing = self._keyed()
         if kind == "fbx":
-            return save_fbx(path, self.joints, self.skeleton, self.fps, self.segments, rest_pose)
+            return save_fbx(path, joints, self.skeleton, self.fps, self.segments, rest_pose, closing_key=closing)
+        if track is None:
+            return save_glb(path, joints, self.skeleton, self.fps, self.segments, rest_pose, closing_key=closing)
+        path_kept = joints + track[:, None]
+        return save_glb(
+            path, path_kept, self.skeleton, self.fps, self.segments, rest_pose, joints[:, 0], closing_key=closing
+        )
+
+    def _keyed(self) -> tuple[np.ndarray, np.ndarray | None, bool]:
+        """The joints and root track a GLB and an FBX key, and whether they end on a closing key:
+        a loop's end with its first frame again, moved on by a cycle's travel (an in-place clip's
+        root track travels, its joints stay), so that an engine looping the animation plays the
+        seam over one frame step like any other, not in no time from the last key to the first."""
+        if self.loop_travel is None:
+            return self.joints, self.root_track, False
+        travel = np.asarray(self.loop_travel, dtype=self.joints.dtype)
         if self.root_track is None:
-            return save_glb(path, self.joints, self.skeleton, self.fps, self.segments, rest_pose)
-        path_kept = self.joints + self.root_track[:, None]
-        return save_glb(path, path_kept, self.skeleton, self.fps, self.segments, rest_pose, self.joints[:, 0])
+            return np.concatenate([self.joints, self.joints[:1] + travel]), None, True
+        track = np.concatenate([self.root_track, self.root_track[:1] + travel])
+        return np.concatenate([self.joints, self.joints[:1]]), track, True
 
 
 def save_motions(path: str | Path, motions: Sequence[Motion]) -> Path:
@@ -198,6 +219,8 @@ def save_motions(path: str | Path, motions: Sequence[Motion]) -> Path:
             arrays[f"tokens{index}"] = np.asarray(motion.tokens)
         if motion.root_track is not None:
             arrays[f"root_track{index}"] = motion.root_track
+        if motion.loop_travel is not None:
+            arrays[f"loop_travel{index}"] = motion.loop_travel
         described.append(
             {
                 "fps": motion.fps,
@@ -229,6 +252,7 @@ def load_motions(path: str | Path) -> list[Motion]:
                 stored[f"tokens{index}"] if f"tokens{index}" in stored else None,
                 info["quality"],
                 stored[f"root_track{index}"] if f"root_track{index}" in stored else None,
+                stored[f"loop_travel{index}"] if f"loop_travel{index}" in stored else None,
             )
             for index, info in enumerate(json.loads(str(stored["described"])))
         ]

@@ -63,7 +63,8 @@ class Delivery:
 @dataclass(frozen=True)
 class Delivered:
     """A clip as delivered: its ``joints`` at ``fps``, the ``ranges`` of the actions ``kept`` (a
-    loop may cut some), the ``root_track`` an in-place clip took out, and ``quality`` figures."""
+    loop may cut some), the ``root_track`` an in-place clip took out, ``quality`` figures and, for
+    a loop, the ``loop_travel`` (3,) of its path in a cycle (:class:`~m2d2m.motion.retime.Loop`)."""
 
     joints: np.ndarray
     fps: float
@@ -71,6 +72,7 @@ class Delivered:
     kept: list[int]
     root_track: np.ndarray | None
     quality: dict[str, float] = field(default_factory=dict)
+    loop_travel: np.ndarray | None = None
 
 
 def deliver(
@@ -87,6 +89,7 @@ def deliver(
     ``recorded``: the clip was captured, not generated (:meth:`Delivery.plants_feet`)."""
     quality: dict[str, float] = {}
     kept = list(range(len(ranges)))
+    travel = None
     if delivery.plants_feet(recorded):
         quality["skating_before_fix"] = skating_ratio(joints, skeleton, fps)
         joints = fix_feet(joints, skeleton, fps, features)
@@ -102,7 +105,7 @@ def deliver(
         looped = [(max(a, first) - first, min(b, end) - first) for a, b in ranges]
         kept = [i for i, (a, b) in zip(kept, looped) if a < b]
         ranges = [(a, b) for a, b in looped if a < b]
-        joints = loop.joints
+        joints, travel = loop.joints, loop.travel
         quality["loop_travel_m"] = float(np.linalg.norm(loop.travel))
     joints, track = root_motion(joints, delivery.root)
-    return Delivered(joints.astype(np.float32), fps, ranges, kept, track, quality)
+    return Delivered(joints.astype(np.float32), fps, ranges, kept, track, quality, travel)
