@@ -221,7 +221,8 @@ def _export(args: argparse.Namespace) -> None:
     output = plan_output(out, "motion", None, _delivery(args), args.overwrite)
     shown = load_motion(args.source, args.id, args.skeleton)
     fps = args.source_fps or shown.fps or shown.skeleton.fps
-    segments = shown.segments or [(0, len(shown.joints), shown.caption or "")]
+    # a recording without text has no actions: not one nameless span (Motion.segments would call it a transition)
+    segments = shown.segments or ([(0, len(shown.joints), shown.caption)] if shown.caption else [])
     motion = _delivered(
         Motion(
             np.zeros((len(shown.joints), 0), np.float32),  # no features: contacts come from the joints

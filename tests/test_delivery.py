@@ -281,3 +281,18 @@ def test_a_looped_glb_ends_on_its_first_pose_moved_on_by_a_cycle(clip, tmp_path,
                 assert keys[-1] == pytest.approx(keys[0] + moved, abs=1e-5)
     actions = [a for a in gltf.animations if a.name == "a person walks"]
     assert all(accessor_data(gltf, a.samplers[0].input).shape[0] <= frames for a in actions)
+
+
+def test_a_span_sampled_without_text_is_named_in_every_file(clip, tmp_path):
+    """Issue 53, finding 8: a gap filled without text (`--fill-to` with no prompt) was a nameless
+    span on the page's timeline, in the GLB's animations and in the sidecar."""
+    joints, features = clip
+    ranges = [(0, 60), (60, 100), (100, 170)]
+    motion = Motion(features, joints, 20.0, "t2m", ["a person walks", "", "a person sits down"], ranges)
+    assert [text for _, _, text in motion.segments] == ["a person walks", "transition", "a person sits down"]
+    motion.save(tmp_path, "filled", ("npy", "glb"))
+    sidecar = json.loads((tmp_path / "filled.json").read_text(encoding="utf-8"))
+    assert [s["text"] for s in sidecar["segments"]] == ["a person walks", "transition", "a person sits down"]
+    gltf = pygltflib.GLTF2().load(str(tmp_path / "filled.glb"))
+    assert [a.name for a in gltf.animations] == ["clip", "a person walks", "transition", "a person sits down"]
+    assert motion.actions[1] == ""  # what an edit samples it with again: the model's null condition

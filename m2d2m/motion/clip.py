@@ -25,6 +25,7 @@ from m2d2m.motion.skeleton import SKELETONS, Skeleton
 FORMATS = ("npy", "bvh", "glb", "fbx", "gif", "mp4")
 RIG_FORMATS = ("bvh", "glb", "fbx")  # the formats written on a rig (docs/generation.md, "On your own rig")
 ANIMATIONS = ("gif", "mp4")
+UNNAMED_ACTION = "transition"  # the name of an action sampled without text (Motion.segments)
 
 
 def file_names(name: str, kind: str) -> tuple[str, ...]:
@@ -85,7 +86,10 @@ class Motion:
 
     @property
     def segments(self) -> list[tuple[int, int, str]]:
-        return [(first, end, text) for (first, end), text in zip(self.ranges, self.actions)]
+        """Each action's frames and name, as every file and answer shows them: its text, or
+        :data:`UNNAMED_ACTION` for one sampled without text (a gap filled with the model's null
+        condition), which would otherwise be a nameless span on the timeline and in the files."""
+        return [(first, end, text or UNNAMED_ACTION) for (first, end), text in zip(self.ranges, self.actions)]
 
     def on_rigid_skeleton(self, shapes: dict[int, np.ndarray] | None = None) -> Motion:
         """This motion with its joints on one rigid skeleton (:mod:`m2d2m.motion.rigid`; ``shapes``:
