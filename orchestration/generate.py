@@ -272,10 +272,11 @@ class PromptPlanner:
         words its text encoder never read in training (it reads them as unknown), and the verb of
         a split action that it was never shown alone (not a light verb's, "does a cartwheel": its
         action is its object's). Nothing stops: it samples from the rest."""
-        from pipelines.language import LIGHT_VERBS
+        from pipelines.language import LIGHT_VERBS, action_verbs
 
         known = self.generator.known_verbs
-        listed = ", ".join(sorted(known)[:12]) + (", …" if len(known) > 12 else "")
+        nameable = action_verbs(known)
+        listed = ", ".join(nameable[:12]) + (", …" if len(nameable) > 12 else "")
         said = []
         for action in dict.fromkeys(actions):
             unknown = self.generator.unknown_words(action)
@@ -286,7 +287,7 @@ class PromptPlanner:
             verb = self._verbs.get(action)
             if known and verb and verb not in known and verb not in LIGHT_VERBS:
                 said.append(
-                    f"{action!r}: the model was never shown '{verb}' alone; it knows {len(known)} actions "
+                    f"{action!r}: the model was never shown '{verb}' alone; it knows {len(nameable)} actions "
                     f"({listed}; `m2d2m models` lists them)"
                 )
         return said
