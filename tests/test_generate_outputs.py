@@ -399,22 +399,25 @@ def test_an_empty_folder_made_for_the_clip_is_taken(tmp_path, monkeypatch, capsy
     assert sorted(_files(tmp_path / "takes.v2")) == ["motion.bvh"]
 
 
-@pytest.mark.parametrize("verb", ["generate", "export"])
-def test_an_existing_file_is_refused_unless_overwrite(tmp_path, monkeypatch, capsys, verb):
+@pytest.mark.parametrize(
+    "verb, out, written",
+    [("generate", "clip.glb", b"glTF"), ("export", "clip.glb", b"glTF"), ("render", "clip.gif", b"GIF8")],
+)
+def test_an_existing_file_is_refused_unless_overwrite(tmp_path, monkeypatch, capsys, verb, out, written):
     """Issue 53, finding 5: `--out existing.glb` and `export --out existing.glb` overwrote,
     though docs/generation.md said an existing file is refused."""
     monkeypatch.chdir(tmp_path)
     _sampling_a_fixed_clip(monkeypatch)
     np.save(tmp_path / "take.npy", pose_clip(T2M, 12, seed=1).astype(np.float32))
-    command = [*FIXED] if verb == "generate" else ["export", "take.npy"]
-    (tmp_path / "clip.glb").write_bytes(b"an earlier file")
-    assert main([*command, "--out", "clip.glb"]) == 2
+    command = [*FIXED] if verb == "generate" else [verb, "take.npy"]
+    (tmp_path / out).write_bytes(b"an earlier file")
+    assert main([*command, "--out", out]) == 2
     err = capsys.readouterr().err.strip()
-    assert err == f"m2d2m {verb}: error: clip.glb exists; give another name, or --overwrite to replace it"
-    assert (tmp_path / "clip.glb").read_bytes() == b"an earlier file"
-    assert main([*command, "--out", "clip.glb", "--overwrite"]) == 0, capsys.readouterr().err
-    assert (tmp_path / "clip.glb").read_bytes()[:4] == b"glTF"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.glb", "take.npy"]
+    assert err == f"m2d2m {verb}: error: {out} exists; give another name, or --overwrite to replace it"
+    assert (tmp_path / out).read_bytes() == b"an earlier file"
+    assert main([*command, "--out", out, "--overwrite"]) == 0, capsys.readouterr().err
+    assert (tmp_path / out).read_bytes()[:4] == written
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out, "take.npy"]
 
 
 def test_export_over_an_npy_leaves_none_of_the_earlier_ones_companions(tmp_path, monkeypatch, capsys):
