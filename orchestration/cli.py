@@ -201,6 +201,8 @@ def _render(args: argparse.Namespace) -> None:
     out = Path(args.out)
     if out.suffix.lower() not in (".gif", ".mp4"):
         raise UserError(f"{out}: the animation format comes from the suffix; use .gif or .mp4")
+    if out.exists() and not args.overwrite:
+        raise UserError(f"{out} exists; give another name, or --overwrite to replace it")
     motion = load_motion(args.source, args.id, args.skeleton)
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
@@ -221,17 +223,18 @@ def _export(args: argparse.Namespace) -> None:
     import numpy as np
 
     from m2d2m.motion.clip import Motion
-    from orchestration.generate import plan_output
+    from orchestration.generate import plan_output, staged
     from orchestration.viewing import load_motion
 
     out = Path(args.out)
     if out.suffix.lower() not in EXPORTED:
         raise UserError(f"{out}: export writes {', '.join(EXPORTED)} (the suffix is the format)")
-    output = plan_output(out, "motion", None, _delivery(args))
+    output = plan_output(out, "motion", None, _delivery(args), args.overwrite)
     shown = load_motion(args.source, args.id, args.skeleton)
     fps, said = _source_rate(args.source_fps, shown)
     print(f"{args.source}: read at {fps:g} fps ({said})")
-    segments = shown.segments or [(0, len(shown.joints), shown.caption or "")]
+    # a recording without text has no actions: not one nameless span (Motion.segments would call it a transition)
+    segments = shown.segments or ([(0, len(shown.joints), shown.caption)] if shown.caption else [])
     motion = _delivered(
         Motion(
             np.zeros((len(shown.joints), 0), np.float32),  # no features: contacts come from the joints
@@ -244,13 +247,13 @@ def _export(args: argparse.Namespace) -> None:
         output.delivery,
         recorded=True,  # a file's motion: its feet are fixed only on --foot-fix
     )
-    out.parent.mkdir(parents=True, exist_ok=True)
     try:
-        (written,) = motion.save(out.parent, out.stem, output.formats, delivery=output.delivery).values()
+        with staged([(0, output)]) as [(_, output)]:
+            motion.save(output.staging, output.name, output.formats, delivery=output.delivery)
     except (OSError, RuntimeError, ValueError) as error:  # Blender failed, or a rig it cannot read
         raise UserError(str(error)) from error
-    print(f"wrote {written}")
-    _delivery_notes({output.formats[0]: written}, motion, output.delivery)
+    print(f"wrote {out}")
+    _delivery_notes({output.formats[0]: out}, motion, output.delivery)
 
 
 def _source_rate(given: float | None, shown: Any) -> tuple[float, str]:
@@ -370,7 +373,7 @@ def _sampling_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from orchestration.generate import check_prompted, edit_part, generate, length_cap, load_generator, variations
+    from orchestration.generate import check_prompted, edit_part, generate, length_cap, load_generator, staged
     from orchestration.viewing import load_features
 
     if args.part:
@@ -378,43 +381,44 @@ def _generate(args: argparse.Namespace) -> None:
     if args.edit is not None and args.keep_body is None:
         return _edit_timeline(args)
     check_prompted(args.prompts, args.seconds, args.edit, args.keep_body)
-    output = _planned_output(args)
+    planned = _planned_outputs(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    for seed, variation in variations(output, args.seed, args.variations):
-        if args.edit is not None:
-            motion = edit_part(
-                generator,
-                load_features(args.edit, generator.skeleton),
-                args.prompts,
-                args.keep_body,
-                seed=seed,
-                split=not args.no_split,
-                max_seconds=length_cap(args.max_seconds),
-                **options,
-            )
-        else:
-            motion = generate(
-                generator,
-                args.prompts,
-                seconds=args.seconds,
-                seed=seed,
-                split=not args.no_split,
-                max_seconds=length_cap(args.max_seconds),
-                **options,
-            )
-        _report(motion, variation, args.prompts, args)
+    with staged(planned) as planned:
+        for seed, variation in planned:
+            if args.edit is not None:
+                motion = edit_part(
+                    generator,
+                    load_features(args.edit, generator.skeleton),
+                    args.prompts,
+                    args.keep_body,
+                    seed=seed,
+                    split=not args.no_split,
+                    max_seconds=length_cap(args.max_seconds),
+                    **options,
+                )
+            else:
+                motion = generate(
+                    generator,
+                    args.prompts,
+                    seconds=args.seconds,
+                    seed=seed,
+                    split=not args.no_split,
+                    max_seconds=length_cap(args.max_seconds),
+                    **options,
+                )
+            _report(motion, variation, args.prompts, args)
 
 
 def _edit_timeline(args: argparse.Namespace) -> None:
     """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
     from m2d2m.layout import relative_to_project
     from orchestration.editing import plan_edit, pose_at, read_result, sample_edit
-    from orchestration.generate import check_length, length_cap, load_generator, variations
+    from orchestration.generate import check_length, length_cap, load_generator, staged
 
-    output = _planned_output(args)
+    planned = _planned_outputs(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
     pose = None
     if args.pin is not None:
@@ -438,11 +442,12 @@ def _edit_timeline(args: argparse.Namespace) -> None:
     options = _sampling_options(args)
     if args.method is not None:
         options["method"] = args.method
-    for seed, variation in variations(output, args.seed, args.variations):
-        motion = sample_edit(generator, edit, seed, f"{relative_to_project(args.edit)}: {said}", **options)
-        _report(motion, variation, edit.result_actions, args)
-        if "pin_error_m" in motion.quality:
-            print(f"  the pose is met within {motion.quality['pin_error_m'] * 1000:.0f} mm (its farthest joint)")
+    with staged(planned) as planned:
+        for seed, variation in planned:
+            motion = sample_edit(generator, edit, seed, f"{relative_to_project(args.edit)}: {said}", **options)
+            _report(motion, variation, edit.result_actions, args)
+            if "pin_error_m" in motion.quality:
+                print(f"  the pose is met within {motion.quality['pin_error_m'] * 1000:.0f} mm (its farthest joint)")
 
 
 def _planned_output(args: argparse.Namespace) -> Any:
@@ -452,16 +457,23 @@ def _planned_output(args: argparse.Namespace) -> Any:
     from orchestration.generate import GENERATE_STAGE, plan_output
     from orchestration.runs import ensure_stage_dir
 
-    output = plan_output(args.out, args.name, args.formats, _delivery(args))
+    output = plan_output(args.out, args.name, args.formats, _delivery(args), args.overwrite)
     if output.directory is None and is_project(Path.cwd()):
         ensure_stage_dir(args.dataset, GENERATE_STAGE)
     return output
 
 
+def _planned_outputs(args: argparse.Namespace) -> Any:
+    """The seeds of ``--variations`` and where each one's files go, all checked before the model loads."""
+    from orchestration.generate import variations
+
+    return variations(_planned_output(args), args.seed, args.variations)
+
+
 def _generate_parts(args: argparse.Namespace) -> None:
     """``generate --part PART=TEXT``: one sentence per body part; a prompt, if given, drives the parts
     not named."""
-    from orchestration.generate import generate_parts, length_cap, load_generator, plan_parts
+    from orchestration.generate import generate_parts, length_cap, load_generator, plan_parts, staged
 
     parts, seconds = plan_parts(args.part, args.prompts, args.seconds, editing=args.edit is not None)
     output = _planned_output(args)
@@ -470,7 +482,8 @@ def _generate_parts(args: argparse.Namespace) -> None:
     motion = generate_parts(
         generator, parts, seconds=seconds, seed=args.seed, max_seconds=length_cap(args.max_seconds), **options
     )
-    _report(motion, output, [f"{part}: {text}" for part, text in parts.items()], args)
+    with staged([(args.seed, output)]) as [(_, output)]:
+        _report(motion, output, [f"{part}: {text}" for part, text in parts.items()], args)
 
 
 def _add_max_seconds(parser: argparse.ArgumentParser, what: str) -> None:
@@ -794,6 +807,7 @@ def _add_generate(verbs) -> None:
         "(default: the folder runs/<dataset>/generate/<new run>)",
     )
     generate.add_argument("--name", default="motion", help="file name stem in the --out folder (default motion)")
+    _add_overwrite(generate, "--out's folder (every file in it) or file")
     generate.add_argument("--formats", nargs="+", help="any of npy bvh glb fbx gif mp4 (default npy bvh gif)")
     generate.add_argument(
         "--variations",
@@ -863,6 +877,12 @@ def _add_generate(verbs) -> None:
     )
     generate.add_argument("--no-track", action="store_true", help="do not log this generation to MLflow")
     generate.set_defaults(run=_generate)
+
+
+def _add_overwrite(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument(
+        "--overwrite", action="store_true", help=f"replace {what} when it exists (default: refuse, in one line)"
+    )
 
 
 def _add_testset(verbs) -> None:
@@ -1029,6 +1049,7 @@ def _add_viewers(verbs) -> None:
             "--skeleton", choices=["t2m", "kit"], help="the motion's skeleton (default: its sidecar's, else t2m)"
         )
         parser.add_argument("--out", required=True, help="output file; its suffix chooses the format")
+        _add_overwrite(parser, "--out's file")
         parser.set_defaults(run=run)
     render.add_argument(
         "--fps",

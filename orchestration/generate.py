@@ -8,8 +8,10 @@ or the corpus's typical length for its verb) under a cap on the whole, and putti
 joints on one rigid skeleton so that every file of a generation shows the same body.
 :func:`plan_output` checks where the files go and in which formats before anything is loaded, as
 :func:`check_prompted`, :func:`plan_parts` and :func:`length_cap` check what is asked;
-:func:`save_generation` writes them into a run folder whose ``run.json`` says how it ended. Each
-generation is recorded in MLflow.
+:func:`save_generation` writes them into a run folder whose ``run.json`` says how it ended, or,
+inside :func:`staged`, into a temporary folder moved into place when the command ends: a target that
+holds an earlier result is refused (:func:`check_free`) or, with ``--overwrite``, replaced whole.
+Each generation is recorded in MLflow.
 """
 
 from __future__ import annotations
@@ -29,10 +31,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from m2d2m.atomic import atomic_files, atomic_folder
 from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
 from m2d2m.layout import NLP, recorded_path
 from m2d2m.motion.body_parts import PARTS
-from m2d2m.motion.clip import ANIMATIONS, FORMATS, RIG_FORMATS, Motion
+from m2d2m.motion.clip import ANIMATIONS, FORMATS, RIG_FORMATS, Motion, file_names
 from m2d2m.motion.delivery import Delivery
 from m2d2m.motion.gltf import BLENDER_PACKAGES
 from m2d2m.motion.render import can_write_mp4
@@ -55,25 +58,37 @@ DEFAULT_MAX_SECONDS = 60.0
 class Output:
     """Where a generation's files go: ``directory`` (None: a new run folder, made when the motion
     is ready), the file stem ``name``, the ``formats``, and how the clip is delivered (its feet,
-    frame rate, loop, root motion, bind pose and rig: :class:`~m2d2m.motion.delivery.Delivery`)."""
+    frame rate, loop, root motion, bind pose and rig: :class:`~m2d2m.motion.delivery.Delivery`).
+    ``one_file``: ``--out`` named a file, so the files of ``name`` in ``directory`` are the target,
+    not the folder; ``overwrite``: an earlier result there is replaced; ``staging``: the temporary
+    folder the files are written into until :func:`staged` moves them into ``directory``."""
 
     directory: Path | None
     name: str
     formats: tuple[str, ...]
     delivery: Delivery = Delivery()
+    overwrite: bool = False
+    one_file: bool = False
+    staging: Path | None = None
 
 
 def plan_output(
-    out: str | Path | None, name: str, formats: Sequence[str] | None, delivery: Delivery = Delivery()
+    out: str | Path | None,
+    name: str,
+    formats: Sequence[str] | None,
+    delivery: Delivery = Delivery(),
+    overwrite: bool = False,
 ) -> Output:
     """Check ``--out``, ``--name`` and ``--formats`` before anything is loaded or sampled.
 
     ``out`` ending in a format's suffix (``clip.gif``) is one file, as for ``m2d2m render`` and
     ``export``: its stem is the name and its suffix the format (``formats`` may only repeat it);
     any other ``out`` is a folder, which must not be an existing file; none is a new run folder.
+    A target holding an earlier result is refused unless ``overwrite`` (:func:`check_free`).
     MP4 needs an encoder here and FBX Blender, found up front.
     """
     chosen = tuple(dict.fromkeys(formats or ()))
+    one_file = False
     unknown = [f for f in chosen if f not in FORMATS]
     if unknown:
         raise UserError(
@@ -92,7 +107,7 @@ def plan_output(
                 f"--out {out} is a folder; give a new file name, or --out {directory.parent} "
                 f"--name {directory.stem} --formats {suffix}"
             )
-        directory, name, chosen = directory.parent, directory.stem, (suffix,)
+        directory, name, chosen, one_file = directory.parent, directory.stem, (suffix,), True
     elif directory is not None and directory.exists() and not directory.is_dir():
         raise UserError(
             f"--out {out} is an existing file, not a folder; give a folder, or a file name "
@@ -120,19 +135,79 @@ def plan_output(
         raise UserError(
             f"fbx is written by Blender's exporter, and no blender is on the PATH: apt-get install {BLENDER_PACKAGES}"
         )
-    return Output(directory, name, chosen, delivery)
+    output = Output(directory, name, chosen, delivery, overwrite, one_file)
+    check_free(output)
+    return output
+
+
+def check_free(output: Output) -> None:
+    """Refuse, in one line, a target that holds an earlier result unless ``overwrite`` is set, so
+    that one folder never holds two clips' files: a folder ``--out`` with files in it (replaced
+    whole with ``overwrite``: :func:`staged`), or, for a file ``--out``, any file of its name (a
+    ``.npy``'s sidecar, features and root track included). A folder holding folders, or the
+    working directory, is no earlier result: it is never replaced."""
+    directory = output.directory
+    if directory is None:
+        return
+    if output.one_file:
+        taken = [n for kind in output.formats for n in file_names(output.name, kind) if (directory / n).exists()]
+        if taken and not output.overwrite:
+            raise UserError(f"{directory / taken[0]} exists; give another name, or --overwrite to replace it")
+        return
+    if not directory.is_dir() or not any(directory.iterdir()):
+        return
+    folders = sorted(entry.name for entry in directory.iterdir() if entry.is_dir())
+    if folders:
+        raise UserError(
+            f"--out {directory} holds folders ({', '.join(folders[:3])}), not an earlier result's files; "
+            "give a new folder"
+        )
+    if Path.cwd().resolve().is_relative_to(directory.resolve()):
+        raise UserError(f"--out {directory} is the working folder; give a new folder")
+    if not output.overwrite:
+        count = sum(1 for _ in directory.iterdir())
+        raise UserError(
+            f"--out {directory} holds an earlier result ({count} file{'s' if count > 1 else ''}); give a new "
+            "folder, or --overwrite to replace the folder and every file in it"
+        )
 
 
 def variations(output: Output, seed: int, count: int) -> list[tuple[int, Output]]:
     """``--variations N``: the seeds to sample (``seed``, ``seed + 1``, …) and where each sample
-    goes (in a folder or file named, ``<name>-seed<seed>``; without one each in its own run folder)."""
+    goes (in a folder or file named, ``<name>-seed<seed>``; without one each in its own run folder);
+    the files of a file ``--out`` so named are checked free (:func:`check_free`)."""
     if count == 1:
         return [(seed, output)]
     named = output.directory is not None
-    return [
+    planned = [
         (variation, replace(output, name=f"{output.name}-seed{variation}") if named else output)
         for variation in range(seed, seed + count)
     ]
+    for _, variation in planned:
+        if variation.one_file:
+            check_free(variation)
+    return planned
+
+
+@contextmanager
+def staged(planned: Sequence[tuple[int, Output]]) -> Iterator[list[tuple[int, Output]]]:
+    """The seeds and outputs of one command (:func:`variations`, all in one place), written into a
+    temporary folder and moved into place when the block ends without an error, all or nothing
+    (:mod:`m2d2m.atomic`): a folder ``--out`` becomes the new folder whole, the old one's files
+    all gone; a file ``--out`` its files, none of an earlier write of its name left beside them.
+    If the block raises, nothing there changes. A new run folder (no ``directory``) is fresh
+    already and written in place."""
+    output = planned[0][1]
+    if output.directory is None:
+        yield list(planned)
+        return
+    if output.one_file:
+        owned = [name for _, each in planned for kind in each.formats for name in file_names(each.name, kind)]
+        writing = atomic_files(output.directory, output.name, owned)
+    else:
+        writing = atomic_folder(output.directory)
+    with writing as staging:
+        yield [(seed, replace(each, staging=staging)) for seed, each in planned]
 
 
 def resolve_model_file(name: str, reference: str | Path, dataset: str) -> Path:
@@ -192,10 +267,11 @@ class PromptPlanner:
         words its text encoder never read in training (it reads them as unknown), and the verb of
         a split action that it was never shown alone (not a light verb's, "does a cartwheel": its
         action is its object's). Nothing stops: it samples from the rest."""
-        from pipelines.language import LIGHT_VERBS
+        from pipelines.language import LIGHT_VERBS, action_verbs
 
         known = self.generator.known_verbs
-        listed = ", ".join(sorted(known)[:12]) + (", …" if len(known) > 12 else "")
+        nameable = action_verbs(known)
+        listed = ", ".join(nameable[:12]) + (", …" if len(nameable) > 12 else "")
         said = []
         for action in dict.fromkeys(actions):
             unknown = self.generator.unknown_words(action)
@@ -206,7 +282,7 @@ class PromptPlanner:
             verb = self._verbs.get(action)
             if known and verb and verb not in known and verb not in LIGHT_VERBS:
                 said.append(
-                    f"{action!r}: the model was never shown '{verb}' alone; it knows {len(known)} actions "
+                    f"{action!r}: the model was never shown '{verb}' alone; it knows {len(nameable)} actions "
                     f"({listed}; `m2d2m models` lists them)"
                 )
         return said
@@ -490,7 +566,9 @@ def save_generation(
 
     Without a ``directory`` the files go to a new run folder ``runs/<dataset>/generate/<id>/``
     whose ``run.json`` says ``running`` while they are written, then ``finished`` (with the
-    files, the MLflow run id and the quality figures) or ``failed``, like a training run's.
+    files, the MLflow run id and the quality figures) or ``failed``, like a training run's. With
+    a ``staging`` folder they are written (and logged) there; the paths returned are those they
+    have in ``directory`` once :func:`staged` has moved them.
     """
     run_dir = output.directory is None
     directory = new_run_dir(dataset, GENERATE_STAGE) if run_dir else output.directory
@@ -510,16 +588,21 @@ def save_generation(
             _sigterm_as_interrupt(),
             progress(total=frames, unit="frame", desc="rendering", leave=False, disable=not frames) as bar,
         ):
-            files = motion.save(
-                directory, output.name, output.formats, progress=lambda _: bar.update(), delivery=output.delivery
+            written = motion.save(
+                output.staging or directory,
+                output.name,
+                output.formats,
+                progress=lambda _: bar.update(),
+                delivery=output.delivery,
             )
-            run_id = _tracked(motion, prompts, files, dataset) if track else None
+            run_id = _tracked(motion, prompts, written, dataset, directory) if track else None
     except BaseException as error:
         if run_dir:
             write_run_info(directory, status="failed", error=f"{type(error).__name__}: {error}")
         if isinstance(error, (ValueError, RuntimeError)):  # ffmpeg failed, or a file could not be written
             raise UserError(str(error)) from error
         raise
+    files = {kind: directory / path.name for kind, path in written.items()}
     if run_dir:
         write_run_info(
             directory,
@@ -531,16 +614,16 @@ def save_generation(
     return files, run_id
 
 
-def _tracked(motion: Motion, prompts: Sequence[str], files: dict[str, Path], dataset: str) -> str | None:
-    """:func:`log_generation`, or, when the tracking store cannot take it, one warning line and
-    None: the files are written already, and a dead server must neither hold them nor lose them."""
+def _tracked(motion: Motion, prompts: Sequence[str], files: dict[str, Path], dataset: str, folder: Path) -> str | None:
+    """:func:`log_generation`, or, when the tracking store cannot take it, one warning line naming
+    the ``folder`` the files end in and None: the files are written already, and a dead server
+    must neither hold them nor lose them."""
     problem = unreachable()
     if problem is None:
         try:
             return log_generation(motion, prompts, files, dataset)
         except Exception as error:  # MLflow's errors have no common base (HTTP, SQL, file store)
             problem = f"MLflow could not record it ({type(error).__name__}: {str(error).splitlines()[0][:200]})"
-    folder = next(iter(files.values())).parent
     print(f"warning: {problem}; the generation is not tracked, its files are in {folder}", file=sys.stderr)
     return None
 

@@ -72,7 +72,9 @@ def _dataset_lines(dataset: str) -> list[str]:
 
 
 def _knowledge(generator: MotionGenerator) -> list[str]:
-    verbs = sorted(generator.known_verbs)
+    from pipelines.language import action_verbs
+
+    verbs = action_verbs(generator.known_verbs)
     shortest, longest = generator.frame_step / generator.fps, generator.longest_frames / generator.fps
     encoder = generator.text_encoder
     reads = (

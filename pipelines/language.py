@@ -97,6 +97,8 @@ _SIMULTANEOUS = frozenset({"while", "whilst", "during", "as"})  # what they open
 _ANAPHORS = frozenset({"that", "this", "which"})  # "after that" is a plain sequence marker
 _RELATIVES = frozenset({"where", "who", "which", "whom", "whose", "what"})
 _NEGATIONS = frozenset({"not", "n't"})
+# Verbs that need a particle or an object to say a movement ("gets up", "puts down", "takes a step").
+_PARTICLE_VERBS = frozenset({"get", "put", "take", "have", "be", "let", "give", "set", "bring", "show", "use", "come"})
 _PASSIVE_AUX = frozenset({"is", "are", "was", "were", "be", "been", "being", "get", "gets", "got", "getting"})
 _NP_POS = frozenset({"DET", "NOUN", "PROPN", "PRON", "ADJ", "NUM"})
 _SUBJECTS = frozenset(
@@ -186,6 +188,15 @@ def inflect_third_person(lemma: str) -> str:
     if not verb:
         raise ValueError("cannot inflect an empty verb")
     return getInflection(verb, "VBZ", inflect_oov=True)[0]
+
+
+def action_verbs(verbs: Iterable[str]) -> list[str]:
+    """The ``verbs`` (a model's, of its single-action captions) that name an action alone, sorted:
+    what a model can be asked for by name ("a person jumps"). Not a light verb ("do": its action
+    is its object), nor one whose action is the verb after it ("start", "go"), nor one that needs
+    a particle or an object ("get" up, "put" down), nor a word taggers mislabel as a verb ("back")."""
+    stop = LIGHT_VERBS | _CATENATIVE | _STATIVE | _PARTICLE_VERBS | _NEVER_VERBS
+    return sorted(verb for verb in set(verbs) if verb not in stop)
 
 
 @lru_cache(maxsize=1)

@@ -28,6 +28,7 @@ from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU
 from tests.test_export import bvh_forward_kinematics, in_skeleton_order, parse_bvh
 from tests.test_generate_outputs import PROMPTS, QUICK
+from tests.test_gltf import accessor_data
 
 SAMPLE = HUMANML3D_SAMPLE
 RANGES = [(0, 60), (60, 170)]
@@ -215,7 +216,7 @@ def test_export_writes_a_glb_at_30_fps_in_place_and_a_bvh_on_cmus_rig(clip, tmp_
     written = read_bvh(tmp_path / "on-cmu.bvh")
     assert written.names == read_bvh(rig).names and len(written.values) == 170
     assert "rest pose the rig's own (131_01.bvh)" in capsys.readouterr().out
-    assert main([*argv, "--joint-map", "mixamo"]) == 2
+    assert main([*argv, "--joint-map", "mixamo", "--overwrite"]) == 2
     assert "joint map mixamo reads mixamorig:Head, mixamorig:Hips" in capsys.readouterr().err
 
 
@@ -279,3 +280,46 @@ def test_a_delivery_the_clip_cannot_take_is_one_line(clip, tmp_path, capsys):
     assert "a loop needs at least 15 frames (0.75 s), got 12" in capsys.readouterr().err
     assert main(["generate", "a person walks", "--out", str(tmp_path / "x.gif"), "--rig", str(CMU / "131_01.bvh")]) == 2
     assert "--rig goes with a BVH, GLB or FBX, the formats written on a rig" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("root", ["keep", "in-place"])
+def test_a_looped_glb_ends_on_its_first_pose_moved_on_by_a_cycle(clip, tmp_path, root):
+    """Issue 53, finding 8: a looped GLB had no closing key, so an engine looping "clip" went from
+    its last key to its first in no time, and a cycle lasted a frame less than the loop."""
+    joints, features = clip
+    motion = Motion(features, joints, 20.0, "t2m", ["a person walks"], [(0, 170)])
+    looped = motion.delivered(Delivery(loop=True, root=root))
+    frames, travel = len(looped.joints), looped.loop_travel
+    looped.save(tmp_path, "loop", ("glb",))
+    gltf = pygltflib.GLTF2().load(str(tmp_path / "loop.glb"))
+    assert gltf.scenes[0].extras["num_frames"] == frames
+    kept = np.zeros(3) if root == "in-place" else travel  # an in-place clip's path travels in "root motion"
+    closing = {"clip": kept, "root motion": travel} if root == "in-place" else {"clip": kept}
+    for name, moved in closing.items():
+        animation = next(a for a in gltf.animations if a.name == name)
+        assert animation.extras == {"start_frame": 0, "end_frame": frames, "closing_key": True}
+        times = accessor_data(gltf, animation.samplers[0].input)
+        assert len(times) == frames + 1 and times[-1] == pytest.approx(frames / 20.0)
+        for channel in animation.channels:
+            keys = accessor_data(gltf, animation.samplers[channel.sampler].output).astype(np.float64)
+            if channel.target.path == "rotation":  # q and -q are one rotation
+                assert abs(np.dot(keys[-1], keys[0])) == pytest.approx(1.0, abs=1e-6)
+            else:
+                assert keys[-1] == pytest.approx(keys[0] + moved, abs=1e-5)
+    actions = [a for a in gltf.animations if a.name == "a person walks"]
+    assert all(accessor_data(gltf, a.samplers[0].input).shape[0] <= frames for a in actions)
+
+
+def test_a_span_sampled_without_text_is_named_in_every_file(clip, tmp_path):
+    """Issue 53, finding 8: a gap filled without text (`--fill-to` with no prompt) was a nameless
+    span on the page's timeline, in the GLB's animations and in the sidecar."""
+    joints, features = clip
+    ranges = [(0, 60), (60, 100), (100, 170)]
+    motion = Motion(features, joints, 20.0, "t2m", ["a person walks", "", "a person sits down"], ranges)
+    assert [text for _, _, text in motion.segments] == ["a person walks", "transition", "a person sits down"]
+    motion.save(tmp_path, "filled", ("npy", "glb"))
+    sidecar = json.loads((tmp_path / "filled.json").read_text(encoding="utf-8"))
+    assert [s["text"] for s in sidecar["segments"]] == ["a person walks", "transition", "a person sits down"]
+    gltf = pygltflib.GLTF2().load(str(tmp_path / "filled.glb"))
+    assert [a.name for a in gltf.animations] == ["clip", "a person walks", "transition", "a person sits down"]
+    assert motion.actions[1] == ""  # what an edit samples it with again: the model's null condition

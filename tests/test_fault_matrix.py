@@ -760,7 +760,8 @@ def test_a_killed_render_or_export_leaves_no_file_and_a_rerun_leaves_no_trace(tm
     frames = 80
     np.save(tmp_path / "clip.npy", pose_clip(T2M, frames, seed=5))
     argv = ["render" if out.endswith(".gif") else "export", "clip.npy", "--out", out]
-    kill_when(argv, tmp_path, lambda: any(tmp_path.glob(".clip.*.partial.*")), pause_after=pause_after)
+    # a render writes .clip.<pid>.partial.gif; an export the same BVH in its folder .clip.<pid>.partial
+    kill_when(argv, tmp_path, lambda: any(tmp_path.rglob(".clip.*.partial.*")), pause_after=pause_after)
     assert not (tmp_path / out).exists()
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 0

@@ -311,3 +311,124 @@ def test_a_dead_tracking_server_costs_one_warning_and_keeps_the_files(tmp_path, 
     assert line.endswith(f"the generation is not tracked, its files are in {files['npy'].parent}")
     info = json.loads((files["npy"].parent / "run.json").read_text(encoding="utf-8"))
     assert info["status"] == "finished" and info["mlflow_run_id"] is None
+
+
+# --------------------------------------------------- all or nothing: never two clips in one place
+def _sampling_a_fixed_clip(monkeypatch, frames: int = 12) -> None:
+    """`m2d2m generate` without a model: loading gives nothing and sampling a fixed clip."""
+    motion = Motion(
+        np.zeros((frames, T2M.feature_dim), np.float32),
+        pose_clip(T2M, frames, seed=0),
+        20.0,
+        "t2m",
+        ["a person jumps"],
+        [(0, frames)],
+        {"method": "fixed"},
+    ).on_rigid_skeleton()
+    monkeypatch.setattr(orchestration.generate, "load_generator", lambda *_, **__: None)
+    monkeypatch.setattr(orchestration.generate, "generate", lambda *_, **__: motion)
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {path.name: path.read_bytes() for path in sorted(folder.iterdir())}
+
+
+FIXED = ["generate", "a person jumps", "--no-track"]
+
+
+def test_generate_into_a_folder_of_an_earlier_clip_is_refused_or_replaced_whole(tmp_path, monkeypatch, capsys):
+    """Issue 53, finding 5: `generate --out DIR` into a folder holding an earlier clip replaced
+    npy/json/bvh/gif and left the old GLB beside them: one folder, two clips."""
+    monkeypatch.chdir(tmp_path)
+    _sampling_a_fixed_clip(monkeypatch)
+    out = tmp_path / "clip"
+    assert main([*FIXED, "--out", str(out), "--formats", "npy", "bvh", "glb"]) == 0, capsys.readouterr().err
+    before = _files(out)
+    assert sorted(before) == ["motion.bvh", "motion.features.npy", "motion.glb", "motion.json", "motion.npy"]
+    capsys.readouterr()
+
+    assert main([*FIXED, "--out", str(out), "--formats", "npy", "bvh"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"m2d2m generate: error: --out {out} holds an earlier result (5 files); give a new folder, "
+        "or --overwrite to replace the folder and every file in it"
+    )
+    assert _files(out) == before
+
+    assert main([*FIXED, "--out", str(out), "--formats", "npy", "bvh", "--overwrite"]) == 0
+    assert sorted(_files(out)) == ["motion.bvh", "motion.features.npy", "motion.json", "motion.npy"]  # no old GLB
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip"]  # no temporary folder left
+
+
+def test_a_failed_overwrite_leaves_the_earlier_clip_as_it_was(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    _sampling_a_fixed_clip(monkeypatch)
+    out = tmp_path / "clip"
+    assert main([*FIXED, "--out", str(out), "--formats", "npy"]) == 0, capsys.readouterr().err
+    before = _files(out)
+
+    def broken_encoder(*_, **__):
+        raise RuntimeError("ffmpeg failed writing motion.gif: out of disk")
+
+    monkeypatch.setattr("m2d2m.motion.clip.render_motion", broken_encoder)
+    assert main([*FIXED, "--out", str(out), "--formats", "bvh", "gif", "--overwrite"]) == 2
+    assert "out of disk" in capsys.readouterr().err
+    assert _files(out) == before and sorted(p.name for p in tmp_path.iterdir()) == ["clip"]
+
+
+def test_a_folder_of_folders_or_the_working_folder_is_never_replaced(tmp_path, monkeypatch, capsys):
+    _sampling_a_fixed_clip(monkeypatch)
+    (tmp_path / "project" / "data").mkdir(parents=True)
+    (tmp_path / "clips").mkdir()
+    (tmp_path / "clips" / "notes.txt").write_text("keep me\n")
+    monkeypatch.chdir(tmp_path)
+    assert main([*FIXED, "--out", "project", "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("--out project holds folders (data), not an earlier result's files; give a new folder")
+    monkeypatch.chdir(tmp_path / "clips")
+    assert main([*FIXED, "--out", ".", "--overwrite"]) == 2
+    assert capsys.readouterr().err.strip().endswith("--out . is the working folder; give a new folder")
+    assert (tmp_path / "clips" / "notes.txt").read_text() == "keep me\n" and (tmp_path / "project" / "data").is_dir()
+
+
+def test_an_empty_folder_made_for_the_clip_is_taken(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    _sampling_a_fixed_clip(monkeypatch)
+    (tmp_path / "takes.v2").mkdir()
+    assert main([*FIXED, "--out", "takes.v2", "--formats", "bvh"]) == 0, capsys.readouterr().err
+    assert sorted(_files(tmp_path / "takes.v2")) == ["motion.bvh"]
+
+
+@pytest.mark.parametrize(
+    "verb, out, written",
+    [("generate", "clip.glb", b"glTF"), ("export", "clip.glb", b"glTF"), ("render", "clip.gif", b"GIF8")],
+)
+def test_an_existing_file_is_refused_unless_overwrite(tmp_path, monkeypatch, capsys, verb, out, written):
+    """Issue 53, finding 5: `--out existing.glb` and `export --out existing.glb` overwrote,
+    though docs/generation.md said an existing file is refused."""
+    monkeypatch.chdir(tmp_path)
+    _sampling_a_fixed_clip(monkeypatch)
+    np.save(tmp_path / "take.npy", pose_clip(T2M, 12, seed=1).astype(np.float32))
+    command = [*FIXED] if verb == "generate" else [verb, "take.npy"]
+    (tmp_path / out).write_bytes(b"an earlier file")
+    assert main([*command, "--out", out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"m2d2m {verb}: error: {out} exists; give another name, or --overwrite to replace it"
+    assert (tmp_path / out).read_bytes() == b"an earlier file"
+    assert main([*command, "--out", out, "--overwrite"]) == 0, capsys.readouterr().err
+    assert (tmp_path / out).read_bytes()[:4] == written
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out, "take.npy"]
+
+
+def test_export_over_an_npy_leaves_none_of_the_earlier_ones_companions(tmp_path, monkeypatch, capsys):
+    """An in-place export writes `clip.root_motion.npy` beside `clip.npy`; an export over it that
+    keeps the path makes none, and the old one would have been read as this clip's."""
+    monkeypatch.chdir(tmp_path)
+    np.save(tmp_path / "take.npy", pose_clip(T2M, 12, seed=1).astype(np.float32))
+    assert main(["export", "take.npy", "--out", "clip.npy", "--root", "in-place"]) == 0, capsys.readouterr().err
+    assert (tmp_path / "clip.root_motion.npy").is_file()
+    assert main(["export", "take.npy", "--out", "clip.npy"]) == 2
+    assert "clip.npy exists; give another name, or --overwrite" in capsys.readouterr().err
+    assert main(["export", "take.npy", "--out", "clip.npy", "--overwrite"]) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.json", "clip.npy", "take.npy"]
+    assert "root_motion" not in json.loads((tmp_path / "clip.json").read_text(encoding="utf-8"))

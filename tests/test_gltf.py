@@ -11,6 +11,7 @@ and run with node. The Blender tests need Debian's ``blender`` and ``python3-num
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 from collections.abc import Sequence
@@ -321,6 +322,21 @@ def test_blenders_gltf_importer_puts_the_bones_on_the_joints(tmp_path, sample_jo
     print(f"Blender glTF import: largest bone head error {error * 1000:.4f} mm; actions {sorted(actions)}")
     assert error < 1e-3
     assert {name.rsplit("_", 1)[0] for name in actions} == {CLIP_ANIMATION} | {text for _, _, text in SEGMENTS}
+
+
+def fbx_takes(path: Path) -> list[str]:
+    """The names of a binary FBX's takes (its AnimationStack objects, stored as ``name\\0\\1AnimStack``)
+    in the order the file lists them."""
+    return [name.decode() for name in re.findall(rb"([ -~]+)\x00\x01AnimStack", path.read_bytes())]
+
+
+@pytest.mark.slow
+@needs_blender
+def test_the_fbx_opens_on_the_whole_clip_and_names_each_take_once(tmp_path, sample_joints):
+    """Issue 53, finding 8: the FBX's takes came in alphabetical order, so engines opened it on a
+    2-s "a person jumps", and were named "t2m|a person jumps_t2m" (the armature's name twice)."""
+    path = save_fbx(tmp_path / "clip.fbx", sample_joints, segments=SEGMENTS)
+    assert fbx_takes(path) == [CLIP_ANIMATION, *(text for _, _, text in SEGMENTS)]
 
 
 @pytest.mark.slow

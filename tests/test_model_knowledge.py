@@ -75,6 +75,18 @@ def test_models_and_the_run_details_list_the_actions_and_lengths_it_knows(client
     assert "each action 0.2–4.8 s, at 20 frames per second; it reads only the words of its training captions" in printed
 
 
+def test_the_actions_proposed_are_actions_not_do_get_or_back(client, chosen_run, capsys, monkeypatch):
+    """Issue 53, finding 8: the page proposed "do", "get" and "back" as actions (chips adding "a
+    person dos", "a person gets", "a person backs"): verbs of the corpus's single-action captions
+    that name no action alone."""
+    verbs = ("back", "do", "get", "jump", "perform", "put", "start", "walk", "wave")
+    monkeypatch.setattr(M2D2MGenerator, "known_verbs", property(lambda self: verbs))
+    details = client.get(f"/api/models/m2d2m/runs/{chosen_run.name}").json()
+    assert details["actions"] == ["jump", "walk", "wave"]
+    assert main(["models", "--dataset", "tiny"]) == 0
+    assert "actions it was shown alone (3): jump, walk, wave" in capsys.readouterr().out
+
+
 def test_models_without_a_dataset_lists_every_trained_dataset(chosen_run, capsys):
     """A real-motion model beside the demo's is found without knowing its dataset's name."""
     assert main(["models"]) == 0
@@ -104,7 +116,17 @@ def test_models_outside_a_trained_dataset_is_one_line(chosen_run, capsys):
 def test_words_and_verbs_the_model_does_not_know_are_warned_about_before_sampling(chosen_run, capsys):
     """ "a man does a cartwheel" silently gave something."""
     out = chosen_run.parent.parent / "cartwheel"
-    argv = ["generate", "a man does a cartwheel", "--dataset", "tiny", "--out", str(out), "--formats", "npy"]
+    argv = [
+        "generate",
+        "a man does a cartwheel",
+        "--dataset",
+        "tiny",
+        "--out",
+        str(out),
+        "--formats",
+        "npy",
+        "--overwrite",
+    ]
     assert main([*argv, "--no-track", "--seconds", "1"]) == 0
     err = capsys.readouterr().err
     warnings = [line for line in err.splitlines() if line.startswith("warning: ")]

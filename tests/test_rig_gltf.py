@@ -28,6 +28,7 @@ from tests.test_gltf import (  # noqa: F401
     accessor_data,
     animation,
     blender_heads,
+    fbx_takes,
     gltf_validator,
     needs_blender,
     xyzw_to_matrix,
@@ -144,6 +145,7 @@ def test_blender_makes_fbx_of_the_glb_on_a_rig(tmp_path, ours, rig_file):
     target = read_target(rig_file)
     path = save_rig_fbx(tmp_path / "on-rig.fbx", target, ours, 20.0, SEGMENTS)
     assert path.read_bytes().startswith(b"Kaydara FBX Binary")
+    assert fbx_takes(path) == [CLIP_ANIMATION, *(text for _, _, text in SEGMENTS)]
     bvh = read_bvh(retarget_to_bvh(tmp_path / "on-rig.bvh", ours, rig_file, fps=20.0))
     heads, _ = blender_heads(path, len(ours), bvh.names)
     error = np.abs(heads - bvh.positions() * target.metres_per_unit).max()

@@ -197,6 +197,21 @@ def test_downloads_are_by_id_and_name_the_bvh_parses_and_the_gif_is_drawn_on_dem
         assert answer.status_code == 404 and set(answer.json()) == {"error"}, path
 
 
+def test_a_results_delivery_comes_back_as_json(client):
+    """Issue 53, finding 8: ``settings.delivery`` came back as a Python repr string, not JSON."""
+    result = generate(client, seed=3, fps=30.0, root="in-place", loop=False, plant_feet=True)
+    assert result["settings"]["delivery"] == {
+        "fps": 30.0,
+        "root": "in-place",
+        "loop": False,
+        "plant_feet": True,
+        "rest_pose": "skeleton",
+        "rig": None,
+        "joint_map": None,
+        "rest_frame": None,
+    }
+
+
 def test_a_clip_is_delivered_as_asked_and_comes_as_a_glb(client, trained_project):
     """Issue 40: the frame rate, the root, the loop and the feet, as `m2d2m generate` takes them."""
     result = generate(client, seed=3, fps=30.0, root="in-place", loop=False, plant_feet=True)
@@ -607,4 +622,4 @@ def test_a_looped_generation_is_edited_on_the_timeline_it_shows(client, trained_
     shape = slice(3, 4 + 21 * 9)  # root height, joints around the root, rotations
     np.testing.assert_allclose(features(answer.json())[frame, shape], looped[frame, shape], atol=1e-5)
     refused = client.post(edit_url, json={**pin, "at": count / 20 + 1})
-    assert refused.status_code == 400 and f"outside the motion's {count} frames" in refused.json()["error"]
+    assert refused.status_code == 400 and f"outside the motion's {count / 20:g} s" in refused.json()["error"]

@@ -117,7 +117,7 @@ def test_an_upper_body_action_is_laid_over_a_span_of_the_multi_action_result(tra
     assert not np.array_equal(after[20:50], before[20:50])
     texts = [s["text"] for s in json.loads((out / "motion.json").read_text())["segments"]]
     assert texts == ["a person walks forward", "a person waves", "a person jumps"]
-    assert main([*argv, "--model", "m2d2m", *quick[:-2], "--out", str(out)]) == 2
+    assert main([*argv, "--model", "m2d2m", *quick[:-2], "--out", str(out.with_name("m2d2m-layer"))]) == 2
 
 
 @pytest.mark.parametrize(

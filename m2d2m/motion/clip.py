@@ -27,6 +27,15 @@ from m2d2m.motion.skeleton import SKELETONS, Skeleton
 FORMATS = ("npy", "bvh", "glb", "fbx", "gif", "mp4")
 RIG_FORMATS = ("bvh", "glb", "fbx")  # the formats written on a rig (docs/generation.md, "On your own rig")
 ANIMATIONS = ("gif", "mp4")
+UNNAMED_ACTION = "transition"  # the name of an action sampled without text (Motion.segments)
+
+
+def file_names(name: str, kind: str) -> tuple[str, ...]:
+    """Every file :meth:`Motion.save` may write for format ``kind`` under the stem ``name``: a
+    ``.npy`` brings its JSON sidecar, the model's features and an in-place clip's root track."""
+    if kind == "npy":
+        return (f"{name}.npy", f"{name}.json", f"{name}.features.npy", f"{name}.root_motion.npy")
+    return (f"{name}.{kind}",)
 
 
 @dataclass
@@ -37,8 +46,9 @@ class Motion:
     ranges belong to no action: a baseline's transition window. ``settings`` records how it was
     made (method, seed, ...), ``quality`` figures of the joints (``bone_length_std_mm_mean`` and
     ``_max``: the spread of bone lengths before :meth:`on_rigid_skeleton`). ``loop``: one cycle
-    of a loop, its last frame running on into its first; ``kept_frames``: an edit's frames that
-    its delivery's foot fix leaves as they are (its source's, as delivered)."""
+    of a loop, its last frame running on into its first moved by ``loop_travel`` (3,), how far its
+    path moves in a cycle (an in-place clip's ``root_track`` carries the path); ``kept_frames``:
+    an edit's frames that its delivery's foot fix leaves as they are (its source's, as delivered)."""
 
     features: np.ndarray
     joints: np.ndarray
@@ -52,6 +62,7 @@ class Motion:
     root_track: np.ndarray | None = None  # (F, 3) the root motion an in-place delivery took out
     loop: bool = False
     kept_frames: KeptFrames | None = None
+    loop_travel: np.ndarray | None = None  # (3,) a loop's travel in a cycle; None: not a loop, or not known
 
     def __post_init__(self) -> None:
         if len(self.actions) != len(self.ranges):
@@ -80,7 +91,10 @@ class Motion:
 
     @property
     def segments(self) -> list[tuple[int, int, str]]:
-        return [(first, end, text) for (first, end), text in zip(self.ranges, self.actions)]
+        """Each action's frames and name, as every file and answer shows them: its text, or
+        :data:`UNNAMED_ACTION` for one sampled without text (a gap filled with the model's null
+        condition), which would otherwise be a nameless span on the timeline and in the files."""
+        return [(first, end, text or UNNAMED_ACTION) for (first, end), text in zip(self.ranges, self.actions)]
 
     def on_rigid_skeleton(self, shapes: dict[int, np.ndarray] | None = None) -> Motion:
         """This motion with its joints on one rigid skeleton (:mod:`m2d2m.motion.rigid`; ``shapes``:
@@ -142,6 +156,7 @@ class Motion:
             root_track=done.root_track,
             loop=loop,
             kept_frames=None,
+            loop_travel=done.loop_travel,
         )
 
     def save(
@@ -197,16 +212,33 @@ class Motion:
         if kind == "bvh":
             return target.write_bvh(path, self.joints, self.fps, self.skeleton)
         save = save_rig_fbx if kind == "fbx" else save_rig_glb
-        return save(path, target, self.joints, self.fps, self.segments, self.skeleton)
+        joints, _, closing = self._keyed()
+        return save(path, target, joints, self.fps, self.segments, self.skeleton, closing_key=closing)
 
     def _save_gltf(self, path: Path, kind: str, rest_pose: str) -> Path:
         """A GLB (with the root track, if any, as its own animation over the clip's path) or FBX."""
+        joints, track, closing = self._keyed()
         if kind == "fbx":
-            return save_fbx(path, self.joints, self.skeleton, self.fps, self.segments, rest_pose)
+            return save_fbx(path, joints, self.skeleton, self.fps, self.segments, rest_pose, closing_key=closing)
+        if track is None:
+            return save_glb(path, joints, self.skeleton, self.fps, self.segments, rest_pose, closing_key=closing)
+        path_kept = joints + track[:, None]
+        return save_glb(
+            path, path_kept, self.skeleton, self.fps, self.segments, rest_pose, joints[:, 0], closing_key=closing
+        )
+
+    def _keyed(self) -> tuple[np.ndarray, np.ndarray | None, bool]:
+        """The joints and root track a GLB and an FBX key, and whether they end on a closing key:
+        a loop's end with its first frame again, moved on by a cycle's travel (an in-place clip's
+        root track travels, its joints stay), so that an engine looping the animation plays the
+        seam over one frame step like any other, not in no time from the last key to the first."""
+        if self.loop_travel is None:
+            return self.joints, self.root_track, False
+        travel = np.asarray(self.loop_travel, dtype=self.joints.dtype)
         if self.root_track is None:
-            return save_glb(path, self.joints, self.skeleton, self.fps, self.segments, rest_pose)
-        path_kept = self.joints + self.root_track[:, None]
-        return save_glb(path, path_kept, self.skeleton, self.fps, self.segments, rest_pose, self.joints[:, 0])
+            return np.concatenate([self.joints, self.joints[:1] + travel]), None, True
+        track = np.concatenate([self.root_track, self.root_track[:1] + travel])
+        return np.concatenate([self.joints, self.joints[:1]]), track, True
 
 
 def save_motions(path: str | Path, motions: Sequence[Motion]) -> Path:
@@ -221,6 +253,8 @@ def save_motions(path: str | Path, motions: Sequence[Motion]) -> Path:
             arrays[f"tokens{index}"] = np.asarray(motion.tokens)
         if motion.root_track is not None:
             arrays[f"root_track{index}"] = motion.root_track
+        if motion.loop_travel is not None:
+            arrays[f"loop_travel{index}"] = motion.loop_travel
         described.append(
             {
                 "fps": motion.fps,
@@ -253,7 +287,8 @@ def load_motions(path: str | Path) -> list[Motion]:
                 stored[f"tokens{index}"] if f"tokens{index}" in stored else None,
                 info["quality"],
                 stored[f"root_track{index}"] if f"root_track{index}" in stored else None,
-                info.get("loop", False),
+                loop=info.get("loop", False),
+                loop_travel=stored[f"loop_travel{index}"] if f"loop_travel{index}" in stored else None,
             )
             for index, info in enumerate(json.loads(str(stored["described"])))
         ]

@@ -78,8 +78,9 @@ class Delivery:
 class Delivered:
     """A clip as delivered: its ``joints`` at ``fps``, the ``ranges`` of the actions ``kept`` (a
     loop may cut some), the ``root_track`` an in-place clip took out, ``quality`` figures, and
-    the ``loop_span`` (first, end) of the frames at ``fps`` a loop was made from
-    (:class:`~m2d2m.motion.retime.Loop`), None when none was made."""
+    for a loop the ``loop_span`` (first, end) of the frames at ``fps`` it was made from (None for
+    a clip that was one cycle already) and the ``loop_travel`` (3,) of its path in a cycle
+    (:class:`~m2d2m.motion.retime.Loop`)."""
 
     joints: np.ndarray
     fps: float
@@ -88,6 +89,7 @@ class Delivered:
     root_track: np.ndarray | None
     quality: dict[str, float] = field(default_factory=dict)
     loop_span: tuple[int, int] | None = None
+    loop_travel: np.ndarray | None = None
 
 
 def deliver(
@@ -108,6 +110,7 @@ def deliver(
     the clip is one cycle of a loop already (an edit of a loop), which a loop keeps whole."""
     quality: dict[str, float] = {}
     kept = list(range(len(ranges)))
+    travel = None
     if delivery.plants_feet(recorded):
         quality["skating_before_fix"] = skating_ratio(joints, skeleton, fps)
         joints = fix_feet(joints, skeleton, fps, features, kept_frames)
@@ -123,14 +126,15 @@ def deliver(
         fps = target
     span = None
     if cycle:
-        quality["loop_travel_m"] = float(np.linalg.norm(cycle_travel(joints)))
+        travel = cycle_travel(joints)
+        quality["loop_travel_m"] = float(np.linalg.norm(travel))
     elif delivery.loop:
         loop = make_loop(joints, fps, skeleton)
         span = first, end = loop.span
         looped = [(max(a, first) - first, min(b, end) - first) for a, b in ranges]
         kept = [i for i, (a, b) in zip(kept, looped) if a < b]
         ranges = [(a, b) for a, b in looped if a < b]
-        joints = loop.joints
+        joints, travel = loop.joints, loop.travel
         quality["loop_travel_m"] = float(np.linalg.norm(loop.travel))
     joints, track = root_motion(joints, delivery.root)
-    return Delivered(joints.astype(np.float32), fps, ranges, kept, track, quality, span)
+    return Delivered(joints.astype(np.float32), fps, ranges, kept, track, quality, span, travel)

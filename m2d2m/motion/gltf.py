@@ -63,6 +63,7 @@ def save_glb(
     segments: Sequence[tuple[int, int, str]] = (),
     rest_pose: str = "skeleton",
     root_track: np.ndarray | None = None,
+    closing_key: bool = False,
 ) -> Path:
     """Write joint positions (T, J, 3) as a glTF 2.0 binary file (written whole or not at all) and
     return its path.
@@ -78,10 +79,16 @@ def save_glb(
     ``root_track`` (T, 3), when given, is what the root node's translation is keyed to in those
     animations — e.g. an in-place path — and the clip's own root path is kept as one more animation,
     ``"root motion"``, which keys the root's translation only.
+
+    ``closing_key``: the last frame of ``joints`` (and ``root_track``) is no frame of the clip but
+    a loop's first again, where the loop runs on into it: ``"clip"`` and ``"root motion"`` key it
+    at the clip's end, ``T / fps``, so that an engine looping them plays one cycle of ``T``
+    frames; the actions and the ``extras`` count the clip's ``T`` frames.
     """
     joints = skeleton.check_joints(joints)
     fps = float(skeleton.fps if fps is None else fps)
-    segments = checked_segments(segments, len(joints))
+    frames = len(joints) - closing_key
+    segments = checked_segments(segments, frames)
     pose = pose_of(joints, skeleton, rest_pose=rest_pose)
     metres = skeleton.metres_per_unit
     path_keys = pose.root * metres
@@ -101,13 +108,12 @@ def save_glb(
     rest = _rest_positions(skeleton, offsets, path_keys[0])
     body = add_body(gltf, blob, skeleton.parents, skeleton.bones, rest, skeleton.head_joint, skeleton.name)
 
-    keys = animate(gltf, blob, fps, segments, {root: path_keys}, dict(enumerate(np.moveaxis(pose.local, 1, 0))))
+    rotations = dict(enumerate(np.moveaxis(pose.local, 1, 0)))
+    keys = animate(gltf, blob, fps, segments, {root: path_keys}, rotations, closing_key)
     if root_track is not None:
         motion = keys.add(root, gl.TRANSLATION, pose.root * metres)
-        gltf.animations.append(keys.animation(ROOT_MOTION_ANIMATION, [motion], 0, len(joints)))
-    gltf.scenes = [
-        gl.Scene(name="m2d2m", nodes=[root, body], extras=clip_extras(skeleton.name, fps, len(joints), segments))
-    ]
+        gltf.animations.append(keys.animation(ROOT_MOTION_ANIMATION, [motion], 0, frames, closing_key))
+    gltf.scenes = [gl.Scene(name="m2d2m", nodes=[root, body], extras=clip_extras(skeleton.name, fps, frames, segments))]
     gltf.scene = 0
     return write_glb(gltf, blob, path)
 
@@ -124,15 +130,17 @@ def animate(
     segments: Sequence[tuple[int, int, str]],
     translations: dict[int, np.ndarray],
     rotations: dict[int, np.ndarray],
+    closing_key: bool = False,
 ) -> _Keys:
     """Key nodes' translations (node → (T, 3)) and rotations (node → (T, 3, 3) matrices) at
-    ``frame / fps`` seconds, and add the animations :func:`save_glb` describes: ``"clip"``, then one
-    per checked segment; returns the keys, for more animations over the same tracks."""
-    frames = len(next(iter(translations.values())))
-    keys = _Keys(blob, (np.arange(frames) / fps).astype(np.float32))
+    ``frame / fps`` seconds, and add the animations :func:`save_glb` describes: ``"clip"`` (with
+    ``closing_key``, up to the last key, a loop's first frame again), then one per checked segment;
+    returns the keys, for more animations over the same tracks."""
+    keyed = len(next(iter(translations.values())))
+    keys = _Keys(blob, (np.arange(keyed) / fps).astype(np.float32))
     tracks = [keys.add(node, gl.TRANSLATION, track) for node, track in translations.items()]
     tracks += [keys.add(node, gl.ROTATION, _continuous(_xyzw(track))) for node, track in rotations.items()]
-    gltf.animations.append(keys.animation(CLIP_ANIMATION, tracks, 0, frames))
+    gltf.animations.append(keys.animation(CLIP_ANIMATION, tracks, 0, keyed - closing_key, closing_key))
     gltf.animations += [keys.animation(text, tracks, start, end) for start, end, text in segments]
     return keys
 
@@ -170,14 +178,21 @@ def save_fbx(
     segments: Sequence[tuple[int, int, str]] = (),
     rest_pose: str = "skeleton",
     timeout_s: float = 300.0,
+    closing_key: bool = False,
 ) -> Path:
     """Write joint positions as FBX, made by Blender's own FBX exporter from the GLB of
     :func:`save_glb` (FBX is a closed format: Blender's exporter is the one open writer that
-    Autodesk's tools and game engines accept), and return its path. Every animation becomes a
-    take. Raises ``FileNotFoundError`` when ``blender`` is not on the PATH and ``RuntimeError``
-    with Blender's last line of errors when it fails."""
+    Autodesk's tools and game engines accept; ``closing_key`` as there), and return its path.
+    Every animation becomes a take, the whole clip's first. Raises ``FileNotFoundError`` when
+    ``blender`` is not on the PATH and ``RuntimeError`` with Blender's last line of errors when it
+    fails."""
     fps = float(skeleton.fps if fps is None else fps)
-    return fbx_of_glb(path, fps, lambda glb: save_glb(glb, joints, skeleton, fps, segments, rest_pose), timeout_s)
+    return fbx_of_glb(
+        path,
+        fps,
+        lambda glb: save_glb(glb, joints, skeleton, fps, segments, rest_pose, closing_key=closing_key),
+        timeout_s,
+    )
 
 
 def fbx_of_glb(path: str | Path, fps: float, write: Callable[[Path], Path], timeout_s: float = 300.0) -> Path:
@@ -212,6 +227,12 @@ def _last_error(output: str) -> str:
 # its FBX exporter (Blender manual: Import-Export > glTF 2.0, FBX); no leaf bones: the joints are the
 # bones. Flat shading is what a mesh without normals gets anyway (§3.7.2.1), and it keeps Debian 12's
 # Blender 3.4 off its importer's "smooth" path, which uses np.bool, gone from NumPy 1.24 (Debian's).
+# The importer stashes each animation as a muted NLA track of its name, each new track first, holding
+# one strip of the action "<animation>_<object>". The exporter's "all actions" takes would come in
+# the actions' alphabetical order (a 2-s "a person jumps" before the whole clip, which engines then
+# open on), each named "<object>|<action>" ("t2m|clip_t2m": the object's name twice); its NLA-strip
+# takes come in the tracks' order, each named by its strip. So the tracks are laid again in the
+# file's order, unmuted, each strip named as its animation: "clip" first, and each name once.
 _BLENDER_GLB_TO_FBX = """
 import sys, bpy
 glb, fbx, fps = sys.argv[sys.argv.index("--") + 1:]
@@ -219,7 +240,23 @@ bpy.ops.wm.read_factory_settings(use_empty=True)
 scene = bpy.context.scene
 scene.render.fps, scene.render.fps_base, scene.frame_start = int(fps), 1.0, 0
 bpy.ops.import_scene.gltf(filepath=glb, import_shading="FLAT")
-bpy.ops.export_scene.fbx(filepath=fbx, add_leaf_bones=False, bake_anim=True, bake_anim_simplify_factor=0.0)
+for obj in bpy.data.objects:
+    data = obj.animation_data
+    if data is None:
+        continue
+    data.action = None
+    stashed = [(t.name, t.strips[0].action, t.strips[0].frame_start) for t in reversed(data.nla_tracks)]
+    for track in list(data.nla_tracks):
+        data.nla_tracks.remove(track)
+    track = None
+    for name, action, start in stashed:
+        track = data.nla_tracks.new(prev=track)
+        track.name = name
+        track.strips.new(name, int(start), action).name = name
+bpy.ops.export_scene.fbx(
+    filepath=fbx, add_leaf_bones=False, bake_anim=True, bake_anim_use_all_actions=False,
+    bake_anim_use_nla_strips=True, bake_anim_simplify_factor=0.0,
+)
 """
 
 
@@ -276,13 +313,17 @@ class _Keys:
         self.tracks.append((node, target, keys, self.blob.view(keys)))
         return len(self.tracks) - 1
 
-    def animation(self, name: str, tracks: list[int], start: int, end: int) -> gl.Animation:
-        """An animation keying ``tracks`` at frames ``start..end-1``, LINEAR (rotations: slerp)."""
-        inputs = self.blob.accessor(self.times_view, self.times[start:end], first=start, bounds=True)
-        animation = gl.Animation(name=name, extras={"start_frame": start, "end_frame": end})
+    def animation(self, name: str, tracks: list[int], start: int, end: int, closing_key: bool = False) -> gl.Animation:
+        """An animation keying ``tracks`` at frames ``start..end-1``, LINEAR (rotations: slerp),
+        and with ``closing_key`` at ``end`` too: a loop's first frame again (``extras``
+        ``closing_key``), not a frame of the clip."""
+        last = end + closing_key
+        inputs = self.blob.accessor(self.times_view, self.times[start:last], first=start, bounds=True)
+        extras = {"start_frame": start, "end_frame": end, **({"closing_key": True} if closing_key else {})}
+        animation = gl.Animation(name=name, extras=extras)
         for track in tracks:
             node, target, keys, view = self.tracks[track]
-            output = self.blob.accessor(view, keys[start:end], first=start)
+            output = self.blob.accessor(view, keys[start:last], first=start)
             sampler = gl.AnimationSampler(input=inputs, output=output, interpolation=gl.ANIM_LINEAR)
             channel = gl.AnimationChannel(
                 sampler=len(animation.samplers), target=gl.AnimationChannelTarget(node=node, path=target)

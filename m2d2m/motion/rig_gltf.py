@@ -54,22 +54,25 @@ def save_rig_glb(
     fps: float | None = None,
     segments: Sequence[tuple[int, int, str]] = (),
     skeleton: Skeleton = T2M,
+    closing_key: bool = False,
 ) -> Path:
     """Our joints (T, J, 3) retargeted onto ``target`` as a GLB (written whole or not at all): its
     character's file animated, or a skinned skeleton of its BVH's; keys at ``frame / fps``
-    seconds, animations and scene ``extras`` as :func:`~m2d2m.motion.gltf.save_glb` has them.
-    ValueError in one line for a character whose data are not all in its file."""
+    seconds, animations, a loop's ``closing_key`` and scene ``extras`` as
+    :func:`~m2d2m.motion.gltf.save_glb` has them. ValueError in one line for a character whose
+    data are not all in its file."""
     joints = skeleton.check_joints(joints)
     fps = float(skeleton.fps if fps is None else fps)
-    segments = checked_segments(segments, len(joints))
+    frames = len(joints) - closing_key
+    segments = checked_segments(segments, frames)
     motion = target.retargeted(joints, skeleton)
     if target.character is None:
         gltf, blob, tracks = _skeleton_of(target, motion, skeleton)
     else:
         gltf, blob, tracks = _character_of(target, motion)
-    animate(gltf, blob, fps, segments, *tracks)
+    animate(gltf, blob, fps, segments, *tracks, closing_key)
     scene = gltf.scenes[gltf.scene or 0]
-    scene.extras = {**(scene.extras or {}), **clip_extras("rig", fps, len(joints), segments)}
+    scene.extras = {**(scene.extras or {}), **clip_extras("rig", fps, frames, segments)}
     return write_glb(gltf, blob, path)
 
 
@@ -81,11 +84,14 @@ def save_rig_fbx(
     segments: Sequence[tuple[int, int, str]] = (),
     skeleton: Skeleton = T2M,
     timeout_s: float = 300.0,
+    closing_key: bool = False,
 ) -> Path:
     """Our joints on ``target`` as FBX, by Blender from the GLB of :func:`save_rig_glb`
     (:func:`~m2d2m.motion.gltf.fbx_of_glb`, whose errors it raises)."""
     fps = float(skeleton.fps if fps is None else fps)
-    return fbx_of_glb(path, fps, lambda glb: save_rig_glb(glb, target, joints, fps, segments, skeleton), timeout_s)
+    return fbx_of_glb(
+        path, fps, lambda glb: save_rig_glb(glb, target, joints, fps, segments, skeleton, closing_key), timeout_s
+    )
 
 
 def _skeleton_of(target: Target, motion: RigMotion, skeleton: Skeleton) -> tuple[gl.GLTF2, Blob, Tracks]:

@@ -138,6 +138,8 @@ class Catalog:
     def run_details(self, model: str, run: str) -> dict[str, Any]:
         """A run's own sampling defaults (a model file may carry its own) and the action lengths it
         supports: ``GET /api/models/{model}/runs/{run}``."""
+        from pipelines.language import action_verbs
+
         name, generator = self.generator(model, run)
         defaults = generator.sampling.defaults(MULTI, generator.model_defaults)
         return {
@@ -148,5 +150,5 @@ class Catalog:
             "default_method": defaults["method"],
             "method_labels": dict(generator.sampling.method_labels),
             "knobs": knob_table(generator.sampling, defaults),
-            "actions": sorted(generator.known_verbs),
+            "actions": action_verbs(generator.known_verbs),  # the page's examples: actions, not "do" or "back"
         }

@@ -12,7 +12,7 @@ from __future__ import annotations
 import shutil
 import threading
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -207,9 +207,12 @@ class Generations:
 
 
 def _plain(value: Any) -> Any:
-    """A settings value as JSON has it (a NumPy number or a tuple as Python's own)."""
+    """A settings value as JSON has it (a NumPy number or a tuple as Python's own, a mapping such
+    as the ``delivery`` as an object, not its Python repr)."""
     if isinstance(value, (str, int, float, bool)) or value is None:
         return value
     if isinstance(value, (list, tuple)):
         return [_plain(item) for item in value]
+    if isinstance(value, Mapping):
+        return {str(key): _plain(item) for key, item in value.items()}
     return value.item() if hasattr(value, "item") else str(value)
