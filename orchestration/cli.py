@@ -243,6 +243,7 @@ def _export(args: argparse.Namespace) -> None:
             shown.skeleton.name,
             [text for _, _, text in segments],
             [(first, end) for first, end, _ in segments],
+            loop=shown.loop,  # a loop's files close it again (its GLB's closing key)
         ),
         output.delivery,
         recorded=True,  # a file's motion: its feet are fixed only on --foot-fix

@@ -24,6 +24,7 @@ class LoadedMotion:
     segments: list[tuple[int, int, str]]
     caption: str | None
     fps: float | None = None  # the frame rate its sidecar states (none: the skeleton's)
+    loop: bool = False  # one cycle of a loop, as its sidecar says
 
 
 def _check_values(array: np.ndarray, origin: str) -> None:
@@ -207,7 +208,7 @@ def _from_npy(path: Path, skeleton: str | None) -> LoadedMotion:
             raise UserError(f"{path.parent / sidecar['root_motion']}: shape {track.shape}, expected ({len(joints)}, 3)")
         joints = joints + track[:, None, :].astype(np.float32)
     segments = [(int(s["start_frame"]), int(s["end_frame"]), str(s["text"])) for s in sidecar["segments"]]
-    return LoadedMotion(joints, skel, segments, None, float(sidecar["fps"]))
+    return LoadedMotion(joints, skel, segments, None, float(sidecar["fps"]), bool(sidecar.get("loop", False)))
 
 
 def load_motion(source: str | Path, clip_id: str | None = None, skeleton: str | None = None) -> LoadedMotion:

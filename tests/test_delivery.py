@@ -310,6 +310,20 @@ def test_a_looped_glb_ends_on_its_first_pose_moved_on_by_a_cycle(clip, tmp_path,
     assert all(accessor_data(gltf, a.samplers[0].input).shape[0] <= frames for a in actions)
 
 
+def test_a_loop_exported_from_its_npy_closes_as_it_was_delivered(clip, tmp_path):
+    """A loop's sidecar says it is one: `m2d2m export` of its .npy to GLB closes the loop again
+    (the export had no closing key without --loop)."""
+    joints, features = clip
+    looped = Motion(features, joints, 20.0, "t2m", ["a person walks"], [(0, 170)]).delivered(Delivery(loop=True))
+    looped.save(tmp_path, "loop", ("npy", "glb"))
+    assert main(["export", str(tmp_path / "loop.npy"), "--out", str(tmp_path / "again.glb")]) == 0
+    for name in ("loop.glb", "again.glb"):
+        gltf = pygltflib.GLTF2().load(str(tmp_path / name))
+        clip_animation = next(a for a in gltf.animations if a.name == "clip")
+        assert clip_animation.extras["closing_key"] is True
+        assert len(accessor_data(gltf, clip_animation.samplers[0].input)) == len(looped.joints) + 1
+
+
 def test_a_span_sampled_without_text_is_named_in_every_file(clip, tmp_path):
     """Issue 53, finding 8: a gap filled without text (`--fill-to` with no prompt) was a nameless
     span on the page's timeline, in the GLB's animations and in the sidecar."""
