@@ -26,6 +26,7 @@ from orchestration.web.app import ServeSettings, create_app
 from orchestration.web.limits import MAX_BODY_BYTES
 from tests.helpers import XBOT, free_port, xbot_with_a_mesh
 from tests.live_server import live_server
+from tests.test_retarget import BANDAI_WALK
 
 ACTIONS = [{"text": "a person walks forward", "seconds": 1.6}, {"text": "a person jumps", "seconds": 1.2}]
 MIXAMO_MAP = {ours: list(theirs) for ours, theirs in PRESETS["mixamo"].sources.items()}
@@ -238,3 +239,21 @@ def test_a_clip_comes_back_on_the_character_as_the_command_line_puts_it(trained_
             on_character = read_bvh(downloaded)
             assert len(on_character.names) == 65 and len(on_character.values) == len(result["joints"])
         assert reads == [reads[0]] + [character] * 2  # the server read it once; the command line, each time
+
+
+def test_a_rig_is_aimed_from_the_frame_asked_and_a_frame_it_lacks_is_one_line(bare_client):
+    """Bandai Namco's rest pose lies along its bones: by default its rig is aimed from its file's
+    first frame, with ``rest_frame`` from another (a rig of its own); a frame the file lacks is a
+    400 in one sentence, a negative one a 422 as every invalid field is."""
+    walk = BANDAI_WALK.read_bytes()
+    default = bare_client.post("/api/rigs", content=walk)
+    assert default.status_code == 200, default.text
+    assert default.json()["aimed_from"] == "frame 0"
+    later = bare_client.post("/api/rigs", params={"file": default.json()["file"], "rest_frame": 40}).json()
+    assert later["aimed_from"] == "frame 40" and later["id"] != default.json()["id"]
+    frames = len(read_bvh(BANDAI_WALK).values)
+    missing = bare_client.post("/api/rigs", params={"file": default.json()["file"], "rest_frame": frames})
+    assert missing.status_code == 400
+    assert f"rest frame {frames}: the rig's file has {frames} frame(s)" in missing.json()["error"]
+    negative = bare_client.post("/api/rigs", params={"file": default.json()["file"], "rest_frame": -1})
+    assert negative.status_code == 422 and "rest_frame" in negative.json()["error"]  # as every invalid field

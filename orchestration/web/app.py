@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from fastapi import APIRouter, Depends, FastAPI, Request
+from fastapi import APIRouter, Depends, FastAPI, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, StreamingResponse
@@ -335,15 +335,22 @@ def create_app(settings: ServeSettings) -> FastAPI:
         "sent before, under another joint_map) to download generations on it: GET a generation's motion.bvh?rig=<id> (or motion.glb, motion.fbx)",
         openapi_extra=FILE_BODY,
     )
-    async def add_rig(request: Request, joint_map: str | None = None, file: str | None = None) -> dict[str, Any]:
+    async def add_rig(
+        request: Request,
+        joint_map: str | None = None,
+        file: str | None = None,
+        rest_frame: int | None = Query(None, ge=0, description="the frame of a BVH whose pose motions are aimed from"),
+    ) -> dict[str, Any]:
         if file is None:
             file = await service.rigs.receive(request.stream())
         else:
             async for chunk in request.stream():
                 if chunk:
                     raise UserError("give the rig's bytes or file=<id> of a rig sent before, not both")
-        rig = await run_in_threadpool(service.rigs.add, file, joint_map)
-        return {"id": rig.id, "file": rig.file, "joints": rig.joints, "joint_map": rig.joint_map}
+        rig = await run_in_threadpool(service.rigs.add, file, joint_map, rest_frame)
+        bind = rig.target.bind
+        aimed = "rest pose" if bind.frame is None else f"frame {bind.frame}"
+        return {"id": rig.id, "file": rig.file, "joints": rig.joints, "joint_map": rig.joint_map, "aimed_from": aimed}
 
     @api.post(
         "/joint-maps",

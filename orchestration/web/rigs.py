@@ -102,20 +102,22 @@ class Rigs:
             self._maps[map_id] = mapping
         return mapping
 
-    def add(self, file_id: str, joint_map: str | None = None) -> UploadedRig:
+    def add(self, file_id: str, joint_map: str | None = None, rest_frame: int | None = None) -> UploadedRig:
         """The rig of an uploaded file through ``joint_map`` (a preset's name, an uploaded map's
-        id, ``auto``, or None: the preset its joints fit, else ``auto``), checked once and kept; a UserError in one
-        sentence when our motions cannot go onto it."""
+        id, ``auto``, or None: the preset its joints fit, else ``auto``), aimed from frame
+        ``rest_frame`` of its file or its rest pose (:func:`~m2d2m.motion.retarget.rig_bind`),
+        checked once and kept; a UserError in one sentence when our motions cannot go onto it."""
         with self._lock:
             path = self._files.get(file_id)
         if path is None:
             raise NotFound(f"no rig file {file_id!r} on this server; send its bytes to POST /api/rigs")
         mapping = self._joint_map(joint_map)
-        rig_id = hashlib.sha256(f"{file_id}:{joint_map or ''}".encode()).hexdigest()[:16]
+        rig_id = hashlib.sha256(f"{file_id}:{joint_map or ''}:{'' if rest_frame is None else rest_frame}".encode())
+        rig_id = rig_id.hexdigest()[:16]
         with self._lock:
             if rig_id in self._kept:
                 return self._kept[rig_id]
-        target = _checked(path, mapping)
+        target = _checked(path, mapping, rest_frame)
         rig = UploadedRig(rig_id, file_id, len(target.rig.names), target.joint_map.name, target)
         with self._lock:
             self._kept[rig_id] = rig
@@ -148,10 +150,10 @@ def _append(out: IO[bytes], digest: Any, chunk: bytes) -> None:
     digest.update(chunk)
 
 
-def _checked(path: Path, joint_map: JointMap | str | None) -> Target:
-    """The rig in ``path`` through ``joint_map``, checked by :func:`~m2d2m.motion.retarget.read_target`;
-    a UserError saying why not."""
+def _checked(path: Path, joint_map: JointMap | str | None, rest_frame: int | None) -> Target:
+    """The rig in ``path`` through ``joint_map`` from frame ``rest_frame``, checked by
+    :func:`~m2d2m.motion.retarget.read_target`; a UserError saying why not."""
     try:
-        return read_target(path, joint_map)
+        return read_target(path, joint_map, rest_frame=rest_frame)
     except (BvhError, ValueError) as error:
         raise UserError(f"the rig cannot take our motions: {str(error).removeprefix(f'{path}: ')}") from error
