@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 import re
-import shutil
 import signal
 import sys
 import threading
@@ -34,10 +33,10 @@ import torch
 from m2d2m.atomic import atomic_files, atomic_folder
 from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
 from m2d2m.layout import NLP, recorded_path
+from m2d2m.motion.blender import find_blender
 from m2d2m.motion.body_parts import PARTS
 from m2d2m.motion.clip import ANIMATIONS, FORMATS, RIG_FORMATS, Motion, file_names
 from m2d2m.motion.delivery import Delivery
-from m2d2m.motion.gltf import BLENDER_PACKAGES
 from m2d2m.motion.render import can_write_mp4
 from m2d2m.progress import progress
 from orchestration.errors import UserError
@@ -131,10 +130,11 @@ def plan_output(
             "--rig goes with a BVH, GLB or FBX, the formats written on a rig: add one to --formats, "
             "or --out x.bvh, x.glb or x.fbx"
         )
-    if "fbx" in chosen and shutil.which("blender") is None:
-        raise UserError(
-            f"fbx is written by Blender's exporter, and no blender is on the PATH: apt-get install {BLENDER_PACKAGES}"
-        )
+    if "fbx" in chosen:
+        try:
+            find_blender()
+        except FileNotFoundError as error:
+            raise UserError(str(error)) from error
     output = Output(directory, name, chosen, delivery, overwrite, one_file)
     check_free(output)
     return output

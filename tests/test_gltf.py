@@ -355,6 +355,8 @@ def test_blender_exports_fbx_that_reads_back_as_the_joints(tmp_path, sample_join
 
 def test_fbx_without_blender_names_the_package(tmp_path, sample_joints, monkeypatch):
     monkeypatch.setenv("PATH", str(tmp_path))
-    with pytest.raises(FileNotFoundError, match=r"^FBX export needs Blender on the PATH: apt-get install blender"):
+    with pytest.raises(
+        FileNotFoundError, match=r"^FBX is written by Blender, and no blender is on the PATH: apt-get install blender"
+    ):
         save_fbx(tmp_path / "clip.fbx", sample_joints)
     assert not list(tmp_path.iterdir())

@@ -156,7 +156,9 @@ def test_blender_makes_fbx_of_the_glb_on_a_rig(tmp_path, ours, rig_file):
 def test_fbx_on_a_rig_without_blender_names_the_package(tmp_path, ours, monkeypatch):
     target = read_target(CMU / "131_01.bvh")
     monkeypatch.setenv("PATH", str(tmp_path))
-    with pytest.raises(FileNotFoundError, match=r"^FBX export needs Blender on the PATH: apt-get install blender"):
+    with pytest.raises(
+        FileNotFoundError, match=r"^FBX is written by Blender, and no blender is on the PATH: apt-get install blender"
+    ):
         save_rig_fbx(tmp_path / "on-rig.fbx", target, ours)
     assert not list(tmp_path.iterdir())
 

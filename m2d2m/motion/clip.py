@@ -8,6 +8,7 @@ import json
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -16,13 +17,13 @@ from m2d2m.layout import relative_to_project
 from m2d2m.motion.delivery import Delivery, deliver
 from m2d2m.motion.export import save_bvh, save_motion_npy
 from m2d2m.motion.feet import KeptFrames
-from m2d2m.motion.gltf import save_fbx, save_glb
-from m2d2m.motion.render import render_motion
-from m2d2m.motion.retarget import Target, read_target
 from m2d2m.motion.retime import loop_features
-from m2d2m.motion.rig_gltf import save_rig_fbx, save_rig_glb
 from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
+
+if TYPE_CHECKING:  # the writers of GLB, FBX, GIF and rigs are imported where they write: a
+    # machine that only trains (bench/gpu.py's GPU box) has no pygltflib or Matplotlib
+    from m2d2m.motion.retarget import Target
 
 FORMATS = ("npy", "bvh", "glb", "fbx", "gif", "mp4")
 RIG_FORMATS = ("bvh", "glb", "fbx")  # the formats written on a rig (docs/generation.md, "On your own rig")
@@ -178,6 +179,9 @@ class Motion:
         unknown = sorted(set(formats) - set(FORMATS))
         if unknown:
             raise ValueError(f"unknown formats {unknown}: choose from {', '.join(FORMATS)}")
+        from m2d2m.motion.render import render_motion
+        from m2d2m.motion.retarget import read_target
+
         directory = Path(directory)
         on_rig = delivery.rig is not None and any(kind in RIG_FORMATS for kind in formats)
         target = (
@@ -209,6 +213,8 @@ class Motion:
 
     def save_on_rig(self, path: Path, kind: str, target: Target) -> Path:
         """The BVH, GLB or FBX (``kind``) of this motion on ``target``'s rig, at ``path``."""
+        from m2d2m.motion.rig_gltf import save_rig_fbx, save_rig_glb
+
         if kind == "bvh":
             return target.write_bvh(path, self.joints, self.fps, self.skeleton)
         save = save_rig_fbx if kind == "fbx" else save_rig_glb
@@ -217,6 +223,8 @@ class Motion:
 
     def _save_gltf(self, path: Path, kind: str, rest_pose: str) -> Path:
         """A GLB (with the root track, if any, as its own animation over the clip's path) or FBX."""
+        from m2d2m.motion.gltf import save_fbx, save_glb
+
         joints, track, closing = self._keyed()
         if kind == "fbx":
             return save_fbx(path, joints, self.skeleton, self.fps, self.segments, rest_pose, closing_key=closing)

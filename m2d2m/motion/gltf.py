@@ -15,7 +15,6 @@ the GLB header and chunks (§4.4); this module only fills its buffer views and a
 from __future__ import annotations
 
 import re
-import shutil
 import subprocess
 import tempfile
 from collections.abc import Callable, Sequence
@@ -26,15 +25,13 @@ import numpy as np
 import pygltflib as gl
 
 from m2d2m.atomic import atomic_path
+from m2d2m.motion.blender import find_blender
 from m2d2m.motion.pose import pose_of, topological_order
 from m2d2m.motion.rotations import cross, matrix_to_quat, normalize
 from m2d2m.motion.skeleton import T2M, Skeleton
 
 CLIP_ANIMATION = "clip"
 ROOT_MOTION_ANIMATION = "root motion"
-# Debian's packages: Blender with its glTF importer and FBX exporter, and the NumPy its glTF
-# importer imports (Debian's blender does not depend on it)
-BLENDER_PACKAGES = "blender python3-numpy"
 
 # accessor type and component type of each array shape and dtype (§3.6.2.2)
 _ACCESSOR_TYPES = {(): gl.SCALAR, (3,): gl.VEC3, (4,): gl.VEC4, (4, 4): gl.MAT4}
@@ -198,9 +195,7 @@ def save_fbx(
 def fbx_of_glb(path: str | Path, fps: float, write: Callable[[Path], Path], timeout_s: float = 300.0) -> Path:
     """Write FBX at ``path`` from the GLB that ``write`` puts at the path it is given (a temporary
     one), by Blender's glTF importer and FBX exporter at ``fps``; the errors of :func:`save_fbx`."""
-    blender = shutil.which("blender")
-    if blender is None:
-        raise FileNotFoundError(f"FBX export needs Blender on the PATH: apt-get install {BLENDER_PACKAGES}")
+    blender = find_blender()
     # Blender's glTF importer turns seconds into frames with the scene's integer frame rate only
     # (io_scene_gltf2/blender/imp/gltf2_blender_animation_node.py): a rate a whole multiple of the
     # clip's puts every key on a frame (12.5 fps: 25, every other frame)
