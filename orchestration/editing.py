@@ -59,8 +59,8 @@ def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
     is_features = path.name.endswith(".features.npy")
     features_file = path if is_features else path.with_name(path.stem + ".features.npy")
     sidecar = read_sidecar(path)
-    if features_file.is_file():
-        features = load_features(features_file, generator.skeleton)
+    if features_file.is_file():  # the model's own, written by its generation
+        features = load_features(features_file, generator.skeleton, given=False)
     else:
         features = load_features(path, generator.skeleton, fps=None if sidecar is None else float(sidecar["fps"]))
     if sidecar is None or not sidecar["segments"]:

@@ -4,7 +4,6 @@ records and the token sets are never left inconsistent."""
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import shutil
@@ -43,16 +42,17 @@ def finish(process: subprocess.Popen) -> None:
 
 
 def held(lock_file: Path) -> bool:
-    """Whether another process holds ``lock_file`` now."""
-    if not lock_file.exists():
+    """Whether a process holds ``lock_file`` now, read from the kernel's table of locks
+    (/proc/locks: ``FLOCK … major:minor:inode``) without taking it: a probe that took the lock
+    for an instant would make the command it watches, taking it then, refuse as busy."""
+    try:
+        found = lock_file.stat()
+    except FileNotFoundError:
         return False
-    with lock_file.open("a") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return True
-        fcntl.flock(handle, fcntl.LOCK_UN)
-        return False
+    where = f"{os.major(found.st_dev):02x}:{os.minor(found.st_dev):02x}:{found.st_ino}"
+    return any(
+        "FLOCK" in line.split() and where in line.split() for line in Path("/proc/locks").read_text().splitlines()
+    )
 
 
 def wait_until(condition: Callable[[], bool], process: subprocess.Popen, what: str) -> bool:
@@ -107,7 +107,7 @@ def test_generate_and_evaluate_while_a_training_moves_latest_use_a_finished_mode
     judged = []
     while training.poll() is None or not judged:
         argv = ["generate", "a person walks", "--dataset", "tiny", "--seconds", "1", "--ts", "4", "--no-track"]
-        assert main(argv + ["--formats", "npy", "--out", str(trained_project / "while-training")]) == 0
+        assert main(argv + ["--formats", "npy", "--out", str(trained_project / "while-training"), "--overwrite"]) == 0
         argv = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--repeats", "1", "--ts", "4"]
         assert main(argv) == 0
         record = trained_project / "runs" / "tiny" / "eval" / latest(trained_project, "eval") / "run.json"

@@ -26,7 +26,7 @@ def test_every_delivery_figure_is_drawn_with_its_numbers(tmp_path: Path, capsys:
     assert feet["skating_after"] <= 1.5 * feet["skating_clean"] < feet["skating_before"]  # the slide fixed
     assert feet["toe_speed_in_contact_after_m_s"] < 0.6 * feet["toe_speed_in_contact_before_m_s"]
     assert feet["real_clip_moved_m"] < 1e-6  # the real clip's own feet left where they are (float32)
-    assert (fps["frames_30"], fps["frames_60"]) == (254, 508)
+    assert (fps["frames_30"], fps["frames_60"]) == (255, 510)  # 8.5 s: 255 and 510 frames (docs/generation.md)
     assert max(fps["shared_error_30_m"], fps["shared_error_60_m"]) < 1e-6  # float32 joints
     assert root["in_place_drift_m"] == 0.0 and root["restored_m"] < 1e-6
     assert loop["seam_jerk_loop"] < loop["clip_jerk_p95"] < loop["seam_jerk_cut"]

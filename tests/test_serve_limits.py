@@ -125,7 +125,7 @@ DEGENERATE = {
     "joints with a NaN": (np.where(np.arange(60)[:, None, None] == 9, np.nan, WALK[:60]), "NaN or infinite"),
     "one frame of joints": (WALK[:1], "a motion needs at least two"),
     "all-zero features": (np.zeros((60, 263), np.float32), "have no length (joints on one point)"),
-    "features of 1e6": (np.full((60, 263), 1e6, np.float32), "which no body's features reach"),
+    "features of 1e6": (np.full((60, 263), 1e6, np.float32), "which no body's features do"),
     "no frames": (np.zeros((0, 263), np.float32), "has no frames"),
     "text": (np.array(["a", "b"]), "values, not numbers"),
 }
