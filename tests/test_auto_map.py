@@ -27,7 +27,7 @@ from m2d2m.motion.skeleton import T2M
 from orchestration.cli import main
 from pipelines.bvh_corpus import take_joints
 from tests.conftest import HUMANML3D_SAMPLE
-from tests.rigs import CONVENTIONS, Convention
+from tests.rigs import CONVENTIONS, MIXAMO_LIMBS, Convention, without
 from tests.test_bvh_reader import CMU, CMU_METRES
 from tests.test_export import axis_rotation
 from tests.test_joint_map import motionbuilder_release
@@ -45,14 +45,7 @@ MINIMAL = Convention(  # one spine joint, no neck, no clavicles, no toes
     ("Spine",),
     (),
     "Head",
-    {
-        "upperarm": "{Side}Arm",
-        "forearm": "{Side}ForeArm",
-        "hand": "{Side}Hand",
-        "thigh": "{Side}UpLeg",
-        "shin": "{Side}Leg",
-        "foot": "{Side}Foot",
-    },
+    without(MIXAMO_LIMBS, "clavicle", "toe"),
     expected={
         "spine1": ("Hips", "Spine"),
         "spine2": ("Hips", "Spine", "Spine"),
