@@ -96,9 +96,7 @@ class Rig:
     def bound(self, bind: Bind) -> Rig:
         """This rig with ``bind``'s pose as its rest pose, turned to stand along +Y: the rig
         retargeting aims (:func:`retarget`); :meth:`RigMotion.unbound` takes its motion back."""
-        turn, world = bind.turn, bind.world(len(self.names))
-        above = world[np.maximum(self.parents, 0)]
-        above[self.parents < 0] = np.eye(3)
+        turn, (world, above) = bind.turn, bind.world(self.parents)
         offsets = np.einsum("ij,njk,nk->ni", turn, above, self.offsets)
         root = np.flatnonzero(self.parents < 0)
         if bind.root is not None:
@@ -125,9 +123,13 @@ class Bind:
         """Whether the file stands along another axis than +Y."""
         return not np.allclose(self.turn, np.eye(3))
 
-    def world(self, count: int) -> np.ndarray:
-        """(J, 3, 3) each joint's world rotation in the bind pose."""
-        return np.tile(np.eye(3), (count, 1, 1)) if self.rotations is None else self.rotations
+    def world(self, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each joint's world rotation (J, 3, 3) in the bind pose of a rig of ``parents``, and its
+        parent's (the root's: none)."""
+        world = np.tile(np.eye(3), (len(parents), 1, 1)) if self.rotations is None else self.rotations
+        above = world[np.maximum(parents, 0)]
+        above[parents < 0] = np.eye(3)
+        return world, above
 
     def scaled(self, metres_per_unit: float) -> Bind:
         return self if self.root is None else replace(self, root=self.root * metres_per_unit)
@@ -152,9 +154,7 @@ class RigMotion:
         """This motion of ``rig.bound(bind)`` as ``rig``'s own (its file's axes and rest pose):
         each local rotation L' becomes B_parent⁻¹ R⁻¹ L' R B_joint (R the bind's turn, B its
         world rotations), the root's path R⁻¹ p, so that every joint stands where it stood."""
-        turn, world = bind.turn, bind.world(len(rig.names))
-        above = world[np.maximum(rig.parents, 0)]
-        above[rig.parents < 0] = np.eye(3)
+        turn, (world, above) = bind.turn, bind.world(rig.parents)
         local = np.swapaxes(above, -1, -2) @ turn.T @ self.local @ turn @ world
         return RigMotion(rig, self.root @ turn, local, self.from_rest)
 
