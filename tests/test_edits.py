@@ -62,6 +62,7 @@ def test_regenerating_an_action_frees_it_and_its_margins_and_keeps_the_rest():
         (lambda t: regenerate_action(t, 3, 4), "action 4 of a result with 3 action(s)"),
         (lambda t: regenerate_action(t, 0, 4, frames=0), "an action needs at least one frame"),
         (lambda t: regenerate_action(t, 1, 40), "the edit keeps nothing of the source"),
+        (lambda t: regenerate_action(Timeline(t.features, ["a"], [0]), 0, 4), "the edit keeps nothing of the source"),
         (
             lambda t: hold_pose(t, np.zeros(D), 28, 4, 2),
             "a pose pinned at frame 28 lies outside the motion's 28 frames",

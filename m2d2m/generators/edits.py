@@ -134,8 +134,11 @@ def _free(count: int, span: tuple[int, int], margin: int) -> np.ndarray:
 
 def _placeholder(before: np.ndarray, after: np.ndarray, frames: int) -> np.ndarray:
     """Features for ``frames`` new frames between ``before`` and ``after`` (either may be empty):
-    the nearer edge frame repeated. The model samples them anew; they only stand in where a
-    codec reads the neighbourhood of a kept frame."""
+    the nearer edge frame repeated, zeros with neither (the edit then keeps nothing, which
+    :class:`Edit` refuses in its own words). The model samples them anew; they only stand in
+    where a codec reads the neighbourhood of a kept frame."""
+    if not len(before) and not len(after):
+        return np.zeros((frames, *before.shape[1:]), dtype=before.dtype)
     if not len(before):
         return np.repeat(after[:1], frames, axis=0)
     if not len(after):
