@@ -7,7 +7,9 @@ For each model (the VQ-VAE, M2D2M, MMM, MotionDiffuse) at its demo size and at t
   the DataModules give them (random codes or features, the demo's action sentences, lengths of
   196 frames or less): steps/s, samples/s, the GPU's utilisation sampled every 0.2 s by
   ``nvidia-smi``, peak memory, and the FLOPs of one step (PyTorch's ``FlopCounterMode``: forward
-  and backward matrix products) over its time against the card's bf16 peak;
+  and backward matrix products) over its time against the card's bf16 peak; each step eager and,
+  on a GPU (``--train-compile``), compiled as ``trainer.compile: on`` runs it (training/step.py),
+  with the warm-up that compiles it;
 - **sampling**: AITS (one call's time over its sentences, MMM's Table 7 metric) at batch 1 and
   32 for 196-frame actions with the model's single-action preset, through its generator, from a
   model file of random weights written by its training recipe;
@@ -24,7 +26,8 @@ batches of 2 and a 0.1-minute sequence, and skips serving: it proves the command
 fast anything is (the paper sizes take minutes on a CPU).
 
     python bench/gpu.py [--quick] [--models vq m2d2m mmm motiondiffuse] [--sizes demo paper]
-                        [--steps 30] [--warmup 5] [--batches 1 32] [--paper-batches 64 256]
+                        [--steps 30] [--warmup 5] [--train-compile off on] [--batches 1 32]
+                        [--paper-batches 64 256]
                         [--long-minutes 10.873] [--long-compiled] [--out DIR]
 
 Writes ``gpu.json`` and ``gpu.md`` into ``--out`` (``runs/bench/gpu/<machine>-<time>``) after every
@@ -287,12 +290,13 @@ def build(name: str, size: str, out: Path, clip: Path) -> Built:
 
 # ------------------------------------------------------------------------------------------ training
 class StepClock(pl.Callback):
-    """Times the training steps after ``warmup`` (waiting for the device at both ends only) and
-    counts the FLOPs of the first of them."""
+    """Times the training steps after ``warmup`` (waiting for the device at both ends only), the
+    warm-up itself (where a compiled step compiles), and counts the FLOPs of the first step after
+    the warm-up unless ``count`` is False (FlopCounterMode sees no operators inside a compiled pass)."""
 
-    def __init__(self, warmup: int, device: torch.device) -> None:
-        self.warmup, self.device = warmup, device
-        self.started = self.stopped = 0.0
+    def __init__(self, warmup: int, device: torch.device, count: bool = True) -> None:
+        self.warmup, self.device, self.count = warmup, device, count
+        self.began = self.started = self.stopped = 0.0
         self.flops = 0
         self._counter: FlopCounterMode | None = None
 
@@ -301,15 +305,20 @@ class StepClock(pl.Callback):
             torch.cuda.synchronize(self.device)
         return time.perf_counter()
 
+    def on_train_start(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self.began = self._now()
+
     def on_train_batch_start(self, trainer: pl.Trainer, module: pl.LightningModule, batch: Any, index: int) -> None:
         if trainer.global_step == self.warmup:
-            self._counter = FlopCounterMode(display=False)
+            self.warmed = self._now()
+            self._counter = FlopCounterMode(display=False) if self.count else contextlib.nullcontext()
             self._counter.__enter__()
 
     def on_train_batch_end(self, trainer: pl.Trainer, module: pl.LightningModule, *args: Any) -> None:
         if self._counter is not None:
             self._counter.__exit__(None, None, None)
-            self.flops, self._counter = self._counter.get_total_flops(), None
+            self.flops = self._counter.get_total_flops() if self.count else 0
+            self._counter = None
             self.started = self._now()  # the counted step is not timed: counting slows it
 
     def on_train_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
@@ -323,6 +332,8 @@ class TrainingFigure:
     parameters: int
     batch: int
     precision: str
+    compiled: bool  # trainer.compile on: forward, loss and backward through torch.compile (CUDA graphs on a GPU)
+    warmup_s: float  # the untimed warm-up steps, compiling included
     steps_per_s: float
     samples_per_s: float
     gpu_utilisation: float | None
@@ -333,15 +344,27 @@ class TrainingFigure:
 
 
 def measure_training(
-    name: str, size: str, built: Built, batch: int, steps: int, warmup: int, device: torch.device, peak: float | None
+    name: str,
+    size: str,
+    built: Built,
+    batch: int,
+    steps: int,
+    warmup: int,
+    device: torch.device,
+    peak: float | None,
+    compiled: bool = False,
+    flops: int | None = None,
 ) -> TrainingFigure:
-    """``warmup`` + 1 (counted) + ``steps`` (timed) training steps of the built model."""
+    """``warmup`` + 1 (counted) + ``steps`` (timed) training steps of the built model, its step
+    ``compiled`` or eager. A compiled step's FLOPs are not counted (FlopCounterMode sees no
+    operator inside a compiled pass): ``flops`` gives them, as counted eagerly (None: unknown)."""
     batches = [synthetic_batch(name, built.config, batch, built.codes, seed) for seed in range(8)]
     total = warmup + 1 + steps
     loader = torch.utils.data.DataLoader(
         [batches[i % len(batches)] for i in range(total)], batch_size=None, pin_memory=device.type == "cuda"
     )
-    clock = StepClock(warmup, device)
+    clock = StepClock(warmup, device, count=not compiled)
+    built.module.compile_steps = "on" if compiled else "off"
     precision = lightning_precision("auto")
     trainer = pl.Trainer(
         accelerator=device.type,
@@ -360,18 +383,21 @@ def measure_training(
     with peak_memory(device) as memory, utilisation.sampling():
         trainer.fit(built.module, train_dataloaders=loader)
     seconds = max(clock.stopped - clock.started, 1e-9)
-    tflops = clock.flops * steps / seconds / 1e12 if steps else 0.0
+    flops = clock.flops if not compiled else flops or 0
+    tflops = flops * steps / seconds / 1e12 if steps else 0.0
     return TrainingFigure(
         name,
         size,
         sum(p.numel() for p in built.module.parameters()),
         batch,
         precision,
+        compiled,
+        clock.warmed - clock.began,
         steps / seconds,
         steps * batch / seconds,
         utilisation.mean,
         memory["gib"],
-        clock.flops / 1e9,
+        flops / 1e9,
         tflops,
         tflops / peak if peak else None,
     )
@@ -495,14 +521,14 @@ def report(result: dict[str, Any]) -> str:
         f"Python {info['python']}, {info['cores']} cores, {info['torch_threads']} torch threads"
         + (" — `--quick`: proves it runs, not speed" if result["quick"] else ""),
         "",
-        "| model | size | parameters | batch | precision | steps/s | samples/s | GPU busy % | peak GiB "
-        "| GFLOP/step | TFLOP/s | of peak |",
-        "|---|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|",
+        "| model | size | parameters | batch | precision | compiled | warm-up (s) | steps/s | samples/s "
+        "| GPU busy % | peak GiB | GFLOP/step | TFLOP/s | of peak |",
+        "|---|---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for f in result["training"]:
         lines.append(
             f"| {f['model']} | {f['size']} | {f['parameters'] / 1e6:.1f} M | {f['batch']} | {f['precision']} "
-            f"| {_cell(f['steps_per_s'])} | {_cell(f['samples_per_s'])} | {_cell(f['gpu_utilisation'])} "
+            f"| {'yes' if f['compiled'] else 'no'} | {_cell(f['warmup_s'])} | {_cell(f['steps_per_s'])} | {_cell(f['samples_per_s'])} | {_cell(f['gpu_utilisation'])} "
             f"| {_cell(f['peak_memory_gib'])} | {_cell(f['gflop_per_step'])} | {_cell(f['tflops'])} "
             f"| {_percent(f['share_of_peak'])} |"
         )
@@ -593,13 +619,26 @@ def measure(args: argparse.Namespace) -> Results:
             if built is None:
                 continue
             for batch in training_batches(args, size, built.config):
-                results.add(
-                    "training",
-                    f"training {name} ({size}) at batch {batch}",
-                    lambda: measure_training(
-                        name, size, built, batch, args.steps, args.warmup, device, info["bf16_peak_tflops"]
-                    ),
-                )
+                eager_flops = None  # a step's FLOPs, counted eagerly, for the compiled step's share of the peak
+                for compiled in [mode == "on" for mode in args.train_compile]:
+                    figure = results.add(
+                        "training",
+                        f"training {name} ({size}) at batch {batch}" + (", compiled" if compiled else ""),
+                        lambda: measure_training(
+                            name,
+                            size,
+                            built,
+                            batch,
+                            args.steps,
+                            args.warmup,
+                            device,
+                            info["bf16_peak_tflops"],
+                            compiled,
+                            eager_flops if compiled else None,
+                        ),
+                    )
+                    if figure is not None and not compiled:
+                        eager_flops = int(figure.gflop_per_step * 1e9)
             if name == "vq":
                 continue
             generator = results.add(
@@ -645,6 +684,13 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
         default=None,
         help="training batches at paper size (default: the config's)",
     )
+    parser.add_argument(
+        "--train-compile",
+        nargs="+",
+        choices=("off", "on"),
+        default=None,
+        help="training steps eager (off), compiled (on) or both (default: both on a GPU, eager on a CPU)",
+    )
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 32], help="sampling batches for AITS")
     parser.add_argument("--frames", type=int, default=FRAMES, help="frames of each sampled action")
     parser.add_argument("--repeats", type=int, default=3, help="timed sampling calls (median)")
@@ -656,6 +702,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--out", default=None, help="default runs/bench/gpu/<machine>-<time>")
     args = parser.parse_args(argv)
+    if args.train_compile is None:
+        args.train_compile = ["off", "on"] if args.device.startswith("cuda") else ["off"]
+    args.train_compile = sorted(set(args.train_compile))  # eager first: it counts the FLOPs
     if args.quick:
         args.sizes, args.steps, args.warmup, args.batch, args.batches = ["demo"], 2, 1, 2, [1, 2]
         args.frames, args.repeats, args.long_minutes, args.md_steps, args.md_long_steps = 40, 1, 0.1, 2, 2

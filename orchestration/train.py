@@ -28,6 +28,7 @@ from typing import Any
 import torch
 import yaml
 
+from m2d2m.generators.options import COMPILE
 from m2d2m.layout import relative_to_project
 from m2d2m.precision import fast_bf16
 from orchestration.config import flatten, is_number, load_config
@@ -45,7 +46,7 @@ from orchestration.tracking import artifact_location, ensure_experiment, experim
 
 SNAPSHOTS = "snapshots"  # a run's folder of weights at chosen steps (trainer.snapshots)
 # Trainer settings every training config may leave out: off unless asked for (see fit)
-TRAINING_DEFAULTS = {"trainer": {"ema": 0.0, "snapshots": []}}
+TRAINING_DEFAULTS = {"trainer": {"ema": 0.0, "snapshots": [], "compile": "off"}}
 JOIN_RUN = "M2D2M_JOIN_RUN"  # environment: the run directory a DDP rank started by Lightning joins
 
 
@@ -88,6 +89,8 @@ def _check_settings(config: dict[str, Any]) -> None:
             f"trainer.snapshots must be a list of steps from 1 to trainer.max_steps "
             f"({trainer_cfg['max_steps']}), got {snapshots!r}"
         )
+    if trainer_cfg["compile"] not in COMPILE:
+        raise UserError(f"trainer.compile must be one of {', '.join(COMPILE)}, got {trainer_cfg['compile']!r}")
     if trainer_cfg["accelerator"] not in ACCELERATORS:
         raise UserError(
             f"trainer.accelerator must be one of {', '.join(ACCELERATORS)}, got {trainer_cfg['accelerator']!r}"
@@ -288,7 +291,8 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
     """What every training stage shares: the MLflow run and its params, best and last
     checkpoints, the trainer (DDP when it has several devices or Ray Train workers), resume, the
     NaN stop, an exponential moving average of the weights (``trainer.ema``), snapshots at chosen
-    steps (``trainer.snapshots``), and reloading the best weights."""
+    steps (``trainer.snapshots``), compiled training steps (``trainer.compile``), and reloading
+    the best weights."""
     import lightning.pytorch as pl
     from lightning.pytorch.callbacks import EMAWeightAveraging, LearningRateMonitor, ModelCheckpoint
 
@@ -303,6 +307,7 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
         callbacks = [*callbacks, EMAWeightAveraging(decay=trainer_cfg["ema"], use_buffers=False)]
     if trainer_cfg.get("snapshots"):
         callbacks = [*callbacks, StepSnapshots(run_dir / SNAPSHOTS, trainer_cfg["snapshots"])]
+    module.compile_steps = trainer_cfg["compile"]
     logger = _mlflow_logger(config["dataset"], run.stage, run_dir, run.run_id)
     checkpoints = ModelCheckpoint(
         dirpath=run_dir / "checkpoints", filename="best", monitor=monitor, mode="min", save_last=True, save_top_k=1

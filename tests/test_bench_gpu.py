@@ -25,6 +25,7 @@ def test_quick_measures_every_model_and_writes_the_tables(tmp_path, one_torch_th
     assert [row["model"] for row in result["training"]] == list(MODELS)
     for row in result["training"]:
         assert row["size"] == "demo" and row["batch"] == 2 and row["precision"] == "32-true"
+        assert not row["compiled"] and row["warmup_s"] > 0  # a CPU trains eagerly unless asked
         assert row["steps_per_s"] > 0 and row["gflop_per_step"] > 0 and row["parameters"] > 0
         assert row["gpu_utilisation"] is None and row["peak_memory_gib"] is None  # a CPU has neither
     sampled = {(row["model"], row["batch"]) for row in result["sampling"]}
@@ -78,6 +79,23 @@ def test_paper_batches_choose_the_paper_size_s_training_batches():
     assert training_batches(args, "paper", config) == [64, 256] and training_batches(args, "demo", config) == [64]
     assert training_batches(parse(["--out", "x"]), "paper", config) == [64]
     assert training_batches(parse(["--batch", "8", "--paper-batches", "256", "--out", "x"]), "paper", config) == [8]
+
+
+def test_training_steps_are_timed_eager_and_compiled_on_a_gpu_and_eager_on_a_cpu():
+    assert parse(["--out", "x"]).train_compile == ["off"]
+    assert parse(["--out", "x", "--device", "cuda"]).train_compile == ["off", "on"]
+    assert parse(["--out", "x", "--train-compile", "on", "off", "on"]).train_compile == ["off", "on"]
+
+
+@pytest.mark.slow
+def test_a_compiled_training_step_is_timed_beside_the_eager_one_with_the_eager_flops(tmp_path, one_torch_thread):
+    """On the CPU through inductor's C++ kernels: the compiled row says so, its warm-up holds the
+    compiling, and its FLOPs are the eager step's (FlopCounterMode sees none inside a compiled pass)."""
+    result = main(["--quick", "--models", "mmm", "--train-compile", "off", "on", "--out", str(tmp_path)])
+    eager, compiled = result["training"]
+    assert (eager["compiled"], compiled["compiled"]) == (False, True)
+    assert compiled["gflop_per_step"] == pytest.approx(eager["gflop_per_step"]) and compiled["steps_per_s"] > 0
+    assert "| mmm | demo | " in (tmp_path / "gpu.md").read_text(encoding="utf-8")
 
 
 # Run in a fresh interpreter: the packages a bare GPU machine lacks cannot be imported.

@@ -7,8 +7,9 @@ from dataclasses import replace
 
 import pytest
 import torch
+from torch._inductor.exc import InvalidCxxCompiler
 
-from m2d2m.generators.m2d2m_compiled import CompiledDenoise, bucket, compiles
+from m2d2m.compiling import Compiled, bucket, compiles
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.m2d2m_sampling import FREE, RowLayout, TokenRequest, TokenSampler, length_groups, truncate
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
@@ -377,19 +378,19 @@ def test_passes_padded_to_buckets_change_no_token(sampler, monkeypatch, method):
 def test_a_compiler_that_fails_leaves_eager_sampling_and_one_logged_line(sampler, monkeypatch, caplog):
     def failing(function):
         def run(*args):
-            raise RuntimeError("no C++ compiler found")
+            raise InvalidCxxCompiler()
 
         return run
 
     options = M2D2MOptions(ts=6, compile="on")
     fallback = bucketed(sampler, monkeypatch, failing)
-    with caplog.at_level("WARNING", logger="m2d2m.generators.m2d2m_compiled"):
+    with caplog.at_level("WARNING", logger="m2d2m.compiling"):
         first, again = fallback.sample(REQUESTS, options), fallback.sample(REQUESTS, options)
     eager = sampler.sample(REQUESTS, replace(options, compile="off"))
     assert all(torch.equal(a, b) for x, y in zip(eager, first) for a, b in zip(x, y))
     assert all(torch.equal(a, b) for x, y in zip(first, again) for a, b in zip(x, y))
     assert [record.getMessage() for record in caplog.records] == [
-        "torch.compile failed (RuntimeError: no C++ compiler found); the denoiser runs eagerly"
+        f"torch.compile failed (InvalidCxxCompiler: {InvalidCxxCompiler()}); the denoiser runs eagerly"
     ]
 
 
@@ -407,7 +408,7 @@ def test_compiled_sampling_matches_eager(sampler):
     options = M2D2MOptions(method="tps", ts=6, compile="on")
     compiled = TokenSampler(sampler.denoiser, sampler.text_encoder, sampler.schedule)
     tokens = compiled.sample(request, options)
-    assert isinstance(compiled._compiled, CompiledDenoise) and compiled._compiled.compiled
+    assert isinstance(compiled._compiled, Compiled) and compiled._compiled.compiled
     eager = sampler.sample(request, replace(options, compile="off"))
     assert all(torch.equal(a, b) for a, b in zip(tokens[0], eager[0]))
 

@@ -33,8 +33,8 @@ from training.data import (
     random_window,
     worker_generator,
 )
-from training.losses import FiniteLossGuard
 from training.optim import configure_adamw
+from training.step import TrainingModule
 
 SHORTER_UNIT_CHANCE = 1 / 3  # Guo's "double" coin: one 4-frame unit less
 
@@ -169,7 +169,7 @@ class CaptionMotionDataModule(FeatureShardDataModule):
         return partial(first_pair, min_frames=self.min_frames, max_frames=self.max_frames), collate_pairs
 
 
-class EvaluatorModule(FiniteLossGuard):
+class EvaluatorModule(TrainingModule):
     """Guo's text–motion matching: contrastive loss (margin ``loss["margin"]``, Guo 10) between
     each caption and its motion and, as negatives, the motions of a random shift of the batch;
     Adam(W) over the trainable weights (Guo: Adam 1e-4, gradient norm clipped to 0.5, which the
@@ -242,4 +242,4 @@ class EvaluatorModule(FiniteLossGuard):
 
     def configure_optimizers(self) -> dict[str, Any]:
         # Guo trains at a constant rate: no schedule
-        return configure_adamw(self.parameters(), self.hparams.optim, scheduled=False)
+        return configure_adamw(self.parameters(), self.hparams.optim, scheduled=False, fused=self.fuses_optimizer())

@@ -3,11 +3,12 @@ condition (classifier-free guidance by condition dropout) and deterministic vali
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import torch
 
+from m2d2m.compiling import pad_to_bucket
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler
 from m2d2m.networks.config import ConfigError
@@ -15,22 +16,12 @@ from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
 from m2d2m.processes.discrete_diffusion_loss import DiffusionLoss, TimestepSampler, diffusion_loss
 from m2d2m.text import encode_actions, text_encoder_from_config
-from training.losses import FiniteLossGuard, log_by_quarter
+from training.losses import log_by_quarter
 from training.optim import configure_adamw
+from training.step import TrainingModule
 
 
-class Denoised(NamedTuple):
-    """One noising and denoising pass over a batch: the clean and corrupted tokens, where they are
-    real, the denoiser's logits and the loss terms."""
-
-    z0: torch.Tensor
-    valid: torch.Tensor
-    z_t: torch.Tensor
-    logits: torch.Tensor
-    loss: DiffusionLoss
-
-
-class M2D2MModule(FiniteLossGuard):
+class M2D2MModule(TrainingModule):
     """L_vlb + λ·aux on tokens of the frozen VQ codebook, AdamW with warm-up and step decay. A
     non-finite loss stops training at the next step Lightning logs at (:class:`FiniteLossGuard`):
     its steps never read a tensor on the host.
@@ -117,33 +108,39 @@ class M2D2MModule(FiniteLossGuard):
         """The captions' text features and mask, on the text encoder's device (the module's)."""
         return encode_actions(self.text_encoder, actions)
 
-    def _denoise(
+    def _corrupt(
+        self, z0: torch.Tensor, valid: torch.Tensor, t: torch.Tensor, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """z_t ~ q(z_t | z0) at ``t``, padding the mask.
+
+        Nothing here or in :meth:`_score` reads a tensor back on the host, which on a GPU would
+        stall the queue of kernels every step (``tests/test_host_syncs.py`` holds it so): the
+        schedule's range checks are skipped, since the tokens are the VQ-VAE's codes and t comes
+        from :class:`TimestepSampler` or ``randint`` over 1..T."""
+        schedule = self.schedule_on_device()
+        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None], generator=generator, validate=False)
+        return z_t.masked_fill(~valid, schedule.mask_index)
+
+    def _score(
         self,
-        batch: dict[str, Any],
+        z0: torch.Tensor,
+        valid: torch.Tensor,
+        z_t: torch.Tensor,
         t: torch.Tensor,
-        generator: torch.Generator | None = None,
+        text: torch.Tensor,
+        text_mask: torch.Tensor,
         drop_condition: bool = False,
         pt: torch.Tensor | None = None,
-    ) -> Denoised:
-        """Corrupt the batch's tokens to z_t ~ q(z_t | z0) at ``t`` (padding becomes the mask), denoise
-        them under the text condition — dropped at the rate ``text_drop`` when ``drop_condition``, for
-        classifier-free guidance — and score the logits. Training and validation differ only in
-        where t and the noise come from, so both go through here.
-
-        Nothing here reads a tensor back on the host, which on a GPU would stall the queue of
-        kernels every step (``tests/test_host_syncs.py`` holds it so): the schedule's range checks
-        are skipped, since the tokens are the VQ-VAE's codes and t comes from
-        :class:`TimestepSampler` or ``randint`` over 1..T."""
-        schedule = self.schedule_on_device()
-        z0, valid = batch["tokens"].long(), batch["padding_mask"].bool()
-        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None], generator=generator, validate=False)
-        z_t = z_t.masked_fill(~valid, schedule.mask_index)
-        text, text_mask = self._condition(batch["actions"])
+    ) -> tuple[torch.Tensor, DiffusionLoss]:
+        """Denoise z_t under the text condition — dropped at the rate ``text_drop`` when
+        ``drop_condition``, for classifier-free guidance — and score the logits against z0.
+        Training and validation differ only in where t and the noise come from, so both go
+        through here."""
         if drop_condition:
             text, text_mask = self.denoiser.drop_condition(text, text_mask, self.hparams.text_drop)
         logits = self.denoiser(z_t, valid, t, text, text_mask)
         loss = diffusion_loss(
-            schedule,
+            self.schedule_on_device(),
             logits,
             z0,
             z_t,
@@ -154,19 +151,42 @@ class M2D2MModule(FiniteLossGuard):
             adaptive_aux=self.adaptive_aux,
             validate=False,
         )
-        return Denoised(z0, valid, z_t, logits, loss)
+        return logits, loss
+
+    def _training_loss(
+        self,
+        z0: torch.Tensor,
+        valid: torch.Tensor,
+        z_t: torch.Tensor,
+        t: torch.Tensor,
+        pt: torch.Tensor,
+        text: torch.Tensor,
+        text_mask: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """A training step's pass from its tensors to (loss, per-sample L_vlb, per-sample aux): what
+        ``trainer.compile`` compiles (:class:`~training.step.TrainingModule`)."""
+        out = self._score(z0, valid, z_t, t, text, text_mask, drop_condition=True, pt=pt)[1]
+        return out.loss, out.vlb, out.aux
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
-        batch_size = batch["tokens"].shape[0]
+        z0, valid = batch["tokens"].long(), batch["padding_mask"].bool()
+        batch_size = z0.shape[0]
         t, pt = self.timesteps.sample(batch_size)  # drawn where the sampler's buffers are: the module's device
-        out = self._denoise(batch, t, drop_condition=True, pt=pt).loss
-        self.guard_finite(out.loss)
-        self.log("train/loss", out.loss, batch_size=batch_size)
-        self.log("train/vlb", out.vlb.mean(), batch_size=batch_size)
-        self.log("train/aux", out.aux.mean(), batch_size=batch_size)
-        log_by_quarter(self, "train/vlb", out.vlb, t, first=1, steps=self.steps)
-        self.timesteps.update(t, out.vlb)
-        return out.loss
+        z_t = self._corrupt(z0, valid, t)
+        text, text_mask = self._condition(batch["actions"])
+        if self.compiles_steps():
+            # a few shapes for the compiled pass: padded tokens and text are masked, so the loss,
+            # a mean over the valid tokens, is that of the batch as it came
+            z0, valid, z_t = (pad_to_bucket(x, 1) for x in (z0, valid, z_t))
+            text, text_mask = pad_to_bucket(text, 1), pad_to_bucket(text_mask, 1)
+        loss, vlb, aux = self.compiled(self._training_loss)(z0, valid, z_t, t, pt, text, text_mask)
+        self.guard_finite(loss)
+        self.log("train/loss", loss, batch_size=batch_size)
+        self.log("train/vlb", vlb.mean(), batch_size=batch_size)
+        self.log("train/aux", aux.mean(), batch_size=batch_size)
+        log_by_quarter(self, "train/vlb", vlb, t, first=1, steps=self.steps)
+        self.timesteps.update(t, vlb)
+        return loss
 
     def validation_step(self, batch: dict[str, Any], batch_idx: int) -> None:
         """A fixed t and z_t per row, drawn from a generator seeded with ``batch_idx``: every
@@ -175,7 +195,9 @@ class M2D2MModule(FiniteLossGuard):
         batch_size = tokens.shape[0]
         generator = torch.Generator(device=tokens.device).manual_seed(int(batch_idx))
         t = torch.randint(1, self.steps + 1, (batch_size,), generator=generator, device=tokens.device)
-        z0, valid, z_t, logits, out = self._denoise(batch, t, generator=generator)
+        z0, valid = tokens.long(), batch["padding_mask"].bool()
+        z_t = self._corrupt(z0, valid, t, generator)
+        logits, out = self._score(z0, valid, z_t, t, *self._condition(batch["actions"]))
         self.log("val/loss", out.loss, batch_size=batch_size, sync_dist=True, prog_bar=True)
         self.log("val/vlb", out.vlb.mean(), batch_size=batch_size, sync_dist=True)
         # accuracy on the positions the model has to restore: masked or replaced ones; weighted by
@@ -188,7 +210,10 @@ class M2D2MModule(FiniteLossGuard):
 
     def configure_optimizers(self) -> dict[str, Any]:
         return configure_adamw(
-            [*self.denoiser.parameters(), *self.text_encoder.parameters()], self.hparams.optim, decay_matrices_only=True
+            [*self.denoiser.parameters(), *self.text_encoder.parameters()],
+            self.hparams.optim,
+            decay_matrices_only=True,
+            fused=self.fuses_optimizer(),
         )
 
     # ----------------------------------------------------------------------------------- sampling

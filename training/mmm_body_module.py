@@ -54,11 +54,11 @@ class BodyMMMModule(MMMModule):
         )
         return BodyMaskedTransformer(config, upper, lower)
 
-    def _predict(
-        self, batch: dict[str, Any], generator: torch.Generator | None = None, rng: np.random.Generator | None = None
+    def _masked_inputs(
+        self, batch: dict[str, Any], generator: torch.Generator | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Mask the upper tokens, corrupt the lower ones (drawn with ``generator``), predict under the
-        captions (dropped with ``rng``): (upper codes, masked upper positions, logits)."""
+        """The upper codes, the upper positions masked and the canvas with them masked and the lower
+        tokens corrupted (both drawn with ``generator``)."""
         config = self.transformer.config
         pairs, valid = batch["tokens"].long(), batch["padding_mask"].bool()
         upper, lower = pairs[..., 0], pairs[..., 1]
@@ -68,5 +68,4 @@ class BodyMMMModule(MMMModule):
         inputs = body_canvas(
             upper.masked_fill(masked, config.mask_id), lower.masked_fill(hidden, config.lower_mask_id), lengths, config
         )
-        logits = self.transformer(inputs, *self._condition(batch["text"], rng))[:, :-1]
-        return upper, masked, logits
+        return upper, masked, inputs

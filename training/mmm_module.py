@@ -18,8 +18,8 @@ from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransf
 from m2d2m.processes.masking import training_mask
 from m2d2m.text import text_encoder_from_config
 from training.conditioning import drop_captions
-from training.losses import FiniteLossGuard
 from training.optim import configure_adamw
+from training.step import TrainingModule
 
 IGNORED = -100  # F.cross_entropy's ignore_index: the target of every position that is not masked
 
@@ -39,7 +39,7 @@ def masked_cross_entropy(logits: torch.Tensor, codes: torch.Tensor, masked: torc
     return F.cross_entropy(logits.flatten(0, 1), codes.masked_fill(~masked, IGNORED).flatten(), ignore_index=IGNORED)
 
 
-class MMMModule(FiniteLossGuard):
+class MMMModule(TrainingModule):
     """Cross-entropy of the masked tokens, r ~ U(α, 1) of each caption's tokens masked; AdamW
     with warm-up and step decay. A fraction ``text_drop`` (the config's top-level key) of the captions is replaced by the
     empty sentence, the null condition (ours: the paper's Table 3 edits "w/o text" but does not
@@ -96,22 +96,47 @@ class MMMModule(FiniteLossGuard):
         device = self.transformer.codebook.device
         return sentence.to(device), words.to(device), word_mask.to(device)
 
+    def _masked_inputs(
+        self, batch: dict[str, Any], generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The batch's codes, the positions masked (drawn with ``generator``) and the transformer's
+        input canvas with them masked."""
+        config = self.transformer.config
+        codes, valid = batch["tokens"].long(), batch["padding_mask"].bool()
+        lengths = valid.sum(dim=1)
+        masked = training_mask(lengths, codes.shape[1], self.alpha, generator)
+        return codes, masked, canvas(codes.masked_fill(masked, config.mask_id), lengths, config)
+
+    def _logits(
+        self, inputs: torch.Tensor, sentence: torch.Tensor, words: torch.Tensor, word_mask: torch.Tensor
+    ) -> torch.Tensor:
+        """The transformer's logits at the canvas's token positions."""
+        return self.transformer(inputs, sentence, words, word_mask)[:, :-1]
+
     def _predict(
         self, batch: dict[str, Any], generator: torch.Generator | None = None, rng: np.random.Generator | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Mask the batch's tokens (drawn with ``generator``) and predict them under the captions
         (dropped with ``rng``): (codes, masked positions, logits)."""
-        config = self.transformer.config
-        codes, valid = batch["tokens"].long(), batch["padding_mask"].bool()
-        lengths = valid.sum(dim=1)
-        masked = training_mask(lengths, codes.shape[1], self.alpha, generator)
-        inputs = canvas(codes.masked_fill(masked, config.mask_id), lengths, config)
-        logits = self.transformer(inputs, *self._condition(batch["text"], rng))[:, :-1]
-        return codes, masked, logits
+        codes, masked, inputs = self._masked_inputs(batch, generator)
+        return codes, masked, self._logits(inputs, *self._condition(batch["text"], rng))
+
+    def _masked_loss(
+        self,
+        inputs: torch.Tensor,
+        codes: torch.Tensor,
+        masked: torch.Tensor,
+        sentence: torch.Tensor,
+        words: torch.Tensor,
+        word_mask: torch.Tensor,
+    ) -> torch.Tensor:
+        """A training step's pass from its tensors to the loss: what ``trainer.compile`` compiles
+        (:class:`~training.step.TrainingModule`)."""
+        return masked_cross_entropy(self._logits(inputs, sentence, words, word_mask), codes, masked)
 
     def training_step(self, batch: dict[str, Any], batch_idx: int) -> torch.Tensor:
-        codes, masked, logits = self._predict(batch)
-        loss = masked_cross_entropy(logits, codes, masked)
+        codes, masked, inputs = self._masked_inputs(batch)
+        loss = self.compiled(self._masked_loss)(inputs, codes, masked, *self._condition(batch["text"]))
         self.guard_finite(loss)
         self.log("train/loss", loss, batch_size=codes.shape[0])
         return loss
@@ -144,4 +169,5 @@ class MMMModule(FiniteLossGuard):
             [*self.transformer.parameters(), *self.text_encoder.parameters()],
             self.hparams.optim,
             decay_matrices_only=True,
+            fused=self.fuses_optimizer(),
         )

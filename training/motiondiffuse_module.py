@@ -18,8 +18,9 @@ from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
 from m2d2m.text import text_encoder_from_config
 from training.conditioning import drop_captions
 from training.data import valid_frames
-from training.losses import FiniteLossGuard, log_by_quarter
+from training.losses import log_by_quarter
 from training.optim import configure_adamw
+from training.step import TrainingModule
 
 
 def masked_mse(predicted: torch.Tensor, target: torch.Tensor, lengths: torch.Tensor) -> torch.Tensor:
@@ -30,7 +31,7 @@ def masked_mse(predicted: torch.Tensor, target: torch.Tensor, lengths: torch.Ten
     return squared.sum(dim=1) / valid.sum(dim=1)
 
 
-class MotionDiffuseModule(FiniteLossGuard):
+class MotionDiffuseModule(TrainingModule):
     """Uniform t, x_t from q(x_t | x_0) (eq. 3), MSE between ε and ε_θ(x_t, t, text) over the
     valid frames (eq. 4; or between x_0 and the network's x_0 with ``diffusion.prediction: x0``); AdamW with the config's schedule (the paper: Adam, 2e-4). A fraction
     ``text_drop`` of the captions is replaced by the empty sentence, the null condition that
@@ -71,21 +72,36 @@ class MotionDiffuseModule(FiniteLossGuard):
         self.feature_mean.copy_(torch.as_tensor(np.asarray(normalizer.mean), dtype=torch.float32))
         self.feature_scale.copy_(torch.as_tensor(normalizer.scale, dtype=torch.float32))
 
-    def _text(self, captions: list[str], rng: np.random.Generator | None):
-        words, mask = self.text_encoder.encode(drop_captions(captions, self.hparams.text_drop, rng))
-        return self.network.encode_text(words.to(self.device), mask.to(self.device))
-
     def _losses(
         self, batch: dict[str, Any], generator: torch.Generator | None = None, rng: np.random.Generator | None = None
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Each motion's loss (B,) and its step t (B,); ``generator`` (on the module's device)
         fixes t and the noise, and ``rng`` the dropped captions, for validation."""
-        x0 = (batch["motion"] - self.feature_mean) / self.feature_scale
-        lengths = batch["lengths"].to(x0.device)
-        t = torch.randint(0, self.process.num_steps, (len(x0),), generator=generator, device=x0.device)
-        noise = torch.randn(x0.shape, generator=generator, device=x0.device)
-        predicted = self.network(self.process.q_sample(x0, t, noise), t, lengths, self._text(batch["text"], rng))
-        return masked_mse(predicted.float(), noise if self.prediction == "epsilon" else x0, lengths), t
+        motion = batch["motion"]
+        lengths = batch["lengths"].to(motion.device)
+        t = torch.randint(0, self.process.num_steps, (len(motion),), generator=generator, device=motion.device)
+        noise = torch.randn(motion.shape, generator=generator, device=motion.device)
+        words, mask = self.text_encoder.encode(drop_captions(batch["text"], self.hparams.text_drop, rng))
+        losses = self.compiled(self._noise_losses)(
+            motion, lengths, t, noise, words.to(self.device), mask.to(self.device)
+        )
+        return losses, t
+
+    def _noise_losses(
+        self,
+        motion: torch.Tensor,
+        lengths: torch.Tensor,
+        t: torch.Tensor,
+        noise: torch.Tensor,
+        words: torch.Tensor,
+        word_mask: torch.Tensor,
+    ) -> torch.Tensor:
+        """Each motion's loss from the pass's tensors: what ``trainer.compile`` compiles in a
+        training step (:class:`~training.step.TrainingModule`)."""
+        x0 = (motion - self.feature_mean) / self.feature_scale
+        text = self.network.encode_text(words, word_mask)
+        predicted = self.network(self.process.q_sample(x0, t, noise), t, lengths, text)
+        return masked_mse(predicted.float(), noise if self.prediction == "epsilon" else x0, lengths)
 
     def _log_losses(self, split: str, losses: torch.Tensor, t: torch.Tensor, **options: Any) -> torch.Tensor:
         loss = losses.mean()
@@ -132,4 +148,8 @@ class MotionDiffuseModule(FiniteLossGuard):
             self.train(was_training)
 
     def configure_optimizers(self) -> dict[str, Any]:
-        return configure_adamw([*self.network.parameters(), *self.text_encoder.parameters()], self.hparams.optim)
+        return configure_adamw(
+            [*self.network.parameters(), *self.text_encoder.parameters()],
+            self.hparams.optim,
+            fused=self.fuses_optimizer(),
+        )

@@ -33,6 +33,7 @@ def configure_adamw(
     *,
     decay_matrices_only: bool = False,
     scheduled: bool = True,
+    fused: bool = False,
 ) -> dict[str, Any]:
     """Lightning's ``configure_optimizers`` answer for AdamW over the trainable ``parameters``.
 
@@ -41,6 +42,9 @@ def configure_adamw(
     spares biases, norms' gains and other parameters of fewer than 2 dimensions, as nanoGPT does
     (karpathy/nanoGPT, ``model.py``, ``configure_optimizers``); otherwise every parameter is in one
     group. With ``scheduled`` the rate follows :func:`warmup_step_decay`, stepped every batch.
+    ``fused``: torch's fused AdamW, one kernel over every parameter (the same update to rounding;
+    :meth:`training.step.TrainingModule.fuses_optimizer` says where it may run); otherwise torch's
+    default implementation for the device.
     """
     params = [p for p in parameters if p.requires_grad]
     weight_decay = optim.get("weight_decay", DEFAULT_WEIGHT_DECAY)
@@ -52,7 +56,11 @@ def configure_adamw(
     else:
         groups = [{"params": params, "weight_decay": weight_decay}]
     optimizer = torch.optim.AdamW(
-        groups, lr=optim["lr"], betas=tuple(optim.get("betas", DEFAULT_BETAS)), weight_decay=weight_decay
+        groups,
+        lr=optim["lr"],
+        betas=tuple(optim.get("betas", DEFAULT_BETAS)),
+        weight_decay=weight_decay,
+        fused=fused or None,
     )
     if not scheduled:
         return {"optimizer": optimizer}

@@ -14,11 +14,11 @@ from m2d2m.motion.normalization import Normalizer
 from m2d2m.motion.representation import features_to_joints
 from m2d2m.motion.skeleton import SKELETONS
 from m2d2m.networks.vqvae import MotionVQVAE, VQConfig
-from training.losses import FiniteLossGuard
 from training.optim import configure_adamw
+from training.step import TrainingModule
 
 
-class VQVAEModule(FiniteLossGuard):
+class VQVAEModule(TrainingModule):
     """Smooth-L1 reconstruction + ``joint`` × smooth-L1 on the root-relative joint positions
     (T2M-GPT's "velocity" term, which is really positions) + ``commit`` × commitment, AdamW with
     linear warm-up and step decay. Validation reconstructs whole clips and reports the feature
@@ -123,7 +123,7 @@ class VQVAEModule(FiniteLossGuard):
 
     def configure_optimizers(self) -> dict[str, Any]:
         # T2M-GPT decays every weight alike: one parameter group
-        return configure_adamw(self.parameters(), self.hparams.optim)
+        return configure_adamw(self.parameters(), self.hparams.optim, fused=self.fuses_optimizer())
 
 
 def _acceleration(x: torch.Tensor) -> torch.Tensor:

@@ -5,12 +5,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from m2d2m.generators.options import MULTI, SINGLE, Sampling, check_knobs, knob
+from m2d2m.generators.options import COMPILE, MULTI, SINGLE, Sampling, check_knobs, knob
 
 METHODS = ("tps", "independent", "handshake", "slerp")
-# how the denoiser runs: eagerly, or through torch.compile at bucketed shapes (CUDA graphs on a GPU;
-# :mod:`m2d2m.generators.m2d2m_compiled`); "auto" compiles on CUDA only
-COMPILE = ("off", "auto", "on")
 
 
 @dataclass(frozen=True)

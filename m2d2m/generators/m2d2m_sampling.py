@@ -34,7 +34,7 @@ values (:class:`m2d2m.networks.m2d2m_denoiser.Condition`), for the conditional a
 of classifier-free guidance together, and where the real positions are, as index tensors built
 from the lengths the host knows. A step only gathers and scatters through them, so on a GPU it
 never waits for the device (``tests/test_host_syncs.py``). With the ``compile`` option the
-denoiser's passes run compiled at bucketed shapes (:mod:`m2d2m.generators.m2d2m_compiled`).
+denoiser's passes run compiled at bucketed shapes (:mod:`m2d2m.compiling`).
 
 Fewer steps than the schedule's T (``steps``) jump from t to s < t with the exact posterior
 q(z_s | z_t, z0) (:meth:`TransitionSchedule.posterior_probs`; VQ-Diffusion's fast sampling
@@ -52,7 +52,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from m2d2m.generators.m2d2m_compiled import CompiledDenoise, bucket, compiles
+from m2d2m.compiling import Compiled, bucket, compiles
 from m2d2m.generators.m2d2m_options import M2D2MOptions
 from m2d2m.generators.token_model import FREE
 from m2d2m.networks.m2d2m_denoiser import Condition, MotionDenoiser, action_offsets, guided_logits
@@ -149,7 +149,7 @@ class TokenSampler:
     Works on the device the denoiser is on; the schedule is moved there. An η in the options
     builds the dynamic schedule's matrices for that η once (a few hundred milliseconds at K = 512, T = 100).
     With the ``compile`` option the denoiser runs through ``torch.compile`` at bucketed shapes
-    (:mod:`m2d2m.generators.m2d2m_compiled`), compiled once per shape for the sampler's life.
+    (:mod:`m2d2m.compiling`), compiled once per shape for the sampler's life.
     """
 
     def __init__(
@@ -164,7 +164,7 @@ class TokenSampler:
         self.schedule = schedule
         self.reuse_condition = reuse_condition  # False recomputes the text's keys and values every step
         self._at_eta: dict[float, TransitionSchedule] = {}
-        self._compiled: CompiledDenoise | None = None
+        self._compiled: Compiled[Tensor] | None = None
 
     @property
     def device(self) -> torch.device:
@@ -238,8 +238,8 @@ class TokenSampler:
         passes are padded to buckets)."""
         if not compiles(options.compile, self.device):
             return self.denoiser.denoise, False
-        if self._compiled is None or self._compiled.denoiser is not self.denoiser:
-            self._compiled = CompiledDenoise(self.denoiser)
+        if self._compiled is None or self._compiled.function.__self__ is not self.denoiser:
+            self._compiled = Compiled(self.denoiser.denoise, "the denoiser", cuda=self.device.type == "cuda")
         return self._compiled, self._compiled.compiled
 
 

@@ -15,6 +15,8 @@ from dataclasses import Field, dataclass, field, fields, replace
 from typing import Any
 
 SINGLE, MULTI = "single", "multi"  # the presets every generator has
+# torch.compile (m2d2m/compiling.py) for a sampler's passes or a training step: never, on CUDA only, everywhere
+COMPILE = ("off", "auto", "on")
 
 
 def knob(
