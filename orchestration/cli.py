@@ -14,7 +14,7 @@ import errno
 import gc
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import fields
 from pathlib import Path
 from typing import Any, NoReturn, get_args, get_origin, get_type_hints
@@ -377,6 +377,12 @@ def _generate(args: argparse.Namespace) -> None:
     from orchestration.generate import check_prompted, edit_part, generate, length_cap, load_generator, staged
     from orchestration.viewing import load_features
 
+    timeline_flags = _edit_flags(args)
+    if timeline_flags and (args.edit is None or args.keep_body is not None or args.part):
+        raise UserError(
+            f"{timeline_flags[0]} edits a result on its timeline: it goes with --edit SOURCE, "
+            "not with --keep-body or --part"
+        )
     if args.part:
         return _generate_parts(args)
     if args.edit is not None and args.keep_body is None:
@@ -414,30 +420,17 @@ def _generate(args: argparse.Namespace) -> None:
 
 
 def _edit_timeline(args: argparse.Namespace) -> None:
-    """``generate --edit SOURCE`` with a timeline operation (orchestration/editing.py)."""
+    """``generate --edit SOURCE`` with a timeline operation (orchestration/edit_operations.py)."""
     from m2d2m.layout import relative_to_project
-    from orchestration.editing import plan_edit, pose_at, read_result, sample_edit
+    from orchestration.edit_operations import plan_edit
+    from orchestration.editing import read_result, sample_edit
     from orchestration.generate import check_length, length_cap, load_generator, staged
 
+    chosen = _chosen_operation(args)
     planned = _planned_outputs(args)
     generator = load_generator(args.model, args.checkpoint, args.dataset)
-    pose = None
-    if args.pin is not None:
-        source, frame = args.pin
-        pose = pose_at(read_result(source, generator), frame, f"--pin: {source}")
-    edit, said = plan_edit(
-        generator,
-        read_result(args.edit, generator),
-        args.prompts,
-        args.seconds,
-        regenerate=args.regenerate,
-        fill_to=None if args.fill_to is None else read_result(args.fill_to, generator),
-        pose=pose,
-        at=args.at,
-        extend=args.extend,
-        layer=args.layer,
-        span=args.span,
-    )
+    operation = _edit_operation(args, chosen, lambda path: read_result(path, generator))
+    edit, said = plan_edit(generator, read_result(args.edit, generator), operation)
     check_length(edit.frames, generator.fps, length_cap(args.max_seconds))  # the cap of a new generation
     print(f"{args.edit}: {said}")
     options = _sampling_options(args)
@@ -449,6 +442,69 @@ def _edit_timeline(args: argparse.Namespace) -> None:
             _report(motion, variation, edit.result_actions, args)
             if "pin_error_m" in motion.quality:
                 print(f"  the pose is met within {motion.quality['pin_error_m'] * 1000:.0f} mm (its farthest joint)")
+
+
+# `generate --edit`'s timeline operations by flag (each its dest), and the flags that serve one of them
+_OPERATION_FLAGS = {
+    "--regenerate": "regenerate",
+    "--fill-to": "fill_to",
+    "--pin": "pin",
+    "--continue": "extend",
+    "--layer": "layer",
+}
+_SERVING_FLAGS = {"--at": ("at", "--pin"), "--span": ("span", "--layer")}
+
+
+def _edit_flags(args: argparse.Namespace) -> list[str]:
+    """The timeline operations' flags given, in the order of the help."""
+    dests = {**_OPERATION_FLAGS, **{flag: dest for flag, (dest, _) in _SERVING_FLAGS.items()}}
+    given = {flag: getattr(args, dest) for flag, dest in dests.items()}
+    return [flag for flag, value in given.items() if value is not None and value is not False]
+
+
+def _chosen_operation(args: argparse.Namespace) -> str:
+    """The flag of the one timeline operation `generate --edit` asks for, checked before a model
+    loads: none or two, or a flag that serves another operation, is one line."""
+    chosen = [flag for flag in _edit_flags(args) if flag in _OPERATION_FLAGS]
+    if len(chosen) != 1:
+        raise UserError(
+            "an edit is one of: regenerate an action, fill to a second result, pin a pose, continue, "
+            "lay a body part's action over a span (one at a time)"
+        )
+    for flag, (dest, owner) in _SERVING_FLAGS.items():
+        if getattr(args, dest) is not None and chosen[0] != owner:
+            raise UserError(f"{flag} goes with {owner}, not with {chosen[0]}")
+    return chosen[0]
+
+
+def _edit_operation(args: argparse.Namespace, chosen: str, read: Callable[[str], Any]) -> Any:
+    """The operation of flag ``chosen`` (orchestration/edit_operations.py) from its flags, the
+    prompts and ``--seconds`` (``read``: a result's file as a timeline): a text or length it does
+    not take is one line."""
+    from orchestration.edit_operations import Continue, Fill, Layer, Pin, Regenerate
+    from orchestration.editing import pose_at
+
+    texts, seconds = list(args.prompts), list(args.seconds or [])
+    text, length, one_each = (texts or [None])[0], (seconds or [None])[0], len(texts) <= 1 and len(seconds) <= 1
+    if chosen == "--regenerate":
+        if not one_each:
+            raise UserError("regenerating takes at most one text (the action's new one) and one length")
+        return Regenerate(args.regenerate, text, length)
+    if chosen == "--fill-to":
+        if not one_each:
+            raise UserError("filling takes at most one text (what happens in the gap) and one length (the gap's)")
+        return Fill(read(args.fill_to), 1.0 if length is None else length, text or "")
+    if chosen == "--pin":
+        if args.at is None or texts or seconds:
+            raise UserError("pinning a pose takes the time to pin it at (--at; the API's at) and no text or length")
+        source, frame = args.pin
+        return Pin(pose_at(read(source), frame, f"--pin: {source}"), args.at)
+    if chosen == "--layer":
+        if args.span is None or texts or seconds:
+            raise UserError("laying a body part's action takes the span it lasts (--span; the API's span) alone")
+        return Layer(*args.layer, args.span)
+    lengths = seconds * len(texts) if len(seconds) == 1 else seconds or [None] * len(texts)
+    return Continue(tuple(texts), tuple(lengths))
 
 
 def _planned_output(args: argparse.Namespace) -> Any:

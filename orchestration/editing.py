@@ -1,6 +1,7 @@
 """Editing a result on its timeline, in seconds, for the command line, the API and Python (issue 41;
 docs/generation.md, "Editing a result"): a result read back from the files ``m2d2m generate``
-wrote, each operation of :mod:`m2d2m.generators.edits` sized for a model, and the edit sampled.
+wrote (or a generation in memory) as the timeline an operation of
+:mod:`orchestration.edit_operations` plans on, and the planned edit sampled and finished.
 
 A result's timeline is its ``.features.npy`` (the model's own features, at its frame rate; a
 loop's, the cycle's own) and the actions of its ``.json`` sidecar (their frames converted from the
@@ -23,30 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.generators.edits import (
-    Edit,
-    Timeline,
-    apply_edit,
-    body_of,
-    continue_after,
-    fill_between,
-    hold_pose,
-    kept_frames,
-    layer_part,
-    margin_frames,
-    regenerate_action,
-)
+from m2d2m.generators.edits import Edit, Timeline, apply_edit, body_of, kept_frames
 from m2d2m.generators.protocol import MotionGenerator
-from m2d2m.motion.body_parts import PARTS, part_mask
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from orchestration.errors import UserError
-from orchestration.generate import action_frames, check_seconds
+from orchestration.generate import check_seconds
 from orchestration.viewing import load_features, read_sidecar
-
-# a model whose multi-action method decodes actions together cannot keep frames across them
-# (MMM's transition tokens): it edits with its independent method, each action with its own kept tokens
-EDIT_METHODS = {"mmm": "independent"}
 
 
 def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
@@ -174,68 +158,11 @@ def as_clip(timeline: Timeline, generator: MotionGenerator) -> Timeline:
     return _fitted(timeline, generator.frame_step, f"the loop of {len(timeline.features)} frames")
 
 
-def _frame_at(generator: MotionGenerator, timeline: Timeline, seconds: float, what: str, on_grid: bool = True) -> int:
-    """The frame at ``seconds`` of ``timeline``: on the model's step grid (a token's first frame),
-    or (not ``on_grid``) the nearest; a time outside the motion is one line (1e308 s is no frame
-    at all)."""
-    length = len(timeline.features) / generator.fps
-    if not 0 <= seconds <= length:
-        raise UserError(f"{what} at {seconds:g} s lies outside the motion's {length:g} s")
-    frame = min(int(round(seconds * generator.fps)), len(timeline.features) - 1)
-    step = 1 if not on_grid else generator.frame_step
-    return frame // step * step
-
-
-def redo_action(
-    generator: MotionGenerator, timeline: Timeline, action: int, text: str | None = None, seconds: float | None = None
-) -> Edit:
-    """Action ``action`` (counted from 1) sampled again, under ``text`` and ``seconds`` when given."""
-    frames = None if seconds is None else action_frames(generator, seconds, f"action {action}")
-    try:
-        return regenerate_action(timeline, action - 1, margin_frames(generator), text, frames, generator.frame_step)
-    except (IndexError, ValueError) as error:
-        raise UserError(str(error)) from error
-
-
-def fill(generator: MotionGenerator, first: Timeline, second: Timeline, seconds: float, text: str = "") -> Edit:
-    """``seconds`` of new motion doing ``text`` between ``first`` and ``second``."""
-    try:
-        return fill_between(first, second, action_frames(generator, seconds, "the gap"), margin_frames(generator), text)
-    except ValueError as error:
-        raise UserError(str(error)) from error
-
-
-def extend_with(
-    generator: MotionGenerator, timeline: Timeline, texts: Sequence[str], seconds: Sequence[float | None]
-) -> Edit:
-    """``texts`` appended, each ``seconds`` long (None: the model's typical length)."""
-    if len(texts) != len(seconds):
-        raise UserError(f"give one length per new action: {len(texts)} action(s), {len(seconds)} length(s)")
-    frames = [
-        generator.round_frames(generator.typical_frames(None)) if s is None else action_frames(generator, s, repr(text))
-        for text, s in zip(texts, seconds)
-    ]
-    try:
-        return continue_after(timeline, list(texts), frames, margin_frames(generator))
-    except ValueError as error:
-        raise UserError(str(error)) from error
-
-
-def pin_pose(generator: MotionGenerator, timeline: Timeline, pose: np.ndarray, seconds: float) -> tuple[Edit, int]:
-    """``pose`` (one frame's features) pinned at ``seconds``: the edit and the frame it lands on
-    (the nearest; the model is given the pose on its step grid, and the result meets it there)."""
-    frame = _frame_at(generator, timeline, seconds, "a pose pinned", on_grid=False)
-    try:
-        return hold_pose(timeline, pose, frame, generator.frame_step, margin_frames(generator)), frame
-    except ValueError as error:
-        raise UserError(str(error)) from error
-
-
 def edit_options(generator: MotionGenerator, edit: Edit, options: dict[str, Any]) -> dict[str, Any]:
-    """The sampling options an edit is made with: the asked ones, with the model's editing method
-    where it has one (:data:`EDIT_METHODS`)."""
-    if generator.model in EDIT_METHODS and len(edit.actions) > 1:
-        return {**options, "method": EDIT_METHODS[generator.model]}
+    """The sampling options an edit is made with: the asked ones, with the method the model edits
+    several actions with where it declares one (:attr:`~m2d2m.generators.protocol.MotionGenerator.edit_method`)."""
+    if generator.edit_method is not None and len(edit.actions) > 1:
+        return {**options, "method": generator.edit_method}
     return dict(options)
 
 
@@ -261,85 +188,8 @@ def sample_edit(generator: MotionGenerator, edit: Edit, seed: int = 0, said: str
     return finish_edit(edit, sampled[0], generator, said)
 
 
-def lay_part(generator: MotionGenerator, timeline: Timeline, part: str, text: str, span: tuple[float, float]) -> Edit:
-    """Body part ``part`` doing ``text`` over ``span`` (start, end seconds), the rest of the body
-    as it was: a model that keeps some dimensions alone (MotionDiffuse) can; the token models
-    keep whole frames and refuse when sampling."""
-    if part not in PARTS:
-        raise UserError(f"unknown body part {part!r}: choose from {', '.join(PARTS)}")
-    first, end = (_frame_at(generator, timeline, seconds, f"the {part} body's span") for seconds in span)
-    try:
-        return layer_part(timeline, (first, end), part_mask(generator.skeleton, part), text, margin_frames(generator))
-    except ValueError as error:
-        raise UserError(str(error)) from error
-
-
 def pose_at(timeline: Timeline, frame: int, origin: str) -> np.ndarray:
     """One frame's features of a result, to pin: a UserError naming the frames it has."""
     if not 0 <= frame < len(timeline.features):
         raise UserError(f"{origin} has frames 0 to {len(timeline.features) - 1}, not {frame}")
     return timeline.features[frame]
-
-
-def plan_edit(
-    generator: MotionGenerator,
-    timeline: Timeline,
-    prompts: Sequence[str],
-    seconds: Sequence[float | None] | None,
-    regenerate: int | None = None,
-    fill_to: Timeline | None = None,
-    pose: np.ndarray | None = None,
-    at: float | None = None,
-    extend: bool = False,
-    layer: tuple[str, str] | None = None,
-    span: tuple[float, float] | None = None,
-) -> tuple[Edit, str]:
-    """The one edit asked for on ``timeline`` and a line saying what it does: ``regenerate``
-    action K (one prompt: its new text; one ``seconds``: its new length); ``fill_to`` a second
-    result after a gap (one ``seconds``, default 1 s; one prompt: what happens in it); a ``pose``
-    pinned ``at`` seconds; ``extend`` it with ``prompts``, each ``seconds`` long (one for all;
-    default: the model's typical length); ``layer`` a body part's (part, text) over ``span``
-    seconds. The command line's flags and the API's fields alike."""
-    chosen = [
-        name
-        for name, given in zip(OPERATIONS, (regenerate, fill_to, pose, extend, layer))
-        if given is not None and given is not False
-    ]
-    if len(chosen) != 1:
-        raise UserError(
-            "an edit is one of: regenerate an action, fill to a second result, pin a pose, continue, "
-            "lay a body part's action over a span (one at a time)"
-        )
-    seconds = list(seconds or [])
-    if regenerate is not None:
-        if len(prompts) > 1 or len(seconds) > 1:
-            raise UserError("regenerating takes at most one text (the action's new one) and one length")
-        edit = redo_action(
-            generator, timeline, regenerate, prompts[0] if prompts else None, seconds[0] if seconds else None
-        )
-        return edit, f"action {regenerate} of {len(timeline.actions)} sampled again"
-    if fill_to is not None:
-        if len(prompts) > 1 or len(seconds) > 1:
-            raise UserError("filling takes at most one text (what happens in the gap) and one length (the gap's)")
-        gap = seconds[0] if seconds else 1.0
-        return fill(
-            generator, as_clip(timeline, generator), as_clip(fill_to, generator), gap, prompts[0] if prompts else ""
-        ), f"{gap:g} s filled between two results"
-    if pose is not None:
-        if at is None or prompts or seconds:
-            raise UserError("pinning a pose takes the time to pin it at (--at; the API's at) and no text or length")
-        edit, frame = pin_pose(generator, timeline, pose, at)
-        return edit, f"a pose pinned at frame {frame}"
-    if layer is not None:
-        if span is None or prompts or seconds:
-            raise UserError("laying a body part's action takes the span it lasts (--span; the API's span) alone")
-        return lay_part(
-            generator, as_clip(timeline, generator), *layer, span
-        ), f"{layer[0]} body doing {layer[1]!r} from {span[0]:g} to {span[1]:g} s"
-    if not prompts:
-        raise UserError("continuing takes the new actions' texts (prompts)")
-    lengths = seconds * len(prompts) if len(seconds) == 1 else seconds or [None] * len(prompts)
-    return extend_with(generator, as_clip(timeline, generator), prompts, lengths), f"{len(prompts)} action(s) added"
-
-
-OPERATIONS = ("regenerate", "fill_to", "pose", "extend", "layer")

@@ -530,8 +530,8 @@ def test_a_generation_is_edited_on_its_timeline(client, trained_project):
         assert answer.status_code == 200, (body, answer.text)
     for body, status, message in (
         ({"operation": "regenerate", "action": 9}, 400, "action 9 of a result with 4 action(s)"),
-        ({"operation": "regenerate"}, 400, "regenerate names the action"),
-        ({"operation": "regenerate", "action": 1, "at": 1.0}, 400, "at does not go with the operation regenerate"),
+        ({"operation": "regenerate"}, 422, "regenerate names the action"),
+        ({"operation": "regenerate", "action": 1, "at": 1.0}, 422, "at does not go with the operation regenerate"),
         ({"operation": "fill", "then": "nowhere"}, 404, "no generation 'nowhere' on this server"),
         ({"operation": "pin", "pose": {"generation": parent["id"], "frame": 999}, "at": 1.0}, 400, "has frames 0 to"),
         (
@@ -539,7 +539,7 @@ def test_a_generation_is_edited_on_its_timeline(client, trained_project):
             400,
             "lies outside the motion",
         ),
-        ({"operation": "layer", "part": "upper"}, 400, "layer names the body part, its text and its span"),
+        ({"operation": "layer", "part": "upper"}, 422, "layer names the body part, its text and its span"),
         (
             {"operation": "layer", "part": "upper", "text": "a person waves", "span": [0.4, 1.6]},
             400,

@@ -54,6 +54,7 @@ class MMMGenerator(TokenModelGenerator):
 
     model = "mmm"
     sampling = SAMPLING
+    edit_method = "independent"  # its transition tokens are decoded across actions, which kept tokens cannot be
 
     def __init__(self, checkpoint: MMMCheckpoint, source: Path) -> None:
         self.checkpoint = checkpoint

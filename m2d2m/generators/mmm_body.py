@@ -55,6 +55,7 @@ class BodyMMMGenerator(MMMGenerator):
         "(m2d2m generate --model mmm-body --edit SOURCE --keep-body lower)"
     )
     edits = ("upper",)
+    edit_method = None  # independent is its one method, its default
 
     @classmethod
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> BodyMMMGenerator:

@@ -97,6 +97,10 @@ class MotionGenerator(ABC):
     needs_keep: ClassVar[str | None] = None
     # the editing-table tasks it can do (m2d2m.evaluation.measurements.EDITS: inbetween, upper)
     edits: ClassVar[tuple[str, ...]] = ()
+    # the multi-action method an edit of several actions is sampled with, None for its default: a
+    # model whose default decodes actions together cannot keep frames across them (MMM's transition
+    # tokens) and edits with one that samples each action with its own kept tokens
+    edit_method: ClassVar[str | None] = None
     # whether it answers :meth:`generate_parts` (one sentence per body part: MotionDiffuse's eq. 10)
     part_control: ClassVar[bool] = False
 

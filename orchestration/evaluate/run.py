@@ -17,7 +17,6 @@ from m2d2m.generators.options import MULTI
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.layout import relative_to_project
 from m2d2m.progress import progress as progress_bar
-from orchestration.editing import EDIT_METHODS
 from orchestration.errors import UserError
 from orchestration.evaluate.jobs import RESULTS, KeptBatches, jobs, result_file
 from orchestration.evaluate.records import ParentRun, describe_sampling, log_children, start
@@ -137,7 +136,7 @@ def evaluate(
                             if job.table == "single"
                             else evaluation.regenerate(
                                 job.method,
-                                EDIT_METHODS.get(job.candidate.model, job.method),
+                                generators[job.candidate.model].edit_method or job.method,
                                 settings.regenerate,
                                 job.repeat,
                             )

@@ -17,10 +17,10 @@ from m2d2m.evaluation.measurements import (
     mean_profile,
 )
 from m2d2m.generators.edits import EDIT_MARGIN_SECONDS
-from orchestration.editing import EDIT_METHODS
 from orchestration.evaluate.jobs import jobs, read_result, result_file
 from orchestration.evaluate.records import Sampling
 from orchestration.evaluate.settings import EvalSettings
+from orchestration.registry import model
 from orchestration.reports import (
     EDIT_TITLES,
     FEET_TITLES,
@@ -68,7 +68,8 @@ def _titles(settings: EvalSettings, codec_rows: dict[str, str]) -> dict[str, str
 def _edit_methods(settings: EvalSettings) -> str:
     """How the judged models that edit with another method than their own say so: " (mmm with its
     independent method)", or nothing."""
-    own = [f"{name} with its {EDIT_METHODS[name]} method" for name in settings.models if name in EDIT_METHODS]
+    methods = {name: model(name).load("generator").edit_method for name in settings.models}
+    own = [f"{name} with its {method} method" for name, method in methods.items() if method is not None]
     return f" ({', '.join(own)})" if own else ""
 
 

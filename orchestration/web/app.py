@@ -95,6 +95,9 @@ def _sentence(error: RequestValidationError) -> str:
     """The first thing wrong with a request body, in one sentence: where, and what."""
     first = error.errors()[0]
     place = [str(part) for part in first.get("loc", ()) if part != "body"]
+    body = error.body if isinstance(error.body, dict) else {}
+    if place[:1] == [body.get("operation")]:  # the member of the edits' union the body's operation chose
+        place = place[1:]
     if first.get("type") == "json_invalid":
         return "the body is not JSON: " + first.get("ctx", {}).get("error", "it does not parse")
     if place[:1] == ["options"] and len(place) > 2:  # which of the union's members failed says nothing

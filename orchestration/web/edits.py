@@ -1,25 +1,21 @@
-"""``POST /api/generations/{id}/edit``: an edit of a generation this server made, planned as `m2d2m
-generate --edit` plans one (orchestration/editing.py), so the API and the command line accept and
-refuse the same edits (docs/generation.md, "Editing a result")."""
+"""``POST /api/generations/{id}/edit``: an edit of a generation this server made, the operation its
+body names (orchestration/web/schema.py) planned by that operation's own planner, as `m2d2m
+generate --edit` plans one (orchestration/edit_operations.py), so the API and the command line
+accept and refuse the same edits (docs/generation.md, "Editing a result")."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
+
 from m2d2m.generators.edits import Edit, Timeline
 from m2d2m.generators.protocol import MotionGenerator
-from orchestration.editing import edit_options, plan_edit, pose_at, timeline_of
+from orchestration.edit_operations import plan_edit
+from orchestration.editing import edit_options, pose_at, timeline_of
 from orchestration.errors import UserError
 from orchestration.web.generations import Generation, Generations
-from orchestration.web.schema import EditRequest, Plan, delivery_of, within_cap
-
-# the fields each operation takes; any other one set is refused, not ignored
-FIELDS = {
-    "regenerate": {"action", "text", "seconds"},
-    "fill": {"then", "text", "seconds"},
-    "pin": {"pose", "at"},
-    "continue": {"actions"},
-    "layer": {"part", "text", "span"},
-}
-OPERATION_FIELDS = set().union(*FIELDS.values())
+from orchestration.web.schema import EditFields, Plan, PoseReference, delivery_of, within_cap
 
 
 def model_frame(generation: Generation, frame: int, generator: MotionGenerator) -> int:
@@ -33,8 +29,27 @@ def model_frame(generation: Generation, frame: int, generator: MotionGenerator) 
     return min(round(frame * generator.fps / motion.fps), len(motion.features) - 1)
 
 
+@dataclass(frozen=True)
+class GenerationSources:
+    """The generations of this server an edit names, read as ``generator`` edits them."""
+
+    generations: Generations
+    generator: MotionGenerator
+
+    def timeline(self, generation: str) -> Timeline:
+        return self.timeline_of(self.generations.get(generation))
+
+    def timeline_of(self, generation: Generation) -> Timeline:
+        return timeline_of(generation.motion, self.generator, f"generation {generation.id}")
+
+    def pose(self, reference: PoseReference) -> np.ndarray:
+        source = self.generations.get(reference.generation)
+        frame = model_frame(source, reference.frame, self.generator)
+        return pose_at(self.timeline_of(source), frame, f"generation {source.id}")
+
+
 def plan_edit_request(
-    request: EditRequest,
+    request: EditFields,
     parent: Generation,
     generations: Generations,
     generator: MotionGenerator,
@@ -43,53 +58,8 @@ def plan_edit_request(
     """The edit ``request`` asks of ``parent`` (by ``generator``, the model and run that made it),
     what it does in a line, and its plan: a UserError in one sentence for one it cannot be, with
     the limits of ``POST /api/generate`` (``max_seconds``: the server's cap on the edited clip)."""
-    given = {name for name in OPERATION_FIELDS if getattr(request, name) is not None}
-    stray = sorted(given - FIELDS[request.operation])
-    if stray:
-        raise UserError(f"{', '.join(stray)} does not go with the operation {request.operation}")
-    if request.operation == "regenerate" and request.action is None:
-        raise UserError("regenerate names the action to sample again (action, counted from 1)")
-    if request.operation == "fill" and request.then is None:
-        raise UserError("fill names the generation that follows the gap (then)")
-    if request.operation == "pin" and request.pose is None:
-        raise UserError("pin names the pose (pose: a generation and its frame)")
-    layer = None
-    if request.operation == "layer":
-        if request.part is None or request.text is None or request.span is None:
-            raise UserError("layer names the body part, its text and its span (part, text, span)")
-        layer = (request.part, request.text)
-
-    def timeline(generation: Generation) -> Timeline:
-        return timeline_of(generation.motion, generator, f"generation {generation.id}")
-
-    if layer is not None:  # its text is the layer's, not an action's
-        texts = []
-    elif request.text is not None:
-        texts = [request.text]
-    else:
-        texts = [action.text for action in request.actions or ()]
-    if request.actions is not None:
-        seconds = [action.seconds for action in request.actions]  # None: the model's typical length
-    else:
-        seconds = [] if request.seconds is None else [request.seconds]
-    pose = None
-    if request.pose is not None:
-        source = generations.get(request.pose.generation)
-        frame = model_frame(source, request.pose.frame, generator)
-        pose = pose_at(timeline(source), frame, f"generation {source.id}")
-    edit, said = plan_edit(
-        generator,
-        timeline(parent),
-        texts,
-        seconds,
-        regenerate=request.action,
-        fill_to=None if request.then is None else timeline(generations.get(request.then)),
-        pose=pose,
-        at=request.at,
-        extend=request.operation == "continue",
-        layer=layer,
-        span=None if request.span is None else (request.span[0], request.span[1]),
-    )
+    sources = GenerationSources(generations, generator)
+    edit, said = plan_edit(generator, sources.timeline_of(parent), request.edit_operation(sources))
     within_cap(edit.frames, generator, max_seconds)
     try:
         options = generator.options(**edit_options(generator, edit, request.options))

@@ -11,14 +11,18 @@ the page, the API and the command line accept and refuse the same requests in th
 from __future__ import annotations
 
 import unicodedata
+from abc import abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, ClassVar, Literal, Protocol
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, StrictStr, field_validator, model_validator
 
+from m2d2m.generators.edits import Timeline
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.motion.delivery import Delivery
+from orchestration.edit_operations import Continue, EditOperation, Fill, Layer, Pin, Regenerate
 from orchestration.errors import UserError
 from orchestration.generate import PromptPlanner, check_length
 from orchestration.registry import DEFAULT_MODEL
@@ -109,33 +113,114 @@ class PoseReference(BaseModel):
     frame: int = Field(ge=0, description="its frame, at the generation's own fps (its joints' index)")
 
 
-class EditRequest(Sampled):
-    """One edit of a generation (docs/generation.md, "Editing a result"), by the model and run
-    that made it: ``regenerate`` action ``action`` (``text``, ``seconds``: its new ones), ``fill``
-    the gap of ``seconds`` to generation ``then`` (``text``: what happens in it), ``pin`` the pose
-    ``pose`` at ``at`` seconds, ``continue`` with ``actions``, or ``layer`` body ``part`` doing
-    ``text`` over ``span``. Answers as ``POST /api/generate``."""
+class EditSources(Protocol):
+    """How an edit reads the generations it names besides the one it edits
+    (:class:`~orchestration.web.edits.GenerationSources`)."""
+
+    def timeline(self, generation: str) -> Timeline:
+        """The timeline of generation ``generation``."""
+
+    def pose(self, reference: PoseReference) -> np.ndarray:
+        """The features of the pose ``reference`` names."""
+
+
+class EditFields(Sampled):
+    """What every edit of a generation takes (docs/generation.md, "Editing a result"), by the model
+    and run that made it: each operation's body adds its own fields to the knobs, the seed and
+    the delivery, and becomes its operation of :mod:`orchestration.edit_operations`
+    (:meth:`edit_operation`). Answers as ``POST /api/generate``."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
-    operation: Literal["regenerate", "fill", "pin", "continue", "layer"]
-    action: int | None = Field(None, ge=1, le=MAX_ACTIONS, description="regenerate: the action, counted from 1")
-    text: str | None = Field(None, min_length=1, max_length=MAX_TEXT, description="regenerate, fill, layer: the text")
-    seconds: float | None = Field(None, allow_inf_nan=False, description="regenerate: its length; fill: the gap's")
-    then: str | None = Field(None, max_length=64, description="fill: the generation that follows the gap")
-    pose: PoseReference | None = Field(None, description="pin: the pose, a frame of a generation")
-    at: float | None = Field(None, allow_inf_nan=False, description="pin: where, in seconds")
-    actions: list[Action] | None = Field(
-        None, min_length=1, max_length=MAX_ACTIONS, description="continue: the new actions"
-    )
-    part: str | None = Field(None, max_length=16, description="layer: the body part (upper, lower) doing text")
-    span: list[float] | None = Field(
-        None, min_length=2, max_length=2, description="layer: its start and end, in seconds"
-    )
+    asks: ClassVar[str]  # what the operation must be given, said when a field of it is missing
 
-    _english = field_validator("text")(english_sentence)
+    _english = field_validator("text", check_fields=False)(english_sentence)  # the operations that take a text
+
+    @model_validator(mode="before")
+    @classmethod
+    def _its_own_fields(cls, data: Any) -> Any:
+        """A field of another operation, or one of its own missing, said in the operation's words."""
+        if isinstance(data, dict):
+            stray = sorted(set(data) - set(cls.model_fields))
+            if stray:
+                raise ValueError(f"{', '.join(stray)} does not go with the operation {data.get('operation')}")
+            if any(field.is_required() and name not in data for name, field in cls.model_fields.items()):
+                raise ValueError(f"{data.get('operation')} names {cls.asks}")
+        return data
+
+    @abstractmethod
+    def edit_operation(self, sources: EditSources) -> EditOperation:
+        """The operation this body asks for, the generations it names read from ``sources``."""
 
 
-def delivery_of(request: GenerateRequest | EditRequest) -> Delivery:
+class RegenerateRequest(EditFields):
+    """Action ``action`` sampled again, under ``text`` and ``seconds`` when given."""
+
+    asks: ClassVar[str] = "the action to sample again (action, counted from 1)"
+    operation: Literal["regenerate"]
+    action: int = Field(ge=1, le=MAX_ACTIONS, description="the action, counted from 1")
+    text: str | None = Field(None, min_length=1, max_length=MAX_TEXT, description="its new text")
+    seconds: float | None = Field(None, allow_inf_nan=False, description="its new length")
+
+    def edit_operation(self, sources: EditSources) -> Regenerate:
+        return Regenerate(self.action, self.text, self.seconds)
+
+
+class FillRequest(EditFields):
+    """``seconds`` of new motion doing ``text`` between the generation and generation ``then``."""
+
+    asks: ClassVar[str] = "the generation that follows the gap (then)"
+    operation: Literal["fill"]
+    then: str = Field(max_length=64, description="the generation that follows the gap")
+    text: str | None = Field(None, min_length=1, max_length=MAX_TEXT, description="what happens in the gap")
+    seconds: float | None = Field(None, allow_inf_nan=False, description="the gap's length; none: 1 s")
+
+    def edit_operation(self, sources: EditSources) -> Fill:
+        return Fill(sources.timeline(self.then), 1.0 if self.seconds is None else self.seconds, self.text or "")
+
+
+class PinRequest(EditFields):
+    """The pose ``pose`` pinned at ``at`` seconds."""
+
+    asks: ClassVar[str] = "the pose and the time to pin it at (pose: a generation and its frame; at: seconds)"
+    operation: Literal["pin"]
+    pose: PoseReference = Field(description="the pose, a frame of a generation")
+    at: float = Field(allow_inf_nan=False, description="where, in seconds")
+
+    def edit_operation(self, sources: EditSources) -> Pin:
+        return Pin(sources.pose(self.pose), self.at)
+
+
+class ContinueRequest(EditFields):
+    """``actions`` appended, each its ``seconds`` long (none: the model's typical length)."""
+
+    asks: ClassVar[str] = "the new actions (actions)"
+    operation: Literal["continue"]
+    actions: list[Action] = Field(min_length=1, max_length=MAX_ACTIONS, description="the new actions")
+
+    def edit_operation(self, sources: EditSources) -> Continue:
+        return Continue(tuple(a.text for a in self.actions), tuple(a.seconds for a in self.actions))
+
+
+class LayerRequest(EditFields):
+    """Body ``part`` doing ``text`` over ``span``, the rest of the body as it was."""
+
+    asks: ClassVar[str] = "the body part, its text and its span (part, text, span)"
+    operation: Literal["layer"]
+    part: str = Field(max_length=16, description="the body part (upper, lower) doing text")
+    text: str = Field(min_length=1, max_length=MAX_TEXT, description="what the part does")
+    span: list[float] = Field(min_length=2, max_length=2, description="its start and end, in seconds")
+
+    def edit_operation(self, sources: EditSources) -> Layer:
+        return Layer(self.part, self.text, (self.span[0], self.span[1]))
+
+
+# one edit, its fields those of the operation it names (OpenAPI: a oneOf by operation)
+EditRequest = Annotated[
+    RegenerateRequest | FillRequest | PinRequest | ContinueRequest | LayerRequest, Field(discriminator="operation")
+]
+
+
+def delivery_of(request: Sampled) -> Delivery:
     """How a request's clip is delivered, or a UserError in one sentence."""
     try:
         return Delivery(fps=request.fps, root=request.root, loop=request.loop, plant_feet=request.plant_feet)
