@@ -233,7 +233,7 @@ def report(
     lines += [
         "",
         "Δ = TPS minus independent sampling on the same instance and seed; ± is the 95 % half-width "
-        "over the pairs. Tokens changed: the share that differs from independent sampling at the same "
+        "(Student's t) over the pairs. Tokens changed: the share that differs from independent sampling at the same "
         "seed (last row: between two seeds of independent sampling).",
         "",
         "![tokens changed by distance from the boundary](boundaries.png)",
