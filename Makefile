@@ -91,7 +91,8 @@ setup: $(STAMP)  ## create .venv with the project and its test tools
 
 DEMO_PROMPTS := "a person walks forward" "a person jumps" "a person waves their right hand" "a person sits down"
 # A first look within the demo's 30 minutes: four methods twice on the 39 instances of n4-seed0 (about
-# 4 minutes; Jerk half-widths about 0.05). `make eval-power` sizes the comparison for 0.03 (docs/evaluation.md, Power).
+# 4 minutes; at two repeats Jerk's t-interval is about ± 0.5). `make eval-power` sizes the comparison for 0.03
+# (docs/evaluation.md, Power).
 DEMO_REPEATS ?= 2
 demo: $(STAMP)  ## the whole flow on the embedded synthetic corpus: data, models, evaluation, a clip, a sweep
 ifeq ($(DATASET),bandai-namco)

@@ -16,12 +16,13 @@ For the test set's instances, ``--seeds`` seeds each, and every T_s given, this 
 * how much of the sequence the joint phase decides: the share of positions not masked at
   t = T_s, 1 − γ̄_{T_s} (what survives into the independent phase; ᾱ_{T_s} of it is data);
 * the paper's Jerk (eq. 10, fps 1, 40 frames) of each boundary, TPS minus independent, paired,
-  with its 95 % interval, and the same for the middle of each action as a control: an effect
+  with its 95 % interval (Student's t over the pairs, as `m2d2m evaluate`'s), and the same for the middle of each action as a control: an effect
   that is there too is not a transition effect;
 * the power of `m2d2m evaluate`: its Jerk is a mean over the test set's sequences, which stay
   the same from repeat to repeat, so only the seed-to-seed spread of a sequence's Jerk (σ, from
-  the seeds here) moves it, and R repeats of n instances give a 95 % half-width of
-  1.96·σ/√(R·n).
+  the seeds here) moves it, and R repeats of n instances give a 95 % half-width of about
+  1.96·σ/√(R·n): the normal quantile, to size R (the sequences are many; the interval the
+  evaluation prints is Student's t over its R repeats, wider when R is small).
 
     python bench/tps_boundaries.py [--checkpoint latest] [--testset data/synthetic/testsets/n4-seed0-distinct]
                                    [--ts 0 50 90] [--seeds 2] [--out runs/synthetic/reproduction/boundaries]
@@ -39,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from m2d2m.evaluation.measurements import JERK_FPS, WINDOW
-from m2d2m.evaluation.metrics import CI95_Z, jerk
+from m2d2m.evaluation.metrics import CI95_Z, jerk, mean_confidence_interval
 from m2d2m.generators.options import MULTI
 from m2d2m.motion.clip import Motion
 from orchestration.generate import load_generator
@@ -89,10 +90,10 @@ def changed_by_distance(tps: Paired, independent: Paired) -> np.ndarray:
 
 
 def paired_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-    """Mean of a − b and its 95 % half-width over the defined pairs."""
+    """Mean of a − b and its 95 % half-width (Student's t) over the defined pairs; NaN with one."""
     difference = (a - b).ravel()
-    difference = difference[np.isfinite(difference)]
-    return float(difference.mean()), float(CI95_Z * difference.std(ddof=1) / np.sqrt(len(difference)))
+    mean, half_width = mean_confidence_interval(difference[np.isfinite(difference)])
+    return float(mean), float(half_width)
 
 
 def seed_spread(paired: Paired, seeds: int) -> float:
@@ -103,7 +104,8 @@ def seed_spread(paired: Paired, seeds: int) -> float:
 
 
 def repeats_for(sigma: float, instances: int, half_width: float = POWER_TARGET) -> int:
-    """Repeats of ``instances`` sequences that bring 1.96·σ/√(R·n) to ``half_width``."""
+    """Repeats of ``instances`` sequences that bring 1.96·σ/√(R·n) to ``half_width``: sizing by
+    the normal quantile, which R·n sequences (many) allow."""
     return max(1, math.ceil((CI95_Z * sigma / half_width) ** 2 / instances))
 
 
@@ -231,7 +233,7 @@ def report(
     lines += [
         "",
         "Δ = TPS minus independent sampling on the same instance and seed; ± is the 95 % half-width "
-        "over the pairs. Tokens changed: the share that differs from independent sampling at the same "
+        "(Student's t) over the pairs. Tokens changed: the share that differs from independent sampling at the same "
         "seed (last row: between two seeds of independent sampling).",
         "",
         "![tokens changed by distance from the boundary](boundaries.png)",

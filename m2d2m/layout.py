@@ -41,21 +41,15 @@ def project_of(path: str | Path) -> Path | None:
 
 
 def recorded_path(recorded: str | Path, by: str | Path) -> Path:
-    """A path the file ``by`` recorded, to open: a relative one from the project ``by`` lies in (the
-    working directory when it lies in none), so a model file given from another folder still finds
-    its dataset; an absolute one as it stands, unless it is gone: files of older versions recorded
-    every path absolute, and in a project moved since, one is found again by its part from
-    ``data/`` or ``runs/`` on."""
+    """A path the file ``by`` recorded, to open. A relative one (what :func:`relative_to_project`
+    records for a file inside the project) is taken from the project ``by`` lies in (the working
+    directory when it lies in none), so a model file given from another folder, or a project moved
+    since, finds its own dataset; an absolute one (a file that lay outside the project) as it stands."""
     path, project = Path(recorded), project_of(by)
-    base = Path() if project is None or project.resolve() == Path.cwd().resolve() else project
-    if not path.is_absolute():
-        return base / path
-    if path.exists():
+    if path.is_absolute():
         return path
-    for index, part in enumerate(path.parts):
-        if part in PROJECT_FOLDERS and (here := base / Path(*path.parts[index:])).exists():
-            return here
-    return path
+    base = Path() if project is None or project.resolve() == Path.cwd().resolve() else project
+    return base / path
 
 
 def read_manifest(directory: str | Path) -> dict[str, Any]:

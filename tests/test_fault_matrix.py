@@ -9,6 +9,7 @@ whole, and a re-run must finish and, where the stage is deterministic, equal a c
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -455,16 +456,24 @@ def test_a_user_error_is_one_line_with_exit_2_and_leaves_nothing_that_looks_done
 # ------------------------------------------------------------------------------------ the kills
 
 
-# ``python -c PAUSED module function argv...``: m2d2m, stopping for good once ``module.function``
-# returns, so that a kill lands at that point of a write that is otherwise over in milliseconds
+# ``python -c PAUSED module:qualname marker argv...``: m2d2m, stopping for good once the function or
+# method ``module:qualname`` first returns, having touched the file ``marker`` to say so. A kill or
+# Ctrl-C then lands at that point whatever the machine's speed: a test waits for the marker, a state
+# the process cannot leave, instead of racing the rest of the command to its end.
 PAUSED = """
-import importlib, sys, time
-module, name = importlib.import_module(sys.argv[1]), sys.argv[2]
-function = getattr(module, name)
+import importlib, pathlib, sys, time
+module, _, qualname = sys.argv[1].partition(":")
+*path, name = qualname.split(".")
+owner = importlib.import_module(module)
+for attribute in path:
+    owner = getattr(owner, attribute)
+function = getattr(owner, name)
 def then_pause(*args, **kwargs):
     function(*args, **kwargs)
-    time.sleep(600)
-setattr(module, name, then_pause)
+    pathlib.Path(sys.argv[2]).touch()
+    while True:
+        time.sleep(3600)
+setattr(owner, name, then_pause)
 from orchestration.cli import main
 sys.exit(main(sys.argv[3:]))
 """
@@ -482,13 +491,14 @@ def cli_env() -> dict[str, str]:
 AS_FROM_A_TERMINAL = "import os, signal, sys; signal.signal(signal.SIGINT, signal.SIG_DFL); os.execv(sys.executable, [sys.executable, *sys.argv[1:]])"
 
 
-def cli_process(argv: list[str], cwd: Path, pause_after: str | None = None) -> subprocess.Popen:
-    """``m2d2m`` in its own session, so that a kill reaches what it started (Ray, workers), with
-    Ctrl-C at its default; with ``pause_after`` (``module.function``) stopped once that function
-    has returned."""
-    start = ["-c", PAUSED, *pause_after.rsplit(".", 1)] if pause_after else ["-m", "orchestration.cli"]
-    return subprocess.Popen(
-        [sys.executable, "-c", AS_FROM_A_TERMINAL, *start, *argv],
+@contextlib.contextmanager
+def paused_cli(argv: list[str], cwd: Path, pause_after: str, timeout: float = 300.0) -> Iterator[subprocess.Popen]:
+    """``m2d2m argv`` in its own session (so that a kill reaches what it started: Ray, workers),
+    with Ctrl-C at its default, yielded once it has stopped for good after ``pause_after``
+    (``module:qualname``, see ``PAUSED``) returned; SIGKILLed on the way out if still alive."""
+    marker = Path(tempfile.mkdtemp(prefix="m2d2m-paused-")) / "paused"
+    process = subprocess.Popen(
+        [sys.executable, "-c", AS_FROM_A_TERMINAL, "-c", PAUSED, pause_after, str(marker), *argv],
         cwd=cwd,
         env=cli_env(),
         stdout=subprocess.DEVNULL,
@@ -496,21 +506,36 @@ def cli_process(argv: list[str], cwd: Path, pause_after: str | None = None) -> s
         text=True,
         start_new_session=True,
     )
+    try:
+        deadline = time.monotonic() + timeout  # a bound on a hung command, not a point to race
+        while process.poll() is None and not marker.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if not marker.exists() or process.poll() is not None:
+            if process.poll() is None:
+                os.killpg(process.pid, signal.SIGKILL)
+            stderr = process.communicate()[1]
+            pytest.fail(f"m2d2m {argv[0]} never paused after {pause_after}; stderr:\n{stderr[-2000:]}")
+        yield process
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+        shutil.rmtree(marker.parent)
 
 
-def kill_when(
-    argv: list[str], cwd: Path, reached: Callable[[], bool], timeout: float = 300.0, pause_after: str | None = None
-) -> None:
-    """Run ``m2d2m argv`` and SIGKILL its whole session as soon as ``reached()`` holds."""
-    process = cli_process(argv, cwd, pause_after)
-    deadline = time.monotonic() + timeout
-    while process.poll() is None and not reached() and time.monotonic() < deadline:
-        time.sleep(0.01)
-    running = process.poll() is None
-    if running:
-        os.killpg(process.pid, signal.SIGKILL)
-    stderr = process.communicate()[1]
-    assert running and reached(), f"the kill point was never reached; stderr:\n{stderr[-2000:]}"
+# where a kill lands in a training: its first checkpoints written (Lightning's ModelCheckpoint writes
+# last.ckpt after best.ckpt, whichever hook saves; a validation at step 0 saves nothing)
+FIRST_CHECKPOINTS = "lightning.pytorch.callbacks.model_checkpoint:ModelCheckpoint._save_last_checkpoint"
+# where it lands in an animation: its first frame encoded, in the partial file beside the final name
+GIF_FRAME = "PIL.GifImagePlugin:getdata"
+
+
+def kill_when(argv: list[str], cwd: Path, pause_after: str, reached: Callable[[], bool]) -> None:
+    """Run ``m2d2m argv``, SIGKILL its whole session once it has paused after ``pause_after``,
+    and check that it was killed in the state ``reached()`` describes."""
+    with paused_cli(argv, cwd, pause_after):
+        pass
+    assert reached(), f"m2d2m {argv[0]} paused after {pause_after}, but not in the state the test kills"
 
 
 def killed_and_clean(data: Path, tmp_path: Path, *derived: str) -> dict[str, Path]:
@@ -536,7 +561,12 @@ def test_a_killed_synthesize_leaves_a_corpus_a_rerun_completes_to_the_clean_one(
 
     generate_corpus(tmp_path / "clean", clips=60, seed=3)
     argv = ["synthesize", "--out", "killed", "--clips", "60", "--seed", "3", "--workers", "1"]
-    kill_when(argv, tmp_path, lambda: len(list((tmp_path / "killed" / "joints").glob("*.npy"))) >= 10)
+    kill_when(
+        argv,
+        tmp_path,
+        "pipelines.synthetic.corpus:_write_clip",
+        lambda: any((tmp_path / "killed").glob("joints/*.npy")),
+    )
     assert main(["synthesize", "--out", str(tmp_path / "killed"), "--clips", "60", "--seed", "3"]) == 0
     assert tree_digest(tmp_path / "killed") == tree_digest(tmp_path / "clean")
 
@@ -553,7 +583,13 @@ def test_a_killed_rebuild_leaves_the_dataset_whole_and_a_rerun_equals_a_clean_bu
     )
     clean = tree_digest(tmp_path / "data")
     argv = ["data", "--raw", "raw", "--out", "data", "--samples-per-shard", "8", "--workers", "1", "--force"]
-    kill_when(argv, tmp_path, lambda: any(tmp_path.glob(".data.building-*/shards/*.tar")))
+    # killed with every shard written into the new build's folder, before its manifest and the swap
+    kill_when(
+        argv,
+        tmp_path,
+        "pipelines.features:run_shard_tasks",
+        lambda: any(tmp_path.glob(".data.building-*/shards/*.tar")),
+    )
     assert tree_digest(tmp_path / "data") == clean  # the old dataset, untouched
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 0  # the re-run here, on this session's Ray
@@ -588,7 +624,8 @@ def test_a_killed_training_is_not_latest_and_resumes_to_a_finished_run(matrix_pr
 
     settings = ["trainer.max_steps=12", "trainer.val_every_steps=2"]
     settings += ["trainer.gif_every=100"] if verb != "train-evaluator" else []  # it draws no previews
-    kill_when([verb, "--config", config, *(arg for s in settings for arg in ("--set", s))], root, a_new_checkpoint)
+    argv = [verb, "--config", config, *(arg for s in settings for arg in ("--set", s))]
+    kill_when(argv, root, FIRST_CHECKPOINTS, a_new_checkpoint)
     (killed,) = {run for run in set(folder.iterdir()) - before if run.is_dir()}
     assert json.loads((killed / "run.json").read_text())["status"] == "running"
     assert (marker.read_text() if marker.exists() else None) == finished and not (killed / model_file).exists()
@@ -608,14 +645,12 @@ def test_ctrl_c_in_training_is_recorded_interrupted_with_a_line_and_exit_130(mat
     def new_runs() -> set[Path]:
         return {run for run in set(folder.iterdir()) - before if run.is_dir()}
 
-    settings = ["trainer.max_steps=40", "trainer.val_every_steps=2", "trainer.gif_every=1000"]
-    process = cli_process(["train-vq", "--config", "vq.yaml", *(a for s in settings for a in ("--set", s))], root)
-    deadline = time.monotonic() + 300
-    while process.poll() is None and not any(list(r.glob("checkpoints/*.ckpt")) for r in new_runs()):
-        assert time.monotonic() < deadline, "no checkpoint in 300 s"
-        time.sleep(0.01)
-    process.send_signal(signal.SIGINT)
-    stderr = process.communicate(timeout=120)[1]
+    settings = ["trainer.max_steps=12", "trainer.val_every_steps=2", "trainer.gif_every=1000"]
+    argv = ["train-vq", "--config", "vq.yaml", *(a for s in settings for a in ("--set", s))]
+    with paused_cli(argv, root, FIRST_CHECKPOINTS) as process:  # inside fit, which cannot end now
+        assert any(list(run.glob("checkpoints/*.ckpt")) for run in new_runs())
+        process.send_signal(signal.SIGINT)
+        stderr = process.communicate(timeout=120)[1]
     assert process.returncode == 130, stderr[-2000:]
     assert stderr.strip().splitlines()[-1] == "m2d2m train-vq: interrupted; `m2d2m train-vq --resume` continues it"
     (run,) = new_runs()
@@ -635,7 +670,13 @@ def test_a_killed_tokenize_leaves_no_token_set_and_a_rerun_equals_a_clean_one(ma
     copies = killed_and_clean(data, tmp_path, "tokens")
     argv = ["tokenize", "--dataset", "tiny", "--vq", matrix_project["vq"], "--workers", "1"]
     tokens = copies["killed"] / "tokens"
-    kill_when([*argv, "--data", str(copies["killed"])], root, lambda: any(tokens.glob("*/*.tar")))
+    # killed with every token shard written, before the manifest
+    kill_when(
+        [*argv, "--data", str(copies["killed"])],
+        root,
+        "pipelines.tokenize:run_json_tasks",
+        lambda: any(tokens.glob("*/*.tar")),
+    )
     (written,) = (p for p in tokens.iterdir() if p.is_dir())  # beside it, the writer's lock file
     assert not (written / "manifest.json").exists()  # nothing that looks complete
     assert main([*argv, "--data", str(copies["killed"])]) == 0  # the re-run here, on this session's Ray
@@ -661,7 +702,7 @@ def test_a_killed_testset_leaves_no_half_set_and_a_rerun_equals_a_clean_one(matr
     argv += ["--mirrors", "distinct", *(["--force"] if force else [])]
     # killed once its motions are written into the new set's folder, before its manifest
     written = lambda: any(sets.glob(f".{target.name}.*.partial/motions.npz"))  # noqa: E731
-    kill_when(argv, root, written, pause_after="pipelines.testset._write_npz")
+    kill_when(argv, root, "pipelines.testset:_write_npz", written)
     assert tree_digest(target) == old if force else not target.exists()  # nothing half-written looks done
     if force:  # and had the kill come between --force's two renames: the old set is aside, whole
         aside = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=sets))
@@ -691,7 +732,11 @@ def test_a_killed_sweep_resumes_without_evaluating_a_finished_trial_again(
         new = set(evaluations.glob("*/run.json")) - {run / "run.json" for run in before}
         return [info.parent for info in new if json.loads(info.read_text()).get("status") == "finished"]
 
-    kill_when(["sweep", "--config", str(config)], root, lambda: len(finished_evaluations()) == 1)
+    # killed as the driver hears that the first trial finished, before it starts the second
+    finished_one = lambda: len(finished_evaluations()) == 1  # noqa: E731
+    kill_when(
+        ["sweep", "--config", str(config)], root, "orchestration.sweep_lines:TrialLines.on_trial_complete", finished_one
+    )
     monkeypatch.setattr(m2d2m.progress, "MIN_SECONDS", 0.0)  # a line for each trial, however quick
     capfd.readouterr()
     assert main(["sweep", "--config", str(config)]) == 0  # the re-run here, its stderr a log
@@ -734,7 +779,7 @@ def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
         "gif",
         "--no-track",
     ]
-    kill_when(argv, root, writing_the_gif)
+    kill_when(argv, root, GIF_FRAME, writing_the_gif)  # its first frame written
     (killed,) = set(runs.iterdir()) - before
     assert json.loads((killed / "run.json").read_text())["status"] != "finished"
     assert main(argv) == 0
@@ -751,7 +796,7 @@ def test_a_killed_generation_leaves_no_file_that_looks_complete(matrix_project):
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "out, pause_after",
-    [("clip.gif", None), ("clip.bvh", "numpy.savetxt")],  # a GIF takes seconds to draw, a BVH is written at once
+    [("clip.gif", GIF_FRAME), ("clip.bvh", "numpy:savetxt")],  # a GIF's first frame, a BVH's whole text
     ids=["render", "export"],
 )
 def test_a_killed_render_or_export_leaves_no_file_and_a_rerun_leaves_no_trace(tmp_path, monkeypatch, out, pause_after):
@@ -761,7 +806,7 @@ def test_a_killed_render_or_export_leaves_no_file_and_a_rerun_leaves_no_trace(tm
     np.save(tmp_path / "clip.npy", pose_clip(T2M, frames, seed=5))
     argv = ["render" if out.endswith(".gif") else "export", "clip.npy", "--out", out]
     # a render writes .clip.<pid>.partial.gif; an export the same BVH in its folder .clip.<pid>.partial
-    kill_when(argv, tmp_path, lambda: any(tmp_path.rglob(".clip.*.partial.*")), pause_after=pause_after)
+    kill_when(argv, tmp_path, pause_after, lambda: any(tmp_path.rglob(".clip.*.partial.*")))
     assert not (tmp_path / out).exists()
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 0
@@ -854,7 +899,8 @@ def test_a_killed_evaluation_resumes_from_its_finished_batches_to_the_clean_resu
     argv = ["evaluate", "--dataset", "tiny", "--testset", str(tiny_testset), "--method", "tps", "--repeats", "1"]
     argv += ["--ts", "4", "--batch-size", "3"]
     before = set(runs.iterdir()) if runs.exists() else set()
-    kill_when(argv, root, lambda: any(runs.glob("*/batches/*/multi-3-3.npz")))  # the second batch is kept
+    # killed once the first batch is kept
+    kill_when(argv, root, "orchestration.evaluate.jobs:KeptBatches.save", lambda: any(runs.glob("*/batches/*/*.npz")))
     (killed,) = {run for run in set(runs.iterdir()) - before if run.is_dir()}
     assert json.loads((killed / "run.json").read_text())["status"] == "running"
     assert main(["evaluate", "--dataset", "tiny", "--resume", killed.name, "--batch-size", "3"]) == 0

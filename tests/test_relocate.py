@@ -100,7 +100,7 @@ def test_a_moved_project_runs_every_verb_on_its_own_files(moved, trained_store, 
 
 def test_a_record_is_found_from_the_project_of_the_file_that_made_it(tmp_path, monkeypatch):
     """Relative to the recording file's project (a model file given from elsewhere finds its dataset);
-    an absolute record of an older version, gone since the project moved, found again by its tail."""
+    an absolute record (a file outside the project) as it stands, never guessed at when it is gone."""
     from m2d2m.layout import recorded_path
 
     monkeypatch.chdir(tmp_path)
@@ -109,7 +109,7 @@ def test_a_record_is_found_from_the_project_of_the_file_that_made_it(tmp_path, m
     model = Path("runs/synthetic/m2d2m/run/model.pt")
     assert recorded_path("data/synthetic", model) == Path("data/synthetic")
     assert recorded_path("data/kit", tmp_path / "other/runs/kit/m2d2m/run/model.pt") == tmp_path / "other/data/kit"
-    assert recorded_path("/gone/project/data/synthetic", model) == Path("data/synthetic")
+    assert recorded_path("/gone/project/data/synthetic", model) == Path("/gone/project/data/synthetic")
     assert recorded_path("/datasets/humanml3d", model) == Path("/datasets/humanml3d")  # outside: as it stands
 
 

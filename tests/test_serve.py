@@ -449,10 +449,29 @@ def test_a_full_queue_answers_429_and_a_client_that_leaves_cancels_its_work(trai
         assert app.state.service.sampler.stats().served == 0
 
 
-def test_sigterm_answers_the_request_in_flight_then_exits_leaving_nothing(trained_project):
+# ``python -c HELD sampling go argv...``: ``m2d2m argv`` whose sampler, at its first batch, touches
+# the file ``sampling`` and samples only once the file ``go`` exists: a request is then in flight
+# when the test sends its signal, however fast the machine samples
+HELD = """
+import pathlib, sys, time
+from orchestration.web.sampler import Sampler
+generate = Sampler._generate
+def held(self, batch):
+    pathlib.Path(sys.argv[1]).touch()
+    while not pathlib.Path(sys.argv[2]).exists():
+        time.sleep(0.01)
+    return generate(self, batch)
+Sampler._generate = held
+from orchestration.cli import main
+sys.exit(main(sys.argv[3:]))
+"""
+
+
+def test_sigterm_answers_the_request_in_flight_then_exits_leaving_nothing(trained_project, tmp_path):
     port = free_port()
+    sampling, go = tmp_path / "sampling", tmp_path / "go"
     server = subprocess.Popen(
-        [sys.executable, "-m", "orchestration.cli", "serve", "--dataset", "tiny", "--port", str(port)],
+        [sys.executable, "-c", HELD, str(sampling), str(go), "serve", "--dataset", "tiny", "--port", str(port)],
         cwd=trained_project,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -472,7 +491,11 @@ def test_sigterm_answers_the_request_in_flight_then_exits_leaving_nothing(traine
         with httpx.stream("POST", f"{base}/api/generate", json=body, headers=NDJSON, timeout=120) as answer:
             lines = answer.iter_lines()
             assert "queued" in json.loads(next(lines))
+            while not sampling.exists():  # the sampler holds the request: it cannot be answered yet
+                assert server.poll() is None and time.monotonic() < deadline + 120, "the request was never sampled"
+                time.sleep(0.01)
             server.send_signal(signal.SIGTERM)
+            go.touch()
             rest = [json.loads(line) for line in lines]
         assert "result" in rest[-1], rest[-1]
         assert server.wait(timeout=60) == 0

@@ -176,8 +176,8 @@ def reopen(reference: str, dataset: str) -> tuple[Path, EvalSettings]:
 
 
 def _located(settings: EvalSettings, run_dir: Path) -> EvalSettings:
-    """The files an evaluation run's settings name, found from its project, as
-    :func:`m2d2m.layout.recorded_path` finds them (runs of older versions named them absolute)."""
+    """The files an evaluation run's settings name, found from its project
+    (:func:`m2d2m.layout.recorded_path`), so that a moved project resumes its own runs."""
 
     def here(recorded: str | None) -> str | None:
         return None if recorded is None else str(recorded_path(recorded, run_dir))
