@@ -18,24 +18,41 @@ import shutil
 import subprocess
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 VERBS = ("train-vq", "train-diffusion", "train-mmm", "train-motiondiffuse", "train-evaluator")
 
 
-def timed(command: list[str], cwd: Path) -> tuple[float, float | None, int]:
-    """``command``'s total seconds, the seconds from its ``finished`` line to its exit (None
-    when it printed none) and its exit code."""
+@dataclass
+class Timed:
+    """A command's run: its total seconds, the seconds from its ``finished`` line to its exit
+    (None when it printed none), its exit code, and each line it printed with the seconds since
+    its start at which it arrived."""
+
+    total: float
+    after_finished: float | None
+    returncode: int
+    lines: list[tuple[float, str]] = field(default_factory=list)
+
+
+def timed(command: list[str], cwd: Path, env: dict[str, str] | None = None) -> Timed:
+    """Run ``command`` in ``cwd``, its output read line by line as it comes."""
     start = time.monotonic()
     finished = None
-    with subprocess.Popen(command, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as process:
+    lines = []
+    with subprocess.Popen(
+        command, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    ) as process:
         assert process.stdout is not None
         for line in process.stdout:
+            now = time.monotonic()
+            lines.append((now - start, line.rstrip("\n")))
             if line.startswith("finished ") and finished is None:
-                finished = time.monotonic()
+                finished = now
     end = time.monotonic()
-    return end - start, None if finished is None else end - finished, process.returncode
+    return Timed(end - start, None if finished is None else end - finished, process.returncode, lines)
 
 
 def main() -> None:
@@ -53,10 +70,11 @@ def main() -> None:
         if verb == "train-diffusion" and args.retokenize:
             for tokens in args.project.glob("data/*/tokens"):
                 shutil.rmtree(tokens)
-        total, after, code = timed([m2d2m, verb, "--config", "demo", *steps], args.project)
-        if code != 0:
-            sys.exit(f"{verb} exited {code}")
-        print(f"| `m2d2m {verb}` | {total:.1f} | {'-' if after is None else f'{after:.2f}'} |", flush=True)
+        run = timed([m2d2m, verb, "--config", "demo", *steps], args.project)
+        if run.returncode != 0:
+            sys.exit(f"{verb} exited {run.returncode}")
+        after = "-" if run.after_finished is None else f"{run.after_finished:.2f}"
+        print(f"| `m2d2m {verb}` | {run.total:.1f} | {after} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,11 @@ For each model (the VQ-VAE, M2D2M, MMM, MotionDiffuse) at its demo size and at t
 - **the long sequence**: MMM's 10.873 minutes (67 actions) as one sequence by each model's
   multi-action method at the last size asked (the paper's) (bench/aits.py's ``long_plan``; MotionDiffuse at ``--md-long-steps`` of
   its 1000 steps, the time at 1000 extrapolated, as bench/aits.py does);
-- **serving**: bench/serve.py's load test, when the project has the demo's trained models.
+- **serving**: bench/serve.py's load test, when the project has the demo's trained models;
+- **the command line** (``--cli-project DIR``): each model's training verb run as a user runs it,
+  ``--cli-steps`` steps of its demo config with two validations and a preview each, in a project
+  that has the demo's data and tokens, beside the synthetic batches' steps/s at the demo size, and
+  the seconds from its ``finished`` line to its exit (bench/exit_time.py's clock).
 
 Random weights take as long as trained ones: a step's work does not depend on the values. The
 paper's frozen CLIP text tower is a randomly initialised tower of its shape (ViT-B/32's: 12
@@ -28,12 +32,15 @@ fast anything is (the paper sizes take minutes on a CPU).
     python bench/gpu.py [--quick] [--models vq m2d2m mmm motiondiffuse] [--sizes demo paper]
                         [--steps 30] [--warmup 5] [--train-compile off on] [--batches 1 32]
                         [--paper-batches 64 256]
-                        [--long-minutes 10.873] [--long-compiled] [--out DIR]
+                        [--long-minutes 10.873] [--long-compiled] [--cli-project DIR]
+                        [--cli-steps 200] [--out DIR]
 
 Writes ``gpu.json`` and ``gpu.md`` into ``--out`` (``runs/bench/gpu/<machine>-<time>``) after every
 figure, so a stopped run keeps what it measured; a figure that fails is recorded, the others are
-still measured, and the command then exits 1. It prints the Markdown at the end. Of the project's dependencies it needs torch, Lightning, transformers, PyYAML, Matplotlib
-and WebDataset, not Ray, spaCy or MLflow (what a bare GPU machine must be given).
+still measured, and the command then exits 1. It prints the Markdown at the end. Of the project's
+dependencies it needs torch, Lightning, transformers, PyYAML, Matplotlib and WebDataset, not Ray,
+spaCy or MLflow (what a bare GPU machine must be given); ``--cli-project`` runs the command line,
+which needs MLflow too.
 """
 
 from __future__ import annotations
@@ -46,6 +53,7 @@ import logging
 import math
 import os
 import platform
+import re
 import shutil
 import statistics
 import subprocess
@@ -63,6 +71,7 @@ import lightning.pytorch as pl
 import numpy as np
 import torch
 from aits import LONG_METHODS, STEP_SERIES, long_plan, trained_steps
+from exit_time import timed
 from timing import wall_time
 from torch.utils.flop_counter import FlopCounterMode
 
@@ -483,6 +492,44 @@ def measure_long(generator: Any, minutes: float, md_steps: int, compiled: bool =
     )
 
 
+# ---------------------------------------------------------------------------------- the command line
+CLI_VERBS = {"vq": "train-vq", "m2d2m": "train-diffusion", "mmm": "train-mmm", "motiondiffuse": "train-motiondiffuse"}
+PROGRESS = re.compile(r"^training: (\d+)/(\d+) step")  # training.callbacks.PlainProgress's lines
+
+
+@dataclass
+class CliFigure:
+    model: str
+    verb: str
+    compiled: bool
+    steps: int
+    total_s: float  # the command, start to exit: imports, data, validations, previews, model file, MLflow
+    steps_per_s: float  # from its first progress line (a tenth of the steps) to its last: the steady path
+    finished_to_exit_s: float | None
+
+
+def measure_cli(name: str, project: Path, steps: int, compiled: bool) -> CliFigure:
+    """``m2d2m <verb> --config demo`` of ``name`` for ``steps`` steps with two validations, run as a
+    user runs it in ``project`` (a project with the demo's data and tokens: after `make data` and
+    `make train-vq`): the real path, data loader, validations, previews, checkpoints and MLflow
+    included. Its steps/s runs from its first progress line to its last, past start-up."""
+    verb = CLI_VERBS[name]
+    settings = [f"trainer.max_steps={steps}", f"trainer.val_every_steps={max(1, steps // 2)}", "trainer.gif_every=1"]
+    settings += [f"trainer.compile={'on' if compiled else 'off'}"]
+    command = [sys.executable, "-m", "orchestration.cli", verb, "--config", "demo", *(f"--set={s}" for s in settings)]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(PROJECT), os.environ.get("PYTHONPATH")]))}
+    run = timed(command, project, env)
+    if run.returncode != 0:
+        raise RuntimeError(f"m2d2m {verb} exited {run.returncode}: {run.lines[-1][1] if run.lines else ''}")
+    progress = [(at, int(match[1])) for at, line in run.lines if (match := PROGRESS.match(line))]
+    if len(progress) < 2:
+        raise RuntimeError(f"m2d2m {verb} printed fewer than two progress lines")
+    (first_at, first), (last_at, last) = progress[0], progress[-1]
+    return CliFigure(
+        name, verb, compiled, steps, run.total, (last - first) / max(last_at - first_at, 1e-9), run.after_finished
+    )
+
+
 # ------------------------------------------------------------------------------------------- serving
 def measure_serving(quick: bool) -> dict[str, Any]:
     """bench/serve.py's load test on the demo's trained models, or why it was skipped."""
@@ -553,6 +600,21 @@ def report(result: dict[str, Any]) -> str:
             f"| {f['minutes']:.3f} | {_cell(f['steps'])} | {_cell(f['seconds'])} | {_cell(f['seconds_at_all_steps'])} "
             f"| {_cell(f['first_call_seconds'])} |"
         )
+    if result["cli"]:
+        synthetic = {(f["model"], f["compiled"]): f["steps_per_s"] for f in result["training"] if f["size"] == "demo"}
+        lines += [
+            "",
+            "| command (demo config) | compiled | steps | total (s) | steps/s | synthetic steps/s | synthetic ÷ CLI "
+            "| last line → exit (s) |",
+            "|---|---|---:|---:|---:|---:|---:|---:|",
+        ]
+        for f in result["cli"]:
+            bench = synthetic.get((f["model"], f["compiled"]))
+            ratio = None if bench is None else bench / f["steps_per_s"]
+            lines.append(
+                f"| `m2d2m {f['verb']}` | {'yes' if f['compiled'] else 'no'} | {f['steps']} | {_cell(f['total_s'])} "
+                f"| {_cell(f['steps_per_s'])} | {_cell(bench)} | {_cell(ratio)} | {_cell(f['finished_to_exit_s'])} |"
+            )
     serving = result.get("serving", {"skipped": "not reached"})
     lines += ["", f"Serving: skipped ({serving['skipped']})" if "skipped" in serving else serving["markdown"]]
     lines += [f"\nFailed: {failure}" for failure in result["failures"]]
@@ -579,6 +641,7 @@ class Results:
             "training": [],
             "sampling": [],
             "long": [],
+            "cli": [],
             "failures": [],
         }
 
@@ -659,6 +722,15 @@ def measure(args: argparse.Namespace) -> Results:
                 results.add("long", what, lambda: measure_long(generator, args.long_minutes, args.md_long_steps))
                 if name == "m2d2m" and args.long_compiled:
                     compiled_last = (what + ", compiled", generator)
+    if args.cli_project is not None:
+        # the VQ-VAE last: a new one is the project's latest, and the others' tokens would be made anew
+        for name in sorted(args.models, key=lambda name: name == "vq"):
+            for compiled in [mode == "on" for mode in args.train_compile]:
+                results.add(
+                    "cli",
+                    f"m2d2m {CLI_VERBS[name]} in {args.cli_project}" + (", compiled" if compiled else ""),
+                    lambda: measure_cli(name, Path(args.cli_project), args.cli_steps, compiled),
+                )
     if compiled_last is not None:
         what, generator = compiled_last
         results.add("long", what, lambda: measure_long(generator, args.long_minutes, args.md_long_steps, compiled=True))
@@ -700,6 +772,13 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--long-compiled", action="store_true", help="also M2D2M's long sequence with its denoiser compiled"
     )
+    parser.add_argument(
+        "--cli-project",
+        default=None,
+        help="also time each model's training verb through the command line in this project (it has the demo's "
+        "data and tokens: `make data && make train-vq`)",
+    )
+    parser.add_argument("--cli-steps", type=int, default=200, help="steps of each command-line training")
     parser.add_argument("--out", default=None, help="default runs/bench/gpu/<machine>-<time>")
     args = parser.parse_args(argv)
     if args.train_compile is None:
@@ -708,6 +787,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     if args.quick:
         args.sizes, args.steps, args.warmup, args.batch, args.batches = ["demo"], 2, 1, 2, [1, 2]
         args.frames, args.repeats, args.long_minutes, args.md_steps, args.md_long_steps = 40, 1, 0.1, 2, 2
+        args.cli_steps = 4
     counts = (
         args.steps,
         args.warmup + 1,

@@ -89,8 +89,7 @@ def _check_settings(config: dict[str, Any]) -> None:
             f"trainer.snapshots must be a list of steps from 1 to trainer.max_steps "
             f"({trainer_cfg['max_steps']}), got {snapshots!r}"
         )
-    if trainer_cfg["compile"] not in COMPILE:
-        raise UserError(f"trainer.compile must be one of {', '.join(COMPILE)}, got {trainer_cfg['compile']!r}")
+    compile_setting(trainer_cfg["compile"])
     if trainer_cfg["accelerator"] not in ACCELERATORS:
         raise UserError(
             f"trainer.accelerator must be one of {', '.join(ACCELERATORS)}, got {trainer_cfg['accelerator']!r}"
@@ -108,6 +107,15 @@ def _check_settings(config: dict[str, Any]) -> None:
         raise UserError(f"optim.grad_clip must be null (off) or a number > 0, got {optim['grad_clip']!r}")
     if "batch_size" in config.get("data", {}) and not _is_count(config["data"]["batch_size"]):
         raise UserError(f"data.batch_size must be a whole number >= 1, got {config['data']['batch_size']!r}")
+
+
+def compile_setting(value: Any) -> str:
+    """``trainer.compile`` as one of off, auto, on (training/step.py). YAML reads a bare ``off`` or
+    ``on`` — in a config or a ``--set`` — as a boolean, so those are taken for the words."""
+    choice = ("on" if value else "off") if isinstance(value, bool) else value
+    if choice not in COMPILE:
+        raise UserError(f"trainer.compile must be one of {', '.join(COMPILE)}, got {value!r}")
+    return choice
 
 
 def _is_finite_number(value: Any) -> bool:
@@ -307,7 +315,7 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
         callbacks = [*callbacks, EMAWeightAveraging(decay=trainer_cfg["ema"], use_buffers=False)]
     if trainer_cfg.get("snapshots"):
         callbacks = [*callbacks, StepSnapshots(run_dir / SNAPSHOTS, trainer_cfg["snapshots"])]
-    module.compile_steps = trainer_cfg["compile"]
+    module.compile_steps = compile_setting(trainer_cfg["compile"])
     logger = _mlflow_logger(config["dataset"], run.stage, run_dir, run.run_id)
     checkpoints = ModelCheckpoint(
         dirpath=run_dir / "checkpoints", filename="best", monitor=monitor, mode="min", save_last=True, save_top_k=1

@@ -195,3 +195,26 @@ def test_a_fused_optimizer_trains_under_bf16_with_its_gradients_clipped_to_the_g
     clipped = module.weight.grad
     assert seen and seen[0].tolist() == [300.0, 400.0]
     torch.testing.assert_close(clipped, torch.tensor([0.6, 0.8]))
+
+
+@pytest.mark.parametrize(("value", "choice"), [(False, "off"), (True, "on"), ("auto", "auto"), ("off", "off")])
+def test_trainer_compile_takes_yaml_s_bare_off_and_on_for_the_words(value, choice):
+    """``--set trainer.compile=off`` reaches the config as False: YAML 1.1's boolean."""
+    from orchestration.config import apply_overrides
+    from orchestration.train import compile_setting
+
+    assert compile_setting(value) == choice
+    assert (
+        compile_setting(
+            apply_overrides({"trainer": {"compile": "auto"}}, ["trainer.compile=off"])["trainer"]["compile"]
+        )
+        == "off"
+    )
+
+
+def test_a_trainer_compile_that_is_none_of_the_choices_is_refused_in_one_line():
+    from orchestration.errors import UserError
+    from orchestration.train import compile_setting
+
+    with pytest.raises(UserError, match="^trainer.compile must be one of off, auto, on, got 'yes please'$"):
+        compile_setting("yes please")

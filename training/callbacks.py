@@ -4,7 +4,10 @@ that counts the steps training is bounded by, and snapshots of the weights at ch
 from __future__ import annotations
 
 import json
+import multiprocessing
 import time
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -23,41 +26,100 @@ from m2d2m.progress import ProgressLines
 from training.losses import is_logging_step
 
 
-class ReconstructionPreview(pl.Callback):
+class Drawing(pl.Callback):
+    """Previews drawn off the training path: a GIF is drawn by Matplotlib in a process of its own
+    (started at the first, spawned so that it shares nothing with CUDA or the loader's threads)
+    while training goes on, and logged to MLflow once drawn — at the next validation, or at the
+    end of training, which waits for the last (docs/training.md, "Previews off the step path").
+    Drawn in the training process, four GIFs held a demo-size GPU run for seconds at every
+    preview, longer than a hundred of its steps."""
+
+    artifact_path = "previews"
+
+    def __init__(self) -> None:
+        self._pool: ProcessPoolExecutor | None = None
+        self._drawing: list[Future[Path]] = []
+
+    def draw(self, function: Callable[..., Path], *args: Any, **kwargs: Any) -> None:
+        """Have ``function(*args, **kwargs)`` (a picture writer, returning its path) run in the
+        drawing process."""
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._drawing.append(self._pool.submit(function, *args, **kwargs))
+
+    def _log_drawn(self, trainer: pl.Trainer, wait: bool) -> None:
+        """Log the pictures drawn so far (all of them, waiting, when ``wait``)."""
+        pending = []
+        for future in self._drawing:
+            if not (wait or future.done()):
+                pending.append(future)
+                continue
+            path = future.result()  # a drawing that failed fails training here, as it did drawn in place
+            if isinstance(trainer.logger, MLFlowLogger):
+                trainer.logger.experiment.log_artifact(
+                    trainer.logger.run_id, str(path), artifact_path=self.artifact_path
+                )
+        self._drawing = pending
+
+    def _close(self, cancel: bool) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
+            self._pool = None
+
+    def on_validation_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        self._log_drawn(trainer, wait=False)
+
+    def on_train_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        try:
+            self._log_drawn(trainer, wait=True)
+        finally:
+            self._close(cancel=False)
+
+    def on_exception(self, trainer: pl.Trainer, module: pl.LightningModule, exception: BaseException) -> None:
+        self._drawing = []
+        self._close(cancel=True)
+
+
+class ReconstructionPreview(Drawing):
     """Every ``every`` validations, a GIF of the first validation clip: ground truth beside the
     model's reconstruction, written under ``directory`` and logged as an MLflow artifact."""
 
     def __init__(self, directory: str | Path, every: int = 1) -> None:
+        super().__init__()
         self.directory = Path(directory)
         self.every = max(1, every)
         self.validations = 0
 
     def on_validation_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        super().on_validation_epoch_end(trainer, module)
         if trainer.sanity_checking or not trainer.is_global_zero or module.preview is None:
             return
         self.validations += 1
         if (self.validations - 1) % self.every:
             return
         truth, reconstruction = module.preview
-        path = render_comparison(
+        self.draw(
+            render_comparison,
             [truth, reconstruction],
             ["ground truth", "reconstruction"],
             self.directory / f"step-{trainer.global_step:07d}.gif",
             skeleton=module.skeleton,
             size=240,
         )
-        if isinstance(trainer.logger, MLFlowLogger):
-            trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="previews")
 
 
-class SamplePreview(pl.Callback):
+class SamplePreview(Drawing):
     """Every ``every`` validations, one GIF per fixed prompt of the module's samples, drawn and
     logged as MLflow artifacts: what a person looks at to judge whether samples follow their
-    text. Subclasses say how a model's samples become features (:meth:`_sample`)."""
+    text. Subclasses say how a model's samples become features (:meth:`_sample`); the samples are
+    drawn in the training process, the GIFs in the drawing one."""
+
+    artifact_path = "samples"
 
     def __init__(
         self, directory: str | Path, prompts: list[str], seconds: list[float], every: int = 1, seed: int = 0
     ) -> None:
+        super().__init__()
         if len(prompts) != len(seconds):
             raise ValueError("give one duration in seconds per preview prompt")
         self.directory = Path(directory)
@@ -70,6 +132,7 @@ class SamplePreview(pl.Callback):
         raise NotImplementedError
 
     def on_validation_epoch_end(self, trainer: pl.Trainer, module: pl.LightningModule) -> None:
+        super().on_validation_epoch_end(trainer, module)
         if trainer.sanity_checking or not trainer.is_global_zero:
             return
         self.validations += 1
@@ -77,15 +140,14 @@ class SamplePreview(pl.Callback):
             return
         samples, skeleton = self._sample(module)
         for n, (prompt, features) in enumerate(zip(self.prompts, samples)):
-            path = render_motion(
+            self.draw(
+                render_motion,
                 features_to_joints(features, skeleton),
                 self.directory / f"step-{trainer.global_step:07d}-{n}.gif",
                 skeleton=skeleton,
                 title=prompt,
                 size=240,
             )
-            if isinstance(trainer.logger, MLFlowLogger):
-                trainer.logger.experiment.log_artifact(trainer.logger.run_id, str(path), artifact_path="samples")
 
 
 class TokenSamplePreview(SamplePreview):

@@ -312,7 +312,14 @@ def split_pass(
         .map(prepare)
         .batched(batch_size, collation_fn=collate, partial=True)
     )
-    return wds.WebLoader(dataset, batch_size=None, num_workers=feed.num_workers, pin_memory=feed.pin_memory)
+    # workers kept between passes: a validation every few hundred steps would otherwise start them anew
+    return wds.WebLoader(
+        dataset,
+        batch_size=None,
+        num_workers=feed.num_workers,
+        pin_memory=feed.pin_memory,
+        persistent_workers=feed.num_workers > 0,
+    )
 
 
 class ShardDataModule(pl.LightningDataModule):
