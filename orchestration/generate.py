@@ -642,9 +642,9 @@ def log_generation(motion: Motion, prompts: Sequence[str], files: dict[str, Path
     with tracked_run(experiment_name(dataset, GENERATE_STAGE), tags=tags, params=params) as (client, run_id):
         for name, value in motion.quality.items():
             client.log_metric(run_id, name, value)
-        for path in files.values():
-            client.log_artifact(run_id, str(path), artifact_path="motion")
-        features = files.get("npy")
-        if features is not None and features.with_suffix(".json").exists():
-            client.log_artifact(run_id, str(features.with_suffix(".json")), artifact_path="motion")
+        for kind, path in files.items():  # each file with those its format wrote beside it (the npy's sidecar, ...)
+            stem = path.name.removesuffix(f".{kind}")
+            for name in FORMATS[kind].file_names(stem):
+                if (path.parent / name).is_file():
+                    client.log_artifact(run_id, str(path.parent / name), artifact_path="motion")
     return run_id

@@ -80,7 +80,8 @@ def test_what_a_format_carries_is_what_its_file_holds(tmp_path, motion):
     assert np.array_equal(np.load(tmp_path / "clip.root_motion.npy"), motion.root_track)
     gltf = pygltflib.GLTF2().load(str(written["glb"]))
     assert "root motion" in [animation.name for animation in gltf.animations]
-    assert "root" not in (tmp_path / "clip.bvh").read_text().split("MOTION")[1].lower()
+    bvh_root = read_bvh(written["bvh"]).values[:, :3]  # the BVH has no place for it: in place, as delivered
+    assert np.allclose(bvh_root, motion.joints[:, 0], atol=1e-5)
 
 
 def write_csv(motion: Motion, path: Path, writing: Writing) -> Path:
@@ -171,3 +172,21 @@ def test_the_web_apps_files_come_from_the_table():
     assert set(WRITTEN) == {name for name, fmt in FORMATS.items() if not fmt.slow}
     assert {made_by for _, made_by in FILE_KINDS.values()} == set(FORMATS)
     assert FILE_KINDS["json"] == ("json", "npy") and FILE_KINDS["features"] == ("features.npy", "npy")
+
+
+def test_a_served_generation_lists_the_tables_files_and_its_root_track(tmp_path, motion):
+    """The web app's answer: a link per format this machine can make, the npy's companions it
+    wrote (an in-place clip's root track among them), and the formats an uploaded rig takes."""
+    from orchestration.web.generations import Generation, Generations
+
+    motion.save(tmp_path, "motion", ("npy", "bvh", "glb"))
+    served = Generations("tiny", track=False)
+    generation = Generation("g1", tmp_path, motion, "m2d2m", "run", 0, "", None, None)
+    offered = list(served.describe(generation)["files"])
+    for_a_rig = [name for name in ("bvh", "glb", "fbx") if FORMATS[name].lacking() is None]
+    assert offered[: len(for_a_rig)] == for_a_rig  # first, as the page has always listed them
+    assert {"npy", "json", "features", "root_motion", "gif"} <= set(offered)
+    assert served.describe(generation)["files"]["root_motion"] == "/api/generations/g1/motion.root_motion.npy"
+    assert served.describe(generation)["on_rig"] == ["bvh", "glb", "fbx"]
+    (tmp_path / "motion.root_motion.npy").unlink()  # a clip that keeps its path has no track to offer
+    assert "root_motion" not in served.describe(generation)["files"]
