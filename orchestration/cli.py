@@ -340,7 +340,7 @@ def _delivery_notes(files: dict[str, Path], motion: Any, delivery: Any) -> None:
         written = [FORMATS[kind] for kind in files]
         # a file on a rig has no such track: its root is the rig's own
         kept = [fmt.root_motion for fmt in written if fmt.root_motion and not (fmt.on_rig and delivery.rig)]
-        lacking = spoken([fmt.title for fmt in FORMATS.values() if not fmt.root_motion], "and")
+        lacking = spoken([fmt for fmt in FORMATS.values() if not fmt.root_motion], "and")
         where = f"kept in {' and '.join(kept)}" if kept else f"not kept: {lacking} have no place for it"
         print(f"root motion: taken out of the clip (in place); {where}")
     if motion.loop:
@@ -1095,13 +1095,10 @@ def _add_serve(verbs) -> None:
 
 
 def _add_viewers(verbs) -> None:
-    render = verbs.add_parser(
-        "render", help=f"draw a motion as a stick-figure {spoken(fmt.title for fmt in animations())}"
-    )
+    render = verbs.add_parser("render", help=f"draw a motion as a stick-figure {spoken(animations())}")
     export = verbs.add_parser(
         "export",
-        help=f"write a motion as {spoken(fmt.title for fmt in exported())} "
-        f"({spoken(fmt.title for fmt in on_rig())} on your rig with --rig)",
+        help=f"write a motion as {spoken(exported())} ({spoken(on_rig())} on your rig with --rig)",
     )
     for parser, run in ((render, _render), (export, _export)):
         parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
@@ -1172,7 +1169,7 @@ def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> No
         choices=ROOT_MODES,
         default=ROOT_MODES[0],
         help="keep the root's path, take it out (in-place: the "
-        f"{spoken((fmt.title for fmt in FORMATS.values() if fmt.root_motion), 'and')} keep it as a track), "
+        f"{spoken([fmt for fmt in FORMATS.values() if fmt.root_motion], 'and')} keep it as a track), "
         "or ground the clip",
     )
     group.add_argument("--loop", action="store_true", help="one seamless cycle: the end blended into the start")
@@ -1196,14 +1193,14 @@ def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> No
         "--rest",
         choices=REST_POSES,
         default=REST_POSES[0],
-        help=f"the bind pose of the {spoken((fmt.title for fmt in on_rig()), 'and')}: skeleton (HumanML3D's: "
+        help=f"the bind pose of the {spoken(on_rig(), 'and')}: skeleton (HumanML3D's: "
         "arms down, head bone forward; default) or "
         "tpose (arms out, head up: what retargeting tools expect); the motion is the same",
     )
     group.add_argument(
         "--rig",
         metavar="FILE",
-        help=f"write the {spoken((fmt.title for fmt in on_rig()), 'and')} on this rig: a BVH (its hierarchy and "
+        help=f"write the {spoken(on_rig(), 'and')} on this rig: a BVH (its hierarchy and "
         "OFFSETs) or a skinned GLB "
         "(whose GLB and FBX are the character itself, animated)",
     )

@@ -119,7 +119,7 @@ def plan_output(
     chosen = chosen or DEFAULT_FORMATS
     if delivery.rig is not None and not any(FORMATS[kind].on_rig for kind in chosen):
         raise UserError(
-            f"--rig goes with a {spoken(fmt.title for fmt in on_rig())}, the formats written on a rig: add one "
+            f"--rig goes with a {spoken(on_rig())}, the formats written on a rig: add one "
             f"to --formats, or --out {spoken(f'x.{fmt.suffix}' for fmt in on_rig())}"
         )
     for kind in chosen:

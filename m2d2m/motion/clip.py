@@ -17,6 +17,7 @@ from m2d2m.layout import relative_to_project
 from m2d2m.motion.delivery import Delivery, deliver
 from m2d2m.motion.feet import KeptFrames
 from m2d2m.motion.formats import DEFAULT_FORMATS, Writing, formats_named, on_rig, spoken
+from m2d2m.motion.pose import REST_POSES
 from m2d2m.motion.retime import loop_features
 from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
@@ -184,8 +185,8 @@ class Motion:
         """The file of format ``kind`` (one written on a rig) of this motion on ``target``'s rig, at ``path``."""
         (fmt,) = formats_named([kind])
         if not fmt.on_rig:
-            raise ValueError(f"a rig goes with the {spoken(fmt.title for fmt in on_rig())}, not {kind}")
-        return fmt.write(self, path, Writing(target=target))
+            raise ValueError(f"a rig goes with the {spoken(on_rig())}, not {kind}")
+        return fmt.write(self, path, Writing(REST_POSES[0], target))  # a rig's bind pose is its own
 
     def keyed(self) -> tuple[np.ndarray, np.ndarray | None, bool]:
         """The joints and root track a GLB and an FBX key, and whether they end on a closing key:

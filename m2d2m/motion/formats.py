@@ -7,7 +7,7 @@ entry in :data:`FORMATS` (as Pillow's ``register_save`` and trimesh's exporter t
 Every format states its frame rate (BVH's Frame Time, glTF's key times, the sidecar's ``fps``, the
 animations' frame durations). Each writer imports its library where it writes: a machine that
 only trains (bench/gpu.py's GPU box) has no pygltflib or Matplotlib, and reading this table (as
-the command line does to list its choices) must need neither them nor torch.
+the command line does to list its choices, before it imports anything else) needs not even NumPy.
 """
 
 from __future__ import annotations
@@ -16,11 +16,6 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
-
-import numpy as np
-
-from m2d2m.atomic import atomic_path
-from m2d2m.motion.pose import REST_POSES
 
 if TYPE_CHECKING:
     from m2d2m.motion.clip import Motion
@@ -34,7 +29,7 @@ class Writing:
     write on (read once for every format written on it; None: our skeleton), and an animation's
     frame ``size`` and ``progress(t)`` per frame drawn."""
 
-    rest_pose: str = REST_POSES[0]
+    rest_pose: str
     target: Target | None = None
     size: int = 480
     progress: Callable[[int], None] | None = None
@@ -83,6 +78,9 @@ class Format:
 def _write_npy(motion: Motion, path: Path, writing: Writing) -> Path:
     """The joints, their sidecar, an in-place clip's root track and the model's features (none for
     a motion known only by its joints, as `m2d2m export` reads one)."""
+    import numpy as np
+
+    from m2d2m.atomic import atomic_path
     from m2d2m.motion.export import save_motion_npy
 
     npy = save_motion_npy(
@@ -251,9 +249,9 @@ def suffixes(formats: Iterable[Format]) -> str:
     return ", ".join(f".{fmt.suffix}" for fmt in formats)
 
 
-def spoken(words: Iterable[str], last: str = "or") -> str:
-    """``BVH, GLB or FBX``: formats (their titles, or file names) in a sentence."""
-    words = list(words)
+def spoken(items: Iterable[Format | str], last: str = "or") -> str:
+    """``BVH, GLB or FBX``: formats (by their titles), or any words, in a sentence."""
+    words = [item.title if isinstance(item, Format) else item for item in items]
     return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} {last} {words[-1]}"
 
 

@@ -126,7 +126,7 @@ class Generations:
             raise UserError(f"rest must be one of {', '.join(REST_POSES)}, got {rest_pose!r}")
         kind = FILES[name]
         if rig is not None and not FORMATS[kind].on_rig:
-            raise UserError(f"a rig goes with the {spoken(fmt.title for fmt in on_rig())}, not {name}")
+            raise UserError(f"a rig goes with the {spoken(on_rig())}, not {name}")
         delivery = replace(generation.delivery, rest_pose=rest_pose)
         variant = f"rig-{rig.id}" if rig is not None else rest_pose if kind == "bvh" else REST_POSES[0]
         stem = STEM if variant == REST_POSES[0] else f"{STEM}.{variant}"
