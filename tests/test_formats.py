@@ -90,7 +90,7 @@ def write_csv(motion: Motion, path: Path, writing: Writing) -> Path:
     return path
 
 
-CSV = Format("csv", "CSV", "joints as comma-separated rows", write_csv)
+CSV = Format("csv", "CSV", write_csv)
 
 
 def test_a_format_added_to_the_table_is_written_and_offered_everywhere(tmp_path, monkeypatch, capsys, motion):
@@ -190,3 +190,32 @@ def test_a_served_generation_lists_the_tables_files_and_its_root_track(tmp_path,
     assert served.describe(generation)["on_rig"] == ["bvh", "glb", "fbx"]
     (tmp_path / "motion.root_motion.npy").unlink()  # a clip that keeps its path has no track to offer
     assert "root_motion" not in served.describe(generation)["files"]
+
+
+def test_a_served_glb_comes_on_the_bind_pose_asked_as_the_bvh_does(tmp_path, motion):
+    """`?rest=tpose` gives each format a rig takes on a T-pose; before, a GLB's was dropped (the
+    skeleton's GLB came back) and an FBX's was kept under the plain name, served to later plain asks."""
+    from orchestration.web.generations import Generation, Generations
+
+    served = Generations("tiny", track=False)
+    motion.save(tmp_path, "motion", ("npy", "bvh", "glb"))
+    # nothing here samples: the generation is put in by hand, as record() would after sampling
+    served._kept["g1"] = Generation("g1", tmp_path, motion, "m2d2m", "run", 0, "", None, None)
+    plain, tpose = served.file("g1", "motion.glb"), served.file("g1", "motion.glb", rest_pose="tpose")
+    assert (plain.name, tpose.name) == ("motion.glb", "motion.tpose.glb")
+    assert plain.read_bytes() != tpose.read_bytes()
+    assert served.file("g1", "motion.glb") == plain and served.file("g1", "motion.gif", "tpose").name == "motion.gif"
+
+
+@pytest.mark.slow
+def test_the_command_line_reads_the_table_without_numpy_or_a_writers_library():
+    """The command line builds its choices from the table before it imports anything: reading it
+    must cost no NumPy, torch, Matplotlib or pygltflib (a fresh interpreter, so nothing is loaded)."""
+    import subprocess
+    import sys
+
+    heavy = ("numpy", "torch", "matplotlib", "pygltflib")
+    script = f"import sys, orchestration.cli; print([m for m in {heavy!r} if m in sys.modules])"
+    root = Path(__file__).resolve().parents[1]
+    result = subprocess.run([sys.executable, "-c", script], cwd=root, capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "[]"

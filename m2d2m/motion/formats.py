@@ -41,8 +41,8 @@ DEFAULT_FORMATS = ("npy", "bvh", "gif")  # what a generation writes unless asked
 
 @dataclass(frozen=True)
 class Format:
-    """One kind of file. ``title``: its name in sentences; ``name``: what it is, for help and docs;
-    ``write(motion, path, writing)``: the writer, returning the path written. What it can carry:
+    """One kind of file (docs/generation.md, "Output formats", says what each is). ``title``: its
+    name in sentences; ``write(motion, path, writing)``: the writer, returning the path written. What it can carry:
     ``on_rig``: written on a user's rig when one is given (the rest keep our skeleton);
     ``root_motion``: where it keeps an in-place clip's root track (None: it has no place for it;
     none on a rig, whose root is the rig's own); ``actions``: each action's text and frames;
@@ -54,7 +54,6 @@ class Format:
 
     suffix: str
     title: str
-    name: str
     write: Writer
     on_rig: bool = False
     root_motion: str | None = None
@@ -181,18 +180,16 @@ FORMATS: dict[str, Format] = {
         Format(
             "npy",
             "NPY",
-            "joints (T, J, 3) float32 with a JSON sidecar of every convention, and the model's features",
             _write_npy,
             root_motion="root_motion.npy beside the npy",
             actions=True,
             loop=True,
             companions={"json": "json", "features": "features.npy", "root_motion": "root_motion.npy"},
         ),
-        Format("bvh", "BVH", "skeleton and rotations for animation software", _write_bvh, on_rig=True),
+        Format("bvh", "BVH", _write_bvh, on_rig=True),
         Format(
             "glb",
             "GLB",
-            "glTF 2.0 binary: a skinned skeleton, an animation per action",
             _write_glb,
             on_rig=True,
             root_motion="the GLB's 'root motion' animation",
@@ -202,7 +199,6 @@ FORMATS: dict[str, Format] = {
         Format(
             "fbx",
             "FBX",
-            "Blender's FBX of the GLB, a take per action",
             _write_fbx,
             on_rig=True,
             actions=True,
@@ -213,7 +209,6 @@ FORMATS: dict[str, Format] = {
         Format(
             "gif",
             "GIF",
-            "stick-figure animation, the actions' text over their frames",
             _draw,
             actions=True,
             animation=True,
@@ -222,7 +217,6 @@ FORMATS: dict[str, Format] = {
         Format(
             "mp4",
             "MP4",
-            "stick-figure H.264 video, the actions' text over their frames",
             _draw,
             actions=True,
             animation=True,

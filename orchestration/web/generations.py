@@ -116,9 +116,10 @@ class Generations:
     def file(
         self, generation_id: str, name: str, rest_pose: str = REST_POSES[0], rig: UploadedRig | None = None
     ) -> Path:
-        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, a BVH on
-        another bind pose (``rest_pose``) or a BVH, GLB or FBX on an uploaded ``rig`` (read once, when it was
-        uploaded), is made on first request (a blocking call) and logged to the generation's MLflow run."""
+        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, a file of
+        a format a rig takes (BVH, GLB, FBX) on another bind pose (``rest_pose``) or on an uploaded
+        ``rig`` (read once, when it was uploaded), is made on first request (a blocking call) and
+        logged to the generation's MLflow run."""
         generation = self.get(generation_id)
         if name not in FILES:
             raise NotFound(f"no file {name!r}; a generation has {', '.join(FILES)}")
@@ -128,7 +129,8 @@ class Generations:
         if rig is not None and not FORMATS[kind].on_rig:
             raise UserError(f"a rig goes with the {spoken(on_rig())}, not {name}")
         delivery = replace(generation.delivery, rest_pose=rest_pose)
-        variant = f"rig-{rig.id}" if rig is not None else rest_pose if kind == "bvh" else REST_POSES[0]
+        # a skeleton's file (one a rig takes) is on the bind pose asked; the others have none
+        variant = f"rig-{rig.id}" if rig is not None else rest_pose if FORMATS[kind].on_rig else REST_POSES[0]
         stem = STEM if variant == REST_POSES[0] else f"{STEM}.{variant}"
         path = generation.directory / (name if stem == STEM else f"{stem}.{kind}")
         if kind not in WRITTEN or stem != STEM:  # not written with the motion: made on first request
