@@ -19,6 +19,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any, NoReturn, get_args, get_origin, get_type_hints
 
+from m2d2m.motion.formats import DEFAULT_FORMATS, FORMATS, animations, exported, on_rig, spoken, suffixes
 from orchestration.errors import NotInProject, UserError
 from orchestration.project import is_project, outside_project, require_project
 from orchestration.registry import DEFAULT_MODEL, methods_of_models, models
@@ -199,8 +200,10 @@ def _render(args: argparse.Namespace) -> None:
     from orchestration.viewing import load_motion
 
     out = Path(args.out)
-    if out.suffix.lower() not in (".gif", ".mp4"):
-        raise UserError(f"{out}: the animation format comes from the suffix; use .gif or .mp4")
+    if out.suffix.lower().lstrip(".") not in {fmt.suffix for fmt in animations()}:
+        raise UserError(
+            f"{out}: the animation format comes from the suffix; use {spoken(f'.{fmt.suffix}' for fmt in animations())}"
+        )
     if out.exists() and not args.overwrite:
         raise UserError(f"{out} exists; give another name, or --overwrite to replace it")
     motion = load_motion(args.source, args.id, args.skeleton)
@@ -227,8 +230,8 @@ def _export(args: argparse.Namespace) -> None:
     from orchestration.viewing import load_motion
 
     out = Path(args.out)
-    if out.suffix.lower() not in EXPORTED:
-        raise UserError(f"{out}: export writes {', '.join(EXPORTED)} (the suffix is the format)")
+    if out.suffix.lower().lstrip(".") not in {fmt.suffix for fmt in exported()}:
+        raise UserError(f"{out}: export writes {suffixes(exported())} (the suffix is the format)")
     output = plan_output(out, "motion", None, _delivery(args), args.overwrite)
     shown = load_motion(args.source, args.id, args.skeleton)
     fps, said = _source_rate(args.source_fps, shown)
@@ -299,10 +302,6 @@ def _rig(args: argparse.Namespace) -> None:
     print(f"can receive motion: yes ({target.metres_per_unit:g} m a unit; aimed from {posed}{turned})")
 
 
-# What `m2d2m export` writes, by suffix (GIF and MP4 are `m2d2m render`'s).
-EXPORTED = (".npy", ".bvh", ".glb", ".fbx")
-
-
 def _delivery(args: argparse.Namespace) -> Any:
     """The delivery the command line asks for (``--fps``, ``--root``, ``--loop``, ``--foot-fix``
     or ``--no-foot-fix``, ``--rest``, ``--rig``, ``--joint-map``), checked in one line before anything runs."""
@@ -338,14 +337,11 @@ def _delivery_notes(files: dict[str, Path], motion: Any, delivery: Any) -> None:
     if "bvh" in files:
         print(bvh_note(files["bvh"], motion.fps, delivery.rest_pose, delivery.rig))
     if motion.root_track is not None:
-        kept = [
-            place
-            for kind, place in (("glb", "the GLB's 'root motion' animation"), ("npy", "root_motion.npy beside the npy"))
-            if kind in files and not (kind == "glb" and delivery.rig is not None)  # a GLB on a rig has no such track
-        ]
-        where = (
-            f"kept in {' and '.join(kept)}" if kept else "not kept: BVH, FBX and the animations have no place for it"
-        )
+        written = [FORMATS[kind] for kind in files]
+        # a file on a rig has no such track: its root is the rig's own
+        kept = [fmt.root_motion for fmt in written if fmt.root_motion and not (fmt.on_rig and delivery.rig)]
+        lacking = spoken([fmt for fmt in FORMATS.values() if not fmt.root_motion], "and")
+        where = f"kept in {' and '.join(kept)}" if kept else f"not kept: {lacking} have no place for it"
         print(f"root motion: taken out of the clip (in place); {where}")
     if motion.loop:
         print(f"loop: one cycle of {motion.seconds:.2f} s, travelling {motion.quality['loop_travel_m']:.2f} m a cycle")
@@ -860,12 +856,17 @@ def _add_generate(verbs) -> None:
     generate.add_argument("--dataset", default="synthetic", help="whose runs to look in (default synthetic)")
     generate.add_argument(
         "--out",
-        help="a folder, or one file whose suffix (.npy .bvh .glb .fbx .gif .mp4) is its format "
+        help=f"a folder, or one file whose suffix ({suffixes(FORMATS.values())}) is its format "
         "(default: the folder runs/<dataset>/generate/<new run>)",
     )
     generate.add_argument("--name", default="motion", help="file name stem in the --out folder (default motion)")
     _add_overwrite(generate, "--out's folder (every file in it) or file")
-    generate.add_argument("--formats", nargs="+", help="any of npy bvh glb fbx gif mp4 (default npy bvh gif)")
+    generate.add_argument(
+        "--formats",
+        nargs="+",
+        metavar="FORMAT",
+        help=f"any of {' '.join(FORMATS)} (default {' '.join(DEFAULT_FORMATS)}; docs/generation.md, 'Output formats')",
+    )
     generate.add_argument(
         "--variations",
         type=_positive_int,
@@ -1094,10 +1095,10 @@ def _add_serve(verbs) -> None:
 
 
 def _add_viewers(verbs) -> None:
-    render = verbs.add_parser("render", help="draw a motion as a stick-figure GIF or MP4")
+    render = verbs.add_parser("render", help=f"draw a motion as a stick-figure {spoken(animations())}")
     export = verbs.add_parser(
         "export",
-        help="write a motion as BVH (for Blender, game engines), GLB, FBX (on your rig with --rig) or npy + json",
+        help=f"write a motion as {spoken(exported())} ({spoken(on_rig())} on your rig with --rig)",
     )
     for parser, run in ((render, _render), (export, _export)):
         parser.add_argument("source", help="a .npy of joints (T, J, 3) or features (T, D), or a raw corpus directory")
@@ -1167,7 +1168,9 @@ def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> No
         "--root",
         choices=ROOT_MODES,
         default=ROOT_MODES[0],
-        help="keep the root's path, take it out (in-place: the GLB and the npy keep it as a track), or ground the clip",
+        help="keep the root's path, take it out (in-place: the "
+        f"{spoken([fmt for fmt in FORMATS.values() if fmt.root_motion], 'and')} keep it as a track), "
+        "or ground the clip",
     )
     group.add_argument("--loop", action="store_true", help="one seamless cycle: the end blended into the start")
     feet = group.add_mutually_exclusive_group()
@@ -1190,13 +1193,15 @@ def _add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> No
         "--rest",
         choices=REST_POSES,
         default=REST_POSES[0],
-        help="the BVH's and GLB's bind pose: skeleton (HumanML3D's: arms down, head bone forward; default) or "
+        help=f"the bind pose of the {spoken(on_rig(), 'and')}: skeleton (HumanML3D's: "
+        "arms down, head bone forward; default) or "
         "tpose (arms out, head up: what retargeting tools expect); the motion is the same",
     )
     group.add_argument(
         "--rig",
         metavar="FILE",
-        help="write the BVH, GLB and FBX on this rig: a BVH (its hierarchy and OFFSETs) or a skinned GLB "
+        help=f"write the {spoken(on_rig(), 'and')} on this rig: a BVH (its hierarchy and "
+        "OFFSETs) or a skinned GLB "
         "(whose GLB and FBX are the character itself, animated)",
     )
     group.add_argument(

@@ -46,24 +46,23 @@ def read_result(path: str | Path, generator: MotionGenerator) -> Timeline:
     if features_file.is_file():  # the model's own, written by its generation
         features = load_features(features_file, generator.skeleton, given=False)
     else:
-        features = load_features(path, generator.skeleton, fps=None if sidecar is None else float(sidecar["fps"]))
-    if sidecar is None or not sidecar["segments"]:
+        features = load_features(path, generator.skeleton, fps=None if sidecar is None else sidecar.fps)
+    if sidecar is None or not sidecar.segments:
         return _fitted(Timeline(features, [""], [0]), generator.frame_step, str(path))
     joints_file = path.with_name(path.name.removesuffix(".features.npy") + ".npy") if is_features else path
     joints = None
-    if joints_file.is_file() and float(sidecar["fps"]) == generator.fps:
+    if joints_file.is_file() and sidecar.fps == generator.fps:
         joints = np.load(joints_file, allow_pickle=False)
-        if "root_motion" in sidecar:  # an in-place clip: its path added back, where the features have it
-            joints = joints + np.load(joints_file.with_name(sidecar["root_motion"]), allow_pickle=False)[:, None]
-    segments = sidecar["segments"]
+        if sidecar.root_motion is not None:  # an in-place clip: its path added back, where the features have it
+            joints = joints + np.load(joints_file.with_name(sidecar.root_motion), allow_pickle=False)[:, None]
     return _timeline(
         features,
-        [str(s["text"]) for s in segments],
-        [s["start_frame"] for s in segments],
+        [text for _, _, text in sidecar.segments],
+        [first for first, _, _ in sidecar.segments],
         generator,
-        float(sidecar["fps"]),
+        sidecar.fps,
         str(path),
-        bool(sidecar.get("loop", False)),
+        sidecar.loop,
         joints,
     )
 

@@ -33,11 +33,10 @@ import torch
 from m2d2m.atomic import atomic_files, atomic_folder
 from m2d2m.generators.protocol import MotionGenerator, keep_part, keep_spans
 from m2d2m.layout import NLP, recorded_path
-from m2d2m.motion.blender import find_blender
 from m2d2m.motion.body_parts import PARTS
-from m2d2m.motion.clip import ANIMATIONS, FORMATS, RIG_FORMATS, Motion, file_names
+from m2d2m.motion.clip import Motion
 from m2d2m.motion.delivery import Delivery
-from m2d2m.motion.render import can_write_mp4
+from m2d2m.motion.formats import DEFAULT_FORMATS, FORMATS, formats_named, on_rig, spoken, suffixes
 from m2d2m.progress import progress
 from orchestration.errors import UserError
 from orchestration.registry import DEFAULT_MODEL, model, models
@@ -45,7 +44,6 @@ from orchestration.runs import new_run_dir, run_file, write_run_info
 from orchestration.tracking import experiment_name, tracked_run, unreachable
 
 GENERATE_STAGE = "generate"
-DEFAULT_FORMATS = ("npy", "bvh", "gif")
 # a suffix that names a kind of file (.fbx, .glb, .json), not a folder name like "v1.2": --out with
 # one that is not a format is refused rather than made into a folder of that name
 FILE_SUFFIX = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}")
@@ -88,11 +86,10 @@ def plan_output(
     """
     chosen = tuple(dict.fromkeys(formats or ()))
     one_file = False
-    unknown = [f for f in chosen if f not in FORMATS]
-    if unknown:
-        raise UserError(
-            f"unknown format{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}: choose from {', '.join(FORMATS)}"
-        )
+    try:
+        formats_named(chosen)
+    except ValueError as error:
+        raise UserError(str(error)) from error
     directory = None if out is None else Path(out)
     if directory is not None and directory.suffix.lower().lstrip(".") in FORMATS:
         suffix = directory.suffix.lower().lstrip(".")
@@ -110,31 +107,25 @@ def plan_output(
     elif directory is not None and directory.exists() and not directory.is_dir():
         raise UserError(
             f"--out {out} is an existing file, not a folder; give a folder, or a file name "
-            f"ending in .{', .'.join(FORMATS)}"
+            f"ending in {suffixes(FORMATS.values())}"
         )
     elif directory is not None and not directory.exists() and FILE_SUFFIX.fullmatch(directory.suffix):
         raise UserError(
             f"--out {out} names a .{directory.suffix[1:]} file, a format m2d2m does not write "
-            f"(.{', .'.join(FORMATS)}); for a folder of that name, make it first"
+            f"({suffixes(FORMATS.values())}); for a folder of that name, make it first"
         )
     if not name or Path(name).name != name:
         raise UserError(f"--name must be a plain file name, got {name!r}")
     chosen = chosen or DEFAULT_FORMATS
-    if "mp4" in chosen and not can_write_mp4():
+    if delivery.rig is not None and not any(FORMATS[kind].on_rig for kind in chosen):
         raise UserError(
-            "mp4 needs ffmpeg, and none is here (on PATH or from imageio-ffmpeg): "
-            "pip install imageio-ffmpeg, or choose gif"
+            f"--rig goes with a {spoken(on_rig())}, the formats written on a rig: add one "
+            f"to --formats, or --out {spoken(f'x.{fmt.suffix}' for fmt in on_rig())}"
         )
-    if delivery.rig is not None and not set(chosen) & set(RIG_FORMATS):
-        raise UserError(
-            "--rig goes with a BVH, GLB or FBX, the formats written on a rig: add one to --formats, "
-            "or --out x.bvh, x.glb or x.fbx"
-        )
-    if "fbx" in chosen:
-        try:
-            find_blender()
-        except FileNotFoundError as error:
-            raise UserError(str(error)) from error
+    for kind in chosen:
+        lacking = FORMATS[kind].lacking()
+        if lacking is not None:
+            raise UserError(lacking)
     output = Output(directory, name, chosen, delivery, overwrite, one_file)
     check_free(output)
     return output
@@ -150,7 +141,9 @@ def check_free(output: Output) -> None:
     if directory is None:
         return
     if output.one_file:
-        taken = [n for kind in output.formats for n in file_names(output.name, kind) if (directory / n).exists()]
+        taken = [
+            n for kind in output.formats for n in FORMATS[kind].file_names(output.name) if (directory / n).exists()
+        ]
         if taken and not output.overwrite:
             raise UserError(f"{directory / taken[0]} exists; give another name, or --overwrite to replace it")
         return
@@ -202,7 +195,7 @@ def staged(planned: Sequence[tuple[int, Output]]) -> Iterator[list[tuple[int, Ou
         yield list(planned)
         return
     if output.one_file:
-        owned = [name for _, each in planned for kind in each.formats for name in file_names(each.name, kind)]
+        owned = [name for _, each in planned for kind in each.formats for name in FORMATS[kind].file_names(each.name)]
         writing = atomic_files(output.directory, output.name, owned)
     else:
         writing = atomic_folder(output.directory)
@@ -582,7 +575,7 @@ def save_generation(
             actions=motion.actions,
             settings=motion.settings,
         )
-    frames = len(motion.joints) * sum(kind in ANIMATIONS for kind in output.formats)
+    frames = len(motion.joints) * sum(FORMATS[kind].animation for kind in output.formats)
     try:
         with (
             _sigterm_as_interrupt(),
@@ -649,9 +642,9 @@ def log_generation(motion: Motion, prompts: Sequence[str], files: dict[str, Path
     with tracked_run(experiment_name(dataset, GENERATE_STAGE), tags=tags, params=params) as (client, run_id):
         for name, value in motion.quality.items():
             client.log_metric(run_id, name, value)
-        for path in files.values():
-            client.log_artifact(run_id, str(path), artifact_path="motion")
-        features = files.get("npy")
-        if features is not None and features.with_suffix(".json").exists():
-            client.log_artifact(run_id, str(features.with_suffix(".json")), artifact_path="motion")
+        for kind, path in files.items():  # each file with those its format wrote beside it (the npy's sidecar, ...)
+            stem = path.name.removesuffix(f".{kind}")
+            for name in FORMATS[kind].file_names(stem):
+                if (path.parent / name).is_file():
+                    client.log_artifact(run_id, str(path.parent / name), artifact_path="motion")
     return run_id

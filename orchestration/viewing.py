@@ -13,6 +13,7 @@ import numpy as np
 
 from m2d2m.motion.representation import features_to_joints, joints_to_features
 from m2d2m.motion.retime import check_fps, resample
+from m2d2m.motion.sidecar import Sidecar, SidecarError, sidecar_path
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 from orchestration.errors import UserError
 
@@ -174,21 +175,13 @@ def _segments_of(corpus: Path, clip_id: str) -> list[tuple[int, int, str]]:
     return []
 
 
-def read_sidecar(npy: Path) -> dict | None:
-    """The JSON sidecar that :func:`m2d2m.motion.export.save_motion_npy` wrote beside ``npy``
-    (``motion.json`` for ``motion.npy`` and ``motion.features.npy`` alike; none: a file without
-    one), its fields checked; one line when it is not one."""
-    sidecar = npy.with_name(npy.name.removesuffix(".npy").removesuffix(".features") + ".json")
-    if not sidecar.is_file():
-        return None
+def read_sidecar(npy: Path) -> Sidecar | None:
+    """The sidecar beside ``npy`` (:mod:`m2d2m.motion.sidecar`; none: a file without one); one line
+    when it is not one."""
     try:
-        record = json.loads(sidecar.read_text(encoding="utf-8"))
-        # each field as its readers take it, so that a broken one is this line and not theirs
-        int(record["num_frames"]), float(record["fps"]), str(record["skeleton"])
-        [(int(s["start_frame"]), int(s["end_frame"]), str(s["text"])) for s in record["segments"]]
-    except (ValueError, KeyError, TypeError) as error:
-        raise UserError(f"{sidecar}: not the sidecar m2d2m writes beside a .npy ({error}); fix or move it") from error
-    return record
+        return Sidecar.read(npy)
+    except SidecarError as error:
+        raise UserError(str(error)) from error
 
 
 def _from_npy(path: Path, skeleton: str | None) -> LoadedMotion:
@@ -197,26 +190,25 @@ def _from_npy(path: Path, skeleton: str | None) -> LoadedMotion:
     taken out, put back so that the clip is what was generated."""
     array = _load_npy(path, str(path))
     sidecar = read_sidecar(path) if array.ndim == 3 else None
-    if sidecar is not None and int(sidecar["num_frames"]) != len(array):
+    if sidecar is not None and sidecar.num_frames != len(array):
         raise UserError(
-            f"{path.with_suffix('.json')}: states {sidecar['num_frames']} frames, {path.name} has {len(array)}; "
+            f"{sidecar_path(path)}: states {sidecar.num_frames} frames, {path.name} has {len(array)}; "
             "it belongs to another file"
         )
-    name = skeleton or (sidecar or {}).get("skeleton", "t2m")
+    name = skeleton or (sidecar.skeleton if sidecar is not None else "t2m")
     if name not in SKELETONS:
         raise UserError(f"unknown skeleton {name!r}; choose one of {', '.join(SKELETONS)}")
     skel = SKELETONS[name]
     joints = _as_joints(array, skel, str(path))
     if sidecar is None:
         return LoadedMotion(joints, skel, [], None)
-    if "root_motion" in sidecar:
-        track_file = path.parent / sidecar["root_motion"]
+    if sidecar.root_motion is not None:
+        track_file = path.parent / sidecar.root_motion
         track = _load_npy(track_file, str(track_file))
         if track.shape != (len(joints), 3):
-            raise UserError(f"{path.parent / sidecar['root_motion']}: shape {track.shape}, expected ({len(joints)}, 3)")
+            raise UserError(f"{track_file}: shape {track.shape}, expected ({len(joints)}, 3)")
         joints = joints + track[:, None, :].astype(np.float32)
-    segments = [(int(s["start_frame"]), int(s["end_frame"]), str(s["text"])) for s in sidecar["segments"]]
-    return LoadedMotion(joints, skel, segments, None, float(sidecar["fps"]), bool(sidecar.get("loop", False)))
+    return LoadedMotion(joints, skel, list(sidecar.segments), None, sidecar.fps, sidecar.loop)
 
 
 def load_motion(source: str | Path, clip_id: str | None = None, skeleton: str | None = None) -> LoadedMotion:

@@ -1,6 +1,6 @@
 """A generated motion: features, joints, frame rate and the frames each action occupies, with the
-files an animator wants from it (joints ``.npy`` with a JSON sidecar, BVH, glTF, FBX, GIF or MP4),
-delivered as asked (:mod:`m2d2m.motion.delivery`)."""
+files an animator wants from it (:mod:`m2d2m.motion.formats`), delivered as asked
+(:mod:`m2d2m.motion.delivery`)."""
 
 from __future__ import annotations
 
@@ -15,28 +15,17 @@ import numpy as np
 from m2d2m.atomic import atomic_path
 from m2d2m.layout import relative_to_project
 from m2d2m.motion.delivery import Delivery, deliver
-from m2d2m.motion.export import save_bvh, save_motion_npy
 from m2d2m.motion.feet import KeptFrames
+from m2d2m.motion.formats import DEFAULT_FORMATS, Writing, formats_named, on_rig, spoken
+from m2d2m.motion.pose import REST_POSES
 from m2d2m.motion.retime import loop_features
 from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
 from m2d2m.motion.skeleton import SKELETONS, Skeleton
 
-if TYPE_CHECKING:  # the writers of GLB, FBX, GIF and rigs are imported where they write: a
-    # machine that only trains (bench/gpu.py's GPU box) has no pygltflib or Matplotlib
+if TYPE_CHECKING:
     from m2d2m.motion.retarget import Target
 
-FORMATS = ("npy", "bvh", "glb", "fbx", "gif", "mp4")
-RIG_FORMATS = ("bvh", "glb", "fbx")  # the formats written on a rig (docs/generation.md, "On your own rig")
-ANIMATIONS = ("gif", "mp4")
 UNNAMED_ACTION = "transition"  # the name of an action sampled without text (Motion.segments)
-
-
-def file_names(name: str, kind: str) -> tuple[str, ...]:
-    """Every file :meth:`Motion.save` may write for format ``kind`` under the stem ``name``: a
-    ``.npy`` brings its JSON sidecar, the model's features and an in-place clip's root track."""
-    if kind == "npy":
-        return (f"{name}.npy", f"{name}.json", f"{name}.features.npy", f"{name}.root_motion.npy")
-    return (f"{name}.{kind}",)
 
 
 @dataclass
@@ -164,78 +153,42 @@ class Motion:
         self,
         directory: str | Path,
         name: str = "motion",
-        formats: tuple[str, ...] = ("npy", "bvh", "gif"),
+        formats: tuple[str, ...] = DEFAULT_FORMATS,
         size: int = 480,
         progress: Callable[[int], None] | None = None,
         delivery: Delivery = Delivery(),
     ) -> dict[str, Path]:
-        """Write ``<name>.<format>`` for each format into ``directory``, each file whole or not at
-        all; returns format → path. The GIF/MP4 shows each action's text over its frames;
-        ``progress(t)`` is called after each frame of an animation is drawn. The joints are
-        written as they are (:meth:`delivered` edits them); ``delivery`` says the BVH's and GLB's
-        bind pose and the rig the BVH, GLB and FBX go on (read once for all three), and an in-place
-        clip's root track goes into our GLB (its "root motion" animation) and beside the ``.npy``
-        (``<name>.root_motion.npy``)."""
-        unknown = sorted(set(formats) - set(FORMATS))
-        if unknown:
-            raise ValueError(f"unknown formats {unknown}: choose from {', '.join(FORMATS)}")
-        from m2d2m.motion.render import render_motion
-        from m2d2m.motion.retarget import read_target
+        """Write ``<name>.<format>`` for each format of :data:`~m2d2m.motion.formats.FORMATS` into
+        ``directory``, each file whole or not at all; returns format → path. The GIF/MP4 shows each
+        action's text over its frames; ``progress(t)`` is called after each frame of an animation is
+        drawn. The joints are written as they are (:meth:`delivered` edits them); ``delivery`` says
+        the bind pose of the files on our skeleton and the rig the formats written on a rig go on
+        (read once for all of them), and an in-place clip's root track goes where a format keeps one."""
+        chosen = formats_named(formats)
+        target = None
+        if delivery.rig is not None and any(fmt.on_rig for fmt in chosen):
+            from m2d2m.motion.retarget import read_target
 
+            target = read_target(
+                delivery.rig, delivery.joint_map, skeleton=self.skeleton, rest_frame=delivery.rest_frame
+            )
         directory = Path(directory)
-        on_rig = delivery.rig is not None and any(kind in RIG_FORMATS for kind in formats)
-        target = (
-            read_target(delivery.rig, delivery.joint_map, skeleton=self.skeleton, rest_frame=delivery.rest_frame)
-            if on_rig
-            else None
-        )
-        written: dict[str, Path] = {}
-        for kind in formats:
-            path = directory / f"{name}.{kind}"
-            if kind == "npy":
-                written[kind] = save_motion_npy(
-                    path, self.joints, self.fps, self.skeleton, self.segments, self.quality, self.root_track, self.loop
-                )
-                if self.features.size:  # a motion known only by its joints (m2d2m export) has none
-                    with atomic_path(directory / f"{name}.features.npy") as partial:
-                        np.save(partial, self.features.astype(np.float32))
-            elif kind in RIG_FORMATS and target is not None:
-                written[kind] = self.save_on_rig(path, kind, target)
-            elif kind == "bvh":
-                written[kind] = save_bvh(path, self.joints, self.skeleton, self.fps, rest_pose=delivery.rest_pose)
-            elif kind in ("glb", "fbx"):
-                written[kind] = self._save_gltf(path, kind, delivery.rest_pose)
-            else:
-                written[kind] = render_motion(
-                    self.joints, path, self.skeleton, self.fps, self.segments, size=size, progress=progress
-                )
-        return written
+        writing = Writing(delivery.rest_pose, size=size, progress=progress)
+        return {
+            fmt.suffix: fmt.write(
+                self, directory / f"{name}.{fmt.suffix}", replace(writing, target=target if fmt.on_rig else None)
+            )
+            for fmt in chosen
+        }
 
     def save_on_rig(self, path: Path, kind: str, target: Target) -> Path:
-        """The BVH, GLB or FBX (``kind``) of this motion on ``target``'s rig, at ``path``."""
-        from m2d2m.motion.rig_gltf import save_rig_fbx, save_rig_glb
+        """The file of format ``kind`` (one written on a rig) of this motion on ``target``'s rig, at ``path``."""
+        (fmt,) = formats_named([kind])
+        if not fmt.on_rig:
+            raise ValueError(f"a rig goes with the {spoken(on_rig())}, not {kind}")
+        return fmt.write(self, path, Writing(REST_POSES[0], target))  # a rig's bind pose is its own
 
-        if kind == "bvh":
-            return target.write_bvh(path, self.joints, self.fps, self.skeleton)
-        save = save_rig_fbx if kind == "fbx" else save_rig_glb
-        joints, _, closing = self._keyed()
-        return save(path, target, joints, self.fps, self.segments, self.skeleton, closing_key=closing)
-
-    def _save_gltf(self, path: Path, kind: str, rest_pose: str) -> Path:
-        """A GLB (with the root track, if any, as its own animation over the clip's path) or FBX."""
-        from m2d2m.motion.gltf import save_fbx, save_glb
-
-        joints, track, closing = self._keyed()
-        if kind == "fbx":
-            return save_fbx(path, joints, self.skeleton, self.fps, self.segments, rest_pose, closing_key=closing)
-        if track is None:
-            return save_glb(path, joints, self.skeleton, self.fps, self.segments, rest_pose, closing_key=closing)
-        path_kept = joints + track[:, None]
-        return save_glb(
-            path, path_kept, self.skeleton, self.fps, self.segments, rest_pose, joints[:, 0], closing_key=closing
-        )
-
-    def _keyed(self) -> tuple[np.ndarray, np.ndarray | None, bool]:
+    def keyed(self) -> tuple[np.ndarray, np.ndarray | None, bool]:
         """The joints and root track a GLB and an FBX key, and whether they end on a closing key:
         a loop's end with its first frame again, moved on by a cycle's travel (an in-place clip's
         root track travels, its joints stay), so that an engine looping the animation plays the

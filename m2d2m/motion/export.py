@@ -5,7 +5,6 @@ rotations are the rig's animation of the positions (:mod:`m2d2m.motion.pose`).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TextIO
@@ -16,10 +15,10 @@ from m2d2m.atomic import atomic_path
 from m2d2m.motion.pose import pose_of
 from m2d2m.motion.rigid import children
 from m2d2m.motion.rotations import matrix_to_euler
+from m2d2m.motion.sidecar import Sidecar
 from m2d2m.motion.skeleton import T2M, Skeleton
 
 EULER_ORDER = "ZYX"  # BVH channels Zrotation Yrotation Xrotation: R = Rz · Ry · Rx
-_UNITS = {"t2m": "metre", "kit": "KIT-ML units (about 640 per metre)"}
 
 
 def save_bvh(
@@ -101,12 +100,11 @@ def save_motion_npy(
     root_track: np.ndarray | None = None,
     loop: bool = False,
 ) -> Path:
-    """Write ``<name>.npy`` (float32, T × J × 3) and a ``<name>.json`` sidecar beside it stating
-    joint names and order, units, axes, fps, the ``(start, end, text)`` segments (``end``
-    exclusive) and, when given, ``quality`` figures of how the joints were made, the root
-    motion an in-place clip took out (``<name>.root_motion.npy``, T × 3: add it to every joint
-    for the clip's own path) and ``"loop": true`` for one cycle of a loop (its last frame runs on
-    into its first); return the ``.npy`` path."""
+    """Write ``<name>.npy`` (float32, T × J × 3) and its :class:`~m2d2m.motion.sidecar.Sidecar`
+    ``<name>.json`` beside it stating the ``(start, end, text)`` segments (``end`` exclusive),
+    ``quality`` figures of how the joints were made, the root motion an in-place clip took out
+    (``<name>.root_motion.npy``, T × 3) and whether it is one cycle of a loop (its last frame runs
+    on into its first); return the ``.npy`` path."""
     joints = skeleton.check_joints(joints).astype(np.float32)
     fps = float(skeleton.fps if fps is None else fps)
     n_frames = len(joints)
@@ -121,26 +119,17 @@ def save_motion_npy(
     if track is not None:
         with atomic_path(track) as partial:
             np.save(partial, np.asarray(root_track, dtype=np.float32))
-    sidecar = {
-        "file": npy.name,
-        "shape": list(joints.shape),
-        "dtype": "float32",
-        "skeleton": skeleton.name,
-        "joint_names": list(skeleton.joint_names),
-        "parents": skeleton.parents.tolist(),
-        "units": _UNITS.get(skeleton.name, "unknown"),
-        "axes": {"up": "+Y", "forward": "+Z (facing at frame 0)", "left": "+X"},
-        "fps": fps,
-        "num_frames": n_frames,
-        "duration_s": n_frames / fps,
-        "segments": [{"start_frame": int(s), "end_frame": int(e), "text": str(text)} for s, e, text in segments],
-        "segments_end": "exclusive",
-        **({"quality": dict(quality)} if quality else {}),
-        **({"root_motion": track.name} if track is not None else {}),
-        **({"loop": True} if loop else {}),
-    }
-    with atomic_path(npy.with_suffix(".json")) as partial:
-        partial.write_text(json.dumps(sidecar, indent=2, ensure_ascii=False) + "\n", encoding="utf-8")
+    stated = Sidecar(
+        npy.name,
+        skeleton.name,
+        fps,
+        n_frames,
+        segments,
+        dict(quality or {}),
+        None if track is None else track.name,
+        loop,
+    )
+    stated.write(npy.parent)
     return npy
 
 

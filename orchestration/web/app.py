@@ -33,6 +33,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.delivery import Delivery
+from m2d2m.motion.formats import on_rig, spoken
 from m2d2m.motion.pose import REST_POSES
 from orchestration.editing import finish_edit, motion_of
 from orchestration.errors import UserError
@@ -319,7 +320,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
     @api.get(
         "/generations/{generation_id}/{name}",
         summary=f"A generation's file: {', '.join(FILES)} (an animation is drawn on first request; "
-        f"?rest={REST_POSES[1]} gives the BVH on a T-pose bind pose)",
+        f"?rest={REST_POSES[1]} gives the {spoken(on_rig())} on a T-pose bind pose)",
         response_class=FileResponse,
     )
     async def generation_file(

@@ -9,7 +9,6 @@ generation this server made: no request value becomes a path.
 
 from __future__ import annotations
 
-import shutil
 import threading
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
@@ -19,8 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.motion.clip import RIG_FORMATS, Motion
+from m2d2m.motion.clip import Motion
 from m2d2m.motion.delivery import Delivery
+from m2d2m.motion.formats import FORMATS, on_rig, spoken
 from m2d2m.motion.pose import REST_POSES
 from orchestration.errors import UserError
 from orchestration.generate import GENERATE_STAGE, Output, save_generation
@@ -30,25 +30,16 @@ from orchestration.web.catalog import NotFound
 from orchestration.web.rigs import UploadedRig
 
 STEM = "motion"
-WRITTEN = ("npy", "bvh", "glb")  # with the motion; the rest (ANIMATIONS, FBX) when first asked for
+WRITTEN = tuple(kind for kind, fmt in FORMATS.items() if not fmt.slow)  # with the motion; the rest when first asked for
 # a generation's files: the key of each in the API's answer → its suffix and the format that makes
-# it (the sidecar and the features come with npy)
+# it (a format's companions, such as the npy's sidecar, come with it). Listed as a person takes them:
+# the files for a rig and an engine, then the data, then the drawings
 FILE_KINDS = {
-    "bvh": ("bvh", "bvh"),
-    "glb": ("glb", "glb"),
-    "fbx": ("fbx", "fbx"),
-    "npy": ("npy", "npy"),
-    "json": ("json", "npy"),
-    "features": ("features.npy", "npy"),
-    "gif": ("gif", "gif"),
-    "mp4": ("mp4", "mp4"),
+    key: (suffix, fmt.suffix)
+    for fmt in sorted(FORMATS.values(), key=lambda fmt: (not fmt.on_rig, fmt.animation))
+    for key, suffix in {fmt.suffix: fmt.suffix, **fmt.companions}.items()
 }
 FILES = {f"{STEM}.{suffix}": made_by for suffix, made_by in FILE_KINDS.values()}  # the names served
-
-
-def _makeable(kind: str) -> bool:
-    """Whether this machine can make a file of ``kind``: FBX needs Blender (m2d2m.motion.gltf)."""
-    return kind != "fbx" or shutil.which("blender") is not None
 
 
 @dataclass
@@ -125,19 +116,21 @@ class Generations:
     def file(
         self, generation_id: str, name: str, rest_pose: str = REST_POSES[0], rig: UploadedRig | None = None
     ) -> Path:
-        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, a BVH on
-        another bind pose (``rest_pose``) or a BVH, GLB or FBX on an uploaded ``rig`` (read once, when it was
-        uploaded), is made on first request (a blocking call) and logged to the generation's MLflow run."""
+        """The path of file ``name`` (one of :data:`FILES`) of a generation; an animation, a file of
+        a format a rig takes (BVH, GLB, FBX) on another bind pose (``rest_pose``) or on an uploaded
+        ``rig`` (read once, when it was uploaded), is made on first request (a blocking call) and
+        logged to the generation's MLflow run."""
         generation = self.get(generation_id)
         if name not in FILES:
             raise NotFound(f"no file {name!r}; a generation has {', '.join(FILES)}")
         if rest_pose not in REST_POSES:
             raise UserError(f"rest must be one of {', '.join(REST_POSES)}, got {rest_pose!r}")
         kind = FILES[name]
-        if rig is not None and kind not in RIG_FORMATS:
-            raise UserError(f"a rig goes with the BVH, GLB or FBX, not {name}")
+        if rig is not None and not FORMATS[kind].on_rig:
+            raise UserError(f"a rig goes with the {spoken(on_rig())}, not {name}")
         delivery = replace(generation.delivery, rest_pose=rest_pose)
-        variant = f"rig-{rig.id}" if rig is not None else rest_pose if kind == "bvh" else REST_POSES[0]
+        # a skeleton's file (one a rig takes) is on the bind pose asked; the others have none
+        variant = f"rig-{rig.id}" if rig is not None else rest_pose if FORMATS[kind].on_rig else REST_POSES[0]
         stem = STEM if variant == REST_POSES[0] else f"{STEM}.{variant}"
         path = generation.directory / (name if stem == STEM else f"{stem}.{kind}")
         if kind not in WRITTEN or stem != STEM:  # not written with the motion: made on first request
@@ -193,7 +186,12 @@ class Generations:
             "boundaries": motion.boundaries,
             "seconds": motion.seconds,
             "quality": motion.quality,
-            "files": {key: f"{url}/{STEM}.{suffix}" for key, (suffix, _) in FILE_KINDS.items() if _makeable(key)},
+            "files": {
+                key: f"{url}/{STEM}.{suffix}"
+                for key, (suffix, made_by) in FILE_KINDS.items()
+                if _offered(generation, suffix, made_by)
+            },
+            "on_rig": [fmt.suffix for fmt in on_rig()],  # the files ?rig=<id> gives on an uploaded rig
             "mlflow": {
                 "run_id": generation.mlflow_run_id,
                 "experiment": experiment_name(self.dataset, GENERATE_STAGE),
@@ -204,6 +202,15 @@ class Generations:
                 ),
             },
         }
+
+
+def _offered(generation: Generation, suffix: str, made_by: str) -> bool:
+    """Whether a generation's answer lists its file of ``suffix``: a format's when this machine can
+    make it (FBX needs Blender, MP4 ffmpeg), a companion (the npy's sidecar, features, an in-place
+    clip's root track) when its format wrote one."""
+    if suffix == made_by:
+        return FORMATS[made_by].lacking() is None
+    return (generation.directory / f"{STEM}.{suffix}").is_file()
 
 
 def _plain(value: Any) -> Any:

@@ -620,9 +620,6 @@ function showNotices(results) {
 
 // ---- results ----------------------------------------------------------------------------
 
-/** The files a result has on an uploaded rig too (the server's motion.<format>?rig=<id>). */
-const RIG_FORMATS = ['bvh', 'glb', 'fbx'];
-
 function downloadLinks(result) {
   const box = document.createElement('div');
   box.className = 'downloads';
@@ -634,7 +631,8 @@ function downloadLinks(result) {
     link.textContent = format.toUpperCase();
     box.append(link);
   }
-  const onRig = RIG_FORMATS.map((format) => $(`a[data-format="${format}"]`, box)).filter(Boolean);
+  // the files a result has on an uploaded rig too (the server's motion.<format>?rig=<id>)
+  const onRig = (result.on_rig || []).map((format) => $(`a[data-format="${format}"]`, box)).filter(Boolean);
   box.append(...onRig.map(rigLink));
   const bvh = $('a[data-format="bvh"]', box);
   if (bvh) box.append(restPoseChoice(bvh), bvhNote(result.fps));
