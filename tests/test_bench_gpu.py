@@ -120,3 +120,27 @@ def test_the_bench_imports_with_only_the_packages_its_docstring_names():
     root = Path(__file__).resolve().parents[1]
     result = subprocess.run([sys.executable, "-c", WITHOUT_THEM], cwd=root, capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr[-2000:]
+
+
+def test_the_command_line_s_steps_per_second_run_from_its_first_progress_line_to_its_last(monkeypatch, tmp_path):
+    """Start-up (imports, data, the first batches) is not in the rate; validations and previews
+    between the lines are: (200 − 20) steps in (40 − 4) s."""
+    from exit_time import Timed
+
+    seen = {}
+
+    def run(command, cwd, env):
+        seen.update(command=command, cwd=cwd)
+        lines = [(1.0, "loading"), (4.0, "training: 20/200 step (10 %)"), (40.0, "training: 200/200 step (100 %)")]
+        return Timed(41.5, 0.5, 0, [*lines, (41.0, "finished runs/x")])
+
+    monkeypatch.setattr(bench.gpu, "timed", run)
+    figure = bench.gpu.measure_cli("mmm", tmp_path, 200, compiled=True)
+    assert figure.steps_per_s == pytest.approx(180 / 36) and figure.total_s == 41.5 and figure.finished_to_exit_s == 0.5
+    assert seen["cwd"] == tmp_path and seen["command"][3:6] == ["train-mmm", "--config", "demo"]
+    assert "--set=trainer.compile=on" in seen["command"] and "--set=trainer.val_every_steps=100" in seen["command"]
+    monkeypatch.setattr(
+        bench.gpu, "timed", lambda command, cwd, env: Timed(3.0, None, 2, [(2.0, "m2d2m: error: no data")])
+    )
+    with pytest.raises(RuntimeError, match="exited 2: m2d2m: error: no data"):
+        bench.gpu.measure_cli("mmm", tmp_path, 200, compiled=False)
