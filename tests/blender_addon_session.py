@@ -15,8 +15,6 @@ from pathlib import Path
 import addon_utils
 import bpy
 
-ZIP, SERVER, OUT, ARMATURE = sys.argv[sys.argv.index("--") + 1 :]
-OUT_DIR = Path(OUT)
 FPS = 24  # not the model's 20: the clip must come at the scene's rate
 
 # A person 1.7 m tall in Blender's axes (Z up, facing -Y), named as Blender's Rigify metarig names
@@ -46,9 +44,9 @@ BUILT = [
 ]
 
 
-def install() -> None:
+def install(addon: str) -> None:
     """The zip installed and enabled as Preferences > Add-ons > Install… does it."""
-    bpy.ops.preferences.addon_install(filepath=ZIP, overwrite=True)
+    bpy.ops.preferences.addon_install(filepath=addon, overwrite=True)
     addon_utils.modules_refresh()
     bpy.ops.preferences.addon_enable(module="m2d2m_blender")
     assert hasattr(bpy.types.Scene, "m2d2m"), "the add-on did not register"
@@ -68,8 +66,9 @@ def built_armature(name: str, bones: list) -> bpy.types.Object:
     return armature
 
 
-def scene_armature() -> bpy.types.Object:
-    if ARMATURE == "built":
+def scene_armature(source: str) -> bpy.types.Object:
+    """The person built here (``built``; it had an action of its own) or the BVH at ``source``."""
+    if source == "built":
         armature = built_armature("Person", BUILT)
         previous = bpy.data.actions.new("hand-made")  # the action the user had: it must stay
         armature.animation_data_create().action = previous
@@ -80,14 +79,15 @@ def scene_armature() -> bpy.types.Object:
     # Blender 3.4's BVH importer opens its file in mode "rU", which Python 3.11 removed (Debian
     # builds it with a newer Python than Blender's own): the same read, without the dropped "U"
     importer.open = lambda path, mode="r", *args, **kwargs: open(path, mode.replace("U", ""), *args, **kwargs)
-    bpy.ops.import_anim.bvh(filepath=ARMATURE, update_scene_fps=False, update_scene_duration=False)
+    bpy.ops.import_anim.bvh(filepath=source, update_scene_fps=False, update_scene_duration=False)
     return next(o for o in bpy.data.objects if o.type == "ARMATURE")
 
 
 def operator(name: str) -> str:
-    """Run ``bpy.ops.m2d2m.<name>``: "" when it finished, else the one line it reported."""
+    """Run ``bpy.ops.m2d2m.<name>`` as a button does (an undo step after it): "" when it
+    finished, else the one line it reported."""
     try:
-        result = getattr(bpy.ops.m2d2m, name)()
+        result = getattr(bpy.ops.m2d2m, name)("EXEC_DEFAULT", True)
     except RuntimeError as error:  # an operator's ERROR report reaches a script as this
         return str(error).strip()
     return "" if result == {"FINISHED"} else f"{name}: {result}"
@@ -121,19 +121,22 @@ def state(armature: bpy.types.Object) -> dict:
 
 
 def main() -> None:
+    addon, server, out, source = sys.argv[sys.argv.index("--") + 1 :]
+    out_dir = Path(out)
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    install()
-    from m2d2m_blender.armature import rig_of
+    install(addon)
+    from m2d2m_blender.armature import record_of, rig_of
     from m2d2m_blender.bvh import rest_bvh
 
     scene = bpy.context.scene
     scene.render.fps, scene.frame_start = FPS, 1
-    armature = scene_armature()
+    armature = scene_armature(source)
     bpy.context.view_layer.objects.active = armature
+    bpy.ops.ed.undo_push(message="the armature")
     rig = rig_of(armature)
-    (OUT_DIR / "rig.bvh").write_text(rest_bvh(rig.bones))
+    (out_dir / "rig.bvh").write_text(rest_bvh(rig.bones))
     settings = scene.m2d2m
-    settings.server = SERVER
+    settings.server = server
     report = {"bone_of": rig.bone_of, "refusals": {}}
     report["refusals"]["refresh"] = operator("refresh")
     settings.model = "m2d2m"
@@ -154,6 +157,15 @@ def main() -> None:
     report["refusals"]["fill"] = operator("fill")
     report["filled"] = state(armature)
 
+    name = armature.name
+    bpy.ops.ed.undo()  # Blender's own undo takes the fill back, markers too
+    armature, scene = bpy.data.objects[name], bpy.context.scene  # undo made them anew
+    settings = scene.m2d2m
+    report["undone"] = {
+        "record": record_of(armature.animation_data.action),
+        "markers": sorted([marker.name, marker.frame] for marker in scene.timeline_markers),
+    }
+
     scene.frame_set(end + 10 * FPS)
     settings.edit_text = ""
     report["refusals"]["fill_without_text"] = operator("fill")
@@ -169,8 +181,12 @@ def main() -> None:
     report["refusals"]["unmappable"] = operator("generate")
     bpy.context.view_layer.objects.active = armature
     settings.server = "http://127.0.0.1:9"  # nothing listens there
+    before = (armature.animation_data.action.name, len(bpy.data.actions), len(scene.timeline_markers))
     report["refusals"]["no_server"] = operator("generate")
-    (OUT_DIR / "session.json").write_text(json.dumps(report))
+    after = (armature.animation_data.action.name, len(bpy.data.actions), len(scene.timeline_markers))
+    report["refused_changes_nothing"] = before == after
+    (out_dir / "session.json").write_text(json.dumps(report))
 
 
-main()
+if __name__ == "__main__":  # as Blender runs a --python script
+    main()

@@ -289,6 +289,10 @@ def test_blender_generates_regenerates_and_fills_on_the_selected_armature(traine
             < 1e-4 * size
         )
 
+        # Blender's undo takes the fill back: the clip and its markers as they were before it
+        assert session["undone"]["record"] == regenerated["record"]
+        assert session["undone"]["markers"] == regenerated["markers"]
+
     # refusals, one line each in the status bar
     assert refusals["fill_without_text"] == "Error: type what happens up to the playhead in the edit's text"
     assert refusals["regenerate_nowhere"].startswith("Error: the playhead (frame 0) is in no action of the clip")
@@ -299,3 +303,4 @@ def test_blender_generates_regenerates_and_fills_on_the_selected_armature(traine
         "Error: no m2d2m server at http://127.0.0.1:9: start one with `m2d2m serve` (or `make serve`), or set the address"
     )
     assert all("\n" not in said for said in refusals.values())
+    assert session["refused_changes_nothing"]  # the same action, actions and markers

@@ -76,7 +76,7 @@ def write_keys(
         raise ValueError(f"the clip has joints the armature lacks ({', '.join(missing[:5])}); generate it again")
     rests: dict[str, Matrix] = {bone: _rest(bones[bone]) for _, bone in joints}
     root_bone = bones[joints[0][1]]
-    keys: dict[tuple[str, int], list[tuple[float, float]]] = {}
+    keys: dict[tuple[str, str, int], list[tuple[float, float]]] = {}  # (bone, property, index) -> (frame, value)
     previous: dict[str, Quaternion] = {}
     euler: dict[str, Any] = {}
     for frame in frames:
@@ -88,27 +88,23 @@ def write_keys(
             if bone in previous and quaternion.dot(previous[bone]) < 0:  # the same turn, no flip between keys
                 quaternion.negate()
             previous[bone] = quaternion
-            path = pose_bone.path_from_id()
-            if pose_bone.rotation_mode == "QUATERNION" or pose_bone.rotation_mode == "AXIS_ANGLE":
-                pose_bone.rotation_mode = "QUATERNION"
-                values, channel = tuple(quaternion), f"{path}.rotation_quaternion"
-            else:
-                turned = quaternion.to_euler(pose_bone.rotation_mode, euler[bone]) if bone in euler else None
-                euler[bone] = turned or quaternion.to_euler(pose_bone.rotation_mode)
-                values, channel = tuple(euler[bone]), f"{path}.rotation_euler"
+            if pose_bone.rotation_mode in ("QUATERNION", "AXIS_ANGLE"):
+                pose_bone.rotation_mode = "QUATERNION"  # an axis and angle do not interpolate as one turn
+                values, attribute = tuple(quaternion), "rotation_quaternion"
+            else:  # the bone's own Euler order, each key the nearest to the one before (no 360° jumps)
+                euler[bone] = quaternion.to_euler(pose_bone.rotation_mode, *([euler[bone]] if bone in euler else []))
+                values, attribute = tuple(euler[bone]), "rotation_euler"
             for index, value in enumerate(values):
-                keys.setdefault((channel, index), []).append((at, value))
+                keys.setdefault((bone, attribute, index), []).append((at, value))
         location = root_location(rests[root_bone.name], tuple(root_bone.bone.head_local), position)
         for index, value in enumerate(location):
-            keys.setdefault((f"{root_bone.path_from_id()}.location", index), []).append((at, value))
-    span = (start + min(frames), start + max(frames)) if frames else (0, -1)
-    for (channel, index), points in keys.items():
-        bone_name = channel.split('"')[1]
-        curve = action.fcurves.find(channel, index=index) or action.fcurves.new(
-            channel, index=index, action_group=bone_name
-        )
+            keys.setdefault((root_bone.name, "location", index), []).append((at, value))
+    first, last = (start + min(frames), start + max(frames)) if frames else (0, -1)
+    for (bone, attribute, index), points in keys.items():
+        path = bones[bone].path_from_id(attribute)
+        curve = action.fcurves.find(path, index=index) or action.fcurves.new(path, index=index, action_group=bone)
         for point in reversed(list(curve.keyframe_points)):
-            if span[0] <= point.co[0] <= span[1]:
+            if first <= point.co[0] <= last:
                 curve.keyframe_points.remove(point, fast=True)
         for at, value in points:
             curve.keyframe_points.insert(at, value, options={"FAST"})

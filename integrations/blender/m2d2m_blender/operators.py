@@ -10,7 +10,7 @@ from typing import Any
 import bpy
 
 from . import catalog
-from .armature import clip_spans, mark, new_action, record_of, rig_of, set_record, write_keys
+from .armature import Rig, clip_spans, mark, new_action, record_of, rig_of, set_record, write_keys
 from .bvh import BvhError, read_bvh, rest_bvh
 from .client import Client, ServerError, generation_request
 from .timeline import action_at, fill_seconds, replaced_frames
@@ -37,7 +37,7 @@ def armature_of(context: bpy.types.Context) -> bpy.types.Object:
     return armature
 
 
-def send_rig(client: Client, armature: bpy.types.Object) -> tuple[Any, str]:
+def send_rig(client: Client, armature: bpy.types.Object) -> tuple[Rig, str]:
     """The armature's rest pose uploaded as its rig: the rig's bones and the server's id for it."""
     rig = rig_of(armature)
     return rig, client.upload_rig(rest_bvh(rig.bones))["id"]

@@ -64,9 +64,9 @@ class M2D2M_UL_actions(bpy.types.UIList):
     def draw_item(
         self, context: Any, layout: Any, data: Any, item: Any, icon: int, active_data: Any, active_property: str
     ) -> None:
-        row = layout.row(align=True)
-        row.prop(item, "text", text="")
-        row.prop(item, "seconds", text="s")
+        split = layout.split(factor=0.7, align=True)
+        split.prop(item, "text", text="")
+        split.prop(item, "seconds", text="")
 
 
 class M2D2M_PT_panel(bpy.types.Panel):
