@@ -176,6 +176,18 @@ def main() -> None:
     report["refusals"]["unknown_words"] = operator("generate")
     settings.actions[0].text = "a person walks forward"
 
+    from m2d2m_blender.catalog import method_items
+
+    report["methods"] = [identifier for identifier, _, _ in method_items(settings)]
+    settings.actions.clear()  # no action listed: one sentence, split by the server
+    settings.prompt, settings.prompt_seconds, settings.method = (
+        "a person walks forward and then jumps",
+        4.0,
+        "independent",
+    )
+    report["refusals"]["prompt"] = operator("generate")
+    report["prompted"] = record_of(armature.animation_data.action)
+
     stump = built_armature("Stump", [("root", None, (0, 0, 0), (0, 0, 0.5)), ("tip", "root", (0, 0, 0.5), (0, 0, 1))])
     bpy.context.view_layer.objects.active = stump
     report["refusals"]["unmappable"] = operator("generate")

@@ -304,3 +304,8 @@ def test_blender_generates_regenerates_and_fills_on_the_selected_armature(traine
     )
     assert all("\n" not in said for said in refusals.values())
     assert session["refused_changes_nothing"]  # the same action, actions and markers
+
+    # one sentence instead of a list, with a method of the server's menu
+    assert session["methods"][0] == "default" and {"tps", "independent"} <= set(session["methods"])
+    assert refusals["prompt"] == ""
+    assert len(session["prompted"]["actions"]) == 2 and session["prompted"]["frames"] == pytest.approx(4 * FPS, abs=5)
