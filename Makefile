@@ -48,7 +48,7 @@ DEMO    ?= runs/demo
 .DEFAULT_GOAL := help
 .PHONY: help setup models demo test test-all lint bench bench-gpu corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
         train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
-        reproduce learning-curves ui serve clean rebuild-venv demo-real
+        reproduce learning-curves ui serve blender-addon clean rebuild-venv demo-real
 
 help:  ## list the verbs
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/' | expand -t 18
@@ -198,6 +198,9 @@ UI_PORT ?= 5000
 SERVE_ARGS ?=
 serve: $(STAMP)  ## the page and HTTP API at http://127.0.0.1:8000 (after make demo; SERVE_ARGS="--port 8080 --host 0.0.0.0 --token ...")
 	$(M2D2M) serve --dataset $(DATASET) $(SERVE_ARGS)
+
+blender-addon:  ## the Blender add-on as dist/m2d2m_blender.zip, to install in Blender (docs/generation.md, "In Blender")
+	python3 integrations/blender/pack.py dist/m2d2m_blender.zip
 
 models: $(STAMP)  ## what each trained model knows (every dataset's, or DATASET=...): its actions, lengths, words, methods and sampling defaults
 	$(M2D2M) models $(if $(filter command line environment,$(origin DATASET)),--dataset $(DATASET))
