@@ -19,6 +19,7 @@ from collections import Counter
 from collections.abc import Iterable
 from typing import Any
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -240,18 +241,31 @@ def encode_actions(encoder: TextEncoder, actions_per_caption: list[list[str]]) -
         raise ValueError("every caption needs at least one action sentence")
     flat = [sentence for actions in actions_per_caption for sentence in actions]
     features, _, counts = encoder.encode_counted(flat)
-    width = features.shape[1]
-    sources, row = [], 0  # per caption, the flat positions (sentence row × width + token) of its tokens
-    for actions in actions_per_caption:
-        sources.append([(row + i) * width + p for i in range(len(actions)) for p in range(counts[row + i])])
-        row += len(actions)
-    longest = max(len(positions) for positions in sources)
-    # -1 marks padding: one host-built tensor, sent without making the device wait
-    plan = torch.tensor([positions + [-1] * (longest - len(positions)) for positions in sources])
+    # one host-built tensor, sent without making the device wait
+    plan = token_layout(counts, [len(actions) for actions in actions_per_caption], features.shape[1])
     plan = plan.to(features.device, non_blocking=True)
     joined_mask = plan >= 0
     joined = features.reshape(-1, features.shape[-1])[plan.clamp_min(0)]
     return torch.where(joined_mask[..., None], joined, 0.0), joined_mask
+
+
+def token_layout(counts: list[int], sentences: list[int], width: int) -> torch.Tensor:
+    """Where each caption's tokens come from: (captions, longest) flat positions (sentence row ×
+    ``width`` + token) of its sentences' real tokens in order, −1 past them. ``counts`` are the
+    sentences' real tokens, ``sentences`` each caption's number of sentences, in order. Whole-array
+    NumPy on the host, no Python per token (a paper-size batch has thousands), and no torch
+    operator whose size depends on the data (tests/test_host_syncs.py flags those)."""
+    tokens = np.asarray(counts, dtype=np.int64)
+    row_of_token = np.repeat(np.arange(len(counts)), tokens)
+    caption_of_row = np.repeat(np.arange(len(sentences)), sentences)
+    caption_of_token = caption_of_row[row_of_token]
+    per_caption = np.bincount(caption_of_row, weights=tokens, minlength=len(sentences)).astype(np.int64)
+    order = np.arange(len(row_of_token))
+    within_row = order - (np.cumsum(tokens) - tokens)[row_of_token]
+    within_caption = order - (np.cumsum(per_caption) - per_caption)[caption_of_token]
+    plan = np.full((len(sentences), per_caption.max()), -1, dtype=np.int64)
+    plan[caption_of_token, within_caption] = row_of_token * width + within_row
+    return torch.from_numpy(plan)
 
 
 _KINDS = {encoder.kind: encoder for encoder in (CLIPTextEncoder, LearnedTextEncoder)}

@@ -9,7 +9,14 @@ from pathlib import Path
 import pytest
 import torch
 
-from m2d2m.text import CLIPTextEncoder, LearnedTextEncoder, TextEncoder, build_text_encoder, encode_actions
+from m2d2m.text import (
+    CLIPTextEncoder,
+    LearnedTextEncoder,
+    TextEncoder,
+    build_text_encoder,
+    encode_actions,
+    token_layout,
+)
 
 CORPUS = ["A person walks forward.", "a person runs in a circle", "someone waves, then walks"]
 
@@ -69,6 +76,23 @@ def test_encode_actions_concatenates_real_tokens_in_order():
     assert (features[1, 1:] == 0).all()
     with pytest.raises(ValueError, match="at least one action"):
         encode_actions(encoder, [["walks"], []])
+
+
+def test_the_token_layout_is_each_captions_tokens_in_order_as_a_loop_over_them_lays_them():
+    """token_layout's whole-array operations against the loop over every token they replace, on
+    random captions (sentences with no real token included)."""
+    generator = torch.Generator().manual_seed(0)
+    for _ in range(200):
+        sentences = torch.randint(1, 4, (int(torch.randint(1, 6, (1,), generator=generator)),), generator=generator)
+        counts = torch.randint(0, 5, (int(sentences.sum()),), generator=generator).tolist()
+        width = max(counts) + 1
+        expected, row = [], 0
+        for n in sentences.tolist():
+            expected.append([(row + i) * width + p for i in range(n) for p in range(counts[row + i])])
+            row += n
+        longest = max(len(positions) for positions in expected)
+        padded = [positions + [-1] * (longest - len(positions)) for positions in expected]
+        assert token_layout(counts, sentences.tolist(), width).tolist() == padded
 
 
 def test_encode_actions_passes_gradients_to_a_trainable_encoder():
