@@ -13,10 +13,14 @@ from orchestration.registry import models
 
 
 def _option(text: str) -> tuple[str, Any]:
-    """``KEY=VALUE`` of a sampling option, the value read as YAML (numbers, null, lists)."""
-    from orchestration.config import parse_override
+    """``KEY=VALUE`` of a sampling option, the value read as YAML (numbers, null, lists); a
+    malformed one is argparse's one line, read as it is given, before anything loads."""
+    from orchestration.config import read_override
 
-    path, value = parse_override(text)
+    try:
+        path, value = read_override(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"{error}, got {text!r}") from None
     return ".".join(path), value
 
 
