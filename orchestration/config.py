@@ -40,20 +40,30 @@ def yaml_problem(error: yaml.YAMLError) -> str:
     return f"{problem} at line {mark.line + 1}, column {mark.column + 1}" if mark else problem
 
 
-def parse_override(text: str) -> tuple[list[str], Any]:
+def read_override(text: str) -> tuple[list[str], Any]:
+    """``key.sub=value`` as its key path and its value read as YAML; a malformed one is a
+    ValueError saying what is wrong, for the flag that reads it to report (``--set``, ``--option``)."""
     key, sep, value = text.partition("=")
     if not sep or not key.strip():
-        raise UserError(f"--set {text!r}: expected key.sub=value")
+        raise ValueError("expected key.sub=value")
     try:
         parsed = yaml.safe_load(value) if value.strip() else ""
     except yaml.YAMLError as error:
-        raise UserError(f"--set {text!r}: the value is not valid YAML ({yaml_problem(error)})") from error
+        raise ValueError(f"the value is not valid YAML ({yaml_problem(error)})") from error
     if isinstance(parsed, str):
         try:  # YAML 1.1 reads 1e-3 (no dot) as a string; people mean the number
             parsed = float(parsed)
         except ValueError:
             pass
     return key.strip().split("."), parsed
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """``--set key.sub=value`` (:func:`read_override`); a malformed one is one line naming it."""
+    try:
+        return read_override(text)
+    except ValueError as error:
+        raise UserError(f"--set {text!r}: {error}") from error
 
 
 def is_number(value: Any) -> bool:

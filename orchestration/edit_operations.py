@@ -27,7 +27,7 @@ from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.motion.body_parts import PARTS, part_mask
 from orchestration.editing import as_clip
 from orchestration.errors import UserError
-from orchestration.generate import action_frames
+from orchestration.generate.prompts import action_frames
 
 
 class EditOperation(ABC):

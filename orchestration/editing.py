@@ -29,7 +29,7 @@ from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.motion.clip import Motion
 from m2d2m.motion.representation import features_to_joints
 from orchestration.errors import UserError
-from orchestration.generate import check_seconds
+from orchestration.generate.prompts import check_seconds
 from orchestration.viewing import load_features, read_sidecar
 
 

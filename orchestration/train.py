@@ -355,7 +355,7 @@ def fit(run: OpenedRun, module, datamodule, monitor: str, callbacks: list, ray_t
             raise
         # Lightning ends a Ctrl-C inside fit with exit(1) after its own shutdown, and ignores SIGINT
         # from then on (lightning/pytorch/trainer/call.py): give the command its Ctrl-C back, so the
-        # run is recorded interrupted and the command exits 130 (orchestration/cli.py)
+        # run is recorded interrupted and the command exits 130 (orchestration/cli/__init__.py)
         signal.signal(signal.SIGINT, signal.default_int_handler)
         raise KeyboardInterrupt from error
     except NonFiniteLossError as error:

@@ -52,3 +52,27 @@ def test_nothing_reads_outside_the_repository():
             if above.search(path.read_text(encoding="utf-8")):
                 offending.append(str(path.relative_to(ROOT)))
     assert offending == []
+
+
+# issue 55 §3: the command line and generation in modules of a size a reader holds in mind
+MODULE_LINES, FUNCTION_LINES = 500, 60
+
+
+@pytest.mark.parametrize("package", ["orchestration/cli", "orchestration/generate"])
+def test_the_split_rooms_keep_modules_and_functions_a_reader_holds_in_mind(package):
+    """Every module of the package under 500 lines and every function under 60 (docstring and
+    decorators included), so that the rooms split by job do not grow back into one file."""
+    base = ROOT / package
+    files = sorted(base.rglob("*.py")) if base.is_dir() else [base.with_suffix(".py")]  # a package, or one module
+    long_modules, long_functions = {}, {}
+    for path in files:
+        text = path.read_text(encoding="utf-8")
+        name = str(path.relative_to(ROOT))
+        if len(text.splitlines()) > MODULE_LINES:
+            long_modules[name] = len(text.splitlines())
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                first = min([node.lineno, *(decorator.lineno for decorator in node.decorator_list)])
+                if node.end_lineno - first + 1 > FUNCTION_LINES:
+                    long_functions[f"{name}:{node.name}"] = node.end_lineno - first + 1
+    assert long_modules == {} and long_functions == {}

@@ -54,6 +54,8 @@ def test_the_installed_entry_point_ends_a_user_error_in_one_line(tmp_path):
         (["train-vq", "--config", "nope"], "no config 'nope' for vq; available: bandai-namco, demo, humanml3d, kit"),
         (["train-vq", "--set", "model.widht=3"], "no key 'widht' in model"),
         (["train-vq", "--set", "optim.lr"], "expected key.sub=value"),
+        (["generate", "a person walks", "--option", "steps"], "argument --option: expected key.sub=value, got 'steps'"),
+        (["generate", "a person walks", "--option", "steps=[1"], "argument --option: the value is not valid YAML"),
         (
             ["train-diffusion", "--config", "nope"],
             "no config 'nope' for m2d2m; available: bandai-namco, demo, humanml3d, kit",

@@ -112,13 +112,14 @@ def test_export_writes_a_recorded_motion_exactly_and_fixes_its_feet_on_request(s
 def test_generate_fixes_the_feet_unless_asked_not_to(clip, sliding, tmp_path, monkeypatch):
     """`m2d2m generate`: a generated clip's feet are fixed by default, by its features' contacts,
     and left as generated with --no-foot-fix (the sampler replaced by the sliding clip)."""
-    import orchestration.generate
+    import orchestration.generate.loading
+    import orchestration.generate.sampling
 
     _, features = clip
     made = Motion(features, sliding, 20.0, "t2m", ["a person walks"], [(0, 170)], {"method": "given"})
     made = made.on_rigid_skeleton()
-    monkeypatch.setattr(orchestration.generate, "load_generator", lambda *args, **kwargs: None)
-    monkeypatch.setattr(orchestration.generate, "generate", lambda *args, **kwargs: made)
+    monkeypatch.setattr(orchestration.generate.loading, "load_generator", lambda *args, **kwargs: None)
+    monkeypatch.setattr(orchestration.generate.sampling, "generate", lambda *args, **kwargs: made)
     argv = ["generate", "a person walks", "--formats", "npy", "--no-track", "--out"]
     assert main([*argv, str(tmp_path / "fixed")]) == 0
     assert main([*argv, str(tmp_path / "raw"), "--no-foot-fix"]) == 0

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import orchestration.generate
+import orchestration.generate.loading
+import orchestration.generate.sampling
 from m2d2m.generators.m2d2m import M2D2MGenerator
 from m2d2m.motion import render
 from m2d2m.motion.clip import Motion
@@ -168,7 +169,7 @@ def _loading_fails(monkeypatch) -> None:
     def refuse(*_, **__):
         raise AssertionError("the model was loaded before the arguments were checked")
 
-    monkeypatch.setattr(orchestration.generate, "load_generator", refuse)
+    monkeypatch.setattr(orchestration.generate.loading, "load_generator", refuse)
 
 
 @pytest.mark.parametrize(
@@ -325,8 +326,8 @@ def _sampling_a_fixed_clip(monkeypatch, frames: int = 12) -> None:
         [(0, frames)],
         {"method": "fixed"},
     ).on_rigid_skeleton()
-    monkeypatch.setattr(orchestration.generate, "load_generator", lambda *_, **__: None)
-    monkeypatch.setattr(orchestration.generate, "generate", lambda *_, **__: motion)
+    monkeypatch.setattr(orchestration.generate.loading, "load_generator", lambda *_, **__: None)
+    monkeypatch.setattr(orchestration.generate.sampling, "generate", lambda *_, **__: motion)
 
 
 def _files(folder: Path) -> dict[str, bytes]:

@@ -83,7 +83,7 @@ def test_percent_counters_say_only_the_percentage(unit, shown):
 
 
 def test_a_generation_reports_its_sampling_in_percent_lines(monkeypatch, capsys):
-    from orchestration.generate import _progress
+    from orchestration.generate.sampling import _progress
 
     monkeypatch.setattr(progress_module, "MIN_SECONDS", 0.0)
     with _progress("sampling 2 action(s)") as advance:

@@ -114,22 +114,24 @@ def test_declared_choices_are_the_processes_own():
 
 def test_the_declarations_and_the_command_line_load_without_torch():
     code = (
-        "import sys; from orchestration.cli import build_parser, sampling_help; build_parser(); sampling_help(); "
+        "import sys; from orchestration.cli import build_parser; from orchestration.cli.sampling import sampling_help; "
+        "build_parser(); sampling_help(); "
         "assert 'torch' not in sys.modules, 'torch imported'"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
 def test_a_plugins_shortcut_and_knobs_reach_the_command_line(monkeypatch, capsys):
-    from orchestration.cli import _sampling_options, build_parser
+    from orchestration.cli import build_parser
+    from orchestration.cli.sampling import sampling_options
     from orchestration.registry import load_plugins
 
     monkeypatch.setenv("M2D2M_PLUGINS", "tests.fake_model")
     load_plugins()
     parser = build_parser()
     args = parser.parse_args(["generate", "a person walks", "--model", "playback", "--offset", "3", "--option", "x=1"])
-    assert _sampling_options(args) == {"x": 1, "offset": 3}
-    assert _sampling_options(parser.parse_args(["generate", "x", "--eta", "0.5"])) == {"eta": 0.5}
+    assert sampling_options(args) == {"x": 1, "offset": 3}
+    assert sampling_options(parser.parse_args(["generate", "x", "--eta", "0.5"])) == {"eta": 0.5}
     with pytest.raises(SystemExit):
         parser.parse_args(["generate", "--help"])
     shown = capsys.readouterr().out

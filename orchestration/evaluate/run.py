@@ -23,7 +23,7 @@ from orchestration.evaluate.records import ParentRun, describe_sampling, log_chi
 from orchestration.evaluate.settings import EvalSettings
 from orchestration.evaluate.table import build_table
 from orchestration.evaluate.testsets import default_testset, measure_reference, open_testset
-from orchestration.generate import load_generator
+from orchestration.generate.loading import load_generator
 from orchestration.reports import FIGURE, TABLE_JSON, TABLE_MD, table_metrics
 from orchestration.runs import mark_latest, read_run_info, run_in_use, write_run_info
 from orchestration.tracking import finishing, log_batch

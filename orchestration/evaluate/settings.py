@@ -13,7 +13,7 @@ from m2d2m.layout import recorded_path, relative_to_project
 from orchestration.errors import UserError
 from orchestration.evaluate.options import assign_edits, assign_methods, assign_options, parse_checkpoints, split_list
 from orchestration.evaluate.request import EvalRequest, given_flags
-from orchestration.generate import resolve_model_file
+from orchestration.generate.loading import resolve_model_file
 from orchestration.registry import model
 from orchestration.reports import GENERATED
 from orchestration.runs import EVALUATOR_FILE, EVALUATOR_STAGE, find_run, read_run_info, run_file
