@@ -77,7 +77,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import VQ_FORMAT
 from m2d2m.text import LearnedTextEncoder
 from orchestration.config import load_config

@@ -34,7 +34,7 @@ import yaml
 
 import training
 from m2d2m.layout import STATS, read_manifest
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig
 from training.data import MotionWindowDataModule, TokenDataModule
 from training.evaluator_module import CaptionMotionDataModule

@@ -13,7 +13,7 @@ import pytest
 from m2d2m import integrity
 from m2d2m.integrity import verified_paths
 from m2d2m.layout import MANIFEST, read_manifest
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from pipelines.shards import ShardWriter, sha256_of, shard_records
 from pipelines.testset import build_testset

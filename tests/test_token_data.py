@@ -9,7 +9,7 @@ import pytest
 import torch
 import webdataset as wds
 
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
 from pipelines.tokenize import tokenize_dataset
 from tests.helpers import random_vq, write_corpus

@@ -10,8 +10,8 @@ import pytest
 import torch
 import yaml
 
-from m2d2m.motion.body_parts import LOWER, UPPER, part_dims
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.body_parts import LOWER, UPPER, part_dims
+from m2d2m.motion.representation.skeleton import T2M
 from m2d2m.networks.vqvae import load_vq
 from orchestration.cli import main
 from orchestration.runs import latest_run, read_run_info

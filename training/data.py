@@ -33,7 +33,7 @@ from lightning.pytorch.utilities import rank_zero_info
 
 from m2d2m.layout import MANIFEST, STATS, TOKENS_KIND, VQ_FILE, read_manifest, shard_urls, token_shard_urls
 from m2d2m.model_files import LengthPrior
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 
 Sample = dict[str, Any]
 Batching = Callable[[Iterable[Sample]], Iterator[Any]]  # a pipeline stage: samples in, collated batches out

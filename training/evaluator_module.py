@@ -23,7 +23,7 @@ import torch
 from lightning.pytorch.utilities import rank_zero_info
 
 from m2d2m.evaluation.evaluator import UNIT_LENGTH, EvaluatorConfig, TextMotionEvaluator, contrastive_loss
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from training.data import (
     FeatureShardDataModule,
     Sample,

@@ -12,7 +12,7 @@ from typing import Any
 import torch
 
 from m2d2m.layout import relative_to_project
-from m2d2m.motion.body_parts import FULL, LOWER, UPPER
+from m2d2m.motion.representation.body_parts import FULL, LOWER, UPPER
 from orchestration.recipe import Recipe, TrainingData, caption_vocabulary
 from orchestration.runs import vq_file
 from orchestration.train import OpenedRun, validation_interval

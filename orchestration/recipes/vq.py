@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from m2d2m.layout import STATS, VQ_FILE
-from m2d2m.motion.body_parts import FULL
+from m2d2m.motion.representation.body_parts import FULL
 from m2d2m.networks.vqvae import VQ_FORMAT
 from orchestration.recipe import Recipe, Trainable, TrainingData, train
 from orchestration.runs import VQ_STAGE, vq_stage
