@@ -16,7 +16,7 @@ from m2d2m.networks.vqvae import load_vq
 from orchestration.cli import main
 from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_BODY, TINY_MMM, latest_evaluation, pose_clip, write_part_tokenizer_configs
-from training.data import BodyTokenDataModule, TokenDataModule
+from training.data.tokens import BodyTokenDataModule, TokenDataModule
 
 
 @pytest.fixture(scope="module")

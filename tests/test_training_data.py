@@ -15,7 +15,8 @@ from m2d2m.layout import MANIFEST, shard_urls
 from m2d2m.motion.representation.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
 from tests.helpers import write_corpus
-from training.data import MotionWindowDataModule, WindowCropper, valid_frames
+from training.data.motion_windows import MotionWindowDataModule
+from training.data.samples import WindowCropper, valid_frames
 from training.evaluator_module import CaptionMotionDataModule
 
 

@@ -17,7 +17,7 @@ from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, Motion
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
 from m2d2m.text import text_encoder_from_config
 from training.conditioning import drop_captions
-from training.data import valid_frames
+from training.data.samples import valid_frames
 from training.losses import log_by_quarter
 from training.optim import configure_adamw
 from training.step import TrainingModule

@@ -25,7 +25,7 @@ class VQRecipe(Recipe):
         return vq_stage(config["model"].get("part", FULL))
 
     def data(self, config: dict[str, Any]) -> TrainingData:
-        from training.data import MotionWindowDataModule
+        from training.data.motion_windows import MotionWindowDataModule
 
         data = config["data"]
         datamodule = MotionWindowDataModule(
