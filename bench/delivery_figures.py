@@ -2,7 +2,7 @@
 drawn on real data so that the docs show what an animator gets, not a sketch of it.
 
 The clip is HumanML3D's sample 012314 (170 frames at 20 fps, T2M's 22 joints) put on one rigid
-skeleton, as ``m2d2m generate`` hands its clips to :func:`m2d2m.motion.delivery.deliver`, with
+skeleton, as ``m2d2m generate`` hands its clips to :func:`m2d2m.motion.transforms.delivery.deliver`, with
 its features for the contact channels. Each figure shows one option against the default delivery
 (feet planted), made by ``deliver`` itself where its output says enough, else by the function it
 runs:
@@ -14,7 +14,7 @@ runs:
 * ``delivery-fps.png``: ``--fps 30`` and ``--fps 60``: a wrist's height at the three rates;
 * ``delivery-root.png``: ``--root in-place``: the pelvis's and toes' paths seen from above;
 * ``delivery-loop.png``: ``--loop``: a wrist's height over two cycles, cut without a fade and
-  made by :func:`m2d2m.motion.retime.make_loop`, with the jerk at the seam;
+  made by :func:`m2d2m.motion.transforms.retime.make_loop`, with the jerk at the seam;
 * ``delivery-rig.png``: ``--rig tests/fixtures/cmu-bvh/131_01.bvh --joint-map cmu``: the clip on
   our skeleton and on CMU's 31-joint rig at three frames.
 
@@ -34,9 +34,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from m2d2m.motion.bvh_reader import read_bvh
-from m2d2m.motion.delivery import Delivered, Delivery, deliver
-from m2d2m.motion.feet import (
+from m2d2m.motion.files.bvh_reader import read_bvh
+from m2d2m.motion.representation.rigid import on_rigid_skeleton
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.rigs.joint_map import joint_map_for
+from m2d2m.motion.rigs.retarget import Rig, retarget
+from m2d2m.motion.transforms.delivery import Delivered, Delivery, deliver
+from m2d2m.motion.transforms.feet import (
     SKATING_HEIGHT_M,
     SKATING_SPEED_M_S,
     contact_runs,
@@ -44,11 +48,7 @@ from m2d2m.motion.feet import (
     skating_ratio,
     step_speeds,
 )
-from m2d2m.motion.joint_map import joint_map_for
-from m2d2m.motion.retarget import Rig, retarget
-from m2d2m.motion.retime import make_loop
-from m2d2m.motion.rigid import on_rigid_skeleton
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.transforms.retime import make_loop
 
 try:
     from bench.foot_fix import slide_feet
@@ -79,7 +79,7 @@ RAW, OURS, THEIRS = "0.55", "C0", "C1"  # colours: as generated, as delivered, o
 @dataclass(frozen=True)
 class Clip:
     """The sample clip on one rigid skeleton (``raw``), as ``m2d2m generate`` hands a clip to
-    :func:`~m2d2m.motion.delivery.deliver`, with the model's features beside it."""
+    :func:`~m2d2m.motion.transforms.delivery.deliver`, with the model's features beside it."""
 
     raw: np.ndarray
     features: np.ndarray

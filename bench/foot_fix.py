@@ -1,4 +1,4 @@
-"""What the foot clean-up (:func:`m2d2m.motion.feet.plant_feet`, as a delivery runs it) does to
+"""What the foot clean-up (:func:`m2d2m.motion.transforms.feet.plant_feet`, as a delivery runs it) does to
 real motion, which it must leave alone, and to motion that skates, which it must fix
 (docs/evaluation.md, "Feet that stay planted").
 
@@ -40,9 +40,9 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.delivery import Delivery, deliver
-from m2d2m.motion.feet import contact_runs, leg_of, skating_ratio, two_bone_ik
-from m2d2m.motion.skeleton import T2M, Skeleton
+from m2d2m.motion.representation.skeleton import T2M, Skeleton
+from m2d2m.motion.transforms.delivery import Delivery, deliver
+from m2d2m.motion.transforms.feet import contact_runs, leg_of, skating_ratio, two_bone_ik
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "tests" / "fixtures" / "humanml3d-sample"
@@ -190,7 +190,7 @@ def slide_feet(
     centred on the real footprint), and back again in the air: a clip that skates by a known
     amount. A stretch is a run of :func:`on_ground` frames; between
     two, the offset goes from one's last value to the next's first with a smoothstep. The foot
-    moves rigidly; the knee comes from :func:`m2d2m.motion.feet.two_bone_ik` from the unmoved
+    moves rigidly; the knee comes from :func:`m2d2m.motion.transforms.feet.two_bone_ik` from the unmoved
     hip, so every bone keeps its length and only the legs below the hips change."""
     joints = np.asarray(joints, dtype=np.float64)
     grounded = on_ground(joints, skeleton, fps)
@@ -268,8 +268,8 @@ def rigid_versus_decoded(noise: Sequence[float], seed: int = 0) -> str:
     on every joint but the root in every frame, as a model's decoded joints shake, measured as
     decoded (what the evaluation measures and plants) and on one rigid skeleton (what a
     generation is delivered on): the bone-length spread, the skating of each, and after the fix."""
-    from m2d2m.motion.feet import fix_feet
-    from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
+    from m2d2m.motion.representation.rigid import bone_length_spread, on_rigid_skeleton
+    from m2d2m.motion.transforms.feet import fix_feet
 
     joints = np.load(SAMPLE / "new_joints" / "012314.npy").astype(np.float64)
     features = np.load(SAMPLE / "new_joint_vecs" / "012314.npy")

@@ -77,7 +77,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import VQ_FORMAT
 from m2d2m.text import LearnedTextEncoder
 from orchestration.config import load_config
@@ -209,7 +209,7 @@ def frames_of_batch(batch: int, generator: torch.Generator) -> list[int]:
 
 
 def synthetic_batch(name: str, config: dict[str, Any], batch: int, codes: int, seed: int) -> dict[str, Any]:
-    """One batch in the shape the model's DataModule gives (training/data.py's collate functions)."""
+    """One batch in the shape the model's DataModule gives (the collate functions of training/data/)."""
     generator = torch.Generator().manual_seed(seed)
     if name == "vq":
         return {"motion": torch.randn(batch, config["data"]["window"], FEATURES, generator=generator)}

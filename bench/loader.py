@@ -34,9 +34,10 @@ import yaml
 
 import training
 from m2d2m.layout import STATS, read_manifest
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig
-from training.data import MotionWindowDataModule, TokenDataModule
+from training.data.motion_windows import MotionWindowDataModule
+from training.data.tokens import TokenDataModule
 from training.evaluator_module import CaptionMotionDataModule
 
 ROOT = Path(training.__file__).resolve().parents[1]  # the checkout whose loaders and configs are measured
@@ -219,7 +220,7 @@ def main() -> None:
     parser.add_argument("--batches", type=int, default=48, help="batches timed per case (several pools of 8)")
     parser.add_argument("--clips", type=int, default=2000, help="clips of a corpus built when DATA is missing")
     args = parser.parse_args()
-    # training.data.usable_cpus, written out: an older checkout measured through PYTHONPATH lacks it
+    # training.data.feed.usable_cpus, written out: an older checkout measured through PYTHONPATH lacks it
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     worker_counts = [count for count in map(int, args.workers.split(",")) if count <= cpus]
     gpu = torch.cuda.is_available()

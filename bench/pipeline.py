@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import ray
 
-from m2d2m.motion.representation import joints_to_features, mirror_joints
+from m2d2m.motion.representation.features import joints_to_features, mirror_joints
 from pipelines.corpora import list_corpus
 from pipelines.features import DataConfig, plan_shards, run_shard_tasks
 

@@ -19,7 +19,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from m2d2m.motion.representation import features_to_joints, joints_to_features  # noqa: E402
+from m2d2m.motion.representation.features import features_to_joints, joints_to_features  # noqa: E402
 
 SAMPLE = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "humanml3d-sample"
 FRAMES = 196

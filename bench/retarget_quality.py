@@ -1,15 +1,15 @@
 """How well our motion lands on other rigs (docs/generation.md, "How well it lands"): HumanML3D's
-walking clip 012314 retargeted (:func:`m2d2m.motion.retarget.retarget`) onto every rig the tests
+walking clip 012314 retargeted (:func:`m2d2m.motion.rigs.retarget.retarget`) onto every rig the tests
 know (tests/rigs.py's naming conventions, Mixamo's X Bot, CMU's 131_01 rig), measured where it
 matters to whoever animates with it.
 
 Columns: the rig's leg (hip to ankle, m); where its feet stand in our clip's stance frames
-(:func:`m2d2m.motion.feet.foot_contacts`), against where they stand in its own rest pose on its
+(:func:`m2d2m.motion.transforms.feet.foot_contacts`), against where they stand in its own rest pose on its
 floor (ankles, then toes: median and largest gap, cm); how fast its feet slide then, against
 ours scaled by the legs' ratio (mean horizontal speed, cm/s); the largest angle between a mapped
 bone from a joint with one mapped child and ours (degrees), feet and head aside where they turn
 from the rig's rest as ours turn from where ours stand (on a character standing at rest:
-:func:`m2d2m.motion.retarget.stands_at_rest`), so the next column is how far their angle from ours
+:func:`m2d2m.motion.rigs.retarget.stands_at_rest`), so the next column is how far their angle from ours
 strays from the one their rests make (degrees); its hips' height over its leg, against ours.
 
     python bench/retarget_quality.py
@@ -28,12 +28,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # tests/rigs.py's conventions, run as a script
 
-from m2d2m.motion.bvh_reader import read_bvh  # noqa: E402
-from m2d2m.motion.feet import foot_contacts  # noqa: E402
-from m2d2m.motion.joint_map import JointMap, joint_map_for  # noqa: E402
-from m2d2m.motion.retarget import OUR_ANKLE_ON_FLOOR_M, OUR_REST_AIMS, Rig, ankle_lift, read_rig, retarget  # noqa: E402
-from m2d2m.motion.rigid import on_rigid_skeleton  # noqa: E402
-from m2d2m.motion.skeleton import T2M  # noqa: E402
+from m2d2m.motion.files.bvh_reader import read_bvh  # noqa: E402
+from m2d2m.motion.representation.rigid import on_rigid_skeleton  # noqa: E402
+from m2d2m.motion.representation.skeleton import T2M  # noqa: E402
+from m2d2m.motion.rigs.joint_map import JointMap, joint_map_for  # noqa: E402
+from m2d2m.motion.rigs.retarget import OUR_ANKLE_ON_FLOOR_M, OUR_REST_AIMS, Rig, ankle_lift, read_rig, retarget  # noqa: E402
+from m2d2m.motion.transforms.feet import foot_contacts  # noqa: E402
 from tests.rigs import CONVENTIONS  # noqa: E402
 
 SAMPLE = ROOT / "tests" / "fixtures" / "humanml3d-sample" / "new_joints" / "012314.npy"

@@ -23,8 +23,8 @@ import numpy as np
 import torch
 from timing import wall_time
 
-from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler
+from m2d2m.generators.m2d2m.options import M2D2MOptions
+from m2d2m.generators.m2d2m.sampling import TokenRequest, TokenSampler
 from m2d2m.generators.options import COMPILE
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule

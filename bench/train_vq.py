@@ -15,7 +15,7 @@ import lightning.pytorch as pl
 import torch
 
 from m2d2m.networks.vqvae import VQConfig
-from training.data import MotionWindowDataModule
+from training.data.motion_windows import MotionWindowDataModule
 from training.vq_module import VQVAEModule
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "synthetic"

@@ -21,9 +21,9 @@ import webdataset as wds
 
 from m2d2m.evaluation.metrics import jerk, mean_confidence_interval
 from m2d2m.layout import shard_urls
-from m2d2m.motion.representation import features_to_joints
-from m2d2m.motion.skeleton import SKELETONS
-from m2d2m.motion.smoothing import gaussian_smooth
+from m2d2m.motion.representation.features import features_to_joints
+from m2d2m.motion.representation.skeleton import SKELETONS
+from m2d2m.motion.representation.smoothing import gaussian_smooth
 from m2d2m.networks.vqvae import load_vq
 
 SPECTRUM_FRAMES = 56  # the error spectrum's window: every clip of ≥ 60 frames has it

@@ -19,7 +19,7 @@ NLP = "nlp"
 TOKENS = "tokens"
 TOKENS_KIND = "tokens"  # the manifest "kind" of a token set
 VQ_FILE = "vq.pt"  # the plain VQ-VAE model file, in a run directory and beside its tokens
-MODEL_FILE = "model.pt"  # a denoiser run's self-contained checkpoint (m2d2m.generators.m2d2m_checkpoint)
+MODEL_FILE = "model.pt"  # a denoiser run's self-contained checkpoint (m2d2m.generators.m2d2m.checkpoint)
 PROJECT_FOLDERS = ("data", "runs")  # a project's folders that records point into
 
 

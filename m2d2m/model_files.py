@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from m2d2m.atomic import atomic_path
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.text import LearnedTextEncoder, TextEncoder, build_text_encoder
 
 
@@ -112,7 +112,7 @@ class Float32(Part):
 
 
 class Normalization(Part):
-    """A :class:`~m2d2m.motion.normalization.Normalizer`: its statistics as float32 tensors."""
+    """A :class:`~m2d2m.motion.representation.normalization.Normalizer`: its statistics as float32 tensors."""
 
     def dump(self, value: Normalizer) -> dict[str, Any]:
         return {

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from m2d2m.layout import MANIFEST
-from m2d2m.motion.joint_map import AUTO, PRESETS
+from m2d2m.motion.rigs.joint_map import AUTO, PRESETS
 from m2d2m.plugins import plugins_for_workers
 from orchestration.errors import UserError
 from orchestration.project import require_project

@@ -24,7 +24,7 @@ from m2d2m.generators.edits import (
     regenerate_action,
 )
 from m2d2m.generators.protocol import MotionGenerator
-from m2d2m.motion.body_parts import PARTS, part_mask
+from m2d2m.motion.representation.body_parts import PARTS, part_mask
 from orchestration.editing import as_clip
 from orchestration.errors import UserError
 from orchestration.generate.prompts import action_frames

@@ -27,7 +27,7 @@ import numpy as np
 from m2d2m.generators.edits import Edit, Timeline, apply_edit, body_of, kept_frames
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.representation import features_to_joints
+from m2d2m.motion.representation.features import features_to_joints
 from orchestration.errors import UserError
 from orchestration.generate.prompts import check_seconds
 from orchestration.viewing import load_features, read_sidecar

@@ -43,7 +43,7 @@ class TrainingData:
     @functools.cached_property
     def lengths(self) -> LengthPrior:
         """The length prior of the training captions (read once, for the model file and its snapshots)."""
-        from training.data import length_prior
+        from training.data.tokens import length_prior
 
         return length_prior(self.datamodule.urls("train"), self.frames_per_unit)
 
@@ -143,7 +143,7 @@ def caption_vocabulary(
     """The words of a learned text encoder: those of ``sentences(caption)`` over the train captions
     (None when the config's text encoder is not a learned one)."""
     from m2d2m.text import LearnedTextEncoder
-    from training.data import clip_metas
+    from training.data.shards import clip_metas
 
     if config["text"]["kind"] != "learned":
         return None

@@ -65,9 +65,9 @@ register(
         configs="m2d2m",
         train_verb="train-diffusion",
         model_file="model.pt",
-        generator="m2d2m.generators.m2d2m:M2D2MGenerator",
+        generator="m2d2m.generators.m2d2m.generator:M2D2MGenerator",
         recipe="orchestration.recipes.m2d2m:RECIPE",
-        sampling="m2d2m.generators.m2d2m_options:SAMPLING",
+        sampling="m2d2m.generators.m2d2m.options:SAMPLING",
         shortcuts=("ts", "eta", "guidance", "truncation"),
     )
 )
@@ -80,9 +80,9 @@ register(
         configs="mmm",
         train_verb="train-mmm",
         model_file="model.pt",
-        generator="m2d2m.generators.mmm:MMMGenerator",
+        generator="m2d2m.generators.mmm.generator:MMMGenerator",
         recipe="orchestration.recipes.mmm:RECIPE",
-        sampling="m2d2m.generators.mmm_options:SAMPLING",
+        sampling="m2d2m.generators.mmm.options:SAMPLING",
     )
 )
 
@@ -94,9 +94,9 @@ register(
         configs="mmm-body",
         train_verb="train-mmm-body",
         model_file="model.pt",
-        generator="m2d2m.generators.mmm_body:BodyMMMGenerator",
+        generator="m2d2m.generators.mmm.body:BodyMMMGenerator",
         recipe="orchestration.recipes.mmm_body:RECIPE",
-        sampling="m2d2m.generators.mmm_options:BODY_SAMPLING",
+        sampling="m2d2m.generators.mmm.options:BODY_SAMPLING",
     )
 )
 
@@ -108,9 +108,9 @@ register(
         configs="motiondiffuse",
         train_verb="train-motiondiffuse",
         model_file="model.pt",
-        generator="m2d2m.generators.motiondiffuse:MotionDiffuseGenerator",
+        generator="m2d2m.generators.motiondiffuse.generator:MotionDiffuseGenerator",
         recipe="orchestration.recipes.motiondiffuse:RECIPE",
-        sampling="m2d2m.generators.motiondiffuse_options:SAMPLING",
+        sampling="m2d2m.generators.motiondiffuse.options:SAMPLING",
     )
 )
 

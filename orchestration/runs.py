@@ -18,7 +18,7 @@ from typing import Any
 from m2d2m.atomic import atomic_path
 from m2d2m.layout import VQ_FILE
 from m2d2m.locks import Busy, holding
-from m2d2m.motion.body_parts import FULL
+from m2d2m.motion.representation.body_parts import FULL
 from orchestration.errors import NotInProject, UserError
 from orchestration.tracking import download_model_file
 

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.representation import features_to_joints, joints_to_features
-from m2d2m.motion.retime import check_fps, resample
-from m2d2m.motion.sidecar import Sidecar, SidecarError, sidecar_path
-from m2d2m.motion.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.files.sidecar import Sidecar, SidecarError, sidecar_path
+from m2d2m.motion.representation.features import features_to_joints, joints_to_features
+from m2d2m.motion.representation.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.transforms.retime import check_fps, resample
 from orchestration.errors import UserError
 
 
@@ -176,7 +176,7 @@ def _segments_of(corpus: Path, clip_id: str) -> list[tuple[int, int, str]]:
 
 
 def read_sidecar(npy: Path) -> Sidecar | None:
-    """The sidecar beside ``npy`` (:mod:`m2d2m.motion.sidecar`; none: a file without one); one line
+    """The sidecar beside ``npy`` (:mod:`m2d2m.motion.files.sidecar`; none: a file without one); one line
     when it is not one."""
     try:
         return Sidecar.read(npy)

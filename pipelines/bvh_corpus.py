@@ -9,7 +9,7 @@ lines of one file with the same start and end are one motion with several captio
 goes through :func:`take_joints`: forward kinematics, a joint map to the 22 T2M joints
 (``--joint-map``: a preset, a YAML file, or by default the preset whose joints the file has),
 lengths in metres (``--units``, by default the unit in which the rig stands a person's height:
-:meth:`~m2d2m.motion.joint_map.JointMap.metres_per_unit`)
+:meth:`~m2d2m.motion.rigs.joint_map.JointMap.metres_per_unit`)
 and the corpus's frame rate. A take that cannot become joints (not a BVH, a joint the map lacks,
 no frames, NaN, an unknown unit) is quarantined with its reason, as is a BVH that no caption
 names; nothing in the folder is passed over.
@@ -27,10 +27,10 @@ from typing import Any
 import numpy as np
 
 from m2d2m.layout import relative_to_project
-from m2d2m.motion.bvh_reader import BvhError, instants, read_bvh, resample, whole_step
-from m2d2m.motion.joint_map import JointMap, joint_map_for
-from m2d2m.motion.skeleton import T2M, Skeleton
-from m2d2m.motion.up_axis import stance
+from m2d2m.motion.files.bvh_reader import BvhError, instants, read_bvh, resample, whole_step
+from m2d2m.motion.representation.skeleton import T2M, Skeleton
+from m2d2m.motion.rigs.joint_map import JointMap, joint_map_for
+from m2d2m.motion.rigs.up_axis import stance
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, Rejected, register_corpus
 
 CAPTIONS = "captions.csv"
@@ -45,7 +45,7 @@ def take_joints(
     fps: float | None = None,
 ) -> tuple[np.ndarray, JointMap]:
     """A BVH take as ``skeleton``'s joints (T, J, 3) in metres, standing along +Y (turned so where
-    its motion stands along another axis: :func:`~m2d2m.motion.up_axis.stance`), at the
+    its motion stands along another axis: :func:`~m2d2m.motion.rigs.up_axis.stance`), at the
     skeleton's frame rate: every n-th frame of a take at n times that rate (HumanML3D's rule),
     else read at the rate's instants with rotations slerped, so that bones keep their lengths.
     Returns them and the joint map that made them; ``fps`` is the rate the take was captured at

@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 
 from m2d2m.layout import relative_to_project
-from m2d2m.motion.bvh_reader import BvhError, read_bvh_header
-from m2d2m.motion.joint_map import joint_map_for
-from m2d2m.motion.skeleton import T2M, Skeleton
+from m2d2m.motion.files.bvh_reader import BvhError, read_bvh_header
+from m2d2m.motion.representation.skeleton import T2M, Skeleton
+from m2d2m.motion.rigs.joint_map import joint_map_for
 from pipelines.bvh_corpus import stable_split, take_joints
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, Rejected, register_corpus
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.motion.skeleton import KIT, T2M, Skeleton
+from m2d2m.motion.representation.skeleton import KIT, T2M, Skeleton
 
 SPLITS = ("train", "val", "test")
 

@@ -31,9 +31,9 @@ import m2d2m
 from m2d2m.atomic import atomic_path
 from m2d2m.layout import MANIFEST, NLP, QUARANTINE, SHARDS, STATS, recorded_path, relative_to_project
 from m2d2m.locks import holding
-from m2d2m.motion.normalization import Normalizer, RunningMoments, group_averaged_std
-from m2d2m.motion.representation import features_to_joints, joints_to_features, mirror_caption, mirror_joints
-from m2d2m.motion.skeleton import Skeleton
+from m2d2m.motion.representation.features import features_to_joints, joints_to_features, mirror_caption, mirror_joints
+from m2d2m.motion.representation.normalization import Normalizer, RunningMoments, group_averaged_std
+from m2d2m.motion.representation.skeleton import Skeleton
 from m2d2m.plugins import import_plugins
 from m2d2m.progress import ProgressLines, on_terminal
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, FrameBounds, Rejected, corpus

@@ -36,7 +36,7 @@ from m2d2m.layout import (
     token_shard_urls,
 )
 from m2d2m.locks import holding
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import MotionVQVAE, load_vq
 from pipelines.corpora import SPLITS
 from pipelines.features import code_version, run_json_tasks

@@ -11,7 +11,7 @@ import pytest
 import torch
 import yaml
 
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.recipe import train
 from orchestration.recipes.evaluator import train_evaluator
 from orchestration.recipes.vq import train_vq

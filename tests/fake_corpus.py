@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.motion.skeleton import T2M, Skeleton
+from m2d2m.motion.representation.skeleton import T2M, Skeleton
 from pipelines.corpora import SPLITS, Corpus, CorpusLayout, Rejected, parse_caption_line, register_corpus
 
 

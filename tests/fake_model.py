@@ -15,8 +15,8 @@ import torch
 from m2d2m.generators.options import MULTI, SINGLE, Sampling, knob
 from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.representation import features_to_joints
-from m2d2m.motion.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.representation.features import features_to_joints
+from m2d2m.motion.representation.skeleton import SKELETONS, Skeleton
 from orchestration.recipe import Recipe
 from orchestration.registry import ModelEntry, register
 

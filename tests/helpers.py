@@ -10,9 +10,9 @@ import numpy as np
 import torch
 import yaml
 
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.rotations import qnormalize, quat_from_axis_angle
-from m2d2m.motion.skeleton import Skeleton
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.rotations import qnormalize, quat_from_axis_angle
+from m2d2m.motion.representation.skeleton import Skeleton
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig
 from pipelines.shards import iter_tar_samples
 
@@ -48,7 +48,7 @@ CAPTIONS = (
 def write_corpus(root, splits: dict[str, int], skeleton, kind: str = "joints", seed: int = 0) -> dict[str, list[str]]:
     """A small corpus in HumanML3D's layout: valid clips of 60–120 frames with three tagged
     captions each. Returns the ids per split."""
-    from m2d2m.motion.representation import joints_to_features
+    from m2d2m.motion.representation.features import joints_to_features
 
     folder = root / ("joints" if kind == "joints" else "new_joint_vecs")
     folder.mkdir(parents=True, exist_ok=True)

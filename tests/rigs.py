@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from m2d2m.motion.bvh_reader import BvhClip
-from m2d2m.motion.export import write_bvh
+from m2d2m.motion.files.bvh_reader import BvhClip
+from m2d2m.motion.files.export import write_bvh
 
 # The left side's joints where a T-pose puts them; the right side's are their mirror images in x.
 LEFT = {

@@ -58,7 +58,7 @@ def test_nothing_reads_outside_the_repository():
 MODULE_LINES, FUNCTION_LINES = 500, 60
 
 
-@pytest.mark.parametrize("package", ["orchestration/cli", "orchestration/generate"])
+@pytest.mark.parametrize("package", ["orchestration/cli", "orchestration/generate", "training/data"])
 def test_the_split_rooms_keep_modules_and_functions_a_reader_holds_in_mind(package):
     """Every module of the package under 500 lines and every function under 60 (docstring and
     decorators included), so that the rooms split by job do not grow back into one file."""
@@ -76,3 +76,27 @@ def test_the_split_rooms_keep_modules_and_functions_a_reader_holds_in_mind(packa
                 if node.end_lineno - first + 1 > FUNCTION_LINES:
                     long_functions[f"{name}:{node.name}"] = node.end_lineno - first + 1
     assert long_modules == {} and long_functions == {}
+
+
+def test_each_models_files_sit_in_its_own_package_whose_init_imports_nothing():
+    """issue 55 §3, as transformers' models/<name>/: a registered model's generator and sampling
+    declaration are modules of one package of m2d2m/generators/, and that package's __init__ is a
+    docstring only, so that the registry reading a model's options imports no torch."""
+    from orchestration.registry import models
+
+    for name, entry in models().items():
+        generator, sampling = (path.split(":")[0] for path in (entry.generator, entry.sampling))
+        package = generator.rpartition(".")[0]
+        assert package.startswith("m2d2m.generators.") and package.count(".") == 2, (name, generator)
+        assert sampling.rpartition(".")[0] == package, (name, sampling)
+        init = ast.parse((ROOT / package.replace(".", "/") / "__init__.py").read_text(encoding="utf-8"))
+        assert [type(node) for node in init.body] == [ast.Expr], f"{package}/__init__.py holds more than a docstring"
+
+
+def test_the_motion_package_is_a_clip_and_rooms_named_by_kind():
+    """issue 55 §3, as torchvision's io/, datasets/, transforms/: beside the Motion (clip.py) every
+    module of m2d2m/motion/ sits in the room of its kind, none flat at the top."""
+    motion = ROOT / "m2d2m" / "motion"
+    assert sorted(path.name for path in motion.glob("*.py")) == ["__init__.py", "clip.py"]
+    rooms = sorted(path.parent.name for path in motion.glob("*/__init__.py"))
+    assert rooms == ["files", "representation", "rigs", "transforms"]

@@ -1,5 +1,5 @@
 """A rig's joints mapped onto ours from its names and hierarchy (issue 52 §1–§3;
-m2d2m/motion/auto_map.py): every naming convention of tests/rigs.py maps each of our 22 joints to
+m2d2m/motion/rigs/auto_map.py): every naming convention of tests/rigs.py maps each of our 22 joints to
 the right joint, fingers, twist bones, IK helpers and props passed over; the real rigs of
 tests/fixtures map as their presets do; a rig without toes, collars, a neck or with one spine
 joint still maps, and our motion goes onto a toe-less rig with its toe's direction on the foot;
@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 import yaml
 
-from m2d2m.motion.auto_map import DERIVED, GUESSED, MISSING, NAME, auto_map
-from m2d2m.motion.bvh_reader import BvhClip, BvhError, read_bvh, read_bvh_header
-from m2d2m.motion.export import save_bvh
-from m2d2m.motion.joint_map import PRESETS, JointMap, joint_map_for
-from m2d2m.motion.retarget import Rig, read_rig, retarget, retarget_to_bvh
-from m2d2m.motion.rigid import on_rigid_skeleton
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files.bvh_reader import BvhClip, BvhError, read_bvh, read_bvh_header
+from m2d2m.motion.files.export import save_bvh
+from m2d2m.motion.representation.rigid import on_rigid_skeleton
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.rigs.auto_map import DERIVED, GUESSED, MISSING, NAME, auto_map
+from m2d2m.motion.rigs.joint_map import PRESETS, JointMap, joint_map_for
+from m2d2m.motion.rigs.retarget import Rig, read_rig, retarget, retarget_to_bvh
 from orchestration.cli import main
 from pipelines.bvh_corpus import take_joints
 from tests.conftest import HUMANML3D_SAMPLE
@@ -33,7 +33,7 @@ from tests.test_export import axis_rotation
 from tests.test_joint_map import motionbuilder_release
 from tests.test_up_axis import z_up_bvh
 
-# Our joints at the end of the bones that turn from a standing character's rest (m2d2m.motion.retarget.stands_at_rest)
+# Our joints at the end of the bones that turn from a standing character's rest (m2d2m.motion.rigs.retarget.stands_at_rest)
 FEET_AND_HEAD = frozenset(T2M.joint_names.index(name) for name in ("left_foot", "right_foot", "head"))
 BY_NAME = {convention.name: convention for convention in CONVENTIONS}
 BANDAI_TAKE = next((Path(__file__).parent / "fixtures" / "bandai-namco").rglob("*walk*.bvh"))

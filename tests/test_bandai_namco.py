@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from m2d2m.motion.bvh_reader import read_bvh
-from m2d2m.motion.joint_map import PRESETS, UNITS, joint_map_for
-from m2d2m.motion.representation import canonicalize, features_to_joints, joints_to_features
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files.bvh_reader import read_bvh
+from m2d2m.motion.representation.features import canonicalize, features_to_joints, joints_to_features
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.rigs.joint_map import PRESETS, UNITS, joint_map_for
 from orchestration.cli import main
 from pipelines.bandai_namco import (
     ABOUT,

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from m2d2m.motion.bvh_reader import read_bvh as read_bvh_file
+from m2d2m.motion.files.bvh_reader import read_bvh as read_bvh_file
 from orchestration.web.app import ServeSettings
 from tests.live_server import live_server
 

@@ -1,4 +1,4 @@
-"""The body split (m2d2m/motion/body_parts.py) and the part tokenizers it gives
+"""The body split (m2d2m/motion/representation/body_parts.py) and the part tokenizers it gives
 (VQConfig.part, the VQ module's part losses, Keep of a part)."""
 
 from __future__ import annotations
@@ -8,9 +8,19 @@ import pytest
 import torch
 
 from m2d2m.generators.protocol import keep_part
-from m2d2m.motion.body_parts import FULL, LOWER, PARTS, UPPER, joint_dims, merge, part_dims, part_joints, split
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.skeleton import KIT, T2M
+from m2d2m.motion.representation.body_parts import (
+    FULL,
+    LOWER,
+    PARTS,
+    UPPER,
+    joint_dims,
+    merge,
+    part_dims,
+    part_joints,
+    split,
+)
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.skeleton import KIT, T2M
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig, load_vq
 from tests.helpers import TINY_VQ_RUN

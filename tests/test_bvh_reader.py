@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from m2d2m.motion.bvh_reader import BvhError, read_bvh, resample
-from m2d2m.motion.export import save_bvh
-from m2d2m.motion.skeleton import KIT, T2M
+from m2d2m.motion.files.bvh_reader import BvhError, read_bvh, resample
+from m2d2m.motion.files.export import save_bvh
+from m2d2m.motion.representation.skeleton import KIT, T2M
 from tests.test_export import build_rigid_clip
 
 CMU = Path(__file__).parent / "fixtures" / "cmu-bvh"

@@ -8,9 +8,9 @@ import pytest
 import webdataset as wds
 
 from m2d2m.layout import shard_urls
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.representation import joints_to_features
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.features import joints_to_features
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from pipelines.corpora import list_corpus
 from pipelines.dataset import check_dataset, sample_problems
@@ -205,7 +205,7 @@ def test_cli_reuses_a_complete_dataset_and_checks_it(built, capsys, tmp_path):
 
 
 def test_kit_layout_gives_251_dimensional_samples_at_12_5_fps(tmp_path, ray_local):
-    from m2d2m.motion.skeleton import KIT
+    from m2d2m.motion.representation.skeleton import KIT
 
     raw = tmp_path / "raw"
     write_corpus(raw, {"train": 2, "val": 1, "test": 1}, KIT)

@@ -13,13 +13,13 @@ import pytest
 from m2d2m import integrity
 from m2d2m.integrity import verified_paths
 from m2d2m.layout import MANIFEST, read_manifest
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from pipelines.shards import ShardWriter, sha256_of, shard_records
 from pipelines.testset import build_testset
 from pipelines.tokenize import tokenize_dataset
 from tests.helpers import one_line_error, random_vq, write_corpus
-from training.data import TokenDataModule
+from training.data.tokens import TokenDataModule
 
 
 def checksums(directory: Path) -> dict[str, str]:
@@ -139,7 +139,7 @@ def test_a_read_checks_size_always_and_sha256_once(tmp_path, monkeypatch, damage
 
 def test_token_shards_are_checked_before_training_reads_them(tmp_path):
     shards = {"test": []}
-    for split in ("train", "val"):  # training needs both (training/data.py, require_training_splits)
+    for split in ("train", "val"):  # training needs both (training/data/shards.py, require_training_splits)
         with ShardWriter(tmp_path, split, 2) as writer:
             writer.write("a", {"tokens.npy": b"\0" * 2000, "meta.json": b"{}"})
         shards[split] = shard_records(writer.shards)

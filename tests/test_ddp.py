@@ -13,9 +13,9 @@ import mlflow
 import pytest
 import yaml
 
-from m2d2m.generators.m2d2m_checkpoint import load_m2d2m
-from m2d2m.generators.mmm_checkpoint import load_mmm
-from m2d2m.generators.motiondiffuse_checkpoint import load_motiondiffuse
+from m2d2m.generators.m2d2m.checkpoint import load_m2d2m
+from m2d2m.generators.mmm.checkpoint import load_mmm
+from m2d2m.generators.motiondiffuse.checkpoint import load_motiondiffuse
 from tests.helpers import TINY_MMM, TINY_MOTIONDIFFUSE
 
 WIDTHS = {"m2d2m": 16, "mmm": TINY_MMM["transformer"]["width"], "motiondiffuse": TINY_MOTIONDIFFUSE["network"]["width"]}

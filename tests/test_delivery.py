@@ -16,13 +16,13 @@ import pygltflib
 import pytest
 
 from bench.foot_fix import slide_feet
-from m2d2m.motion.bvh_reader import read_bvh
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.delivery import Delivery, deliver
-from m2d2m.motion.feet import fix_feet, skating_ratio
-from m2d2m.motion.retime import frame_count
-from m2d2m.motion.rigid import on_rigid_skeleton
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files.bvh_reader import read_bvh
+from m2d2m.motion.representation.rigid import on_rigid_skeleton
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.transforms.delivery import Delivery, deliver
+from m2d2m.motion.transforms.feet import fix_feet, skating_ratio
+from m2d2m.motion.transforms.retime import frame_count
 from orchestration.cli import main
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU

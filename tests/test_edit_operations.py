@@ -13,7 +13,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from m2d2m.generators.edits import Edit, Timeline, margin_frames, regenerate_action
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from orchestration.edit_operations import Continue, EditOperation, Fill, Layer, Pin, Regenerate, plan_edit
 from orchestration.errors import UserError

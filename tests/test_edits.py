@@ -23,10 +23,10 @@ from m2d2m.generators.edits import (
     pin_error,
     regenerate_action,
 )
-from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.representation import features_to_joints
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.body_parts import part_mask
+from m2d2m.motion.representation.features import features_to_joints
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from tests.helpers import on_the_floor_as
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import tests.test_testset as handmade
-from m2d2m.generators.m2d2m import M2D2MGenerator
+from m2d2m.generators.m2d2m.generator import M2D2MGenerator
 from orchestration.cli import main
 from orchestration.reports import FEET_TITLES, MULTI_COLUMNS, SINGLE_COLUMNS, table_metrics
 from pipelines.testset import build_testset
@@ -277,8 +277,8 @@ def test_a_metric_registered_from_outside_is_a_column_of_the_table_and_in_mlflow
     """tests/fake_metric.py's root travel, measured on the playback model (tests/fake_model.py),
     whose sequences are known: each row's value is the hand-computed mean over its sequences."""
     import m2d2m.evaluation.sequence_metrics as sequence_metrics
-    from m2d2m.motion.representation import features_to_joints
-    from m2d2m.motion.skeleton import SKELETONS
+    from m2d2m.motion.representation.features import features_to_joints
+    from m2d2m.motion.representation.skeleton import SKELETONS
     from orchestration.registry import load_plugins
     from pipelines.testset import load_testset
 

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from m2d2m.motion.export import save_bvh, save_motion_npy
-from m2d2m.motion.rigid import best_fit_rotation
-from m2d2m.motion.skeleton import KIT, T2M, Skeleton
+from m2d2m.motion.files.export import save_bvh, save_motion_npy
+from m2d2m.motion.representation.rigid import best_fit_rotation
+from m2d2m.motion.representation.skeleton import KIT, T2M, Skeleton
 
 
 @dataclass

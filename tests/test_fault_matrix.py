@@ -28,7 +28,7 @@ import pytest
 import torch
 import yaml
 
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from tests.helpers import (
     TINY_BODY,

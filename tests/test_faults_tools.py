@@ -14,8 +14,8 @@ import pytest
 import torch
 from lightning.pytorch.callbacks import RichProgressBar
 
-from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.generators.m2d2m.checkpoint import M2D2M_FORMAT
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE
 from tests.helpers import TINY_VQ, one_line_error
 from training.callbacks import StepProgressBar
@@ -146,7 +146,7 @@ def test_the_progress_bar_counts_steps_where_lightning_says_epoch_0_of_minus_2(t
 def test_joints_that_show_no_facing_are_refused_as_a_motion_to_edit(tmp_path):
     """Every joint on one vertical line: HumanML3D's processing has no facing to turn the body to,
     and gave NaN features (with a RuntimeWarning) that an edit would have started from."""
-    from m2d2m.motion.skeleton import T2M
+    from m2d2m.motion.representation.skeleton import T2M
     from orchestration.errors import UserError
     from orchestration.viewing import load_features
 

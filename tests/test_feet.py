@@ -1,4 +1,4 @@
-"""Feet that stay planted (m2d2m/motion/feet.py): the two-bone IK against closed forms, GMD's
+"""Feet that stay planted (m2d2m/motion/transforms/feet.py): the two-bone IK against closed forms, GMD's
 skating ratio by hand, contacts judged by the joints, and the fix: real motion (HumanML3D's clip
 012314, CMU's and Bandai Namco's takes) left within the issue's bounds, motion made to slide
 brought back near its clean skating, a synthetic walk whose stance feet slide, a pivot left alone."""
@@ -15,7 +15,9 @@ from bench.foot_fix import CMU, off_ground, on_floor, slide_feet
 from m2d2m.evaluation.measurements import with_planted_feet
 from m2d2m.evaluation.sequence_metrics import measure_sequences
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.feet import (
+from m2d2m.motion.representation.features import joints_to_features
+from m2d2m.motion.representation.skeleton import KIT, T2M, Skeleton
+from m2d2m.motion.transforms.feet import (
     FREE_SPEED_M_S,
     SLIDE_TOLERANCE_M,
     KeptFrames,
@@ -29,8 +31,6 @@ from m2d2m.motion.feet import (
     step_speeds,
     two_bone_ik,
 )
-from m2d2m.motion.representation import joints_to_features
-from m2d2m.motion.skeleton import KIT, T2M, Skeleton
 from pipelines.bvh_corpus import take_joints
 
 FPS = 20.0

@@ -1,5 +1,5 @@
-"""Issue 55 §2: one table of output formats (m2d2m/motion/formats.py) that everything writing,
-listing or checking a format reads, and one sidecar type (m2d2m/motion/sidecar.py) written and
+"""Issue 55 §2: one table of output formats (m2d2m/motion/files/formats.py) that everything writing,
+listing or checking a format reads, and one sidecar type (m2d2m/motion/files/sidecar.py) written and
 read by one module."""
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ import pygltflib
 import pytest
 from PIL import Image
 
-from m2d2m.motion.bvh_reader import read_bvh
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.formats import FORMATS, Format, Writing
-from m2d2m.motion.sidecar import Sidecar, SidecarError
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files.bvh_reader import read_bvh
+from m2d2m.motion.files.formats import FORMATS, Format, Writing
+from m2d2m.motion.files.sidecar import Sidecar, SidecarError
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import build_parser, main
 from orchestration.generate import plan_output
 from orchestration.viewing import load_motion

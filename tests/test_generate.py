@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from m2d2m.generators.m2d2m import M2D2MGenerator
-from m2d2m.generators.m2d2m_checkpoint import load_m2d2m
+from m2d2m.generators.m2d2m.checkpoint import load_m2d2m
+from m2d2m.generators.m2d2m.generator import M2D2MGenerator
 from m2d2m.motion.clip import Motion
 from orchestration.cli import main
 from orchestration.errors import UserError

@@ -17,12 +17,12 @@ from PIL import Image
 
 import orchestration.generate.loading
 import orchestration.generate.sampling
-from m2d2m.generators.m2d2m import M2D2MGenerator
-from m2d2m.motion import render
+from m2d2m.generators.m2d2m.generator import M2D2MGenerator
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
-from m2d2m.motion.rotations import quat_from_axis_angle
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files import render
+from m2d2m.motion.representation.rigid import bone_length_spread, on_rigid_skeleton
+from m2d2m.motion.representation.rotations import quat_from_axis_angle
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from orchestration.generate import Output, plan_output, save_generation
 from tests.helpers import pose_clip
@@ -229,7 +229,7 @@ def test_a_run_folder_says_finished_or_failed(trained_project, monkeypatch, caps
     def broken_encoder(*_, **__):
         raise RuntimeError("ffmpeg failed writing motion.mp4: out of disk")
 
-    monkeypatch.setattr("m2d2m.motion.render.render_motion", broken_encoder)
+    monkeypatch.setattr("m2d2m.motion.files.render.render_motion", broken_encoder)
     code = main(["generate", PROMPTS[0], *QUICK, "--formats", "npy", "gif"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "out of disk" in err and len(err.splitlines()) == 1
@@ -270,7 +270,7 @@ def test_sigterm_while_rendering_marks_the_run_failed_and_leaves_no_gif(tmp_path
 
         return real(*args, progress=tick, **{**options, "size": 64})
 
-    monkeypatch.setattr("m2d2m.motion.render.render_motion", killed_at_frame_3)
+    monkeypatch.setattr("m2d2m.motion.files.render.render_motion", killed_at_frame_3)
     with pytest.raises(KeyboardInterrupt):
         save_generation(motion, Output(None, "motion", ("npy", "gif")), ["a person jumps"], "tiny", track=False)
     (run,) = (tmp_path / "runs" / "tiny" / "generate").iterdir()
@@ -371,7 +371,7 @@ def test_a_failed_overwrite_leaves_the_earlier_clip_as_it_was(tmp_path, monkeypa
     def broken_encoder(*_, **__):
         raise RuntimeError("ffmpeg failed writing motion.gif: out of disk")
 
-    monkeypatch.setattr("m2d2m.motion.render.render_motion", broken_encoder)
+    monkeypatch.setattr("m2d2m.motion.files.render.render_motion", broken_encoder)
     assert main([*FIXED, "--out", str(out), "--formats", "bvh", "gif", "--overwrite"]) == 2
     assert "out of disk" in capsys.readouterr().err
     assert _files(out) == before and sorted(p.name for p in tmp_path.iterdir()) == ["clip"]

@@ -1,4 +1,4 @@
-"""glTF (GLB) and FBX export (m2d2m/motion/gltf.py): the GLB, read back by pygltflib and posed by a
+"""glTF (GLB) and FBX export (m2d2m/motion/files/gltf.py): the GLB, read back by pygltflib and posed by a
 forward kinematics of its nodes written here, reproduces the joints; its actions are named
 animations over their frames; the Khronos glTF Validator finds no error in it; Blender's glTF
 importer puts the bones where the joints are, and Blender's FBX exporter writes a file that reads
@@ -21,9 +21,9 @@ import numpy as np
 import pygltflib as gl
 import pytest
 
-from m2d2m.motion.gltf import CLIP_ANIMATION, ROOT_MOTION_ANIMATION, _xyzw, save_fbx, save_glb
-from m2d2m.motion.rotations import qnormalize, quat_to_matrix
-from m2d2m.motion.skeleton import KIT, T2M, Skeleton
+from m2d2m.motion.files.gltf import CLIP_ANIMATION, ROOT_MOTION_ANIMATION, _xyzw, save_fbx, save_glb
+from m2d2m.motion.representation.rotations import qnormalize, quat_to_matrix
+from m2d2m.motion.representation.skeleton import KIT, T2M, Skeleton
 from tests.test_export import build_rigid_clip
 
 GLTF_VALIDATOR = "2.0.0-dev.3.10"  # npm gltf-validator, the Khronos glTF Validator

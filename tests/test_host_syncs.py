@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import pytest
 import torch
 
-from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import FREE, TokenRequest
+from m2d2m.generators.m2d2m.options import M2D2MOptions
+from m2d2m.generators.m2d2m.sampling import FREE, TokenRequest
 from tests.host_syncs import host_syncs
 from tests.test_m2d2m_module import SENTENCES, make_batch, make_module
 

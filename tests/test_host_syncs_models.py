@@ -28,12 +28,12 @@ from lightning.pytorch.loggers import CSVLogger
 from torch.overrides import TorchFunctionMode
 
 from m2d2m.evaluation.evaluator import BiGRUEncoder, TextMotionEvaluator, learned_vocabulary
-from m2d2m.generators.mmm import Row, decode_sentences
-from m2d2m.generators.mmm_options import DecodingOptions
-from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Term, sample
+from m2d2m.generators.mmm.generator import Row, decode_sentences
+from m2d2m.generators.mmm.options import DecodingOptions
+from m2d2m.generators.motiondiffuse.sampling import FeatureRequest, Term, sample
 from m2d2m.generators.token_model import FREE
-from m2d2m.motion.body_parts import UPPER, part_mask
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.body_parts import UPPER, part_mask
+from m2d2m.motion.representation.skeleton import T2M
 from m2d2m.networks.mmm_body_transformer import BodyMaskedTransformer, BodyTransformerConfig, body_canvas
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig
 from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, MotionDiffuseTransformer
@@ -260,7 +260,7 @@ def assert_no_step_waits(steps: list[tuple[HostSyncs, HostBuiltTensors]], expect
 @pytest.mark.parametrize("body", [False, True], ids=["mmm", "mmm-body"])
 def test_a_parallel_decoding_step_never_waits_for_the_device(body):
     """MMM's decoding reads the batch's free positions once per call, to know how many iterations
-    to queue (m2d2m/generators/mmm_decoding.py); an iteration reads nothing."""
+    to queue (m2d2m/generators/mmm/decoding.py); an iteration reads nothing."""
     torch.manual_seed(0)
     if body:
         config = BodyTransformerConfig(

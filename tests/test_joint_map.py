@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import yaml
 
-from m2d2m.motion.bvh_reader import BvhError, read_bvh, resample
-from m2d2m.motion.export import save_bvh
-from m2d2m.motion.joint_map import PRESETS, JointMap, joint_map_for
-from m2d2m.motion.representation import canonicalize, features_to_joints, joints_to_features
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files.bvh_reader import BvhError, read_bvh, resample
+from m2d2m.motion.files.export import save_bvh
+from m2d2m.motion.representation.features import canonicalize, features_to_joints, joints_to_features
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.rigs.joint_map import PRESETS, JointMap, joint_map_for
 from tests.test_bvh_reader import CMU, CMU_METRES, HUMANML3D_FRAMES
 from tests.test_export import build_rigid_clip
 

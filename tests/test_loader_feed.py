@@ -1,19 +1,14 @@
 """Length bucketing of training batches and the loader's workers and pinned memory on a GPU
-(training/data.py), on in-memory samples: no shards, no Ray, no worker processes."""
+(training/data/passes.py, feed.py), on in-memory samples: no shards, no Ray, no worker processes."""
 
 import numpy as np
 import pytest
 import torch
 import webdataset as wds
 
-from training.data import (
-    BUCKET_POOL_BATCHES,
-    LengthBuckets,
-    LoaderFeed,
-    collate_captioned_tokens,
-    loader_feed,
-    require_workers,
-)
+from training.data.feed import LoaderFeed, loader_feed, require_workers
+from training.data.passes import BUCKET_POOL_BATCHES, LengthBuckets
+from training.data.tokens import collate_captioned_tokens
 
 BATCH = 16
 CUDA, CPU = torch.device("cuda", 0), torch.device("cpu")

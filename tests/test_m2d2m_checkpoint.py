@@ -6,9 +6,9 @@ from dataclasses import replace
 
 import pytest
 
-from m2d2m.generators.m2d2m import M2D2MGenerator
-from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT, load_m2d2m, sampling_defaults
-from m2d2m.generators.m2d2m_options import MULTI_ACTION, SINGLE_ACTION
+from m2d2m.generators.m2d2m.checkpoint import M2D2M_FORMAT, load_m2d2m, sampling_defaults
+from m2d2m.generators.m2d2m.generator import M2D2MGenerator
+from m2d2m.generators.m2d2m.options import MULTI_ACTION, SINGLE_ACTION
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.model_files import LengthPrior
 from m2d2m.text import LearnedTextEncoder

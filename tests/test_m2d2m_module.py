@@ -6,8 +6,8 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import TokenRequest
+from m2d2m.generators.m2d2m.options import M2D2MOptions
+from m2d2m.generators.m2d2m.sampling import TokenRequest
 from m2d2m.text import LearnedTextEncoder
 from training.losses import NonFiniteLossError
 from training.m2d2m_module import M2D2MModule

@@ -21,9 +21,9 @@ from torch.utils._python_dispatch import TorchDispatchMode
 
 from m2d2m.generators.edits import Timeline, layer_part
 from m2d2m.generators.protocol import keep_part
-from m2d2m.motion.body_parts import part_mask
-from m2d2m.motion.representation import joints_to_features
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.body_parts import part_mask
+from m2d2m.motion.representation.features import joints_to_features
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from orchestration.generate import load_generator
 from orchestration.runs import latest_run, read_run_info

@@ -10,15 +10,15 @@ import numpy as np
 import pytest
 import torch
 
-from m2d2m.generators.mmm import MMMGenerator
-from m2d2m.generators.mmm_body import BodyMMMGenerator, masked_lower
-from m2d2m.generators.mmm_checkpoint import BODY_FORMAT, MMM_FORMAT, load_body_mmm
+from m2d2m.generators.mmm.body import BodyMMMGenerator, masked_lower
+from m2d2m.generators.mmm.checkpoint import BODY_FORMAT, MMM_FORMAT, load_body_mmm
+from m2d2m.generators.mmm.generator import MMMGenerator
 from m2d2m.generators.options import SINGLE
 from m2d2m.generators.protocol import Keep, keep_part
 from m2d2m.model_files import LengthPrior
-from m2d2m.motion.body_parts import LOWER, UPPER
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.body_parts import LOWER, UPPER
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.skeleton import T2M
 from m2d2m.networks.mmm_body_transformer import BodyMaskedTransformer, BodyTransformerConfig, body_canvas
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig

@@ -1,4 +1,4 @@
-"""MMM's parallel decoding (m2d2m/generators/mmm_decoding.py) with hand-set predictors."""
+"""MMM's parallel decoding (m2d2m/generators/mmm/decoding.py) with hand-set predictors."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import pytest
 import torch
 
-from m2d2m.generators.mmm_decoding import decode, filtered_probabilities, schedule_table
-from m2d2m.generators.mmm_options import DecodingOptions
+from m2d2m.generators.mmm.decoding import decode, filtered_probabilities, schedule_table
+from m2d2m.generators.mmm.options import DecodingOptions
 from m2d2m.generators.token_model import FREE
 
 K, MASK = 6, 8  # 6 codes; [END] 6, [PAD] 7, [MASK] 8

@@ -1,4 +1,4 @@
-"""MMM's generator (m2d2m/generators/mmm.py) on a tiny random model file: lengths, transitions,
+"""MMM's generator (m2d2m/generators/mmm/generator.py) on a tiny random model file: lengths, transitions,
 editing, batch independence and the model file's round trip."""
 
 from __future__ import annotations
@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from m2d2m.generators.mmm import MMMGenerator
-from m2d2m.generators.mmm_checkpoint import MMM_FORMAT, load_mmm
+from m2d2m.generators.mmm.checkpoint import MMM_FORMAT, load_mmm
+from m2d2m.generators.mmm.generator import MMMGenerator
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.generators.protocol import Keep
 from m2d2m.model_files import LengthPrior
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE
 from m2d2m.text import LearnedTextEncoder

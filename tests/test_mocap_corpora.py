@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from m2d2m.layout import relative_to_project, shard_urls
-from m2d2m.motion.bvh_reader import read_bvh
-from m2d2m.motion.joint_map import PRESETS, UNITS
-from m2d2m.motion.representation import joints_to_features
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files.bvh_reader import read_bvh
+from m2d2m.motion.representation.features import joints_to_features
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.rigs.joint_map import PRESETS, UNITS
 from orchestration.cli import main
 from orchestration.config import load_config
 from pipelines.bvh_corpus import BVH_LAYOUT, list_takes, read_take, stable_split, take_joints
@@ -96,7 +96,7 @@ def test_a_unit_that_cannot_be_told_is_one_line(clip, units, message):
 
 def test_a_take_standing_along_z_reads_as_the_y_up_one(tmp_path):
     """A rig standing along +Z was refused ("does not stand along +Y in its rest pose"); its
-    motion now says where up is (m2d2m/motion/up_axis.py): 131_01 written Z-up reads as 131_01,
+    motion now says where up is (m2d2m/motion/rigs/up_axis.py): 131_01 written Z-up reads as 131_01,
     found in CMU's unit as that is."""
     (tmp_path / "131_01.bvh").write_text(z_up_bvh((CMU / "131_01.bvh").read_text(encoding="utf-8")), encoding="utf-8")
     z_up, mapping = take_joints(tmp_path / "131_01.bvh")

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from m2d2m.model_files import PLAIN, Float32, LengthPrior, Lengths, ModelFileKind, Network, Normalization, Text
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import MotionVQVAE, VQConfig
 from m2d2m.text import LearnedTextEncoder
 from tests.helpers import TINY_VQ

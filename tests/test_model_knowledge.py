@@ -12,8 +12,8 @@ import shutil
 import pytest
 from fastapi.testclient import TestClient
 
-from m2d2m.generators.m2d2m import M2D2MGenerator
-from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT
+from m2d2m.generators.m2d2m.checkpoint import M2D2M_FORMAT
+from m2d2m.generators.m2d2m.generator import M2D2MGenerator
 from orchestration.cli import main
 from orchestration.model_summary import also_trained
 from orchestration.web.app import ServeSettings, create_app

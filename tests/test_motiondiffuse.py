@@ -13,14 +13,14 @@ import pytest
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from m2d2m.generators.motiondiffuse import MotionDiffuseGenerator
-from m2d2m.generators.motiondiffuse_checkpoint import MOTIONDIFFUSE_FORMAT, load_motiondiffuse
-from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Layout, Term, sample
+from m2d2m.generators.motiondiffuse.checkpoint import MOTIONDIFFUSE_FORMAT, load_motiondiffuse
+from m2d2m.generators.motiondiffuse.generator import MotionDiffuseGenerator
+from m2d2m.generators.motiondiffuse.sampling import FeatureRequest, Layout, Term, sample
 from m2d2m.generators.protocol import Keep, keep_part
 from m2d2m.model_files import LengthPrior
-from m2d2m.motion.body_parts import LOWER, UPPER, part_mask
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.body_parts import LOWER, UPPER, part_mask
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.skeleton import T2M
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.motiondiffuse_transformer import (
     MotionDiffuseConfig,

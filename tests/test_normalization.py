@@ -3,8 +3,8 @@
 import numpy as np
 import torch
 
-from m2d2m.motion.normalization import Normalizer, RunningMoments, feature_groups, group_averaged_std
-from m2d2m.motion.skeleton import KIT, T2M
+from m2d2m.motion.representation.normalization import Normalizer, RunningMoments, feature_groups, group_averaged_std
+from m2d2m.motion.representation.skeleton import KIT, T2M
 
 
 def test_groups_tile_the_feature_vector():

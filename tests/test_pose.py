@@ -1,4 +1,4 @@
-"""The rig's form of a clip (m2d2m/motion/pose.py): forward kinematics of the rotations made from
+"""The rig's form of a clip (m2d2m/motion/representation/pose.py): forward kinematics of the rotations made from
 a rigid clip gives the clip back, on either bind pose, and the bind pose keeps the clip's bones."""
 
 from __future__ import annotations
@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from m2d2m.motion.pose import pose_of
-from m2d2m.motion.skeleton import KIT, T2M
+from m2d2m.motion.representation.pose import pose_of
+from m2d2m.motion.representation.skeleton import KIT, T2M
 from tests.test_export import build_rigid_clip
 
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from PIL import Image, ImageSequence
 
-from m2d2m.motion import render
-from m2d2m.motion.render import render_comparison, render_frames, render_motion
-from m2d2m.motion.skeleton import KIT, T2M
+from m2d2m.motion.files import render
+from m2d2m.motion.files.render import render_comparison, render_frames, render_motion
+from m2d2m.motion.representation.skeleton import KIT, T2M
 
 
 @pytest.fixture(scope="module")

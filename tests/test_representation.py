@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from m2d2m.motion.representation import (
+from m2d2m.motion.representation.features import (
     canonicalize,
     features_to_joints,
     gaussian_smooth,
@@ -12,8 +12,8 @@ from m2d2m.motion.representation import (
     mirror_caption,
     mirror_joints,
 )
-from m2d2m.motion.rotations import qrot, quat_from_axis_angle
-from m2d2m.motion.skeleton import KIT, T2M
+from m2d2m.motion.representation.rotations import qrot, quat_from_axis_angle
+from m2d2m.motion.representation.skeleton import KIT, T2M
 from tests.helpers import pose_clip
 
 # The sample's joints are HumanML3D's own output, one frame shorter than the clip its features

@@ -16,14 +16,14 @@ import numpy as np
 import pygltflib
 import pytest
 
-from m2d2m.motion.bvh_reader import BvhError, read_bvh
-from m2d2m.motion.gltf import CLIP_ANIMATION, save_glb
-from m2d2m.motion.joint_map import PRESETS, JointMap, joint_map_for
-from m2d2m.motion.retarget import Bind, Rig, Target, read_rig, read_target, retarget, retarget_to_bvh
-from m2d2m.motion.rig_gltf import save_rig_glb
-from m2d2m.motion.rigid import on_rigid_skeleton
-from m2d2m.motion.rotations import quat_to_matrix
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files.bvh_reader import BvhError, read_bvh
+from m2d2m.motion.files.gltf import CLIP_ANIMATION, save_glb
+from m2d2m.motion.representation.rigid import on_rigid_skeleton
+from m2d2m.motion.representation.rotations import quat_to_matrix
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.rigs.gltf_export import save_rig_glb
+from m2d2m.motion.rigs.joint_map import PRESETS, JointMap, joint_map_for
+from m2d2m.motion.rigs.retarget import Bind, Rig, Target, read_rig, read_target, retarget, retarget_to_bvh
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.rigs import CONVENTIONS
 from tests.test_bvh_reader import CMU, CMU_METRES

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from bench.retarget_quality import XBOT, landing, our_clip, rigs
-from m2d2m.motion.joint_map import joint_map_for
-from m2d2m.motion.retarget import OUR_REST_AIMS, Rig, read_rig, retarget
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.rigs.joint_map import joint_map_for
+from m2d2m.motion.rigs.retarget import OUR_REST_AIMS, Rig, read_rig, retarget
 
 RIGS = rigs()
 # A known gap, measured in the bench's table: Biped hangs its thighs from its first spine joint,

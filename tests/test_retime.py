@@ -1,4 +1,4 @@
-"""Frame rate, root motion and loops (m2d2m/motion/retime.py): a resampled clip passes through the
+"""Frame rate, root motion and loops (m2d2m/motion/transforms/retime.py): a resampled clip passes through the
 source's poses at the instants both rates share and keeps its bones, slerp is the geodesic one,
 root motion comes off and goes back exactly, and a loop's seam is as smooth as the clip itself
 where a loop without the cross-fade is not."""
@@ -9,8 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from m2d2m.motion.pose import pose_of
-from m2d2m.motion.retime import (
+from m2d2m.motion.representation.pose import pose_of
+from m2d2m.motion.representation.rigid import on_rigid_skeleton
+from m2d2m.motion.representation.rotations import matrix_to_quat
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.transforms.retime import (
     frame_count,
     make_loop,
     resample,
@@ -19,9 +22,6 @@ from m2d2m.motion.retime import (
     root_motion,
     source_positions,
 )
-from m2d2m.motion.rigid import on_rigid_skeleton
-from m2d2m.motion.rotations import matrix_to_quat
-from m2d2m.motion.skeleton import T2M
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_export import build_rigid_clip
 

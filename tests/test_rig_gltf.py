@@ -1,4 +1,4 @@
-"""A motion on a user's rig as GLB and FBX (m2d2m/motion/rig_gltf.py; issue 52 §3): read back by
+"""A motion on a user's rig as GLB and FBX (m2d2m/motion/rigs/gltf_export.py; issue 52 §3): read back by
 pygltflib and posed by a forward kinematics of its nodes' own keys (translation, rotation and
 scale, glTF 2.0 §3.5.3), a GLB on CMU's BVH rig and one on Mixamo's X Bot character put every
 joint where the BVH on the same rig puts it; the X Bot's file keeps its own nodes, skin and
@@ -15,12 +15,12 @@ import numpy as np
 import pygltflib as gl
 import pytest
 
-from m2d2m.motion.bvh_reader import read_bvh
-from m2d2m.motion.gltf import CLIP_ANIMATION
-from m2d2m.motion.retarget import read_target, retarget_to_bvh
-from m2d2m.motion.rig_gltf import save_rig_fbx, save_rig_glb
-from m2d2m.motion.rigid import on_rigid_skeleton
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.files.bvh_reader import read_bvh
+from m2d2m.motion.files.gltf import CLIP_ANIMATION
+from m2d2m.motion.representation.rigid import on_rigid_skeleton
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.rigs.gltf_export import save_rig_fbx, save_rig_glb
+from m2d2m.motion.rigs.retarget import read_target, retarget_to_bvh
 from orchestration.cli import main
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_bvh_reader import CMU
@@ -179,7 +179,7 @@ def test_export_writes_the_glb_on_the_x_bot_and_a_format_off_rigs_is_one_line(tm
 def test_a_characters_mesh_skin_and_material_are_kept_and_move_with_its_joints(tmp_path, ours):
     """Our own GLB as the character (a body mesh skinned by inverse bind matrices, a material):
     its mesh's data come back as they were, and the joints it skins go where its BVH puts them."""
-    from m2d2m.motion.gltf import save_glb
+    from m2d2m.motion.files.gltf import save_glb
 
     save_glb(tmp_path / "ours.glb", ours[:1], T2M)
     source = gl.GLTF2.load(str(tmp_path / "ours.glb"))

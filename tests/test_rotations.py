@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from m2d2m.motion.rotations import (
+from m2d2m.motion.representation.rotations import (
     cont6d_to_matrix,
     cross,
     euler_to_matrix,

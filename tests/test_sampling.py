@@ -10,8 +10,8 @@ import torch
 from torch._inductor.exc import InvalidCxxCompiler
 
 from m2d2m.compiling import Compiled, bucket, compiles
-from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import FREE, RowLayout, TokenRequest, TokenSampler, length_groups, truncate
+from m2d2m.generators.m2d2m.options import M2D2MOptions
+from m2d2m.generators.m2d2m.sampling import FREE, RowLayout, TokenRequest, TokenSampler, length_groups, truncate
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule, categorical
 from m2d2m.text import LearnedTextEncoder
@@ -302,7 +302,7 @@ def test_all_steps_is_the_one_step_reverse_process_draw_for_draw(sampler):
 
 
 def test_timestep_grid_keeps_T_s_and_scales_both_phases():
-    from m2d2m.generators.m2d2m_sampling import timesteps
+    from m2d2m.generators.m2d2m.sampling import timesteps
 
     joint, independent = timesteps(100, None, 90)
     assert joint == [(t, t - 1) for t in range(100, 90, -1)] and independent == [(t, t - 1) for t in range(90, 0, -1)]

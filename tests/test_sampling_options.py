@@ -105,8 +105,8 @@ def test_a_knob_or_a_label_naming_an_unknown_method_is_refused():
 
 
 def test_declared_choices_are_the_processes_own():
-    from m2d2m.generators.mmm_options import SCHEDULES
-    from m2d2m.generators.motiondiffuse_options import VARIANCES
+    from m2d2m.generators.mmm.options import SCHEDULES
+    from m2d2m.generators.motiondiffuse.options import VARIANCES
     from m2d2m.processes import gaussian_diffusion, masking
 
     assert SCHEDULES == masking.SCHEDULES and VARIANCES == gaussian_diffusion.VARIANCES

@@ -24,8 +24,8 @@ import pygltflib
 import pytest
 from fastapi.testclient import TestClient
 
-from m2d2m.generators.m2d2m_options import SAMPLING
-from m2d2m.motion.skeleton import T2M
+from m2d2m.generators.m2d2m.options import SAMPLING
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from orchestration.errors import UserError
 from orchestration.web.app import STATIC, ServeSettings, create_app
@@ -231,8 +231,8 @@ def test_a_clip_is_delivered_as_asked_and_comes_as_a_glb(client, trained_project
 
 def test_a_generation_downloads_on_an_uploaded_rig(client, trained_project):
     """Issue 40 §2, §5: a person uploads their character's BVH, or its GLB, and gets the clip on it."""
-    from m2d2m.motion.bvh_reader import read_bvh
-    from m2d2m.motion.retarget import Rig
+    from m2d2m.motion.files.bvh_reader import read_bvh
+    from m2d2m.motion.rigs.retarget import Rig
     from tests.test_bvh_reader import CMU
     from tests.test_retarget import cmu_rig_as_glb
 

@@ -22,9 +22,9 @@ import yaml
 from fastapi.testclient import TestClient
 
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.representation import joints_to_features
-from m2d2m.motion.retime import resample
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.features import joints_to_features
+from m2d2m.motion.representation.skeleton import T2M
+from m2d2m.motion.transforms.retime import resample
 from orchestration.cli import main
 from orchestration.errors import UserError
 from orchestration.viewing import load_features

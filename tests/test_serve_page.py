@@ -28,8 +28,8 @@ import pygltflib as gl
 import pytest
 import yaml
 
-from m2d2m.generators.m2d2m_options import SAMPLING
-from m2d2m.motion.joint_map import PRESETS
+from m2d2m.generators.m2d2m.options import SAMPLING
+from m2d2m.motion.rigs.joint_map import PRESETS
 from orchestration.web.app import ServeSettings
 from tests.browser import NEEDS_CHROMIUM, find_all_css, open_page, wait_for
 from tests.helpers import xbot_with_a_mesh

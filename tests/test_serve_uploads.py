@@ -16,10 +16,10 @@ import pytest
 import yaml
 from fastapi.testclient import TestClient
 
-import m2d2m.motion.retarget as retarget_module
-from m2d2m.motion.bvh_reader import read_bvh
-from m2d2m.motion.joint_map import PRESETS
-from m2d2m.motion.retarget import read_rig, retarget_to_bvh
+import m2d2m.motion.rigs.retarget as retarget_module
+from m2d2m.motion.files.bvh_reader import read_bvh
+from m2d2m.motion.rigs.joint_map import PRESETS
+from m2d2m.motion.rigs.retarget import read_rig, retarget_to_bvh
 from orchestration.cli import main
 from orchestration.web import server
 from orchestration.web.app import ServeSettings, create_app
@@ -48,7 +48,7 @@ def bare_client(tmp_path, monkeypatch):
 
 @pytest.fixture
 def reads(monkeypatch) -> list[Path]:
-    """Every rig file read (:func:`m2d2m.motion.retarget.read_rig`), in order."""
+    """Every rig file read (:func:`m2d2m.motion.rigs.retarget.read_rig`), in order."""
     read: list[Path] = []
 
     def counted(path):

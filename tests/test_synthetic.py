@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from pipelines import synthetic as syn
 
 CLIPS, SEED = 60, 7

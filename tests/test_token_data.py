@@ -9,11 +9,12 @@ import pytest
 import torch
 import webdataset as wds
 
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
 from pipelines.tokenize import tokenize_dataset
 from tests.helpers import random_vq, write_corpus
-from training.data import CaptionSampler, LoaderFeed, TokenDataModule, caption_span
+from training.data.feed import LoaderFeed
+from training.data.tokens import CaptionSampler, TokenDataModule, caption_span
 
 KICK_SHORT = "a person kicks#a/DET person/NOUN kick/VERB#0.5#0.55"  # shorter than a token: widened to one
 KICK_LATE = "a person kicks#a/DET person/NOUN kick/VERB#20.0#30.0"  # past every clip's end: whole clip
@@ -200,7 +201,7 @@ def test_the_bucketed_stream_is_a_function_of_the_seed(token_set, workers):
 def test_the_loaders_pin_and_start_workers_when_the_trainer_trains_on_a_gpu(token_set, monkeypatch):
     """The feed a DataModule takes from the trainer Lightning attaches (a stand-in naming a GPU: the
     decision needs none); ``auto`` means no workers on a CPU, as the demo configs' 0 did."""
-    monkeypatch.setattr("training.data.usable_cpus", lambda: 16)
+    monkeypatch.setattr("training.data.shard_module.usable_cpus", lambda: 16)
     module = TokenDataModule(token_set[0], num_workers="auto")
     assert module.feed() == LoaderFeed(0, pin_memory=False)
     module.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=torch.device("cuda", 0)), num_devices=2)

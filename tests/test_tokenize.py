@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.skeleton import T2M
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, VQConfig, load_vq
 from pipelines.features import DataConfig, build_dataset
 from pipelines.shards import ShardWriter, iter_tar_samples, npy_bytes

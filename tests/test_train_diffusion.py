@@ -50,7 +50,7 @@ def test_the_denoiser_trains_on_tokens_it_makes_first_and_is_tracked(project, ti
     )
     assert read_run_info(ablation)["config"]["diffusion"]["kind"] == "uniform"
     # snapshots: a model file per step, each loading as a generator, the weights differing between steps
-    from m2d2m.generators.m2d2m import M2D2MGenerator
+    from m2d2m.generators.m2d2m.generator import M2D2MGenerator
 
     seconds = json.loads((ablation / "snapshots" / "seconds.json").read_text(encoding="utf-8"))
     assert sorted(seconds) == ["1", "3"] and 0 < seconds["1"] < seconds["3"]

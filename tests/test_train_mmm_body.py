@@ -10,13 +10,13 @@ import pytest
 import torch
 import yaml
 
-from m2d2m.motion.body_parts import LOWER, UPPER, part_dims
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.body_parts import LOWER, UPPER, part_dims
+from m2d2m.motion.representation.skeleton import T2M
 from m2d2m.networks.vqvae import load_vq
 from orchestration.cli import main
 from orchestration.runs import latest_run, read_run_info
 from tests.helpers import TINY_BODY, TINY_MMM, latest_evaluation, pose_clip, write_part_tokenizer_configs
-from training.data import BodyTokenDataModule, TokenDataModule
+from training.data.tokens import BodyTokenDataModule, TokenDataModule
 
 
 @pytest.fixture(scope="module")

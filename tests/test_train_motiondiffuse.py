@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
-from m2d2m.motion.body_parts import part_mask
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.body_parts import part_mask
+from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from orchestration.recipe import train
 from orchestration.reports import FEET_TITLES

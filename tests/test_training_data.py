@@ -12,10 +12,11 @@ import webdataset as wds
 from numpy.lib.stride_tricks import sliding_window_view
 
 from m2d2m.layout import MANIFEST, shard_urls
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from pipelines.features import DataConfig, build_dataset
 from tests.helpers import write_corpus
-from training.data import MotionWindowDataModule, WindowCropper, valid_frames
+from training.data.motion_windows import MotionWindowDataModule
+from training.data.samples import WindowCropper, valid_frames
 from training.evaluator_module import CaptionMotionDataModule
 
 

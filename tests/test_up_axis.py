@@ -1,4 +1,4 @@
-"""Which way is up, read from the motion (m2d2m/motion/up_axis.py): HumanML3D's sample clip
+"""Which way is up, read from the motion (m2d2m/motion/rigs/up_axis.py): HumanML3D's sample clip
 turned to stand along each world axis comes back upright, by a proper rotation; a motion
 standing along no one axis is refused in one line. ``z_up_bvh`` writes a Y-up BVH as a Z-up
 exporter does (tests/test_mocap_corpora.py, tests/test_bandai_namco.py read such files)."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from m2d2m.motion.up_axis import stance
+from m2d2m.motion.rigs.up_axis import stance
 from tests.conftest import HUMANML3D_SAMPLE
 from tests.test_export import axis_rotation
 

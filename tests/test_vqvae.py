@@ -10,7 +10,7 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import VQ_FORMAT, EMACodebook, MotionVQVAE, VQConfig, load_vq
 
 SMALL = VQConfig(feature_dim=12, width=32, depth=2, code_dim=16, codebook_size=32)
@@ -285,7 +285,7 @@ def test_paper_size_default_runs_on_cpu():
 
 
 def test_output_low_pass_is_the_library_gaussian_filter_and_zero_is_t2m_gpts_decoder():
-    from m2d2m.motion.smoothing import gaussian_smooth
+    from m2d2m.motion.representation.smoothing import gaussian_smooth
     from m2d2m.networks.vqvae import TemporalLowPass
 
     x = np.random.default_rng(1).normal(size=(2, 5, 30))

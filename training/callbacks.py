@@ -18,9 +18,9 @@ from lightning.pytorch.loggers import MLFlowLogger
 
 from m2d2m.atomic import atomic_path
 from m2d2m.generators.token_model import TokenCodec
-from m2d2m.motion.render import render_comparison, render_motion
-from m2d2m.motion.representation import features_to_joints
-from m2d2m.motion.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.files.render import render_comparison, render_motion
+from m2d2m.motion.representation.features import features_to_joints
+from m2d2m.motion.representation.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.vqvae import load_vq
 from m2d2m.progress import ProgressLines
 from training.losses import is_logging_step

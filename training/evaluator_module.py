@@ -23,16 +23,11 @@ import torch
 from lightning.pytorch.utilities import rank_zero_info
 
 from m2d2m.evaluation.evaluator import UNIT_LENGTH, EvaluatorConfig, TextMotionEvaluator, contrastive_loss
-from m2d2m.motion.normalization import Normalizer
-from training.data import (
-    FeatureShardDataModule,
-    Sample,
-    caption_span,
-    clip_metas,
-    pad_clips,
-    random_window,
-    worker_generator,
-)
+from m2d2m.motion.representation.normalization import Normalizer
+from training.data.samples import Sample, pad_clips, random_window, worker_generator
+from training.data.shard_module import FeatureShardDataModule
+from training.data.shards import clip_metas
+from training.data.tokens import caption_span
 from training.optim import configure_adamw
 from training.step import TrainingModule
 

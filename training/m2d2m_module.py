@@ -9,8 +9,8 @@ import numpy as np
 import torch
 
 from m2d2m.compiling import pad_to_bucket
-from m2d2m.generators.m2d2m_options import M2D2MOptions
-from m2d2m.generators.m2d2m_sampling import TokenRequest, TokenSampler
+from m2d2m.generators.m2d2m.options import M2D2MOptions
+from m2d2m.generators.m2d2m.sampling import TokenRequest, TokenSampler
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.m2d2m_denoiser import DenoiserConfig, MotionDenoiser
 from m2d2m.processes.discrete_diffusion import TransitionSchedule
@@ -78,7 +78,7 @@ class M2D2MModule(TrainingModule):
         self.register_load_state_dict_post_hook(lambda module, keys: module._rebuild_schedule())
 
     def model_parts(self) -> dict[str, Any]:
-        """The networks and settings this module gives its model file (m2d2m/generators/m2d2m_checkpoint.py)."""
+        """The networks and settings this module gives its model file (m2d2m/generators/m2d2m/checkpoint.py)."""
         return {
             "denoiser": self.denoiser,
             "text": self.text_encoder,

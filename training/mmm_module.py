@@ -10,8 +10,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from m2d2m.generators.mmm import Row, decode_sentences
-from m2d2m.generators.mmm_options import DecodingOptions
+from m2d2m.generators.mmm.generator import Row, decode_sentences
+from m2d2m.generators.mmm.options import DecodingOptions
 from m2d2m.generators.token_model import FREE
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.mmm_transformer import MaskedMotionTransformer, MaskedTransformerConfig, canvas
@@ -68,7 +68,7 @@ class MMMModule(TrainingModule):
                 raise ConfigError(f"{name} must lie in [0, 1], got {value}")
 
     def model_parts(self) -> dict[str, Any]:
-        """The networks this module gives its model file (m2d2m/generators/mmm_checkpoint.py)."""
+        """The networks this module gives its model file (m2d2m/generators/mmm/checkpoint.py)."""
         return {"transformer": self.transformer, "text": self.text_encoder}
 
     def build_transformer(

@@ -10,14 +10,14 @@ from typing import Any
 import numpy as np
 import torch
 
-from m2d2m.generators.motiondiffuse_sampling import FeatureRequest, Term, sample
-from m2d2m.motion.normalization import Normalizer
+from m2d2m.generators.motiondiffuse.sampling import FeatureRequest, Term, sample
+from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.config import ConfigError
 from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, MotionDiffuseTransformer
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion, prediction_of
 from m2d2m.text import text_encoder_from_config
 from training.conditioning import drop_captions
-from training.data import valid_frames
+from training.data.samples import valid_frames
 from training.losses import log_by_quarter
 from training.optim import configure_adamw
 from training.step import TrainingModule
@@ -65,7 +65,7 @@ class MotionDiffuseModule(TrainingModule):
         self.register_buffer("feature_scale", torch.ones(feature_dim))
 
     def model_parts(self) -> dict[str, Any]:
-        """The networks this module gives its model file (m2d2m/generators/motiondiffuse_checkpoint.py)."""
+        """The networks this module gives its model file (m2d2m/generators/motiondiffuse/checkpoint.py)."""
         return {"network": self.network, "text": self.text_encoder}
 
     def set_normalizer(self, normalizer: Normalizer) -> None:

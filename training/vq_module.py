@@ -9,10 +9,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from m2d2m.motion.body_parts import part_joints
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.representation import features_to_joints
-from m2d2m.motion.skeleton import SKELETONS
+from m2d2m.motion.representation.body_parts import part_joints
+from m2d2m.motion.representation.features import features_to_joints
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.skeleton import SKELETONS
 from m2d2m.networks.vqvae import MotionVQVAE, VQConfig
 from training.optim import configure_adamw
 from training.step import TrainingModule

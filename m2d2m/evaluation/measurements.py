@@ -13,12 +13,12 @@ measured with the text–motion evaluator:
   FlowMDM's Peak Jerk and AUJ of the full windows' mean jerk curve, AUJ against the test set's
   ground-truth mean frame jerk (:func:`m2d2m.evaluation.metrics.peak_jerk_and_auj`);
 - body: the spread of bone lengths of the decoded joints (each bone's standard deviation over a
-  sequence's frames, mean over bones, in mm; :func:`m2d2m.motion.rigid.bone_length_spread`),
+  sequence's frames, mean over bones, in mm; :func:`m2d2m.motion.representation.rigid.bone_length_spread`),
   0 for one rigid skeleton: how far a generator's bodies are from the corpus's one skeleton.
 
 Reference rows: "ground truth (single)" measures the ground-truth segments and their middle
 windows the same way; "ground truth (concat)" is the Jerk at the boundaries of each instance's
-ground-truth segments joined by :func:`m2d2m.motion.joining.slerp_join` with no window (aligned,
+ground-truth segments joined by :func:`m2d2m.motion.transforms.joining.slerp_join` with no window (aligned,
 not blended); "VQ-VAE reconstruction", for a model with a codec
 (:meth:`~m2d2m.generators.protocol.MotionGenerator.reconstruct`), measures each instance's
 ground-truth segments encoded, concatenated in tokens and decoded together like a method's
@@ -57,10 +57,10 @@ from m2d2m.generators.edits import Timeline, apply_edit, margin_frames, regenera
 from m2d2m.generators.options import MULTI, SINGLE
 from m2d2m.generators.protocol import Keep, MotionGenerator, keep_part
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.feet import fix_feet
-from m2d2m.motion.joining import slerp_join
-from m2d2m.motion.representation import features_to_joints, joints_to_features
-from m2d2m.motion.rigid import bone_length_spread
+from m2d2m.motion.representation.features import features_to_joints, joints_to_features
+from m2d2m.motion.representation.rigid import bone_length_spread
+from m2d2m.motion.transforms.feet import fix_feet
+from m2d2m.motion.transforms.joining import slerp_join
 
 WINDOW = 40  # transition frames around a boundary (paper §5.1, after PriorMDM)
 JERK_FPS = 1.0  # time in frames: the scale of the paper's Jerk column (ground truth ≈ 1.19)
@@ -606,7 +606,7 @@ class Evaluation:
 def with_planted_feet(motion: Motion, skeleton: Any) -> Motion:
     """``motion`` with its feet planted where the model's own contact channels say they touch
     down, checked against its joints, as a delivery plants them (one function for both:
-    :func:`m2d2m.motion.feet.fix_feet`), and its features
+    :func:`m2d2m.motion.transforms.feet.fix_feet`), and its features
     changed by exactly what the fix changed: the model's features plus the difference between
     the features of the planted joints and those of the generated joints, both derived alike.
 
@@ -637,7 +637,7 @@ def inbetween_keep(features: np.ndarray, skeleton: Any) -> Keep:
 
 def upper_body_keep(features: np.ndarray, skeleton: Any) -> Keep:
     """Upper-body editing as MMM's Table 3 evaluates it: the lower body kept on every frame, the
-    upper body generated (:mod:`m2d2m.motion.body_parts`)."""
+    upper body generated (:mod:`m2d2m.motion.representation.body_parts`)."""
     return keep_part(features, skeleton, "lower")
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from m2d2m.motion.feet import skating_ratio
+from m2d2m.motion.transforms.feet import skating_ratio
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
@@ -60,7 +60,7 @@ def measure_sequences(sequences: Sequence[tuple[np.ndarray, Sequence[int]]], ske
 
 
 def skating(joints: np.ndarray, boundaries: Sequence[int], skeleton: Any) -> float:
-    """GMD's foot skating ratio at the skeleton's frame rate (:func:`m2d2m.motion.feet.skating_ratio`),
+    """GMD's foot skating ratio at the skeleton's frame rate (:func:`m2d2m.motion.transforms.feet.skating_ratio`),
     registered here, not by a plugin, so that every evaluation reports how much each row's feet
     slide (docs/evaluation.md, "Feet that stay planted")."""
     return skating_ratio(joints, skeleton, skeleton.fps)

@@ -32,10 +32,10 @@ import numpy as np
 
 from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.feet import KeptFrames
-from m2d2m.motion.representation import facing_direction, features_to_joints
-from m2d2m.motion.rigid import on_rigid_skeleton, rigid_shapes
-from m2d2m.motion.skeleton import Skeleton
+from m2d2m.motion.representation.features import facing_direction, features_to_joints
+from m2d2m.motion.representation.rigid import on_rigid_skeleton, rigid_shapes
+from m2d2m.motion.representation.skeleton import Skeleton
+from m2d2m.motion.transforms.feet import KeptFrames
 
 EDIT_MARGIN_SECONDS = 0.4  # sampled again on each side of a changed span, so that the join is the model's
 
@@ -416,7 +416,7 @@ def meet_pin(features: np.ndarray, pasted: np.ndarray, frame: int, pose: np.ndar
 
 
 def body_of(edit: Edit, skeleton: Skeleton) -> dict[int, np.ndarray]:
-    """The rigid body of the edit's source (:func:`m2d2m.motion.rigid.rigid_shapes`): the result
+    """The rigid body of the edit's source (:func:`m2d2m.motion.representation.rigid.rigid_shapes`): the result
     put on it, its kept frames have the joints the source had; a body fitted to the result's own
     frames would move them by up to centimetres."""
     return rigid_shapes(features_to_joints(edit.sources[0].features, skeleton), skeleton)
@@ -426,7 +426,7 @@ def kept_frames(edit: Edit, result: Motion, body: dict[int, np.ndarray]) -> Kept
     """The frames of ``result`` (the edit applied, on the source's ``body``) that its sources
     delivered, as they delivered them (feet planted, a loop's seam faded), each turned about the
     vertical and moved as the result's frame is from the source's: the foot fix of the result's
-    delivery leaves them as they are (:class:`~m2d2m.motion.feet.KeptFrames`). Why: the fix run
+    delivery leaves them as they are (:class:`~m2d2m.motion.transforms.feet.KeptFrames`). Why: the fix run
     again over the result re-plants the contact runs that cross a margin and moved kept feet by
     up to 4 cm. None when no source was delivered at the model's rate."""
     skeleton = result.skeleton

@@ -23,9 +23,9 @@ import numpy as np
 import torch
 
 from m2d2m.generators.options import MULTI, Sampling
-from m2d2m.motion.body_parts import part_mask
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.skeleton import Skeleton
+from m2d2m.motion.representation.body_parts import part_mask
+from m2d2m.motion.representation.skeleton import Skeleton
 from m2d2m.precision import autocast, resolve
 from m2d2m.text import TextEncoder
 
@@ -37,7 +37,7 @@ class Keep:
     feature dimensions where ``dims`` is True: (D,) the same on every frame, (F, D) frame by frame
     (a body part kept over a span only), None every dimension, whole frames. A model that
     generates in coarser units keeps every unit that holds a kept frame; one that cannot keep
-    some dimensions alone (a body part: :mod:`m2d2m.motion.body_parts`) refuses such a Keep."""
+    some dimensions alone (a body part: :mod:`m2d2m.motion.representation.body_parts`) refuses such a Keep."""
 
     features: np.ndarray
     frames: np.ndarray
@@ -248,7 +248,7 @@ class MotionGenerator(ABC):
         seeds: Sequence[int],
         progress: Callable[[float], None] | None = None,
     ) -> list[Motion]:
-        """One motion per request in which every body part (:data:`m2d2m.motion.body_parts.PARTS`)
+        """One motion per request in which every body part (:data:`m2d2m.motion.representation.body_parts.PARTS`)
         does its own sentence, ``parts[i]`` mapping part → sentence, ``frames[i]`` long, drawn with
         ``seeds[i]``. ValueError for a model without body-part control (:attr:`part_control`)."""
         raise ValueError(f"{self.model} has no body-part control")

@@ -14,11 +14,11 @@ import torch
 
 from m2d2m.generators.protocol import Keep, MotionGenerator
 from m2d2m.model_files import LengthPrior, Part
-from m2d2m.motion.body_parts import FULL, LOWER, UPPER, merge
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.representation import features_to_joints
-from m2d2m.motion.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.representation.body_parts import FULL, LOWER, UPPER, merge
+from m2d2m.motion.representation.features import features_to_joints
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.skeleton import SKELETONS, Skeleton
 from m2d2m.networks.vqvae import VQ_FORMAT, MotionVQVAE, vq_from_payload
 from m2d2m.precision import full_precision
 from m2d2m.text import TextEncoder

@@ -1,6 +1,6 @@
 """A generated motion: features, joints, frame rate and the frames each action occupies, with the
-files an animator wants from it (:mod:`m2d2m.motion.formats`), delivered as asked
-(:mod:`m2d2m.motion.delivery`)."""
+files an animator wants from it (:mod:`m2d2m.motion.files.formats`), delivered as asked
+(:mod:`m2d2m.motion.transforms.delivery`)."""
 
 from __future__ import annotations
 
@@ -14,16 +14,16 @@ import numpy as np
 
 from m2d2m.atomic import atomic_path
 from m2d2m.layout import relative_to_project
-from m2d2m.motion.delivery import Delivery, deliver
-from m2d2m.motion.feet import KeptFrames
-from m2d2m.motion.formats import DEFAULT_FORMATS, Writing, formats_named, on_rig, spoken
-from m2d2m.motion.pose import REST_POSES
-from m2d2m.motion.retime import loop_features
-from m2d2m.motion.rigid import bone_length_spread, on_rigid_skeleton
-from m2d2m.motion.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.files.formats import DEFAULT_FORMATS, Writing, formats_named, on_rig, spoken
+from m2d2m.motion.representation.pose import REST_POSES
+from m2d2m.motion.representation.rigid import bone_length_spread, on_rigid_skeleton
+from m2d2m.motion.representation.skeleton import SKELETONS, Skeleton
+from m2d2m.motion.transforms.delivery import Delivery, deliver
+from m2d2m.motion.transforms.feet import KeptFrames
+from m2d2m.motion.transforms.retime import loop_features
 
 if TYPE_CHECKING:
-    from m2d2m.motion.retarget import Target
+    from m2d2m.motion.rigs.retarget import Target
 
 UNNAMED_ACTION = "transition"  # the name of an action sampled without text (Motion.segments)
 
@@ -87,7 +87,7 @@ class Motion:
         return [(first, end, text or UNNAMED_ACTION) for (first, end), text in zip(self.ranges, self.actions)]
 
     def on_rigid_skeleton(self, shapes: dict[int, np.ndarray] | None = None) -> Motion:
-        """This motion with its joints on one rigid skeleton (:mod:`m2d2m.motion.rigid`; ``shapes``:
+        """This motion with its joints on one rigid skeleton (:mod:`m2d2m.motion.representation.rigid`; ``shapes``:
         another clip's body), so that a BVH of it reproduces the ``.npy`` and the animation; the
         spread of bone lengths it had is kept in ``quality``. The features stay the model's own."""
         spread = bone_length_spread(self.joints, self.skeleton)
@@ -104,10 +104,10 @@ class Motion:
 
     def delivered(self, delivery: Delivery, recorded: bool = False) -> Motion:
         """This motion as ``delivery`` asks for it (feet planted, frame rate, loop, root motion:
-        :func:`m2d2m.motion.delivery.deliver`; ``recorded``: captured, not generated, so its feet
+        :func:`m2d2m.motion.transforms.delivery.deliver`; ``recorded``: captured, not generated, so its feet
         are left as they are unless asked), the delivery recorded in ``settings`` and its figures
         in ``quality``. The features stay the model's own, at its rate, what an edit reads; a
-        loop's are the cycle's (:func:`~m2d2m.motion.retime.loop_features`), so that they and the
+        loop's are the cycle's (:func:`~m2d2m.motion.transforms.retime.loop_features`), so that they and the
         joints hold the same frames. A motion that is one cycle already (an edit of a loop) is
         delivered as the loop it is."""
         done = deliver(
@@ -158,7 +158,7 @@ class Motion:
         progress: Callable[[int], None] | None = None,
         delivery: Delivery = Delivery(),
     ) -> dict[str, Path]:
-        """Write ``<name>.<format>`` for each format of :data:`~m2d2m.motion.formats.FORMATS` into
+        """Write ``<name>.<format>`` for each format of :data:`~m2d2m.motion.files.formats.FORMATS` into
         ``directory``, each file whole or not at all; returns format → path. The GIF/MP4 shows each
         action's text over its frames; ``progress(t)`` is called after each frame of an animation is
         drawn. The joints are written as they are (:meth:`delivered` edits them); ``delivery`` says
@@ -167,7 +167,7 @@ class Motion:
         chosen = formats_named(formats)
         target = None
         if delivery.rig is not None and any(fmt.on_rig for fmt in chosen):
-            from m2d2m.motion.retarget import read_target
+            from m2d2m.motion.rigs.retarget import read_target
 
             target = read_target(
                 delivery.rig, delivery.joint_map, skeleton=self.skeleton, rest_frame=delivery.rest_frame

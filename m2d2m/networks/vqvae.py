@@ -8,7 +8,7 @@ The codebook is also what the denoiser builds its distance-aware transitions fro
 
 A tokenizer may cover one body part (``VQConfig.part``, MMM's part tokenizers: Pinyoanuntapong et
 al., CVPR 2024, §3.3): it reads the whole body's features, encodes only its part's dimensions
-(:mod:`m2d2m.motion.body_parts`) and decodes those alone.
+(:mod:`m2d2m.motion.representation.body_parts`) and decodes those alone.
 
 Differences from the reference code, each on purpose: no hard-coded CUDA; any ``T`` (padded at the
 end by repeating the last frame, the reconstruction cropped back); ``decode`` works for any batch
@@ -32,9 +32,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from m2d2m.model_files import PLAIN, ModelFileKind, Network, Normalization
-from m2d2m.motion.body_parts import FULL, PARTS, part_dims, skeleton_of_width
-from m2d2m.motion.normalization import Normalizer
-from m2d2m.motion.smoothing import gaussian_kernel
+from m2d2m.motion.representation.body_parts import FULL, PARTS, part_dims, skeleton_of_width
+from m2d2m.motion.representation.normalization import Normalizer
+from m2d2m.motion.representation.smoothing import gaussian_kernel
 from m2d2m.networks.config import ConfigError, NetworkConfig
 
 _ACTIVATIONS: dict[str, type[nn.Module]] = {"relu": nn.ReLU, "silu": nn.SiLU, "gelu": nn.GELU}
@@ -301,7 +301,7 @@ def _decoder(c: VQConfig) -> nn.Sequential:
 
 class TemporalLowPass(nn.Module):
     """A fixed Gaussian filter of σ frames along time, each channel alone, edges replicated (the
-    same filter as :func:`m2d2m.motion.smoothing.gaussian_smooth`); identity for σ = 0.
+    same filter as :func:`m2d2m.motion.representation.smoothing.gaussian_smooth`); identity for σ = 0.
 
     Why: a decoder can leave broadband sub-millimetre jitter in every joint, which the
     transition metrics (the M2D2M paper's Jerk, eq. 10; FlowMDM's PJ/AUJ) weigh far above anything

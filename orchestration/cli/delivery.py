@@ -1,5 +1,5 @@
 """How a clip is delivered (docs/generation.md, "Delivering a clip"): the options `m2d2m generate`
-and `m2d2m export` share, read into one :class:`~m2d2m.motion.delivery.Delivery`, and what an
+and `m2d2m export` share, read into one :class:`~m2d2m.motion.transforms.delivery.Delivery`, and what an
 animator must know of the files written.
 """
 
@@ -9,11 +9,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from m2d2m.motion.formats import FORMATS, on_rig, spoken
+from m2d2m.motion.files.formats import FORMATS, on_rig, spoken
 from orchestration.cli.arguments import non_negative_int, positive_float
 from orchestration.errors import UserError
 
-# the presets are m2d2m.motion.joint_map.PRESETS, named here so that --help imports no model code
+# the presets are m2d2m.motion.rigs.joint_map.PRESETS, named here so that --help imports no model code
 JOINT_MAP_HELP = (
     "the rig's joints for ours: a preset (cmu, cmu-motionbuilder, mixamo, smpl, bandai-namco), auto, or a YAML "
     "correcting some or all joints (`m2d2m rig FILE --out map.yaml` writes one); default: the preset the rig's "
@@ -31,8 +31,8 @@ def add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> Non
     """How a clip is delivered (docs/generation.md, "Delivering a clip"): one set of options for
     `m2d2m generate` and `m2d2m export` (``recorded``: its motion is a file's, whose feet are left
     as they are unless asked), as the API's fields and the page's menu."""
-    from m2d2m.motion.pose import REST_POSES
-    from m2d2m.motion.retime import ROOT_MODES
+    from m2d2m.motion.representation.pose import REST_POSES
+    from m2d2m.motion.transforms.retime import ROOT_MODES
 
     group = parser.add_argument_group('delivery (docs/generation.md, "Delivering a clip")')
     group.add_argument(
@@ -91,7 +91,7 @@ def add_delivery(parser: argparse.ArgumentParser, recorded: bool = False) -> Non
 def delivery_asked(args: argparse.Namespace) -> Any:
     """The delivery the command line asks for (``--fps``, ``--root``, ``--loop``, ``--foot-fix``
     or ``--no-foot-fix``, ``--rest``, ``--rig``, ``--joint-map``), checked in one line before anything runs."""
-    from m2d2m.motion.delivery import Delivery
+    from m2d2m.motion.transforms.delivery import Delivery
 
     try:
         return Delivery(

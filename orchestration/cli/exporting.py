@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from m2d2m.motion.formats import animations, exported, on_rig, spoken, suffixes
+from m2d2m.motion.files.formats import animations, exported, on_rig, spoken, suffixes
 from orchestration.cli.arguments import add_overwrite, non_negative_int, positive_float
 from orchestration.cli.delivery import (
     JOINT_MAP_HELP,
@@ -22,7 +22,7 @@ from orchestration.errors import UserError
 
 
 def _render(args: argparse.Namespace) -> None:
-    from m2d2m.motion.render import render_motion
+    from m2d2m.motion.files.render import render_motion
     from orchestration.viewing import load_motion
 
     out = Path(args.out)
@@ -98,9 +98,9 @@ def _source_rate(given: float | None, shown: Any) -> tuple[float, str]:
 
 
 def _rig(args: argparse.Namespace) -> None:
-    from m2d2m.motion.bvh_reader import BvhError
-    from m2d2m.motion.joint_map import rig_mapping
-    from m2d2m.motion.retarget import read_rig, target_of
+    from m2d2m.motion.files.bvh_reader import BvhError
+    from m2d2m.motion.rigs.joint_map import rig_mapping
+    from m2d2m.motion.rigs.retarget import read_rig, target_of
 
     rig = Path(args.file)
     if not rig.is_file():

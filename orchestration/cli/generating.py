@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from m2d2m.motion.formats import DEFAULT_FORMATS, FORMATS, suffixes
+from m2d2m.motion.files.formats import DEFAULT_FORMATS, FORMATS, suffixes
 from orchestration.cli.arguments import add_max_seconds, add_overwrite, body_part, positive_int
 from orchestration.cli.delivery import add_delivery
 from orchestration.cli.editing import add_edit_options, edit_flags, edit_timeline

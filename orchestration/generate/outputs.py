@@ -16,8 +16,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from m2d2m.atomic import atomic_files, atomic_folder
-from m2d2m.motion.delivery import Delivery
-from m2d2m.motion.formats import DEFAULT_FORMATS, FORMATS, formats_named, on_rig, spoken, suffixes
+from m2d2m.motion.files.formats import DEFAULT_FORMATS, FORMATS, formats_named, on_rig, spoken, suffixes
+from m2d2m.motion.transforms.delivery import Delivery
 from orchestration.errors import UserError
 
 # a suffix that names a kind of file (.fbx, .glb, .json), not a folder name like "v1.2": --out with
@@ -29,7 +29,7 @@ FILE_SUFFIX = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,4}")
 class Output:
     """Where a generation's files go: ``directory`` (None: a new run folder, made when the motion
     is ready), the file stem ``name``, the ``formats``, and how the clip is delivered (its feet,
-    frame rate, loop, root motion, bind pose and rig: :class:`~m2d2m.motion.delivery.Delivery`).
+    frame rate, loop, root motion, bind pose and rig: :class:`~m2d2m.motion.transforms.delivery.Delivery`).
     ``one_file``: ``--out`` named a file, so the files of ``name`` in ``directory`` are the target,
     not the folder; ``overwrite``: an earlier result there is replaced; ``staging``: the temporary
     folder the files are written into until :func:`staged` moves them into ``directory``."""

@@ -14,7 +14,7 @@ import numpy as np
 
 from m2d2m.generators.protocol import MotionGenerator
 from m2d2m.layout import NLP, recorded_path
-from m2d2m.motion.body_parts import PARTS
+from m2d2m.motion.representation.body_parts import PARTS
 from orchestration.errors import UserError
 
 # A 590-s clip took 293 s and a 182-MB GIF: a minute is several actions, and seconds to make.

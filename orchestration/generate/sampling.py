@@ -131,7 +131,7 @@ def generate_parts(
     **options: Any,
 ) -> Motion:
     """One motion in which every body part does its own sentence (``parts``: part → sentence; the
-    parts of :mod:`m2d2m.motion.body_parts`), ``seconds`` long or the corpus's median action, for
+    parts of :mod:`m2d2m.motion.representation.body_parts`), ``seconds`` long or the corpus's median action, for
     a model with body-part control (MotionDiffuse's eq. 10; docs/generation.md)."""
     if not generator.part_control:
         able = [name for name, entry in models().items() if entry.load("generator").part_control]

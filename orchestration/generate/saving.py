@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.formats import FORMATS
+from m2d2m.motion.files.formats import FORMATS
 from m2d2m.progress import progress
 from orchestration.errors import UserError
 from orchestration.generate.outputs import Output

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
-from m2d2m.generators.m2d2m_checkpoint import M2D2M_FORMAT, sampling_defaults
-from m2d2m.generators.m2d2m_options import MODEL_DEFAULTS
+from m2d2m.generators.m2d2m.checkpoint import M2D2M_FORMAT, sampling_defaults
+from m2d2m.generators.m2d2m.options import MODEL_DEFAULTS
 from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
 
 

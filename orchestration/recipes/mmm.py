@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from m2d2m.generators.mmm_checkpoint import MMM_FORMAT
+from m2d2m.generators.mmm.checkpoint import MMM_FORMAT
 from orchestration.recipes.token_data import TokenRecipe, TokenTraining, token_training
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from m2d2m.generators.mmm_checkpoint import BODY_FORMAT
+from m2d2m.generators.mmm.checkpoint import BODY_FORMAT
 from orchestration.recipes.token_data import BodyTokenRecipe, BodyTokenTraining, body_token_training
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from m2d2m.generators.motiondiffuse_checkpoint import MOTIONDIFFUSE_FORMAT
+from m2d2m.generators.motiondiffuse.checkpoint import MOTIONDIFFUSE_FORMAT
 from orchestration.recipe import Recipe, TrainingData, caption_motion_data, caption_vocabulary
 from orchestration.train import OpenedRun
 
@@ -39,7 +39,7 @@ class MotionDiffuseRecipe(Recipe):
         return module
 
     def callbacks(self, run: OpenedRun, data: TrainingData) -> list:
-        from m2d2m.motion.skeleton import SKELETONS
+        from m2d2m.motion.representation.skeleton import SKELETONS
         from training.callbacks import FeatureSamplePreview
 
         preview = run.config["preview"]

@@ -12,7 +12,7 @@ from typing import Any
 import torch
 
 from m2d2m.layout import relative_to_project
-from m2d2m.motion.body_parts import FULL, LOWER, UPPER
+from m2d2m.motion.representation.body_parts import FULL, LOWER, UPPER
 from orchestration.recipe import Recipe, TrainingData, caption_vocabulary
 from orchestration.runs import vq_file
 from orchestration.train import OpenedRun, validation_interval
@@ -48,7 +48,7 @@ class BodyTokenRecipe(Recipe):
 
 @dataclass
 class TokenTraining(TrainingData):
-    """A token model's data: its DataModule is a ``training.data.TokenDataModule``."""
+    """A token model's data: its DataModule is a ``training.data.tokens.TokenDataModule``."""
 
     vq_path: Path
     codebook: torch.Tensor
@@ -119,7 +119,7 @@ def token_training(
     conditions on (its action sentences for M2D2M, its text for MMM), whose words make the
     vocabulary of a learned text encoder; ``max_tokens`` crops longer token sequences when the
     config's ``data.max_tokens`` does not."""
-    from training.data import TokenDataModule
+    from training.data.tokens import TokenDataModule
 
     vq_path, vq, data_dir, tokens_dir = _tokenizer(config["vq"], config["dataset"], FULL)
     datamodule = TokenDataModule(tokens_dir, **_loader_settings(config, max_tokens))
@@ -133,7 +133,7 @@ def body_token_training(
 ) -> BodyTokenTraining:
     """:func:`token_training` for the upper-body editor: ``config["vq"]`` names an ``upper`` and a
     ``lower`` part tokenizer of one dataset, whose token sets are read as pairs."""
-    from training.data import BodyTokenDataModule
+    from training.data.tokens import BodyTokenDataModule
 
     vqs = config["vq"]
     if not isinstance(vqs, dict) or set(vqs) != {UPPER, LOWER}:

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from m2d2m.layout import STATS, VQ_FILE
-from m2d2m.motion.body_parts import FULL
+from m2d2m.motion.representation.body_parts import FULL
 from m2d2m.networks.vqvae import VQ_FORMAT
 from orchestration.recipe import Recipe, Trainable, TrainingData, train
 from orchestration.runs import VQ_STAGE, vq_stage
@@ -25,7 +25,7 @@ class VQRecipe(Recipe):
         return vq_stage(config["model"].get("part", FULL))
 
     def data(self, config: dict[str, Any]) -> TrainingData:
-        from training.data import MotionWindowDataModule
+        from training.data.motion_windows import MotionWindowDataModule
 
         data = config["data"]
         datamodule = MotionWindowDataModule(

@@ -32,9 +32,9 @@ from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.delivery import Delivery
-from m2d2m.motion.formats import on_rig, spoken
-from m2d2m.motion.pose import REST_POSES
+from m2d2m.motion.files.formats import on_rig, spoken
+from m2d2m.motion.representation.pose import REST_POSES
+from m2d2m.motion.transforms.delivery import Delivery
 from orchestration.editing import finish_edit, motion_of
 from orchestration.errors import UserError
 from orchestration.generate import DEFAULT_MAX_SECONDS, PromptPlanner

@@ -1,5 +1,5 @@
 """What the server offers: every registered model that generates from text and has a finished
-run, with the knobs its ``<model>_options.py`` declares (:mod:`m2d2m.generators.options`), so the
+run, with the knobs its ``<model>/options.py`` declares (:mod:`m2d2m.generators.options`), so the
 page and the API are built from the same declarations as the command line.
 
 Runs are found by listing the run folders (``runs/<dataset>/<stage>/``); a request names a run by

@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 
 from m2d2m.motion.clip import Motion
-from m2d2m.motion.delivery import Delivery
-from m2d2m.motion.formats import FORMATS, on_rig, spoken
-from m2d2m.motion.pose import REST_POSES
+from m2d2m.motion.files.formats import FORMATS, on_rig, spoken
+from m2d2m.motion.representation.pose import REST_POSES
+from m2d2m.motion.transforms.delivery import Delivery
 from orchestration.errors import UserError
 from orchestration.generate import GENERATE_STAGE, Output, save_generation
 from orchestration.runs import write_run_info

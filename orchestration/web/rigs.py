@@ -6,7 +6,7 @@ them through.
 A rig's file is streamed to disk as it comes, kept by the hash of its bytes, so a character of
 tens of MB is never held whole in memory and is sent once: the same file under another map is
 named by its id (``file``). Each file and map is read and checked once, by retargeting our rest
-pose onto the rig, and kept as a :class:`~m2d2m.motion.retarget.Target` that every download on it
+pose onto the rig, and kept as a :class:`~m2d2m.motion.rigs.retarget.Target` that every download on it
 uses, so a download never fails on the rig and never reads its file again."""
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ from typing import IO, Any
 
 from starlette.concurrency import run_in_threadpool
 
-from m2d2m.motion.bvh_reader import BvhError
-from m2d2m.motion.joint_map import AUTO, PRESETS, JointMap
-from m2d2m.motion.retarget import Target, read_target
+from m2d2m.motion.files.bvh_reader import BvhError
+from m2d2m.motion.rigs.joint_map import AUTO, PRESETS, JointMap
+from m2d2m.motion.rigs.retarget import Target, read_target
 from orchestration.errors import UserError
 from orchestration.web.catalog import NotFound
 
@@ -82,7 +82,7 @@ class Rigs:
 
     def add_map(self, data: bytes) -> JointMap:
         """A user's joint map, the text of a YAML file as ``m2d2m generate --joint-map`` reads it
-        (:meth:`~m2d2m.motion.joint_map.JointMap.from_yaml`), checked and kept under the hash of
+        (:meth:`~m2d2m.motion.rigs.joint_map.JointMap.from_yaml`), checked and kept under the hash of
         its bytes, which names it; a UserError in one line when it is no map of our joints."""
         map_id = hashlib.sha256(data).hexdigest()[:16]
         with self._lock:
@@ -105,7 +105,7 @@ class Rigs:
     def add(self, file_id: str, joint_map: str | None = None, rest_frame: int | None = None) -> UploadedRig:
         """The rig of an uploaded file through ``joint_map`` (a preset's name, an uploaded map's
         id, ``auto``, or None: the preset its joints fit, else ``auto``), aimed from frame
-        ``rest_frame`` of its file or its rest pose (:func:`~m2d2m.motion.retarget.rig_bind`),
+        ``rest_frame`` of its file or its rest pose (:func:`~m2d2m.motion.rigs.retarget.rig_bind`),
         checked once and kept; a UserError in one sentence when our motions cannot go onto it."""
         with self._lock:
             path = self._files.get(file_id)
@@ -131,7 +131,7 @@ class Rigs:
 
     def _joint_map(self, name: str | None) -> JointMap | str | None:
         """The map a request names: a preset, ``auto`` (found from the rig's names and hierarchy,
-        :mod:`m2d2m.motion.auto_map`) or one uploaded here (never a path on the server)."""
+        :mod:`m2d2m.motion.rigs.auto_map`) or one uploaded here (never a path on the server)."""
         if name is None or name == AUTO:
             return name
         if name in PRESETS:
@@ -152,7 +152,7 @@ def _append(out: IO[bytes], digest: Any, chunk: bytes) -> None:
 
 def _checked(path: Path, joint_map: JointMap | str | None, rest_frame: int | None) -> Target:
     """The rig in ``path`` through ``joint_map`` from frame ``rest_frame``, checked by
-    :func:`~m2d2m.motion.retarget.read_target`; a UserError saying why not."""
+    :func:`~m2d2m.motion.rigs.retarget.read_target`; a UserError saying why not."""
     try:
         return read_target(path, joint_map, rest_frame=rest_frame)
     except (BvhError, ValueError) as error:

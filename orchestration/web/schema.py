@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, Stric
 
 from m2d2m.generators.edits import Timeline
 from m2d2m.generators.protocol import MotionGenerator
-from m2d2m.motion.delivery import Delivery
+from m2d2m.motion.transforms.delivery import Delivery
 from orchestration.edit_operations import Continue, EditOperation, Fill, Layer, Pin, Regenerate
 from orchestration.errors import UserError
 from orchestration.generate import PromptPlanner, check_length
@@ -64,14 +64,14 @@ class Action(BaseModel):
 
 class Sampled(BaseModel):
     """What every request that samples takes: the model's knobs, the seed, and how the clip is
-    delivered, as `m2d2m generate`'s options (m2d2m.motion.delivery.Delivery)."""
+    delivered, as `m2d2m generate`'s options (m2d2m.motion.transforms.delivery.Delivery)."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
     options: dict[str, StrictInt | StrictFloat | StrictStr | None] = Field(
         default_factory=dict, max_length=32, description="sampling knobs by name (GET /api/models lists them)"
     )
     seed: int = Field(0, ge=0, le=MAX_SEED)
-    # how the clip is delivered, as `m2d2m generate`'s options (m2d2m.motion.delivery.Delivery)
+    # how the clip is delivered, as `m2d2m generate`'s options (m2d2m.motion.transforms.delivery.Delivery)
     fps: float | None = Field(None, allow_inf_nan=False, description="the files' frame rate; none: the model's")
     root: str = Field("keep", max_length=16, description="keep, in-place (the root's path taken out) or ground")
     loop: bool = Field(False, description="one seamless cycle, the end blended into the start")

@@ -8,8 +8,8 @@ from functools import cached_property
 
 import numpy as np
 
-from m2d2m.motion.rotations import dot, normalize
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.rotations import dot, normalize
+from m2d2m.motion.representation.skeleton import T2M
 from pipelines.synthetic.maths import UP, forward_direction, leftward
 
 FPS = T2M.fps

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from m2d2m.motion.rotations import dot, euler_to_matrix, normalize
+from m2d2m.motion.representation.rotations import dot, euler_to_matrix, normalize
 
 UP = np.array([0.0, 1.0, 0.0])
 

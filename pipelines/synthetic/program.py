@@ -9,7 +9,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from m2d2m.motion.skeleton import T2M
+from m2d2m.motion.representation.skeleton import T2M
 from pipelines.synthetic.body import (
     ANKLE,
     COLLAR,

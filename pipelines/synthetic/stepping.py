@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from m2d2m.motion.rotations import dot
-from m2d2m.motion.smoothing import gaussian_smooth
+from m2d2m.motion.representation.rotations import dot
+from m2d2m.motion.representation.smoothing import gaussian_smooth
 from pipelines.synthetic.body import (
     FOOT_PITCH,
     FPS,

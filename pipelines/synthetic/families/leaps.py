@@ -6,7 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from m2d2m.motion.smoothing import gaussian_smooth
+from m2d2m.motion.representation.smoothing import gaussian_smooth
 from pipelines.synthetic.body import (
     FPS,
     HIP,
