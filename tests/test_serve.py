@@ -28,7 +28,9 @@ from m2d2m.generators.m2d2m.options import SAMPLING
 from m2d2m.motion.representation.skeleton import T2M
 from orchestration.cli import main
 from orchestration.errors import UserError
-from orchestration.web.app import STATIC, ServeSettings, create_app
+from orchestration.web.app import ServeSettings, create_app
+from orchestration.web.routers import API_ROUTERS
+from orchestration.web.routers.page import STATIC
 from orchestration.web.server import server_token
 from tests.helpers import free_port
 from tests.live_server import live_server
@@ -361,6 +363,24 @@ def test_health_and_the_page_and_the_documentation(client):
         assert f'<script src="/static/{script}"></script>' in page.text
     assert client.get("/openapi.json").json()["paths"].keys() >= {"/api/generate", "/api/models", "/api/health"}
     assert client.get("/docs").status_code == 200
+
+
+def test_every_api_operation_is_a_module_level_route_of_one_router_per_job(tmp_path, monkeypatch):
+    """issue 55 §3: the API's routes live in one APIRouter per job (orchestration/web/routers/),
+    each a module-level function that reaches the application's state through a dependency, not a
+    closure inside create_app, and together they are exactly the operations /openapi.json lists."""
+    monkeypatch.chdir(tmp_path)
+    listed = {
+        (path, method.upper())
+        for path, operations in create_app(ServeSettings()).openapi()["paths"].items()
+        for method in operations
+    }
+    routed = {
+        ("/api" + route.path, method) for router in API_ROUTERS for route in router.routes for method in route.methods
+    }
+    assert routed == listed and len(listed) == 11
+    closures = [route.endpoint.__qualname__ for router in API_ROUTERS for route in router.routes]
+    assert [name for name in closures if "<locals>" in name] == []
 
 
 def test_a_token_guards_every_api_call_and_only_loopback_goes_without(trained_project, monkeypatch):

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from orchestration.errors import UserError
 
 if TYPE_CHECKING:  # the application loads torch; the command line reads this module without it
-    from orchestration.web.app import ServeSettings
+    from orchestration.web.service import ServeSettings
 
 TOKEN_VARIABLE = "M2D2M_SERVE_TOKEN"
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
