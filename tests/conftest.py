@@ -143,9 +143,15 @@ def trained_project(trained_store, tmp_path_factory) -> Iterator[Path]:
     """A module's own copy of :func:`trained_store`, its working directory while it runs: the runs,
     test sets and MLflow runs one module adds, no other module sees. The store's files name its
     dataset relative to it and its MLflow store follows the copy (docs/reliability.md, "A project
-    can move"), so the copy reads and writes its own files; only the configs name the store's dataset."""
+    can move"), so the copy reads and writes its own files; its configs are pointed at its own
+    dataset too. (They named the store's, so token and test sets a module made went into the store,
+    recording it as a dataset outside their project: the next copy, moved, looked for the original.)"""
     root = tmp_path_factory.mktemp("project")
     shutil.copytree(trained_store, root, dirs_exist_ok=True)
+    for name in ("vq", "evaluator"):
+        config = yaml.safe_load((root / f"{name}.yaml").read_text(encoding="utf-8"))
+        config["data"]["dir"] = str(root / "data")
+        (root / f"{name}.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     with pytest.MonkeyPatch.context() as patch:

@@ -24,6 +24,18 @@ Result = TypeVar("Result")
 SCALED_PRECISION = "16-mixed"  # Lightning's precision whose GradScaler unscales before clipping
 
 
+def _copied_out(run: Callable[..., Result]) -> Callable[..., Result]:
+    """``run`` with its tensors copied out of the CUDA graphs' memory, which the next step's replay
+    reuses ("CUDAGraph Trees" documentation): Lightning keeps a step's loss until it logs it. A
+    loss and per-sample terms: nothing to speak of."""
+
+    def call(*args: object) -> Result:
+        out = run(*args)
+        return tuple(x.clone() for x in out) if isinstance(out, tuple) else out.clone()
+
+    return call
+
+
 class TrainingModule(FiniteLossGuard):
     """A LightningModule whose training passes may run compiled and whose optimiser may be fused."""
 
@@ -46,7 +58,9 @@ class TrainingModule(FiniteLossGuard):
             # dynamic=None: the first shape compiled as it is, the sizes that vary symbolic at the
             # first other (batches come in a few bucketed lengths)
             what = f"{type(self).__name__}.{name}"
-            passes[name] = Compiled(function, what, cuda=self.device.type == "cuda", dynamic=None)
+            cuda = self.device.type == "cuda"
+            compiled = Compiled(function, what, cuda=cuda, dynamic=None)
+            passes[name] = _copied_out(compiled) if cuda else compiled
         return passes[name]
 
     def fuses_optimizer(self) -> bool:
