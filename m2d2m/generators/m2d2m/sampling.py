@@ -52,7 +52,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from m2d2m.compiling import Compiled, bucket, compiles
+from m2d2m.compiling import Compiled, bucket, compiles, pad_to_bucket
 from m2d2m.generators.m2d2m.options import M2D2MOptions
 from m2d2m.generators.token_model import FREE
 from m2d2m.networks.m2d2m_denoiser import Condition, MotionDenoiser, action_offsets, guided_logits
@@ -285,8 +285,7 @@ class PhaseModel:
             nulled = torch.tensor(unconditional).to(text.device, non_blocking=True)
             text, text_mask = self.denoiser.nullify(text, text_mask, nulled)
         if compiled:
-            extra = bucket(text.shape[1], smallest=8) - text.shape[1]
-            text, text_mask = F.pad(text, (0, 0, 0, extra)), F.pad(text_mask, (0, extra))
+            text, text_mask = pad_to_bucket(text, 1), pad_to_bucket(text_mask, 1)
         return text, text_mask
 
     def _condition(self, text: Tensor, text_mask: Tensor) -> Condition:
