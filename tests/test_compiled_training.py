@@ -218,3 +218,17 @@ def test_a_trainer_compile_that_is_none_of_the_choices_is_refused_in_one_line():
 
     with pytest.raises(UserError, match="^trainer.compile must be one of off, auto, on, got 'yes please'$"):
         compile_setting("yes please")
+
+
+@pytest.mark.parametrize("name", sorted(PASSES))
+def test_each_training_pass_is_traced_whole_as_one_graph(name):
+    """A graph break splits a compiled step into graphs and launches between them (on CUDA, CUDA
+    graphs apart). M2D2M's pass broke five times at ``max(..., default=0)`` in the posterior's
+    grouping, which dynamo does not take. Tracing only (torch._dynamo.explain): no kernel is built."""
+    make, prepare = PASSES[name]
+    module = make()
+    module.train()
+    function, args = prepare(module)
+    torch._dynamo.reset()
+    explained = torch._dynamo.explain(function)(*args)
+    assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons

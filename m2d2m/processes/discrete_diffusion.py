@@ -449,7 +449,8 @@ class TransitionSchedule:
         if tt.dim() > z.dim():
             raise ValueError(f"t of shape {tuple(tt.shape)} does not broadcast with z_t of shape {tuple(z.shape)}")
         shape = (1,) * (z.dim() - tt.dim()) + tuple(tt.shape)
-        lead = max((d + 1 for d, n in enumerate(shape) if n != 1), default=0)
+        # 0 when t is one number; max(..., default=0) would break torch.compile's graph here (dynamo)
+        lead = max([0, *(d + 1 for d, n in enumerate(shape) if n != 1)])
         self._timesteps(tt, tt.shape, low=1, validate=validate)
         t_group = torch.broadcast_to(tt.reshape(shape[:lead]), z.shape[:lead]).reshape(-1)
         return t_group, z.reshape(t_group.shape[0], math.prod(z.shape[lead:]))
