@@ -1,4 +1,5 @@
-"""Counting, on the CPU, the operations that would make a GPU wait for the host.
+"""Counting, on the CPU, the operations that would make a GPU wait for the host, and those that
+would run in float64 on it.
 
 On a GPU the host queues kernels ahead of the device; an operation whose result the host must
 read (a tensor turned into a Python number or list, an output whose size depends on the data,
@@ -10,6 +11,10 @@ Two layers see them: a ``TorchDispatchMode`` sees the aten operations (including
 runs in the backward pass), a ``TorchFunctionMode`` the Python-level conversions that never reach
 the dispatcher (``tolist``, ``numpy``). See PyTorch's ``torch.utils._python_dispatch`` and
 ``torch.overrides`` documentation, and the CUDA semantics notes on asynchronous execution.
+
+:func:`float64_ops` finds, the same way, the operations that take or give a float64 tensor: a GPU
+runs float64 at a fraction of its float32 rate (a 64th on consumer cards, NVIDIA's CUDA C
+Programming Guide, "Arithmetic Instructions"), so a training step keeps to float32 and below.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
+import torch.utils._pytree as pytree
 from torch.overrides import TorchFunctionMode
 from torch.utils._python_dispatch import TorchDispatchMode
 
@@ -48,9 +54,9 @@ _SYNCING_METHODS = {torch.Tensor.tolist, torch.Tensor.numpy}
 
 
 @dataclass
-class HostSyncs:
-    """What one :func:`host_syncs` block did: each syncing operation with the place in the
-    project's own code (file:line) that led to it."""
+class FoundOps:
+    """What one :func:`host_syncs` or :func:`float64_ops` block found: each operation with the place
+    in the project's own code (file:line) that led to it."""
 
     calls: list[tuple[str, str]] = field(default_factory=list)
 
@@ -90,7 +96,7 @@ def _is_sized_by_data(func: torch._ops.OpOverload, kwargs: dict) -> bool:
 
 
 class _DispatchCounter(TorchDispatchMode):
-    def __init__(self, found: HostSyncs) -> None:
+    def __init__(self, found: FoundOps) -> None:
         super().__init__()
         self.found = found
 
@@ -103,7 +109,7 @@ class _DispatchCounter(TorchDispatchMode):
 
 
 class _FunctionCounter(TorchFunctionMode):
-    def __init__(self, found: HostSyncs) -> None:
+    def __init__(self, found: FoundOps) -> None:
         super().__init__()
         self.found = found
 
@@ -114,9 +120,32 @@ class _FunctionCounter(TorchFunctionMode):
 
 
 @contextlib.contextmanager
-def host_syncs() -> Iterator[HostSyncs]:
+def host_syncs() -> Iterator[FoundOps]:
     """Count the host syncs of the block: ``with host_syncs() as found: step()``, then
     ``assert not found, found.report()``."""
-    found = HostSyncs()
+    found = FoundOps()
     with _FunctionCounter(found), _DispatchCounter(found):
+        yield found
+
+
+class _Float64Counter(TorchDispatchMode):
+    def __init__(self, found: FoundOps) -> None:
+        super().__init__()
+        self.found = found
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        result = func(*args, **kwargs)
+        tensors = (x for x in pytree.tree_leaves((args, kwargs, result)) if isinstance(x, torch.Tensor))
+        if any(tensor.dtype in (torch.float64, torch.complex128) for tensor in tensors):
+            self.found.calls.append((func._schema.name, _caller()))
+        return result
+
+
+@contextlib.contextmanager
+def float64_ops() -> Iterator[FoundOps]:
+    """The operations of the block that take or give a float64 tensor, forward and backward:
+    ``with float64_ops() as found: step()``, then ``assert not found, found.report()``."""
+    found = FoundOps()
+    with _Float64Counter(found):
         yield found

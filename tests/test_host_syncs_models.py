@@ -40,7 +40,7 @@ from m2d2m.networks.motiondiffuse_transformer import MotionDiffuseConfig, Motion
 from m2d2m.processes.gaussian_diffusion import GaussianDiffusion
 from m2d2m.text import LearnedTextEncoder
 from tests.helpers import TINY_EVALUATOR
-from tests.host_syncs import PROJECT, HostSyncs, host_syncs
+from tests.host_syncs import PROJECT, FoundOps, host_syncs
 from training.callbacks import PlainProgress, StepProgressBar
 from training.evaluator_module import EvaluatorModule
 from training.mmm_body_module import BodyMMMModule
@@ -102,18 +102,20 @@ def evaluator() -> tuple[pl.LightningModule, dict[str, Any]]:
     return module, {**batch, "text": SENTENCES}
 
 
-class BatchSyncs(pl.Callback):
-    """The host syncs of each training batch, from its start to the next one's (the last one's to
-    the end of its epoch), and of each validation batch, from its start to its end."""
+class BatchWindows(pl.Callback):
+    """What ``watch`` (:func:`host_syncs` or :func:`float64_ops`) finds in each training batch, from
+    its start to the next one's (the last one's to the end of its epoch), and in each validation
+    batch, from its start to its end."""
 
-    def __init__(self) -> None:
-        self.training: list[HostSyncs] = []
-        self.validation: list[HostSyncs] = []
+    def __init__(self, watch: Callable[[], contextlib.AbstractContextManager[FoundOps]]) -> None:
+        self.watch = watch
+        self.training: list[FoundOps] = []
+        self.validation: list[FoundOps] = []
         self._window = contextlib.ExitStack()
 
-    def _open(self, into: list[HostSyncs]) -> None:
+    def _open(self, into: list[FoundOps]) -> None:
         self._window.close()
-        into.append(self._window.enter_context(host_syncs()))
+        into.append(self._window.enter_context(self.watch()))
 
     def on_train_batch_start(self, trainer: pl.Trainer, module: pl.LightningModule, *args: Any) -> None:
         self._open(self.training)
@@ -140,13 +142,18 @@ class FusedAdamW(pl.Callback):
                 group["foreach"], group["fused"] = False, True
 
 
-def run(build: Callable[[], tuple[pl.LightningModule, dict[str, Any]]], tmp_path, validate: bool) -> BatchSyncs:
+def run(
+    build: Callable[[], tuple[pl.LightningModule, dict[str, Any]]],
+    tmp_path,
+    validate: bool,
+    watch: Callable[[], contextlib.AbstractContextManager[FoundOps]] = host_syncs,
+) -> BatchWindows:
     """Train the module of ``build`` for STEPS steps on copies of its batch (and, when ``validate``,
-    validate it on two), counting every batch's host syncs."""
+    validate it on two), watching every batch with ``watch`` (its host syncs by default)."""
     torch.manual_seed(0)
     module, batch = build()
     loader = torch.utils.data.DataLoader([batch] * (STEPS + 2), batch_size=None, collate_fn=lambda item: item)
-    counted = BatchSyncs()
+    counted = BatchWindows(watch)
     shown = [LearningRateMonitor(logging_interval="step"), PlainProgress(io.StringIO()), StepProgressBar()]
     trainer = pl.Trainer(
         max_steps=STEPS,
@@ -230,10 +237,10 @@ class HostBuiltTensors(TorchFunctionMode):
 
 
 @contextlib.contextmanager
-def per_call(network: torch.nn.Module) -> Iterator[list[tuple[HostSyncs, HostBuiltTensors]]]:
+def per_call(network: torch.nn.Module) -> Iterator[list[tuple[FoundOps, HostBuiltTensors]]]:
     """The host syncs and host-built tensors of each call of ``network`` in the block, from the
     call to the next (the last to the end of the block)."""
-    steps: list[tuple[HostSyncs, HostBuiltTensors]] = []
+    steps: list[tuple[FoundOps, HostBuiltTensors]] = []
     with contextlib.ExitStack() as block:
         window = block.enter_context(contextlib.ExitStack())
 
@@ -245,7 +252,7 @@ def per_call(network: torch.nn.Module) -> Iterator[list[tuple[HostSyncs, HostBui
         yield steps
 
 
-def assert_no_step_waits(steps: list[tuple[HostSyncs, HostBuiltTensors]], expected: int, once: str = "") -> None:
+def assert_no_step_waits(steps: list[tuple[FoundOps, HostBuiltTensors]], expected: int, once: str = "") -> None:
     """``expected`` steps, none of which reads the device or builds a tensor from host data, but
     the first, which may build what is then kept, in the file ``once``."""
     assert len(steps) == expected

@@ -116,9 +116,11 @@ class M2D2MModule(TrainingModule):
         Nothing here or in :meth:`_score` reads a tensor back on the host, which on a GPU would
         stall the queue of kernels every step (``tests/test_host_syncs.py`` holds it so): the
         schedule's range checks are skipped, since the tokens are the VQ-VAE's codes and t comes
-        from :class:`TimestepSampler` or ``randint`` over 1..T."""
+        from :class:`TimestepSampler` or ``randint`` over 1..T. The draw is float32, like the loss:
+        no float64 on a GPU's training step."""
         schedule = self.schedule_on_device()
-        z_t = schedule.q_sample(z0.masked_fill(~valid, 0), t[:, None], generator=generator, validate=False)
+        z0 = z0.masked_fill(~valid, 0)
+        z_t = schedule.q_sample(z0, t[:, None], generator=generator, validate=False, dtype=torch.float32)
         return z_t.masked_fill(~valid, schedule.mask_index)
 
     def _score(

@@ -5,8 +5,10 @@ Tokens are the K codes of the frozen VQ codebook plus a mask token at index K. O
 a code (α_t), masks it (γ_t) or replaces it, the replace mass 1 − α_t − γ_t being spread evenly over
 the K codes (``uniform``: VQ-Diffusion's β_t) or by codebook distance (``dynamic``: M2D2M's β(t, d)).
 A distance-shaped β-block is not symmetric, so unlike VQ-Diffusion nothing here relies on symmetry:
-Q_t and Q̄_t are dense float64 (K+1)×(K+1) matrices and the posterior takes explicit rows and matrix
-products.
+Q_t and Q̄_t are dense (K+1)×(K+1) matrices and the posterior takes explicit rows and matrix
+products. They are built in float64; the reverse step a sampler draws with stays in float64, and a
+training loss may ask for float32 copies (``dtype``), the precision VQ-Diffusion trains in, so that
+no float64 runs on a GPU's training step (docs/training.md, "Compiled training steps").
 
 Sign convention (paper Eq. 7 and the sentence after it: "progressively assigns higher probabilities
 to greater distances between tokens as the diffusion step t advances"): β(t, d) ∝ exp(+η·(t/T)·(d/K)),
@@ -203,6 +205,7 @@ class TransitionSchedule:
         self._step = step
         self._cumulative = cumulative
         self._spans: dict[tuple[int, int], Tensor] = {}
+        self._cast: dict[torch.dtype, tuple[Tensor, Tensor]] = {}
 
     @classmethod
     def build(
@@ -271,7 +274,18 @@ class TransitionSchedule:
         self._step = self._step.to(device)
         self._cumulative = self._cumulative.to(device)
         self._spans = {pair: span.to(device) for pair, span in self._spans.items()}
+        self._cast = {}
         return self
+
+    def _matrices(self, dtype: torch.dtype) -> tuple[Tensor, Tensor]:
+        """Q_t and Q̄_t stacked over t in ``dtype``: the float64 originals, or copies cast once and
+        kept until the next :meth:`to`. Each entry is cast on its own, so a float32 copy holds the
+        float64 value to float32's relative rounding; no 1 − x is taken in the lower precision."""
+        if dtype == torch.float64:
+            return self._step, self._cumulative
+        if dtype not in self._cast:
+            self._cast[dtype] = (self._step.to(dtype), self._cumulative.to(dtype))
+        return self._cast[dtype]
 
     @property
     def device(self) -> torch.device:
@@ -354,18 +368,25 @@ class TransitionSchedule:
         return z
 
     def q_sample(
-        self, z0: Tensor, t: int | Tensor, generator: torch.Generator | None = None, validate: bool = True
+        self,
+        z0: Tensor,
+        t: int | Tensor,
+        generator: torch.Generator | None = None,
+        validate: bool = True,
+        dtype: torch.dtype = torch.float64,
     ) -> Tensor:
         """Draw z_t ~ q(z_t | z0) = Q̄_t[:, z0]; t (1..T, or 0 for z0 itself) broadcasts with z0.
 
         ``generator`` must live on the schedule's device. ``validate=False`` skips the range checks
         of z0 and t, which make the host wait for the device: for a training step, whose codes come
         from the VQ-VAE and whose t from :class:`~m2d2m.processes.discrete_diffusion_loss.TimestepSampler`.
+        ``dtype`` is that of the probabilities and the uniforms the draw takes (float32 for a training step).
         """
         z0 = self._codes(z0, self.num_codes - 1, "z0", validate)
         tt = self._timesteps(t, z0.shape, low=0, validate=validate)
-        probs = self._cumulative[tt.reshape(-1), :, z0.reshape(-1)]  # (N, K+1): column z0 of Q̄_t
-        u = torch.rand(probs.shape[0], generator=generator, dtype=torch.float64, device=self.device)
+        cumulative = self._matrices(dtype)[1]
+        probs = cumulative[tt.reshape(-1), :, z0.reshape(-1)]  # (N, K+1): column z0 of Q̄_t
+        u = torch.rand(probs.shape[0], generator=generator, dtype=dtype, device=self.device)
         return categorical(probs, u).reshape(z0.shape)
 
     def sample_prior(self, shape: tuple[int, ...], generator: torch.Generator | None = None) -> Tensor:
@@ -375,9 +396,15 @@ class TransitionSchedule:
         return torch.where(u < self.gamma_bar[-1], torch.full_like(codes, self.mask_index), codes)
 
     def posterior_probs(
-        self, z_t: Tensor, x0_probs: Tensor, t: int | Tensor, s: int | None = None, validate: bool = True
+        self,
+        z_t: Tensor,
+        x0_probs: Tensor,
+        t: int | Tensor,
+        s: int | None = None,
+        validate: bool = True,
+        dtype: torch.dtype = torch.float64,
     ) -> Tensor:
-        """p(z_s | z_t) = Σ_k q(z_s | z_t, z0 = k)·x0_probs[k], float64 (..., K+1): the reverse step
+        """p(z_s | z_t) = Σ_k q(z_s | z_t, z0 = k)·x0_probs[k] in ``dtype`` (..., K+1): the reverse step
         from t (1..T) to s = t − 1 by default, or to an earlier ``s`` (0 <= s < t; ``t`` one int then):
         the step-skipping sampler's jump, exact for any Δ = t − s.
 
@@ -391,27 +418,29 @@ class TransitionSchedule:
         product (``torch.bmm``), with no grouping by value that would make the host read t. A t that
         varies along every dimension takes one product per position. ``validate=False`` skips the
         range checks of z_t and t, which read them on the host (a device sync): for callers whose
-        inputs are valid by construction.
+        inputs are valid by construction. ``dtype`` is the precision of the whole computation:
+        float64 by default (a sampler's), float32 for a training loss (:meth:`_matrices`).
         """
         num_codes = self.num_codes
         z = self._codes(z_t, num_codes, "z_t", validate)
         if tuple(x0_probs.shape) != (*z.shape, num_codes):
             raise ValueError(f"x0_probs must have shape {(*z.shape, num_codes)}, got {tuple(x0_probs.shape)}")
-        probs = x0_probs.to(device=self.device, dtype=torch.float64)
+        probs = x0_probs.to(device=self.device, dtype=dtype)
+        step, cumulative = self._matrices(dtype)
         if isinstance(t, int):
             if not 1 <= t <= self.steps:
                 raise ValueError(f"t must lie in 1..{self.steps}, got {t}")
             s = t - 1 if s is None else s
-            rows = self.span_matrix(t, s)[z]  # (..., K+1): q(z_t | z_s = j)
-            weights = _x0_ratios(probs, self._cumulative[t][z, :num_codes]).reshape(-1, num_codes)
-            return rows * (weights @ self._cumulative[s, :, :num_codes].T).reshape(rows.shape)
+            rows = self.span_matrix(t, s)[z].to(dtype)  # (..., K+1): q(z_t | z_s = j)
+            weights = _x0_ratios(probs, cumulative[t][z, :num_codes]).reshape(-1, num_codes)
+            return rows * (weights @ cumulative[s, :, :num_codes].T).reshape(rows.shape)
         if s is not None:
             raise ValueError("a skip to s needs one t for every position")
         t_group, z_group = self._groups(t, z, validate)
-        rows = self._step[t_group[:, None], z_group]  # (G, M, K+1): q(z_t | z_{t−1} = j)
-        reach = self._cumulative[t_group[:, None], z_group, :num_codes]  # (G, M, K): q(z_t | z0 = k)
+        rows = step[t_group[:, None], z_group]  # (G, M, K+1): q(z_t | z_{t−1} = j)
+        reach = cumulative[t_group[:, None], z_group, :num_codes]  # (G, M, K): q(z_t | z0 = k)
         weights = _x0_ratios(probs.reshape(*z_group.shape, num_codes), reach)
-        earlier = self._cumulative[t_group - 1, :, :num_codes]  # (G, K+1, K): Q̄_{t−1}
+        earlier = cumulative[t_group - 1, :, :num_codes]  # (G, K+1, K): Q̄_{t−1}
         return (rows * torch.bmm(weights, earlier.transpose(1, 2))).reshape(*z.shape, num_codes + 1)
 
     def step(self, z_t: Tensor, x0_probs: Tensor, t: int, s: int, uniforms: Tensor) -> Tensor:
@@ -429,8 +458,10 @@ class TransitionSchedule:
             z_s = torch.where(z_s == self.mask_index, x0_probs.argmax(dim=-1), z_s)
         return z_s
 
-    def true_posterior(self, z_t: Tensor, z0: Tensor, t: int | Tensor, validate: bool = True) -> Tensor:
-        """q(z_{t−1} | z_t, z0) for known codes z0, float64 (..., K+1): :meth:`posterior_probs` at a
+    def true_posterior(
+        self, z_t: Tensor, z0: Tensor, t: int | Tensor, validate: bool = True, dtype: torch.dtype = torch.float64
+    ) -> Tensor:
+        """q(z_{t−1} | z_t, z0) for known codes z0 in ``dtype`` (..., K+1): :meth:`posterior_probs` at a
         one-hot x0, Q_t[z_t, j]·Q̄_{t−1}[j, z0] / Q̄_t[z_t, z0], by gathers alone (the target of the
         training loss's KL, paper Eq. 3). Zero where z0 cannot produce z_t. ``t`` broadcasts with z_t."""
         z = self._codes(z_t, self.num_codes, "z_t", validate)
@@ -438,9 +469,10 @@ class TransitionSchedule:
         if codes.shape != z.shape:
             raise ValueError(f"z0 must have the shape of z_t {tuple(z.shape)}, got {tuple(codes.shape)}")
         tt = self._timesteps(t, z.shape, low=1, validate=validate)
-        weight = _x0_ratios(1.0, self._cumulative[tt, z, codes])  # 1 / q(z_t | z0)
-        earlier = self._cumulative[tt - 1, :, codes]  # (..., K+1): q(z_{t−1} = j | z0), indices' dims first
-        return self._step[tt, z] * (weight[..., None] * earlier)
+        step, cumulative = self._matrices(dtype)
+        weight = _x0_ratios(1.0, cumulative[tt, z, codes])  # 1 / q(z_t | z0)
+        earlier = cumulative[tt - 1, :, codes]  # (..., K+1): q(z_{t−1} = j | z0), indices' dims first
+        return step[tt, z] * (weight[..., None] * earlier)
 
     def _groups(self, t: Tensor, z: Tensor, validate: bool) -> tuple[Tensor, Tensor]:
         """t per group of positions that share it, (G,), and the codes as (G, M): the groups are the

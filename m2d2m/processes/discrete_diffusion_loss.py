@@ -3,8 +3,11 @@ microsoft/VQ-Diffusion, ``diffusion_transformer.py`` ``_train_loss``).
 
 The network predicts x0 logits over the K codes; its posterior p(z_{t−1} | z_t) is the mixture of
 true posteriors weighted by softmax(logits) (paper Eq. 4), computed by
-:meth:`TransitionSchedule.posterior_probs`. Everything is computed in float64 and returned in the
-logits' dtype.
+:meth:`TransitionSchedule.posterior_probs`. It is computed in the logits' precision but never below
+float32 — float32 for a training step's float32 or bf16 logits, as VQ-Diffusion trains, so no float64
+runs on a GPU; float64 for float64 logits — and returned in the logits' dtype. Float32 gives the
+float64 loss and gradient to float32's rounding (``tests/test_training_precision.py``): every term is
+a product, ratio or sum of positive probabilities, and no 1 − x is taken in float32.
 """
 
 from __future__ import annotations
@@ -88,25 +91,26 @@ def diffusion_loss(
     # padding may hold any value (e.g. a pad index >= K): read it as code 0, its weight is 0 anyway
     z0 = torch.where(mask, z0, 0)
     z_t = torch.where(mask, z_t, 0)
-    log_x0 = F.log_softmax(logits.double(), dim=-1)
+    dtype = torch.promote_types(logits.dtype, torch.float32)
+    log_x0 = F.log_softmax(logits.to(dtype), dim=-1)
     nll = -log_x0.gather(-1, z0.unsqueeze(-1)).squeeze(-1)
 
-    model = schedule.posterior_probs(z_t, log_x0.exp(), t_posterior, validate=validate)
-    truth = schedule.true_posterior(z_t, z0, t_posterior, validate=validate)
+    model = schedule.posterior_probs(z_t, log_x0.exp(), t_posterior, validate=validate, dtype=dtype)
+    truth = schedule.true_posterior(z_t, z0, t_posterior, validate=validate, dtype=dtype)
     kl = (truth * (truth.clamp_min(_LOG_FLOOR).log() - model.clamp_min(_LOG_FLOOR).log())).sum(dim=-1)
     later = (tt > 1) & mask  # positions whose L_vlb term is a KL; the rest are the t = 1 decoder NLL
     vlb_pos = torch.where(later, kl.to(device), nll)
 
     aux_pos = nll
     if adaptive_aux:
-        aux_pos = aux_pos * (2.0 - (tt - 1).double() / schedule.steps)
+        aux_pos = aux_pos * (2.0 - (tt - 1).to(dtype) / schedule.steps)
 
     batch = z0.shape[0]
-    weight = mask.double().reshape(batch, -1)
+    weight = mask.to(dtype).reshape(batch, -1)
     count = weight.sum(dim=1)
     vlb = (vlb_pos.reshape(batch, -1) * weight).sum(dim=1) / count.clamp_min(1.0)
     aux = (aux_pos.reshape(batch, -1) * weight).sum(dim=1) / count.clamp_min(1.0)
-    importance = torch.ones_like(count) if pt is None else 1.0 / (schedule.steps * pt.to(device).double())
+    importance = torch.ones_like(count) if pt is None else 1.0 / (schedule.steps * pt.to(device, dtype))
     per_sample = ((vlb_pos + aux_weight * aux_pos).reshape(batch, -1) * weight).sum(dim=1)
     loss = (importance * per_sample).sum() / count.sum().clamp_min(1.0)
     return DiffusionLoss(
@@ -134,11 +138,12 @@ class TimestepSampler(nn.Module):
         self.mode = mode
         self.warmup = warmup
         self.decay = decay
-        self.register_buffer("history", torch.zeros(steps, dtype=torch.float64))
+        # float32, like the loss it follows: nothing of a training step is float64 on a GPU
+        self.register_buffer("history", torch.zeros(steps, dtype=torch.float32))
         self.register_buffer("count", torch.zeros(steps, dtype=torch.long))
 
     def probs(self) -> Tensor:
-        """p(t) for t = 1..T (float64, index t − 1)."""
+        """p(t) for t = 1..T (float32, index t − 1)."""
         uniform = torch.full_like(self.history, 1.0 / self.steps)
         if self.mode == "uniform":
             return uniform
