@@ -46,7 +46,7 @@ RAW     ?= data/raw/$(DATASET)
 DEMO    ?= runs/demo
 
 .DEFAULT_GOAL := help
-.PHONY: help setup models demo test test-all lint bench bench-gpu corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
+.PHONY: help setup models demo test test-all lint bench bench-gpu gpu-carry corpus data train-vq tokens train-diffusion train-mmm train-body-vq \
         train-mmm-body edit-upper train-motiondiffuse train-evaluator testset eval eval-power compare generate sweep \
         reproduce learning-curves ui serve blender-addon clean rebuild-venv demo-real
 
@@ -144,6 +144,9 @@ bench: $(STAMP)  ## measure speed; results go to BENCHMARKS.md by hand
 
 bench-gpu: $(STAMP)  ## training, sampling and the long sequence of every model on this machine's GPU, bf16 (BENCH_GPU_ARGS=--quick on a CPU)
 	$(BIN)/python bench/gpu.py $(BENCH_GPU_ARGS)
+
+gpu-carry: $(STAMP)  ## what a bare GPU machine is given for the GPU bench: .carry/ (wheels and a demo project; bench/gpu_run.sh runs it there)
+	$(BIN)/python bench/gpu_carry.py
 
 corpus: $(STAMP)  ## generate the embedded synthetic corpus (CLIPS, SEED) into data/raw/synthetic
 	$(M2D2M) synthesize --out $(RAW) --clips $(CLIPS) --seed $(SEED)

@@ -40,7 +40,8 @@ figure, so a stopped run keeps what it measured; a figure that fails is recorded
 still measured, and the command then exits 1. It prints the Markdown at the end. Of the project's
 dependencies it needs torch, Lightning, transformers, PyYAML, Matplotlib and WebDataset, not Ray,
 spaCy or MLflow (what a bare GPU machine must be given); ``--cli-project`` runs the command line,
-which needs MLflow too.
+which needs MLflow too. ``make gpu-carry`` (bench/gpu_carry.py) prepares those packages and a demo
+project for such a machine, and ``bench/gpu_run.sh`` runs this there in two parts.
 """
 
 from __future__ import annotations
@@ -495,6 +496,7 @@ def measure_long(generator: Any, minutes: float, md_steps: int, compiled: bool =
 # ---------------------------------------------------------------------------------- the command line
 CLI_VERBS = {"vq": "train-vq", "m2d2m": "train-diffusion", "mmm": "train-mmm", "motiondiffuse": "train-motiondiffuse"}
 PROGRESS = re.compile(r"^training: (\d+)/(\d+) step")  # training.callbacks.PlainProgress's lines
+LINE_RATE = re.compile(r", ([\d.]+) (step/s|s/step)")  # the rate such a line gives, over the training so far
 
 
 @dataclass
@@ -506,13 +508,16 @@ class CliFigure:
     total_s: float  # the command, start to exit: imports, data, validations, previews, model file, MLflow
     steps_per_s: float  # from its first progress line (a tenth of the steps) to its last: the steady path
     finished_to_exit_s: float | None
+    steady: bool = True  # False: too quick for two lines (one each 5 s at most); the last line's own rate
 
 
 def measure_cli(name: str, project: Path, steps: int, compiled: bool) -> CliFigure:
     """``m2d2m <verb> --config demo`` of ``name`` for ``steps`` steps with two validations, run as a
     user runs it in ``project`` (a project with the demo's data and tokens: after `make data` and
     `make train-vq`): the real path, data loader, validations, previews, checkpoints and MLflow
-    included. Its steps/s runs from its first progress line to its last, past start-up."""
+    included. Its steps/s runs from its first progress line to its last, past start-up; a run too
+    quick for two lines (they come 5 s apart at most) takes its last line's rate, which its first
+    steps are in (``steady`` False)."""
     verb = CLI_VERBS[name]
     settings = [f"trainer.max_steps={steps}", f"trainer.val_every_steps={max(1, steps // 2)}", "trainer.gif_every=1"]
     settings += [f"trainer.compile={'on' if compiled else 'off'}"]
@@ -521,13 +526,17 @@ def measure_cli(name: str, project: Path, steps: int, compiled: bool) -> CliFigu
     run = timed(command, project, env)
     if run.returncode != 0:
         raise RuntimeError(f"m2d2m {verb} exited {run.returncode}: {run.lines[-1][1] if run.lines else ''}")
-    progress = [(at, int(match[1])) for at, line in run.lines if (match := PROGRESS.match(line))]
-    if len(progress) < 2:
-        raise RuntimeError(f"m2d2m {verb} printed fewer than two progress lines")
-    (first_at, first), (last_at, last) = progress[0], progress[-1]
-    return CliFigure(
-        name, verb, compiled, steps, run.total, (last - first) / max(last_at - first_at, 1e-9), run.after_finished
-    )
+    progress = [(at, int(match[1]), line) for at, line in run.lines if (match := PROGRESS.match(line))]
+    if not progress:
+        raise RuntimeError(f"m2d2m {verb} printed no progress line")
+    (first_at, first, _), (last_at, last, last_line) = progress[0], progress[-1]
+    if len(progress) >= 2:
+        rate, steady = (last - first) / max(last_at - first_at, 1e-9), True
+    elif stated := LINE_RATE.search(last_line):
+        rate, steady = float(stated[1]) if stated[2] == "step/s" else 1 / float(stated[1]), False
+    else:
+        raise RuntimeError(f"m2d2m {verb} printed no rate: {last_line}")
+    return CliFigure(name, verb, compiled, steps, run.total, rate, run.after_finished, steady)
 
 
 # ------------------------------------------------------------------------------------------- serving
@@ -604,7 +613,8 @@ def report(result: dict[str, Any]) -> str:
         synthetic = {(f["model"], f["compiled"]): f["steps_per_s"] for f in result["training"] if f["size"] == "demo"}
         lines += [
             "",
-            "| command (demo config) | compiled | steps | total (s) | steps/s | synthetic steps/s | synthetic ÷ CLI "
+            "| command (demo config) | compiled | steps | total (s) | steps/s (* whole run) | synthetic steps/s "
+            "| synthetic ÷ CLI "
             "| last line → exit (s) |",
             "|---|---|---:|---:|---:|---:|---:|---:|",
         ]
@@ -613,7 +623,8 @@ def report(result: dict[str, Any]) -> str:
             ratio = None if bench is None else bench / f["steps_per_s"]
             lines.append(
                 f"| `m2d2m {f['verb']}` | {'yes' if f['compiled'] else 'no'} | {f['steps']} | {_cell(f['total_s'])} "
-                f"| {_cell(f['steps_per_s'])} | {_cell(bench)} | {_cell(ratio)} | {_cell(f['finished_to_exit_s'])} |"
+                f"| {_cell(f['steps_per_s'])}{'' if f.get('steady', True) else ' *'} | {_cell(bench)} | {_cell(ratio)} "
+                f"| {_cell(f['finished_to_exit_s'])} |"
             )
     serving = result.get("serving", {"skipped": "not reached"})
     lines += ["", f"Serving: skipped ({serving['skipped']})" if "skipped" in serving else serving["markdown"]]

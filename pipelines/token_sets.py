@@ -32,13 +32,15 @@ def ensure_tokens(vq_path: Path, extra: dict[str, Any] | None = None) -> tuple[P
     driver makes them once, before parallel trials would race to); another command making them is
     a :class:`m2d2m.locks.Busy` (a ValueError). A local Ray started to tokenize is shut down
     after it: the training that follows needs none, and shut down at the process's exit it held
-    the command 10 s after its last line (a sweep's driver, which started Ray, keeps it)."""
-    import ray
-
+    the command 10 s after its last line (a sweep's driver, which started Ray, keeps it). Ray is
+    imported only then: a training on current tokens runs where Ray is not installed (a GPU
+    machine given only what training needs, bench/gpu_carry.py)."""
     from pipelines.tokenize import current_tokens, tokenize_dataset
 
     data_dir, tokens_dir = token_set(vq_path, extra=extra)
     if current_tokens(data_dir, vq_path, tokens_dir) is None:
+        import ray
+
         print(f"tokenizing {data_dir} with {vq_path} first")
         running = ray.is_initialized()
         tokenize_dataset(data_dir, vq_path, tokens_dir)

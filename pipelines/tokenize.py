@@ -39,7 +39,6 @@ from m2d2m.locks import holding
 from m2d2m.motion.representation.normalization import Normalizer
 from m2d2m.networks.vqvae import MotionVQVAE, load_vq
 from pipelines.corpora import SPLITS
-from pipelines.features import code_version, run_json_tasks
 from pipelines.shards import (
     PARTIAL_SUFFIX,
     SCHEMA_VERSION,
@@ -199,6 +198,10 @@ def tokenize_dataset(
             raise ValueError(
                 f"{vq_path}: {config.codebook_size} codes do not fit int16 tokens (at most {MAX_CODEBOOK_SIZE})"
             )
+
+        # pipelines.features brings spaCy: imported where tokens are made, so that a training on
+        # current tokens, which checks them here, runs where spaCy is not installed (bench/gpu_carry.py)
+        from pipelines.features import code_version, run_json_tasks
 
         tasks = plan_token_shards(data_dir, dataset_manifest, samples_per_shard)  # before anything is removed
         out_dir.mkdir(parents=True, exist_ok=True)

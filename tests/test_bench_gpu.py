@@ -144,3 +144,24 @@ def test_the_command_line_s_steps_per_second_run_from_its_first_progress_line_to
     )
     with pytest.raises(RuntimeError, match="exited 2: m2d2m: error: no data"):
         bench.gpu.measure_cli("mmm", tmp_path, 200, compiled=False)
+
+
+def test_a_command_too_quick_for_two_progress_lines_gives_its_last_line_s_rate(monkeypatch, tmp_path):
+    """Progress lines come at most one each 5 s: a VQ-VAE's 500 steps on a GPU print only the last,
+    whose own rate (over the whole training) stands in, marked as not steady."""
+    from exit_time import Timed
+
+    for line, rate in [
+        ("training: 500/500 step (100 %), 87.5 step/s, 0 s left", 87.5),
+        ("training: 4/4 step (100 %), 2.5 s/step, 0 s left", 0.4),
+    ]:
+        monkeypatch.setattr(
+            bench.gpu,
+            "timed",
+            lambda command, cwd, env, line=line: Timed(9.0, 0.4, 0, [(8.0, line), (8.5, "finished runs/x")]),
+        )
+        figure = bench.gpu.measure_cli("vq", tmp_path, 500, compiled=False)
+        assert figure.steps_per_s == pytest.approx(rate) and not figure.steady
+    monkeypatch.setattr(bench.gpu, "timed", lambda command, cwd, env: Timed(3.0, 0.4, 0, [(2.0, "finished runs/x")]))
+    with pytest.raises(RuntimeError, match="printed no progress line"):
+        bench.gpu.measure_cli("vq", tmp_path, 500, compiled=False)
