@@ -330,3 +330,17 @@ def xbot_with_a_mesh(path: Path, megabytes: float = 3.0) -> Path:
     gltf.set_binary_blob(blob)
     gltf.save_binary(str(path))
     return path
+
+
+def lacking(*packages: str) -> str:
+    """Python source that makes ``packages`` unimportable in the interpreter that runs it: the
+    preamble of a ``-c`` script or a ``sitecustomize.py``, to run code as on a machine without them
+    (a bare GPU machine: bench/gpu_carry.py)."""
+    return f"""
+import sys
+class Lacking:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in {set(packages)!r}:
+            raise ImportError(f"no module named {{name!r}} on this machine")
+sys.meta_path.insert(0, Lacking())
+"""

@@ -14,6 +14,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # bench scripts import `timing` beside them
 import bench.gpu  # noqa: E402
 from bench.gpu import BF16_PEAKS, MODELS, machine, main, parse, training_batches  # noqa: E402
+from tests.helpers import lacking  # noqa: E402
 
 
 @pytest.mark.slow
@@ -99,16 +100,7 @@ def test_a_compiled_training_step_is_timed_beside_the_eager_one_with_the_eager_f
 
 
 # Run in a fresh interpreter: the packages a bare GPU machine lacks cannot be imported.
-WITHOUT_THEM = """
-import sys
-class Lacking:
-    def find_spec(self, name, path=None, target=None):
-        if name.split(".")[0] in {"pygltflib", "ray", "spacy", "mlflow"}:
-            raise ImportError(f"no module named {name!r} on this machine")
-sys.meta_path.insert(0, Lacking())
-sys.path.insert(0, "bench")
-import gpu
-"""
+WITHOUT_THEM = lacking("pygltflib", "ray", "spacy", "mlflow") + 'sys.path.insert(0, "bench")\nimport gpu\n'
 
 
 @pytest.mark.slow

@@ -13,6 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))  # bench scripts import `timing` beside them
 import bench.gpu  # noqa: E402
 from bench.gpu_carry import CARRIED, ON_THE_MACHINE, make_project, pinned, project_name  # noqa: E402
+from tests.helpers import lacking  # noqa: E402
 
 
 def test_wheel_file_names_give_their_distribution_s_normalised_name():
@@ -35,11 +36,19 @@ def test_the_run_script_takes_one_of_its_parts():
 
 
 @pytest.mark.slow
-def test_every_training_verb_runs_through_the_command_line_in_the_carried_project(tmp_path, one_torch_thread):
+def test_every_training_verb_runs_through_the_command_line_in_the_carried_project(
+    tmp_path, one_torch_thread, monkeypatch
+):
     """The project the GPU machine is given (its raw corpus, the VQ-VAE's checkpoints and MLflow's
-    copies left out) trains every model from the command line, as the bench's rows run it."""
+    copies left out) trains every model from the command line, as the bench's rows run it, where
+    neither Ray nor spaCy nor pygltflib can be imported: the machine has none and none is carried
+    (a training on current tokens imported Ray and spaCy before)."""
     project = tmp_path / "demo-project"
     make_project(project, clips=20)
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    (bare / "sitecustomize.py").write_text(lacking("ray", "spacy", "pygltflib"), encoding="utf-8")
+    monkeypatch.setenv("PYTHONPATH", str(bare))
     assert not (project / "data" / "raw").exists() and not list(project.glob("runs/*/vq/*/checkpoints"))
     for name in ("m2d2m", "mmm", "motiondiffuse", "vq"):
         figure = bench.gpu.measure_cli(name, project, steps=20, compiled=False)
