@@ -95,11 +95,15 @@ def _is_sized_by_data(func: torch._ops.OpOverload, kwargs: dict) -> bool:
     return func.overloadpacket is torch.ops.aten.repeat_interleave and kwargs.get("output_size") is None
 
 
-class _DispatchCounter(TorchDispatchMode):
+class _Watching(TorchDispatchMode):
+    """A dispatch mode that records what it finds into ``found``."""
+
     def __init__(self, found: FoundOps) -> None:
         super().__init__()
         self.found = found
 
+
+class _DispatchCounter(_Watching):
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
         name = func._schema.name
@@ -128,11 +132,7 @@ def host_syncs() -> Iterator[FoundOps]:
         yield found
 
 
-class _Float64Counter(TorchDispatchMode):
-    def __init__(self, found: FoundOps) -> None:
-        super().__init__()
-        self.found = found
-
+class _Float64Counter(_Watching):
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
         result = func(*args, **kwargs)
