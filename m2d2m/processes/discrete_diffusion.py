@@ -8,7 +8,7 @@ A distance-shaped β-block is not symmetric, so unlike VQ-Diffusion nothing here
 Q_t and Q̄_t are dense (K+1)×(K+1) matrices and the posterior takes explicit rows and matrix
 products. They are built in float64; the reverse step a sampler draws with stays in float64, and a
 training loss may ask for float32 copies (``dtype``), the precision VQ-Diffusion trains in, so that
-no float64 runs on a GPU's training step (docs/training.md, "Compiled training steps").
+no float64 runs on a GPU's training step (docs/training.md, "Mixed precision").
 
 Sign convention (paper Eq. 7 and the sentence after it: "progressively assigns higher probabilities
 to greater distances between tokens as the diffusion step t advances"): β(t, d) ∝ exp(+η·(t/T)·(d/K)),
