@@ -14,6 +14,7 @@ its exit, per verb.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
@@ -35,6 +36,14 @@ class Timed:
     after_finished: float | None
     returncode: int
     lines: list[tuple[float, str]] = field(default_factory=list)
+
+
+def from_this_checkout(*arguments: str) -> tuple[list[str], dict[str, str]]:
+    """``m2d2m <arguments>`` run on this checkout's code in a child process: the command and an
+    environment with the checkout first on PYTHONPATH, what was on it kept after (a carried site,
+    a sitecustomize)."""
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    return [sys.executable, "-m", "orchestration.cli", *arguments], {**os.environ, "PYTHONPATH": path}
 
 
 def timed(command: list[str], cwd: Path, env: dict[str, str] | None = None) -> Timed:

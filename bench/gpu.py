@@ -72,7 +72,7 @@ import lightning.pytorch as pl
 import numpy as np
 import torch
 from aits import LONG_METHODS, STEP_SERIES, long_plan, trained_steps
-from exit_time import timed
+from exit_time import from_this_checkout, timed
 from timing import wall_time
 from torch.utils.flop_counter import FlopCounterMode
 
@@ -521,8 +521,7 @@ def measure_cli(name: str, project: Path, steps: int, compiled: bool) -> CliFigu
     verb = CLI_VERBS[name]
     settings = [f"trainer.max_steps={steps}", f"trainer.val_every_steps={max(1, steps // 2)}", "trainer.gif_every=1"]
     settings += [f"trainer.compile={'on' if compiled else 'off'}"]
-    command = [sys.executable, "-m", "orchestration.cli", verb, "--config", "demo", *(f"--set={s}" for s in settings)]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(PROJECT), os.environ.get("PYTHONPATH")]))}
+    command, env = from_this_checkout(verb, "--config", "demo", *(f"--set={s}" for s in settings))
     run = timed(command, project, env)
     if run.returncode != 0:
         raise RuntimeError(f"m2d2m {verb} exited {run.returncode}: {run.lines[-1][1] if run.lines else ''}")

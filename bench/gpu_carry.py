@@ -21,12 +21,13 @@ from __future__ import annotations
 
 import argparse
 import importlib.metadata
-import os
 import re
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+from exit_time import from_this_checkout
 
 ROOT = Path(__file__).resolve().parents[1]
 CARRY_LIMIT = 64 * 2**20  # bytes one call may carry: the checkout's tracked files and the carried paths
@@ -76,8 +77,8 @@ def download_wheels(into: Path, python: str) -> list[Path]:
 
 def cli(project: Path, *arguments: str) -> None:
     """``m2d2m <arguments>`` in ``project``, from this checkout."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
-    subprocess.run([sys.executable, "-m", "orchestration.cli", *arguments], cwd=project, env=env, check=True)
+    command, env = from_this_checkout(*arguments)
+    subprocess.run(command, cwd=project, env=env, check=True)
 
 
 def make_project(project: Path, clips: int) -> None:

@@ -10,14 +10,14 @@
 set -euo pipefail
 part=${1:-}
 shift || true
+carry=${CARRY:-.carry}
 case $part in
   steps) args=(--models m2d2m mmm motiondiffuse vq --sizes demo paper --steps 20 --warmup 5 --paper-batches 256
                --train-compile off on --batches 1 32 --long-compiled) ;;
   cli) args=(--models m2d2m mmm motiondiffuse vq --sizes demo --steps 20 --warmup 5 --train-compile off
-             --batches 1 --long-minutes 0.1 --cli-project "${CARRY:-.carry}/demo-project" --cli-steps 500) ;;
+             --batches 1 --long-minutes 0.1 --cli-project "$carry/demo-project" --cli-steps 500) ;;
   *) echo "usage: bash bench/gpu_run.sh steps|cli (got '$part')" >&2; exit 2 ;;
 esac
-carry=${CARRY:-.carry}
 out=${OUT:-runs/bench/gpu-run}/$part
 work=$(mktemp -d)
 mkdir -p "$out"

@@ -16,6 +16,8 @@ import lightning.pytorch as pl
 import pytest
 import torch
 
+from m2d2m.processes.discrete_diffusion import TransitionSchedule
+from m2d2m.processes.discrete_diffusion_loss import diffusion_loss
 from tests.host_syncs import float64_ops
 from tests.test_host_syncs_models import STEPS, evaluator, mmm, mmm_body, motiondiffuse, run, vq
 from tests.test_m2d2m_module import make_batch, make_module
@@ -61,9 +63,6 @@ def test_the_float32_loss_is_the_float64_one_to_float32_rounding():
     """M2D2M's loss in float32 (a training step's) against the same in float64, at every t of a
     100-step schedule, for the paper's dynamic β(t, d) at several η and the uniform and absorbing
     schedules: the loss, each sample's L_vlb and every gradient agree to float32's rounding."""
-    from m2d2m.processes.discrete_diffusion import TransitionSchedule
-    from m2d2m.processes.discrete_diffusion_loss import diffusion_loss
-
     generator = torch.Generator().manual_seed(0)
     codes, steps, length = 64, 100, 12
     codebook = torch.randn(codes, 8, generator=generator, dtype=torch.float64)
